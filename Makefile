@@ -1,0 +1,59 @@
+# ompn_ros: every target sets itself up (.venv) and keeps DDS on this machine.
+SHELL := /bin/bash
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+STAMP := $(VENV)/.ompn_ros_installed
+
+# DDS containment: discovery stays on loopback, and every make run gets its own domain.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+ROS_DOMAIN_ID ?= $(shell shuf -i 1-100 -n 1)
+export ROS_DOMAIN_ID
+export PYTHONDONTWRITEBYTECODE := 1
+export MUJOCO_GL ?= egl
+
+.PHONY: setup demo test test-slow lint colcon bench doctor reproduce-craft reproduce-dial clean
+
+setup: $(STAMP)
+
+# Order matters: the CPU torch first (otherwise pip resolves a multi-GB CUDA build), then the
+# ROS 2 Jazzy wheels, then the rest, then this package in editable mode.
+$(STAMP): requirements.txt setup.py setup.cfg package.xml
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PIP) install --quiet --upgrade pip
+	$(PIP) install --quiet torch==2.13.0
+	$(PIP) install --quiet 'ros-jazzy-rclpy[fastrtps]==7.1.6' 'ros-jazzy-common-interfaces==5.3.6'
+	$(PIP) install --quiet -r requirements.txt
+	$(PIP) install --quiet --no-deps --no-build-isolation -e .
+	touch $(STAMP)
+
+demo: setup
+	$(PY) -m ompn_ros.cli.demo
+
+test: setup
+	$(PY) -m pytest test -m "not slow" -q -p no:cacheprovider
+
+test-slow: setup
+	$(PY) -m pytest test -m slow -q -p no:cacheprovider
+
+lint: setup
+	$(VENV)/bin/ruff check ompn_ros sim_nodes test bench
+	$(VENV)/bin/mypy
+
+colcon: setup
+	source $(VENV)/bin/activate && colcon build --base-paths . --build-base build --install-base install
+
+bench: setup
+	$(PY) bench/run_all.py
+
+doctor: setup
+	$(PY) -m ompn_ros.cli.demo --smoke
+
+reproduce-craft: setup
+	$(PY) -m ompn_ros.cli.reproduce craft
+
+reproduce-dial: setup
+	$(PY) -m ompn_ros.cli.reproduce dial
+
+clean:
+	rm -rf build install log .pytest_cache .mypy_cache .ruff_cache *.egg-info

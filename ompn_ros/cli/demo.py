@@ -1,0 +1,58 @@
+"""`make demo`: the main job on the shipped defaults.
+
+``--smoke`` runs the DDS self-check: ``smoke_listener`` and ``smoke_talker`` as two processes.
+Without it, the live segmentation demo runs (see ``ompn_ros.cli.live_demo``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+
+def child_env() -> dict[str, str]:
+    """Environment for child ROS processes: inherits LD_LIBRARY_PATH, keeps DDS on loopback."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("ROS_DOMAIN_ID", str(1 + int(time.time()) % 100))
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def run_smoke(count: int = 100, rate: float = 100.0) -> int:
+    """Two processes exchange ``count`` messages; prints the listener's summary."""
+    env = child_env()
+    common = ["--ros-args", "-p", f"count:={count}", "-p", f"rate:={rate}"]
+    start = time.perf_counter()
+    listener = subprocess.Popen(
+        [sys.executable, "-m", "ompn_ros.nodes.smoke", "listener", *common, "-p", "timeout:=15.0"],
+        stdout=subprocess.PIPE, text=True, env=env,
+    )
+    talker = subprocess.run(
+        [sys.executable, "-m", "ompn_ros.nodes.smoke", "talker", *common, "-p", "wait_for_subscriber:=15.0"],
+        env=env, capture_output=True, text=True, timeout=120,
+    )
+    out, _ = listener.communicate(timeout=60)
+    summary = json.loads(out.strip().splitlines()[-1]) if out.strip() else {"lost": count}
+    print(f"smoke: talker exit {talker.returncode}, listener {summary}, "
+          f"{time.perf_counter() - start:.1f} s (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']})")
+    return 0 if talker.returncode == 0 and summary.get("lost") == 0 else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="ompn_ros demo")
+    parser.add_argument("--smoke", action="store_true", help="only the two-process DDS self-check")
+    args, rest = parser.parse_known_args(argv)
+    if args.smoke:
+        return run_smoke()
+    from ompn_ros.cli import live_demo
+
+    return live_demo.main(rest)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,120 @@
+"""The topic layout: the single source of truth for names, types and vector sizes.
+
+Every piece that touches ROS topics or bags (the sim nodes, ``bag_recorder``, ``ompn_collect``,
+the bag reader and ``ompn_node``) imports these constants and never repeats them.  This module is
+ROS-free: types are given as ROS 2 type names (``pkg/msg/Type``), the spelling both ``rosbags``
+and ``rclpy`` understand.
+
+Per-step publishing order of a sim (the *step contract*)::
+
+    episode start marker (DiagnosticArray, message='start', with sketch)    once per episode
+    sketch                                                                   once per episode
+    for t in 0..T-1:
+        observation_t, [joint_states_t], subtask_t, action_t                 in this order
+    observation_T   (the final observation: no action, no subtask; the 'done' step)
+    episode end marker (DiagnosticArray, message='end')
+
+The observation topic is the step clock.  A message on any other per-step topic belongs to the
+latest observation published before it.  Bags written by ``ompn_collect`` use synthetic stamps
+(``EPISODE_GAP_NS`` between episodes, ``STEP_NS`` between steps, ``TOPIC_OFFSET_NS`` between the
+topics of one step); live recordings use the publisher's source timestamp, so the publish order
+above is kept exactly in both routes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+# --- message type names -------------------------------------------------------------------------
+FLOAT32_ARRAY: Final = "std_msgs/msg/Float32MultiArray"
+INT32_ARRAY: Final = "std_msgs/msg/Int32MultiArray"
+INT32: Final = "std_msgs/msg/Int32"
+STRING: Final = "std_msgs/msg/String"
+JOINT_STATE: Final = "sensor_msgs/msg/JointState"
+DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
+
+# --- topics published by both sims (relative names: they follow the node's namespace) ------------
+OBSERVATION: Final = "observation"  # Float32MultiArray, dim label 'obs', the policy input
+ACTION: Final = "action"  # executed action: Float32MultiArray (dial) or Int32 (craft)
+SUBTASK: Final = "subtask"  # Int32: ground-truth subtask ordinal within the episode (0-based)
+SKETCH: Final = "sketch"  # Int32MultiArray: subtask ids of the episode's task, once per episode
+EPISODE: Final = "episode"  # DiagnosticArray episode marker, see EpisodeMarker keys below
+JOINT_STATES: Final = "joint_states"  # JointState, dial only (9 joints, stamped with sim time)
+RENDER: Final = "render"  # String: human-readable ANSI rendering (craft)
+
+# --- topics consumed by sims in policy mode, published by ompn_node -------------------------------
+CMD_ACTION: Final = "cmd_action"  # same type as ACTION
+
+# --- ompn_node private outputs ---------------------------------------------------------------------
+PI: Final = "~/pi"  # Float32MultiArray: n slot probs (lowest slot first), then E[pos], then pi_end
+BOUNDARY: Final = "~/boundary"  # DiagnosticArray boundary event
+DIAGNOSTICS: Final = "/diagnostics"  # DiagnosticArray node health (counters)
+
+# --- episode marker keys (DiagnosticStatus.name == EPISODE_STATUS_NAME) ----------------------------
+EPISODE_STATUS_NAME: Final = "episode"
+EPISODE_START: Final = "start"  # DiagnosticStatus.message
+EPISODE_END: Final = "end"
+KEY_EPISODE: Final = "episode"  # running episode index of the publisher (int)
+KEY_TASK: Final = "task"  # task name, e.g. 'makebed' or 'dial'
+KEY_SEED: Final = "seed"  # episode seed (int)
+KEY_SKETCH: Final = "sketch"  # comma-separated subtask ids
+KEY_STEPS: Final = "steps"  # end marker: number of real steps T
+KEY_SUCCESS: Final = "success"  # end marker: 'true' | 'false'
+
+# --- synthetic stamps used by ompn_collect (nanoseconds) ------------------------------------------
+STEP_NS: Final = 40_000_000  # 25 Hz
+TOPIC_OFFSET_NS: Final = 1_000  # spacing of the topics within one step
+EPISODE_GAP_NS: Final = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class DomainLayout:
+    """Sizes and action type of one simulated domain."""
+
+    name: str
+    obs_dim: int
+    action_type: str  # 'discrete' | 'continuous'
+    action_dim: int  # number of env actions (discrete, excluding done) or vector size
+    action_msg: str
+    has_joint_states: bool
+    step_topics: tuple[str, ...]  # per-step topics in publish order (observation first)
+
+
+CRAFT: Final = DomainLayout(
+    name="craft",
+    obs_dim=1075,
+    action_type="discrete",
+    action_dim=5,
+    action_msg=INT32,
+    has_joint_states=False,
+    step_topics=(OBSERVATION, SUBTASK, ACTION),
+)
+
+DIAL: Final = DomainLayout(
+    name="dial",
+    obs_dim=39,
+    action_type="continuous",
+    action_dim=9,
+    action_msg=FLOAT32_ARRAY,
+    has_joint_states=True,
+    step_topics=(OBSERVATION, JOINT_STATES, SUBTASK, ACTION),
+)
+
+DOMAINS: Final = {d.name: d for d in (CRAFT, DIAL)}
+
+
+def topic_types(domain: DomainLayout) -> dict[str, str]:
+    """Map every topic a sim of ``domain`` publishes to its type name."""
+    types = {
+        OBSERVATION: FLOAT32_ARRAY,
+        ACTION: domain.action_msg,
+        SUBTASK: INT32,
+        SKETCH: INT32_ARRAY,
+        EPISODE: DIAGNOSTIC_ARRAY,
+    }
+    if domain.has_joint_states:
+        types[JOINT_STATES] = JOINT_STATE
+    if domain.name == "craft":
+        types[RENDER] = STRING
+    return types

@@ -1,0 +1,162 @@
+"""DDS self-check: a talker and a listener that measure delivery and latency between two processes.
+
+``smoke_talker`` publishes ``count`` stamped messages on ``smoke`` at ``rate`` Hz, then exits.
+``smoke_listener`` counts what it receives, prints a one-line JSON summary (received, lost,
+latency percentiles) and exits after ``count`` messages or ``timeout`` seconds of silence.
+Both run under ``ros2 run ompn_ros smoke_talker`` and accept ``--ros-args --params-file``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+TOPIC = "smoke"
+QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _declare_common(node: Node) -> None:
+    node.declare_parameter(
+        "count",
+        50,
+        ParameterDescriptor(
+            description="number of messages to exchange",
+            integer_range=[IntegerRange(from_value=1, to_value=1_000_000, step=1)],
+        ),
+    )
+    node.declare_parameter(
+        "rate",
+        50.0,
+        ParameterDescriptor(
+            description="publish rate in Hz",
+            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=10_000.0, step=0.0)],
+        ),
+    )
+
+
+class SmokeTalker(Node):
+    """Publishes ``count`` JointState messages whose position[0] is the sequence number."""
+
+    def __init__(self) -> None:
+        super().__init__("smoke_talker")
+        _declare_common(self)
+        self.declare_parameter(
+            "wait_for_subscriber",
+            5.0,
+            ParameterDescriptor(description="seconds to wait for a subscriber before publishing"),
+        )
+        self.count = self.get_parameter("count").value
+        self.period = 1.0 / self.get_parameter("rate").value
+        self.publisher = self.create_publisher(JointState, TOPIC, QOS)
+        self.sent = 0
+
+    def run(self) -> None:
+        deadline = time.monotonic() + self.get_parameter("wait_for_subscriber").value
+        while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            rclpy.spin_once(self, timeout_sec=0.05)
+        next_due = time.monotonic()
+        try:
+            while self.sent < self.count and rclpy.ok():
+                msg = JointState()
+                msg.header.stamp = self.get_clock().now().to_msg()
+                msg.name = ["seq"]
+                msg.position = [float(self.sent)]
+                self.publisher.publish(msg)
+                self.sent += 1
+                next_due += self.period
+                time.sleep(max(0.0, next_due - time.monotonic()))
+            # Give reliable delivery a moment before the process (and its writer) goes away.
+            time.sleep(0.3)
+        finally:
+            print(json.dumps({"published": self.sent, "topic": TOPIC}), flush=True)
+
+
+class SmokeListener(Node):
+    """Counts messages and latencies; ``summary()`` returns the result."""
+
+    def __init__(self) -> None:
+        super().__init__("smoke_listener")
+        _declare_common(self)
+        self.declare_parameter(
+            "timeout",
+            10.0,
+            ParameterDescriptor(description="seconds of silence after which the listener gives up"),
+        )
+        self.count = self.get_parameter("count").value
+        self.timeout = self.get_parameter("timeout").value
+        self.seen: set[int] = set()
+        self.latencies_ms: list[float] = []
+        self.create_subscription(JointState, TOPIC, self._on_message, QOS)
+
+    def _on_message(self, msg: JointState) -> None:
+        now = self.get_clock().now().nanoseconds
+        sent = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.latencies_ms.append((now - sent) / 1e6)
+        self.seen.add(int(msg.position[0]))
+
+    def run(self) -> dict:
+        last_progress = time.monotonic()
+        received = 0
+        while len(self.seen) < self.count and rclpy.ok():
+            rclpy.spin_once(self, timeout_sec=0.1)
+            if len(self.seen) != received:
+                received = len(self.seen)
+                last_progress = time.monotonic()
+            elif time.monotonic() - last_progress > self.timeout:
+                break
+        return self.summary()
+
+    def summary(self) -> dict:
+        lat = sorted(self.latencies_ms)
+
+        def pct(q: float) -> float:
+            return round(lat[min(len(lat) - 1, int(q * len(lat)))], 3) if lat else float("nan")
+
+        return {
+            "expected": self.count,
+            "received": len(self.seen),
+            "lost": self.count - len(self.seen),
+            "latency_ms_p50": pct(0.5),
+            "latency_ms_p99": pct(0.99),
+        }
+
+
+def _main(node_cls: type[Node], args: list[str] | None) -> int:
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = node_cls()
+        result = node.run()
+        if isinstance(result, dict):
+            print(json.dumps(result), flush=True)
+            code = 0 if result["lost"] == 0 else 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def talker_main(args: list[str] | None = None) -> None:
+    sys.exit(_main(SmokeTalker, args))
+
+
+def listener_main(args: list[str] | None = None) -> None:
+    sys.exit(_main(SmokeListener, args))
+
+
+if __name__ == "__main__":
+    role = sys.argv[1] if len(sys.argv) > 1 else "talker"
+    rest = [sys.argv[0], *sys.argv[2:]]
+    sys.exit(_main(SmokeTalker if role == "talker" else SmokeListener, rest))

@@ -1,0 +1,53 @@
+"""ament_python build script for ompn_ros (works with colcon and with plain pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "ompn_ros"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=["ompn_ros", "ompn_ros.*", "sim_nodes", "sim_nodes.*"]),
+    package_data={PACKAGE: ["checkpoints/*/*.json", "checkpoints/*/*.safetensors"]},
+    include_package_data=True,
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=1.26",
+        "PyYAML>=6",
+        "torch>=2.4,<3",
+        "safetensors>=0.4",
+        "rosbags>=0.11.9,<0.12",
+        "gymnasium>=1.0",
+        "mujoco>=3.2",
+        "dm_control>=1.0.20",
+        "tqdm>=4.60",
+        "matplotlib>=3.8",
+    ],
+    extras_require={"test": ["pytest>=8", "pytest-timeout", "mcap>=1.2", "mcap-ros2-support>=0.5"]},
+    zip_safe=False,
+    maintainer="ompn_ros maintainers",
+    maintainer_email="maintainers@ompn-ros.invalid",
+    description="Online subtask segmentation with the Ordered Memory Policy Network for ROS 2 Jazzy",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "ompn_node = ompn_ros.nodes.ompn_node:main",
+            "bag_recorder = ompn_ros.nodes.bag_recorder:main",
+            "smoke_talker = ompn_ros.nodes.smoke:talker_main",
+            "smoke_listener = ompn_ros.nodes.smoke:listener_main",
+            "craft_sim = sim_nodes.craft.node:main",
+            "dial_sim = sim_nodes.dial.node:main",
+            "ompn_train = ompn_ros.cli.train:main",
+            "ompn_collect = ompn_ros.cli.collect:main",
+            "ompn_segment = ompn_ros.cli.segment:main",
+            "ompn_reproduce = ompn_ros.cli.reproduce:main",
+        ],
+    },
+)

@@ -1,0 +1,23 @@
+"""Simulated domains (Craft, Dial) and their ROS 2 sim nodes.
+
+Everything here except ``*/node.py`` and ``ros_common.py`` is ROS-free.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SEED_MAX = 2**31 - 1
+"""Seeds are kept in the non-negative int32 range so they fit ROS integer parameters and markers."""
+
+
+def derive_seed(seed: int, index: int, *, stream: int = 0) -> int:
+    """A reproducible child seed in ``[0, SEED_MAX]`` for item ``index`` of ``seed``.
+
+    ``stream`` separates independent uses (e.g. 0 = the n-th episode of a run, 1 = the n-th retry of
+    an episode), so derived seeds of different purposes do not collide systematically.
+    """
+    if seed < 0 or index < 0 or stream < 0:
+        raise ValueError(f"derive_seed needs non-negative ints, got seed={seed} index={index} stream={stream}")
+    state = np.random.SeedSequence([int(seed), int(index), int(stream), 0x0B5C]).generate_state(1)
+    return int(state[0]) & SEED_MAX
