@@ -36,7 +36,9 @@ DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
 
 # --- topics published by both sims (relative names: they follow the node's namespace) ------------
 OBSERVATION: Final = "observation"  # Float32MultiArray, dim label 'obs', the policy input
-ACTION: Final = "action"  # executed action: Float32MultiArray (dial) or Int32 (craft)
+ACTION: Final = "action"  # the action label of the step: Float32MultiArray (dial) or Int32 (craft).
+# In expert mode this is the demonstrator's noise-free action (the behaviour-cloning target; DART noise
+# is added only to what is executed). In policy mode it is the received cmd_action that was executed.
 SUBTASK: Final = "subtask"  # Int32: ground-truth subtask ordinal within the episode (0-based)
 SKETCH: Final = "sketch"  # Int32MultiArray: subtask ids of the episode's task, once per episode
 EPISODE: Final = "episode"  # DiagnosticArray episode marker, see EpisodeMarker keys below
