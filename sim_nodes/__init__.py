@@ -18,6 +18,8 @@ def derive_seed(seed: int, index: int, *, stream: int = 0) -> int:
     an episode), so derived seeds of different purposes do not collide systematically.
     """
     if seed < 0 or index < 0 or stream < 0:
-        raise ValueError(f"derive_seed needs non-negative ints, got seed={seed} index={index} stream={stream}")
+        raise ValueError(
+            f"derive_seed needs non-negative ints, got seed={seed} index={index} stream={stream}"
+        )
     state = np.random.SeedSequence([int(seed), int(index), int(stream), 0x0B5C]).generate_state(1)
     return int(state[0]) & SEED_MAX
