@@ -1,1 +1,24 @@
-"""ompn_ros."""
+"""Episodes and their rosbag2 storage: writer, reader (with alignment report), cache, errors."""
+
+from .bag_reader import BagReport, ReaderSpec, ReadReport, ReadResult, VectorSource, read_episodes
+from .bag_writer import EpisodeBagWriter, write_episodes
+from .cache import EpisodeArrays, load_arrays
+from .episode import Episode
+from .errors import (
+    AlignmentError,
+    BagError,
+    BagNotFoundError,
+    CorruptBagError,
+    MissingTopicError,
+    ReaderSpecError,
+    TopicTypeError,
+    UnknownTypeError,
+    VectorLengthError,
+)
+
+__all__ = [
+    "AlignmentError", "BagError", "BagNotFoundError", "BagReport", "CorruptBagError", "Episode",
+    "EpisodeArrays", "EpisodeBagWriter", "MissingTopicError", "ReadReport", "ReadResult",
+    "ReaderSpec", "ReaderSpecError", "TopicTypeError", "UnknownTypeError", "VectorLengthError",
+    "VectorSource", "load_arrays", "read_episodes", "write_episodes",
+]

@@ -1,1 +1,1 @@
-"""ompn_ros."""
+"""ROS 2 nodes (the only place in ompn_ros that imports rclpy)."""

@@ -1,0 +1,208 @@
+"""Fast path for training: bags -> contiguous numpy arrays, cached on disk as ``.npz``.
+
+:func:`load_arrays` reads bags with :func:`~ompn_ros.data.bag_reader.read_episodes` once and stores
+the concatenated arrays (observations, actions, subtasks, sketches, per-episode offsets and
+metadata) under ``cache_dir`` (default ``$OMPN_CACHE_DIR`` or ``~/.cache/ompn_ros``).  The cache key
+is a BLAKE2b hash of the bag files' **bytes** (plus their relative names, the reader spec and the
+format version), so editing or re-recording a bag always misses, whatever its size or mtime.
+Files are written with ``np.savez`` (no object arrays) and read with ``allow_pickle=False``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .bag_reader import OnError, ReaderSpec, read_episodes, resolve_bag_paths, storage_files
+from .episode import Episode
+
+CACHE_FORMAT = 1
+_CHUNK = 1 << 20
+_JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")
+
+
+def default_cache_dir() -> Path:
+    """``$OMPN_CACHE_DIR`` if set, else ``~/.cache/ompn_ros``."""
+    env = os.environ.get("OMPN_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "ompn_ros"
+
+
+@dataclass
+class EpisodeArrays:
+    """All episodes of a dataset in contiguous arrays.
+
+    Episode ``i`` has observations ``observations[obs_offsets[i]:obs_offsets[i+1]]`` (``T_i + 1``
+    rows) and actions/subtask ``[act_offsets[i]:act_offsets[i+1]]`` (``T_i`` rows).  ``subtask`` is
+    ``-1`` where an episode has no labels (``has_subtask[i]`` False); sketches are concatenated
+    with ``sketch_offsets`` (``has_sketch[i]`` False = no sketch).  ``extras`` holds joint arrays
+    aligned with the observations when every episode has them.
+    """
+
+    observations: np.ndarray
+    obs_offsets: np.ndarray
+    actions: np.ndarray
+    act_offsets: np.ndarray
+    subtask: np.ndarray
+    has_subtask: np.ndarray
+    sketch: np.ndarray
+    sketch_offsets: np.ndarray
+    has_sketch: np.ndarray
+    tasks: np.ndarray
+    seeds: np.ndarray
+    success: np.ndarray
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    report: str = ""  # ReadReport.summary() of the parse that built the arrays
+    key: str = ""
+    cache_hit: bool = False
+    cache_path: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.obs_offsets) - 1
+
+    def episode(self, i: int) -> Episode:
+        """Episode ``i`` as an :class:`Episode` (arrays are views into this dataset)."""
+        o0, o1 = self.obs_offsets[i], self.obs_offsets[i + 1]
+        a0, a1 = self.act_offsets[i], self.act_offsets[i + 1]
+        s0, s1 = self.sketch_offsets[i], self.sketch_offsets[i + 1]
+        extras: dict[str, Any] = {k: v[o0:o1] for k, v in self.extras.items()}
+        return Episode(
+            observations=self.observations[o0:o1],
+            actions=self.actions[a0:a1],
+            subtask=self.subtask[a0:a1] if self.has_subtask[i] else None,
+            sketch=self.sketch[s0:s1] if self.has_sketch[i] else None,
+            task=str(self.tasks[i]),
+            seed=int(self.seeds[i]),
+            success=bool(self.success[i]),
+            extras=extras,
+        )
+
+    def episodes(self) -> list[Episode]:
+        return [self.episode(i) for i in range(len(self))]
+
+    @classmethod
+    def from_episodes(cls, episodes: Sequence[Episode]) -> EpisodeArrays:
+        """Concatenate ``episodes`` (all with the same observation size and action kind)."""
+        if not episodes:
+            raise ValueError("no episodes to concatenate")
+        lengths = np.asarray([e.length for e in episodes], dtype=np.int64)
+        act_offsets = np.concatenate([[0], np.cumsum(lengths)])
+        obs_offsets = act_offsets + np.arange(len(episodes) + 1)
+        sk = [np.zeros(0, np.int64) if e.sketch is None else np.asarray(e.sketch, np.int64) for e in episodes]
+        sketch_offsets = np.concatenate([[0], np.cumsum([len(s) for s in sk])]).astype(np.int64)
+        extras: dict[str, np.ndarray] = {}
+        for key in _JOINT_KEYS:
+            if all(key in e.extras and len(e.extras[key]) == len(e.observations) for e in episodes):
+                extras[key] = np.concatenate([np.asarray(e.extras[key]) for e in episodes])
+        return cls(
+            observations=np.concatenate([e.observations for e in episodes]).astype(np.float32, copy=False),
+            obs_offsets=obs_offsets.astype(np.int64),
+            actions=np.concatenate([np.asarray(e.actions) for e in episodes]),
+            act_offsets=act_offsets.astype(np.int64),
+            subtask=np.concatenate([np.full(e.length, -1, np.int64) if e.subtask is None
+                                    else np.asarray(e.subtask, np.int64) for e in episodes]),
+            has_subtask=np.asarray([e.subtask is not None for e in episodes]),
+            sketch=np.concatenate(sk),
+            sketch_offsets=sketch_offsets,
+            has_sketch=np.asarray([e.sketch is not None for e in episodes]),
+            tasks=np.asarray([e.task for e in episodes], dtype=str),
+            seeds=np.asarray([e.seed for e in episodes], dtype=np.int64),
+            success=np.asarray([e.success for e in episodes]),
+            extras=extras,
+        )
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        names = ("observations", "obs_offsets", "actions", "act_offsets", "subtask", "has_subtask",
+                 "sketch", "sketch_offsets", "has_sketch", "tasks", "seeds", "success")
+        out = {n: getattr(self, n) for n in names}
+        out.update({f"extras__{k}": v for k, v in self.extras.items()})
+        out["format"] = np.asarray(CACHE_FORMAT)
+        out["report"] = np.asarray(self.report, dtype=str)
+        return out
+
+    def save(self, path: Path) -> None:
+        """Write atomically as an uncompressed ``.npz`` (no pickled objects)."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=".npz", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, **self._arrays())  # type: ignore[arg-type]
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path: Path) -> EpisodeArrays:
+        """Read a cache file written by :meth:`save` (``allow_pickle=False``)."""
+        with np.load(path, allow_pickle=False) as data:
+            if int(data["format"]) != CACHE_FORMAT:
+                raise ValueError(f"cache file {path} has format {int(data['format'])}, "
+                                 f"expected {CACHE_FORMAT}")
+            arrays = {k: data[k] for k in data.files}
+        extras = {k[len("extras__"):]: arrays.pop(k) for k in list(arrays) if k.startswith("extras__")}
+        arrays.pop("format")
+        report = str(arrays.pop("report"))
+        return cls(**arrays, extras=extras, report=report, cache_path=path)
+
+
+def content_key(bags: Sequence[Path], spec: ReaderSpec, on_error: str) -> str:
+    """BLAKE2b over format version, reader spec and every storage/metadata file's bytes."""
+    h = hashlib.blake2b(digest_size=20)
+    h.update(json.dumps({"format": CACHE_FORMAT, "spec": spec.to_dict(), "on_error": on_error},
+                        sort_keys=True).encode())
+    for bag in bags:
+        files = list(storage_files(bag))
+        if bag.is_dir() and (bag / "metadata.yaml").is_file():
+            files.append(bag / "metadata.yaml")
+        for file in files:
+            h.update(f"\0{file.name}\0{file.stat().st_size}\0".encode())
+            with open(file, "rb") as fh:
+                while chunk := fh.read(_CHUNK):
+                    h.update(chunk)
+    return h.hexdigest()
+
+
+def load_arrays(
+    paths: str | Path | Sequence[str | Path],
+    *,
+    spec: ReaderSpec | None = None,
+    cache_dir: str | Path | None = None,
+    use_cache: bool = True,
+    on_error: OnError = "raise",
+) -> EpisodeArrays:
+    """Episodes of ``paths`` as :class:`EpisodeArrays`, from the on-disk cache when possible.
+
+    A hit needs the same bag bytes, reader spec and ``on_error``; otherwise the bags are parsed
+    and (if ``use_cache``) the result is stored for the next call.
+    """
+    spec = spec or ReaderSpec()
+    bags = resolve_bag_paths(paths)
+    key = content_key(bags, spec, on_error)
+    cache_path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    file = cache_path / f"episodes_{key}.npz"
+    if use_cache and file.is_file():
+        try:
+            arrays = EpisodeArrays.load(file)
+            arrays.key, arrays.cache_hit = key, True
+            return arrays
+        except (OSError, ValueError, KeyError):
+            pass  # unreadable cache entry: rebuild it
+    result = read_episodes(bags, spec=spec, on_error=on_error)
+    if not result.episodes:
+        raise ValueError(f"no episodes could be read from {[str(b) for b in bags]}:\n"
+                         f"{result.report.summary()}")
+    arrays = EpisodeArrays.from_episodes(result.episodes)
+    arrays.key, arrays.report = key, result.report.summary()
+    if use_cache:
+        arrays.save(file)
+        arrays.cache_path = file
+    return arrays

@@ -1,0 +1,72 @@
+"""Errors raised while reading or writing rosbag2 files.
+
+Every error names what is at fault: the bag file, the topic and the message index (0-based,
+counted per topic in stamp order), so a bad recording can be found and fixed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class BagError(Exception):
+    """Base class of every bag reading/writing error."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | Path | None = None,
+        topic: str | None = None,
+        index: int | None = None,
+        stamp: int | None = None,
+    ) -> None:
+        self.reason = message
+        self.path = str(path) if path is not None else None
+        self.topic = topic
+        self.index = index
+        self.stamp = stamp  # bag stamp (ns) of the offending message, when known
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = []
+        if self.path is not None:
+            where.append(f"bag '{self.path}'")
+        if self.topic is not None:
+            where.append(f"topic '{self.topic}'")
+        if self.index is not None:
+            where.append(f"message #{self.index}")
+        prefix = ", ".join(where)
+        return f"{prefix}: {self.reason}" if prefix else self.reason
+
+
+class BagNotFoundError(BagError, FileNotFoundError):
+    """No bag at the given path (or the glob matched nothing)."""
+
+
+class CorruptBagError(BagError):
+    """The storage file cannot be read (truncated mcap, malformed sqlite database, bad CDR)."""
+
+
+class UnknownTypeError(BagError):
+    """A message type the reader cannot decode (not in the Jazzy typestore or unsupported)."""
+
+
+class TopicTypeError(BagError):
+    """A topic carries a different message type than the reader spec expects."""
+
+
+class MissingTopicError(BagError):
+    """A topic required by the reader spec is not in the bag."""
+
+
+class VectorLengthError(BagError):
+    """A vector message has a different length than expected (or than the topic's first one)."""
+
+
+class AlignmentError(BagError):
+    """Per-step messages do not line up with the observation clock (missing or duplicate partner)."""
+
+
+class ReaderSpecError(ValueError):
+    """A reader spec (YAML or dataclass) is invalid."""

@@ -1,0 +1,420 @@
+"""Build and parse the messages of the topic layout with the ``rosbags`` Jazzy typestore (ROS-free).
+
+Builders return ``rosbags`` message objects (serialise them with :func:`serialize`); the sim nodes
+mirror the same field choices with rclpy classes.  Parsers come in two speeds:
+
+* exact per-message decoders built on ``Typestore.deserialize_cdr`` (markers, JointState), and
+* bulk fast paths for the per-step vectors (``Float32MultiArray``, ``Int32``) that parse the
+  little-endian CDR layout directly and stack many messages with one ``np.frombuffer`` call.
+
+CDR layout of ``std_msgs/msg/Float32MultiArray`` (little endian, 4-byte encapsulation header)::
+
+    00 01 00 00 | u32 n_dims | n_dims x (u32 len, label bytes + NUL, pad to 4, u32 size, u32 stride)
+                | u32 data_offset | u32 n | n x f32
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping, Sequence
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from ompn_ros import layout
+
+from .errors import CorruptBagError, VectorLengthError
+
+CDR_LE_HEADER = b"\x00\x01\x00\x00"
+_U32 = struct.Struct("<I")
+_I32 = struct.Struct("<i")
+
+
+@lru_cache(maxsize=1)
+def typestore() -> Any:
+    """The ``rosbags`` typestore of ROS 2 Jazzy (shared, created once)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def msg_class(typename: str) -> Any:
+    """Message class of ``typename`` (e.g. ``std_msgs/msg/Int32``) in the Jazzy typestore."""
+    return typestore().types[typename]
+
+
+def serialize(msg: Any) -> bytes:
+    """CDR bytes of a ``rosbags`` message object."""
+    return bytes(typestore().serialize_cdr(msg, msg.__msgtype__))
+
+
+def deserialize(raw: bytes | memoryview, typename: str) -> Any:
+    """Decode CDR bytes of ``typename`` into a ``rosbags`` message object."""
+    return typestore().deserialize_cdr(raw, typename)
+
+
+# --- builders -------------------------------------------------------------------------------------
+def _time(stamp_ns: int) -> Any:
+    return msg_class("builtin_interfaces/msg/Time")(sec=int(stamp_ns // 1_000_000_000),
+                                                     nanosec=int(stamp_ns % 1_000_000_000))
+
+
+def header(stamp_ns: int, frame_id: str = "") -> Any:
+    """``std_msgs/Header`` stamped at ``stamp_ns``."""
+    return msg_class("std_msgs/msg/Header")(stamp=_time(stamp_ns), frame_id=frame_id)
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """``builtin_interfaces/Time`` -> integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def float32_array(values: np.ndarray | Sequence[float], label: str = "obs") -> Any:
+    """``Float32MultiArray`` with ``layout.dim=[MultiArrayDimension(label, size=D, stride=D)]``."""
+    data = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
+    n = int(data.size)
+    dim = msg_class("std_msgs/msg/MultiArrayDimension")(label=label, size=n, stride=n)
+    lay = msg_class("std_msgs/msg/MultiArrayLayout")(dim=[dim], data_offset=0)
+    return msg_class(layout.FLOAT32_ARRAY)(layout=lay, data=data)
+
+
+def int32_array(values: np.ndarray | Sequence[int], label: str = "sketch") -> Any:
+    """``Int32MultiArray`` with one labelled dimension."""
+    data = np.ascontiguousarray(values, dtype=np.int32).reshape(-1)
+    n = int(data.size)
+    dim = msg_class("std_msgs/msg/MultiArrayDimension")(label=label, size=n, stride=n)
+    lay = msg_class("std_msgs/msg/MultiArrayLayout")(dim=[dim], data_offset=0)
+    return msg_class(layout.INT32_ARRAY)(layout=lay, data=data)
+
+
+def int32(value: int) -> Any:
+    """``std_msgs/Int32``."""
+    return msg_class(layout.INT32)(data=int(value))
+
+
+def joint_state(
+    stamp_ns: int,
+    names: Sequence[str],
+    position: np.ndarray | Sequence[float] = (),
+    velocity: np.ndarray | Sequence[float] = (),
+    effort: np.ndarray | Sequence[float] = (),
+) -> Any:
+    """``sensor_msgs/JointState`` stamped at ``stamp_ns`` (sim time)."""
+    return msg_class(layout.JOINT_STATE)(
+        header=header(stamp_ns),
+        name=list(names),
+        position=np.asarray(position, dtype=np.float64).reshape(-1),
+        velocity=np.asarray(velocity, dtype=np.float64).reshape(-1),
+        effort=np.asarray(effort, dtype=np.float64).reshape(-1),
+    )
+
+
+def episode_marker(kind: str, stamp_ns: int, values: Mapping[str, object]) -> Any:
+    """Episode start/end marker: ``DiagnosticArray`` with one status named ``episode``.
+
+    ``kind`` is ``layout.EPISODE_START`` or ``layout.EPISODE_END``; ``values`` become key/value
+    pairs (``layout.KEY_*``), converted with :func:`marker_value`.
+    """
+    kv = msg_class("diagnostic_msgs/msg/KeyValue")
+    status = msg_class("diagnostic_msgs/msg/DiagnosticStatus")(
+        level=0,
+        name=layout.EPISODE_STATUS_NAME,
+        message=kind,
+        hardware_id="",
+        values=[kv(key=k, value=marker_value(v)) for k, v in values.items()],
+    )
+    return msg_class(layout.DIAGNOSTIC_ARRAY)(header=header(stamp_ns), status=[status])
+
+
+def marker_value(value: object) -> str:
+    """String form of a marker value: bools as 'true'/'false', sequences comma-separated."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return ",".join(str(int(v)) for v in value)
+    return str(value)
+
+
+def start_marker_values(episode_index: int, task: str, seed: int, sketch: np.ndarray | None) -> dict:
+    """Key/values of an episode start marker."""
+    return {
+        layout.KEY_EPISODE: episode_index,
+        layout.KEY_TASK: task,
+        layout.KEY_SEED: seed,
+        layout.KEY_SKETCH: [] if sketch is None else list(np.asarray(sketch).reshape(-1)),
+    }
+
+
+def end_marker_values(episode_index: int, task: str, seed: int, steps: int, success: bool) -> dict:
+    """Key/values of an episode end marker."""
+    return {
+        layout.KEY_EPISODE: episode_index,
+        layout.KEY_TASK: task,
+        layout.KEY_SEED: seed,
+        layout.KEY_STEPS: steps,
+        layout.KEY_SUCCESS: bool(success),
+    }
+
+
+# --- direct encoders (same bytes as serialize(builder(...)), several times faster) -----------------
+@lru_cache(maxsize=64)
+def _multiarray_prefix(label: str, n: int) -> bytes:
+    """CDR bytes of a one-dimension MultiArray up to (and including) the element count."""
+    text = label.encode() + b"\0"
+    out = CDR_LE_HEADER + _U32.pack(1) + _U32.pack(len(text)) + text
+    out += b"\0" * (-(len(out) - 4) % 4)
+    return out + _U32.pack(n) + _U32.pack(n) + _U32.pack(0) + _U32.pack(n)
+
+
+def encode_float32_array(values: np.ndarray | Sequence[float], label: str = "obs") -> bytes:
+    """CDR of :func:`float32_array` ``(values, label)`` without building a message object."""
+    data = np.ascontiguousarray(values, dtype="<f4").reshape(-1)
+    return _multiarray_prefix(label, int(data.size)) + data.tobytes()
+
+
+def encode_int32(value: int) -> bytes:
+    """CDR of :func:`int32` ``(value)``."""
+    return CDR_LE_HEADER + _I32.pack(int(value))
+
+
+# --- parsers --------------------------------------------------------------------------------------
+def parse_marker(raw: bytes | memoryview) -> tuple[str, dict[str, str]] | None:
+    """Decode an episode marker: ``(kind, values)`` or ``None`` if it is not an episode status."""
+    msg = deserialize(raw, layout.DIAGNOSTIC_ARRAY)
+    for status in msg.status:
+        if status.name == layout.EPISODE_STATUS_NAME:
+            return str(status.message), {kv.key: kv.value for kv in status.values}
+    return None
+
+
+def parse_sketch_value(text: str) -> np.ndarray:
+    """Comma-separated subtask ids (marker ``sketch`` key) -> int64 array."""
+    text = text.strip()
+    if not text:
+        return np.zeros(0, dtype=np.int64)
+    return np.asarray([int(v) for v in text.split(",")], dtype=np.int64)
+
+
+def _multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
+    """Offset of the first element and element count of a little-endian MultiArray CDR message."""
+    if bytes(raw[:4]) != CDR_LE_HEADER:
+        raise ValueError("not a little-endian CDR message")
+    pos = 4
+    (ndim,) = _U32.unpack_from(raw, pos)
+    pos += 4
+    if ndim > 64:
+        raise ValueError(f"implausible number of dimensions {ndim}")
+    for _ in range(ndim):
+        (slen,) = _U32.unpack_from(raw, pos)
+        pos += 4 + slen
+        pos = (pos + 3) & ~3
+        pos += 8  # size, stride
+    pos += 4  # data_offset
+    (n,) = _U32.unpack_from(raw, pos)
+    pos += 4
+    if pos + 4 * n != len(raw):
+        raise ValueError(f"CDR length {len(raw)} does not match {n} elements starting at byte {pos}")
+    return pos, n
+
+
+def parse_float32_array(raw: bytes | memoryview) -> np.ndarray:
+    """Data of one ``Float32MultiArray`` as a float32 vector."""
+    try:
+        start, n = _multiarray_data_start(raw)
+    except (ValueError, struct.error):
+        return np.asarray(deserialize(raw, layout.FLOAT32_ARRAY).data, dtype=np.float32)
+    return np.frombuffer(raw, dtype="<f4", count=n, offset=start).astype(np.float32)
+
+
+def parse_int32_array(raw: bytes | memoryview) -> np.ndarray:
+    """Data of one ``Int32MultiArray`` as an int64 vector."""
+    try:
+        start, n = _multiarray_data_start(raw)
+    except (ValueError, struct.error):
+        return np.asarray(deserialize(raw, layout.INT32_ARRAY).data, dtype=np.int64)
+    return np.frombuffer(raw, dtype="<i4", count=n, offset=start).astype(np.int64)
+
+
+def parse_int32(raw: bytes | memoryview) -> int:
+    """Value of one ``std_msgs/Int32``."""
+    if len(raw) == 8 and bytes(raw[:4]) == CDR_LE_HEADER:
+        return int(_I32.unpack_from(raw, 4)[0])
+    return int(deserialize(raw, layout.INT32).data)
+
+
+def stack_float32_arrays(
+    raws: Sequence[bytes | memoryview],
+    *,
+    expected_dim: int | None = None,
+    path: str | None = None,
+    topic: str | None = None,
+    stamps: Sequence[int] | np.ndarray | None = None,
+) -> np.ndarray:
+    """Stack many ``Float32MultiArray`` messages into a float32 ``[N, D]`` array.
+
+    Fast path: when every message has the same byte length and the same header/layout prefix
+    (always true for one topic of our bags), the messages are joined and viewed with a single
+    ``np.frombuffer``.  Otherwise each message is parsed and the first one whose length differs
+    raises :class:`VectorLengthError` naming ``path``/``topic`` and its index.
+    """
+    n_msgs = len(raws)
+    if n_msgs == 0:
+        return np.zeros((0, expected_dim or 0), dtype=np.float32)
+    first = raws[0]
+    try:
+        start, dim = _multiarray_data_start(first)
+    except (ValueError, struct.error):  # not our little-endian layout: decode message by message
+        start, dim = -1, len(parse_float32_array_checked(first, path, topic, 0, stamps))
+    if expected_dim is not None and dim != expected_dim:
+        raise VectorLengthError(f"vector has {dim} elements, expected {expected_dim}",
+                                path=path, topic=topic, index=0,
+                                stamp=None if stamps is None else int(stamps[0]))
+    size = len(first)
+    if start >= 0 and all(len(r) == size for r in raws):
+        block = np.frombuffer(b"".join(raws), dtype="<u4").reshape(n_msgs, size // 4)
+        prefix_words = start // 4
+        prefix = block[:, :prefix_words]
+        if np.array_equal(prefix, np.broadcast_to(prefix[0], prefix.shape)):
+            return block[:, prefix_words:].view("<f4").astype(np.float32)
+    out = np.empty((n_msgs, dim), dtype=np.float32)
+    for i, raw in enumerate(raws):
+        vec = parse_float32_array_checked(raw, path, topic, i, stamps)
+        if len(vec) != dim:
+            raise VectorLengthError(
+                f"vector has {len(vec)} elements, expected {dim}"
+                + ("" if expected_dim is not None else " (the length of the topic's first message)"),
+                path=path, topic=topic, index=i, stamp=None if stamps is None else int(stamps[i]),
+            )
+        out[i] = vec
+    return out
+
+
+def parse_float32_array_checked(
+    raw: bytes | memoryview, path: str | None, topic: str | None, index: int,
+    stamps: Sequence[int] | np.ndarray | None,
+) -> np.ndarray:
+    """:func:`parse_float32_array` raising :class:`CorruptBagError` on undecodable bytes."""
+    try:
+        return parse_float32_array(raw)
+    except Exception as err:  # rosbags raises several types on bad CDR
+        raise CorruptBagError(f"cannot decode Float32MultiArray: {err}", path=path, topic=topic,
+                              index=index, stamp=None if stamps is None else int(stamps[index])) from err
+
+
+def stack_int32(
+    raws: Sequence[bytes | memoryview],
+    *,
+    path: str | None = None,
+    topic: str | None = None,
+    stamps: Sequence[int] | np.ndarray | None = None,
+) -> np.ndarray:
+    """Values of many ``std_msgs/Int32`` messages as int64 ``[N]`` (one ``np.frombuffer`` call)."""
+    n_msgs = len(raws)
+    if n_msgs == 0:
+        return np.zeros(0, dtype=np.int64)
+    if all(len(r) == 8 for r in raws):
+        block = np.frombuffer(b"".join(raws), dtype="<i4").reshape(n_msgs, 2)
+        if np.all(block[:, 0] == block[0, 0]) and bytes(raws[0][:4]) == CDR_LE_HEADER:
+            return block[:, 1].astype(np.int64)
+    out = np.empty(n_msgs, dtype=np.int64)
+    for i, raw in enumerate(raws):
+        try:
+            out[i] = parse_int32(raw)
+        except Exception as err:
+            raise CorruptBagError(f"cannot decode Int32: {err}", path=path, topic=topic, index=i,
+                                  stamp=None if stamps is None else int(stamps[i])) from err
+    return out
+
+
+def _align(pos: int, n: int) -> int:
+    """CDR alignment (relative to the payload after the 4-byte encapsulation header)."""
+    return 4 + ((pos - 4 + n - 1) // n) * n
+
+
+def _joint_state_layout(raw: bytes | memoryview) -> tuple[list[str], list[tuple[int, int]],
+                                                            dict[str, tuple[int, int]]]:
+    """Parse one little-endian JointState CDR: joint names, structural byte ranges (lengths,
+    strings: everything but stamp, padding and float data) and ``field -> (offset, count)``.
+
+    Unlike ``rosbags`` this accepts the trailing padding Fast CDR (rclpy/rclcpp) writes after an
+    empty last array (rosbags raises "CDR message size mismatch" on such messages)."""
+    if bytes(raw[:4]) != CDR_LE_HEADER:
+        raise ValueError("not a little-endian CDR message")
+    struct_ranges: list[tuple[int, int]] = []
+    pos = 12  # header.stamp (sec, nanosec) occupies bytes 4..12
+    (flen,) = _U32.unpack_from(raw, pos)
+    struct_ranges.append((pos, pos + 4 + flen))
+    pos += 4 + flen
+    pos = _align(pos, 4)
+    (count,) = _U32.unpack_from(raw, pos)
+    struct_ranges.append((pos, pos + 4))
+    pos += 4
+    names = []
+    for _ in range(count):
+        pos = _align(pos, 4)
+        (slen,) = _U32.unpack_from(raw, pos)
+        struct_ranges.append((pos, pos + 4 + slen))
+        names.append(bytes(raw[pos + 4:pos + 3 + slen]).decode())
+        pos += 4 + slen
+    fields: dict[str, tuple[int, int]] = {}
+    for name in ("position", "velocity", "effort"):
+        pos = _align(pos, 4)
+        (count,) = _U32.unpack_from(raw, pos)
+        struct_ranges.append((pos, pos + 4))
+        pos += 4
+        if count:
+            pos = _align(pos, 8)
+        fields[name] = (pos, count)
+        pos += 8 * count
+    if pos > len(raw) or len(raw) - pos > 8:  # rclpy/Fast CDR may append up to 8 padding bytes
+        raise ValueError(f"JointState CDR length {len(raw)} does not match its layout ({pos} bytes)")
+    return names, struct_ranges, fields
+
+
+def stack_joint_states(
+    raws: Sequence[bytes | memoryview],
+) -> tuple[list[str], np.ndarray, dict[str, np.ndarray]] | None:
+    """Bulk-decode JointState messages that share one layout (same joints, same array sizes).
+
+    Returns ``(names, header_stamps_ns [N], {field: float64 [N, count]})``, or ``None`` when the
+    messages differ in structure (callers then decode message by message).  Padding bytes are
+    ignored (rclpy's serializer leaves them uninitialised), everything else is checked.
+    """
+    if not raws:
+        return None
+    try:
+        names, struct_ranges, fields = _joint_state_layout(raws[0])
+    except (ValueError, struct.error, UnicodeDecodeError):
+        return None
+    size = len(raws[0])
+    if any(len(r) != size for r in raws):
+        return None
+    block = np.frombuffer(b"".join(raws), dtype=np.uint8).reshape(len(raws), size)
+    for a, b in struct_ranges:
+        part = block[:, a:b]
+        if not np.array_equal(part, np.broadcast_to(part[0], part.shape)):
+            return None
+    sec = np.ascontiguousarray(block[:, 4:8]).view("<i4")[:, 0].astype(np.int64)
+    nsec = np.ascontiguousarray(block[:, 8:12]).view("<u4")[:, 0].astype(np.int64)
+    out = {}
+    for name, (offset, count) in fields.items():
+        data = np.ascontiguousarray(block[:, offset:offset + 8 * count])
+        out[name] = data.view("<f8").reshape(len(raws), count)
+    return names, sec * 1_000_000_000 + nsec, out
+
+
+def parse_joint_state(raw: bytes | memoryview) -> tuple[list[str], int, dict[str, np.ndarray]]:
+    """One JointState: ``(names, header_stamp_ns, {field: float64 [count]})``."""
+    try:
+        names, _, fields = _joint_state_layout(raw)
+    except (ValueError, struct.error, UnicodeDecodeError):
+        msg = deserialize(raw, layout.JOINT_STATE)  # big-endian or otherwise unusual bytes
+        fields_ = ("position", "velocity", "effort")
+        return (list(msg.name), stamp_to_ns(msg.header.stamp),
+                {f: np.asarray(getattr(msg, f), dtype=np.float64) for f in fields_})
+    sec = _I32.unpack_from(raw, 4)[0]
+    nsec = _U32.unpack_from(raw, 8)[0]
+    values = {f: np.frombuffer(raw, dtype="<f8", count=n, offset=o).astype(np.float64)
+              for f, (o, n) in fields.items()}
+    return names, sec * 1_000_000_000 + nsec, values

@@ -1,0 +1,14 @@
+"""Offline behaviour-cloning training of the OMPN (single process or DDP under torchrun)."""
+
+from ompn_ros.train.evaluation import decomposition_metrics, evaluate
+from ompn_ros.train.trainer import TrainConfig, TrainConfigError, TrainDataError, TrainResult, train
+
+__all__ = [
+    "TrainConfig",
+    "TrainConfigError",
+    "TrainDataError",
+    "TrainResult",
+    "decomposition_metrics",
+    "evaluate",
+    "train",
+]

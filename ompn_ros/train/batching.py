@@ -1,0 +1,192 @@
+"""Collate whole episodes into padded tensors with the appended done step (paper Algorithm 1).
+
+An episode of ``T`` real steps becomes ``T + 1`` rows: rows ``0..T−1`` carry the demonstrated
+actions, row ``T`` carries the final observation and the *done* action (paper §3.3: the trajectory
+is extended with ``(s_{T+1}, done)``).  Discrete: the done row's action is index ``action_dim``.
+Continuous: the done row's action is zeros and ``done_mask`` marks it.  Shorter episodes are
+zero-padded to the longest one in the batch; ``mask`` is True on the ``T + 1`` valid rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from ompn_ros.data.episode import Episode
+
+ObsNormMode = Literal["none", "maxabs"]
+
+
+class BatchError(ValueError):
+    """Episodes that cannot be collated (names the episode at fault)."""
+
+
+@dataclass(frozen=True)
+class ObsNormalization:
+    """Per-feature observation normalisation ``(s − mean) / scale``."""
+
+    mean: np.ndarray
+    scale: np.ndarray
+
+    def apply(self, obs: np.ndarray) -> np.ndarray:
+        return ((obs - self.mean) / self.scale).astype(np.float32)
+
+
+def obs_normalization(episodes: Sequence[Episode], mode: ObsNormMode) -> ObsNormalization:
+    """Statistics from the training split.
+
+    ``'maxabs'`` (ompn_dial, spec dial §4.1): mean over all observation rows and scale = the max
+    absolute raw value per feature (the code calls it "std"); features that are always 0 get scale 1.
+    ``'none'``: mean 0, scale 1 (Craft's one-hot features are used raw).
+    """
+    if not episodes:
+        raise BatchError("cannot compute observation statistics from an empty episode list")
+    dim = episodes[0].observations.shape[1]
+    if mode == "none":
+        return ObsNormalization(np.zeros(dim, np.float32), np.ones(dim, np.float32))
+    if mode != "maxabs":
+        raise BatchError(f"obs_norm must be 'none' or 'maxabs', got {mode!r}")
+    stacked = np.concatenate([e.observations for e in episodes], axis=0).astype(np.float64)
+    mean = stacked.mean(axis=0)
+    scale = np.abs(stacked).max(axis=0)
+    scale[scale == 0] = 1.0
+    return ObsNormalization(mean.astype(np.float32), scale.astype(np.float32))
+
+
+@dataclass
+class Batch:
+    """A padded batch of ``B`` episodes, ``L = max(T) + 1`` rows.
+
+    Attributes:
+        obs: float32 ``[B, L, D]`` (raw; the policy applies its normalisation).
+        actions: int64 ``[B, L]`` (discrete, done = ``action_dim``) or float32 ``[B, L, A]``.
+        mask: bool ``[B, L]``, True on the ``T + 1`` valid rows of each episode.
+        done_mask: bool ``[B, L]``, True only on row ``T`` (the appended done step).
+        sketch: int64 ``[B, K]`` model sketch ids (episode id + 1; 0 = padding) or None.
+        lengths: int64 ``[B]`` real steps ``T`` per episode (without the done step).
+    """
+
+    obs: torch.Tensor
+    actions: torch.Tensor
+    mask: torch.Tensor
+    done_mask: torch.Tensor
+    sketch: torch.Tensor | None
+    lengths: torch.Tensor
+
+    @property
+    def size(self) -> int:
+        return int(self.obs.shape[0])
+
+    @property
+    def valid_steps(self) -> int:
+        """Number of valid rows including the done steps (the loss denominator)."""
+        return int(self.mask.sum())
+
+
+def _describe(ep: Episode, index: int) -> str:
+    return f"episode #{index} (task '{ep.task}', seed {ep.seed})"
+
+
+def collate(
+    episodes: Sequence[Episode],
+    action_type: str,
+    action_dim: int,
+    use_sketch: bool = False,
+) -> Batch:
+    """Pad ``episodes`` into a :class:`Batch` with the appended done step.
+
+    Raises :class:`BatchError` when an episode's observation size, action type/size or sketch
+    length does not match the rest of the batch.
+    """
+    if not episodes:
+        raise BatchError("cannot collate an empty list of episodes")
+    if action_type not in ("discrete", "continuous"):
+        raise BatchError(f"action_type must be 'discrete' or 'continuous', got {action_type!r}")
+    dim = episodes[0].observations.shape[1]
+    rows = max(e.length for e in episodes) + 1
+    size = len(episodes)
+    obs = np.zeros((size, rows, dim), dtype=np.float32)
+    mask = np.zeros((size, rows), dtype=bool)
+    done = np.zeros((size, rows), dtype=bool)
+    if action_type == "discrete":
+        actions = np.zeros((size, rows), dtype=np.int64)
+    else:
+        actions = np.zeros((size, rows, action_dim), dtype=np.float32)
+    sketches: list[np.ndarray] = []
+    for i, ep in enumerate(episodes):
+        t = ep.length
+        if ep.observations.shape[1] != dim:
+            raise BatchError(
+                f"{_describe(ep, i)} has {ep.observations.shape[1]} observation features, expected {dim}"
+            )
+        if t < 1:
+            raise BatchError(f"{_describe(ep, i)} has no steps")
+        obs[i, : t + 1] = ep.observations
+        mask[i, : t + 1] = True
+        done[i, t] = True
+        if action_type == "discrete":
+            acts = np.asarray(ep.actions)
+            if acts.ndim != 1 or not np.issubdtype(acts.dtype, np.integer):
+                raise BatchError(
+                    f"{_describe(ep, i)} has actions of shape {acts.shape} / {acts.dtype}; expected int [T]"
+                )
+            if acts.size and (acts.min() < 0 or acts.max() >= action_dim):
+                raise BatchError(f"{_describe(ep, i)} has action ids outside [0, {action_dim})")
+            actions[i, :t] = acts
+            actions[i, t] = action_dim
+        else:
+            acts = np.asarray(ep.actions, dtype=np.float32)
+            if acts.shape != (t, action_dim):
+                raise BatchError(
+                    f"{_describe(ep, i)} has actions of shape {acts.shape}; expected ({t}, {action_dim})"
+                )
+            actions[i, :t] = acts
+        if use_sketch:
+            if ep.sketch is None:
+                raise BatchError(f"{_describe(ep, i)} has no sketch but the model uses sketches")
+            sketches.append(np.asarray(ep.sketch, dtype=np.int64))
+    sketch_t = None
+    if use_sketch:
+        # Episode sketch ids are 0-based; the model reserves id 0 for padding, so shift by one.
+        width = max(len(s) for s in sketches)
+        padded = np.zeros((size, width), dtype=np.int64)
+        for i, s in enumerate(sketches):
+            if s.size and s.min() < 0:
+                raise BatchError(f"{_describe(episodes[i], i)} has negative sketch ids {s.tolist()}")
+            padded[i, : len(s)] = s + 1
+        sketch_t = torch.from_numpy(padded)
+    return Batch(
+        obs=torch.from_numpy(obs),
+        actions=torch.from_numpy(actions),
+        mask=torch.from_numpy(mask),
+        done_mask=torch.from_numpy(done),
+        sketch=sketch_t,
+        lengths=torch.tensor([e.length for e in episodes], dtype=torch.int64),
+    )
+
+
+def split_train_val(n_episodes: int, val_ratio: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded shuffle, then the first ``round(val_ratio · N)`` indices go to validation.
+
+    At least one episode stays in training; validation may be empty when ``val_ratio`` is 0.
+    """
+    if not 0.0 <= val_ratio < 1.0:
+        raise BatchError(f"val_ratio must be in [0, 1), got {val_ratio}")
+    if n_episodes < 1:
+        raise BatchError("need at least one episode to split")
+    order = np.random.default_rng([seed, 0x5EED]).permutation(n_episodes)
+    n_val = min(round(val_ratio * n_episodes), n_episodes - 1)
+    return np.sort(order[n_val:]), np.sort(order[:n_val])
+
+
+def epoch_batches(n_train: int, batch_size: int, seed: int, epoch: int) -> list[np.ndarray]:
+    """Index batches of one epoch: a seeded reshuffle cut into consecutive chunks of whole episodes.
+
+    The permutation depends only on ``(seed, epoch)`` so a resumed run sees the same batches.
+    """
+    order = np.random.default_rng([seed, epoch]).permutation(n_train)
+    return [order[i : i + batch_size] for i in range(0, n_train, batch_size)]

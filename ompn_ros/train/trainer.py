@@ -1,0 +1,450 @@
+"""Behaviour cloning of an OMPN with the done step (paper §3.2, Algorithm 1; spec craft §4, dial §4).
+
+One iteration = one Adam update on a batch of whole, zero-padded episodes (teacher forcing from the
+initial memory, memory detached every ``bptt`` steps, loss = mean ``−log p'`` per valid step
+including the appended done step, gradient L2 norm clipped to ``clip_norm``).  Each epoch reshuffles
+the training split (seeded by ``(seed, epoch)``) and cuts it into consecutive batches.
+
+Every ``eval_every`` iterations (and after the last one) the validation split is evaluated by
+:func:`ompn_ros.train.evaluation.evaluate`: teacher-forced loss plus task-decomposition
+metrics.  Checkpoints under ``out_dir``:
+
+* ``best/``: the policy with the best validation score.  **Selection** (``selection``):
+  ``'align'`` (default) = highest validation alignment accuracy of the domain's detector (Top-K for
+  discrete actions, automatic threshold for continuous ones), ties broken by the lower validation
+  loss; ``'f1_tol1'`` likewise with F1(tol=1); ``'val_loss'`` = lowest validation loss (what
+  ompn_dial does).  The authors' Craft code selected by free-run return, which needs an environment
+  and is not available offline.
+* ``last/``: the policy after the latest evaluation.
+* ``train_state/``: a resumable state (weights + Adam state, safetensors + JSON); ``resume=True``
+  continues from it and, with the same seed and data, reaches bitwise the same weights as an
+  uninterrupted run.
+* ``log.jsonl``: one JSON line per evaluation; TensorBoard scalars under ``tb/`` if enabled.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ompn_ros.data.episode import Episode
+from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.loss import bc_loss
+from ompn_ros.model.policy import OMPNPolicy
+from ompn_ros.train.batching import (
+    Batch,
+    ObsNormalization,
+    collate,
+    epoch_batches,
+    obs_normalization,
+    split_train_val,
+)
+from ompn_ros.train.distributed import (
+    DistContext,
+    all_reduce_gradients,
+    all_reduce_sum,
+    broadcast_module,
+)
+from ompn_ros.train.evaluation import evaluate
+from ompn_ros.train.state import (
+    TrainStateError,
+    latest_state_dir,
+    optimizer_from_files,
+    read_state,
+    save_state,
+)
+
+LOG = logging.getLogger("ompn_ros.train")
+
+SELECTIONS = ("align", "f1_tol1", "val_loss")
+
+
+class TrainConfigError(ValueError):
+    """An invalid :class:`TrainConfig` field."""
+
+
+class TrainDataError(ValueError):
+    """The episodes given to :func:`train` cannot be trained on."""
+
+
+@dataclass
+class TrainConfig:
+    """Training hyper-parameters (defaults: the Craft paper values, spec craft §4).
+
+    Attributes:
+        lr: Adam learning rate (Craft 1e-3, Dial 5e-4).
+        batch_size: whole episodes per update (Craft 256, Dial 64); under DDP the global batch.
+        clip_norm: gradient L2-norm clip (0.2).
+        bptt: truncated-BPTT length in steps (64).
+        iterations: number of updates.
+        eval_every: evaluate, save ``last/`` + the resumable state every this many iterations.
+        val_ratio: fraction of episodes held out for validation (seeded split).
+        seed: seeds the model init, the split and the batch order.
+        out_dir: checkpoint/log directory (None = keep nothing on disk).
+        resume: continue from ``out_dir/train_state`` if present.
+        tensorboard: write TensorBoard scalars to ``out_dir/tb`` (if tensorboard is installed).
+        no_done_loss: the "No Done" ablation (done steps leave the loss numerator).
+        threads: ``torch.set_num_threads`` value (0 = leave torch's default).
+        selection: best-checkpoint criterion, one of ``SELECTIONS`` (see module docstring).
+        obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
+        eval_episodes: cap on validation episodes per evaluation (0 = all).
+        eval_batch_size: episodes per teacher-forced evaluation batch.
+        progress: show a tqdm progress bar.
+    """
+
+    lr: float = 1e-3
+    batch_size: int = 256
+    clip_norm: float = 0.2
+    bptt: int = 64
+    iterations: int = 10000
+    eval_every: int = 20
+    val_ratio: float = 0.2
+    seed: int = 0
+    out_dir: str | None = None
+    resume: bool = False
+    tensorboard: bool = False
+    no_done_loss: bool = False
+    threads: int = 1
+    selection: str = "align"
+    obs_norm: str = "none"
+    eval_episodes: int = 0
+    eval_batch_size: int = 64
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        def need(cond: bool, name: str, what: str) -> None:
+            if not cond:
+                raise TrainConfigError(f"TrainConfig.{name} {what}, got {getattr(self, name)!r}")
+
+        def is_int(v: Any) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool)
+
+        for name in ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size"):
+            need(is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
+        for name in ("seed", "threads", "eval_episodes"):
+            need(is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
+        for name in ("lr", "clip_norm"):
+            value = getattr(self, name)
+            need(
+                isinstance(value, int | float) and not isinstance(value, bool) and value > 0,
+                name,
+                "must be > 0",
+            )
+            setattr(self, name, float(value))
+        need(
+            isinstance(self.val_ratio, int | float) and 0.0 <= self.val_ratio < 1.0,
+            "val_ratio",
+            "must be in [0, 1)",
+        )
+        self.val_ratio = float(self.val_ratio)
+        for name in ("resume", "tensorboard", "no_done_loss", "progress"):
+            need(isinstance(getattr(self, name), bool), name, "must be a bool")
+        need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
+        need(self.obs_norm in ("none", "maxabs"), "obs_norm", "must be 'none' or 'maxabs'")
+        need(
+            self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
+        )
+        need(not (self.resume and self.out_dir is None), "resume", "needs out_dir")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise TrainConfigError(f"unknown TrainConfig keys {unknown}; known keys are {sorted(known)}")
+        return cls(**data)
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train` returns (rank 0 holds the evaluation history)."""
+
+    policy: OMPNPolicy
+    iterations: int
+    best_iteration: int
+    best_metrics: dict[str, float]
+    last_metrics: dict[str, float]
+    history: list[dict[str, float]] = field(default_factory=list)
+    out_dir: str | None = None
+    train_seconds: float = 0.0
+    frames: int = 0
+
+
+def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, float]:
+    """Larger is better: ``(score, −val_loss)``; for ``'val_loss'`` the score is ``−loss``."""
+    loss = float(metrics.get("loss", math.inf))
+    if selection == "val_loss":
+        return (-loss, 0.0)
+    return (float(metrics.get(selection, -math.inf)), -loss)
+
+
+# --- training ------------------------------------------------------------------------------------
+
+
+def _check_episodes(episodes: Sequence[Episode], model_config: OMPNConfig) -> None:
+    if len(episodes) < 1:
+        raise TrainDataError("train() needs at least one episode")
+    for i, ep in enumerate(episodes):
+        if ep.observations.shape[1] != model_config.obs_dim:
+            raise TrainDataError(
+                f"episode #{i} (task '{ep.task}', seed {ep.seed}) has {ep.observations.shape[1]} observation "
+                f"features but the model expects obs_dim={model_config.obs_dim}"
+            )
+        if ep.length < 1:
+            raise TrainDataError(f"episode #{i} (task '{ep.task}', seed {ep.seed}) has no steps")
+
+
+def _scalars(metrics: dict[str, Any]) -> dict[str, float]:
+    return {k: float(v) for k, v in metrics.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+
+
+class _Sinks:
+    """Log file and optional TensorBoard writer (rank 0 only)."""
+
+    def __init__(self, out_dir: Path | None, tensorboard: bool) -> None:
+        self.log_path = out_dir / "log.jsonl" if out_dir is not None else None
+        self.writer = None
+        if tensorboard and out_dir is not None:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+            except ImportError:  # pragma: no cover - tensorboard is optional
+                LOG.warning("tensorboard is not installed; TensorBoard scalars are disabled")
+            else:
+                self.writer = SummaryWriter(log_dir=str(out_dir / "tb"))
+
+    def write(self, iteration: int, frames: int, record: dict[str, float]) -> None:
+        if self.log_path is not None:
+            with self.log_path.open("a", encoding="utf-8") as handle:
+                handle.write(json.dumps({"iteration": iteration, "frames": frames, **record}) + "\n")
+        if self.writer is not None:
+            for key, value in record.items():
+                self.writer.add_scalar(key, value, global_step=iteration)
+            self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def train(
+    episodes: Sequence[Episode],
+    model_config: OMPNConfig,
+    train_config: TrainConfig,
+    *,
+    dist_ctx: DistContext | None = None,
+    callback: Callable[[int, dict[str, float]], None] | None = None,
+) -> TrainResult:
+    """Train an :class:`~ompn_ros.model.policy.OMPNPolicy` by behaviour cloning (see module docstring).
+
+    Args:
+        episodes: all demonstrations; split into train/validation by ``val_ratio`` and ``seed``.
+        model_config: an :class:`~ompn_ros.model.config.OMPNConfig` matching the episodes.
+        train_config: a :class:`TrainConfig`.
+        dist_ctx: the torchrun context (default: single process).
+        callback: called after every update as ``callback(iteration, stats)``; raising from it stops
+            training (used to simulate a kill in tests).
+    """
+    cfg = train_config
+    ctx = dist_ctx or DistContext()
+    _check_episodes(episodes, model_config)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+
+    train_idx, val_idx = split_train_val(len(episodes), cfg.val_ratio, cfg.seed)
+    train_eps = [episodes[i] for i in train_idx]
+    val_eps = [episodes[i] for i in val_idx] if len(val_idx) else list(train_eps)
+    if not len(val_idx):
+        LOG.warning("val_ratio=0: validation metrics are computed on the training split")
+    if cfg.eval_episodes:
+        val_eps = val_eps[: cfg.eval_episodes]
+    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)  # type: ignore[arg-type]
+
+    policy = OMPNPolicy(model_config)
+    policy.set_obs_normalization(norm.mean, norm.scale)
+    broadcast_module(policy, ctx)
+    policy.train()
+    optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
+
+    out_dir = Path(cfg.out_dir) if cfg.out_dir is not None else None
+    state_root = out_dir / "train_state" if out_dir is not None else None
+    extra_base = {
+        "train_config": cfg.to_dict(),
+        "obs_norm": cfg.obs_norm,
+        "n_train": len(train_eps),
+        "n_val": len(val_idx),
+    }
+
+    start_iteration, frames = 0, 0
+    best_key: tuple[float, float] = (-math.inf, -math.inf)
+    best_iteration, best_metrics, last_metrics = 0, {}, {}
+    history: list[dict[str, float]] = []
+    if cfg.resume and state_root is not None:
+        state_dir = latest_state_dir(state_root)
+        if state_dir is not None:
+            doc, opt_tensors = read_state(state_dir)
+            loaded, _ = load_checkpoint(state_dir / "model")
+            if loaded.config.to_dict() != model_config.to_dict():
+                raise TrainStateError(
+                    f"cannot resume from {state_dir}: its model config differs from the requested one"
+                )
+            policy.load_state_dict(loaded.state_dict())
+            optimizer_from_files(optimizer, opt_tensors, doc["param_groups"])
+            start_iteration = int(doc["iteration"])
+            frames = int(doc.get("frames", 0))
+            best_iteration = int(doc.get("best_iteration", 0))
+            best_metrics = doc.get("best_metrics", {})
+            last_metrics = doc.get("last_metrics", {})
+            history = doc.get("history", [])
+            if best_metrics:
+                best_key = selection_key(best_metrics, cfg.selection)
+            if ctx.is_main:
+                LOG.info("resumed from %s at iteration %d", state_dir, start_iteration)
+
+    if out_dir is not None and ctx.is_main:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    sinks = _Sinks(out_dir, cfg.tensorboard) if ctx.is_main else None
+    n_train = len(train_eps)
+    per_epoch = math.ceil(n_train / cfg.batch_size)
+    progress = None
+    if cfg.progress and ctx.is_main:
+        from tqdm import tqdm
+
+        progress = tqdm(total=cfg.iterations, initial=start_iteration, desc="train", unit="it", leave=False)
+
+    def save_all(iteration: int, metrics: dict[str, float], is_best: bool) -> None:
+        if out_dir is None or not ctx.is_main:
+            return
+        extra = {**extra_base, "iteration": iteration, "metrics": metrics}
+        if is_best:
+            save_checkpoint(out_dir / "best", policy, extra=extra)
+        save_checkpoint(out_dir / "last", policy, extra=extra)
+        assert state_root is not None
+        payload = {
+            "frames": frames,
+            "best_iteration": best_iteration,
+            "best_metrics": best_metrics,
+            "last_metrics": metrics,
+            "history": history,
+        }
+        save_state(
+            state_root, iteration, lambda d: save_checkpoint(d, policy, extra=extra), optimizer, payload
+        )
+
+    started = time.perf_counter()
+    iteration = start_iteration
+    try:
+        while iteration < cfg.iterations:
+            iteration += 1
+            epoch, index = divmod(iteration - 1, per_epoch)
+            global_idx = epoch_batches(n_train, cfg.batch_size, cfg.seed, epoch)[index]
+            shard = global_idx[ctx.rank :: ctx.world_size]
+            stats = train_step(policy, optimizer, [train_eps[i] for i in shard], model_config, cfg, ctx)
+            frames += int(stats["global_valid"])
+            if progress is not None:
+                progress.update(1)
+                progress.set_postfix(loss=f"{stats['loss']:.3f}")
+            if callback is not None:
+                callback(iteration, stats)
+            if iteration % cfg.eval_every == 0 or iteration == cfg.iterations:
+                if ctx.is_main:
+                    metrics = _scalars(
+                        evaluate(
+                            policy,
+                            val_eps,
+                            bptt=cfg.bptt,
+                            batch_size=cfg.eval_batch_size,
+                            no_done_loss=cfg.no_done_loss,
+                            keep_p_hat=False,
+                        )
+                    )
+                    metrics["train_loss"] = stats["loss"]
+                    key = selection_key(metrics, cfg.selection)
+                    is_best = key > best_key
+                    if is_best:
+                        best_key, best_iteration, best_metrics = key, iteration, metrics
+                    last_metrics = metrics
+                    history.append({"iteration": float(iteration), **metrics})
+                    LOG.info(
+                        "it %d  train_loss %.4f  val_loss %.4f  align %.3f  f1_tol1 %.3f%s",
+                        iteration,
+                        stats["loss"],
+                        metrics["loss"],
+                        metrics.get("align", float("nan")),
+                        metrics.get("f1_tol1", float("nan")),
+                        "  *best*" if is_best else "",
+                    )
+                    assert sinks is not None
+                    sinks.write(iteration, frames, metrics)
+                    save_all(iteration, metrics, is_best)
+    finally:
+        if progress is not None:
+            progress.close()
+        if sinks is not None:
+            sinks.close()
+    return TrainResult(
+        policy=policy,
+        iterations=iteration,
+        best_iteration=best_iteration,
+        best_metrics=best_metrics,
+        last_metrics=last_metrics,
+        history=history,
+        out_dir=cfg.out_dir,
+        train_seconds=time.perf_counter() - started,
+        frames=frames,
+    )
+
+
+def train_step(
+    policy: OMPNPolicy,
+    optimizer: torch.optim.Optimizer,
+    shard: Sequence[Episode],
+    model_config: OMPNConfig,
+    cfg: TrainConfig,
+    ctx: DistContext | None = None,
+) -> dict[str, float]:
+    """One Adam update on this rank's shard of whole episodes, including collation.
+
+    Gradients are averaged over ranks (see :mod:`ompn_ros.train.distributed`), clipped to
+    ``cfg.clip_norm`` and applied.  Returns the :func:`bc_loss` statistics plus ``loss`` (global
+    per-token mean), ``grad_norm`` (before clipping) and ``global_valid`` (valid rows, all ranks).
+    """
+    ctx = ctx or DistContext()
+    use_sketch = model_config.sketch_mode != "none"
+    optimizer.zero_grad(set_to_none=True)
+    local_valid = 0.0
+    loss_value = 0.0
+    batch: Batch | None = None
+    if shard:
+        batch = collate(shard, model_config.action_type, model_config.action_dim, use_sketch)
+        local_valid = float(batch.valid_steps)
+    global_valid = all_reduce_sum(local_valid, ctx)
+    stats: dict[str, float] = {}
+    if batch is not None:
+        out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=cfg.bptt)
+        loss, stats = bc_loss(
+            out, batch.actions, batch.mask, batch.done_mask, model_config, no_done_loss=cfg.no_done_loss
+        )
+        # scale so that the rank-average of gradients is the gradient of the global per-token mean
+        (loss * (local_valid * ctx.world_size / global_valid)).backward()
+        loss_value = float(loss.detach()) * local_valid
+    all_reduce_gradients(policy, ctx)
+    grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.clip_norm)
+    optimizer.step()
+    stats = dict(stats)
+    stats["loss"] = all_reduce_sum(loss_value, ctx) / global_valid
+    stats["grad_norm"] = float(grad_norm)
+    stats["global_valid"] = global_valid
+    return stats

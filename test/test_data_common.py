@@ -1,0 +1,146 @@
+"""Synthetic episodes shared by the data tests, and unit tests of ``ompn_ros.data.messages``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ompn_ros import layout
+from ompn_ros.data import messages as m
+from ompn_ros.data.episode import Episode
+
+
+def craft_episode(i: int, steps: int, rng: np.random.Generator) -> Episode:
+    """A random Craft-shaped episode (obs 1075, discrete actions 0..4, 3 subtasks)."""
+    return Episode(
+        observations=rng.random((steps + 1, layout.CRAFT.obs_dim), dtype=np.float32),
+        actions=rng.integers(0, layout.CRAFT.action_dim, steps).astype(np.int64),
+        subtask=np.sort(rng.integers(0, 3, steps)).astype(np.int64),
+        sketch=np.asarray([2, 5, 7], dtype=np.int64),
+        task="makebed",
+        seed=1000 + i,
+        success=i % 3 != 2,
+    )
+
+
+def dial_episode(i: int, steps: int, rng: np.random.Generator) -> Episode:
+    """A random Dial-shaped episode (obs 39, actions [T, 9], 4 subtasks, joint extras)."""
+    return Episode(
+        observations=rng.standard_normal((steps + 1, layout.DIAL.obs_dim)).astype(np.float32),
+        actions=rng.standard_normal((steps, layout.DIAL.action_dim)).astype(np.float32),
+        subtask=np.sort(rng.integers(0, 4, steps)).astype(np.int64),
+        sketch=rng.permutation(10)[:4].astype(np.int64),
+        task="dial",
+        seed=2000 + i,
+        success=True,
+        extras={
+            "joint_position": rng.standard_normal((steps + 1, 9)),
+            "joint_velocity": rng.standard_normal((steps + 1, 9)),
+            "joint_names": [f"jaco_joint_{k}" for k in range(9)],
+        },
+    )
+
+
+def make_episodes(domain: str, n: int, seed: int = 0, min_steps: int = 5,
+                  max_steps: int = 30) -> list[Episode]:
+    rng = np.random.default_rng(seed)
+    make = craft_episode if domain == "craft" else dial_episode
+    return [make(i, int(rng.integers(min_steps, max_steps + 1)), rng) for i in range(n)]
+
+
+def assert_same_episode(a: Episode, b: Episode, *, joints: bool = False) -> None:
+    """Exact equality of everything a bag stores."""
+    np.testing.assert_array_equal(a.observations, b.observations)
+    assert a.observations.dtype == b.observations.dtype == np.float32
+    np.testing.assert_array_equal(a.actions, b.actions)
+    assert a.actions.dtype == b.actions.dtype
+    if a.subtask is None:
+        assert b.subtask is None
+    else:
+        assert b.subtask is not None
+        np.testing.assert_array_equal(a.subtask, b.subtask)
+    if a.sketch is None:
+        assert b.sketch is None
+    else:
+        assert b.sketch is not None
+        np.testing.assert_array_equal(a.sketch, b.sketch)
+    assert (a.task, a.seed, a.success) == (b.task, b.seed, b.success)
+    if joints:
+        for key in ("joint_position", "joint_velocity"):
+            np.testing.assert_array_equal(a.extras[key], b.extras[key])
+        assert list(a.extras["joint_names"]) == list(b.extras["joint_names"])
+
+
+# --- messages.py ----------------------------------------------------------------------------------
+def test_float32_array_layout_and_fast_parse_match_rosbags() -> None:
+    values = np.linspace(-1, 1, 39, dtype=np.float32)
+    raw = m.serialize(m.float32_array(values, "obs"))
+    msg = m.deserialize(raw, layout.FLOAT32_ARRAY)
+    assert [(d.label, d.size, d.stride) for d in msg.layout.dim] == [("obs", 39, 39)]
+    np.testing.assert_array_equal(m.parse_float32_array(raw), values)
+    stacked = m.stack_float32_arrays([raw, raw], expected_dim=39)
+    assert stacked.shape == (2, 39)
+    np.testing.assert_array_equal(stacked[1], values)
+
+
+def test_direct_encoders_match_rosbags_bytes() -> None:
+    for label, n in (("obs", 39), ("action", 9), ("obs", 1075), ("ab", 0), ("slot", 3)):
+        values = np.arange(n, dtype=np.float32) - 3.5
+        assert m.encode_float32_array(values, label) == m.serialize(m.float32_array(values, label))
+    for v in (0, -7, 2**31 - 1):
+        assert m.encode_int32(v) == m.serialize(m.int32(v))
+
+
+def test_int32_and_marker_round_trip() -> None:
+    assert m.parse_int32(m.serialize(m.int32(-7))) == -7
+    np.testing.assert_array_equal(m.stack_int32([m.serialize(m.int32(v)) for v in (3, -1, 9)]), [3, -1, 9])
+    raw = m.serialize(m.episode_marker(layout.EPISODE_START, 5,
+                                       m.start_marker_values(4, "makeaxe", 17, np.asarray([1, 2]))))
+    kind, values = m.parse_marker(raw) or ("", {})
+    assert kind == layout.EPISODE_START
+    assert values == {layout.KEY_EPISODE: "4", layout.KEY_TASK: "makeaxe", layout.KEY_SEED: "17",
+                      layout.KEY_SKETCH: "1,2"}
+    np.testing.assert_array_equal(m.parse_sketch_value(values[layout.KEY_SKETCH]), [1, 2])
+
+
+def test_stack_reports_the_bad_index() -> None:
+    import pytest
+
+    from ompn_ros.data.errors import VectorLengthError
+
+    good = m.serialize(m.float32_array(np.zeros(4)))
+    bad = m.serialize(m.float32_array(np.zeros(5)))
+    with pytest.raises(VectorLengthError) as info:
+        m.stack_float32_arrays([good, good, bad], path="x.mcap", topic="/observation")
+    assert info.value.index == 2 and info.value.topic == "/observation"
+    assert "x.mcap" in str(info.value) and "message #2" in str(info.value)
+
+
+def test_joint_state_bulk_and_rclpy_bytes() -> None:
+    """Our JointState parser reads rosbags and rclpy (Fast CDR: garbage padding, trailing bytes)."""
+    import pytest
+
+    names = ["j1", "joint_two", "j3x"]
+    ours = [m.serialize(m.joint_state(10**9 * k + 7, names, np.arange(3) + k, np.full(3, 0.5)))
+            for k in range(3)]
+    got = m.stack_joint_states(ours)
+    assert got is not None
+    assert got[0] == names
+    np.testing.assert_array_equal(got[1], [10**9 * k + 7 for k in range(3)])
+    np.testing.assert_array_equal(got[2]["position"][2], [2, 3, 4])
+    assert got[2]["effort"].shape == (3, 0)
+
+    serialization = pytest.importorskip("rclpy.serialization")
+    sensor_msgs = pytest.importorskip("sensor_msgs.msg")
+    raws = []
+    for k in range(3):
+        js = sensor_msgs.JointState()
+        js.header.stamp.sec, js.header.stamp.nanosec, js.header.frame_id = k, 3, "base"
+        js.name, js.position, js.velocity = names, [1.0 * k, 2.0, 3.0], [0.5, 0.25, 1.0 * k]
+        raws.append(serialization.serialize_message(js))  # empty effort: Fast CDR pads the end
+    bulk = m.stack_joint_states(raws)
+    assert bulk is not None
+    np.testing.assert_array_equal(bulk[1], [k * 10**9 + 3 for k in range(3)])
+    np.testing.assert_array_equal(bulk[2]["velocity"][:, 2], [0.0, 1.0, 2.0])
+    one = m.parse_joint_state(raws[1])
+    assert one[0] == names and one[1] == 10**9 + 3
+    np.testing.assert_array_equal(one[2]["position"], [1.0, 2.0, 3.0])

@@ -1,0 +1,107 @@
+"""ompn_train command line: configs, overrides, synthetic smoke run, resume, errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from ompn_ros.cli.train import TrainCliError, apply_overrides, load_config, main
+from ompn_ros.layout import DOMAINS
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.trainer import TrainConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = [
+    "--quiet",
+    "--set",
+    "model.n_slots=2",
+    "--set",
+    "model.slot_size=16",
+    "--set",
+    "train.batch_size=8",
+    "--set",
+    "train.eval_every=2",
+    "--set",
+    "train.threads=1",
+]
+
+
+@pytest.mark.parametrize(("name", "n_slots", "lr", "batch"), [("craft", 3, 1e-3, 256), ("dial", 2, 5e-4, 64)])
+def test_shipped_configs_are_valid(name: str, n_slots: int, lr: float, batch: int) -> None:
+    config = load_config(str(ROOT / "config" / f"train_{name}.yaml"))
+    domain = DOMAINS[config["data"]["domain"]]
+    model = OMPNConfig.from_dict(
+        {
+            **config["model"],
+            "obs_dim": domain.obs_dim,
+            "action_type": domain.action_type,
+            "action_dim": domain.action_dim,
+        }
+    )
+    train = TrainConfig.from_dict(config["train"])
+    assert (model.n_slots, train.lr, train.batch_size, train.clip_norm, train.bptt) == (
+        n_slots,
+        lr,
+        batch,
+        0.2,
+        64,
+    )
+    assert model.slot_size == (128 if name == "craft" else 64)
+
+
+def test_overrides_parse_yaml_values() -> None:
+    config = load_config(None)
+    apply_overrides(config, ["train.lr=5e-4", "model.no_top_down=true", "data.domain=dial"])
+    assert config["train"]["lr"] == 5e-4 and config["model"]["no_top_down"] is True
+    with pytest.raises(TrainCliError, match="section"):
+        apply_overrides(config, ["optim.lr=1"])
+    with pytest.raises(TrainCliError, match=r"section\.key=value"):
+        apply_overrides(config, ["lr"])
+
+
+def test_synthetic_smoke_run_and_resume(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    args = [
+        "--synthetic",
+        "discrete",
+        "--episodes",
+        "12",
+        "--config",
+        str(ROOT / "config" / "train_craft.yaml"),
+        "--out",
+        str(out),
+        *SMALL,
+    ]
+    assert main([*args, "--set", "train.iterations=2", "--set", "train.tensorboard=true"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["iterations"] == 2
+    assert (out / "best" / "config.json").exists() and (out / "last" / "model.safetensors").exists()
+    assert list((out / "tb").glob("events.out.tfevents.*"))  # TensorBoard scalars
+    assert main([*args, "--set", "train.iterations=3", "--resume"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["iterations"] == 3
+    assert len((out / "log.jsonl").read_text().splitlines()) == 2  # evals at 2, then 3 after resuming
+
+
+def test_errors_exit_with_code_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("optimizer: {lr: 1}\n")
+    assert main(["--synthetic", "discrete", "--config", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "unknown section 'optimizer'" in capsys.readouterr().err
+    assert main(["--synthetic", "discrete", "--out", str(tmp_path / "o"), "--set", "train.lr=-1"]) == 2
+    assert "TrainConfig.lr" in capsys.readouterr().err
+    assert main(["--synthetic", "discrete", "--out", str(tmp_path / "o"), "--set", "model.n_slots=0"]) == 2
+    assert "n_slots" in capsys.readouterr().err
+
+
+def test_train_from_a_bag(tmp_path: Path) -> None:
+    bag_writer = pytest.importorskip("ompn_ros.data.bag_writer")
+    pytest.importorskip("ompn_ros.data.bag_reader")
+    from ompn_ros.train.synthetic import make_dataset
+
+    bag_writer.write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 6, seed=0), "craft")
+    args = ["--bags", str(tmp_path / "bag"), "--config", str(ROOT / "config" / "train_craft.yaml")]
+    assert main([*args, "--out", str(tmp_path / "out"), *SMALL, "--set", "train.iterations=1"]) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["iterations"] == 1 and summary["frames"] > 0

@@ -1,0 +1,208 @@
+"""Behaviour-cloning trainer: the method learns the synthetic task, ablations run, resume is exact."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from ompn_ros.detect.offline import top_k_boundaries
+from ompn_ros.metrics import mean_f1
+from ompn_ros.model.checkpoint import load_checkpoint
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.synthetic import make_dataset, synthetic_spec
+from ompn_ros.train.trainer import (
+    TrainConfig,
+    TrainConfigError,
+    TrainDataError,
+    evaluate,
+    selection_key,
+    train,
+)
+
+torch.set_num_threads(1)
+
+
+def _model_config(kind: str = "discrete", **overrides: object) -> OMPNConfig:
+    obs_dim, action_type, action_dim, vocab = synthetic_spec(kind)  # type: ignore[arg-type]
+    fields = {
+        "obs_dim": obs_dim,
+        "action_type": action_type,
+        "action_dim": action_dim,
+        "n_slots": 2,
+        "slot_size": 32,
+        **overrides,
+    }
+    if fields.get("sketch_mode") == "sum":
+        fields["sketch_vocab"] = vocab
+    return OMPNConfig(**fields)  # type: ignore[arg-type]
+
+
+def _train_config(**overrides: object) -> TrainConfig:
+    base = {
+        "lr": 3e-3,
+        "batch_size": 32,
+        "iterations": 70,
+        "eval_every": 35,
+        "val_ratio": 0.25,
+        "progress": False,
+        "threads": 1,
+    }
+    return TrainConfig(**{**base, **overrides})  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def trained() -> tuple[object, dict[str, float]]:
+    result = train(make_dataset("discrete", 96, seed=0), _model_config(), _train_config())
+    return result.policy, result.last_metrics
+
+
+def test_trained_ompn_recovers_boundaries_and_beats_trivial_detectors(trained: tuple[object, dict]) -> None:
+    policy, _ = trained
+    held_out = make_dataset("discrete", 40, seed=10_000)
+    ev = evaluate(policy, held_out)
+    assert ev["topk_f1_tol1"] >= 0.9, ev
+    gts = [ep.boundaries for ep in held_out]
+    ks = [len(g) for g in gts]
+    # constant p_hat: Top-K degenerates to the first K steps; random p_hat: random steps
+    constant = [top_k_boundaries(np.tile([0.0, 0.5, 0.5], (ep.length, 1)), k) for ep, k in zip(held_out, ks)]
+    rng = np.random.default_rng(0)
+    random = [top_k_boundaries(rng.dirichlet(np.ones(3), size=ep.length), k) for ep, k in zip(held_out, ks)]
+    assert mean_f1(constant, gts, 1).f1 < 0.5
+    assert mean_f1(random, gts, 1).f1 < 0.75
+    assert ev["topk_f1_tol1"] - mean_f1(random, gts, 1).f1 > 0.2
+
+
+def test_evaluate_reports_losses_metrics_and_p_hat(trained: tuple[object, dict]) -> None:
+    policy, last = trained
+    episodes = make_dataset("discrete", 5, seed=500)
+    ev = evaluate(policy, episodes, batch_size=2)
+    assert ev["n_episodes"] == 5 and ev["n_steps"] == sum(ep.length for ep in episodes)
+    assert [p.shape for p in ev["p_hat"]] == [(ep.length, 3) for ep in episodes]
+    for p in ev["p_hat"]:
+        np.testing.assert_allclose(p.sum(axis=1), 1.0, atol=1e-5)
+    assert 0.0 <= ev["loss"] < 0.5 and ev["accuracy"] > 0.9
+    for key in ("f1_tol0", "f1_tol1", "align", "align_strict", "auto_align", "auto_fallback_rate"):
+        assert 0.0 <= ev[key] <= 1.0
+    assert ev["align"] == ev["topk_align"]  # discrete actions: Top-K is the primary detector
+    assert {"loss", "align", "f1_tol1", "train_loss"} <= set(last)
+
+
+def test_selection_key_prefers_metric_then_lower_loss() -> None:
+    a = {"align": 0.9, "loss": 0.5}
+    b = {"align": 0.9, "loss": 0.4}
+    c = {"align": 0.95, "loss": 2.0}
+    assert selection_key(b, "align") > selection_key(a, "align")
+    assert selection_key(c, "align") > selection_key(b, "align")
+    assert selection_key(b, "val_loss") > selection_key(c, "val_loss")
+
+
+@pytest.mark.parametrize(
+    ("kind", "model_overrides", "train_overrides"),
+    [
+        ("discrete", {"no_bottom_up": True}, {}),
+        ("discrete", {"no_top_down": True}, {}),
+        ("discrete", {"no_bottom_up_recurrence": True}, {}),
+        ("discrete", {"memory_update": "code"}, {}),
+        ("discrete", {"sketch_mode": "sum"}, {}),
+        ("discrete", {}, {"no_done_loss": True}),
+        ("continuous", {}, {"obs_norm": "maxabs"}),
+        ("continuous", {"n_slots": 3, "memory_update": "code"}, {"selection": "val_loss"}),
+    ],
+)
+def test_ablation_switches_train_one_iteration(
+    kind: str, model_overrides: dict, train_overrides: dict
+) -> None:
+    episodes = make_dataset(kind, 8, seed=3)  # type: ignore[arg-type]
+    config = _model_config(kind, **model_overrides)
+    tc = _train_config(iterations=1, eval_every=1, batch_size=4, **train_overrides)
+    torch.manual_seed(tc.seed)
+    from ompn_ros.model.policy import OMPNPolicy
+
+    initial = OMPNPolicy(config).state_dict()
+    result = train(episodes, config, tc)
+    assert result.iterations == 1 and math.isfinite(result.last_metrics["train_loss"])
+    after = result.policy.state_dict()
+    assert any(not torch.equal(initial[k], after[k]) for k in initial if after[k].dtype.is_floating_point)
+
+
+class _Kill(Exception):
+    pass
+
+
+def test_resume_after_kill_matches_uninterrupted_run(tmp_path: Path) -> None:
+    episodes = make_dataset("discrete", 24, seed=7)
+    config = _model_config()
+    common = {"iterations": 7, "eval_every": 2, "batch_size": 8}
+    straight = train(episodes, config, _train_config(out_dir=str(tmp_path / "a"), **common))
+
+    def kill_at_5(iteration: int, stats: dict) -> None:
+        if iteration == 5:
+            raise _Kill
+
+    with pytest.raises(_Kill):
+        train(episodes, config, _train_config(out_dir=str(tmp_path / "b"), **common), callback=kill_at_5)
+    state = json.loads((tmp_path / "b" / "train_state" / "LATEST").read_text())
+    assert state == {"dir": "it00000004"}
+    resumed = train(episodes, config, _train_config(out_dir=str(tmp_path / "b"), resume=True, **common))
+    assert resumed.iterations == 7
+    for key, value in straight.policy.state_dict().items():
+        assert torch.equal(value, resumed.policy.state_dict()[key]), key
+    assert [h["iteration"] for h in resumed.history] == [2.0, 4.0, 6.0, 7.0]
+    assert resumed.history == straight.history
+    # the checkpoints on disk load back (safetensors + JSON) and hold the final weights
+    last, extra = load_checkpoint(tmp_path / "b" / "last")
+    assert extra["iteration"] == 7
+    for key, value in last.state_dict().items():
+        assert torch.equal(value, straight.policy.state_dict()[key])
+    assert (tmp_path / "b" / "best" / "model.safetensors").exists()
+    assert len((tmp_path / "b" / "log.jsonl").read_text().splitlines()) == 4  # 2 + 4 before kill, 6 + 7 after
+
+
+def test_resume_without_state_starts_fresh(tmp_path: Path) -> None:
+    result = train(
+        make_dataset("discrete", 6, seed=1),
+        _model_config(),
+        _train_config(out_dir=str(tmp_path), resume=True, iterations=1, batch_size=4),
+    )
+    assert result.iterations == 1
+
+
+def test_train_config_validation() -> None:
+    with pytest.raises(TrainConfigError, match="batch_size"):
+        TrainConfig(batch_size=0)
+    with pytest.raises(TrainConfigError, match="val_ratio"):
+        TrainConfig(val_ratio=1.0)
+    with pytest.raises(TrainConfigError, match="selection"):
+        TrainConfig(selection="reward")
+    with pytest.raises(TrainConfigError, match="resume"):
+        TrainConfig(resume=True)
+    with pytest.raises(TrainConfigError, match="unknown"):
+        TrainConfig.from_dict({"learning_rate": 1.0})
+
+
+def test_train_rejects_mismatched_episodes() -> None:
+    with pytest.raises(TrainDataError, match="obs_dim"):
+        train(make_dataset("continuous", 3), _model_config("discrete"), _train_config(iterations=1))
+
+
+def test_decomposition_metrics_with_fixed_thresholds_and_k() -> None:
+    from ompn_ros.train.evaluation import EvaluationError, decomposition_metrics
+
+    ep = make_dataset("discrete", 1, seed=2)[0]
+    # a perfect detector: p_hat expands to pi_end exactly at the ground-truth boundaries
+    p_hat = np.tile([0.0, 0.0, 1.0], (ep.length, 1))
+    p_hat[ep.boundaries] = [1.0, 0.0, 0.0]
+    m = decomposition_metrics([p_hat], [ep], thresholds=(0.5,))
+    assert m["topk_f1_tol0"] == m["thr0.5_f1_tol0"] == m["auto_f1_tol0"] == 1.0
+    assert m["align"] == m["topk_align"] == 1.0
+    # flat zeros between the spikes: no strict valley, so Algorithm 2 falls back to 0.5 (flagged)
+    assert m["auto_fallback_rate"] == 1.0
+    k2 = decomposition_metrics([p_hat], [ep], k=2)
+    assert k2["topk_precision_tol0"] == 1.0 and k2["topk_recall_tol0"] == 0.5
+    with pytest.raises(EvaluationError, match="rows"):
+        decomposition_metrics([p_hat[:-1]], [ep])
