@@ -81,6 +81,7 @@ class DomainLayout:
     action_msg: str
     has_joint_states: bool
     step_topics: tuple[str, ...]  # per-step topics in publish order (observation first)
+    sketch_vocab: int  # sketch ids lie in 0..sketch_vocab-1 (Craft: subtask ids 1..8; Dial: digits 0..9)
 
 
 CRAFT: Final = DomainLayout(
@@ -91,6 +92,7 @@ CRAFT: Final = DomainLayout(
     action_msg=INT32,
     has_joint_states=False,
     step_topics=(OBSERVATION, SUBTASK, ACTION),
+    sketch_vocab=9,
 )
 
 DIAL: Final = DomainLayout(
@@ -101,6 +103,7 @@ DIAL: Final = DomainLayout(
     action_msg=FLOAT32_ARRAY,
     has_joint_states=True,
     step_topics=(OBSERVATION, JOINT_STATES, SUBTASK, ACTION),
+    sketch_vocab=10,
 )
 
 DOMAINS: Final = {d.name: d for d in (CRAFT, DIAL)}

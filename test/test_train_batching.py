@@ -47,12 +47,12 @@ def test_continuous_collate_zero_action_at_done_step() -> None:
     assert batch.done_mask.tolist() == [[False, False, True], [False, True, False]]
 
 
-def test_sketch_ids_are_shifted_and_padded_with_zero() -> None:
+def test_sketch_ids_are_kept_and_padded_with_minus_one() -> None:
     batch = collate(
         [_discrete(2, sketch=[0, 3]), _discrete(2, sketch=[2, 1, 4])], "discrete", 5, use_sketch=True
     )
     assert batch.sketch is not None
-    assert batch.sketch.tolist() == [[1, 4, 0], [3, 2, 5]]
+    assert batch.sketch.tolist() == [[0, 3, -1], [2, 1, 4]]
 
 
 def test_collate_errors_name_the_episode() -> None:

@@ -1,1 +1,1 @@
-"""ompn_ros."""
+"""Command-line entry points (ompn_train, ompn_collect, ompn_segment, ompn_reproduce)."""

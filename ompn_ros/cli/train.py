@@ -147,6 +147,7 @@ def _load_episodes(args: argparse.Namespace, data: dict[str, Any]) -> tuple[list
         "obs_dim": domain.obs_dim,
         "action_type": domain.action_type,
         "action_dim": domain.action_dim,
+        "_vocab": domain.sketch_vocab,
     }
 
 

@@ -66,7 +66,7 @@ class Batch:
         actions: int64 ``[B, L]`` (discrete, done = ``action_dim``) or float32 ``[B, L, A]``.
         mask: bool ``[B, L]``, True on the ``T + 1`` valid rows of each episode.
         done_mask: bool ``[B, L]``, True only on row ``T`` (the appended done step).
-        sketch: int64 ``[B, K]`` model sketch ids (episode id + 1; 0 = padding) or None.
+        sketch: int64 ``[B, K]`` sketch ids (the episodes' ids; -1 = padding) or None.
         lengths: int64 ``[B]`` real steps ``T`` per episode (without the done step).
     """
 
@@ -151,13 +151,13 @@ def collate(
             sketches.append(np.asarray(ep.sketch, dtype=np.int64))
     sketch_t = None
     if use_sketch:
-        # Episode sketch ids are 0-based; the model reserves id 0 for padding, so shift by one.
+        # Episode sketch ids are the domain's ids (>= 0); shorter sketches are padded with -1.
         width = max(len(s) for s in sketches)
-        padded = np.zeros((size, width), dtype=np.int64)
+        padded = np.full((size, width), -1, dtype=np.int64)
         for i, s in enumerate(sketches):
             if s.size and s.min() < 0:
                 raise BatchError(f"{_describe(episodes[i], i)} has negative sketch ids {s.tolist()}")
-            padded[i, : len(s)] = s + 1
+            padded[i, : len(s)] = s
         sketch_t = torch.from_numpy(padded)
     return Batch(
         obs=torch.from_numpy(obs),

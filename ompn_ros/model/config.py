@@ -1,0 +1,139 @@
+"""OMPNConfig: the validated hyper-parameters of one OMPN policy, with a JSON round trip."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Literal
+
+CONFIG_VERSION = 1
+"""Format version of :class:`OMPNConfig` (stored in every checkpoint's ``config.json``)."""
+
+ActionType = Literal["discrete", "continuous"]
+SketchMode = Literal["none", "sum"]
+MemoryUpdate = Literal["paper", "code"]
+
+
+class ConfigError(ValueError):
+    """An invalid :class:`OMPNConfig` field or an unreadable serialized config."""
+
+
+@dataclass
+class OMPNConfig:
+    """Hyper-parameters of the Ordered Memory Policy Network (paper §3, appendix A).
+
+    Attributes:
+        obs_dim: observation size (Craft 1075, Dial 39).
+        action_type: ``'discrete'`` (categorical head) or ``'continuous'`` (Gaussian mean head).
+        action_dim: discrete: number of env actions *excluding* done (Craft 5); continuous: the
+            action vector size (Dial 9).
+        n_slots: memory depth n (paper: 3).
+        slot_size: slot size m = H (paper appendix: 128).
+        sketch_mode: ``'none'`` (paper "NoSketch", task embedding e = 0) or ``'sum'`` (e = sum of
+            learned subtask embeddings over the sketch; ids 0..sketch_vocab-1, -1 = padding).
+        sketch_vocab: number of subtask ids (required > 0 with ``sketch_mode='sum'``).
+        memory_update: ``'paper'`` = paper Eq. (2) M^t = M^{t-1}(1-cp) + C^t pi + M_hat(1-rcp);
+            ``'code'`` = what the authors' code runs (spec craft §3.5.4): M_i = rcp_i C_i + (1-rcp_i) M_hat_i.
+        no_bottom_up: ablation "No Bottomup": skip the bottom-up pass (C_i := M^{t-1}_i).
+        no_top_down: ablation "No Topdown": M_hat := 0.
+        no_bottom_up_recurrence: ablation "No Bottomup Recurr": ComCell_i gets v = 0.
+        action_variance: fixed variance of the Gaussian action distribution (continuous only).
+        version: config format version, must equal :data:`CONFIG_VERSION`.
+    """
+
+    obs_dim: int
+    action_type: ActionType
+    action_dim: int
+    n_slots: int = 3
+    slot_size: int = 128
+    sketch_mode: SketchMode = "none"
+    sketch_vocab: int = 0
+    memory_update: MemoryUpdate = "paper"
+    no_bottom_up: bool = False
+    no_top_down: bool = False
+    no_bottom_up_recurrence: bool = False
+    action_variance: float = 0.6
+    version: int = CONFIG_VERSION
+
+    def __post_init__(self) -> None:
+        def positive_int(name: str, value: Any) -> None:
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+                raise ConfigError(f"OMPNConfig.{name} must be a positive int, got {value!r}")
+
+        positive_int("obs_dim", self.obs_dim)
+        positive_int("action_dim", self.action_dim)
+        positive_int("n_slots", self.n_slots)
+        positive_int("slot_size", self.slot_size)
+        if self.action_type not in ("discrete", "continuous"):
+            raise ConfigError(
+                f"OMPNConfig.action_type must be 'discrete' or 'continuous', got {self.action_type!r}"
+            )
+        if self.sketch_mode not in ("none", "sum"):
+            raise ConfigError(f"OMPNConfig.sketch_mode must be 'none' or 'sum', got {self.sketch_mode!r}")
+        if isinstance(self.sketch_vocab, bool) or not isinstance(self.sketch_vocab, int):
+            raise ConfigError(f"OMPNConfig.sketch_vocab must be an int, got {self.sketch_vocab!r}")
+        if self.sketch_mode == "sum" and self.sketch_vocab <= 0:
+            raise ConfigError(
+                "OMPNConfig.sketch_mode='sum' needs sketch_vocab > 0 (the number of subtask ids, "
+                f"ids 0..sketch_vocab-1, -1 = padding), got sketch_vocab={self.sketch_vocab}"
+            )
+        if self.sketch_mode == "none" and self.sketch_vocab != 0:
+            raise ConfigError(
+                f"OMPNConfig.sketch_vocab={self.sketch_vocab} is only meaningful with sketch_mode='sum'; "
+                "set sketch_vocab=0 or sketch_mode='sum'"
+            )
+        if self.memory_update not in ("paper", "code"):
+            raise ConfigError(
+                f"OMPNConfig.memory_update must be 'paper' or 'code', got {self.memory_update!r}"
+            )
+        for name in ("no_bottom_up", "no_top_down", "no_bottom_up_recurrence"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"OMPNConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if isinstance(self.action_variance, bool) or not isinstance(self.action_variance, int | float):
+            raise ConfigError(f"OMPNConfig.action_variance must be a number, got {self.action_variance!r}")
+        if not self.action_variance > 0:
+            raise ConfigError(f"OMPNConfig.action_variance must be > 0, got {self.action_variance!r}")
+        self.action_variance = float(self.action_variance)
+        if self.version != CONFIG_VERSION:
+            raise ConfigError(
+                f"OMPNConfig.version {self.version!r} is not supported (this code reads version "
+                f"{CONFIG_VERSION}); retrain or convert the checkpoint"
+            )
+
+    @property
+    def n_actions_with_done(self) -> int:
+        """Discrete: number of classes including the done class (index ``action_dim``)."""
+        return self.action_dim + 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-serializable dict (all fields, including ``version``)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> OMPNConfig:
+        """Build from :meth:`to_dict` output; unknown keys or a wrong version raise :class:`ConfigError`."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"OMPNConfig.from_dict needs a dict, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown OMPNConfig keys {unknown}; known keys are {sorted(known)}")
+        missing = sorted(k for k in ("obs_dim", "action_type", "action_dim") if k not in data)
+        if missing:
+            raise ConfigError(f"OMPNConfig is missing required keys {missing}")
+        if "version" in data and data["version"] != CONFIG_VERSION:
+            raise ConfigError(
+                f"OMPNConfig version {data['version']!r} is not supported (expected {CONFIG_VERSION})"
+            )
+        return cls(**data)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> OMPNConfig:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"OMPNConfig JSON is not valid JSON: {exc}") from exc
+        return cls.from_dict(data)

@@ -1,0 +1,100 @@
+"""Checkpoint round trip and error reporting."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.policy import OMPNPolicy
+
+
+def policy() -> OMPNPolicy:
+    torch.manual_seed(3)
+    cfg = OMPNConfig(
+        obs_dim=7,
+        action_type="continuous",
+        action_dim=3,
+        n_slots=2,
+        slot_size=8,
+        sketch_mode="sum",
+        sketch_vocab=5,
+        memory_update="code",
+    )
+    p = OMPNPolicy(cfg)
+    p.set_obs_normalization(np.arange(7, dtype=np.float32), np.full(7, 2.5, dtype=np.float32))
+    return p
+
+
+def test_round_trip_is_bit_exact(tmp_path: Path) -> None:
+    original = policy()
+    save_checkpoint(tmp_path / "ckpt", original, extra={"lr": 1e-3, "metrics": {"f1": 0.9}})
+    loaded, extra = load_checkpoint(tmp_path / "ckpt")
+    assert loaded.config == original.config
+    assert extra == {"lr": 1e-3, "metrics": {"f1": 0.9}}
+    reference = original.state_dict()
+    assert set(loaded.state_dict()) == set(reference)
+    for name, value in loaded.state_dict().items():
+        assert torch.equal(value, reference[name]), name
+    assert not loaded.training
+    # overwriting an existing checkpoint works and leaves no temporary directories behind
+    save_checkpoint(tmp_path / "ckpt", loaded)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ckpt"]
+    assert load_checkpoint(tmp_path / "ckpt")[1] == {}
+
+
+def test_corrupt_weights_name_the_file(tmp_path: Path) -> None:
+    save_checkpoint(tmp_path / "c", policy())
+    (tmp_path / "c" / "model.safetensors").write_bytes(b"\x00garbage" * 10)
+    with pytest.raises(CheckpointError, match=r"c/model\.safetensors: not a readable safetensors file"):
+        load_checkpoint(tmp_path / "c")
+
+
+def test_config_weight_mismatch_names_the_tensor(tmp_path: Path) -> None:
+    save_checkpoint(tmp_path / "c", policy())
+    cfg_file = tmp_path / "c" / "config.json"
+    cfg = json.loads(cfg_file.read_text())
+    cfg["slot_size"] = 16
+    cfg_file.write_text(json.dumps(cfg))
+    with pytest.raises(
+        CheckpointError, match=r"model\.safetensors: tensor 'encoder\.weight' has shape \(8, 7\)"
+    ):
+        load_checkpoint(tmp_path / "c")
+    cfg["slot_size"], cfg["sketch_mode"], cfg["sketch_vocab"] = 8, "none", 0
+    cfg_file.write_text(json.dumps(cfg))
+    with pytest.raises(CheckpointError, match=r"unexpected \['sketch_embedding\.weight'\]"):
+        load_checkpoint(tmp_path / "c")
+
+
+def test_missing_files_and_versions(tmp_path: Path) -> None:
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "nope")
+    save_checkpoint(tmp_path / "c", policy())
+    cfg_file = tmp_path / "c" / "config.json"
+    cfg = json.loads(cfg_file.read_text())
+    cfg_file.write_text(json.dumps({**cfg, "version": 7}))
+    with pytest.raises(CheckpointError, match=r"config\.json: .*version 7 is not supported"):
+        load_checkpoint(tmp_path / "c")
+    cfg_file.write_text(json.dumps(cfg))
+    meta = tmp_path / "c" / "meta.json"
+    meta.write_text(json.dumps({"format_version": 2, "extra": {}}))
+    with pytest.raises(CheckpointError, match=r"meta\.json: checkpoint format_version 2"):
+        load_checkpoint(tmp_path / "c")
+    meta.unlink()
+    (tmp_path / "c" / "model.safetensors").unlink()
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: missing"):
+        load_checkpoint(tmp_path / "c")
+    cfg_file.unlink()
+    with pytest.raises(CheckpointError, match=r"config\.json: missing"):
+        load_checkpoint(tmp_path / "c")
+
+
+def test_extra_must_be_json(tmp_path: Path) -> None:
+    with pytest.raises(CheckpointError, match="not JSON-serializable"):
+        save_checkpoint(tmp_path / "c", policy(), extra={"bad": object()})
+    assert not (tmp_path / "c").exists()
