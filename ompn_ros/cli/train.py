@@ -127,28 +127,49 @@ def _load_episodes(args: argparse.Namespace, data: dict[str, Any]) -> tuple[list
             "action_dim": action_dim,
             "_vocab": vocab,
         }
-    try:
-        from ompn_ros.data.bag_reader import read_episodes
-    except ImportError as exc:
-        raise TrainCliError(
-            f"reading bags needs ompn_ros.data.bag_reader ({exc}); use --synthetic for a smoke run"
-        ) from exc
+    from ompn_ros.data.bag_reader import ReaderSpec
+    from ompn_ros.data.cache import load_arrays
+
     domain_name = data.get("domain")
-    if domain_name not in DOMAINS:
+    spec_file = data.get("reader_spec")
+    if spec_file:
+        spec = ReaderSpec.from_yaml(spec_file)
+    elif domain_name in DOMAINS:
+        spec = ReaderSpec.for_domain(domain_name)
+    else:
         raise TrainCliError(
-            f"data.domain must be one of {sorted(DOMAINS)} when training from bags, got {domain_name!r}"
+            f"data.domain must be one of {sorted(DOMAINS)}, or give data.reader_spec (a reader YAML such as "
+            f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
         )
-    domain = DOMAINS[domain_name]
-    result = read_episodes(args.bags, on_error=data.get("on_error", "raise"))
-    episodes = list(result.episodes)
+    arrays = load_arrays(args.bags, spec=spec, on_error=data.get("on_error", "raise"),
+                         use_cache=bool(data.get("cache", True)))
+    episodes = arrays.episodes()
     if not episodes:
         raise TrainCliError(f"no episodes found in {args.bags}")
+    if domain_name not in DOMAINS:
+        return episodes, _fields_from_episodes(episodes, data)
+    domain = DOMAINS[domain_name]
     return episodes, {
         "obs_dim": domain.obs_dim,
         "action_type": domain.action_type,
         "action_dim": domain.action_dim,
         "_vocab": domain.sketch_vocab,
     }
+
+
+def _fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str, Any]:
+    """Model sizes for a user's own bags: from the data, with ``data.action_dim`` for discrete actions."""
+    first = episodes[0]
+    continuous = first.actions.ndim == 2
+    if continuous:
+        action_dim = int(first.actions.shape[1])
+    elif "action_dim" in data:
+        action_dim = int(data["action_dim"])
+    else:
+        raise TrainCliError("discrete actions from your own bags need data.action_dim (the number of actions, "
+                            "without 'done')")
+    return {"obs_dim": int(first.observations.shape[1]),
+            "action_type": "continuous" if continuous else "discrete", "action_dim": action_dim}
 
 
 def weights_hash(policy: Any) -> str:
