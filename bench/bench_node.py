@@ -1,0 +1,279 @@
+"""Benchmark of the online product: segmenter step latency and ompn_node over DDS.
+
+1. In-process, batch 1: ``StreamingSegmenter.step`` p50/p99 (numpy StreamingPolicy + detector +
+   validation) vs a plain eager PyTorch ``OMPNPolicy.step`` under ``inference_mode``, for the
+   Craft (obs 1075, n=3, m=128, discrete) and Dial (obs 39, n=3, m=64, continuous) sizes.
+   Random-init checkpoints (latency does not depend on the weights).
+2. Two processes on loopback: this process publishes Dial-sized observations and subscribes to the
+   node's outputs; ``ompn_node`` runs as a subprocess.  Observation -> ``~/pi`` latency p50/p99
+   at 100 Hz (and observation -> ``~/boundary`` for the boundaries that occur; detector_high=0.23 sits
+   inside the random-init model's score range so boundaries do occur), then a sustained
+   1 kHz stream (``duration`` s; 60 s for the real figure, 5 s with ``quick``) with the lost steps
+   taken from the node's own ``/diagnostics`` counters and the node process's CPU use.
+   Measured with the node's SingleThreadedExecutor (the EventsExecutor does not work with it, see
+   the ompn_node docstring).
+
+Run: ``cd /work/main && .venv/bin/python bench/bench_node.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import array
+import os
+import random
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ["ROS_DOMAIN_ID"]) <= 100:
+    os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+
+Result = dict[str, tuple[float, str]]
+
+
+def _configs() -> dict[str, Any]:
+    from ompn_ros.model.config import OMPNConfig
+
+    return {
+        "craft": OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5, n_slots=3, slot_size=128),
+        "dial": OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9, n_slots=3, slot_size=64),
+    }
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values), q)) if values else float("nan")
+
+
+def bench_in_process(steps: int) -> Result:
+    """Segmenter step vs eager torch step, batch 1."""
+    import torch
+
+    from ompn_ros.detect.online import DetectorConfig
+    from ompn_ros.model.policy import OMPNPolicy
+    from ompn_ros.model.streaming import StreamingPolicy
+    from ompn_ros.segmenter import StreamingSegmenter
+
+    torch.set_num_threads(1)
+    out: Result = {}
+    rng = np.random.default_rng(0)
+    for name, cfg in _configs().items():
+        torch.manual_seed(0)
+        model = OMPNPolicy(cfg).eval()
+        seg = StreamingSegmenter(StreamingPolicy(model), DetectorConfig(high=0.5))
+        obs = rng.normal(size=(steps, cfg.obs_dim)).astype(np.float32)
+        seg_times = []
+        for i, x in enumerate(obs):
+            if i % 200 == 0:
+                seg.reset()
+            t0 = time.perf_counter_ns()
+            seg.step(x)
+            seg_times.append((time.perf_counter_ns() - t0) / 1e3)
+        torch_times = []
+        state = model.initial_state(1)
+        with torch.inference_mode():
+            for i, x in enumerate(obs):
+                if i % 200 == 0:
+                    state = model.initial_state(1)
+                t0 = time.perf_counter_ns()
+                step_out, state = model.step(torch.from_numpy(x).unsqueeze(0), state)
+                _ = step_out.p_hat.numpy()
+                torch_times.append((time.perf_counter_ns() - t0) / 1e3)
+        warm = min(50, steps // 10)
+        seg_times, torch_times = seg_times[warm:], torch_times[warm:]
+        out[f"{name}_segmenter_step_p50"] = (_pct(seg_times, 50), "us")
+        out[f"{name}_segmenter_step_p99"] = (_pct(seg_times, 99), "us")
+        out[f"{name}_torch_step_p50"] = (_pct(torch_times, 50), "us")
+        out[f"{name}_torch_step_p99"] = (_pct(torch_times, 99), "us")
+        out[f"{name}_speedup_p50"] = (_pct(torch_times, 50) / _pct(seg_times, 50), "x")
+    return out
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class _Client:
+    """Publisher of observations and subscriber of the node's outputs (this process)."""
+
+    def __init__(self, ctx: Any) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Float32MultiArray
+
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        events = QoSProfile(
+            depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+        )
+        self.node = rclpy.create_node("bench_client", context=ctx)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.pub = self.node.create_publisher(Float32MultiArray, "observation", reliable)
+        self.msg_type = Float32MultiArray
+        self.pi_times: list[int] = []
+        self.boundaries: list[tuple[int, int]] = []  # (detected_at, receive ns)
+        self.diag: dict[str, str] = {}
+        self.node.create_subscription(
+            Float32MultiArray, "/ompn_node/pi", lambda m: self.pi_times.append(time.monotonic_ns()), reliable
+        )
+        self.node.create_subscription(DiagnosticArray, "/ompn_node/boundary", self._on_boundary, events)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+
+    def _on_boundary(self, msg: Any) -> None:
+        values = {kv.key: kv.value for kv in msg.status[0].values}
+        self.boundaries.append((int(values["detected_at"]), time.monotonic_ns()))
+
+    def _on_diag(self, msg: Any) -> None:
+        if msg.status and msg.status[0].name.endswith(": segmenter"):
+            self.diag = {kv.key: kv.value for kv in msg.status[0].values}
+
+    def pump(self, cond: Any, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.005)
+            if cond():
+                return True
+        return bool(cond())
+
+    def stream(self, observations: np.ndarray, rate: float) -> list[int]:
+        """Publish at ``rate`` Hz while spinning; returns the publish times (monotonic ns)."""
+        msgs = []
+        for x in observations:
+            m = self.msg_type()
+            m.data = array.array("f", x.astype(np.float32).tobytes())
+            msgs.append(m)
+        period = 1e9 / rate
+        t_start = time.monotonic_ns() + 1_000_000
+        sent = []
+        for i, m in enumerate(msgs):
+            due = t_start + int(i * period)
+            # sleep-paced (a busy-wait pacer would take a core from the node on this 2-core machine)
+            while True:
+                now = time.monotonic_ns()
+                if now >= due:
+                    break
+                if due - now > 400_000:  # serve callbacks while waiting (blocks, does not spin)
+                    self.executor.spin_once(timeout_sec=(due - now - 300_000) / 1e9)
+                elif due - now > 150_000:
+                    time.sleep((due - now - 100_000) / 1e9)
+            sent.append(time.monotonic_ns())
+            self.pub.publish(m)
+        return sent
+
+
+def bench_dds(duration: float, latency_msgs: int) -> Result:
+    import rclpy
+    import torch
+
+    from ompn_ros.model.checkpoint import save_checkpoint
+    from ompn_ros.model.policy import OMPNPolicy
+
+    cfg = _configs()["dial"]
+    out: Result = {}
+    tmp = Path(tempfile.mkdtemp(prefix="bench_node_"))
+    torch.manual_seed(0)
+    save_checkpoint(tmp / "dial", OMPNPolicy(cfg))
+    rng = np.random.default_rng(0)
+    executor = "single"  # the EventsExecutor serves no callbacks of this node (ompn_node docstring)
+    cmd = [
+        sys.executable,
+        "-m",
+        "ompn_ros.nodes.ompn_node",
+        "--ros-args",
+        "-p",
+        f"checkpoint:={tmp / 'dial'}",
+        "-p",
+        f"executor:={executor}",
+        "-p",
+        "diagnostics_period:=0.2",
+        "-p",
+        "detector_high:=0.23",
+        "-p",
+        "qos_depth:=1000",
+    ]
+    log = open(tmp / f"node_{executor}.log", "w")  # closed in the finally block
+    proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        client = _Client(ctx)
+        if not client.pump(lambda: bool(client.diag) and client.pub.get_subscription_count() > 0, 30):
+            raise RuntimeError(f"ompn_node did not come up: {(tmp / f'node_{executor}.log').read_text()}")
+        client.pump(lambda: False, 0.5)
+        # warm-up (first messages after matching may be dropped by the late reader)
+        client.stream(rng.normal(size=(20, cfg.obs_dim)), 100.0)
+        client.pump(lambda: False, 0.5)
+        base_pi = len(client.pi_times)
+        base_accepted = int(client.diag["accepted"])
+        obs = rng.normal(size=(latency_msgs, cfg.obs_dim))
+        sent = client.stream(obs, 100.0)
+        client.pump(lambda: len(client.pi_times) - base_pi >= latency_msgs, 5)
+        got = client.pi_times[base_pi:]
+        lat = [(r - s) / 1e6 for s, r in zip(sent, got, strict=False)]
+        out[f"{executor}_pi_latency_100hz_p50"] = (_pct(lat, 50), "ms")
+        out[f"{executor}_pi_latency_100hz_p99"] = (_pct(lat, 99), "ms")
+        # boundaries detected during this window: detected_at counts steps since the last reset
+        first_step = base_accepted  # one episode, never reset: step index == accepted count
+        blat = [
+            (r - sent[d - first_step]) / 1e6 for d, r in client.boundaries if 0 <= d - first_step < len(sent)
+        ]
+        out[f"{executor}_boundary_latency_100hz_p50"] = (_pct(blat, 50), "ms")
+        out[f"{executor}_boundary_events_100hz"] = (float(len(blat)), "events")
+
+        client.pump(lambda: False, 0.5)
+        accepted_before = int(client.diag["accepted"])
+        n = int(duration * 1000)
+        obs = rng.normal(size=(n, cfg.obs_dim))
+        cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
+        sent = client.stream(obs, 1000.0)
+        wall = time.monotonic() - wall0
+        cpu = _cpu_seconds(proc.pid) - cpu0
+        client.pump(lambda: int(client.diag.get("accepted", 0)) - accepted_before >= n, 5)
+        client.pump(lambda: False, 0.5)
+        accepted = int(client.diag["accepted"]) - accepted_before
+        out[f"{executor}_1khz_sent"] = (float(n), "msgs")
+        out[f"{executor}_1khz_achieved_rate"] = (n / wall, "Hz")
+        out[f"{executor}_1khz_lost_steps"] = (float(n - accepted), "steps")
+        out[f"{executor}_1khz_node_cpu"] = (100.0 * cpu / wall, "% of one core")
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        proc.send_signal(2)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+    return out
+
+
+def run(quick: bool = False) -> Result:
+    """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz and fewer samples."""
+    results: Result = {}
+    results.update(bench_in_process(1000 if quick else 5000))
+    results.update(bench_dds(duration=5.0 if quick else 60.0, latency_msgs=300 if quick else 1000))
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    results = run(quick=args.quick)
+    width = max(len(k) for k in results)
+    for name, (value, unit) in results.items():
+        print(f"{name:<{width}}  {value:12.3f}  {unit}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,287 @@
+"""Causal (online) subtask-boundary detectors fed one score per step.
+
+The score is the code-weighted expected expansion position of the authors' evaluation
+(spec craft §5.3, dial §4.5 step 2), computed from the *unnormalised* ``p_hat`` ordered
+``[pi_end, slot n (top), ..., slot 1 (bottom)]`` with weights ``w = [n, n-1, ..., 0] / n``::
+
+    score_t = sum_k w_k * p_hat_t[k]   in [0, 1]
+
+Offline, the paper standardises ``pi_avg`` by the trajectory's maximum before thresholding
+(Algorithm 1).  That needs the whole trajectory, so online we use the fixed-range normalisation
+``/ n`` instead: thresholds tuned offline therefore do not carry over one-to-one.
+
+Detection follows the paper's Algorithm 1 ("the boundary is the last time step of a segment above
+the threshold"), made causal:
+
+* hysteresis: a run *starts* when ``score > high`` and *ends* when ``score <= low``
+  (``low == high`` reproduces Algorithm 1 exactly);
+* ``mode='falling_edge'`` (default, the paper's boundary): when a run ends at step ``t`` the
+  boundary is ``t - 1``, the last in-run step, emitted at step ``t`` (commit lag 1 step);
+* ``mode='peak'``: commit the first local maximum of the run (boundary ``t - 1`` as soon as
+  ``score_t < score_{t-1}``); same lag, but long plateaus (Dial) commit before the run ends;
+* ``mode='rising_edge'``: commit the first in-run step immediately (lag 0);
+* a candidate that would make a segment shorter than ``min_segment_length`` steps is dropped;
+* ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``).
+
+Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
+hard-coded to "expand from the top", spec craft §3.6).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+MODES = ("falling_edge", "peak", "rising_edge")
+
+
+class DetectorConfigError(ValueError):
+    """A detector parameter is out of range; the message names the parameter."""
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Parameters of :class:`OnlineDetector`.
+
+    Attributes:
+        high: a run starts when the score is strictly above ``high`` (in [0, 1]).
+        low: a run ends when the score is at or below ``low``; ``None`` means ``low = high``
+            (no hysteresis, the paper's Algorithm 1). Must satisfy ``0 <= low <= high``.
+        min_segment_length: minimum number of steps of a segment closed by a detected boundary
+            (``>= 1``; 1 disables the check).
+        mode: 'falling_edge' | 'peak' | 'rising_edge' (see the module docstring).
+        force_first_step_low: treat step 0's score as 0 (the authors' evaluation does this).
+    """
+
+    high: float = 0.5
+    low: float | None = None
+    min_segment_length: int = 1
+    mode: str = "falling_edge"
+    force_first_step_low: bool = True
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.high, (int, float)) and 0.0 <= float(self.high) <= 1.0):
+            raise DetectorConfigError(f"detector 'high' must be a number in [0, 1], got {self.high!r}")
+        if self.low is not None:
+            if not isinstance(self.low, (int, float)) or not 0.0 <= float(self.low) <= float(self.high):
+                raise DetectorConfigError(
+                    f"detector 'low' must be a number in [0, high={self.high}], got {self.low!r}"
+                )
+        if not isinstance(self.min_segment_length, (int, np.integer)) or self.min_segment_length < 1:
+            raise DetectorConfigError(
+                f"detector 'min_segment_length' must be an integer >= 1, got {self.min_segment_length!r}"
+            )
+        if self.mode not in MODES:
+            raise DetectorConfigError(f"detector 'mode' must be one of {MODES}, got {self.mode!r}")
+
+    @property
+    def low_threshold(self) -> float:
+        """The effective exit threshold."""
+        return float(self.high if self.low is None else self.low)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> DetectorConfig:
+        """Build from a mapping, rejecting unknown keys by name."""
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise DetectorConfigError(f"unknown detector parameter(s) {unknown}; known: {sorted(known)}")
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class BoundaryEvent:
+    """One detected subtask boundary.
+
+    Attributes:
+        step: index of the last step of the subtask that ended (the paper's boundary).
+        detected_at: step index at which the event was emitted (``detected_at - step`` is the
+            commit lag; 1 for the falling edge).
+        subtask: 0-based ordinal within the episode of the subtask that ended.
+        score: detector score at ``step``.
+        level: hierarchy level at ``step``: the argmax of p_hat mapped to paper slot numbers
+            (1 = bottom ... n = top, n + 1 = pi_end); 0 when unknown.
+        stamp_ns: stamp of the observation of ``step`` (0 when unknown).
+        final: True for the boundary that closes the episode (``end_episode``).
+    """
+
+    step: int
+    detected_at: int
+    subtask: int
+    score: float
+    level: int
+    stamp_ns: int
+    final: bool = False
+
+
+def expansion_score(p_hat: np.ndarray) -> float:
+    """Code-weighted expected expansion position in [0, 1] from ``p_hat`` (``[n+1]``).
+
+    ``sum_k w_k p_hat[k]`` with ``w = [n, ..., 0] / n`` (spec dial §4.5 step 2, divided by n).
+    """
+    p = np.asarray(p_hat, dtype=np.float64).reshape(-1)
+    n = p.size - 1
+    if n < 1:
+        raise ValueError(f"p_hat must have n+1 >= 2 entries, got {p.size}")
+    weights = np.arange(n, -1, -1, dtype=np.float64) / n
+    return float(np.clip(weights @ p, 0.0, 1.0))
+
+
+def expansion_scores(p_hat: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`expansion_score` over ``[T, n+1]`` (no step-0 override)."""
+    p = np.asarray(p_hat, dtype=np.float64)
+    n = p.shape[-1] - 1
+    weights = np.arange(n, -1, -1, dtype=np.float64) / n
+    return np.clip(p @ weights, 0.0, 1.0)
+
+
+def expansion_level(p_hat: np.ndarray) -> int:
+    """Argmax expansion level: paper slot number (1 = bottom, n = top), ``n + 1`` for pi_end."""
+    p = np.asarray(p_hat).reshape(-1)
+    return int(p.size - int(np.argmax(p)))
+
+
+@dataclass
+class _StepRecord:
+    score: float
+    level: int
+    stamp_ns: int
+
+
+@dataclass
+class OnlineDetector:
+    """Causal boundary detector; feed it with :meth:`update` once per step."""
+
+    config: DetectorConfig = field(default_factory=DetectorConfig)
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode."""
+        self._step = -1
+        self._in_run = False
+        self._run_committed = False
+        self._prev: _StepRecord | None = None
+        self._recent: deque[tuple[int, _StepRecord]] = deque(maxlen=4)
+        self._last_boundary = -1
+        self._n_boundaries = 0
+        self._closed = False
+
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`end_episode` until :meth:`reset`."""
+        return self._closed
+
+    @property
+    def steps_seen(self) -> int:
+        return self._step + 1
+
+    @property
+    def boundaries_emitted(self) -> int:
+        return self._n_boundaries
+
+    @property
+    def last_boundary(self) -> int:
+        """Step index of the last emitted boundary (-1 before the first)."""
+        return self._last_boundary
+
+    def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
+        """Consume the score of the next step; return the boundary committed at this step, if any."""
+        if self._closed:
+            raise RuntimeError("OnlineDetector.update after end_episode(); call reset() first")
+        self._step += 1
+        t = self._step
+        cfg = self.config
+        if t == 0 and cfg.force_first_step_low:
+            score = 0.0
+        current = _StepRecord(float(score), int(level), int(stamp_ns))
+        event: BoundaryEvent | None = None
+        if not self._in_run:
+            if current.score > cfg.high:
+                self._in_run = True
+                self._run_committed = False
+                if cfg.mode == "rising_edge":
+                    event = self._commit(t, current, t)
+                    self._run_committed = True
+        else:
+            prev = self._prev
+            assert prev is not None
+            if current.score <= cfg.low_threshold:
+                self._in_run = False
+                if not self._run_committed:
+                    event = self._commit(t - 1, prev, t)
+            elif cfg.mode == "peak" and not self._run_committed and current.score < prev.score:
+                event = self._commit(t - 1, prev, t)
+                self._run_committed = True
+        self._prev = current
+        self._recent.append((t, current))
+        return event
+
+    def end_episode(self, last_step: int | None = None) -> BoundaryEvent | None:
+        """Close the last segment at ``last_step`` (default: the last step seen).
+
+        Returns ``None`` when no step was seen or a boundary already ends at or after
+        ``last_step`` (e.g. the falling edge at the done step). Call :meth:`reset` afterwards.
+        """
+        self._closed = True
+        if self._step < 0:
+            return None
+        end = self._step if last_step is None else min(int(last_step), self._step)
+        if end < 0 or self._last_boundary >= end:
+            return None
+        record = next((r for step, r in self._recent if step == end), None)
+        score = record.score if record is not None else float("nan")
+        level = record.level if record is not None else 0
+        stamp = record.stamp_ns if record is not None else 0
+        return self._emit(end, self._step, score, level, stamp, final=True)
+
+    def _commit(self, step: int, record: _StepRecord, detected_at: int) -> BoundaryEvent | None:
+        if step - self._last_boundary < self.config.min_segment_length:
+            return None
+        return self._emit(step, detected_at, record.score, record.level, record.stamp_ns)
+
+    def _emit(
+        self, step: int, detected_at: int, score: float, level: int, stamp_ns: int, final: bool = False
+    ) -> BoundaryEvent:
+        event = BoundaryEvent(
+            step=step,
+            detected_at=detected_at,
+            subtask=self._n_boundaries,
+            score=score,
+            level=level,
+            stamp_ns=stamp_ns,
+            final=final,
+        )
+        self._last_boundary = step
+        self._n_boundaries += 1
+        return event
+
+
+def detect_sequence(
+    scores: np.ndarray,
+    config: DetectorConfig | None = None,
+    levels: np.ndarray | None = None,
+    stamps_ns: np.ndarray | None = None,
+    close_episode: bool = True,
+) -> list[BoundaryEvent]:
+    """Run an :class:`OnlineDetector` over a whole score sequence (for tests and analysis)."""
+    detector = OnlineDetector(config or DetectorConfig())
+    events: list[BoundaryEvent] = []
+    for t, score in enumerate(np.asarray(scores, dtype=np.float64)):
+        level = int(levels[t]) if levels is not None else 0
+        stamp = int(stamps_ns[t]) if stamps_ns is not None else 0
+        event = detector.update(float(score), level, stamp)
+        if event is not None:
+            events.append(event)
+    if close_episode:
+        final = detector.end_episode()
+        if final is not None:
+            events.append(final)
+    return events

@@ -1,0 +1,79 @@
+"""Plots of the expansion distribution over time with true and detected boundaries (paper Figs. 4-5).
+
+Uses matplotlib's Agg backend (no display needed).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def plot_episode(
+    path: str | Path,
+    pi: np.ndarray,
+    pi_end: np.ndarray,
+    scores: np.ndarray,
+    *,
+    true_boundaries: Sequence[int] | None = None,
+    detected_boundaries: Sequence[int] | None = None,
+    offline_boundaries: Sequence[int] | None = None,
+    high: float | None = None,
+    low: float | None = None,
+    title: str = "",
+) -> Path:
+    """Write a two-panel PNG of one episode and return its path.
+
+    Top: stacked slot probabilities ``pi`` (``[T, n]``, lowest slot first) scaled by ``1 - pi_end``,
+    with ``pi_end`` on top (together: ``p_hat``).  Bottom: the detector score (code-weighted
+    pi_avg / n) with the thresholds.  Vertical lines: true boundaries (green, dashed), online
+    detections (red), offline detections (blue, dotted).
+    """
+    pi = np.asarray(pi, dtype=np.float64)
+    pi_end = np.asarray(pi_end, dtype=np.float64).reshape(-1)
+    scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+    T, n = pi.shape
+    t = np.arange(T)
+    fig, (ax_pi, ax_s) = plt.subplots(2, 1, figsize=(max(6.0, min(18.0, T / 8)), 5.0), sharex=True)
+    layers = [pi[:, i] * (1.0 - pi_end) for i in range(n)] + [pi_end]
+    labels = [f"slot {i + 1}" for i in range(n)] + ["π_end"]
+    ax_pi.stackplot(t, *layers, labels=labels, step="mid", alpha=0.85)
+    ax_pi.set_ylim(0, 1)
+    ax_pi.set_ylabel("p̂ (expansion)")
+    ax_pi.legend(loc="upper left", fontsize=7, ncol=n + 1)
+    ax_s.plot(t, scores, color="black", lw=1.2, label="score")
+    if high is not None:
+        ax_s.axhline(high, color="gray", ls="--", lw=0.8, label="high")
+    if low is not None and high is not None and low != high:
+        ax_s.axhline(low, color="gray", ls=":", lw=0.8, label="low")
+    for ax in (ax_pi, ax_s):
+        for b in true_boundaries or []:
+            ax.axvline(b, color="green", ls="--", lw=1.0)
+        for b in detected_boundaries or []:
+            ax.axvline(b, color="red", lw=1.0, alpha=0.8)
+        for b in offline_boundaries or []:
+            ax.axvline(b, color="blue", ls=":", lw=1.0)
+    ax_s.set_ylim(-0.02, 1.02)
+    ax_s.set_xlabel("step")
+    ax_s.set_ylabel("score")
+    handles = [
+        plt.Line2D([], [], color="green", ls="--", label="true"),
+        plt.Line2D([], [], color="red", label="online"),
+    ]
+    if offline_boundaries is not None:
+        handles.append(plt.Line2D([], [], color="blue", ls=":", label="offline"))
+    ax_s.legend(handles=handles + ax_s.get_legend_handles_labels()[0], loc="upper left", fontsize=7)
+    if title:
+        ax_pi.set_title(title)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out

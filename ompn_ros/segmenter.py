@@ -1,0 +1,302 @@
+"""StreamingSegmenter: a StreamingPolicy plus a causal boundary detector, one step per observation.
+
+This is the only object ``ompn_node`` calls, and ``ompn_segment`` (offline bag replay) drives the
+very same class, so live and offline segmentation cannot drift apart.
+
+Input validation happens *before* the model is touched: a rejected observation raises a subclass
+of :class:`InvalidInput` and leaves the ordered memory, the step counter, the detector and the
+last stamp exactly as they were (the next valid observation gives the same output as if the bad
+one had never arrived).  Rejections are counted by reason in :attr:`StreamingSegmenter.rejected`.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect.online import (
+    BoundaryEvent,
+    DetectorConfig,
+    OnlineDetector,
+    expansion_level,
+    expansion_score,
+)
+
+
+class InvalidInput(ValueError):
+    """An observation was rejected without stepping the model. ``reason`` is the counter key."""
+
+    reason = "invalid"
+
+
+class EmptyObservation(InvalidInput):
+    reason = "empty"
+
+
+class WrongObservationLength(InvalidInput):
+    reason = "wrong_length"
+
+
+class NonFiniteObservation(InvalidInput):
+    reason = "non_finite"
+
+
+class OutOfOrderStamp(InvalidInput):
+    reason = "out_of_order_stamp"
+
+
+class MissingSketch(InvalidInput):
+    reason = "no_sketch"
+
+
+class EpisodeClosed(InvalidInput):
+    reason = "episode_closed"
+
+
+class SketchError(ValueError):
+    """The sketch given to :meth:`StreamingSegmenter.reset` does not fit the model."""
+
+
+REJECT_REASONS = (
+    EmptyObservation.reason,
+    WrongObservationLength.reason,
+    NonFiniteObservation.reason,
+    OutOfOrderStamp.reason,
+    MissingSketch.reason,
+    EpisodeClosed.reason,
+)
+
+
+class PolicyConfigLike(Protocol):
+    obs_dim: int
+    n_slots: int
+    action_type: str
+    action_dim: int
+    sketch_mode: str
+
+
+class StreamingPolicyLike(Protocol):
+    """What the segmenter needs from ``ompn_ros.model.streaming.StreamingPolicy``."""
+
+    config: Any
+
+    def reset(self, sketch: np.ndarray | None = None) -> None: ...
+
+    def step(self, obs: np.ndarray) -> Any: ...
+
+
+@dataclass(frozen=True)
+class SegmenterOutput:
+    """Result of one accepted step.
+
+    Attributes:
+        step_output: the policy's ``StepOutput`` (action, pi, pi_end, p_hat, expected_position, ...).
+        boundary: the boundary committed at this step, if any (it may refer to an earlier step).
+        step_index: 0-based index of this step within the episode.
+        score: the detector score of this step (code-weighted pi_avg / n, in [0, 1]).
+        level: argmax expansion level of this step (1 = bottom slot ... n + 1 = pi_end).
+    """
+
+    step_output: Any
+    boundary: BoundaryEvent | None
+    step_index: int
+    score: float
+    level: int
+
+
+class StreamingSegmenter:
+    """Validate, step the policy's ordered memory, score the expansion and detect boundaries."""
+
+    def __init__(self, policy: StreamingPolicyLike, detector_config: DetectorConfig | None = None) -> None:
+        self.policy = policy
+        self.detector_config = detector_config or DetectorConfig()
+        self.detector = OnlineDetector(self.detector_config)
+        self.obs_dim = int(policy.config.obs_dim)
+        self.rejected: Counter[str] = Counter({reason: 0 for reason in REJECT_REASONS})
+        self.accepted = 0
+        self.episodes = 0
+        self._last_stamp: int | None = None
+        self._step_index = -1
+        self._sketch: np.ndarray | None = None
+        self._ready = False
+        if self.needs_sketch:
+            self.episodes = 0  # waits for reset(sketch)
+        else:
+            self.reset()
+
+    @property
+    def needs_sketch(self) -> bool:
+        """True when the model conditions on a sketch (``reset`` must be given one)."""
+        return getattr(self.policy.config, "sketch_mode", "none") != "none"
+
+    @property
+    def ready(self) -> bool:
+        """False until an episode was started (sketch models wait for their sketch)."""
+        return self._ready
+
+    @property
+    def step_index(self) -> int:
+        """Index of the last accepted step of the current episode (-1 before the first)."""
+        return self._step_index
+
+    @property
+    def sketch(self) -> np.ndarray | None:
+        return self._sketch
+
+    def reset(self, sketch: np.ndarray | None = None) -> None:
+        """Start a new episode: clear the memory (initialised from ``sketch`` if the model uses one).
+
+        Stamps of the new episode are checked against the previous episode's too (a stream never
+        goes back in time); call :meth:`forget_stamps` to allow that (e.g. replaying several bags).
+        """
+        sketch_arr = self._validate_sketch(sketch)
+        self.policy.reset(sketch_arr)
+        self.detector.reset()
+        self._sketch = sketch_arr
+        self._step_index = -1
+        self._ready = True
+        self.episodes += 1
+
+    def forget_stamps(self) -> None:
+        """Accept any stamp on the next step (used between independent recordings)."""
+        self._last_stamp = None
+
+    def validate(self, obs: Any, stamp_ns: int | None = None) -> np.ndarray:
+        """Return ``obs`` as float32 ``[obs_dim]`` or raise an :class:`InvalidInput` subclass."""
+        if not self._ready:
+            raise MissingSketch("no episode started: the model needs a sketch (reset(sketch)) first")
+        if self.detector.closed:
+            raise EpisodeClosed("the episode was ended (end_episode); reset() starts the next one")
+        try:
+            arr = np.asarray(obs, dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise NonFiniteObservation(f"observation is not numeric: {exc}") from exc
+        arr = arr.reshape(-1)
+        if arr.size == 0:
+            raise EmptyObservation("observation is empty")
+        if arr.size != self.obs_dim:
+            raise WrongObservationLength(
+                f"observation has {arr.size} values, the model expects obs_dim={self.obs_dim}"
+            )
+        if not np.isfinite(arr).all():
+            bad = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise NonFiniteObservation(f"observation has a NaN/Inf value (first at index {bad})")
+        if stamp_ns is not None and self._last_stamp is not None and int(stamp_ns) <= self._last_stamp:
+            raise OutOfOrderStamp(
+                f"observation stamp {int(stamp_ns)} ns is not after the previous step's {self._last_stamp} ns"
+            )
+        return arr
+
+    def step(self, obs: Any, stamp_ns: int | None = None) -> SegmenterOutput:
+        """Validate and consume one observation; raises :class:`InvalidInput` without side effects."""
+        try:
+            arr = self.validate(obs, stamp_ns)
+        except InvalidInput as exc:
+            self.rejected[exc.reason] += 1
+            raise
+        out = self.policy.step(arr)
+        if stamp_ns is not None:
+            self._last_stamp = int(stamp_ns)
+        self._step_index += 1
+        self.accepted += 1
+        p_hat = np.asarray(out.p_hat)
+        score = expansion_score(p_hat)
+        level = expansion_level(p_hat)
+        boundary = self.detector.update(score, level, 0 if stamp_ns is None else int(stamp_ns))
+        return SegmenterOutput(out, boundary, self._step_index, score, level)
+
+    def end_episode(self, last_step: int | None = None) -> BoundaryEvent | None:
+        """Close the current episode's last segment (see ``OnlineDetector.end_episode``).
+
+        ``last_step`` lets the caller exclude the final 'done' observation: with the layout's step
+        contract an episode of ``T`` real steps publishes ``T + 1`` observations, so pass ``T - 1``.
+        """
+        return self.detector.end_episode(last_step)
+
+    @property
+    def rejected_total(self) -> int:
+        return int(sum(self.rejected.values()))
+
+    def _validate_sketch(self, sketch: np.ndarray | None) -> np.ndarray | None:
+        mode = getattr(self.policy.config, "sketch_mode", "none")
+        if sketch is None:
+            if mode != "none":
+                raise SketchError(f"the model uses sketch_mode='{mode}' and needs a sketch; none was given")
+            return None
+        arr = np.asarray(sketch)
+        if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
+            raise SketchError(f"sketch must be a non-empty 1-D integer array, got {arr.dtype} {arr.shape}")
+        if mode == "none":
+            return None  # a sketch is published but the model ignores it
+        vocab = getattr(self.policy.config, "sketch_vocab", None)
+        if vocab is not None and (arr.min() < 0 or arr.max() >= int(vocab)):
+            raise SketchError(f"sketch ids {arr.tolist()} outside the model's vocabulary 0..{int(vocab) - 1}")
+        return arr.astype(np.int64)
+
+
+@dataclass
+class ReplayResult:
+    """Per-step outputs of one episode replayed through a :class:`StreamingSegmenter`."""
+
+    p_hat: np.ndarray  # [T, n+1]
+    pi: np.ndarray  # [T, n] lowest slot first
+    pi_end: np.ndarray  # [T]
+    expected_position: np.ndarray  # [T]
+    scores: np.ndarray  # [T]
+    boundaries: list[BoundaryEvent] = field(default_factory=list)
+    actions: list[Any] = field(default_factory=list)
+
+    @property
+    def boundary_steps(self) -> np.ndarray:
+        return np.array([b.step for b in self.boundaries], dtype=np.int64)
+
+
+def replay_episode(
+    segmenter: StreamingSegmenter,
+    episode: Episode,
+    *,
+    include_done_step: bool = False,
+    stamps_ns: np.ndarray | None = None,
+) -> ReplayResult:
+    """Feed ``episode``'s observations through ``segmenter`` exactly as the node would.
+
+    With ``include_done_step`` the final observation (row T) is stepped too, as in a live stream;
+    the last segment is closed at ``T - 1`` either way, and the returned arrays cover the
+    ``T`` real steps only (the offline evaluation drops the done step, spec craft §5.2).
+    """
+    sketch = episode.sketch if getattr(segmenter.policy.config, "sketch_mode", "none") != "none" else None
+    segmenter.reset(sketch)
+    T = episode.length
+    n_obs = T + 1 if include_done_step else T
+    p_hats, pis, pi_ends, positions, scores = [], [], [], [], []
+    boundaries: list[BoundaryEvent] = []
+    actions: list[Any] = []
+    for t in range(n_obs):
+        stamp = None if stamps_ns is None else int(stamps_ns[t])
+        result = segmenter.step(episode.observations[t], stamp)
+        if t < T:
+            so = result.step_output
+            p_hats.append(np.asarray(so.p_hat, dtype=np.float64))
+            pis.append(np.asarray(so.pi, dtype=np.float64))
+            pi_ends.append(float(so.pi_end))
+            positions.append(float(so.expected_position))
+            scores.append(result.score)
+            actions.append(so.action)
+        if result.boundary is not None and result.boundary.step <= T - 1:
+            boundaries.append(result.boundary)
+    final = segmenter.end_episode(T - 1)
+    if final is not None:
+        boundaries.append(final)
+    return ReplayResult(
+        p_hat=np.array(p_hats),
+        pi=np.array(pis),
+        pi_end=np.array(pi_ends),
+        expected_position=np.array(positions),
+        scores=np.array(scores),
+        boundaries=boundaries,
+        actions=actions,
+    )

@@ -1,0 +1,178 @@
+"""Two processes over DDS: this test plays the sim, ``ompn_node`` runs as a subprocess.
+
+sim (this process) -> observation/episode markers -> ompn_node (subprocess) -> ~/pi, ~/boundary
+-> subscriber (this process).  Boundary events must equal the offline replay of the same
+StreamingSegmenter and match the ground truth of the synthetic task.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("ompn_ros.model.streaming")
+trainer = pytest.importorskip("ompn_ros.train.trainer")
+synthetic = pytest.importorskip("ompn_ros.train.synthetic")
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_msgs.msg import Float32MultiArray  # noqa: E402
+
+from ompn_ros import layout  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.metrics import mean_f1  # noqa: E402
+from ompn_ros.model.config import OMPNConfig  # noqa: E402
+from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
+from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
+
+torch.set_num_threads(1)
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+EVENTS = QoSProfile(
+    depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
+HIGH = 0.2
+
+
+def trained_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small OMPN trained on the synthetic corridor task (~10 s), shared by the session."""
+    path = tmp_path_factory.getbasetemp() / "synthetic_discrete_ckpt"
+    if not (path / "best").is_dir():
+        episodes = synthetic.make_dataset("discrete", 64, seed=0)
+        obs_dim, action_type, action_dim, _ = synthetic.synthetic_spec("discrete")
+        cfg = OMPNConfig(
+            obs_dim=obs_dim, action_type=action_type, action_dim=action_dim, n_slots=3, slot_size=32
+        )
+        trainer.train(
+            episodes,
+            cfg,
+            trainer.TrainConfig(
+                iterations=120, batch_size=32, eval_every=40, out_dir=str(path), lr=3e-3, progress=False
+            ),
+        )
+    return path / "best"
+
+
+def marker(kind: str, values: dict[str, str]) -> DiagnosticArray:
+    msg = DiagnosticArray()
+    msg.status = [
+        DiagnosticStatus(
+            name=layout.EPISODE_STATUS_NAME,
+            message=kind,
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
+    ]
+    return msg
+
+
+def test_sim_node_subscriber(tmp_path_factory: pytest.TempPathFactory, ros_env: dict[str, str]) -> None:
+    ckpt = trained_checkpoint(tmp_path_factory)
+    episodes = synthetic.make_dataset("discrete", 2, seed=900)
+    cmd = [
+        sys.executable,
+        "-m",
+        "ompn_ros.nodes.ompn_node",
+        "--ros-args",
+        "-p",
+        f"checkpoint:={ckpt}",
+        "-p",
+        f"detector_high:={HIGH}",
+        "-p",
+        "diagnostics_period:=0.1",
+    ]
+    proc = subprocess.Popen(
+        cmd,
+        env=ros_env,
+        cwd=str(Path(__file__).resolve().parents[1]),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        sim = rclpy.create_node("fake_sim", context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(sim)
+        obs_pub = sim.create_publisher(Float32MultiArray, layout.OBSERVATION, RELIABLE)
+        ep_pub = sim.create_publisher(DiagnosticArray, layout.EPISODE, RELIABLE)
+        pis: list[np.ndarray] = []
+        events: list[dict[str, str]] = []
+        diags: list[dict[str, str]] = []
+        sim.create_subscription(
+            Float32MultiArray, "/ompn_node/pi", lambda m: pis.append(np.array(m.data)), RELIABLE
+        )
+        sim.create_subscription(
+            DiagnosticArray,
+            "/ompn_node/boundary",
+            lambda m: events.append({kv.key: kv.value for kv in m.status[0].values}),
+            EVENTS,
+        )
+        sim.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: diags.append({kv.key: kv.value for kv in m.status[0].values}),
+            10,
+        )
+
+        def pump(cond, timeout: float) -> bool:
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.01)
+                if cond():
+                    return True
+                assert proc.poll() is None, f"ompn_node exited: {proc.communicate()[0]}"
+            return cond()
+
+        assert pump(lambda: bool(diags), 30), "ompn_node never published /diagnostics"
+        # start markers are idempotent before the first step: repeat until the node has seen one
+        for _ in range(100):
+            ep_pub.publish(marker(layout.EPISODE_START, {layout.KEY_SKETCH: ""}))
+            if pump(lambda: int(diags[-1]["episodes"]) >= 2, 0.2):
+                break
+        assert int(diags[-1]["episodes"]) >= 2 and obs_pub.get_subscription_count() > 0
+
+        for i, ep in enumerate(episodes):
+            if i > 0:
+                ep_pub.publish(marker(layout.EPISODE_START, {layout.KEY_SKETCH: ""}))
+            start = len(pis)
+            for t in range(ep.length + 1):  # the real steps and the final (done) observation
+                obs_pub.publish(Float32MultiArray(data=ep.observations[t].tolist()))
+                assert pump(lambda t=t, start=start: len(pis) == start + t + 1, 5), f"no ~/pi for step {t}"
+            ep_pub.publish(marker(layout.EPISODE_END, {layout.KEY_STEPS: str(ep.length)}))
+            assert pump(lambda i=i: sum(e["final"] == "true" for e in events) == i + 1, 5)
+
+        segmenter = StreamingSegmenter(StreamingPolicy.from_checkpoint(ckpt), DetectorConfig(high=HIGH))
+        expected, got_by_episode, preds = [], [], []
+        final_idx = [j for j, e in enumerate(events) if e["final"] == "true"]
+        bounds = [0, *[j + 1 for j in final_idx]]
+        for i, ep in enumerate(episodes):
+            replay = replay_episode(segmenter, ep, include_done_step=True)
+            expected.append([(b.step, b.subtask, b.detected_at) for b in replay.boundaries])
+            got = events[bounds[i] : bounds[i + 1]]
+            got_by_episode.append([(int(e["step"]), int(e["subtask"]), int(e["detected_at"])) for e in got])
+            preds.append(np.array([int(e["step"]) for e in got]))
+            assert int(got[-1]["step"]) == ep.length - 1
+        assert got_by_episode == expected
+        assert mean_f1(preds, [ep.boundaries for ep in episodes], tol=1).f1 >= 0.75
+        assert all(e["level"].isdigit() and 0.0 <= float(e["score"]) <= 1.0 for e in events)
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, _ = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, _ = proc.communicate()
+    assert proc.returncode == 0, out
+    assert "subtask boundary" in out
+    assert os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"

@@ -1,0 +1,152 @@
+"""Causal boundary detectors on tiny hand-made score sequences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ompn_ros.detect.online import (
+    BoundaryEvent,
+    DetectorConfig,
+    DetectorConfigError,
+    OnlineDetector,
+    detect_sequence,
+    expansion_level,
+    expansion_score,
+    expansion_scores,
+)
+
+
+def paper_algorithm1(scores: np.ndarray, thr: float) -> list[int]:
+    """The paper's Algorithm 1 without the last-K truncation (reference, written from the tex)."""
+    preds, prev = [], False
+    for t, s in enumerate(scores):
+        curr = bool(s > thr)
+        if prev and not curr:
+            preds.append(t - 1)
+        prev = curr
+    preds.append(len(scores) - 1)
+    return preds
+
+
+def steps(events: list[BoundaryEvent]) -> list[int]:
+    return [e.step for e in events]
+
+
+def test_falling_edge_matches_algorithm1_on_random_sequences() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        scores = rng.random(rng.integers(1, 40))
+        scores[0] = 0.0  # the detector forces step 0 low, like the authors' evaluation
+        thr = float(rng.choice([0.3, 0.5, 0.7]))
+        got = steps(detect_sequence(scores, DetectorConfig(high=thr)))
+        ref = paper_algorithm1(scores, thr)
+        # Algorithm 1 may append L-1 twice when the last step is a falling edge's t-1
+        assert got == sorted(set(ref))
+
+
+def test_falling_edge_commit_lag_is_one_step() -> None:
+    scores = [0.0, 0.1, 0.9, 0.8, 0.1, 0.1, 0.95, 0.2, 0.1]
+    events = detect_sequence(scores, DetectorConfig(high=0.5))
+    assert steps(events) == [3, 6, 8]
+    assert [e.detected_at for e in events] == [4, 7, 8]
+    assert [e.subtask for e in events] == [0, 1, 2]
+    assert events[0].score == pytest.approx(0.8)
+    assert events[-1].final and not events[0].final
+
+
+def test_hysteresis_ignores_chatter_inside_a_run() -> None:
+    scores = [0.0, 0.8, 0.45, 0.8, 0.45, 0.2, 0.1]
+    plain = detect_sequence(scores, DetectorConfig(high=0.5))
+    hyst = detect_sequence(scores, DetectorConfig(high=0.5, low=0.3))
+    assert steps(plain) == [1, 3, 6]
+    assert steps(hyst) == [4, 6]
+    # a dip that never reaches 'high' does not start a run
+    assert steps(detect_sequence([0.0, 0.45, 0.2], DetectorConfig(high=0.5, low=0.3))) == [2]
+
+
+def test_min_segment_length_drops_short_segments() -> None:
+    scores = [0.0, 0.9, 0.1, 0.9, 0.1, 0.1, 0.1, 0.9, 0.1, 0.1]
+    assert steps(detect_sequence(scores, DetectorConfig(high=0.5))) == [1, 3, 7, 9]
+    events = detect_sequence(scores, DetectorConfig(high=0.5, min_segment_length=3))
+    # 1 (segment of 2 steps) dropped; 3 closes [0..3] (4 steps); 7 closes [4..7]
+    assert steps(events) == [3, 7, 9]
+    assert [e.subtask for e in events] == [0, 1, 2]
+
+
+def test_rising_edge_and_peak_modes_cut_the_delay() -> None:
+    scores = [0.0, 0.2, 0.6, 0.9, 0.7, 0.6, 0.2, 0.1]
+    fall = detect_sequence(scores, DetectorConfig(high=0.5))
+    peak = detect_sequence(scores, DetectorConfig(high=0.5, mode="peak"))
+    rise = detect_sequence(scores, DetectorConfig(high=0.5, mode="rising_edge"))
+    assert [(e.step, e.detected_at) for e in fall[:1]] == [(5, 6)]
+    assert [(e.step, e.detected_at) for e in peak[:1]] == [(3, 4)]
+    assert [(e.step, e.detected_at) for e in rise[:1]] == [(2, 2)]
+    for events in (fall, peak, rise):
+        assert len(events) == 2 and events[-1].step == 7
+
+
+def test_run_open_at_episode_end_is_closed_by_the_end() -> None:
+    events = detect_sequence([0.0, 0.1, 0.9, 0.9], DetectorConfig(high=0.5))
+    assert steps(events) == [3]
+    assert events[0].final
+
+
+def test_end_episode_with_done_step_excluded() -> None:
+    det = OnlineDetector(DetectorConfig(high=0.5))
+    # real steps 0..4, step 5 is the 'done' observation
+    for s in [0.0, 0.1, 0.9, 0.1, 0.9]:
+        det.update(s)
+    falling = det.update(0.1)  # falling edge at the done step commits step 4 = T-1
+    assert falling is not None and falling.step == 4
+    assert det.end_episode(last_step=4) is None  # already closed, no duplicate
+    det.reset()
+    for s in [0.0, 0.1, 0.1, 0.1]:
+        det.update(s)
+    final = det.end_episode(last_step=2)
+    assert final is not None and (final.step, final.detected_at, final.subtask) == (2, 3, 0)
+    with pytest.raises(RuntimeError):
+        det.update(0.3)
+
+
+def test_first_step_forced_low_unless_disabled() -> None:
+    scores = [0.9, 0.1, 0.1]
+    assert steps(detect_sequence(scores, DetectorConfig(high=0.5))) == [2]
+    cfg = DetectorConfig(high=0.5, force_first_step_low=False)
+    assert steps(detect_sequence(scores, cfg)) == [0, 2]
+
+
+def test_event_carries_level_and_stamp_of_the_boundary_step() -> None:
+    levels = np.array([1, 1, 3, 4, 1])
+    stamps = np.array([10, 20, 30, 40, 50])
+    events = detect_sequence([0.0, 0.1, 0.9, 0.8, 0.1], DetectorConfig(high=0.5), levels, stamps)
+    assert (events[0].step, events[0].level, events[0].stamp_ns) == (3, 4, 40)
+
+
+def test_expansion_score_weights_and_level() -> None:
+    # p_hat = [pi_end, top, middle, bottom]
+    assert expansion_score(np.array([0, 0, 0, 1.0])) == 0.0
+    assert expansion_score(np.array([1.0, 0, 0, 0])) == 1.0
+    assert expansion_score(np.array([0, 1.0, 0, 0])) == pytest.approx(2 / 3)
+    assert expansion_score(np.array([0.5, 0, 0, 0.5])) == pytest.approx(0.5)
+    assert expansion_level(np.array([0, 0, 0, 1.0])) == 1
+    assert expansion_level(np.array([0, 1.0, 0, 0])) == 3
+    assert expansion_level(np.array([0.7, 0.1, 0.1, 0.1])) == 4
+    batch = np.array([[0, 0, 0, 1.0], [0, 1.0, 0, 0]])
+    np.testing.assert_allclose(expansion_scores(batch), [0, 2 / 3])
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"high": 1.5}, "high"),
+        ({"high": 0.5, "low": 0.6}, "low"),
+        ({"min_segment_length": 0}, "min_segment_length"),
+        ({"mode": "edge"}, "mode"),
+    ],
+)
+def test_config_validation_names_the_parameter(kwargs: dict, name: str) -> None:
+    with pytest.raises(DetectorConfigError, match=name):
+        DetectorConfig(**kwargs)
+    with pytest.raises(DetectorConfigError, match="unknown"):
+        DetectorConfig.from_dict({"hihg": 0.3})
