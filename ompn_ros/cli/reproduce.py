@@ -1,0 +1,469 @@
+"""``ompn_reproduce``: from an empty directory to the paper's tables, through rosbag2 files.
+
+Stages (each timed): collect seeded expert demonstrations into bags (``ompn_collect``), read the
+bags back into episodes (the same reader users run on their own bags), hold out a test split by
+seed, train OMPN with the shipped config for every setting and seed, evaluate on the held-out
+episodes only (offline Top-K / automatic threshold, and the online causal detector through the
+same ``StreamingSegmenter`` the node runs), then write ``results/<domain>.json`` (shape
+``{setting: {metric: {"mean", "std", "n"}}}``, metrics as fractions), ``results/<domain>.md`` and
+figures (π over time with true and detected boundaries, like the paper's Figures 4–5 and 9).
+
+Extras, each a separate table: the K sweep (Craft), the threshold sweep (Dial), and the ablations
+plus both memory-update variants.  ``--ship`` copies the seed-0 checkpoint of the primary setting
+into the package (``ompn_ros/checkpoints/``) together with its provenance.
+
+Examples::
+
+    ompn_reproduce craft                       # Craft, the 4 settings, shipped seed count
+    ompn_reproduce craft --settings full_nosketch --seeds 1 --extras none   # the ≤ 10 min path
+    ompn_reproduce dial --ship
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shutil
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ompn_ros import layout
+from ompn_ros.data.episode import Episode
+from ompn_ros.paths import config_file
+
+LOG = logging.getLogger("ompn_ros.reproduce")
+CRAFT_TASKS = ("makebed", "makeaxe", "makeshears")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One row of the paper's Table 1."""
+
+    name: str
+    partial: bool = False
+    sketch: bool = False
+
+
+SETTINGS: dict[str, dict[str, Setting]] = {
+    "craft": {
+        s.name: s
+        for s in (
+            Setting("full_nosketch"),
+            Setting("full_sketch", sketch=True),
+            Setting("partial_nosketch", partial=True),
+            Setting("partial_sketch", partial=True, sketch=True),
+        )
+    },
+    "dial": {s.name: s for s in (Setting("nosketch"), Setting("sketch", sketch=True))},
+}
+PRIMARY = {"craft": "full_nosketch", "dial": "nosketch"}
+ABLATIONS = {
+    "memory_paper": {"memory_update": "paper"},
+    "memory_code": {"memory_update": "code"},
+    "no_bottom_up": {"no_bottom_up": True},
+    "no_top_down": {"no_top_down": True},
+    "no_bottom_up_recurrence": {"no_bottom_up_recurrence": True},
+    "no_done_loss": {"_train.no_done_loss": True},
+}
+DEFAULT_EPISODES = {"craft": 500, "dial": 1400}  # Craft: per task; Dial: in total
+DEFAULT_TEST_RATIO = 0.2
+
+
+class ReproduceError(RuntimeError):
+    """A stage of the reproduction cannot run (names the stage and the cause)."""
+
+
+@dataclass
+class Timer:
+    """Wall time of every stage, printed as it ends."""
+
+    stages: dict[str, float] = field(default_factory=dict)
+
+    def run(self, name: str, fn: Callable[[], Any]) -> Any:
+        start = time.perf_counter()
+        print(f"[{name}] ...", flush=True)
+        result = fn()
+        elapsed = time.perf_counter() - start
+        self.stages[name] = self.stages.get(name, 0.0) + elapsed
+        print(f"[{name}] done in {elapsed:.1f} s", flush=True)
+        return result
+
+
+# --- data ----------------------------------------------------------------------------------------
+
+
+def collect_bags(domain: str, partial: bool, episodes: int, seed: int, work: Path) -> Path:
+    """Seeded demonstrations into ``work/bags/<domain>_<obs>/`` (reused when already complete)."""
+    from ompn_ros.cli.collect import MANIFEST, collect
+
+    out = work / "bags" / f"{domain}_{'partial' if partial else 'full'}"
+    tasks = list(CRAFT_TASKS) if domain == "craft" else ["dial"]
+    total = episodes * len(tasks) if domain == "craft" else episodes
+    manifest_file = out / MANIFEST
+    if manifest_file.is_file():
+        manifest = json.loads(manifest_file.read_text())
+        if manifest.get("totals", {}).get("episodes") == total and manifest["settings"]["seed"] == seed:
+            print(f"   reusing {out} ({total} episodes)")
+            return out
+    collect(out, domain=domain, tasks=tasks, episodes=total, seed=seed, partial=partial,
+            split_every=max(1, total // 4), overwrite=out.exists(), progress=sys.stderr.isatty(),
+            command=["ompn_collect", "--domain", domain, "--task", ",".join(tasks), "--episodes", str(total),
+                     "--seed", str(seed), *(["--partial"] if partial else [])])
+    return out
+
+
+def read_bags(domain: str, bags: Path) -> list[Episode]:
+    """Episodes from the bags, through the cached reader that ``ompn_train`` uses."""
+    from ompn_ros.data.bag_reader import ReaderSpec
+    from ompn_ros.data.cache import load_arrays
+
+    arrays = load_arrays(bags, spec=ReaderSpec.for_domain(domain), cache_dir=bags.parent / ".cache")
+    episodes = arrays.episodes()
+    if not episodes:
+        raise ReproduceError(f"read stage: no episodes in {bags}")
+    return episodes
+
+
+def held_out_split(episodes: Sequence[Episode], ratio: float, seed: int) -> tuple[list[Episode], list[Episode]]:
+    """Seeded split, stratified by task: (train pool, test).  Test episodes are never trained on."""
+    rng = np.random.default_rng([seed, 0x7E57])
+    train, test = [], []
+    for task in sorted({ep.task for ep in episodes}):
+        group = [ep for ep in episodes if ep.task == task]
+        order = rng.permutation(len(group))
+        n_test = max(1, round(ratio * len(group)))
+        test.extend(group[i] for i in order[:n_test])
+        train.extend(group[i] for i in order[n_test:])
+    overlap = {(ep.task, ep.seed) for ep in train} & {(ep.task, ep.seed) for ep in test}
+    if overlap:
+        raise ReproduceError(f"split stage: {len(overlap)} episodes are in both train and test")
+    return train, test
+
+
+# --- training and evaluation ---------------------------------------------------------------------
+
+
+def load_train_config(domain: str, path: Path | None) -> dict[str, dict[str, Any]]:
+    from ompn_ros.cli.train import load_config
+
+    return load_config(str(path or config_file(f"train_{domain}.yaml")))
+
+
+def build_configs(domain: str, base: dict[str, dict[str, Any]], setting: Setting, seed: int,
+                  iterations: int | None, out_dir: Path, overrides: dict[str, Any] | None = None):
+    from ompn_ros.model.config import OMPNConfig
+    from ompn_ros.train.trainer import TrainConfig
+
+    dom = layout.DOMAINS[domain]
+    model = {**base["model"], "obs_dim": dom.obs_dim, "action_type": dom.action_type,
+             "action_dim": dom.action_dim}
+    train = {**base["train"], "seed": seed, "out_dir": str(out_dir), "progress": False}
+    if setting.sketch:
+        model["sketch_mode"] = "sum"
+        model["sketch_vocab"] = dom.sketch_vocab
+    else:
+        model["sketch_mode"], model["sketch_vocab"] = "none", 0
+    if iterations is not None:
+        train["iterations"] = iterations
+    for key, value in (overrides or {}).items():
+        if key.startswith("_train."):
+            train[key.removeprefix("_train.")] = value
+        else:
+            model[key] = value
+    return OMPNConfig.from_dict(model), TrainConfig.from_dict(train)
+
+
+def offline_metrics(policy: Any, test: Sequence[Episode]) -> dict[str, Any]:
+    from ompn_ros.train.trainer import evaluate
+
+    return evaluate(policy, test, keep_p_hat=True)
+
+
+def online_metrics(policy: Any, test: Sequence[Episode], domain: str) -> tuple[dict[str, float], list[Any]]:
+    """The shipped causal detector of ``domain`` replayed through ``StreamingSegmenter`` (as live)."""
+    from ompn_ros.cli.segment import compare_detectors, load_detector_yaml, replay_all
+    from ompn_ros.model.streaming import StreamingPolicy
+
+    detector = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
+    stream = StreamingPolicy(policy)
+    replays = replay_all(stream, test, detector)
+    scores = compare_detectors(stream, test, {"online": detector}, replays=replays)["online"]
+    return {f"online_{k}": v for k, v in scores.items()}, replays
+
+
+METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", "recall_tol1")
+
+
+def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episode], test: list[Episode],
+                base: dict[str, dict[str, Any]], iterations: int | None, work: Path,
+                overrides: dict[str, Any] | None = None, tag: str = "") -> dict[str, Any]:
+    """Train one (setting, seed) and evaluate it on the held-out test episodes."""
+    from ompn_ros.model.checkpoint import load_checkpoint
+    from ompn_ros.train.trainer import train
+
+    run_dir = work / "runs" / f"{setting.name}{tag}_seed{seed}"
+    model_cfg, train_cfg = build_configs(domain, base, setting, seed, iterations, run_dir, overrides)
+    result = train(train_pool, model_cfg, train_cfg)
+    best_dir = run_dir / "best"
+    policy = load_checkpoint(best_dir)[0] if best_dir.is_dir() else result.policy
+    offline = offline_metrics(policy, test)
+    online, replays = online_metrics(policy, test, domain)
+    row: dict[str, Any] = {"align_acc": offline["align"]}
+    primary = "topk_" if domain == "craft" else "auto_"
+    row.update({k: offline[primary + k] for k in METRIC_KEYS})
+    row.update(online)
+    row.update({
+        "train_seconds": result.train_seconds,
+        "best_iteration": result.best_iteration,
+        "frames_per_second": result.frames / max(result.train_seconds, 1e-9),
+    })
+    return {"row": row, "checkpoint": best_dir, "p_hat": offline["p_hat"], "replays": replays,
+            "policy": policy}
+
+
+def aggregate(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
+    out: dict[str, dict[str, float]] = {}
+    for key in rows[0]:
+        values = np.asarray([r[key] for r in rows], dtype=np.float64)
+        finite = values[np.isfinite(values)]
+        mean = float(finite.mean()) if finite.size else float("nan")
+        std = float(finite.std()) if finite.size else float("nan")
+        out[key] = {"mean": mean, "std": std, "n": len(rows)}
+    return out
+
+
+# --- extras --------------------------------------------------------------------------------------
+
+
+def k_sweep(p_hats: Sequence[np.ndarray], test: Sequence[Episode], ks: Sequence[int] = (2, 3, 4, 5, 6)):
+    """Top-K precision/recall/F1 at tol 1 for fixed K (paper appendix K sweep)."""
+    from ompn_ros.detect.offline import top_k_boundaries
+    from ompn_ros.metrics import mean_f1
+
+    table = {}
+    for k in ks:
+        preds = [top_k_boundaries(p, k) for p in p_hats]
+        res = mean_f1(preds, [ep.boundaries for ep in test], 1)
+        table[f"K={k}"] = {"f1_tol1": res.f1, "precision_tol1": res.precision, "recall_tol1": res.recall}
+    return table
+
+
+def threshold_sweep(p_hats: Sequence[np.ndarray], test: Sequence[Episode],
+                    thresholds: Sequence[float] = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)):
+    """Alignment accuracy per fixed threshold and the automatic one (paper appendix, Dial)."""
+    from ompn_ros.detect.offline import auto_threshold_boundaries, threshold_boundaries
+    from ompn_ros.metrics import alignment_accuracy
+
+    labels = [ep.subtask for ep in test]
+    table = {}
+    for thr in thresholds:
+        preds = [threshold_boundaries(p, thr, len(ep.boundaries)) for p, ep in zip(p_hats, test)]
+        table[f"{thr:.1f}"] = {"align": alignment_accuracy(preds, labels, variant="authors")}
+    preds = [auto_threshold_boundaries(p, len(ep.boundaries))[0] for p, ep in zip(p_hats, test)]
+    table["auto"] = {"align": alignment_accuracy(preds, labels, variant="authors")}
+    return table
+
+
+# --- reporting -----------------------------------------------------------------------------------
+
+PAPER = {
+    "craft": {"full_nosketch": (93, 95), "partial_nosketch": (84, 89), "full_sketch": (97, 98),
+              "partial_sketch": (72, 83)},
+    "dial": {"nosketch": (87, None), "sketch": (82, None)},
+}
+
+
+def _fmt(cell: dict[str, float] | None, scale: float = 100.0, digits: int = 1) -> str:
+    if cell is None or not np.isfinite(cell["mean"]):
+        return "–"
+    return f"{cell['mean'] * scale:.{digits}f} ({cell['std'] * scale:.{digits}f})"
+
+
+def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta: dict[str, Any]) -> str:
+    lines = [f"# OMPN reproduction: {domain}", "",
+             f"Held-out test episodes: {meta['n_test']} (never trained on); seeds per setting: "
+             f"{meta['seeds']}; mean (std) over seeds, in %. Paper numbers in brackets.", "",
+             "| setting | align acc | F1 tol=1 | F1 tol=0 | online F1 tol=1 | online align | "
+             "online delay (steps) | false alarms / ep | paper align / F1 |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name, row in results.items():
+        paper = PAPER[domain].get(name, (None, None))
+        paper_txt = " / ".join("–" if v is None else str(v) for v in paper)
+        lines.append(
+            f"| {name} | {_fmt(row['align_acc'])} | {_fmt(row['f1_tol1'])} | {_fmt(row['f1_tol0'])} | "
+            f"{_fmt(row['online_f1_tol1'])} | {_fmt(row['online_align_strict'])} | "
+            f"{_fmt(row['online_delay_mean'], 1, 2)} | {_fmt(row['online_false_alarms_per_episode'], 1, 2)} | "
+            f"[{paper_txt}] |")
+    for title, table in extras.items():
+        lines += ["", f"## {title}", ""]
+        first = next(iter(table.values()))
+        cols = list(first)
+        lines.append("| | " + " | ".join(cols) + " |")
+        lines.append("|---|" + "---|" * len(cols))
+        for key, cells in table.items():
+            shown = [(_fmt(c) if isinstance(c, dict) else f"{100 * c:.1f}") for c in cells.values()]
+            lines.append(f"| {key} | " + " | ".join(shown) + " |")
+    lines += ["", "## Wall time per stage (s)", ""]
+    lines += [f"- {k}: {v:.1f}" for k, v in meta["stages"].items()]
+    lines.append(f"- total: {meta['total_seconds']:.1f}")
+    return "\n".join(lines) + "\n"
+
+
+def save_figures(domain: str, setting: str, test: Sequence[Episode], run: dict[str, Any], out: Path,
+                 count: int = 3) -> list[str]:
+    from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
+    from ompn_ros.plotting import plot_episode
+
+    paths = []
+    for i, (ep, p_hat, replay) in enumerate(zip(test, run["p_hat"], run["replays"])):
+        if i >= count:
+            break
+        k = len(ep.boundaries)
+        offline = top_k_boundaries(p_hat, k) if domain == "craft" else auto_threshold_boundaries(p_hat, k)[0]
+        path = out / f"{domain}_{setting}_episode{i}.png"
+        plot_episode(path, replay.pi, replay.pi_end, replay.scores, true_boundaries=ep.boundaries.tolist(),
+                     detected_boundaries=replay.boundary_steps.tolist(), offline_boundaries=list(offline),
+                     title=f"{domain} {setting}, held-out episode {i} ({ep.task}, {ep.length} steps)")
+        paths.append(str(path))
+    return paths
+
+
+def ship(domain: str, checkpoint: Path, provenance: dict[str, Any]) -> Path:
+    from ompn_ros.checkpoints import HERE, SHIPPED
+
+    target = HERE / SHIPPED[domain]
+    if target.exists():
+        shutil.rmtree(target)
+    target.mkdir(parents=True)
+    for name in ("model.safetensors", "config.json"):
+        shutil.copy2(checkpoint / name, target / name)
+    (target / "provenance.json").write_text(json.dumps(provenance, indent=1, sort_keys=True) + "\n")
+    return target
+
+
+# --- main ----------------------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="ompn_reproduce", description=__doc__.splitlines()[0])
+    p.add_argument("domain", choices=sorted(SETTINGS))
+    p.add_argument("--settings", default="", help="comma-separated subset (default: all of the domain)")
+    p.add_argument("--seeds", type=int, default=3, help="training seeds per setting (default 3)")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="demonstrations (Craft: per task, default 500; Dial: total, default 1400)")
+    p.add_argument("--data-seed", type=int, default=0, help="seed of the demonstration collection")
+    p.add_argument("--iterations", type=int, default=None, help="override train.iterations")
+    p.add_argument("--test-ratio", type=float, default=DEFAULT_TEST_RATIO)
+    p.add_argument("--config", type=Path, default=None, help="train YAML (default config/train_<domain>.yaml)")
+    p.add_argument("--extras", default="all", help="all | none | comma list of ksweep,thresholds,ablations")
+    p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
+    p.add_argument("--results", type=Path, default=Path("results"))
+    p.add_argument("--threads", type=int, default=None, help="override train.threads (torch threads)")
+    p.add_argument("--ship", action="store_true", help="copy the primary seed-0 checkpoint into the package")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
+    try:
+        return _run(args, argv if argv is not None else sys.argv[1:])
+    except ReproduceError as exc:
+        print(f"ompn_reproduce: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    import torch
+
+    domain = args.domain
+    start = time.perf_counter()
+    timer = Timer()
+    work = args.work or Path("runs") / f"reproduce_{domain}"
+    names = [s for s in args.settings.split(",") if s] or list(SETTINGS[domain])
+    unknown = [s for s in names if s not in SETTINGS[domain]]
+    if unknown:
+        raise ReproduceError(f"unknown settings {unknown} for {domain}; known: {sorted(SETTINGS[domain])}")
+    extras_wanted = {"ksweep", "thresholds", "ablations"} if args.extras == "all" else (
+        set() if args.extras == "none" else set(args.extras.split(",")))
+    episodes_n = args.episodes or DEFAULT_EPISODES[domain]
+    base = load_train_config(domain, args.config)
+    if args.threads is not None:
+        base["train"]["threads"] = args.threads
+    torch.set_num_threads(int(base["train"].get("threads", 2)) or 2)
+
+    data: dict[bool, tuple[list[Episode], list[Episode]]] = {}
+    for partial in sorted({SETTINGS[domain][n].partial for n in names}):
+        obs = "partial" if partial else "full"
+        bags = timer.run(f"collect {domain} {obs}",
+                         lambda p=partial: collect_bags(domain, p, episodes_n, args.data_seed, work))
+        episodes = timer.run(f"read bags {obs}", lambda b=bags: read_bags(domain, b))
+        data[partial] = held_out_split(episodes, args.test_ratio, args.data_seed)
+        print(f"   {len(data[partial][0])} train+val episodes, {len(data[partial][1])} held-out test episodes")
+
+    results: dict[str, Any] = {}
+    runs: dict[str, dict[str, Any]] = {}
+    figures: list[str] = []
+    args.results.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        setting = SETTINGS[domain][name]
+        pool, test = data[setting.partial]
+        rows = []
+        for seed in range(args.seeds):
+            run = timer.run(f"train+eval {name} seed {seed}",
+                            lambda s=seed: run_setting(domain, setting, s, pool, test, base, args.iterations, work))
+            print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
+            rows.append(run["row"])
+            if seed == 0:
+                runs[name] = run
+        results[name] = aggregate(rows)
+        figures += save_figures(domain, name, test, runs[name], args.results / "figures")
+        _write(args, domain, results, {}, timer, start, figures, data)
+
+    extras: dict[str, Any] = {}
+    primary = PRIMARY[domain] if PRIMARY[domain] in runs else names[0]
+    pool, test = data[SETTINGS[domain][primary].partial]
+    if "ksweep" in extras_wanted and domain == "craft":
+        extras[f"K sweep ({primary}, seed 0, tol=1)"] = k_sweep(runs[primary]["p_hat"], test)
+    if "thresholds" in extras_wanted and domain == "dial":
+        extras[f"Threshold sweep ({primary}, seed 0, alignment)"] = threshold_sweep(runs[primary]["p_hat"], test)
+    if "ablations" in extras_wanted:
+        table = {}
+        for ab_name, overrides in ABLATIONS.items():
+            run = timer.run(f"ablation {ab_name}", lambda o=overrides, n=ab_name: run_setting(
+                domain, SETTINGS[domain][primary], 0, pool, test, base, args.iterations, work, o, f"_{n}"))
+            table[ab_name] = {k: run["row"][k] for k in ("align_acc", "f1_tol1", "online_f1_tol1")}
+        extras[f"Ablations ({primary}, seed 0)"] = table
+
+    meta = _write(args, domain, results, extras, timer, start, figures, data)
+    if args.ship:
+        run = runs[primary]
+        provenance = {"command": ["ompn_reproduce", *argv], "setting": primary, "seed": 0,
+                      "data_seed": args.data_seed, "held_out_metrics": run["row"], "results": str(args.results)}
+        target = timer.run("ship checkpoint", lambda: ship(domain, run["checkpoint"], provenance))
+        print(f"   shipped {target}")
+    print(f"total wall time {time.perf_counter() - start:.1f} s; results in {args.results}/{domain}.md")
+    print(json.dumps({k: {m: round(v["mean"], 4) for m, v in row.items() if m in ("align_acc", "f1_tol1")}
+                      for k, row in results.items()}))
+    return 0 if meta else 1
+
+
+def _write(args, domain, results, extras, timer, start, figures, data) -> dict[str, Any]:
+    meta = {"seeds": args.seeds, "stages": dict(timer.stages), "total_seconds": time.perf_counter() - start,
+            "n_test": {("partial" if k else "full"): len(v[1]) for k, v in data.items()},
+            "figures": figures, "command": ["ompn_reproduce", *sys.argv[1:]]}
+    (args.results / f"{domain}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    (args.results / f"{domain}_extras.json").write_text(json.dumps({"extras": extras, "meta": meta}, indent=1) + "\n")
+    (args.results / f"{domain}.md").write_text(markdown(domain, results, extras, meta))
+    return meta
+
+
+if __name__ == "__main__":
+    sys.exit(main())
