@@ -86,10 +86,10 @@ class Timer:
 
     stages: dict[str, float] = field(default_factory=dict)
 
-    def run(self, name: str, fn: Callable[[], Any]) -> Any:
+    def run(self, name: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
         start = time.perf_counter()
         print(f"[{name}] ...", flush=True)
-        result = fn()
+        result = fn(*args, **kwargs)
         elapsed = time.perf_counter() - start
         self.stages[name] = self.stages.get(name, 0.0) + elapsed
         print(f"[{name}] done in {elapsed:.1f} s", flush=True)
@@ -131,10 +131,13 @@ def read_bags(domain: str, bags: Path) -> list[Episode]:
     return episodes
 
 
-def held_out_split(episodes: Sequence[Episode], ratio: float, seed: int) -> tuple[list[Episode], list[Episode]]:
+def held_out_split(
+    episodes: Sequence[Episode], ratio: float, seed: int
+) -> tuple[list[Episode], list[Episode]]:
     """Seeded split, stratified by task: (train pool, test).  Test episodes are never trained on."""
     rng = np.random.default_rng([seed, 0x7E57])
-    train, test = [], []
+    train: list[Episode] = []
+    test: list[Episode] = []
     for task in sorted({ep.task for ep in episodes}):
         group = [ep for ep in episodes if ep.task == task]
         order = rng.permutation(len(group))
@@ -261,7 +264,7 @@ def threshold_sweep(p_hats: Sequence[np.ndarray], test: Sequence[Episode],
     from ompn_ros.detect.offline import auto_threshold_boundaries, threshold_boundaries
     from ompn_ros.metrics import alignment_accuracy
 
-    labels = [ep.subtask for ep in test]
+    labels = [np.asarray(ep.subtask) for ep in test]
     table = {}
     for thr in thresholds:
         preds = [threshold_boundaries(p, thr, len(ep.boundaries)) for p, ep in zip(p_hats, test)]
@@ -273,7 +276,7 @@ def threshold_sweep(p_hats: Sequence[np.ndarray], test: Sequence[Episode],
 
 # --- reporting -----------------------------------------------------------------------------------
 
-PAPER = {
+PAPER: dict[str, dict[str, tuple[int | None, int | None]]] = {
     "craft": {"full_nosketch": (93, 95), "partial_nosketch": (84, 89), "full_sketch": (97, 98),
               "partial_sketch": (72, 83)},
     "dial": {"nosketch": (87, None), "sketch": (82, None)},
@@ -299,7 +302,8 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
         lines.append(
             f"| {name} | {_fmt(row['align_acc'])} | {_fmt(row['f1_tol1'])} | {_fmt(row['f1_tol0'])} | "
             f"{_fmt(row['online_f1_tol1'])} | {_fmt(row['online_align_strict'])} | "
-            f"{_fmt(row['online_delay_mean'], 1, 2)} | {_fmt(row['online_false_alarms_per_episode'], 1, 2)} | "
+            f"{_fmt(row['online_delay_mean'], 1, 2)} | "
+            f"{_fmt(row['online_false_alarms_per_episode'], 1, 2)} | "
             f"[{paper_txt}] |")
     for title, table in extras.items():
         lines += ["", f"## {title}", ""]
@@ -361,7 +365,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data-seed", type=int, default=0, help="seed of the demonstration collection")
     p.add_argument("--iterations", type=int, default=None, help="override train.iterations")
     p.add_argument("--test-ratio", type=float, default=DEFAULT_TEST_RATIO)
-    p.add_argument("--config", type=Path, default=None, help="train YAML (default config/train_<domain>.yaml)")
+    p.add_argument("--config", type=Path, default=None,
+                   help="train YAML (default config/train_<domain>.yaml)")
     p.add_argument("--extras", default="all", help="all | none | comma list of ksweep,thresholds,ablations")
     p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
     p.add_argument("--results", type=Path, default=Path("results"))
@@ -402,11 +407,12 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     data: dict[bool, tuple[list[Episode], list[Episode]]] = {}
     for partial in sorted({SETTINGS[domain][n].partial for n in names}):
         obs = "partial" if partial else "full"
-        bags = timer.run(f"collect {domain} {obs}",
-                         lambda p=partial: collect_bags(domain, p, episodes_n, args.data_seed, work))
-        episodes = timer.run(f"read bags {obs}", lambda b=bags: read_bags(domain, b))
+        bags = timer.run(f"collect {domain} {obs}", collect_bags,
+                         domain, partial, episodes_n, args.data_seed, work)
+        episodes = timer.run(f"read bags {obs}", read_bags, domain, bags)
         data[partial] = held_out_split(episodes, args.test_ratio, args.data_seed)
-        print(f"   {len(data[partial][0])} train+val episodes, {len(data[partial][1])} held-out test episodes")
+        n_pool, n_test = len(data[partial][0]), len(data[partial][1])
+        print(f"   {n_pool} train+val episodes, {n_test} held-out test episodes")
 
     results: dict[str, Any] = {}
     runs: dict[str, dict[str, Any]] = {}
@@ -417,8 +423,8 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         pool, test = data[setting.partial]
         rows = []
         for seed in range(args.seeds):
-            run = timer.run(f"train+eval {name} seed {seed}",
-                            lambda s=seed: run_setting(domain, setting, s, pool, test, base, args.iterations, work))
+            run = timer.run(f"train+eval {name} seed {seed}", run_setting,
+                            domain, setting, seed, pool, test, base, args.iterations, work)
             print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
             rows.append(run["row"])
             if seed == 0:
@@ -433,12 +439,13 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     if "ksweep" in extras_wanted and domain == "craft":
         extras[f"K sweep ({primary}, seed 0, tol=1)"] = k_sweep(runs[primary]["p_hat"], test)
     if "thresholds" in extras_wanted and domain == "dial":
-        extras[f"Threshold sweep ({primary}, seed 0, alignment)"] = threshold_sweep(runs[primary]["p_hat"], test)
+        sweep = threshold_sweep(runs[primary]["p_hat"], test)
+        extras[f"Threshold sweep ({primary}, seed 0, alignment)"] = sweep
     if "ablations" in extras_wanted:
         table = {}
         for ab_name, overrides in ABLATIONS.items():
-            run = timer.run(f"ablation {ab_name}", lambda o=overrides, n=ab_name: run_setting(
-                domain, SETTINGS[domain][primary], 0, pool, test, base, args.iterations, work, o, f"_{n}"))
+            run = timer.run(f"ablation {ab_name}", run_setting, domain, SETTINGS[domain][primary], 0, pool,
+                            test, base, args.iterations, work, overrides, f"_{ab_name}")
             table[ab_name] = {k: run["row"][k] for k in ("align_acc", "f1_tol1", "online_f1_tol1")}
         extras[f"Ablations ({primary}, seed 0)"] = table
 
@@ -446,8 +453,9 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     if args.ship:
         run = runs[primary]
         provenance = {"command": ["ompn_reproduce", *argv], "setting": primary, "seed": 0,
-                      "data_seed": args.data_seed, "held_out_metrics": run["row"], "results": str(args.results)}
-        target = timer.run("ship checkpoint", lambda: ship(domain, run["checkpoint"], provenance))
+                      "data_seed": args.data_seed, "held_out_metrics": run["row"],
+                      "results": str(args.results)}
+        target = timer.run("ship checkpoint", ship, domain, run["checkpoint"], provenance)
         print(f"   shipped {target}")
     print(f"total wall time {time.perf_counter() - start:.1f} s; results in {args.results}/{domain}.md")
     print(json.dumps({k: {m: round(v["mean"], 4) for m, v in row.items() if m in ("align_acc", "f1_tol1")}
@@ -460,7 +468,8 @@ def _write(args, domain, results, extras, timer, start, figures, data) -> dict[s
             "n_test": {("partial" if k else "full"): len(v[1]) for k, v in data.items()},
             "figures": figures, "command": ["ompn_reproduce", *sys.argv[1:]]}
     (args.results / f"{domain}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
-    (args.results / f"{domain}_extras.json").write_text(json.dumps({"extras": extras, "meta": meta}, indent=1) + "\n")
+    extras_doc = {"extras": extras, "meta": meta}
+    (args.results / f"{domain}_extras.json").write_text(json.dumps(extras_doc, indent=1) + "\n")
     (args.results / f"{domain}.md").write_text(markdown(domain, results, extras, meta))
     return meta
 
