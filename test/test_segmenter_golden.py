@@ -59,11 +59,13 @@ def test_segmenter_matches_forward_sequence(cfg: OMPNConfig, tmp_path) -> None:
         obs = torch.from_numpy(ep.observations[:T]).unsqueeze(0)
         sketch = torch.from_numpy(ep.sketch).unsqueeze(0) if cfg.sketch_mode == "sum" else None
         with torch.inference_mode():
-            ref = model.forward_sequence(
-                obs, torch.ones(1, T, dtype=torch.bool), sketch=sketch, impl="reference"
+            ref, fused = (
+                model.forward_sequence(obs, torch.ones(1, T, dtype=torch.bool), sketch=sketch, impl=impl)
+                for impl in ("reference", "fused")
             )
         ref_p_hat = ref.p_hat[0].numpy()
         np.testing.assert_allclose(replay.p_hat, ref_p_hat, atol=1e-5)
+        np.testing.assert_allclose(replay.p_hat, fused.p_hat[0].numpy(), atol=1e-5)  # the training path too
         # pi (lowest first) is p_hat's slots reversed and normalised
         slots = ref_p_hat[:, 1:][:, ::-1]
         np.testing.assert_allclose(replay.pi, slots / slots.sum(1, keepdims=True), atol=1e-5)
