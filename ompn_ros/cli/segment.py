@@ -235,12 +235,15 @@ def _load_episodes(args: argparse.Namespace) -> list[Episode]:
         return list(read_episodes(args.bag, spec=spec).episodes)
     if args.generate:
         if args.domain == "craft":
-            from sim_nodes.craft import generate_episode
-        elif args.domain == "dial":
-            from sim_nodes.dial import generate_episode  # type: ignore[no-redef,assignment]
-        else:
-            raise SystemExit("--generate needs --domain craft|dial")
-        return [generate_episode(args.seed + i) for i in range(args.generate)]
+            from sim_nodes.craft import PAPER_TASKS, generate_episode
+
+            tasks = list(PAPER_TASKS)  # makebed, makeaxe, makeshears in turn, as in the training data
+            return [generate_episode(args.seed + i, task=tasks[i % len(tasks)]) for i in range(args.generate)]
+        if args.domain == "dial":
+            from sim_nodes.dial import generate_episode as generate_dial
+
+            return [generate_dial(args.seed + i) for i in range(args.generate)]
+        raise SystemExit("--generate needs --domain craft|dial")
     raise SystemExit("give --bag PATH or --generate N --domain D")
 
 
