@@ -21,6 +21,7 @@ import numpy as np
 from ompn_ros import layout
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli.demo import child_env
+from ompn_ros.paths import config_file
 
 
 @dataclass
@@ -55,7 +56,7 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
     )
     episodes: list[LiveEpisode] = []
     finished: list[LiveEpisode] = []
-    current: dict[str, LiveEpisode] = {}
+    current: dict[str, LiveEpisode] = {}  # 'ep': the running episode; 'last': the latest one (late events)
 
     def on_episode(msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -65,12 +66,12 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
             if status.message == layout.EPISODE_START:
                 ep = LiveEpisode(index=int(keys.get(layout.KEY_EPISODE, len(episodes))))
                 episodes.append(ep)
-                current["ep"] = ep
+                current["ep"] = current["last"] = ep
+                print(f"episode {ep.index} started", flush=True)
             elif status.message == layout.EPISODE_END and "ep" in current:
                 ep = current.pop("ep")
                 ep.steps = int(keys.get(layout.KEY_STEPS, len(ep.subtask)))
                 finished.append(ep)
-                _print_episode(ep)
 
     def on_obs(_msg: Float32MultiArray) -> None:
         if "ep" in current:
@@ -86,7 +87,7 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
 
     def on_boundary(msg: DiagnosticArray) -> None:
         now = time.monotonic_ns()
-        ep = current.get("ep")
+        ep = current.get("ep") or current.get("last")  # the final boundary can follow the end marker
         for status in msg.status:
             keys = _kv(status)
             if ep is None or "step" not in keys:
@@ -94,8 +95,19 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
             step, seen_at = int(keys["step"]), int(keys.get("detected_at", keys["step"]))
             ep.boundaries.append(step)
             ep.detected_at.append(seen_at)
-            if 0 <= seen_at < len(ep.obs_times):
+            latency = ""
+            if 0 <= seen_at < len(ep.obs_times) and keys.get("final") != "true":
                 ep.latencies_ms.append((now - ep.obs_times[seen_at]) / 1e6)
+                latency = f", {ep.latencies_ms[-1]:.2f} ms after observation {seen_at}"
+            # Live, a true boundary is known once the ground-truth subtask index has changed after it.
+            labels = np.asarray(ep.subtask)
+            truth = np.flatnonzero(labels[1:] != labels[:-1]).tolist() if labels.size > 1 else []
+            if keys.get("final") == "true":
+                truth.append(step)
+            near = min(truth, key=lambda t: abs(t - step)) if truth else None
+            shown = "—" if near is None else f"{near} (Δ{step - near:+d})"
+            print(f"   boundary: step {step:4d} subtask {keys.get('subtask', '?')}   nearest true boundary "
+                  f"{shown}{latency}", flush=True)
 
     node.create_subscription(DiagnosticArray, layout.EPISODE, on_episode, reliable)
     node.create_subscription(Float32MultiArray, layout.OBSERVATION, on_obs, reliable)
@@ -107,9 +119,11 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
         while len(finished) < args.episodes and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
         # The last boundary of an episode can arrive just after its end marker.
-        settle = time.monotonic() + 0.5
+        settle = time.monotonic() + 1.0
         while time.monotonic() < settle:
             rclpy.spin_once(node, timeout_sec=0.05)
+        for ep in finished:
+            _print_episode(ep)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
@@ -124,14 +138,7 @@ def _true_boundaries(subtask: list[int]) -> list[int]:
 
 def _print_episode(ep: LiveEpisode) -> None:
     truth = _true_boundaries(ep.subtask)
-    print(f"episode {ep.index}: {len(ep.subtask)} steps")
-    for i, t in enumerate(truth):
-        near = min(ep.boundaries, key=lambda b: abs(b - t)) if ep.boundaries else None
-        shown = "—" if near is None else f"{near:4d} (Δ{near - t:+d})"
-        print(f"   subtask {i}: true boundary {t:4d}   detected {shown}")
-    extra = len(ep.boundaries) - len(truth)
-    if extra > 0:
-        print(f"   {extra} extra detection(s): {ep.boundaries}")
+    print(f"episode {ep.index}: {len(ep.subtask)} steps; true boundaries {truth}; detected {sorted(ep.boundaries)}")
 
 
 def _summarise(episodes: list[LiveEpisode], out_dir: Path) -> dict[str, float]:
@@ -192,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         procs.append(subprocess.Popen(
             [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
+             "--params-file", str(config_file(f"ompn_node_{args.domain}.yaml")),
              "-p", f"checkpoint:={checkpoint}", "-r", f"__node:={node_name}"],
             env=env,
         ))

@@ -371,6 +371,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
     p.add_argument("--results", type=Path, default=Path("results"))
     p.add_argument("--threads", type=int, default=None, help="override train.threads (torch threads)")
+    p.add_argument("--merge", action="store_true",
+                   help="keep the other settings already in results/<domain>.json (runs split over calls)")
+    p.add_argument("--ablations", default=",".join(ABLATIONS),
+                   help=f"comma list for the ablation table (default all: {','.join(ABLATIONS)})")
     p.add_argument("--ship", action="store_true", help="copy the primary seed-0 checkpoint into the package")
     return p
 
@@ -415,6 +419,9 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         print(f"   {n_pool} train+val episodes, {n_test} held-out test episodes")
 
     results: dict[str, Any] = {}
+    previous = args.results / f"{domain}.json"
+    if args.merge and previous.is_file():
+        results.update({k: v for k, v in json.loads(previous.read_text()).items() if k not in names})
     runs: dict[str, dict[str, Any]] = {}
     figures: list[str] = []
     args.results.mkdir(parents=True, exist_ok=True)
@@ -443,7 +450,12 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         extras[f"Threshold sweep ({primary}, seed 0, alignment)"] = sweep
     if "ablations" in extras_wanted:
         table = {}
-        for ab_name, overrides in ABLATIONS.items():
+        chosen = [a for a in args.ablations.split(",") if a]
+        unknown_ab = [a for a in chosen if a not in ABLATIONS]
+        if unknown_ab:
+            raise ReproduceError(f"unknown ablations {unknown_ab}; known: {sorted(ABLATIONS)}")
+        for ab_name in chosen:
+            overrides = ABLATIONS[ab_name]
             run = timer.run(f"ablation {ab_name}", run_setting, domain, SETTINGS[domain][primary], 0, pool,
                             test, base, args.iterations, work, overrides, f"_{ab_name}")
             table[ab_name] = {k: run["row"][k] for k in ("align_acc", "f1_tol1", "online_f1_tol1")}
