@@ -3,9 +3,11 @@
 Training: one iteration = forward + loss + backward + clip-norm 0.2 + Adam step on a batch of 256
 synthetic Craft-shaped episodes (obs 1075 sparse binary, 5 actions + done, lengths drawn 10..45 incl.
 the done step, zero-padded), n=3, m=128 (spec craft §4 hyper-parameters).  Figures are *valid*
-frames per second.  Two models:
+frames per second.  Models:
 
-* ``fast``: :meth:`OMPNPolicy.forward_sequence` (``impl='fused'``) + :func:`bc_loss`;
+* ``fast``: :meth:`OMPNPolicy.forward_sequence` (``impl='fused'``, float32) + :func:`bc_loss`;
+* ``fast_bf16``: the same with ``bf16=True`` (cell matmuls in bfloat16 autocast, the opt-in
+  ``TrainConfig.bf16`` training option);
 * ``authors_style``: :class:`AuthorsStyleOMPN` below, a straightforward per-slot eager model
   written to mimic the structure of the authors' ``OMStackBot`` (spec craft §3): flat memory,
   full padded batch at every step, first-step rows by masking, all n DecomCells, per-slot score
@@ -20,9 +22,15 @@ training figure is the best of N iterations (after one warm-up), the least distu
 ``2proc_x_1t``: two single-thread processes each train on half of every batch at the same time
 (the layout of the team's ``torchrun`` trainer); the gradient all-reduce is not included.
 
+``train_s_per_5900_frame_batch_*`` converts a figure to the spec's batch (256 Craft episodes ≈ 5 900
+valid frames; target ≤ 0.65 s = 3x the authors' 3 000 frames/s); the synthetic batches here hold
+≈ 7 200 frames (lengths 10..45).
+
 Streaming: p50/p99 latency of ``StreamingPolicy.step`` (batch 1) for the Craft (1075 -> 128, n=3,
-5 actions) and Dial (39 -> 128, n=3, 9-d Gaussian) configurations, numpy fast path vs the eager
-torch step, 1 thread.
+5 actions; binary observations with 60 of 1075 features set, like the real one-hot features) and
+Dial (39 -> 64, n=2, 9-d Gaussian: ``config/train_dial.yaml``) configurations, numpy fast path vs the
+eager torch step, 1 thread.  ``load_avg_1min`` is the machine's load when the run started (2 cores
+shared with other processes: compare figures of one run, not across runs).
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ from ompn_ros.model import OMPNConfig, OMPNPolicy, StreamingPolicy, bc_loss
 from ompn_ros.model.cells import ComCell, DecomCell
 
 AUTHORS_FPS = 3000.0  # spec craft §7.3: 1.97 s/iteration, ≈5 900 valid frames per batch, 2 threads
+SPEC_FRAMES = 5900.0  # valid frames of one 256-episode Craft batch (spec craft §7.3)
 
 
 class AuthorsStyleOMPN(nn.Module):
@@ -166,12 +175,25 @@ def train_figures(threads: int, iters: int) -> dict[str, tuple[float, str]]:
     def authors_loss(b: dict[str, Tensor]) -> Tensor:
         return authors.loss(b["obs"], b["actions"], b["mask"])
 
+    torch.manual_seed(0)
+    fast16 = OMPNPolicy(cfg)
+
+    def bf16_loss(b: dict[str, Tensor]) -> Tensor:
+        out = fast16.forward_sequence(b["obs"], b["mask"], bf16=True)
+        return bc_loss(out, b["actions"], b["mask"], b["done"], cfg)[0]
+
     fast_fps, fast_s = _time_training(fast, fast_loss, batches, iters)
+    bf16_fps, bf16_s = _time_training(fast16, bf16_loss, batches, iters)
     ref_fps, ref_s = _time_training(authors, authors_loss, batches, iters)
     tag = f"{threads}t"
     return {
         f"train_fps_fast_{tag}": (fast_fps, "frames/s"),
         f"train_s_per_iter_fast_{tag}": (fast_s, "s"),
+        f"train_fps_fast_bf16_{tag}": (bf16_fps, "frames/s"),
+        f"train_s_per_iter_fast_bf16_{tag}": (bf16_s, "s"),
+        f"train_s_per_5900_frame_batch_fast_{tag}": (SPEC_FRAMES / fast_fps, "s"),
+        f"train_s_per_5900_frame_batch_fast_bf16_{tag}": (SPEC_FRAMES / bf16_fps, "s"),
+        f"train_speedup_vs_authors_measured_3000fps_bf16_{tag}": (bf16_fps / AUTHORS_FPS, "x"),
         f"train_fps_authors_style_{tag}": (ref_fps, "frames/s"),
         f"train_s_per_iter_authors_style_{tag}": (ref_s, "s"),
         f"train_speedup_vs_authors_style_{tag}": (fast_fps / ref_fps, "x"),
@@ -187,7 +209,7 @@ def _half_batch(b: dict[str, Tensor], rank: int) -> dict[str, Tensor]:
     return {k: v[keep, :steps] for k, v in b.items()}
 
 
-def data_parallel_worker(rank: int, iters: int) -> dict[str, list[float]]:
+def data_parallel_worker(rank: int, iters: int, bf16: bool = False) -> dict[str, list[float]]:
     """One of 2 single-thread processes, each training on half of every batch (as ``torchrun`` would)."""
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
@@ -197,7 +219,7 @@ def data_parallel_worker(rank: int, iters: int) -> dict[str, list[float]]:
     fast = OMPNPolicy(cfg)
 
     def fast_loss(b: dict[str, Tensor]) -> Tensor:
-        out = fast.forward_sequence(b["obs"], b["mask"])
+        out = fast.forward_sequence(b["obs"], b["mask"], bf16=bf16)
         return bc_loss(out, b["actions"], b["mask"], b["done"], cfg)[0]
 
     opt = torch.optim.Adam(fast.parameters(), lr=1e-3)
@@ -216,7 +238,7 @@ def data_parallel_worker(rank: int, iters: int) -> dict[str, list[float]]:
     return {"times": times, "frames": frames}
 
 
-def data_parallel_figures(iters: int) -> dict[str, tuple[float, str]]:
+def data_parallel_figures(iters: int, bf16: bool = False) -> dict[str, tuple[float, str]]:
     """2 processes x 1 thread, half a batch each, run at the same time; the gradient all-reduce of
     the trainer (2.6 M floats over gloo on one machine, a few ms) is not included."""
     import json
@@ -227,7 +249,8 @@ def data_parallel_figures(iters: int) -> dict[str, tuple[float, str]]:
     env = dict(os.environ)
     procs = [
         subprocess.Popen(
-            [sys.executable, __file__, "--worker", str(rank), "--iters", str(iters)],
+            [sys.executable, __file__, "--worker", str(rank), "--iters", str(iters)]
+            + (["--bf16"] if bf16 else []),
             stdout=subprocess.PIPE,
             env=env,
             text=True,
@@ -244,9 +267,10 @@ def data_parallel_figures(iters: int) -> dict[str, tuple[float, str]]:
     frames = np.sum([r["frames"] for r in results], axis=0)
     best = int(np.argmin(per_iter))
     fps = float(frames[best] / per_iter[best])
+    tag = "_bf16" if bf16 else ""
     return {
-        "train_fps_fast_2proc_x_1t": (fps, "frames/s"),
-        "train_speedup_vs_authors_measured_3000fps_2proc_x_1t": (fps / AUTHORS_FPS, "x"),
+        f"train_fps_fast{tag}_2proc_x_1t": (fps, "frames/s"),
+        f"train_speedup_vs_authors_measured_3000fps{tag}_2proc_x_1t": (fps / AUTHORS_FPS, "x"),
     }
 
 
@@ -254,13 +278,19 @@ def latency_figures(steps: int) -> dict[str, tuple[float, str]]:
     torch.set_num_threads(1)
     configs = {
         "craft": OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5),
-        "dial": OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9),
+        "dial": OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9, n_slots=2, slot_size=64),
     }
     figures: dict[str, tuple[float, str]] = {}
     for name, cfg in configs.items():
         torch.manual_seed(0)
         policy = OMPNPolicy(cfg)
-        obs = np.random.default_rng(0).random((256, cfg.obs_dim)).astype(np.float32)
+        rng = np.random.default_rng(0)
+        if name == "craft":  # binary features, 60 of 1075 set (the real one-hot observations)
+            obs = np.zeros((256, cfg.obs_dim), np.float32)
+            for row in obs:
+                row[rng.choice(cfg.obs_dim, size=60, replace=False)] = 1.0
+        else:
+            obs = rng.random((256, cfg.obs_dim)).astype(np.float32)
         p50s = {}
         for backend in ("numpy", "torch"):
             stream = StreamingPolicy(policy, backend=backend)  # type: ignore[arg-type]
@@ -281,12 +311,16 @@ def latency_figures(steps: int) -> dict[str, tuple[float, str]]:
 
 def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     """Return ``{figure: (value, unit)}``; see the module docstring."""
+    import os
+
     threads_before = torch.get_num_threads()
     try:
-        figures = latency_figures(steps=1000 if quick else 4000)
+        figures = {"load_avg_1min": (os.getloadavg()[0], "procs")}
+        figures.update(latency_figures(steps=1000 if quick else 4000))
         figures.update(train_figures(threads=2, iters=2 if quick else 4))
         figures.update(train_figures(threads=1, iters=2 if quick else 4))
         figures.update(data_parallel_figures(iters=2 if quick else 4))
+        figures.update(data_parallel_figures(iters=2 if quick else 4, bf16=True))
     finally:
         torch.set_num_threads(threads_before)
     return figures
@@ -299,11 +333,12 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--worker", type=int, default=-1, help=argparse.SUPPRESS)
     parser.add_argument("--iters", type=int, default=4, help=argparse.SUPPRESS)
+    parser.add_argument("--bf16", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker >= 0:
         import json
 
-        print(json.dumps(data_parallel_worker(args.worker, args.iters)))
+        print(json.dumps(data_parallel_worker(args.worker, args.iters, args.bf16)))
         return
     figures = run(quick=args.quick)
     width = max(len(k) for k in figures)

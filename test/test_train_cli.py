@@ -28,7 +28,7 @@ SMALL = [
 ]
 
 
-@pytest.mark.parametrize(("name", "n_slots", "lr", "batch"), [("craft", 3, 1e-3, 256), ("dial", 2, 5e-4, 64)])
+@pytest.mark.parametrize(("name", "n_slots", "lr", "batch"), [("craft", 2, 1e-3, 256), ("dial", 2, 5e-4, 64)])
 def test_shipped_configs_are_valid(name: str, n_slots: int, lr: float, batch: int) -> None:
     config = load_config(str(ROOT / "config" / f"train_{name}.yaml"))
     domain = DOMAINS[config["data"]["domain"]]

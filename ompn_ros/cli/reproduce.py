@@ -216,19 +216,25 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
     result = train(train_pool, model_cfg, train_cfg)
     best_dir = run_dir / "best"
     policy = load_checkpoint(best_dir)[0] if best_dir.is_dir() else result.policy
+    run = evaluate_policy(domain, policy, test)
+    run["row"].update({
+        "train_seconds": result.train_seconds,
+        "best_iteration": result.best_iteration,
+        "frames_per_second": result.frames / max(result.train_seconds, 1e-9),
+    })
+    run["checkpoint"] = best_dir
+    return run
+
+
+def evaluate_policy(domain: str, policy: Any, test: list[Episode]) -> dict[str, Any]:
+    """Offline (Top-K for Craft, automatic threshold for Dial) and online metrics on ``test``."""
     offline = offline_metrics(policy, test)
     online, replays = online_metrics(policy, test, domain)
     row: dict[str, Any] = {"align_acc": offline["align"]}
     primary = "topk_" if domain == "craft" else "auto_"
     row.update({k: offline[primary + k] for k in METRIC_KEYS})
     row.update(online)
-    row.update({
-        "train_seconds": result.train_seconds,
-        "best_iteration": result.best_iteration,
-        "frames_per_second": result.frames / max(result.train_seconds, 1e-9),
-    })
-    return {"row": row, "checkpoint": best_dir, "p_hat": offline["p_hat"], "replays": replays,
-            "policy": policy}
+    return {"row": row, "p_hat": offline["p_hat"], "replays": replays, "policy": policy}
 
 
 def aggregate(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -371,6 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
     p.add_argument("--results", type=Path, default=Path("results"))
     p.add_argument("--threads", type=int, default=None, help="override train.threads (torch threads)")
+    p.add_argument("--evaluate", type=Path, default=None, metavar="CHECKPOINT",
+                   help="skip training: evaluate this checkpoint on the held-out split of the first setting")
     p.add_argument("--merge", action="store_true",
                    help="keep the other settings already in results/<domain>.json (runs split over calls)")
     p.add_argument("--ablations", default=",".join(ABLATIONS),
@@ -425,6 +433,21 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     runs: dict[str, dict[str, Any]] = {}
     figures: list[str] = []
     args.results.mkdir(parents=True, exist_ok=True)
+    if args.evaluate is not None:
+        from ompn_ros.model.checkpoint import load_checkpoint
+
+        setting = SETTINGS[domain][names[0]]
+        test = data[setting.partial][1]
+        policy = load_checkpoint(args.evaluate)[0]
+        run = timer.run(f"evaluate {args.evaluate}", evaluate_policy, domain, policy, test)
+        print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
+        # Re-evaluation refreshes the metric cells and keeps the training figures of an earlier run.
+        if previous.is_file():
+            results.setdefault(setting.name, json.loads(previous.read_text()).get(setting.name, {}))
+        results.setdefault(setting.name, {}).update(aggregate([run["row"]]))
+        figures += save_figures(domain, setting.name, test, run, args.results / "figures")
+        _write(args, domain, results, {}, timer, start, figures, data)
+        return 0
     for name in names:
         setting = SETTINGS[domain][name]
         pool, test = data[setting.partial]

@@ -310,6 +310,7 @@ class OMPNPolicy(nn.Module):
         sketch: Tensor | None = None,
         bptt: int = 64,
         impl: Literal["fused", "reference"] = "fused",
+        bf16: bool = False,
     ) -> SequenceOutput:
         """Run whole episodes from their first step (teacher forcing).
 
@@ -319,6 +320,8 @@ class OMPNPolicy(nn.Module):
             sketch: ``[B, K]`` int64 subtask ids (0 = padding), required iff sketch_mode='sum'.
             bptt: the memory is detached after every ``bptt`` steps (truncated BPTT).
             impl: ``'fused'`` (fast, length-sorted, fused matmuls) or ``'reference'`` (loops :meth:`step`).
+            bf16: training speed option of the fused path: run the cell matmuls in bfloat16 autocast
+                (outputs, memory, norms and the loss inputs stay float32; not for inference).
         """
         self._check_obs(obs, 3)
         obs = obs.to(self.encoder.weight.dtype)
@@ -332,9 +335,11 @@ class OMPNPolicy(nn.Module):
         if impl == "fused":
             from ompn_ros.model.fused import fused_forward_sequence
 
-            return fused_forward_sequence(self, obs, mask, lengths, sketch, bptt)
+            return fused_forward_sequence(self, obs, mask, lengths, sketch, bptt, bf16=bf16)
         if impl != "reference":
             raise ModelInputError(f"impl must be 'fused' or 'reference', got {impl!r}")
+        if bf16:
+            raise ModelInputError("bf16=True is only implemented by impl='fused'")
         batch, steps = mask.shape
         state = self.initial_state(batch, sketch)
         outs: list[StepTensors] = []

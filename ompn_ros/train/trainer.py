@@ -31,13 +31,14 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.factory import PolicyModule, build_policy
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.batching import (
@@ -99,6 +100,8 @@ class TrainConfig:
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.
         progress: show a tqdm progress bar.
+        bf16: run the training forward's matmuls in bfloat16 autocast (``forward_sequence(bf16=True)``,
+            ~1.4x faster on AVX512-BF16 CPUs; evaluation and inference stay float32).
     """
 
     lr: float = 1e-3
@@ -119,6 +122,7 @@ class TrainConfig:
     eval_episodes: int = 0
     eval_batch_size: int = 64
     progress: bool = True
+    bf16: bool = False
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -146,7 +150,7 @@ class TrainConfig:
             "must be in [0, 1)",
         )
         self.val_ratio = float(self.val_ratio)
-        for name in ("resume", "tensorboard", "no_done_loss", "progress"):
+        for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16"):
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
         need(self.obs_norm in ("none", "maxabs"), "obs_norm", "must be 'none' or 'maxabs'")
@@ -171,7 +175,7 @@ class TrainConfig:
 class TrainResult:
     """What :func:`train` returns (rank 0 holds the evaluation history)."""
 
-    policy: OMPNPolicy
+    policy: PolicyModule
     iterations: int
     best_iteration: int
     best_metrics: dict[str, float]
@@ -272,7 +276,7 @@ def train(
         val_eps = val_eps[: cfg.eval_episodes]
     norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)  # type: ignore[arg-type]
 
-    policy = OMPNPolicy(model_config)
+    policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
     policy.set_obs_normalization(norm.mean, norm.scale)
     broadcast_module(policy, ctx)
     policy.train()
@@ -362,7 +366,7 @@ def train(
                 if ctx.is_main:
                     metrics = _scalars(
                         evaluate(
-                            policy,
+                            cast(OMPNPolicy, policy),  # evaluate() only uses forward_sequence and config
                             val_eps,
                             bptt=cfg.bptt,
                             batch_size=cfg.eval_batch_size,
@@ -408,7 +412,7 @@ def train(
 
 
 def train_step(
-    policy: OMPNPolicy,
+    policy: PolicyModule,
     optimizer: torch.optim.Optimizer,
     shard: Sequence[Episode],
     model_config: OMPNConfig,
@@ -433,7 +437,7 @@ def train_step(
     global_valid = all_reduce_sum(local_valid, ctx)
     stats: dict[str, float] = {}
     if batch is not None:
-        out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=cfg.bptt)
+        out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=cfg.bptt, bf16=cfg.bf16)
         loss, stats = bc_loss(
             out, batch.actions, batch.mask, batch.done_mask, model_config, no_done_loss=cfg.no_done_loss
         )
