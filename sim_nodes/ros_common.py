@@ -64,6 +64,7 @@ _FAST_TICK_S = 0.001
 _FAST_BATCH = 64  # steps per tick when rate == 0
 _LINGER_S = 0.5  # keep spinning after the last episode so reliable messages get delivered
 _SETTLE_S = 0.5
+_FINAL_ANSWER_GRACE_S = 1.0
 
 
 class SimParameterError(ValueError):
@@ -273,6 +274,9 @@ class SimNode(Node):
         self._start: EpisodeStart | None = None  # None between episodes
         self._pending_action: Any = None
         self._awaiting_since = 0.0
+        # Policy mode: a policy also answers the final observation; wait (briefly) for that answer and
+        # drop it, so that it is never executed as the answer to the next episode's first observation.
+        self._drain_until = 0.0
         self._ready_since: float | None = None
         self._wait_topic_names = self._wait_topics()
         if self.mode == "policy":
@@ -386,6 +390,8 @@ class SimNode(Node):
         self.step_index += 1
         self._publish_observation(final=over)
         if over:
+            if self.mode == "policy":
+                self._drain_until = time.monotonic() + min(self.policy_timeout, _FINAL_ANSWER_GRACE_S)
             self._end_episode()
 
     def _tick(self) -> None:
@@ -393,6 +399,8 @@ class SimNode(Node):
             return
         for _ in range(_FAST_BATCH if self.rate == 0 else 1):
             if self._start is None:
+                if time.monotonic() < self._drain_until:
+                    return  # still waiting for the policy's answer to the final observation
                 self._start_episode()
                 if self.mode == "policy":
                     return
@@ -423,6 +431,7 @@ class SimNode(Node):
 
     def _on_cmd_action(self, msg: Any) -> None:
         if self._start is None or self.finished:
+            self._drain_until = 0.0  # the answer to the final observation: dropped, next episode may start
             return
         try:
             self._pending_action = parse_action(self.domain, msg)

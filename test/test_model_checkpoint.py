@@ -98,3 +98,22 @@ def test_extra_must_be_json(tmp_path: Path) -> None:
     with pytest.raises(CheckpointError, match="not JSON-serializable"):
         save_checkpoint(tmp_path / "c", policy(), extra={"bad": object()})
     assert not (tmp_path / "c").exists()
+
+
+def test_half_precision_storage_halves_the_file_and_loads_as_float32(tmp_path) -> None:
+    policy = OMPNPolicy(OMPNConfig(obs_dim=20, action_type="discrete", action_dim=5, n_slots=2, slot_size=32))
+    save_checkpoint(tmp_path / "full", policy)
+    save_checkpoint(tmp_path / "half", policy, weights_dtype="float16")
+    full = (tmp_path / "full" / "model.safetensors").stat().st_size
+    half = (tmp_path / "half" / "model.safetensors").stat().st_size
+    assert half < 0.55 * full
+    loaded, _ = load_checkpoint(tmp_path / "half")
+    for name, value in loaded.state_dict().items():
+        original = policy.state_dict()[name]
+        assert value.dtype == original.dtype
+        if value.is_floating_point():
+            torch.testing.assert_close(value, original.half().float(), atol=0, rtol=0)
+    # a float16 file that does not say so in meta.json is rejected, not silently cast
+    (tmp_path / "half" / "meta.json").write_text('{"format_version": 1, "extra": {}}')
+    with pytest.raises(CheckpointError, match="float16"):
+        load_checkpoint(tmp_path / "half")

@@ -12,6 +12,7 @@ CONFIG_VERSION = 1
 ActionType = Literal["discrete", "continuous"]
 SketchMode = Literal["none", "sum"]
 MemoryUpdate = Literal["paper", "code"]
+Arch = Literal["ompn", "lstm"]
 
 
 class ConfigError(ValueError):
@@ -39,6 +40,9 @@ class OMPNConfig:
         no_bottom_up_recurrence: ablation "No Bottomup Recurr": ComCell_i gets v = 0.
         action_variance: fixed variance of the Gaussian action distribution (continuous only).
         version: config format version, must equal :data:`CONFIG_VERSION`.
+        arch: ``'ompn'`` (the ordered memory policy) or ``'lstm'`` (the behaviour-cloning baseline of
+            ``lstm.py``: ``n_slots`` LSTM layers of width ``slot_size``; the OMPN ablation flags must
+            be off).  Absent in configs written before it existed, which therefore read as ``'ompn'``.
     """
 
     obs_dim: int
@@ -54,6 +58,7 @@ class OMPNConfig:
     no_bottom_up_recurrence: bool = False
     action_variance: float = 0.6
     version: int = CONFIG_VERSION
+    arch: Arch = "ompn"
 
     def __post_init__(self) -> None:
         def positive_int(name: str, value: Any) -> None:
@@ -94,6 +99,15 @@ class OMPNConfig:
         if not self.action_variance > 0:
             raise ConfigError(f"OMPNConfig.action_variance must be > 0, got {self.action_variance!r}")
         self.action_variance = float(self.action_variance)
+        if self.arch not in ("ompn", "lstm"):
+            raise ConfigError(f"OMPNConfig.arch must be 'ompn' or 'lstm', got {self.arch!r}")
+        if self.arch == "lstm":
+            flags = ("no_bottom_up", "no_top_down", "no_bottom_up_recurrence")
+            ablations = [name for name in flags if getattr(self, name)]
+            if ablations:
+                raise ConfigError(
+                    f"OMPNConfig.arch='lstm' has no ordered memory; unset the OMPN ablations {ablations}"
+                )
         if self.version != CONFIG_VERSION:
             raise ConfigError(
                 f"OMPNConfig.version {self.version!r} is not supported (this code reads version "

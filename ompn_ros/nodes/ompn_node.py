@@ -76,26 +76,20 @@ class NodeConfigError(ValueError):
 
 
 def default_checkpoint(domain: str) -> Path | None:
-    """The shipped checkpoint of ``domain``: package share dir first, then ``ompn_ros/checkpoints``."""
-    candidates = []
-    try:
-        from ament_index_python.packages import get_package_share_directory
+    """The checkpoint shipped as package data for ``domain`` (``ompn_ros/checkpoints/<domain>``)."""
+    from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
 
-        candidates.append(Path(get_package_share_directory("ompn_ros")) / "checkpoints" / domain)
-    except Exception:
-        pass
-    candidates.append(Path(__file__).resolve().parents[1] / "checkpoints" / domain)
-    for path in candidates:
-        if path.is_dir():
-            return path
-    return None
+    try:
+        return shipped_checkpoint(domain)
+    except MissingCheckpointError:
+        return None
 
 
 def load_policy(path: str) -> Any:
-    """Load a StreamingPolicy from a checkpoint directory (safetensors + JSON, never pickle)."""
-    from ompn_ros.model.streaming import StreamingPolicy
+    """The streaming stepper of a checkpoint directory, OMPN or LSTM (safetensors + JSON, never pickle)."""
+    from ompn_ros.model.factory import stepper_from_checkpoint
 
-    return StreamingPolicy.from_checkpoint(path)
+    return stepper_from_checkpoint(path)
 
 
 def _desc(

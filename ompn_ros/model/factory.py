@@ -1,0 +1,43 @@
+"""Build the policy module and its streaming stepper named by ``OMPNConfig.arch``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TypeAlias
+
+from ompn_ros.model.config import ConfigError, OMPNConfig
+from ompn_ros.model.lstm import LSTMPolicy, LSTMStreamingPolicy
+from ompn_ros.model.policy import OMPNPolicy
+from ompn_ros.model.streaming import Backend, StreamingPolicy
+
+PolicyModule: TypeAlias = OMPNPolicy | LSTMPolicy
+"""Any trainable policy: ``forward_sequence``, ``set_obs_normalization``, ``config``."""
+Stepper: TypeAlias = StreamingPolicy | LSTMStreamingPolicy
+"""Any batch-1 stepper: ``reset(sketch)``, ``step(obs) -> StepOutput``, ``config``."""
+
+
+def build_policy(config: OMPNConfig) -> PolicyModule:
+    """A freshly initialised policy of ``config.arch`` ('ompn' -> OMPNPolicy, 'lstm' -> LSTMPolicy)."""
+    if config.arch == "ompn":
+        return OMPNPolicy(config)
+    if config.arch == "lstm":
+        return LSTMPolicy(config)
+    raise ConfigError(f"OMPNConfig.arch must be 'ompn' or 'lstm', got {config.arch!r}")
+
+
+def build_stepper(policy: PolicyModule, backend: Backend = "numpy") -> Stepper:
+    """The streaming stepper of ``policy`` (numpy OMPN stepper, or the LSTM's torch stepper)."""
+    if isinstance(policy, LSTMPolicy):
+        return LSTMStreamingPolicy(policy, backend=backend)
+    return StreamingPolicy(policy, backend=backend)
+
+
+def stepper_from_checkpoint(path: str | Path, backend: Backend = "numpy") -> Stepper:
+    """Load a checkpoint of either architecture and wrap it in its streaming stepper."""
+    from ompn_ros.model.checkpoint import load_checkpoint
+
+    policy, _ = load_checkpoint(path)
+    return build_stepper(policy, backend=backend)
+
+
+__all__ = ["PolicyModule", "Stepper", "build_policy", "build_stepper", "stepper_from_checkpoint"]

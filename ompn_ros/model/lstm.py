@@ -1,0 +1,273 @@
+"""LSTM behaviour-cloning baseline with the OMPN policy interface (spec craft §3.11, paper Fig. 6).
+
+Architecture (the authors' ``lstm`` bot, adapted to our interface):
+
+* ``x = LN(W_in((s - mean) / scale) + b_in)`` (LayerNorm with affine);
+* an ``nn.LSTM`` with ``num_layers = n_slots`` and hidden size ``slot_size``; the initial
+  ``(h, c)`` of every layer is a linear function of the task embedding e (the authors' "env
+  encoder" of size 2·layers·H); e = sum of learned subtask embeddings (as in OMPN) or 0;
+* head on ``[lstm_out; e; x]``.
+
+'done' is expressed as pi_end so :func:`ompn_ros.model.loss.bc_loss` applies unchanged:
+
+* discrete: a 6-way (``action_dim + 1``) softmax whose last class is done.  ``action_out`` holds the
+  first ``action_dim`` logits and ``pi_end = softmax_{A+1}[A]``; since
+  ``softmax_A(l)_a (1 - pi_end) = softmax_{A+1}(l)_a`` the OMPN loss is exactly the 6-way cross entropy.
+* continuous: ``action_out`` = Gaussian mean, ``pi_end = sigmoid(done head)`` (a Bernoulli done).
+
+**The LSTM has no hierarchy.**  Its ``p_hat`` is ``[pi_end, 1 - pi_end, 0, ..., 0]`` (all the
+non-done mass on the top slot) and ``pi`` is one-hot on the top slot; detectors run on it produce
+no meaningful boundaries.  They exist only so the trainer, the evaluation and the streaming
+consumers work for both architectures.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ompn_ros.model.config import ConfigError, OMPNConfig
+from ompn_ros.model.policy import ModelInputError, SequenceOutput, lengths_from_mask
+from ompn_ros.model.streaming import StepOutput, StreamingInputError
+
+LSTMState = tuple[Tensor, Tensor]
+
+
+class LSTMPolicy(nn.Module):
+    """The LSTM baseline; same public methods as :class:`~ompn_ros.model.policy.OMPNPolicy`
+    for training (``forward_sequence``, ``set_obs_normalization``, ``config``)."""
+
+    obs_mean: Tensor
+    obs_scale: Tensor
+
+    def __init__(self, config: OMPNConfig) -> None:
+        super().__init__()
+        if config.arch != "lstm":
+            raise ConfigError(f"LSTMPolicy needs OMPNConfig.arch='lstm', got {config.arch!r}")
+        self.config = config
+        n, m = config.n_slots, config.slot_size
+        self.encoder = nn.Linear(config.obs_dim, m)
+        self.input_norm = nn.LayerNorm(m)
+        self.lstm = nn.LSTM(m, m, num_layers=n, batch_first=True)
+        self.init_state = nn.Linear(m, 2 * n * m)  # the authors' env encoder -> (h0, c0)
+        discrete = config.action_type == "discrete"
+        self.head = nn.Linear(3 * m, config.action_dim + 1 if discrete else config.action_dim)
+        self.done_head: nn.Linear | None = None if discrete else nn.Linear(3 * m, 1)
+        self.sketch_embedding: nn.Embedding | None = None
+        if config.sketch_mode == "sum":
+            self.sketch_embedding = nn.Embedding(config.sketch_vocab + 1, m, padding_idx=0)
+        self.register_buffer("obs_mean", torch.zeros(config.obs_dim))
+        self.register_buffer("obs_scale", torch.ones(config.obs_dim))
+
+    # --- inputs (same contract as OMPNPolicy) ------------------------------------------------------
+    def set_obs_normalization(self, mean: np.ndarray, scale: np.ndarray) -> None:
+        """Store the observation normalisation applied inside the model: ``(obs - mean) / scale``."""
+        d = self.config.obs_dim
+        mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32)).reshape(-1)
+        scale_t = torch.as_tensor(np.asarray(scale, dtype=np.float32)).reshape(-1)
+        if mean_t.numel() != d or scale_t.numel() != d:
+            raise ModelInputError(
+                f"obs normalization needs mean and scale of size obs_dim={d}, got {mean_t.numel()} "
+                f"and {scale_t.numel()}"
+            )
+        if not (torch.isfinite(mean_t).all() and torch.isfinite(scale_t).all() and (scale_t > 0).all()):
+            raise ModelInputError("obs normalization: mean must be finite and scale finite and > 0")
+        with torch.no_grad():
+            self.obs_mean.copy_(mean_t)
+            self.obs_scale.copy_(scale_t)
+
+    def encode_obs(self, obs: Tensor) -> Tensor:
+        """x = LN(W_in((s - mean) / scale) + b_in)."""
+        return self.input_norm(self.encoder((obs - self.obs_mean) / self.obs_scale))
+
+    def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor:
+        """Task embedding e ``[B, m]``: zeros (no sketch) or the sum of subtask embeddings (-1 pads)."""
+        ref = self.encoder.weight
+        if self.sketch_embedding is None:
+            if sketch is not None:
+                raise ModelInputError("a sketch was given but the model has sketch_mode='none'")
+            return ref.new_zeros(batch_size, self.config.slot_size)
+        if sketch is None:
+            raise ModelInputError("this model has sketch_mode='sum' and needs a sketch [B, K] int64")
+        sketch = torch.as_tensor(sketch, device=ref.device)
+        if sketch.dim() == 1:
+            sketch = sketch.unsqueeze(0)
+        if (
+            sketch.dim() != 2
+            or sketch.shape[0] != batch_size
+            or sketch.dtype not in (torch.int64, torch.int32)
+        ):
+            raise ModelInputError(
+                f"sketch must be an integer tensor [B={batch_size}, K], "
+                f"got {tuple(sketch.shape)} {sketch.dtype}"
+            )
+        vocab = self.config.sketch_vocab
+        if sketch.numel() and (int(sketch.min()) < -1 or int(sketch.max()) >= vocab):
+            raise ModelInputError(
+                f"sketch ids must lie in 0..{vocab - 1} (-1 = padding), got {sketch.tolist()}"
+            )
+        return self.sketch_embedding(sketch.long() + 1).sum(dim=1)
+
+    def _check_obs(self, obs: Tensor, ndim: int) -> None:
+        if obs.dim() != ndim or obs.shape[-1] != self.config.obs_dim:
+            want = "[B, D]" if ndim == 2 else "[B, T, D]"
+            raise ModelInputError(
+                f"obs must be {want} with D=obs_dim={self.config.obs_dim}, got shape {tuple(obs.shape)}"
+            )
+        if not obs.is_floating_point():
+            raise ModelInputError(f"obs must be a float tensor, got {obs.dtype}")
+
+    # --- recurrence --------------------------------------------------------------------------------
+    def initial_state(self, e: Tensor) -> LSTMState:
+        """``(h0, c0)``, each ``[n_layers, B, m]``, from the task embedding ``e [B, m]``."""
+        n, m = self.config.n_slots, self.config.slot_size
+        hc = self.init_state(e).view(e.shape[0], 2, n, m)
+        return hc[:, 0].transpose(0, 1).contiguous(), hc[:, 1].transpose(0, 1).contiguous()
+
+    def heads(self, out: Tensor, e: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
+        """``(action_out [..., A], pi_end [...])`` from the LSTM output, e and x (see module docstring)."""
+        feats = torch.cat([out, e.expand_as(out) if e.dim() == out.dim() else e, x], dim=-1)
+        logits = self.head(feats)
+        if self.done_head is None:
+            return logits[..., :-1], torch.softmax(logits, dim=-1)[..., -1]
+        return logits, torch.sigmoid(self.done_head(feats)).squeeze(-1)
+
+    def hierarchy_outputs(self, pi_end: Tensor) -> tuple[Tensor, Tensor]:
+        """``(p_hat [..., n+1], pi [..., n])``: ``[pi_end, 1 - pi_end, 0, ...]`` and one-hot(top slot)."""
+        n = self.config.n_slots
+        p_hat = torch.cat(
+            [pi_end.unsqueeze(-1), (1 - pi_end).unsqueeze(-1), pi_end.new_zeros(*pi_end.shape, n - 1)], dim=-1
+        )
+        pi = pi_end.new_zeros(*pi_end.shape, n)
+        pi[..., -1] = 1.0
+        return p_hat, pi
+
+    def forward_sequence(
+        self,
+        obs: Tensor,
+        mask: Tensor,
+        sketch: Tensor | None = None,
+        bptt: int = 64,
+        impl: Literal["fused", "reference"] = "fused",
+        bf16: bool = False,
+    ) -> SequenceOutput:
+        """Run whole episodes from their first step (teacher forcing); padded steps hold zeros.
+
+        ``impl`` is accepted for interface compatibility (both values run ``nn.LSTM``); ``bf16`` is
+        ignored (the LSTM always runs in float32).  ``(h, c)`` is detached every ``bptt`` steps.
+        """
+        del bf16
+        self._check_obs(obs, 3)
+        if impl not in ("fused", "reference"):
+            raise ModelInputError(f"impl must be 'fused' or 'reference', got {impl!r}")
+        if mask.shape != obs.shape[:2]:
+            raise ModelInputError(
+                f"mask shape {tuple(mask.shape)} does not match obs [B, T] {tuple(obs.shape[:2])}"
+            )
+        if bptt <= 0:
+            raise ModelInputError(f"bptt must be a positive number of steps, got {bptt}")
+        lengths_from_mask(mask)  # validates the prefix layout; padding follows valid steps, so causality
+        obs = obs.to(self.encoder.weight.dtype)  # keeps padded steps from affecting valid ones
+        batch, steps = mask.shape
+        e = self.embed_sketch(sketch, batch)
+        x = self.encode_obs(obs)
+        state = self.initial_state(e)
+        chunks = []
+        for start in range(0, steps, bptt):
+            out, state = self.lstm(x[:, start : start + bptt], state)
+            chunks.append(out)
+            state = (state[0].detach(), state[1].detach())
+        lstm_out = torch.cat(chunks, dim=1) if chunks else x.new_zeros(batch, 0, self.config.slot_size)
+        e_seq = e.unsqueeze(1).expand(batch, steps, e.shape[-1])
+        action_out, pi_end = self.heads(lstm_out, e_seq, x)
+        p_hat, pi = self.hierarchy_outputs(pi_end)
+        keep = mask.unsqueeze(-1)
+        return SequenceOutput(
+            action_out=torch.where(keep, action_out, 0.0),
+            p_hat=torch.where(keep, p_hat, 0.0),
+            pi=torch.where(keep, pi, 0.0),
+            mask=mask,
+        )
+
+
+class LSTMStreamingPolicy:
+    """Stateful batch-1 stepping of an :class:`LSTMPolicy` with numpy in and out.
+
+    Same interface as :class:`~ompn_ros.model.streaming.StreamingPolicy` (``reset(sketch)``,
+    ``step(obs) -> StepOutput``, ``config``); torch under ``inference_mode``.  ``backend`` is
+    accepted for compatibility; only ``'torch'`` semantics exist (``'numpy'`` maps to it).
+    """
+
+    def __init__(self, policy: LSTMPolicy, backend: str = "torch") -> None:
+        if backend not in ("numpy", "torch"):
+            raise StreamingInputError(f"backend must be 'numpy' or 'torch', got {backend!r}")
+        self.policy = policy
+        self.config = policy.config
+        self.backend = backend
+        self._ready = False
+        self._state: LSTMState | None = None
+        self._e: Tensor | None = None
+        if self.config.sketch_mode == "none":
+            self.reset()
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, backend: str = "torch") -> LSTMStreamingPolicy:
+        from ompn_ros.model.checkpoint import load_checkpoint
+
+        policy, _ = load_checkpoint(path)
+        if not isinstance(policy, LSTMPolicy):
+            raise StreamingInputError(f"{path}: not an LSTM checkpoint (arch={policy.config.arch!r})")
+        return cls(policy, backend=backend)
+
+    def reset(self, sketch: np.ndarray | None = None) -> None:
+        """Start a new episode: ``(h0, c0)`` from the task embedding."""
+        sketch_t = None
+        if sketch is not None:
+            arr = np.asarray(sketch)
+            if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
+                raise StreamingInputError(
+                    f"sketch must be a 1-D integer array [K], got {arr.shape} {arr.dtype}"
+                )
+            sketch_t = torch.as_tensor(arr.astype(np.int64)).unsqueeze(0)
+        with torch.inference_mode():
+            self._e = self.policy.embed_sketch(sketch_t, 1)
+            self._state = self.policy.initial_state(self._e)
+        self._ready = True
+
+    def step(self, obs: np.ndarray) -> StepOutput:
+        """Advance the LSTM by one observation; ``action`` = argmax over env actions (done excluded)."""
+        if not self._ready:
+            raise StreamingInputError("this model has sketch_mode='sum': call reset(sketch) before step()")
+        arr = np.asarray(obs, dtype=np.float32).reshape(-1)
+        if arr.size != self.config.obs_dim:
+            raise StreamingInputError(
+                f"observation has {np.asarray(obs).size} values, "
+                f"the model expects obs_dim={self.config.obs_dim}"
+            )
+        if not np.isfinite(arr).all():
+            raise StreamingInputError("observation contains NaN or inf")
+        assert self._e is not None and self._state is not None
+        with torch.inference_mode():
+            x = self.policy.encode_obs(torch.from_numpy(arr).view(1, 1, -1))
+            out, self._state = self.policy.lstm(x, self._state)
+            action_out, pi_end_t = self.policy.heads(out[:, 0], self._e, x[:, 0])
+            p_hat_t, pi_t = self.policy.hierarchy_outputs(pi_end_t)
+        pi_end = float(pi_end_t[0])
+        logits = action_out[0].numpy().astype(np.float32)
+        action: np.ndarray | int = int(np.argmax(logits)) if self.config.action_type == "discrete" else logits
+        pi = pi_t[0].numpy().astype(np.float32)
+        return StepOutput(
+            action=action,
+            pi=pi,
+            pi_end=pi_end,
+            p_hat=p_hat_t[0].numpy().astype(np.float32),
+            expected_position=float(np.dot(np.arange(1, pi.size + 1), pi)),
+            done_prob=pi_end,
+        )
+
+
+__all__ = ["LSTMPolicy", "LSTMStreamingPolicy"]

@@ -1,0 +1,137 @@
+"""episode_monitor: print one JSON line per finished sim episode (closed-loop evaluation over ROS).
+
+Subscribes (names from :mod:`ompn_ros.layout`, relative to the namespace) ``episode`` (start/end
+markers), ``subtask`` (ground-truth ordinal per step) and ``observation`` (only so that a sim waiting
+for two ``observation`` subscribers also waits for this monitor).  On every end marker it prints::
+
+    {"event": "end", "episode": i, "task": ..., "seed": s, "steps": T, "success": bool,
+     "max_subtask": k, "n_subtasks": K}
+
+``max_subtask`` is the highest ordinal published in the episode (= subtasks completed before the
+last step); ``actions`` = the executed discrete actions on ``action`` if ``record_actions`` (Craft),
+else [].  Parameters: ``episodes`` (exit after this many end markers, 0 = never), ``timeout``
+(seconds, exit code 3 when reached).  First line printed once subscriptions exist: ``{"event": "ready"}``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float32MultiArray, Int32
+
+from ompn_ros import layout
+
+GRACE_S = 0.5  # wait this long after an end marker for the episode's last per-step messages
+
+QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+class EpisodeMonitor(Node):
+    """Collects per-episode outcomes from a sim's markers and subtask topic."""
+
+    def __init__(self) -> None:
+        super().__init__("episode_monitor")
+        self.episodes = int(self.declare_parameter("episodes", 0).value)
+        self.timeout = float(self.declare_parameter("timeout", 600.0).value)
+        self.finished_count = 0
+        self.max_subtask = -1
+        self.n_subtasks = 0
+        self.deadline = time.monotonic() + self.timeout
+        self.create_subscription(DiagnosticArray, layout.EPISODE, self._on_episode, QOS)
+        self.create_subscription(Int32, layout.SUBTASK, self._on_subtask, QOS)
+        self.create_subscription(Float32MultiArray, layout.OBSERVATION, lambda _msg: None, QOS)
+        self.actions: list[int] = []
+        self._pending: tuple[dict[str, Any], float] | None = None
+        self.record_actions = bool(self.declare_parameter("record_actions", False).value)
+        if self.record_actions:  # discrete (Craft) action labels
+            self.create_subscription(Int32, layout.ACTION, self._on_action, QOS)
+        print(json.dumps({"event": "ready"}), flush=True)
+
+    def _on_subtask(self, msg: Int32) -> None:
+        self.max_subtask = max(self.max_subtask, int(msg.data))
+
+    def _on_action(self, msg: Int32) -> None:
+        self.actions.append(int(msg.data))
+        self.flush()
+
+    def _on_episode(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name != layout.EPISODE_STATUS_NAME:
+                continue
+            values: dict[str, Any] = {kv.key: kv.value for kv in status.values}
+            if status.message == layout.EPISODE_START:
+                self.flush(force=True)
+                self.max_subtask = -1
+                self.actions = []
+                sketch = values.get(layout.KEY_SKETCH, "")
+                self.n_subtasks = len([s for s in sketch.split(",") if s.strip()])
+            elif status.message == layout.EPISODE_END:
+                # Messages on other topics may still be in flight: finish once all `steps` actions
+                # arrived (or after a grace period), see flush().
+                self._pending = (values, time.monotonic() + GRACE_S)
+        self.flush()
+
+    def flush(self, force: bool = False) -> None:
+        """Print the pending end record once complete, its grace period is over, or ``force``."""
+        if self._pending is None:
+            return
+        values, until = self._pending
+        steps = int(values.get(layout.KEY_STEPS, 0))
+        complete = self.record_actions and len(self.actions) >= steps
+        if not (complete or force or time.monotonic() >= until):
+            return
+        record = {
+            "event": "end",
+            "episode": int(values.get(layout.KEY_EPISODE, -1)),
+            "task": values.get(layout.KEY_TASK, ""),
+            "seed": int(values.get(layout.KEY_SEED, -1)),
+            "steps": steps,
+            "success": values.get(layout.KEY_SUCCESS, "false") == "true",
+            "max_subtask": self.max_subtask,
+            "n_subtasks": self.n_subtasks,
+            "actions": list(self.actions),
+        }
+        print(json.dumps(record), flush=True)
+        self._pending = None
+        self.finished_count += 1
+
+    @property
+    def done(self) -> bool:
+        return bool(self.episodes) and self.finished_count >= self.episodes
+
+
+def main(args: list[str] | None = None) -> int:
+    rclpy.init(args=args)
+    node = EpisodeMonitor()
+    code = 0
+    try:
+        while rclpy.ok() and not node.done:
+            rclpy.spin_once(node, timeout_sec=0.1)
+            node.flush()
+            if time.monotonic() > node.deadline:
+                print(json.dumps({"event": "timeout", "finished": node.finished_count}), flush=True)
+                code = 3
+                break
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
