@@ -15,7 +15,7 @@ def config_file(name: str) -> Path:
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
     except ImportError as exc:  # pragma: no cover - ament_index comes with the ROS wheels
-        raise FileNotFoundError(f"config/{name} not found next to the sources and ament_index is missing") from exc
+        raise FileNotFoundError(f"config/{name} is not next to the sources; ament_index is missing") from exc
     try:
         shared = Path(get_package_share_directory("ompn_ros")) / "config" / name
     except (PackageNotFoundError, ValueError, OSError) as exc:

@@ -13,7 +13,7 @@ if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ[
     os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import pytest  # noqa: E402
+import pytest
 
 
 @pytest.fixture(autouse=True)

@@ -36,7 +36,8 @@ def test_importing_the_core_never_loads_rclpy():
         f"mods = {_core_modules()!r}\n"
         "for m in mods:\n"
         "    importlib.import_module(m)\n"
-        "print(json.dumps(sorted(k for k in sys.modules if k.split('.')[0] in ('rclpy', 'rcl_interfaces'))))\n"
+        "ros = ('rclpy', 'rcl_interfaces')\n"
+        "print(json.dumps(sorted(k for k in sys.modules if k.split('.')[0] in ros)))\n"
     )
     result = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True,
                             timeout=180, env=dict(os.environ))

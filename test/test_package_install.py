@@ -90,12 +90,14 @@ def test_installed_executables_talk_across_processes_and_stop_on_sigint(colcon_i
     listener = subprocess.Popen(
         ["bash", "-c", f"source {colcon_install}/setup.bash && exec {lib}/smoke_listener "
          f"--ros-args --params-file {params} -p count:=30 -p timeout:=15.0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "PATH": f"{VENV_BIN}:{os.environ['PATH']}"},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PATH": f"{VENV_BIN}:{os.environ['PATH']}"},
     )
     try:
         talker = _in_setup_bash(
             colcon_install,
-            f"exec {lib}/smoke_talker --ros-args --params-file {params} -p count:=30 -p wait_for_subscriber:=15.0",
+            f"exec {lib}/smoke_talker --ros-args --params-file {params} "
+            "-p count:=30 -p wait_for_subscriber:=15.0",
             timeout=60,
         )
         assert talker.returncode == 0, talker.stderr

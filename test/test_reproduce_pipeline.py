@@ -13,7 +13,8 @@ from ompn_ros.data.episode import Episode
 
 
 def _episode(task: str, seed: int) -> Episode:
-    return Episode(observations=np.zeros((3, 2), np.float32), actions=np.zeros(2, np.int64), task=task, seed=seed)
+    obs, actions = np.zeros((3, 2), np.float32), np.zeros(2, np.int64)
+    return Episode(observations=obs, actions=actions, task=task, seed=seed)
 
 
 def test_held_out_split_is_disjoint_stratified_and_seeded():
@@ -53,6 +54,7 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
 
 
 def test_unknown_setting_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
-    code = reproduce.main(["dial", "--settings", "full_nosketch", "--work", str(tmp_path), "--results", str(tmp_path)])
+    code = reproduce.main(["dial", "--settings", "full_nosketch", "--work", str(tmp_path),
+                           "--results", str(tmp_path)])
     assert code == 2
     assert "unknown settings ['full_nosketch'] for dial" in capsys.readouterr().err

@@ -138,7 +138,8 @@ def _true_boundaries(subtask: list[int]) -> list[int]:
 
 def _print_episode(ep: LiveEpisode) -> None:
     truth = _true_boundaries(ep.subtask)
-    print(f"episode {ep.index}: {len(ep.subtask)} steps; true boundaries {truth}; detected {sorted(ep.boundaries)}")
+    print(f"episode {ep.index}: {len(ep.subtask)} steps; true boundaries {truth}; "
+          f"detected {sorted(ep.boundaries)}")
 
 
 def _summarise(episodes: list[LiveEpisode], out_dir: Path) -> dict[str, float]:

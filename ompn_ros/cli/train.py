@@ -166,8 +166,8 @@ def _fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str
     elif "action_dim" in data:
         action_dim = int(data["action_dim"])
     else:
-        raise TrainCliError("discrete actions from your own bags need data.action_dim (the number of actions, "
-                            "without 'done')")
+        raise TrainCliError("discrete actions from your own bags need data.action_dim "
+                            "(the number of actions, without 'done')")
     return {"obs_dim": int(first.observations.shape[1]),
             "action_type": "continuous" if continuous else "discrete", "action_dim": action_dim}
 

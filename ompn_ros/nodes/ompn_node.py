@@ -237,7 +237,8 @@ class OMPNNode(LifecycleNode):
 
     def _default_sketch(self) -> np.ndarray | None:
         values = [int(v) for v in self.get_parameter("sketch").value]
-        # [-1] means "no default sketch": 0 is a valid id (Dial digit 0), and ROS cannot declare an empty int array.
+        # [-1] means "no default sketch": 0 is a valid id (Dial digit 0), and ROS cannot declare an
+        # empty integer array.
         return np.asarray(values, dtype=np.int64) if values and values != [-1] else None
 
     def _resolve_checkpoint(self) -> str:
