@@ -279,6 +279,17 @@ def threshold_sweep(p_hats: Sequence[np.ndarray], test: Sequence[Episode],
     return table
 
 
+def sweeps(domain: str, setting: str, wanted: set[str], p_hats: Sequence[np.ndarray],
+           test: Sequence[Episode]) -> dict[str, Any]:
+    """The appendix sweeps that apply to ``domain``: K for Craft, the threshold for Dial."""
+    extras: dict[str, Any] = {}
+    if "ksweep" in wanted and domain == "craft":
+        extras[f"K sweep ({setting}, seed 0, tol=1)"] = k_sweep(p_hats, test)
+    if "thresholds" in wanted and domain == "dial":
+        extras[f"Threshold sweep ({setting}, seed 0, alignment)"] = threshold_sweep(p_hats, test)
+    return extras
+
+
 # --- reporting -----------------------------------------------------------------------------------
 
 PAPER: dict[str, dict[str, tuple[int | None, int | None]]] = {
@@ -444,7 +455,8 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
             results.setdefault(setting.name, json.loads(previous.read_text()).get(setting.name, {}))
         results.setdefault(setting.name, {}).update(aggregate([run["row"]]))
         figures += save_figures(domain, setting.name, test, run, args.results / "figures")
-        _write(args, domain, results, {}, timer, start, figures, data)
+        _write(args, domain, results, sweeps(domain, setting.name, extras_wanted, run["p_hat"], test),
+               timer, start, figures, data)
         return 0
     for name in names:
         setting = SETTINGS[domain][name]
@@ -461,14 +473,9 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         figures += save_figures(domain, name, test, runs[name], args.results / "figures")
         _write(args, domain, results, {}, timer, start, figures, data)
 
-    extras: dict[str, Any] = {}
     primary = PRIMARY[domain] if PRIMARY[domain] in runs else names[0]
     pool, test = data[SETTINGS[domain][primary].partial]
-    if "ksweep" in extras_wanted and domain == "craft":
-        extras[f"K sweep ({primary}, seed 0, tol=1)"] = k_sweep(runs[primary]["p_hat"], test)
-    if "thresholds" in extras_wanted and domain == "dial":
-        sweep = threshold_sweep(runs[primary]["p_hat"], test)
-        extras[f"Threshold sweep ({primary}, seed 0, alignment)"] = sweep
+    extras = sweeps(domain, primary, extras_wanted, runs[primary]["p_hat"], test)
     if "ablations" in extras_wanted:
         table = {}
         chosen = [a for a in args.ablations.split(",") if a]
