@@ -35,4 +35,4 @@ def test_craft_sim_and_ompn_node_segment_live_against_ground_truth(tmp_path: Pat
     assert summary["align_acc"] >= 0.6, summary
     assert 0 < summary["latency_ms_p50"] < 100, summary
     assert (tmp_path / "live_episode0.png").stat().st_size > 10_000
-    assert "true boundaries" in result.stdout and "boundary: step" in result.stdout
+    assert "true boundary" in result.stdout and "detected boundary: step" in result.stdout

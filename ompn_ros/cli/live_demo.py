@@ -99,15 +99,8 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
             if 0 <= seen_at < len(ep.obs_times) and keys.get("final") != "true":
                 ep.latencies_ms.append((now - ep.obs_times[seen_at]) / 1e6)
                 latency = f", {ep.latencies_ms[-1]:.2f} ms after observation {seen_at}"
-            # Live, a true boundary is known once the ground-truth subtask index has changed after it.
-            labels = np.asarray(ep.subtask)
-            truth = np.flatnonzero(labels[1:] != labels[:-1]).tolist() if labels.size > 1 else []
-            if keys.get("final") == "true":
-                truth.append(step)
-            near = min(truth, key=lambda t: abs(t - step)) if truth else None
-            shown = "—" if near is None else f"{near} (Δ{step - near:+d})"
-            print(f"   boundary: step {step:4d} subtask {keys.get('subtask', '?')}   nearest true boundary "
-                  f"{shown}{latency}", flush=True)
+            print(f"   detected boundary: step {step:4d} (subtask {keys.get('subtask', '?')}){latency}",
+                  flush=True)
 
     node.create_subscription(DiagnosticArray, layout.EPISODE, on_episode, reliable)
     node.create_subscription(Float32MultiArray, layout.OBSERVATION, on_obs, reliable)
@@ -137,9 +130,17 @@ def _true_boundaries(subtask: list[int]) -> list[int]:
 
 
 def _print_episode(ep: LiveEpisode) -> None:
+    """Each true boundary next to the nearest detection, then any detection that matched none."""
     truth = _true_boundaries(ep.subtask)
-    print(f"episode {ep.index}: {len(ep.subtask)} steps; true boundaries {truth}; "
-          f"detected {sorted(ep.boundaries)}")
+    detected = sorted(set(ep.boundaries))
+    print(f"episode {ep.index}: {len(ep.subtask)} steps")
+    for i, t in enumerate(truth):
+        near = min(detected, key=lambda d: abs(d - t)) if detected else None
+        shown = "none" if near is None else f"{near:4d} (Δ{near - t:+d})"
+        print(f"   subtask {i}: true boundary {t:4d}   detected {shown}")
+    extra = [d for d in detected if min(abs(d - t) for t in truth) > 1] if truth else detected
+    if extra:
+        print(f"   detections more than 1 step from any true boundary: {extra}")
 
 
 def _summarise(episodes: list[LiveEpisode], out_dir: Path) -> dict[str, float]:
