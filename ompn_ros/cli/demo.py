@@ -8,19 +8,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
 
-
-def child_env() -> dict[str, str]:
-    """Environment for child ROS processes: inherits LD_LIBRARY_PATH, keeps DDS on loopback."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.setdefault("ROS_DOMAIN_ID", str(1 + int(time.time()) % 100))
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+from ompn_ros.ros_env import child_env
 
 
 def run_smoke(count: int = 100, rate: float = 100.0) -> int:

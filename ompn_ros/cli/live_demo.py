@@ -20,8 +20,8 @@ import numpy as np
 
 from ompn_ros import layout
 from ompn_ros.checkpoints import shipped_checkpoint
-from ompn_ros.cli.demo import child_env
 from ompn_ros.paths import config_file
+from ompn_ros.ros_env import child_env
 
 
 @dataclass

@@ -33,7 +33,6 @@ and a ``ROS_DOMAIN_ID`` (kept if set).
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -51,21 +50,13 @@ from ompn_ros.eval.closed_loop import (
     ClosedLoopReport,
     EpisodeResult,
 )
+from ompn_ros.ros_env import child_env
 
 SIM_MODULES = {"craft": "sim_nodes.craft.node", "dial": "sim_nodes.dial.node"}
 
 
 class RosEvalError(RuntimeError):
     """A child process failed or the evaluation timed out; the message carries the children's stderr."""
-
-
-def child_env() -> dict[str, str]:
-    """Environment for the child ROS processes (pattern of ``ompn_ros/cli/demo.py``)."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.setdefault("ROS_DOMAIN_ID", str(1 + int(time.time()) % 100))
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
 
 
 def ros_eval_seeds(n: int, base: int = EVAL_SEED_BASE) -> list[int]:

@@ -31,13 +31,13 @@ import torch
 from torch import Tensor, nn
 
 from ompn_ros.model.config import ConfigError, OMPNConfig
-from ompn_ros.model.policy import ModelInputError, SequenceOutput, lengths_from_mask
+from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput, lengths_from_mask
 from ompn_ros.model.streaming import StepOutput, StreamingInputError
 
 LSTMState = tuple[Tensor, Tensor]
 
 
-class LSTMPolicy(nn.Module):
+class LSTMPolicy(PolicyInputs, nn.Module):
     """The LSTM baseline; same public methods as :class:`~ompn_ros.model.policy.OMPNPolicy`
     for training (``forward_sequence``, ``set_obs_normalization``, ``config``)."""
 
@@ -83,43 +83,6 @@ class LSTMPolicy(nn.Module):
     def encode_obs(self, obs: Tensor) -> Tensor:
         """x = LN(W_in((s - mean) / scale) + b_in)."""
         return self.input_norm(self.encoder((obs - self.obs_mean) / self.obs_scale))
-
-    def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor:
-        """Task embedding e ``[B, m]``: zeros (no sketch) or the sum of subtask embeddings (-1 pads)."""
-        ref = self.encoder.weight
-        if self.sketch_embedding is None:
-            if sketch is not None:
-                raise ModelInputError("a sketch was given but the model has sketch_mode='none'")
-            return ref.new_zeros(batch_size, self.config.slot_size)
-        if sketch is None:
-            raise ModelInputError("this model has sketch_mode='sum' and needs a sketch [B, K] int64")
-        sketch = torch.as_tensor(sketch, device=ref.device)
-        if sketch.dim() == 1:
-            sketch = sketch.unsqueeze(0)
-        if (
-            sketch.dim() != 2
-            or sketch.shape[0] != batch_size
-            or sketch.dtype not in (torch.int64, torch.int32)
-        ):
-            raise ModelInputError(
-                f"sketch must be an integer tensor [B={batch_size}, K], "
-                f"got {tuple(sketch.shape)} {sketch.dtype}"
-            )
-        vocab = self.config.sketch_vocab
-        if sketch.numel() and (int(sketch.min()) < -1 or int(sketch.max()) >= vocab):
-            raise ModelInputError(
-                f"sketch ids must lie in 0..{vocab - 1} (-1 = padding), got {sketch.tolist()}"
-            )
-        return self.sketch_embedding(sketch.long() + 1).sum(dim=1)
-
-    def _check_obs(self, obs: Tensor, ndim: int) -> None:
-        if obs.dim() != ndim or obs.shape[-1] != self.config.obs_dim:
-            want = "[B, D]" if ndim == 2 else "[B, T, D]"
-            raise ModelInputError(
-                f"obs must be {want} with D=obs_dim={self.config.obs_dim}, got shape {tuple(obs.shape)}"
-            )
-        if not obs.is_floating_point():
-            raise ModelInputError(f"obs must be a float tensor, got {obs.dtype}")
 
     # --- recurrence --------------------------------------------------------------------------------
     def initial_state(self, e: Tensor) -> LSTMState:

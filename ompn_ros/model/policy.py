@@ -142,7 +142,57 @@ def lengths_from_mask(mask: Tensor) -> Tensor:
     return lengths
 
 
-class OMPNPolicy(nn.Module):
+class PolicyInputs:
+    """Input handling shared by the OMPN and LSTM policies: sketch embedding and observation checks.
+
+    Needs ``self.config`` (OMPNConfig), ``self.encoder`` (the observation Linear) and
+    ``self.sketch_embedding`` (``nn.Embedding(vocab + 1, m, padding_idx=0)`` or None).
+    """
+
+    config: OMPNConfig
+    encoder: nn.Linear
+    sketch_embedding: nn.Embedding | None
+
+    def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor:
+        """Task embedding e ``[B, m]``: zeros (no sketch) or the sum of subtask embeddings."""
+        ref = self.encoder.weight
+        if self.sketch_embedding is None:
+            if sketch is not None:
+                raise ModelInputError("a sketch was given but the model has sketch_mode='none'")
+            return ref.new_zeros(batch_size, self.config.slot_size)
+        if sketch is None:
+            raise ModelInputError("this model has sketch_mode='sum' and needs a sketch [B, K] int64")
+        sketch = torch.as_tensor(sketch, device=ref.device)
+        if sketch.dim() == 1:
+            sketch = sketch.unsqueeze(0)
+        if (
+            sketch.dim() != 2
+            or sketch.shape[0] != batch_size
+            or sketch.dtype not in (torch.int64, torch.int32)
+        ):
+            raise ModelInputError(
+                f"sketch must be an integer tensor [B={batch_size}, K], "
+                f"got {tuple(sketch.shape)} {sketch.dtype}"
+            )
+        vocab = self.config.sketch_vocab
+        if sketch.numel() and (int(sketch.min()) < -1 or int(sketch.max()) >= vocab):
+            raise ModelInputError(
+                f"sketch ids must lie in 0..{vocab - 1} (-1 = padding), got {sketch.tolist()}"
+            )
+        # Domain ids start at 0 (Dial digits), so the embedding table reserves row 0 for padding.
+        return self.sketch_embedding(sketch.long() + 1).sum(dim=1)
+
+    def _check_obs(self, obs: Tensor, ndim: int) -> None:
+        if obs.dim() != ndim or obs.shape[-1] != self.config.obs_dim:
+            want = "[B, D]" if ndim == 2 else "[B, T, D]"
+            raise ModelInputError(
+                f"obs must be {want} with D=obs_dim={self.config.obs_dim}, got shape {tuple(obs.shape)}"
+            )
+        if not obs.is_floating_point():
+            raise ModelInputError(f"obs must be a float tensor, got {obs.dtype}")
+
+
+class OMPNPolicy(PolicyInputs, nn.Module):
     """The OMPN policy; see the module docstring for the equations."""
 
     obs_mean: Tensor
@@ -193,44 +243,6 @@ class OMPNPolicy(nn.Module):
     def encode_obs(self, obs: Tensor) -> Tensor:
         """x = W_in((s - mean) / scale) + b_in."""
         return self.encoder((obs - self.obs_mean) / self.obs_scale)
-
-    def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor:
-        """Task embedding e ``[B, m]``: zeros (no sketch) or the sum of subtask embeddings."""
-        ref = self.encoder.weight
-        if self.sketch_embedding is None:
-            if sketch is not None:
-                raise ModelInputError("a sketch was given but the model has sketch_mode='none'")
-            return ref.new_zeros(batch_size, self.config.slot_size)
-        if sketch is None:
-            raise ModelInputError("this model has sketch_mode='sum' and needs a sketch [B, K] int64")
-        sketch = torch.as_tensor(sketch, device=ref.device)
-        if sketch.dim() == 1:
-            sketch = sketch.unsqueeze(0)
-        if (
-            sketch.dim() != 2
-            or sketch.shape[0] != batch_size
-            or sketch.dtype not in (torch.int64, torch.int32)
-        ):
-            raise ModelInputError(
-                f"sketch must be an integer tensor [B={batch_size}, K], "
-                f"got {tuple(sketch.shape)} {sketch.dtype}"
-            )
-        vocab = self.config.sketch_vocab
-        if sketch.numel() and (int(sketch.min()) < -1 or int(sketch.max()) >= vocab):
-            raise ModelInputError(
-                f"sketch ids must lie in 0..{vocab - 1} (-1 = padding), got {sketch.tolist()}"
-            )
-        # Domain ids start at 0 (Dial digits), so the embedding table reserves row 0 for padding.
-        return self.sketch_embedding(sketch.long() + 1).sum(dim=1)
-
-    def _check_obs(self, obs: Tensor, ndim: int) -> None:
-        if obs.dim() != ndim or obs.shape[-1] != self.config.obs_dim:
-            want = "[B, D]" if ndim == 2 else "[B, T, D]"
-            raise ModelInputError(
-                f"obs must be {want} with D=obs_dim={self.config.obs_dim}, got shape {tuple(obs.shape)}"
-            )
-        if not obs.is_floating_point():
-            raise ModelInputError(f"obs must be a float tensor, got {obs.dtype}")
 
     # --- recurrence -----------------------------------------------------------------------------------
     def initial_state(self, batch_size: int, sketch: Tensor | None = None) -> MemoryState:
