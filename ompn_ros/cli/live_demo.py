@@ -42,9 +42,51 @@ def _kv(status) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
 
+@dataclass
+class Streams:
+    """Everything the monitor received, per topic, in arrival order.
+
+    DDS keeps the order within a topic but not across topics, so episodes are cut from each stream
+    by counts (an episode of T steps has T subtask labels and T + 1 observations and π rows), and
+    the boundary stream where the subtask ordinal starts again (it counts up within an episode).
+    """
+
+    ends: list[dict[str, str]] = field(default_factory=list)
+    obs_times: list[int] = field(default_factory=list)
+    subtask: list[int] = field(default_factory=list)
+    pi_rows: list[list[float]] = field(default_factory=list)
+    boundaries: list[tuple[dict[str, str], int]] = field(default_factory=list)  # (keys, receive ns)
+
+    def episodes(self) -> list[LiveEpisode]:
+        out: list[LiveEpisode] = []
+        obs0, sub0 = 0, 0
+        groups: list[list[tuple[dict[str, str], int]]] = []
+        for keys, received in self.boundaries:
+            ordinal = int(keys.get("subtask", 0))
+            if not groups or ordinal <= int(groups[-1][-1][0].get("subtask", 0)):
+                groups.append([])
+            groups[-1].append((keys, received))
+        for i, end in enumerate(self.ends):
+            steps = int(end.get(layout.KEY_STEPS, 0))
+            ep = LiveEpisode(index=int(end.get(layout.KEY_EPISODE, len(out))), steps=steps)
+            ep.obs_times = self.obs_times[obs0 : obs0 + steps + 1]
+            ep.pi_rows = self.pi_rows[obs0 : obs0 + steps + 1]
+            ep.subtask = self.subtask[sub0 : sub0 + steps]
+            obs0, sub0 = obs0 + steps + 1, sub0 + steps
+            for keys, received in groups[i] if i < len(groups) else []:
+                step, seen_at = int(keys["step"]), int(keys.get("detected_at", keys["step"]))
+                ep.boundaries.append(step)
+                ep.detected_at.append(seen_at)
+                if keys.get("final") != "true" and 0 <= seen_at < len(ep.obs_times):
+                    ep.latencies_ms.append((received - ep.obs_times[seen_at]) / 1e6)
+            out.append(ep)
+        return out
+
+
 def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import ExternalShutdownException
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float32MultiArray, Int32
 
@@ -54,9 +96,7 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
     events_qos = QoSProfile(
         depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
     )
-    episodes: list[LiveEpisode] = []
-    finished: list[LiveEpisode] = []
-    current: dict[str, LiveEpisode] = {}  # 'ep': the running episode; 'last': the latest one (late events)
+    streams = Streams()
 
     def on_episode(msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -64,63 +104,49 @@ def _monitor(args: argparse.Namespace, node_name: str) -> list[LiveEpisode]:
                 continue
             keys = _kv(status)
             if status.message == layout.EPISODE_START:
-                ep = LiveEpisode(index=int(keys.get(layout.KEY_EPISODE, len(episodes))))
-                episodes.append(ep)
-                current["ep"] = current["last"] = ep
-                print(f"episode {ep.index} started", flush=True)
-            elif status.message == layout.EPISODE_END and "ep" in current:
-                ep = current.pop("ep")
-                ep.steps = int(keys.get(layout.KEY_STEPS, len(ep.subtask)))
-                finished.append(ep)
-
-    def on_obs(_msg: Float32MultiArray) -> None:
-        if "ep" in current:
-            current["ep"].obs_times.append(time.monotonic_ns())
-
-    def on_subtask(msg: Int32) -> None:
-        if "ep" in current:
-            current["ep"].subtask.append(int(msg.data))
-
-    def on_pi(msg: Float32MultiArray) -> None:
-        if "ep" in current:
-            current["ep"].pi_rows.append(list(msg.data))
+                print(f"episode {keys.get(layout.KEY_EPISODE, '?')} started", flush=True)
+            elif status.message == layout.EPISODE_END:
+                streams.ends.append(keys)
 
     def on_boundary(msg: DiagnosticArray) -> None:
-        now = time.monotonic_ns()
-        ep = current.get("ep") or current.get("last")  # the final boundary can follow the end marker
+        received = time.monotonic_ns()
         for status in msg.status:
             keys = _kv(status)
-            if ep is None or "step" not in keys:
+            if "step" not in keys:
                 continue
-            step, seen_at = int(keys["step"]), int(keys.get("detected_at", keys["step"]))
-            ep.boundaries.append(step)
-            ep.detected_at.append(seen_at)
-            latency = ""
-            if 0 <= seen_at < len(ep.obs_times) and keys.get("final") != "true":
-                ep.latencies_ms.append((now - ep.obs_times[seen_at]) / 1e6)
-                latency = f", {ep.latencies_ms[-1]:.2f} ms after observation {seen_at}"
-            print(f"   detected boundary: step {step:4d} (subtask {keys.get('subtask', '?')}){latency}",
-                  flush=True)
+            streams.boundaries.append((keys, received))
+            final = " (episode end)" if keys.get("final") == "true" else ""
+            print(f"   detected boundary: step {int(keys['step']):4d} "
+                  f"(subtask {keys.get('subtask', '?')}){final}", flush=True)
 
     node.create_subscription(DiagnosticArray, layout.EPISODE, on_episode, reliable)
-    node.create_subscription(Float32MultiArray, layout.OBSERVATION, on_obs, reliable)
+    def on_subtask(msg: Int32) -> None:
+        streams.subtask.append(int(msg.data))
+
+    def on_pi(msg: Float32MultiArray) -> None:
+        streams.pi_rows.append(list(msg.data))
+
+    node.create_subscription(Float32MultiArray, layout.OBSERVATION,
+                             lambda _m: streams.obs_times.append(time.monotonic_ns()), reliable)
     node.create_subscription(Int32, layout.SUBTASK, on_subtask, reliable)
     node.create_subscription(Float32MultiArray, f"/{node_name}/pi", on_pi, reliable)
     node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", on_boundary, events_qos)
     deadline = time.monotonic() + args.timeout
     try:
-        while len(finished) < args.episodes and time.monotonic() < deadline:
+        while time.monotonic() < deadline and len(streams.ends) < args.episodes:
             rclpy.spin_once(node, timeout_sec=0.05)
-        # The last boundary of an episode can arrive just after its end marker.
-        settle = time.monotonic() + 1.0
+        settle = time.monotonic() + 1.0  # the last messages of other topics may still be in flight
         while time.monotonic() < settle:
             rclpy.spin_once(node, timeout_sec=0.05)
-        for ep in finished:
-            _print_episode(ep)
+    except ExternalShutdownException:
+        pass  # Ctrl-C: report what arrived so far
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-    return finished
+    episodes = streams.episodes()
+    for ep in episodes:
+        _print_episode(ep)
+    return episodes
 
 
 def _true_boundaries(subtask: list[int]) -> list[int]:
