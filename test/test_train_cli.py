@@ -105,3 +105,23 @@ def test_train_from_a_bag(tmp_path: Path) -> None:
     assert main([*args, "--out", str(tmp_path / "out"), *SMALL, "--set", "train.iterations=1"]) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["iterations"] == 1 and summary["frames"] > 0
+
+
+def test_train_from_a_users_bag_with_a_reader_spec(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bag that is not one of our domains: sizes come from the data and the reader YAML."""
+    from ompn_ros.data.bag_writer import write_episodes
+    from ompn_ros.train.synthetic import make_dataset
+
+    write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 6, seed=1), "craft")
+    args = ["--bags", str(tmp_path / "bag"), "--config", str(ROOT / "config" / "train_craft.yaml"),
+            "--set", "data.domain=custom",
+            "--set", f"data.reader_spec={ROOT / 'config' / 'reader_craft.yaml'}"]
+    # discrete actions cannot be sized from the data alone: a clear error names the missing key
+    assert main([*args, "--out", str(tmp_path / "bad"), *SMALL, "--set", "train.iterations=1"]) == 2
+    assert "data.action_dim" in capsys.readouterr().err
+    assert main([*args, "--set", "data.action_dim=5", "--out", str(tmp_path / "out"), *SMALL,
+                 "--set", "train.iterations=1"]) == 0
+    config = json.loads((tmp_path / "out" / "best" / "config.json").read_text())
+    assert (config["obs_dim"], config["action_type"], config["action_dim"]) == (1075, "discrete", 5)
