@@ -32,7 +32,7 @@ from torch import Tensor, nn
 
 from ompn_ros.model.config import ConfigError, OMPNConfig
 from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput, lengths_from_mask
-from ompn_ros.model.streaming import StepOutput, StreamingInputError
+from ompn_ros.model.streaming import StepOutput, StreamingInputError, sketch_tensor
 
 LSTMState = tuple[Tensor, Tensor]
 
@@ -64,22 +64,6 @@ class LSTMPolicy(PolicyInputs, nn.Module):
         self.register_buffer("obs_scale", torch.ones(config.obs_dim))
 
     # --- inputs (same contract as OMPNPolicy) ------------------------------------------------------
-    def set_obs_normalization(self, mean: np.ndarray, scale: np.ndarray) -> None:
-        """Store the observation normalisation applied inside the model: ``(obs - mean) / scale``."""
-        d = self.config.obs_dim
-        mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32)).reshape(-1)
-        scale_t = torch.as_tensor(np.asarray(scale, dtype=np.float32)).reshape(-1)
-        if mean_t.numel() != d or scale_t.numel() != d:
-            raise ModelInputError(
-                f"obs normalization needs mean and scale of size obs_dim={d}, got {mean_t.numel()} "
-                f"and {scale_t.numel()}"
-            )
-        if not (torch.isfinite(mean_t).all() and torch.isfinite(scale_t).all() and (scale_t > 0).all()):
-            raise ModelInputError("obs normalization: mean must be finite and scale finite and > 0")
-        with torch.no_grad():
-            self.obs_mean.copy_(mean_t)
-            self.obs_scale.copy_(scale_t)
-
     def encode_obs(self, obs: Tensor) -> Tensor:
         """x = LN(W_in((s - mean) / scale) + b_in)."""
         return self.input_norm(self.encoder((obs - self.obs_mean) / self.obs_scale))
@@ -188,16 +172,8 @@ class LSTMStreamingPolicy:
 
     def reset(self, sketch: np.ndarray | None = None) -> None:
         """Start a new episode: ``(h0, c0)`` from the task embedding."""
-        sketch_t = None
-        if sketch is not None:
-            arr = np.asarray(sketch)
-            if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
-                raise StreamingInputError(
-                    f"sketch must be a 1-D integer array [K], got {arr.shape} {arr.dtype}"
-                )
-            sketch_t = torch.as_tensor(arr.astype(np.int64)).unsqueeze(0)
         with torch.inference_mode():
-            self._e = self.policy.embed_sketch(sketch_t, 1)
+            self._e = self.policy.embed_sketch(sketch_tensor(sketch), 1)
             self._state = self.policy.initial_state(self._e)
         self._ready = True
 

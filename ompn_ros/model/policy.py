@@ -145,13 +145,32 @@ def lengths_from_mask(mask: Tensor) -> Tensor:
 class PolicyInputs:
     """Input handling shared by the OMPN and LSTM policies: sketch embedding and observation checks.
 
-    Needs ``self.config`` (OMPNConfig), ``self.encoder`` (the observation Linear) and
-    ``self.sketch_embedding`` (``nn.Embedding(vocab + 1, m, padding_idx=0)`` or None).
+    Needs ``self.config`` (OMPNConfig), ``self.encoder`` (the observation Linear),
+    ``self.sketch_embedding`` (``nn.Embedding(vocab + 1, m, padding_idx=0)`` or None) and the
+    ``obs_mean`` / ``obs_scale`` buffers.
     """
 
     config: OMPNConfig
     encoder: nn.Linear
     sketch_embedding: nn.Embedding | None
+    obs_mean: Tensor
+    obs_scale: Tensor
+
+    def set_obs_normalization(self, mean: np.ndarray, scale: np.ndarray) -> None:
+        """Store the observation normalisation applied inside the model: ``(obs - mean) / scale``."""
+        d = self.config.obs_dim
+        mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32)).reshape(-1)
+        scale_t = torch.as_tensor(np.asarray(scale, dtype=np.float32)).reshape(-1)
+        if mean_t.numel() != d or scale_t.numel() != d:
+            raise ModelInputError(
+                f"obs normalization needs mean and scale of size obs_dim={d}, got {mean_t.numel()} "
+                f"and {scale_t.numel()}"
+            )
+        if not (torch.isfinite(mean_t).all() and torch.isfinite(scale_t).all() and (scale_t > 0).all()):
+            raise ModelInputError("obs normalization: mean must be finite and scale finite and > 0")
+        with torch.no_grad():
+            self.obs_mean.copy_(mean_t)
+            self.obs_scale.copy_(scale_t)
 
     def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor:
         """Task embedding e ``[B, m]``: zeros (no sketch) or the sum of subtask embeddings."""
@@ -224,22 +243,6 @@ class OMPNPolicy(PolicyInputs, nn.Module):
         return [cast(DecomCell, c) for c in self.decom_cells]
 
     # --- inputs -------------------------------------------------------------------------------------
-    def set_obs_normalization(self, mean: np.ndarray, scale: np.ndarray) -> None:
-        """Store the observation normalisation applied inside the model: ``(obs - mean) / scale``."""
-        d = self.config.obs_dim
-        mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32)).reshape(-1)
-        scale_t = torch.as_tensor(np.asarray(scale, dtype=np.float32)).reshape(-1)
-        if mean_t.numel() != d or scale_t.numel() != d:
-            raise ModelInputError(
-                f"obs normalization needs mean and scale of size obs_dim={d}, got {mean_t.numel()} "
-                f"and {scale_t.numel()}"
-            )
-        if not (torch.isfinite(mean_t).all() and torch.isfinite(scale_t).all() and (scale_t > 0).all()):
-            raise ModelInputError("obs normalization: mean must be finite and scale finite and > 0")
-        with torch.no_grad():
-            self.obs_mean.copy_(mean_t)
-            self.obs_scale.copy_(scale_t)
-
     def encode_obs(self, obs: Tensor) -> Tensor:
         """x = W_in((s - mean) / scale) + b_in."""
         return self.encoder((obs - self.obs_mean) / self.obs_scale)

@@ -56,6 +56,16 @@ class StepOutput:
     done_prob: float
 
 
+def sketch_tensor(sketch: np.ndarray | None) -> torch.Tensor | None:
+    """A streaming sketch ``[K]`` as the ``[1, K]`` int64 tensor the policies take (None stays None)."""
+    if sketch is None:
+        return None
+    arr = np.asarray(sketch)
+    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
+        raise StreamingInputError(f"sketch must be a 1-D integer array [K], got {arr.shape} {arr.dtype}")
+    return torch.as_tensor(arr.astype(np.int64)).unsqueeze(0)
+
+
 def _np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
@@ -89,14 +99,7 @@ class StreamingPolicy:
 
     def reset(self, sketch: np.ndarray | None = None) -> None:
         """Start a new episode (initial memory M^0; the next step is the hard-coded first step)."""
-        sketch_t = None
-        if sketch is not None:
-            arr = np.asarray(sketch)
-            if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
-                raise StreamingInputError(
-                    f"sketch must be a 1-D integer array [K], got {arr.shape} {arr.dtype}"
-                )
-            sketch_t = torch.as_tensor(arr.astype(np.int64)).unsqueeze(0)
+        sketch_t = sketch_tensor(sketch)
         with torch.inference_mode():
             state = self.policy.initial_state(1, sketch_t)
         self._state = state
