@@ -31,7 +31,6 @@ from std_msgs.msg import Float32MultiArray  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
 
@@ -41,25 +40,6 @@ EVENTS = QoSProfile(
     depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
 )
 HIGH = 0.2
-
-
-def trained_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small OMPN trained on the synthetic corridor task (~10 s), shared by the session."""
-    path = tmp_path_factory.getbasetemp() / "synthetic_discrete_ckpt"
-    if not (path / "best").is_dir():
-        episodes = synthetic.make_dataset("discrete", 64, seed=0)
-        obs_dim, action_type, action_dim, _ = synthetic.synthetic_spec("discrete")
-        cfg = OMPNConfig(
-            obs_dim=obs_dim, action_type=action_type, action_dim=action_dim, n_slots=3, slot_size=32
-        )
-        trainer.train(
-            episodes,
-            cfg,
-            trainer.TrainConfig(
-                iterations=120, batch_size=32, eval_every=40, out_dir=str(path), lr=3e-3, progress=False
-            ),
-        )
-    return path / "best"
 
 
 def marker(kind: str, values: dict[str, str]) -> DiagnosticArray:
@@ -74,8 +54,8 @@ def marker(kind: str, values: dict[str, str]) -> DiagnosticArray:
     return msg
 
 
-def test_sim_node_subscriber(tmp_path_factory: pytest.TempPathFactory, ros_env: dict[str, str]) -> None:
-    ckpt = trained_checkpoint(tmp_path_factory)
+def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]) -> None:
+    ckpt = synthetic_checkpoint
     episodes = synthetic.make_dataset("discrete", 2, seed=900)
     cmd = [
         sys.executable,

@@ -15,34 +15,14 @@ synthetic = pytest.importorskip("ompn_ros.train.synthetic")
 
 from ompn_ros.cli import segment as cli  # noqa: E402
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 
 torch.set_num_threads(1)
 
 
-def trained_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small OMPN trained on the synthetic corridor task (~10 s), shared by the session."""
-    path = tmp_path_factory.getbasetemp() / "synthetic_discrete_ckpt"
-    if not (path / "best").is_dir():
-        episodes = synthetic.make_dataset("discrete", 64, seed=0)
-        obs_dim, action_type, action_dim, _ = synthetic.synthetic_spec("discrete")
-        cfg = OMPNConfig(
-            obs_dim=obs_dim, action_type=action_type, action_dim=action_dim, n_slots=3, slot_size=32
-        )
-        trainer.train(
-            episodes,
-            cfg,
-            trainer.TrainConfig(
-                iterations=120, batch_size=32, eval_every=40, out_dir=str(path), lr=3e-3, progress=False
-            ),
-        )
-    return path / "best"
-
-
 @pytest.fixture(scope="module")
-def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return trained_checkpoint(tmp_path_factory)
+def ckpt(synthetic_checkpoint: Path) -> Path:
+    return synthetic_checkpoint
 
 
 @pytest.fixture(scope="module")

@@ -32,7 +32,7 @@ from torch import Tensor, nn
 
 from ompn_ros.model.config import ConfigError, OMPNConfig
 from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput, lengths_from_mask
-from ompn_ros.model.streaming import StepOutput, StreamingInputError, sketch_tensor
+from ompn_ros.model.streaming import StepOutput, StreamingInputError, checked_observation, sketch_tensor
 
 LSTMState = tuple[Tensor, Tensor]
 
@@ -179,16 +179,7 @@ class LSTMStreamingPolicy:
 
     def step(self, obs: np.ndarray) -> StepOutput:
         """Advance the LSTM by one observation; ``action`` = argmax over env actions (done excluded)."""
-        if not self._ready:
-            raise StreamingInputError("this model has sketch_mode='sum': call reset(sketch) before step()")
-        arr = np.asarray(obs, dtype=np.float32).reshape(-1)
-        if arr.size != self.config.obs_dim:
-            raise StreamingInputError(
-                f"observation has {np.asarray(obs).size} values, "
-                f"the model expects obs_dim={self.config.obs_dim}"
-            )
-        if not np.isfinite(arr).all():
-            raise StreamingInputError("observation contains NaN or inf")
+        arr = checked_observation(obs, self.config.obs_dim, self._ready)
         assert self._e is not None and self._state is not None
         with torch.inference_mode():
             x = self.policy.encode_obs(torch.from_numpy(arr).view(1, 1, -1))

@@ -56,6 +56,20 @@ class StepOutput:
     done_prob: float
 
 
+def checked_observation(obs: np.ndarray, obs_dim: int, ready: bool) -> np.ndarray:
+    """``obs`` as a flat float32 vector, or a StreamingInputError naming what is wrong with it."""
+    if not ready:
+        raise StreamingInputError("this model has sketch_mode='sum': call reset(sketch) before step()")
+    arr = np.asarray(obs, dtype=np.float32).reshape(-1)
+    if arr.size != obs_dim:
+        raise StreamingInputError(
+            f"observation has {np.asarray(obs).size} values, the model expects obs_dim={obs_dim}"
+        )
+    if not np.isfinite(arr).all():
+        raise StreamingInputError("observation contains NaN or inf")
+    return arr
+
+
 def sketch_tensor(sketch: np.ndarray | None) -> torch.Tensor | None:
     """A streaming sketch ``[K]`` as the ``[1, K]`` int64 tensor the policies take (None stays None)."""
     if sketch is None:
@@ -113,22 +127,10 @@ class StreamingPolicy:
         assert self._w is not None
         return self._w.memory
 
-    def _check(self, obs: np.ndarray) -> np.ndarray:
-        if not self._ready:
-            raise StreamingInputError("this model has sketch_mode='sum': call reset(sketch) before step()")
-        arr = np.asarray(obs, dtype=np.float32).reshape(-1)
-        if arr.size != self.config.obs_dim:
-            raise StreamingInputError(
-                f"observation has {np.asarray(obs).size} values, "
-                f"the model expects obs_dim={self.config.obs_dim}"
-            )
-        if not np.isfinite(arr).all():
-            raise StreamingInputError("observation contains NaN or inf")
-        return arr
 
     def step(self, obs: np.ndarray) -> StepOutput:
         """Advance the memory by one observation and return the action and expansion distribution."""
-        arr = self._check(obs)
+        arr = checked_observation(obs, self.config.obs_dim, self._ready)
         if self._w is None:
             return self._step_torch(arr)
         return self._step_numpy(arr)
