@@ -25,6 +25,7 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	$(PIP) install --quiet 'ros-jazzy-rclpy[fastrtps]==7.1.6' 'ros-jazzy-common-interfaces==5.3.6'
 	$(PIP) install --quiet -r requirements.txt
 	$(PIP) install --quiet --no-deps --no-build-isolation -e .
+	$(PY) -m ompn_ros.model._jit_stream
 	touch $(STAMP)
 
 demo: setup

@@ -20,6 +20,8 @@ setup(
     python_requires=">=3.10",
     install_requires=[
         "numpy>=1.26",
+        "numba>=0.60",  # the compiled streaming step (ompn_ros/model/_jit_stream.py)
+        "scipy>=1.10",  # BLAS for numba's np.dot
         "PyYAML>=6",
         "torch>=2.4,<3",
         "safetensors>=0.4",

@@ -44,8 +44,8 @@ def _configs() -> dict[str, Any]:
     from ompn_ros.model.config import OMPNConfig
 
     return {
-        "craft": OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5, n_slots=3, slot_size=128),
-        "dial": OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9, n_slots=3, slot_size=64),
+        "craft": OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5, n_slots=2, slot_size=128),
+        "dial": OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9, n_slots=2, slot_size=64),
     }
 
 
@@ -53,47 +53,85 @@ def _pct(values: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(values), q)) if values else float("nan")
 
 
-def bench_in_process(steps: int) -> Result:
-    """Segmenter step vs eager torch step, batch 1."""
+def _observations(domain: str, steps: int) -> tuple[np.ndarray, list[int]]:
+    """``steps`` real expert observations (Craft's one-hot features are sparse) and the episode start
+    rows; at most 60 episodes are generated and repeated for longer streams."""
+    if domain == "craft":
+        from sim_nodes.craft import generate_episode as craft_episode
+
+        seeds = range(min(60, steps // 20 + 1))
+        episodes = [craft_episode(seed, task="makebed").observations for seed in seeds]
+    else:
+        from sim_nodes.dial import generate_episode as dial_episode
+
+        episodes = [dial_episode(seed).observations for seed in range(min(60, steps // 150 + 1))]
+    lengths = [len(e) for e in episodes]
+    reps = -(-steps // sum(lengths))
+    starts = np.cumsum([0] + lengths * reps)[:-1]
+    stream = np.concatenate(episodes * reps).astype(np.float32)[:steps]
+    return stream, [int(s) for s in starts if s < steps]
+
+
+def _time_steps(reset: Any, step: Any, obs: np.ndarray, starts: list[int], reps: int = 3) -> list[float]:
+    """Per-step wall times in µs, ``reps`` passes over ``obs`` after one warm-up pass."""
+    begin = set(starts)
+    times: list[float] = []
+    for rep in range(reps + 1):
+        for i, x in enumerate(obs):
+            if i in begin:
+                reset()
+            t0 = time.perf_counter_ns()
+            step(x)
+            if rep:
+                times.append((time.perf_counter_ns() - t0) / 1e3)
+    return times
+
+
+def _torch_stepper(model: Any) -> tuple[Any, Any]:
+    """``(reset, step)`` of a plain eager PyTorch ``OMPNPolicy.step`` under ``inference_mode``."""
     import torch
 
+    state = [model.initial_state(1)]
+
+    def reset() -> None:
+        state[0] = model.initial_state(1)
+
+    def step(x: np.ndarray) -> None:
+        with torch.inference_mode():
+            out, state[0] = model.step(torch.from_numpy(x).unsqueeze(0), state[0])
+            _ = out.p_hat.numpy()
+
+    return reset, step
+
+
+def bench_in_process(steps: int) -> Result:
+    """Segmenter step (every backend) vs eager torch step, batch 1, on the shipped checkpoints."""
+    import torch
+
+    from ompn_ros.checkpoints import shipped_checkpoint
     from ompn_ros.detect.online import DetectorConfig
-    from ompn_ros.model.policy import OMPNPolicy
+    from ompn_ros.model.checkpoint import load_checkpoint
     from ompn_ros.model.streaming import StreamingPolicy
     from ompn_ros.segmenter import StreamingSegmenter
 
     torch.set_num_threads(1)
     out: Result = {}
-    rng = np.random.default_rng(0)
-    for name, cfg in _configs().items():
-        torch.manual_seed(0)
-        model = OMPNPolicy(cfg).eval()
-        seg = StreamingSegmenter(StreamingPolicy(model), DetectorConfig(high=0.5))
-        obs = rng.normal(size=(steps, cfg.obs_dim)).astype(np.float32)
-        seg_times = []
-        for i, x in enumerate(obs):
-            if i % 200 == 0:
-                seg.reset()
-            t0 = time.perf_counter_ns()
-            seg.step(x)
-            seg_times.append((time.perf_counter_ns() - t0) / 1e3)
-        torch_times = []
-        state = model.initial_state(1)
-        with torch.inference_mode():
-            for i, x in enumerate(obs):
-                if i % 200 == 0:
-                    state = model.initial_state(1)
-                t0 = time.perf_counter_ns()
-                step_out, state = model.step(torch.from_numpy(x).unsqueeze(0), state)
-                _ = step_out.p_hat.numpy()
-                torch_times.append((time.perf_counter_ns() - t0) / 1e3)
-        warm = min(50, steps // 10)
-        seg_times, torch_times = seg_times[warm:], torch_times[warm:]
-        out[f"{name}_segmenter_step_p50"] = (_pct(seg_times, 50), "us")
-        out[f"{name}_segmenter_step_p99"] = (_pct(seg_times, 99), "us")
-        out[f"{name}_torch_step_p50"] = (_pct(torch_times, 50), "us")
-        out[f"{name}_torch_step_p99"] = (_pct(torch_times, 99), "us")
-        out[f"{name}_speedup_p50"] = (_pct(torch_times, 50) / _pct(seg_times, 50), "x")
+    for name in ("craft", "dial"):
+        model, _ = load_checkpoint(shipped_checkpoint(name))
+        model.eval()
+        obs, starts = _observations(name, steps)
+        for backend in ("jit", "numpy"):
+            seg = StreamingSegmenter(StreamingPolicy(model, backend=backend), DetectorConfig(high=0.5))
+            times = _time_steps(seg.reset, seg.step, obs, starts)
+            prefix = f"{name}_segmenter" if backend == "jit" else f"{name}_segmenter_{backend}"
+            out[f"{prefix}_step_p50"] = (_pct(times, 50), "us")
+            out[f"{prefix}_step_p99"] = (_pct(times, 99), "us")
+        torch_reset, torch_step = _torch_stepper(model)
+        times = _time_steps(torch_reset, torch_step, obs, starts, reps=1)
+        out[f"{name}_torch_step_p50"] = (_pct(times, 50), "us")
+        out[f"{name}_torch_step_p99"] = (_pct(times, 99), "us")
+        speedup = out[f"{name}_torch_step_p50"][0] / out[f"{name}_segmenter_step_p50"][0]
+        out[f"{name}_speedup_p50"] = (speedup, "x")
     return out
 
 
@@ -105,10 +143,9 @@ def _cpu_seconds(pid: int) -> float:
 class _Client:
     """Publisher of observations and subscriber of the node's outputs (this process)."""
 
-    def __init__(self, ctx: Any) -> None:
+    def __init__(self, ctx: Any, executor: str) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float32MultiArray
 
@@ -117,7 +154,9 @@ class _Client:
             depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
         )
         self.node = rclpy.create_node("bench_client", context=ctx)
-        self.executor = SingleThreadedExecutor(context=ctx)
+        from ompn_ros.nodes.ompn_node import make_executor
+
+        self.executor = make_executor(executor, context=ctx)
         self.executor.add_node(self.node)
         self.pub = self.node.create_publisher(Float32MultiArray, "observation", reliable)
         self.msg_type = Float32MultiArray
@@ -172,52 +211,49 @@ class _Client:
         return sent
 
 
-def bench_dds(duration: float, latency_msgs: int) -> Result:
+def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "events",
+              client: str = "events") -> Result:
+    """``ompn_node`` (shipped checkpoint and detector of ``domain``) in its own process, fed with real
+    expert observations of one long stream (no resets: step index = accepted count); 1 kHz run only
+    when ``duration`` > 0."""
     import rclpy
-    import torch
 
-    from ompn_ros.model.checkpoint import save_checkpoint
-    from ompn_ros.model.policy import OMPNPolicy
+    from ompn_ros.paths import config_file
 
-    cfg = _configs()["dial"]
     out: Result = {}
     tmp = Path(tempfile.mkdtemp(prefix="bench_node_"))
-    torch.manual_seed(0)
-    save_checkpoint(tmp / "dial", OMPNPolicy(cfg))
-    rng = np.random.default_rng(0)
-    executor = "single"  # the EventsExecutor serves no callbacks of this node (ompn_node docstring)
+    obs_all, _ = _observations(domain, 20 + latency_msgs + int(duration * 1000))
     cmd = [
         sys.executable,
         "-m",
         "ompn_ros.nodes.ompn_node",
         "--ros-args",
-        "-p",
-        f"checkpoint:={tmp / 'dial'}",
+        "--params-file",
+        str(config_file(f"ompn_node_{domain}.yaml")),
         "-p",
         f"executor:={executor}",
         "-p",
         "diagnostics_period:=0.2",
         "-p",
-        "detector_high:=0.23",
-        "-p",
         "qos_depth:=1000",
     ]
-    log = open(tmp / f"node_{executor}.log", "w")  # closed in the finally block
+    log_path = tmp / f"node_{domain}_{executor}.log"
+    log = open(log_path, "w")  # closed in the finally block
     proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     try:
-        client = _Client(ctx)
+        client = _Client(ctx, client)
+        executor = f"{domain}_{executor}"
         if not client.pump(lambda: bool(client.diag) and client.pub.get_subscription_count() > 0, 30):
-            raise RuntimeError(f"ompn_node did not come up: {(tmp / f'node_{executor}.log').read_text()}")
+            raise RuntimeError(f"ompn_node did not come up: {log_path.read_text()}")
         client.pump(lambda: False, 0.5)
         # warm-up (first messages after matching may be dropped by the late reader)
-        client.stream(rng.normal(size=(20, cfg.obs_dim)), 100.0)
+        client.stream(obs_all[:20], 100.0)
         client.pump(lambda: False, 0.5)
         base_pi = len(client.pi_times)
         base_accepted = int(client.diag["accepted"])
-        obs = rng.normal(size=(latency_msgs, cfg.obs_dim))
-        sent = client.stream(obs, 100.0)
+        sent = client.stream(obs_all[20 : 20 + latency_msgs], 100.0)
         client.pump(lambda: len(client.pi_times) - base_pi >= latency_msgs, 5)
         got = client.pi_times[base_pi:]
         lat = [(r - s) / 1e6 for s, r in zip(sent, got, strict=False)]
@@ -231,10 +267,12 @@ def bench_dds(duration: float, latency_msgs: int) -> Result:
         out[f"{executor}_boundary_latency_100hz_p50"] = (_pct(blat, 50), "ms")
         out[f"{executor}_boundary_events_100hz"] = (float(len(blat)), "events")
 
+        if duration <= 0:
+            return out
         client.pump(lambda: False, 0.5)
         accepted_before = int(client.diag["accepted"])
         n = int(duration * 1000)
-        obs = rng.normal(size=(n, cfg.obs_dim))
+        obs = obs_all[20 + latency_msgs :][:n]
         cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
         sent = client.stream(obs, 1000.0)
         wall = time.monotonic() - wall0
@@ -257,19 +295,29 @@ def bench_dds(duration: float, latency_msgs: int) -> Result:
     return out
 
 
-def run(quick: bool = False) -> Result:
+def run(quick: bool = False, executor: str = "events", client: str = "events", parts: str = "all") -> Result:
     """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz and fewer samples."""
     results: Result = {}
-    results.update(bench_in_process(1000 if quick else 5000))
-    results.update(bench_dds(duration=5.0 if quick else 60.0, latency_msgs=300 if quick else 1000))
+    if parts in ("all", "step"):
+        results.update(bench_in_process(1000 if quick else 5000))
+    if parts in ("all", "dds"):
+        results.update(bench_dds("dial", duration=5.0 if quick else 60.0, latency_msgs=300 if quick else 1000,
+                                 executor=executor, client=client))
+        results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if quick else 1000,
+                                 executor=executor, client=client))
     return results
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--executor", choices=("events", "single"), default="events",
+                        help="ompn_node's executor parameter")
+    parser.add_argument("--client-executor", choices=("events", "single"), default="events",
+                        help="executor of the publishing/subscribing benchmark client")
+    parser.add_argument("--parts", choices=("all", "step", "dds"), default="all")
     args = parser.parse_args()
-    results = run(quick=args.quick)
+    results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts)
     width = max(len(k) for k in results)
     for name, (value, unit) in results.items():
         print(f"{name:<{width}}  {value:12.3f}  {unit}")

@@ -57,6 +57,12 @@ class EpisodeClosed(InvalidInput):
     reason = "episode_closed"
 
 
+class MalformedMessage(InvalidInput):
+    """The transport delivered bytes that do not decode as the expected message (raised by callers)."""
+
+    reason = "malformed"
+
+
 class SketchError(ValueError):
     """The sketch given to :meth:`StreamingSegmenter.reset` does not fit the model."""
 
@@ -68,6 +74,7 @@ REJECT_REASONS = (
     OutOfOrderStamp.reason,
     MissingSketch.reason,
     EpisodeClosed.reason,
+    MalformedMessage.reason,
 )
 
 
@@ -116,6 +123,8 @@ class StreamingSegmenter:
         self.detector_config = detector_config or DetectorConfig()
         self.detector = OnlineDetector(self.detector_config)
         self.obs_dim = int(policy.config.obs_dim)
+        # validate() already checked the observation: skip the policy's own check when it offers that
+        self._step_policy = getattr(policy, "step_trusted", policy.step)
         self.rejected: Counter[str] = Counter({reason: 0 for reason in REJECT_REASONS})
         self.accepted = 0
         self.episodes = 0
@@ -175,7 +184,7 @@ class StreamingSegmenter:
             arr = np.asarray(obs, dtype=np.float32)
         except (TypeError, ValueError) as exc:
             raise NonFiniteObservation(f"observation is not numeric: {exc}") from exc
-        arr = arr.reshape(-1)
+        arr = np.ascontiguousarray(arr.reshape(-1))
         if arr.size == 0:
             raise EmptyObservation("observation is empty")
         if arr.size != self.obs_dim:
@@ -198,7 +207,7 @@ class StreamingSegmenter:
         except InvalidInput as exc:
             self.rejected[exc.reason] += 1
             raise
-        out = self.policy.step(arr)
+        out = self._step_policy(arr)
         if stamp_ns is not None:
             self._last_stamp = int(stamp_ns)
         self._step_index += 1
@@ -216,6 +225,10 @@ class StreamingSegmenter:
         contract an episode of ``T`` real steps publishes ``T + 1`` observations, so pass ``T - 1``.
         """
         return self.detector.end_episode(last_step)
+
+    def count_rejection(self, error: InvalidInput) -> None:
+        """Count an input the caller rejected before :meth:`step` (e.g. an undecodable message)."""
+        self.rejected[error.reason] += 1
 
     @property
     def rejected_total(self) -> int:

@@ -15,13 +15,13 @@ from ompn_ros.model.streaming import StreamingPolicy
 torch.set_num_threads(1)
 
 
-def _stream_vs_sequence(policy: OMPNPolicy, obs: np.ndarray) -> float:
+def _stream_vs_sequence(policy: OMPNPolicy, obs: np.ndarray, backend: str = "jit") -> float:
     """Max |difference| of p_hat and action outputs between streaming and forward_sequence."""
     batch, steps, _ = obs.shape
     mask = torch.ones(batch, steps, dtype=torch.bool)
     with torch.no_grad():
         seq = policy.forward_sequence(torch.from_numpy(obs), mask)
-    stream = StreamingPolicy(policy)
+    stream = StreamingPolicy(policy, backend=backend)  # type: ignore[arg-type]
     worst = 0.0
     for b in range(batch):
         stream.reset()
@@ -33,12 +33,14 @@ def _stream_vs_sequence(policy: OMPNPolicy, obs: np.ndarray) -> float:
     return worst
 
 
-def test_sparse_craft_observations_match_sequence() -> None:
+@pytest.mark.parametrize("backend", ["jit", "numpy"])
+def test_sparse_craft_observations_match_sequence(backend: str) -> None:
     """Binary Craft-sized observations (~5% non-zero, mean 0) take the gather encoder."""
     torch.manual_seed(1)
     policy = OMPNPolicy(OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5))
     obs = (np.random.default_rng(1).random((2, 12, 1075)) < 0.05).astype(np.float32)
-    assert _stream_vs_sequence(policy, obs) < 1e-5
+    obs[1, 3:5] = (np.random.default_rng(2).random((2, 1075)) < 0.5)  # dense rows take the dense path
+    assert _stream_vs_sequence(policy, obs, backend) < 1e-5
 
 
 def test_sparse_and_dense_encoders_agree(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -65,7 +67,8 @@ def test_all_zero_observation_is_encoded_as_bias() -> None:
     np.testing.assert_allclose(stepper.x, policy.encoder.bias.detach().numpy(), atol=1e-6, rtol=0)
 
 
-def test_dial_config_matches_sequence() -> None:
+@pytest.mark.parametrize("backend", ["jit", "numpy"])
+def test_dial_config_matches_sequence(backend: str) -> None:
     """The shipped Dial model (obs 39 -> m 64, n 2, Gaussian head) with max-abs normalisation."""
     torch.manual_seed(4)
     cfg = OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9, n_slots=2, slot_size=64)
@@ -73,7 +76,7 @@ def test_dial_config_matches_sequence() -> None:
     rng = np.random.default_rng(4)
     policy.set_obs_normalization(rng.normal(size=39), rng.uniform(0.5, 2.0, size=39))
     obs = rng.normal(size=(2, 15, 39)).astype(np.float32)
-    assert _stream_vs_sequence(policy, obs) < 1e-5
+    assert _stream_vs_sequence(policy, obs, backend) < 1e-5
 
 
 def _batch(rng: np.random.Generator, lengths: list[int], obs_dim: int) -> dict[str, torch.Tensor]:

@@ -90,13 +90,13 @@ def check_agreement(policy: OMPNPolicy, lengths: list[int], backend: str, seed: 
                 np.testing.assert_allclose(out.action, seq.action_out[b, t].numpy(), atol=1e-5, rtol=0)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "torch"])
+@pytest.mark.parametrize("backend", ["jit", "numpy", "torch"])
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_stream_matches_sequence(case: str, backend: str) -> None:
     check_agreement(build(CASES[case]), [6, 1, 9, 3], backend)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "torch"])
+@pytest.mark.parametrize("backend", ["jit", "numpy", "torch"])
 def test_stream_matches_sequence_at_craft_size(backend: str) -> None:
     policy = build({"obs_dim": 1075, "action_type": "discrete", "action_dim": 5}, slot_size=128)
     check_agreement(policy, [5, 2], backend)

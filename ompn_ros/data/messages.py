@@ -159,18 +159,25 @@ def end_marker_values(episode_index: int, task: str, seed: int, steps: int, succ
 
 # --- direct encoders (same bytes as serialize(builder(...)), several times faster) -----------------
 @lru_cache(maxsize=64)
-def _multiarray_prefix(label: str, n: int) -> bytes:
-    """CDR bytes of a one-dimension MultiArray up to (and including) the element count."""
+def _multiarray_prefix(label: str, n: int, dim_size: int | None = None) -> bytes:
+    """CDR bytes of a one-dimension MultiArray up to (and including) the element count ``n``.
+
+    The dimension's size and stride are ``dim_size`` (default ``n``).
+    """
+    size = n if dim_size is None else dim_size
     text = label.encode() + b"\0"
     out = CDR_LE_HEADER + _U32.pack(1) + _U32.pack(len(text)) + text
     out += b"\0" * (-(len(out) - 4) % 4)
-    return out + _U32.pack(n) + _U32.pack(n) + _U32.pack(0) + _U32.pack(n)
+    return out + _U32.pack(size) + _U32.pack(size) + _U32.pack(0) + _U32.pack(n)
 
 
-def encode_float32_array(values: np.ndarray | Sequence[float], label: str = "obs") -> bytes:
-    """CDR of :func:`float32_array` ``(values, label)`` without building a message object."""
+def encode_float32_array(
+    values: np.ndarray | Sequence[float], label: str = "obs", dim_size: int | None = None
+) -> bytes:
+    """CDR of a ``Float32MultiArray`` with one dimension ``(label, dim_size, dim_size)`` (``dim_size``
+    defaults to the number of values) without building a message object."""
     data = np.ascontiguousarray(values, dtype="<f4").reshape(-1)
-    return _multiarray_prefix(label, int(data.size)) + data.tobytes()
+    return _multiarray_prefix(label, int(data.size), dim_size) + data.tobytes()
 
 
 def encode_int32(value: int) -> bytes:

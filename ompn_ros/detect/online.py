@@ -30,6 +30,7 @@ hard-coded to "expand from the top", spec craft §3.6).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -120,17 +121,20 @@ class BoundaryEvent:
     final: bool = False
 
 
-def expansion_score(p_hat: np.ndarray) -> float:
+def expansion_score(p_hat: np.ndarray | Sequence[float]) -> float:
     """Code-weighted expected expansion position in [0, 1] from ``p_hat`` (``[n+1]``).
 
     ``sum_k w_k p_hat[k]`` with ``w = [n, ..., 0] / n`` (spec dial §4.5 step 2, divided by n).
+    Plain float arithmetic: this runs once per streamed step on n + 1 (= 3 or 4) numbers.
     """
-    p = np.asarray(p_hat, dtype=np.float64).reshape(-1)
-    n = p.size - 1
+    p = p_hat.ravel().tolist() if isinstance(p_hat, np.ndarray) else list(p_hat)
+    n = len(p) - 1
     if n < 1:
-        raise ValueError(f"p_hat must have n+1 >= 2 entries, got {p.size}")
-    weights = np.arange(n, -1, -1, dtype=np.float64) / n
-    return float(np.clip(weights @ p, 0.0, 1.0))
+        raise ValueError(f"p_hat must have n+1 >= 2 entries, got {len(p)}")
+    total = 0.0
+    for k, value in enumerate(p):
+        total += (n - k) * float(value)
+    return min(max(total / n, 0.0), 1.0)
 
 
 def expansion_scores(p_hat: np.ndarray) -> np.ndarray:
@@ -141,10 +145,10 @@ def expansion_scores(p_hat: np.ndarray) -> np.ndarray:
     return np.clip(p @ weights, 0.0, 1.0)
 
 
-def expansion_level(p_hat: np.ndarray) -> int:
+def expansion_level(p_hat: np.ndarray | Sequence[float]) -> int:
     """Argmax expansion level: paper slot number (1 = bottom, n = top), ``n + 1`` for pi_end."""
-    p = np.asarray(p_hat).reshape(-1)
-    return int(p.size - int(np.argmax(p)))
+    p = p_hat.ravel().tolist() if isinstance(p_hat, np.ndarray) else list(p_hat)
+    return len(p) - p.index(max(p))
 
 
 @dataclass

@@ -25,14 +25,17 @@ def build_policy(config: OMPNConfig) -> PolicyModule:
     raise ConfigError(f"OMPNConfig.arch must be 'ompn' or 'lstm', got {config.arch!r}")
 
 
-def build_stepper(policy: PolicyModule, backend: Backend = "numpy") -> Stepper:
-    """The streaming stepper of ``policy`` (numpy OMPN stepper, or the LSTM's torch stepper)."""
+def build_stepper(policy: PolicyModule, backend: Backend = "jit") -> Stepper:
+    """The streaming stepper of ``policy`` (compiled OMPN stepper, or the LSTM's stepper).
+
+    The LSTM has no compiled kernel: ``'jit'`` selects its numpy path.
+    """
     if isinstance(policy, LSTMPolicy):
-        return LSTMStreamingPolicy(policy, backend=backend)
+        return LSTMStreamingPolicy(policy, backend="numpy" if backend == "jit" else backend)
     return StreamingPolicy(policy, backend=backend)
 
 
-def stepper_from_checkpoint(path: str | Path, backend: Backend = "numpy") -> Stepper:
+def stepper_from_checkpoint(path: str | Path, backend: Backend = "jit") -> Stepper:
     """Load a checkpoint of either architecture and wrap it in its streaming stepper."""
     from ompn_ros.model.checkpoint import load_checkpoint
 

@@ -1,15 +1,18 @@
 """StreamingPolicy: stateful batch-1 OMPN stepping with numpy in and out (live node, replay).
 
-Two backends share the weights of one :class:`OMPNPolicy`:
+Three backends share the weights of one :class:`OMPNPolicy`:
 
-* ``'numpy'`` (default): a float32 numpy re-implementation of :meth:`OMPNPolicy.step` with the
+* ``'jit'`` (default): the numpy backend's weights and arithmetic compiled into one call with numba
+  (:class:`~ompn_ros.model._jit_stream.JitStepper`); compiled (or loaded from numba's cache) at
+  construction, so the first step is as fast as the others.
+* ``'numpy'``: a float32 numpy re-implementation of :meth:`OMPNPolicy.step` with the
   weights copied and pre-sliced at construction (:class:`~ompn_ros.model._fast_stream.NumpyStepper`).
   Everything that depends only on the episode (the task embedding's contribution to every layer) is
   computed once in :meth:`reset`, the observation normalisation is folded into the encoder, all
   projections of x are one matrix-vector product, and sparse observations are encoded by a gather.
 * ``'torch'``: the eager :meth:`OMPNPolicy.step` under ``torch.inference_mode`` (the reference).
 
-The two agree to float32 rounding (tested to 1e-5).  Weights are copied at construction: later
+All three agree to float32 rounding (tested to 1e-5).  Weights are copied at construction: later
 changes to the module are not seen (build a new StreamingPolicy after training).
 """
 
@@ -27,7 +30,8 @@ from ompn_ros.model._fast_stream import NumpyStepper
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.policy import MemoryState, ModelInputError, OMPNPolicy
 
-Backend = Literal["numpy", "torch"]
+Backend = Literal["jit", "numpy", "torch"]
+BACKENDS: tuple[Backend, ...] = ("jit", "numpy", "torch")
 
 
 class StreamingInputError(ModelInputError):
@@ -87,20 +91,28 @@ def _np(t: torch.Tensor) -> np.ndarray:
 class StreamingPolicy:
     """Stateful, batch-1, no-autograd OMPN stepping; see the module docstring."""
 
-    def __init__(self, policy: OMPNPolicy, backend: Backend = "numpy") -> None:
-        if backend not in ("numpy", "torch"):
-            raise StreamingInputError(f"backend must be 'numpy' or 'torch', got {backend!r}")
+    def __init__(self, policy: OMPNPolicy, backend: Backend = "jit") -> None:
+        if backend not in BACKENDS:
+            raise StreamingInputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self.policy = policy  # no dropout or batch norm: train/eval mode does not matter
         self.config: OMPNConfig = policy.config
         self.backend = backend
-        self._w = NumpyStepper(policy) if backend == "numpy" else None
+        self._w: NumpyStepper | None = None
+        if backend == "jit":
+            from ompn_ros.model._jit_stream import JitStepper
+
+            jit = JitStepper(policy)
+            jit.warm_up()
+            self._w = jit
+        elif backend == "numpy":
+            self._w = NumpyStepper(policy)
         self._ready = False
         self._state: MemoryState | None = None
         if self.config.sketch_mode == "none":
             self.reset()
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, backend: Backend = "numpy") -> StreamingPolicy:
+    def from_checkpoint(cls, path: str | Path, backend: Backend = "jit") -> StreamingPolicy:
         from ompn_ros.model.checkpoint import load_checkpoint
 
         policy, _ = load_checkpoint(path)
@@ -130,7 +142,11 @@ class StreamingPolicy:
 
     def step(self, obs: np.ndarray) -> StepOutput:
         """Advance the memory by one observation and return the action and expansion distribution."""
-        arr = checked_observation(obs, self.config.obs_dim, self._ready)
+        return self.step_trusted(checked_observation(obs, self.config.obs_dim, self._ready))
+
+    def step_trusted(self, arr: np.ndarray) -> StepOutput:
+        """:meth:`step` on an observation the caller has already checked: float32, contiguous
+        ``[obs_dim]``, finite, after a :meth:`reset` (``StreamingSegmenter.validate`` does that)."""
         if self._w is None:
             return self._step_torch(arr)
         return self._step_numpy(arr)

@@ -25,15 +25,20 @@ Publications (per accepted observation):
 Bad observations (wrong length, NaN/Inf, empty, out-of-order stamps) are skipped without
 stepping the model, counted, and reported with a throttled warning.
 
-Stamps: JointState input uses ``header.stamp``; array input uses the publisher's DDS source
-timestamp from the message info.
+Stamps: JointState input uses ``header.stamp``.  Array input uses the publisher's DDS source
+timestamp from the message info with ``executor='single'``; the EventsExecutor cannot deliver
+message info in rclpy 7.1.6 ("SystemError: null argument to internal routine"), so with it the
+node stamps array input with its own clock at reception.
 
-Executor: ``SingleThreadedExecutor`` (``executor='single'``, the default).  The faster
-``rclpy.experimental.EventsExecutor`` (``executor='events'``) is available but experimental and,
-measured here with rclpy 7.1.6, does not work with this node: a callback taking message info fails
-with "SystemError: null argument to internal routine", and with the LifecycleNode it spun at
-~65 % CPU without serving any subscription or timer callback and ignored SIGINT.  Do not use it
-until that is fixed.
+Hot path: the observation subscription is ``raw=True`` (the float32 data is read straight from the
+CDR bytes) and the action and ``~/pi`` are published as pre-encoded CDR; the boundary event goes
+out before them.
+
+Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured here
+to cut the observation -> boundary latency by ~1 ms against ``'single'`` =
+``SingleThreadedExecutor`` (BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so
+:func:`spin_until_shutdown` drives it with ``spin_once``, which works (lifecycle and parameter
+services included).  ``'single'`` stays available should the experimental executor misbehave.
 """
 
 from __future__ import annotations
@@ -57,12 +62,13 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray, MultiArrayDimension
+from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
 
 from ompn_ros import layout
+from ompn_ros.data.messages import encode_float32_array, encode_int32, parse_float32_array
 from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, DetectorConfigError
-from ompn_ros.segmenter import InvalidInput, SketchError, StreamingSegmenter
+from ompn_ros.segmenter import InvalidInput, MalformedMessage, SketchError, StreamingSegmenter
 
 NODE_NAME = "ompn_node"
 BOUNDARY_QOS_DEPTH = 1000
@@ -172,7 +178,7 @@ class OMPNNode(LifecycleNode):
         self.declare_parameter(
             "warn_throttle", 1.0, _desc("seconds between bad-input warnings", lo=0.0, hi=3600.0)
         )
-        self.declare_parameter("executor", "single", _desc(f"one of {EXECUTORS}", read_only=True))
+        self.declare_parameter("executor", "events", _desc(f"one of {EXECUTORS}", read_only=True))
         self.declare_parameter("torch_threads", 1, _desc("torch intra-op threads", lo=1, hi=64, ints=True))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -187,7 +193,7 @@ class OMPNNode(LifecycleNode):
         self._latest_sketch: np.ndarray | None = None
         self._last_warn = 0.0
         self._status_name = f"{self.get_name()}/subtask_boundary"
-        self._pi_layout: list[MultiArrayDimension] = []
+        self._n_slots = 0
         self._active = False
         self._done_threshold = 0.5
 
@@ -315,7 +321,7 @@ class OMPNNode(LifecycleNode):
         self.segmenter = segmenter
         self._done_threshold = float(self.get_parameter("done_threshold").value)
         n = int(policy.config.n_slots)
-        self._pi_layout = [MultiArrayDimension(label="slot", size=n, stride=n)]
+        self._n_slots = n
         depth = int(self.get_parameter("qos_depth").value)
         per_step = QoSProfile(
             depth=depth, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
@@ -359,13 +365,10 @@ class OMPNNode(LifecycleNode):
             self._subs.append(
                 self.create_subscription(JointState, layout.JOINT_STATES, self._on_joint_state, inputs)
             )
-        elif self.uses_message_info:
+        else:  # raw CDR: the float32 data is read in place, no message object is built
+            callback = self._on_array_info if self.uses_message_info else self._on_array
             self._subs.append(
-                self.create_subscription(Float32MultiArray, layout.OBSERVATION, self._on_array_info, inputs)
-            )
-        else:
-            self._subs.append(
-                self.create_subscription(Float32MultiArray, layout.OBSERVATION, self._on_array, inputs)
+                self.create_subscription(Float32MultiArray, layout.OBSERVATION, callback, inputs, raw=True)
             )
         self._service = self.create_service(Trigger, "~/reset", self._on_reset)
         self._timer = self.create_timer(
@@ -413,11 +416,23 @@ class OMPNNode(LifecycleNode):
         )
 
     # --- callbacks -----------------------------------------------------------------------------
-    def _on_array_info(self, msg: Float32MultiArray, info: dict[str, Any]) -> None:
-        self.process_observation(msg.data, int(info["source_timestamp"]))
+    def _on_array_info(self, raw: bytes, info: dict[str, Any]) -> None:
+        self._on_raw_array(raw, int(info["source_timestamp"]))
 
-    def _on_array(self, msg: Float32MultiArray) -> None:
-        self.process_observation(msg.data, None)
+    def _on_array(self, raw: bytes) -> None:
+        # The EventsExecutor cannot pass message info: stamp with the receive time instead.
+        self._on_raw_array(raw, self.get_clock().now().nanoseconds)
+
+    def _on_raw_array(self, raw: bytes, stamp_ns: int) -> None:
+        try:
+            data = parse_float32_array(raw)
+        except Exception as exc:  # any undecodable message is counted, never fatal
+            if self.segmenter is not None and self._active:
+                error = MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}")
+                self.segmenter.count_rejection(error)
+                self._warn_throttled(f"skipped observation ({error.reason}): {error}")
+            return
+        self.process_observation(data, stamp_ns)
 
     def _on_joint_state(self, msg: JointState) -> None:
         fields = self.get_parameter("joint_fields").value
@@ -441,22 +456,21 @@ class OMPNNode(LifecycleNode):
             self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
             return
         self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
-        so = out.step_output
-        if seg.policy.config.action_type == "discrete":
-            done = so.done_prob > self._done_threshold
-            self._pubs["action"].publish(Int32(data=int(seg.policy.config.action_dim if done else so.action)))
-        else:
-            self._pubs["action"].publish(Float32MultiArray(data=np.asarray(so.action, np.float32).tolist()))
-        pi_msg = Float32MultiArray()
-        pi_msg.layout.dim = self._pi_layout
-        pi_msg.data = [
-            *np.asarray(so.pi, dtype=np.float32).tolist(),
-            float(so.expected_position),
-            float(so.pi_end),
-        ]
-        self._pubs["pi"].publish(pi_msg)
+        # The boundary event goes out first: it is the latency-critical product of this node.
         if out.boundary is not None:
             self.publish_boundary(out.boundary)
+        so = out.step_output
+        # Pre-encoded CDR (same bytes as the message classes would give, without building them).
+        if seg.policy.config.action_type == "discrete":
+            done = so.done_prob > self._done_threshold
+            self._pubs["action"].publish(encode_int32(seg.policy.config.action_dim if done else so.action))
+        else:
+            self._pubs["action"].publish(encode_float32_array(so.action, "action"))
+        pi_values = np.empty(self._n_slots + 2, np.float32)
+        pi_values[: self._n_slots] = so.pi
+        pi_values[self._n_slots] = so.expected_position
+        pi_values[self._n_slots + 1] = so.pi_end
+        self._pubs["pi"].publish(encode_float32_array(pi_values, "slot", self._n_slots))
 
     def publish_boundary(self, event: BoundaryEvent) -> None:
         msg = DiagnosticArray()
@@ -573,16 +587,23 @@ class OMPNNode(LifecycleNode):
         self._pubs["diagnostics"].publish(msg)
 
 
-def make_executor(kind: str, needs_message_info: bool, context: Any = None) -> Any:
-    """SingleThreadedExecutor, or the experimental EventsExecutor on request (see the module docstring)."""
+def make_executor(kind: str, context: Any = None) -> Any:
+    """``'events'``: the C++ ``rclpy.experimental.EventsExecutor``; ``'single'``: SingleThreadedExecutor."""
     if kind == "events":
-        try:
-            from rclpy.experimental import EventsExecutor
+        from rclpy.experimental import EventsExecutor
 
-            return EventsExecutor(context=context)
-        except ImportError:
-            pass
+        return EventsExecutor(context=context)
     return SingleThreadedExecutor(context=context)
+
+
+def spin_until_shutdown(executor: Any, context: Any = None, period: float = 0.1) -> None:
+    """Serve callbacks until the context shuts down (SIGINT/SIGTERM, ``rclpy.shutdown``).
+
+    A ``spin_once`` loop rather than ``spin()``: the EventsExecutor's ``spin()`` in rclpy 7.1.6
+    serves no callback and ignores SIGINT, while its ``spin_once`` works (module docstring).
+    """
+    while rclpy.ok(context=context):
+        executor.spin_once(timeout_sec=period)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -598,9 +619,9 @@ def main(args: list[str] | None = None) -> int:
                 node.get_logger().fatal(f"cannot start: {node.last_error}")
                 return 1
             node.trigger_activate()
-        executor = make_executor(str(node.get_parameter("executor").value), node.uses_message_info)
+        executor = make_executor(str(node.get_parameter("executor").value))
         executor.add_node(node)
-        executor.spin()
+        spin_until_shutdown(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
