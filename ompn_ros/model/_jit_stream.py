@@ -239,7 +239,8 @@ class JitStepper(NumpyStepper):
         self._sparse_bias = np.zeros(1, np.float32)
         if self.obs_proj is None and self.mean_is_zero:
             x_proj64 = self.x_proj.astype(np.float64)
-            self._sparse_proj_t = np.ascontiguousarray((x_proj64 @ self.enc_w.astype(np.float64)).T, np.float32)
+            composed = x_proj64 @ self.enc_w.astype(np.float64)
+            self._sparse_proj_t = np.ascontiguousarray(composed.T, np.float32)
             self._sparse_bias = (x_proj64 @ self.enc_b.astype(np.float64)).astype(np.float32)
         self._score_mc_t = np.ascontiguousarray(self.score_mc.T)  # [H, 2H]: one gemv per slot
         self._com_buf = np.zeros(6 * h, np.float32)
@@ -256,7 +257,8 @@ class JitStepper(NumpyStepper):
         """Same contract as :meth:`NumpyStepper.step`."""
         _step(
             s, self.first, self._flags, self.enc_w, self.enc_wt, self.enc_b, self._obs_proj, self.x_proj,
-            self._sparse_proj_t, self._sparse_bias, self.const, *self._com, *self._dec, self._score_mc_t, self.score_w2, self.score_b2, self.head_o,
+            self._sparse_proj_t, self._sparse_bias, self.const, *self._com, *self._dec, self._score_mc_t,
+            self.score_w2, self.score_b2, self.head_o,
             self.memory, self.next_memory, self.cand, self.m_hat, self.x, self.proj, self._com_buf,
             self._dec_buf, self.hidden, self.score_in, self.action, self._probs,
         )
