@@ -265,6 +265,7 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
             (r - sent[d - first_step]) / 1e6 for d, r in client.boundaries if 0 <= d - first_step < len(sent)
         ]
         out[f"{executor}_boundary_latency_100hz_p50"] = (_pct(blat, 50), "ms")
+        out[f"{executor}_boundary_latency_100hz_p99"] = (_pct(blat, 99), "ms")
         out[f"{executor}_boundary_events_100hz"] = (float(len(blat)), "events")
 
         if duration <= 0:
@@ -301,9 +302,9 @@ def run(quick: bool = False, executor: str = "events", client: str = "events", p
     if parts in ("all", "step"):
         results.update(bench_in_process(1000 if quick else 5000))
     if parts in ("all", "dds"):
-        results.update(bench_dds("dial", duration=5.0 if quick else 60.0, latency_msgs=300 if quick else 1000,
+        results.update(bench_dds("dial", duration=5.0 if quick else 60.0, latency_msgs=300 if quick else 3000,
                                  executor=executor, client=client))
-        results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if quick else 1000,
+        results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if quick else 2000,
                                  executor=executor, client=client))
     return results
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ompn_ros import layout
 from ompn_ros.data import messages as m
@@ -88,6 +89,30 @@ def test_direct_encoders_match_rosbags_bytes() -> None:
         assert m.encode_float32_array(values, label) == m.serialize(m.float32_array(values, label))
     for v in (0, -7, 2**31 - 1):
         assert m.encode_int32(v) == m.serialize(m.int32(v))
+
+
+def test_pi_encoding_with_dimension_smaller_than_data() -> None:
+    """``~/pi``: dimension ('slot', n, n) over n + 2 values; the rosbags decoder reads it back."""
+    raw = m.encode_float32_array(np.array([0.25, 0.75, 1.75, 0.1], np.float32), "slot", 2)
+    msg = m.deserialize(raw, "std_msgs/msg/Float32MultiArray")
+    dim = msg.layout.dim[0]
+    assert (dim.label, dim.size, dim.stride) == ("slot", 2, 2)
+    np.testing.assert_array_equal(msg.data, np.array([0.25, 0.75, 1.75, 0.1], np.float32))
+
+
+@pytest.mark.parametrize("values", [{}, {"step": 12, "score": "0.500000", "final": "false"},
+                                    {"k": "ü-unicode", "x" * 5: "y" * 6}])
+def test_diagnostic_encoder_matches_rosbags_bytes(values: dict) -> None:
+    kv = m.msg_class("diagnostic_msgs/msg/KeyValue")
+    status = m.msg_class("diagnostic_msgs/msg/DiagnosticStatus")(
+        level=1, name="ompn_node/subtask_boundary", message="boundary", hardware_id="",
+        values=[kv(key=k, value=str(v)) for k, v in values.items()],
+    )
+    array = m.msg_class("diagnostic_msgs/msg/DiagnosticArray")
+    expected = m.serialize(array(header=m.header(1_700_000_000_123_456_789), status=[status]))
+    got = m.encode_diagnostic_status(1_700_000_000_123_456_789, "ompn_node/subtask_boundary", "boundary",
+                                     values, level=1)
+    assert got == expected
 
 
 def test_int32_and_marker_round_trip() -> None:

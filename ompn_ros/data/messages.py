@@ -185,6 +185,54 @@ def encode_int32(value: int) -> bytes:
     return CDR_LE_HEADER + _I32.pack(int(value))
 
 
+class _CdrWriter:
+    """Little-endian CDR body writer (alignment relative to the end of the encapsulation header)."""
+
+    def __init__(self) -> None:
+        self.out = bytearray(CDR_LE_HEADER)
+
+    def _align(self, n: int) -> None:
+        self.out += b"\0" * (-(len(self.out) - 4) % n)
+
+    def u32(self, value: int) -> None:
+        self._align(4)
+        self.out += _U32.pack(value)
+
+    def i32(self, value: int) -> None:
+        self._align(4)
+        self.out += _I32.pack(value)
+
+    def string(self, text: str) -> None:
+        data = text.encode() + b"\0"
+        self.u32(len(data))
+        self.out += data
+
+
+def encode_diagnostic_status(
+    stamp_ns: int, name: str, message: str, values: Mapping[str, object], level: int = 0
+) -> bytes:
+    """CDR of a ``DiagnosticArray`` holding one status (``values`` as strings), built directly.
+
+    The same bytes as ``serialize`` of the rosbags message (tested); used where a message object per
+    event would cost more than the event itself (``ompn_node``'s boundary events).
+    """
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    w = _CdrWriter()
+    w.i32(sec)
+    w.u32(nanosec)
+    w.string("")  # header.frame_id
+    w.u32(1)  # one status
+    w.out += bytes([level & 0xFF])
+    w.string(name)
+    w.string(message)
+    w.string("")  # hardware_id
+    w.u32(len(values))
+    for key, value in values.items():
+        w.string(key)
+        w.string(str(value))
+    return bytes(w.out)
+
+
 # --- parsers --------------------------------------------------------------------------------------
 def parse_marker(raw: bytes | memoryview) -> tuple[str, dict[str, str]] | None:
     """Decode an episode marker: ``(kind, values)`` or ``None`` if it is not an episode status."""

@@ -66,7 +66,12 @@ from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
 
 from ompn_ros import layout
-from ompn_ros.data.messages import encode_float32_array, encode_int32, parse_float32_array
+from ompn_ros.data.messages import (
+    encode_diagnostic_status,
+    encode_float32_array,
+    encode_int32,
+    parse_float32_array,
+)
 from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.segmenter import InvalidInput, MalformedMessage, SketchError, StreamingSegmenter
 
@@ -456,9 +461,10 @@ class OMPNNode(LifecycleNode):
             self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
             return
         self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
-        # The boundary event goes out first: it is the latency-critical product of this node.
+        # The boundary event goes out first: it is the latency-critical product of this node
+        # (logged after the per-step outputs, which must not wait for the console).
         if out.boundary is not None:
-            self.publish_boundary(out.boundary)
+            self.publish_boundary(out.boundary, log=False)
         so = out.step_output
         # Pre-encoded CDR (same bytes as the message classes would give, without building them).
         if seg.policy.config.action_type == "discrete":
@@ -471,11 +477,12 @@ class OMPNNode(LifecycleNode):
         pi_values[self._n_slots] = so.expected_position
         pi_values[self._n_slots + 1] = so.pi_end
         self._pubs["pi"].publish(encode_float32_array(pi_values, "slot", self._n_slots))
+        if out.boundary is not None:
+            self.log_boundary(out.boundary)
 
-    def publish_boundary(self, event: BoundaryEvent) -> None:
-        msg = DiagnosticArray()
+    def publish_boundary(self, event: BoundaryEvent, log: bool = True) -> None:
+        """Publish ``event`` on ``~/boundary`` (CDR built directly) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp), 1_000_000_000)
         values = {
             "step": event.step,
             "subtask": event.subtask,
@@ -485,17 +492,14 @@ class OMPNNode(LifecycleNode):
             "stamp_ns": event.stamp_ns,
             "final": "true" if event.final else "false",
         }
-        msg.status = [
-            DiagnosticStatus(
-                level=DiagnosticStatus.OK,
-                name=self._status_name,
-                message="boundary",
-                hardware_id="",
-                values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
-            )
-        ]
-        self._pubs["boundary"].publish(msg)
+        self._pubs["boundary"].publish(
+            encode_diagnostic_status(stamp, self._status_name, "boundary", values, DiagnosticStatus.OK[0])
+        )
         self.boundaries_published += 1
+        if log:
+            self.log_boundary(event)
+
+    def log_boundary(self, event: BoundaryEvent) -> None:
         self.get_logger().info(
             f"subtask boundary: step={event.step} subtask={event.subtask} score={event.score:.3f} "
             f"level={event.level} detected_at={event.detected_at}{' (episode end)' if event.final else ''}"
