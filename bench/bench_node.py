@@ -19,7 +19,6 @@ Run: ``cd /work/main && .venv/bin/python bench/bench_node.py [--quick]``.
 from __future__ import annotations
 
 import argparse
-import array
 import os
 import random
 import subprocess
@@ -186,12 +185,13 @@ class _Client:
         return bool(cond())
 
     def stream(self, observations: np.ndarray, rate: float) -> list[int]:
-        """Publish at ``rate`` Hz while spinning; returns the publish times (monotonic ns)."""
-        msgs = []
-        for x in observations:
-            m = self.msg_type()
-            m.data = array.array("f", x.astype(np.float32).tobytes())
-            msgs.append(m)
+        """Publish at ``rate`` Hz while spinning; returns the publish times (monotonic ns).
+
+        Messages go out as pre-encoded CDR, as a bag replay publishes them (the sims do the same).
+        """
+        from ompn_ros.data.messages import encode_float32_array
+
+        msgs = [encode_float32_array(x, "obs") for x in observations]
         period = 1e9 / rate
         t_start = time.monotonic_ns() + 1_000_000
         sent = []

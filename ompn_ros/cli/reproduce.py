@@ -306,9 +306,10 @@ def _fmt(cell: dict[str, float] | None, scale: float = 100.0, digits: int = 1) -
 
 
 def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta: dict[str, Any]) -> str:
+    seeds = {name: int(row["align_acc"]["n"]) for name, row in results.items()}
     lines = [f"# OMPN reproduction: {domain}", "",
              f"Held-out test episodes: {meta['n_test']} (never trained on); seeds per setting: "
-             f"{meta['seeds']}; mean (std) over seeds, in %. Paper numbers in brackets.", "",
+             f"{seeds}; mean (std) over seeds, in %. Paper numbers in brackets.", "",
              "| setting | align acc | F1 tol=1 | F1 tol=0 | online F1 tol=1 | online align | "
              "online delay (steps) | false alarms / ep | paper align / F1 |",
              "|---|---|---|---|---|---|---|---|---|"]
