@@ -187,7 +187,7 @@ class _Client:
     def stream(self, observations: np.ndarray, rate: float) -> list[int]:
         """Publish at ``rate`` Hz while spinning; returns the publish times (monotonic ns).
 
-        Messages go out as pre-encoded CDR, as a bag replay publishes them (the sims do the same).
+        Messages go out as pre-encoded CDR, as a bag replay publishes them.
         """
         from ompn_ros.data.messages import encode_float32_array
 
