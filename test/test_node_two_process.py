@@ -54,7 +54,23 @@ def marker(kind: str, values: dict[str, str]) -> DiagnosticArray:
     return msg
 
 
-def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]) -> None:
+def call(node, ex, srv_type, name: str, timeout: float = 10.0):
+    """Call a service of the subprocess node from this process; None on time-out."""
+    client = node.create_client(srv_type, name)
+    if not client.wait_for_service(timeout_sec=timeout):
+        return None
+    future = client.call_async(srv_type.Request())
+    deadline = time.monotonic() + timeout
+    while not future.done() and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.01)
+    return future.result() if future.done() else None
+
+
+@pytest.mark.parametrize("executor", ["events", "single"])
+def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str], executor: str) -> None:
+    from lifecycle_msgs.srv import GetState
+    from std_srvs.srv import Trigger
+
     ckpt = synthetic_checkpoint
     episodes = synthetic.make_dataset("discrete", 2, seed=900)
     cmd = [
@@ -68,6 +84,8 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         f"detector_high:={HIGH}",
         "-p",
         "diagnostics_period:=0.1",
+        "-p",
+        f"executor:={executor}",
     ]
     proc = subprocess.Popen(
         cmd,
@@ -145,6 +163,14 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         assert got_by_episode == expected
         assert mean_f1(preds, [ep.boundaries for ep in episodes], tol=1).f1 >= 0.75
         assert all(e["level"].isdigit() and 0.0 <= float(e["score"]) <= 1.0 for e in events)
+        # the node's services are served by its executor (lifecycle state, ~/reset)
+        state = call(sim, ex, GetState, "/ompn_node/get_state")
+        assert state is not None and state.current_state.label == "active"
+        pump(lambda: False, 0.5)  # let /diagnostics catch up with the last end marker's new episode
+        episodes_before = int(diags[-1]["episodes"])
+        reset = call(sim, ex, Trigger, "/ompn_node/reset")
+        assert reset is not None and reset.success, reset
+        assert pump(lambda: int(diags[-1]["episodes"]) == episodes_before + 1, 5)
     finally:
         rclpy.try_shutdown(context=ctx)
         proc.send_signal(signal.SIGINT)
