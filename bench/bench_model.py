@@ -292,7 +292,7 @@ def latency_figures(steps: int) -> dict[str, tuple[float, str]]:
         else:
             obs = rng.random((256, cfg.obs_dim)).astype(np.float32)
         p50s = {}
-        for backend in ("numpy", "torch"):
+        for backend in ("jit", "numpy", "torch"):
             stream = StreamingPolicy(policy, backend=backend)  # type: ignore[arg-type]
             lat = []
             for k in range(steps + 100):
@@ -306,6 +306,7 @@ def latency_figures(steps: int) -> dict[str, tuple[float, str]]:
             figures[f"stream_{name}_{backend}_p50"] = (p50s[backend], "us")
             figures[f"stream_{name}_{backend}_p99"] = (float(np.percentile(us, 99)), "us")
         figures[f"stream_{name}_numpy_speedup_p50"] = (p50s["torch"] / p50s["numpy"], "x")
+        figures[f"stream_{name}_jit_speedup_p50"] = (p50s["torch"] / p50s["jit"], "x")
     return figures
 
 
