@@ -29,7 +29,8 @@ def _load(path: Path):
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs (less precise figures)")
-    parser.add_argument("--only", default="", help="comma-separated areas, e.g. model,craft")
+    parser.add_argument("--only", default="", help="comma-separated areas, e.g. model,craft (the other "
+                        "areas' figures in --out are kept)")
     parser.add_argument("--out", type=Path, default=HERE / "latest.json")
     args = parser.parse_args(argv)
     only = {a for a in args.only.split(",") if a}
@@ -56,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
         value = fig["value"]
         shown = f"{value:.4g}" if isinstance(value, float) else str(value)
         print(f"{name:<{width}}  {shown:>14}  {fig['unit']}")
+    if only and args.out.is_file():  # a subset run keeps the other areas' figures of the last full run
+        kept = {k: v for k, v in json.loads(args.out.read_text()).items() if k.split(".", 1)[0] not in only}
+        figures = {**kept, **figures}
     args.out.write_text(json.dumps(figures, indent=1, sort_keys=True) + "\n")
     print(f"\nwrote {args.out}")
     if failures:
