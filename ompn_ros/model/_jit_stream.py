@@ -66,10 +66,24 @@ def _gated_norm(
         out[j] *= inv
 
 
+@njit(cache=True, inline="always")
+def _relu_matvec(w_t: np.ndarray, hidden: np.ndarray, bias: np.ndarray, out: np.ndarray) -> None:
+    """``out = W hidden + bias`` for a ReLU output ``hidden``, with ``w_t = W^T``: only the rows of
+    the active (non-zero) units are read, about half of the cells' second-layer weights."""
+    for j in range(out.shape[0]):
+        out[j] = bias[j]
+    for k in range(hidden.shape[0]):
+        hk = hidden[k]
+        if hk != 0.0:
+            row = w_t[k]
+            for j in range(out.shape[0]):
+                out[j] += hk * row[j]
+
+
 @njit(cache=True)
 def _step(
     s, first, flags, enc_w, enc_wt, enc_b, obs_proj, x_proj, sparse_proj_t, sparse_bias, const,
-    com_w1, com_w2, com_b2, com_gamma, com_beta, dec_w1, dec_w2, dec_b2, dec_gamma, dec_beta,
+    com_w1, com_w2_t, com_b2, com_gamma, com_beta, dec_w1, dec_w2_t, dec_b2, dec_gamma, dec_beta,
     score_mc_t, score_w2, score_b2, head_o,
     memory, next_memory, cand, m_hat, x, proj, com_buf, dec_buf, hidden, score_in, action, probs,
 ):  # pragma: no cover - compiled; checked against the torch reference in the tests
@@ -128,9 +142,7 @@ def _step(
             for j in range(4 * h):
                 v = hidden[j] + proj[4 * h * i + j]
                 hidden[j] = v if v > 0.0 else 0.0
-            com_buf[2 * h :] = np.dot(com_w2[i], hidden)
-            for j in range(4 * h):
-                com_buf[2 * h + j] += com_b2[i, j]
+            _relu_matvec(com_w2_t[i], hidden, com_b2[i], com_buf[2 * h :])
             _gated_norm(com_buf, 3, h, com_gamma[i], com_beta[i], cand[i])
 
     # expansion distribution: stick-breaking over the slot scores, lowest slot first (float64)
@@ -185,9 +197,7 @@ def _step(
             for j in range(4 * h):
                 v = hidden[j] + proj[4 * h * (n + k) + j]
                 hidden[j] = v if v > 0.0 else 0.0
-            dec_buf[h:] = np.dot(dec_w2[k], hidden)
-            for j in range(3 * h):
-                dec_buf[h + j] += dec_b2[k, j]
+            _relu_matvec(dec_w2_t[k], hidden, dec_b2[k], dec_buf[h:])
             _gated_norm(dec_buf, 2, h, dec_gamma[k], dec_beta[k], m_hat[k])
 
     # memory update: Eq. (2) of the paper, or the update the authors' code ran
@@ -221,11 +231,11 @@ class JitStepper(NumpyStepper):
         super().__init__(policy)
         n, h = self.n, self.h
         self._com = (
-            _stack(self.com_w1, (4 * h, 2 * h)), _stack(self.com_w2, (4 * h, 4 * h)),
+            _stack(self.com_w1, (4 * h, 2 * h)), _stack([w.T for w in self.com_w2], (4 * h, 4 * h)),
             _stack(self.com_b2, (4 * h,)), _stack(self.com_gamma, (3 * h,)), _stack(self.com_beta, (3 * h,)),
         )
         self._dec = (
-            _stack(self.dec_w1, (4 * h, h)), _stack(self.dec_w2, (3 * h, 4 * h)),
+            _stack(self.dec_w1, (4 * h, h)), _stack([w.T for w in self.dec_w2], (4 * h, 3 * h)),
             _stack(self.dec_b2, (3 * h,)), _stack(self.dec_gamma, (2 * h,)), _stack(self.dec_beta, (2 * h,)),
         )
         self._flags = np.array(
