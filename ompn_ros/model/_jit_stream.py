@@ -26,6 +26,21 @@ from ompn_ros.model.policy import OMPNPolicy
 
 
 @njit(cache=True, fastmath=True, inline="always")
+def _mean_inv_std(a: np.ndarray, eps: float) -> tuple[np.float32, np.float32]:
+    """Mean of ``a`` and ``1 / sqrt(var + eps)`` (biased variance, as LayerNorm), in float32."""
+    n = np.float32(a.shape[0])
+    mean = np.float32(0.0)
+    for j in range(a.shape[0]):
+        mean += a[j]
+    mean /= n
+    var = np.float32(0.0)
+    for j in range(a.shape[0]):
+        d = a[j] - mean
+        var += d * d
+    return mean, np.float32(1.0) / np.sqrt(var / n + np.float32(eps))
+
+
+@njit(cache=True, fastmath=True, inline="always")
 def _gated_norm(
     buf: np.ndarray, k: int, h: int, gamma: np.ndarray, beta: np.ndarray, out: np.ndarray
 ) -> None:
@@ -37,15 +52,7 @@ def _gated_norm(
     """
     kh = k * h
     gates = buf[kh : 2 * kh]
-    mean = np.float32(0.0)
-    for j in range(kh):
-        mean += gates[j]
-    mean /= np.float32(kh)
-    var = np.float32(0.0)
-    for j in range(kh):
-        d = gates[j] - mean
-        var += d * d
-    inv = np.float32(1.0) / np.sqrt(var / np.float32(kh) + np.float32(LN_EPS))
+    mean, inv = _mean_inv_std(gates, LN_EPS)
     for j in range(kh):
         gates[j] = np.tanh((gates[j] - mean) * inv * gamma[j] + beta[j])
     for j in range(h):
@@ -53,17 +60,9 @@ def _gated_norm(
     for r in range(1, k):
         for j in range(h):
             out[j] += (np.float32(1.0) + gates[r * h + j]) * buf[r * h + j]
-    mean = np.float32(0.0)
+    mean, inv = _mean_inv_std(out, 4.0 * LN_EPS)
     for j in range(h):
-        mean += out[j]
-    mean /= np.float32(h)
-    var = np.float32(0.0)
-    for j in range(h):
-        out[j] -= mean
-        var += out[j] * out[j]
-    inv = np.float32(1.0) / np.sqrt(var / np.float32(h) + np.float32(4.0 * LN_EPS))
-    for j in range(h):
-        out[j] *= inv
+        out[j] = (out[j] - mean) * inv
 
 
 @njit(cache=True, inline="always")
