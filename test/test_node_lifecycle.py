@@ -290,3 +290,22 @@ def test_shipped_params_files_fit_the_node(ctx, ckpt: Path, name: str) -> None:
     assert cfg.high == params["detector_high"]
     assert cfg.min_segment_length == params["detector_min_segment_length"]
     node.destroy_node()
+
+
+def test_receive_stamps_stay_increasing_when_the_clock_stands_still(ctx, ckpt: Path) -> None:
+    """Array input without message info (EventsExecutor) is stamped at reception; with sim time and
+    no /clock the clock reads 0 for every message, and none may be rejected as out of order."""
+    from ompn_ros.data.messages import encode_float32_array
+
+    node = make_node(ctx, ckpt, use_sim_time=True)
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    assert node.get_clock().now().nanoseconds == 0
+    obs = np.random.default_rng(5).normal(size=(4, OBS_DIM)).astype(np.float32)
+    for x in obs:
+        node._on_array(encode_float32_array(x))
+    node._on_array(b"\x00\x01\x00\x00garbage")  # undecodable: counted, never fatal
+    seg = node.segmenter
+    assert seg.accepted == 4 and seg.rejected["out_of_order_stamp"] == 0
+    assert seg.rejected["malformed"] == 1
+    node.destroy_node()

@@ -191,6 +191,7 @@ class OMPNNode(LifecycleNode):
         self.last_error = ""
         self.boundaries_published = 0
         self.last_stamp_ns = 0
+        self._last_receive_ns = 0
         self._pubs: dict[str, Any] = {}
         self._subs: list[Any] = []
         self._service: Any = None
@@ -425,8 +426,12 @@ class OMPNNode(LifecycleNode):
         self._on_raw_array(raw, int(info["source_timestamp"]))
 
     def _on_array(self, raw: bytes) -> None:
-        # The EventsExecutor cannot pass message info: stamp with the receive time instead.
-        self._on_raw_array(raw, self.get_clock().now().nanoseconds)
+        # The EventsExecutor cannot pass message info: stamp with the receive time instead, kept
+        # strictly increasing (reception order is delivery order; a clock that stands still, e.g.
+        # sim time between /clock ticks, must not turn into out-of-order rejections).
+        stamp = max(self.get_clock().now().nanoseconds, self._last_receive_ns + 1)
+        self._last_receive_ns = stamp
+        self._on_raw_array(raw, stamp)
 
     def _on_raw_array(self, raw: bytes, stamp_ns: int) -> None:
         try:
