@@ -158,33 +158,6 @@ def end_marker_values(episode_index: int, task: str, seed: int, steps: int, succ
 
 
 # --- direct encoders (same bytes as serialize(builder(...)), several times faster) -----------------
-@lru_cache(maxsize=64)
-def _multiarray_prefix(label: str, n: int, dim_size: int | None = None) -> bytes:
-    """CDR bytes of a one-dimension MultiArray up to (and including) the element count ``n``.
-
-    The dimension's size and stride are ``dim_size`` (default ``n``).
-    """
-    size = n if dim_size is None else dim_size
-    text = label.encode() + b"\0"
-    out = CDR_LE_HEADER + _U32.pack(1) + _U32.pack(len(text)) + text
-    out += b"\0" * (-(len(out) - 4) % 4)
-    return out + _U32.pack(size) + _U32.pack(size) + _U32.pack(0) + _U32.pack(n)
-
-
-def encode_float32_array(
-    values: np.ndarray | Sequence[float], label: str = "obs", dim_size: int | None = None
-) -> bytes:
-    """CDR of a ``Float32MultiArray`` with one dimension ``(label, dim_size, dim_size)`` (``dim_size``
-    defaults to the number of values) without building a message object."""
-    data = np.ascontiguousarray(values, dtype="<f4").reshape(-1)
-    return _multiarray_prefix(label, int(data.size), dim_size) + data.tobytes()
-
-
-def encode_int32(value: int) -> bytes:
-    """CDR of :func:`int32` ``(value)``."""
-    return CDR_LE_HEADER + _I32.pack(int(value))
-
-
 class _CdrWriter:
     """Little-endian CDR body writer (alignment relative to the end of the encapsulation header)."""
 
@@ -206,6 +179,35 @@ class _CdrWriter:
         data = text.encode() + b"\0"
         self.u32(len(data))
         self.out += data
+
+
+@lru_cache(maxsize=64)
+def _multiarray_prefix(label: str, n: int, dim_size: int | None = None) -> bytes:
+    """CDR bytes of a one-dimension MultiArray up to (and including) the element count ``n``.
+
+    The dimension's size and stride are ``dim_size`` (default ``n``).
+    """
+    size = n if dim_size is None else dim_size
+    w = _CdrWriter()
+    w.u32(1)  # one dimension
+    w.string(label)
+    for value in (size, size, 0, n):  # size, stride, data_offset, element count
+        w.u32(value)
+    return bytes(w.out)
+
+
+def encode_float32_array(
+    values: np.ndarray | Sequence[float], label: str = "obs", dim_size: int | None = None
+) -> bytes:
+    """CDR of a ``Float32MultiArray`` with one dimension ``(label, dim_size, dim_size)`` (``dim_size``
+    defaults to the number of values) without building a message object."""
+    data = np.ascontiguousarray(values, dtype="<f4").reshape(-1)
+    return _multiarray_prefix(label, int(data.size), dim_size) + data.tobytes()
+
+
+def encode_int32(value: int) -> bytes:
+    """CDR of :func:`int32` ``(value)``."""
+    return CDR_LE_HEADER + _I32.pack(int(value))
 
 
 def encode_diagnostic_status(

@@ -100,9 +100,10 @@ def _step(
         proj[:] = np.dot(obs_proj, s)
     else:
         nnz = 0
-        for j in range(s.shape[0]):
-            if s[j] != 0.0:
-                nnz += 1
+        if mean_is_zero:  # the gather needs s - mean to be sparse, i.e. mean = 0
+            for j in range(s.shape[0]):
+                if s[j] != 0.0:
+                    nnz += 1
         if mean_is_zero and nnz <= SPARSE_FRACTION * s.shape[0]:
             # Sparse (Craft one-hot): gather the non-zero rows of W_in^T for x and of the composed
             # (x_proj W_in)^T for every projection of x, instead of reading all of x_proj.

@@ -35,7 +35,7 @@ CDR bytes) and the action and ``~/pi`` are published as pre-encoded CDR; the bou
 out before them.
 
 Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured here
-to cut the observation -> boundary latency by ~1 ms against ``'single'`` =
+to cut the observation -> boundary latency by ~0.4-0.5 ms against ``'single'`` =
 ``SingleThreadedExecutor`` (BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so
 :func:`spin_until_shutdown` drives it with ``spin_once``, which works (lifecycle and parameter
 services included).  ``'single'`` stays available should the experimental executor misbehave.
