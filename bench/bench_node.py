@@ -160,17 +160,27 @@ class _Client:
         self.pub = self.node.create_publisher(Float32MultiArray, "observation", reliable)
         self.msg_type = Float32MultiArray
         self.pi_times: list[int] = []
-        self.boundaries: list[tuple[int, int]] = []  # (detected_at, receive ns)
+        self.boundaries: list[tuple[int, int]] = []  # (detected_at, arrival ns)
         self.diag: dict[str, str] = {}
+        # Outputs are taken raw and stamped on arrival, before any decoding: the figures are the
+        # node's latency, not this Python client's message conversion (decoded afterwards).
         self.node.create_subscription(
-            Float32MultiArray, "/ompn_node/pi", lambda m: self.pi_times.append(time.monotonic_ns()), reliable
+            Float32MultiArray, "/ompn_node/pi", lambda m: self.pi_times.append(time.monotonic_ns()), reliable,
+            raw=True,
         )
-        self.node.create_subscription(DiagnosticArray, "/ompn_node/boundary", self._on_boundary, events)
+        self.node.create_subscription(
+            DiagnosticArray, "/ompn_node/boundary", self._on_boundary, events, raw=True
+        )
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+        self._diagnostic_array = DiagnosticArray
 
-    def _on_boundary(self, msg: Any) -> None:
+    def _on_boundary(self, raw: bytes) -> None:
+        arrival = time.monotonic_ns()
+        from rclpy.serialization import deserialize_message
+
+        msg = deserialize_message(raw, self._diagnostic_array)
         values = {kv.key: kv.value for kv in msg.status[0].values}
-        self.boundaries.append((int(values["detected_at"]), time.monotonic_ns()))
+        self.boundaries.append((int(values["detected_at"]), arrival))
 
     def _on_diag(self, msg: Any) -> None:
         if msg.status and msg.status[0].name.endswith(": segmenter"):

@@ -142,3 +142,47 @@ def test_bad_input() -> None:
         sketched.reset(np.zeros((2, 2)))
     with pytest.raises(StreamingInputError, match="backend"):
         StreamingPolicy(build(CASES["discrete"]), backend="jax")  # type: ignore[arg-type]
+
+
+def round_to_half(policy: OMPNPolicy) -> OMPNPolicy:
+    """Weights that are float16 values (as a checkpoint saved with weights_dtype='float16')."""
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.copy_(p.half().float())
+    return policy
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_jit_reads_float16_weights_with_float32_arithmetic(case: str) -> None:
+    policy = round_to_half(build(CASES[case], seed=3))
+    stream = StreamingPolicy(policy, backend="jit")
+    assert stream._w is not None and stream._w.weights_dtype == "float16"
+    check_agreement(policy, [6, 1, 9, 3], "jit", seed=3)
+
+
+def test_jit_float16_weights_at_craft_size_with_sparse_observations() -> None:
+    craft = {"obs_dim": 1075, "action_type": "discrete", "action_dim": 5}
+    policy = round_to_half(build(craft, slot_size=128))
+    policy.set_obs_normalization(np.zeros(1075), np.ones(1075))  # Craft: raw one-hot features
+    half, full = StreamingPolicy(policy, backend="jit"), StreamingPolicy(policy, backend="torch")
+    assert half._w is not None and half._w.weights_dtype == "float16"
+    rng = np.random.default_rng(4)
+    for _ in range(12):
+        obs = np.zeros(1075, np.float32)
+        obs[rng.choice(1075, size=60, replace=False)] = 1.0
+        a, b = half.step(obs), full.step(obs)
+        np.testing.assert_allclose(a.p_hat, b.p_hat, atol=1e-5, rtol=0)
+        assert a.action == b.action
+
+
+def test_weights_that_are_not_float16_values_stay_float32() -> None:
+    from ompn_ros.model._jit_stream import half_bits_if_exact
+
+    stream = StreamingPolicy(build(CASES["discrete"]), backend="jit")
+    assert stream._w is not None and stream._w.weights_dtype == "float32"
+    exact = np.array([0.5, -2.0, 3 * 2.0**-24, -0.0], np.float32)  # 3 * 2^-24: a float16 subnormal
+    halves = half_bits_if_exact([exact])
+    assert halves is not None and halves[0].dtype == np.uint16
+    np.testing.assert_array_equal(halves[0].view(np.float16).astype(np.float32), exact)
+    assert half_bits_if_exact([exact, np.array([0.1], np.float32)]) is None
+    assert half_bits_if_exact([np.array([7e4], np.float32)]) is None  # beyond float16's range

@@ -58,3 +58,49 @@ def test_unknown_setting_is_a_clear_error(tmp_path: Path, capsys: pytest.Capture
                            "--results", str(tmp_path)])
     assert code == 2
     assert "unknown settings ['full_nosketch'] for dial" in capsys.readouterr().err
+
+
+def _tiny_craft(tmp_path: Path, *extra: str) -> int:
+    return reproduce.main([
+        "craft", "--settings", "full_nosketch", "--seeds", "1", "--episodes", "8", "--iterations", "2",
+        "--extras", "none", "--threads", "1", "--work", str(tmp_path / "work"),
+        "--results", str(tmp_path / "results"), *extra,
+    ])
+
+
+def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_path: Path):
+    assert _tiny_craft(tmp_path) == 0
+    trained = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    run_dir = tmp_path / "work" / "runs" / "full_nosketch_seed0"
+    detector_file = run_dir / "ompn_node_craft.yaml"
+    assert "detector_high" in detector_file.read_text()  # tuned on this run's validation episodes
+    detector_file.unlink()
+    weights = (run_dir / "best" / "model.safetensors").read_bytes()
+
+    assert _tiny_craft(tmp_path, "--reevaluate") == 0
+    again = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    assert (run_dir / "best" / "model.safetensors").read_bytes() == weights  # nothing was retrained
+    assert detector_file.is_file()
+    for metric in ("align_acc", "f1_tol1", "online_f1_tol1", "online_shipped_f1_tol1"):
+        assert again[metric]["mean"] == pytest.approx(trained[metric]["mean"], abs=1e-9)
+    assert again["train_seconds"] == trained["train_seconds"]
+    meta = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["meta"]
+    assert "--reevaluate" in meta["command"] and "--reevaluate" not in meta["trained"]["command"]
+    assert any(stage.startswith("train+eval") for stage in meta["trained"]["stages"])
+    assert "Re-evaluated without training" in (tmp_path / "results" / "craft.md").read_text()
+
+
+def test_reevaluate_without_checkpoints_names_the_missing_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    assert _tiny_craft(tmp_path, "--reevaluate") == 2
+    assert "no usable checkpoint for full_nosketch_seed0" in capsys.readouterr().err
+
+
+def test_lstm_baseline_config_trains_and_evaluates(tmp_path: Path):
+    config = tmp_path / "lstm.yaml"
+    base = (Path(reproduce.config_file("train_craft.yaml"))).read_text()
+    config.write_text(base.replace("model:\n", "model:\n  arch: lstm\n", 1))
+    assert _tiny_craft(tmp_path, "--config", str(config)) == 0
+    row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    assert 0.0 <= row["online_f1_tol1"]["mean"] <= 1.0

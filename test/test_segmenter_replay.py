@@ -86,6 +86,17 @@ def test_choose_detector_and_write_config(ckpt: Path, episodes, tmp_path: Path) 
     assert params["domain"] == "craft" and params["detector_high"] == best.high
 
 
+@pytest.mark.parametrize(("objective", "metric"), [("f1", "f1_tol1"), ("align", "align_strict")])
+def test_choose_detector_maximises_its_objective(ckpt: Path, episodes, objective: str, metric: str) -> None:
+    policy = StreamingPolicy.from_checkpoint(ckpt)
+    grid = [DetectorConfig(high=h, mode=m) for h in (0.1, 0.3, 0.5, 0.7) for m in ("falling_edge", "peak")]
+    _, metrics, _ = cli.choose_detector(policy, episodes, grid, objective=objective)
+    scored = cli.compare_detectors(policy, episodes, {str(i): c for i, c in enumerate(grid)})
+    assert metrics[metric] == pytest.approx(max(scored[str(i)][metric] for i in range(len(grid))))
+    with pytest.raises(ValueError, match="objective must be one of"):
+        cli.choose_detector(policy, episodes, grid, objective="recall")
+
+
 def test_ompn_segment_cli_on_a_bag(ckpt: Path, episodes, tmp_path: Path) -> None:
     bag_writer = pytest.importorskip("ompn_ros.data.bag_writer")
     bag = tmp_path / "bag"

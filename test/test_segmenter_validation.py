@@ -81,6 +81,8 @@ BAD_INPUTS = [
     (np.zeros(5), None, WrongObservationLength, "wrong_length"),
     ([0.0, np.nan, 0.0, 0.0], None, NonFiniteObservation, "non_finite"),
     ([0.0, 0.0, np.inf, 0.0], None, NonFiniteObservation, "non_finite"),
+    (np.array([np.inf, 0.0, -np.inf, 0.0], np.float32), None, NonFiniteObservation, "non_finite"),
+    (np.array([0.0, 0.0, 0.0, np.nan], np.float32), None, NonFiniteObservation, "non_finite"),
     (["a", "b", "c", "d"], None, NonFiniteObservation, "non_finite"),
     (np.ones(4), 5, OutOfOrderStamp, "out_of_order_stamp"),
     (np.ones(4), 10, OutOfOrderStamp, "out_of_order_stamp"),  # equal stamp = duplicate
@@ -107,6 +109,17 @@ def test_bad_input_raises_named_error_and_leaves_memory_untouched(obs, stamp, er
         assert out.boundary == ref[i].boundary
     assert dirty.rejected[reason] == 1 and dirty.rejected_total == 1
     assert dirty.accepted == clean.accepted == 6
+
+
+def test_contiguous_float32_input_is_used_as_is_and_other_input_converted() -> None:
+    seg = make_segmenter()
+    flat = np.arange(4, dtype=np.float32)
+    assert seg.validate(flat) is flat  # the node's parsed messages: no copy, no conversion
+    column = np.arange(8, dtype=np.float64).reshape(4, 2)[:, 0]  # strided float64
+    out = seg.validate(column)
+    assert out.dtype == np.float32 and out.flags.c_contiguous
+    np.testing.assert_array_equal(out, [0, 2, 4, 6])
+    np.testing.assert_array_equal(seg.validate([[1, 2], [3, 4]]), [1, 2, 3, 4])
 
 
 def test_error_messages_name_the_problem() -> None:

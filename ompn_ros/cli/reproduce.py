@@ -188,52 +188,104 @@ def offline_metrics(policy: Any, test: Sequence[Episode]) -> dict[str, Any]:
     return evaluate(policy, test, keep_p_hat=True)
 
 
-def online_metrics(policy: Any, test: Sequence[Episode], domain: str) -> tuple[dict[str, float], list[Any]]:
-    """The shipped causal detector of ``domain`` replayed through ``StreamingSegmenter`` (as live)."""
-    from ompn_ros.cli.segment import compare_detectors, load_detector_yaml, replay_all
-    from ompn_ros.model.streaming import StreamingPolicy
+def online_metrics(
+    policy: Any, test: Sequence[Episode], domain: str, val: Sequence[Episode] = ()
+) -> tuple[dict[str, float], list[Any], Any]:
+    """The causal detector replayed through ``StreamingSegmenter`` (as live) on ``test``.
 
-    detector = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
-    stream = StreamingPolicy(policy)
-    replays = replay_all(stream, test, detector)
-    scores = compare_detectors(stream, test, {"online": detector}, replays=replays)["online"]
-    return {f"online_{k}": v for k, v in scores.items()}, replays
+    Two detector settings are scored on the same replays: the shipped one of ``domain``
+    (``online_shipped_*``; it was tuned on the shipped checkpoint) and one tuned for this checkpoint
+    by ``ompn_segment --tune``'s grid search (the domain's default objective) on ``val``, the run's
+    validation episodes, never the test ones (``online_*``).  Without ``val`` the shipped setting is
+    reported under both names.
+    Returns ``(metrics, replays with the primary setting, tuning record or None)``.
+    """
+    from ompn_ros.cli.segment import (
+        DEFAULT_OBJECTIVE,
+        choose_detector,
+        compare_detectors,
+        load_detector_yaml,
+        replay_all,
+    )
+    from ompn_ros.model.factory import build_stepper
+
+    shipped = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
+    stream = build_stepper(policy)
+    configs = {"shipped": shipped}
+    tuning = None
+    if val:
+        tuned, _, on_val = choose_detector(stream, list(val), objective=DEFAULT_OBJECTIVE[domain])
+        configs["tuned"] = tuned
+        tuning = {"config": tuned, "measured_on_val": on_val, "n_val": len(val)}
+    replays = replay_all(stream, test, configs.get("tuned", shipped))
+    scores = compare_detectors(stream, test, configs, replays=replays)
+    row = {f"online_shipped_{k}": v for k, v in scores["shipped"].items()}
+    row.update({f"online_{k}": v for k, v in scores["tuned" if tuning else "shipped"].items()})
+    return row, replays, tuning
 
 
+TRAINING_CELLS = ("train_seconds", "frames_per_second")
+"""Result cells that only training produces (kept from the previous results by --reevaluate)."""
 METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", "recall_tol1")
 
 
 def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episode], test: list[Episode],
                 base: dict[str, dict[str, Any]], iterations: int | None, work: Path,
-                overrides: dict[str, Any] | None = None, tag: str = "") -> dict[str, Any]:
-    """Train one (setting, seed) and evaluate it on the held-out test episodes."""
-    from ompn_ros.model.checkpoint import load_checkpoint
-    from ompn_ros.train.trainer import train
+                overrides: dict[str, Any] | None = None, tag: str = "",
+                reuse: bool = False) -> dict[str, Any]:
+    """Train one (setting, seed), or with ``reuse`` load its existing ``best/`` checkpoint, and
+    evaluate it on the held-out test episodes (the detector is tuned on the run's validation split)."""
+    from ompn_ros.cli.segment import write_node_config
+    from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
+    from ompn_ros.train.trainer import train, train_val_episodes
 
     run_dir = work / "runs" / f"{setting.name}{tag}_seed{seed}"
     model_cfg, train_cfg = build_configs(domain, base, setting, seed, iterations, run_dir, overrides)
-    result = train(train_pool, model_cfg, train_cfg)
     best_dir = run_dir / "best"
-    policy = load_checkpoint(best_dir)[0] if best_dir.is_dir() else result.policy
-    run = evaluate_policy(domain, policy, test)
-    run["row"].update({
-        "train_seconds": result.train_seconds,
-        "best_iteration": result.best_iteration,
-        "frames_per_second": result.frames / max(result.train_seconds, 1e-9),
-    })
+    info: dict[str, float] = {}
+    if reuse:
+        try:
+            policy, extra = load_checkpoint(best_dir)
+        except (CheckpointError, OSError) as exc:
+            raise ReproduceError(f"--reevaluate: no usable checkpoint for {run_dir.name}: {exc}") from exc
+        train_cfg = _stored_train_config(extra, train_cfg)
+        info["best_iteration"] = float(extra.get("iteration", float("nan")))
+    else:
+        result = train(train_pool, model_cfg, train_cfg)
+        policy = load_checkpoint(best_dir)[0] if best_dir.is_dir() else result.policy
+        info = {"train_seconds": result.train_seconds, "best_iteration": result.best_iteration,
+                "frames_per_second": result.frames / max(result.train_seconds, 1e-9)}
+    _, val, _ = train_val_episodes(train_pool, train_cfg)
+    run = evaluate_policy(domain, policy, test, val)
+    run["row"].update(info)
     run["checkpoint"] = best_dir
+    if run["tuning"] is not None:
+        tuning = run["tuning"]
+        write_node_config(run_dir / f"ompn_node_{domain}.yaml", domain, tuning["config"],
+                          tuning["measured_on_val"],
+                          f"the {tuning['n_val']} validation episodes of this run, checkpoint {best_dir}")
     return run
 
 
-def evaluate_policy(domain: str, policy: Any, test: list[Episode]) -> dict[str, Any]:
+def _stored_train_config(extra: dict[str, Any], fallback: Any) -> Any:
+    """The TrainConfig a checkpoint was trained with (its metadata), else ``fallback``."""
+    from ompn_ros.train.trainer import TrainConfig
+
+    stored = extra.get("train_config")
+    return TrainConfig.from_dict(stored) if isinstance(stored, dict) else fallback
+
+
+def evaluate_policy(
+    domain: str, policy: Any, test: list[Episode], val: Sequence[Episode] = ()
+) -> dict[str, Any]:
     """Offline (Top-K for Craft, automatic threshold for Dial) and online metrics on ``test``."""
     offline = offline_metrics(policy, test)
-    online, replays = online_metrics(policy, test, domain)
+    online, replays, tuning = online_metrics(policy, test, domain, val)
     row: dict[str, Any] = {"align_acc": offline["align"]}
     primary = "topk_" if domain == "craft" else "auto_"
     row.update({k: offline[primary + k] for k in METRIC_KEYS})
     row.update(online)
-    return {"row": row, "p_hat": offline["p_hat"], "replays": replays, "policy": policy}
+    return {"row": row, "p_hat": offline["p_hat"], "replays": replays, "policy": policy, "tuning": tuning}
 
 
 def aggregate(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -310,9 +362,11 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
     lines = [f"# OMPN reproduction: {domain}", "",
              f"Held-out test episodes: {meta['n_test']} (never trained on); seeds per setting: "
              f"{seeds}; mean (std) over seeds, in %. Paper numbers in brackets.", "",
+             "Online = the causal detector of `ompn_node`, tuned for each checkpoint on that run's "
+             "validation episodes; 'shipped det.' = the package's default detector settings instead.", "",
              "| setting | align acc | F1 tol=1 | F1 tol=0 | online F1 tol=1 | online align | "
-             "online delay (steps) | false alarms / ep | paper align / F1 |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "online delay (steps) | false alarms / ep | online F1, shipped det. | paper align / F1 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, row in results.items():
         paper = PAPER[domain].get(name, (None, None))
         paper_txt = " / ".join("–" if v is None else str(v) for v in paper)
@@ -321,7 +375,7 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
             f"{_fmt(row['online_f1_tol1'])} | {_fmt(row['online_align_strict'])} | "
             f"{_fmt(row['online_delay_mean'], 1, 2)} | "
             f"{_fmt(row['online_false_alarms_per_episode'], 1, 2)} | "
-            f"[{paper_txt}] |")
+            f"{_fmt(row.get('online_shipped_f1_tol1'))} | [{paper_txt}] |")
     for title, table in extras.items():
         lines += ["", f"## {title}", ""]
         first = next(iter(table.values()))
@@ -332,6 +386,11 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
             shown = [(_fmt(c) if isinstance(c, dict) else f"{100 * c:.1f}") for c in cells.values()]
             lines.append(f"| {key} | " + " | ".join(shown) + " |")
     lines += ["", "## Wall time per stage (s)", ""]
+    trained = meta.get("trained")
+    if trained:
+        lines += [f"- {k}: {v:.1f}" for k, v in trained.get("stages", {}).items()]
+        lines.append(f"- total: {trained.get('total_seconds', float('nan')):.1f}")
+        lines += ["", f"Re-evaluated without training (`{' '.join(meta['command'])}`):", ""]
     lines += [f"- {k}: {v:.1f}" for k, v in meta["stages"].items()]
     lines.append(f"- total: {meta['total_seconds']:.1f}")
     return "\n".join(lines) + "\n"
@@ -389,6 +448,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=None, help="override train.threads (torch threads)")
     p.add_argument("--evaluate", type=Path, default=None, metavar="CHECKPOINT",
                    help="skip training: evaluate this checkpoint on the held-out split of the first setting")
+    p.add_argument("--reevaluate", action="store_true",
+                   help="skip training: re-evaluate the existing best/ checkpoints of every setting, "
+                        "seed and ablation in --work (e.g. after a change to the evaluation); "
+                        "training figures are kept from the previous results")
     p.add_argument("--merge", action="store_true",
                    help="keep the other settings already in results/<domain>.json (runs split over calls)")
     p.add_argument("--ablations", default=",".join(ABLATIONS),
@@ -411,6 +474,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     import torch
 
     domain = args.domain
+    args.argv = list(argv)
     start = time.perf_counter()
     timer = Timer()
     work = args.work or Path("runs") / f"reproduce_{domain}"
@@ -438,8 +502,10 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
 
     results: dict[str, Any] = {}
     previous = args.results / f"{domain}.json"
-    if args.merge and previous.is_file():
-        results.update({k: v for k, v in json.loads(previous.read_text()).items() if k not in names})
+    old_results = json.loads(previous.read_text()) if previous.is_file() else {}
+    stage = "re-evaluate" if args.reevaluate else "train+eval"
+    if args.merge:
+        results.update({k: v for k, v in old_results.items() if k not in names})
     runs: dict[str, dict[str, Any]] = {}
     figures: list[str] = []
     args.results.mkdir(parents=True, exist_ok=True)
@@ -464,13 +530,16 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         pool, test = data[setting.partial]
         rows = []
         for seed in range(args.seeds):
-            run = timer.run(f"train+eval {name} seed {seed}", run_setting,
-                            domain, setting, seed, pool, test, base, args.iterations, work)
+            run = timer.run(f"{stage} {name} seed {seed}", run_setting, domain, setting, seed, pool, test,
+                            base, args.iterations, work, reuse=args.reevaluate)
             print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
             rows.append(run["row"])
             if seed == 0:
                 runs[name] = run
         results[name] = aggregate(rows)
+        if args.reevaluate:
+            kept = old_results.get(name, {})
+            results[name].update({k: kept[k] for k in TRAINING_CELLS if k in kept})
         figures += save_figures(domain, name, test, runs[name], args.results / "figures")
         _write(args, domain, results, {}, timer, start, figures, data)
 
@@ -485,8 +554,9 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
             raise ReproduceError(f"unknown ablations {unknown_ab}; known: {sorted(ABLATIONS)}")
         for ab_name in chosen:
             overrides = ABLATIONS[ab_name]
-            run = timer.run(f"ablation {ab_name}", run_setting, domain, SETTINGS[domain][primary], 0, pool,
-                            test, base, args.iterations, work, overrides, f"_{ab_name}")
+            run = timer.run(f"{'re-evaluate ' if args.reevaluate else ''}ablation {ab_name}", run_setting,
+                            domain, SETTINGS[domain][primary], 0, pool, test, base, args.iterations, work,
+                            overrides, f"_{ab_name}", reuse=args.reevaluate)
             table[ab_name] = {k: run["row"][k] for k in ("align_acc", "f1_tol1", "online_f1_tol1")}
         extras[f"Ablations ({primary}, seed 0)"] = table
 
@@ -507,10 +577,17 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
 def _write(args, domain, results, extras, timer, start, figures, data) -> dict[str, Any]:
     meta = {"seeds": args.seeds, "stages": dict(timer.stages), "total_seconds": time.perf_counter() - start,
             "n_test": {("partial" if k else "full"): len(v[1]) for k, v in data.items()},
-            "figures": figures, "command": ["ompn_reproduce", *sys.argv[1:]]}
+            "figures": figures, "command": ["ompn_reproduce", *args.argv]}
+    extras_file = args.results / f"{domain}_extras.json"
+    if args.reevaluate and extras_file.is_file():
+        # the tables come from the trained run: keep its command and stage times beside the re-evaluation
+        trained = json.loads(extras_file.read_text()).get("meta", {})
+        if "trained" in trained:
+            trained = trained["trained"]
+        meta["trained"] = {k: trained[k] for k in ("command", "stages", "total_seconds") if k in trained}
     (args.results / f"{domain}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
     extras_doc = {"extras": extras, "meta": meta}
-    (args.results / f"{domain}_extras.json").write_text(json.dumps(extras_doc, indent=1) + "\n")
+    extras_file.write_text(json.dumps(extras_doc, indent=1) + "\n")
     (args.results / f"{domain}.md").write_text(markdown(domain, results, extras, meta))
     return meta
 

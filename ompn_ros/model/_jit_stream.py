@@ -6,7 +6,9 @@ the weights (≈ 5 MB for Craft, n = 2, m = 128, at ≈ 50 GB/s).  Here the whol
 call: same weights (prepared by :class:`~ompn_ros.model._fast_stream.NumpyStepper`, stacked per cell
 kind), same arithmetic (paper §3.1 and appendix A: bottom-up ComCells, stick-breaking π, top-down
 DecomCells, the memory update of Eq. (2) or the authors' code), the matrix-vector products through
-BLAS (``np.dot``), the rest as plain loops.
+BLAS (``np.dot``) or compiled loops (the cells and the score, whose matrices are read as float16
+when the checkpoint's weights are float16 values, halving the memory traffic), the rest as plain
+loops.
 
 Compilation happens once per machine (``cache=True`` keeps the machine code next to this file, or in
 numba's user cache when that is read-only) and is triggered by :meth:`JitStepper.warm_up`, so a node
@@ -18,11 +20,38 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from ompn_ros.model._fast_stream import SPARSE_FRACTION, NumpyStepper
 from ompn_ros.model.cells import LN_EPS
 from ompn_ros.model.policy import OMPNPolicy
+
+
+@intrinsic
+def _as_f32(typingctx, value):  # type: ignore[no-untyped-def]
+    """A weight as float32: float32 as is; uint16 read as IEEE half and widened (exact, F16C on x86)."""
+    if isinstance(value, types.Float) and value.bitwidth == 32:
+        return types.float32(value), lambda context, builder, sig, args: args[0]
+    if isinstance(value, types.Integer) and value.bitwidth == 16:
+
+        def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+            return builder.fpext(builder.bitcast(args[0], ir.HalfType()), ir.FloatType())
+
+        return types.float32(value), codegen
+    return None
+
+
+@njit(cache=True, fastmath=True)
+def _matvec(w: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
+    """``out = W v`` for row-major ``w`` of float32 or float16 bits (uint16); the compiler vectorises
+    the widening, so half weights cost half the memory traffic and no extra time."""
+    for j in range(w.shape[0]):
+        acc = np.float32(0.0)
+        for k in range(w.shape[1]):
+            acc += _as_f32(w[j, k]) * v[k]  # type: ignore[call-arg]  # numba intrinsic
+        out[j] = acc
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -67,8 +96,8 @@ def _gated_norm(
 
 @njit(cache=True, inline="always")
 def _relu_matvec(w_t: np.ndarray, hidden: np.ndarray, bias: np.ndarray, out: np.ndarray) -> None:
-    """``out = W hidden + bias`` for a ReLU output ``hidden``, with ``w_t = W^T``: only the rows of
-    the active (non-zero) units are read, about half of the cells' second-layer weights."""
+    """``out = W hidden + bias`` for a ReLU output ``hidden``, with ``w_t = W^T`` (float32 or float16
+    bits): only the rows of the active (non-zero) units are read, about half of the weights."""
     for j in range(out.shape[0]):
         out[j] = bias[j]
     for k in range(hidden.shape[0]):
@@ -76,7 +105,7 @@ def _relu_matvec(w_t: np.ndarray, hidden: np.ndarray, bias: np.ndarray, out: np.
         if hk != 0.0:
             row = w_t[k]
             for j in range(out.shape[0]):
-                out[j] += hk * row[j]
+                out[j] += hk * _as_f32(row[j])  # type: ignore[call-arg]
 
 
 @njit(cache=True)
@@ -138,7 +167,7 @@ def _step(
                     com_buf[j] = cand[i - 1, j]
             for j in range(h):
                 com_buf[h + j] = memory[i, j]
-            hidden[:] = np.dot(com_w1[i], com_buf[: 2 * h])
+            _matvec(com_w1[i], com_buf[: 2 * h], hidden)
             for j in range(4 * h):
                 v = hidden[j] + proj[4 * h * i + j]
                 hidden[j] = v if v > 0.0 else 0.0
@@ -157,10 +186,11 @@ def _step(
             for j in range(h):
                 score_in[i, j] = memory[i, j]
                 score_in[i, h + j] = cand[i, j]
-            hid = np.dot(score_mc_t, score_in[i])
+            score_hid = hidden[:h]  # free between the bottom-up and the top-down pass
+            _matvec(score_mc_t, score_in[i], score_hid)
             logit = score_b2
             for j in range(h):
-                v = hid[j] + proj[off + j]
+                v = score_hid[j] + proj[off + j]
                 if v < 0.0:
                     v *= 0.01
                 logit += v * score_w2[j]
@@ -193,7 +223,7 @@ def _step(
                     p += rr * m_hat[i, j]
                 dec_buf[j] = p
             k = i - 1
-            hidden[:] = np.dot(dec_w1[k], dec_buf[:h])
+            _matvec(dec_w1[k], dec_buf[:h], hidden)
             for j in range(4 * h):
                 v = hidden[j] + proj[4 * h * (n + k) + j]
                 hidden[j] = v if v > 0.0 else 0.0
@@ -222,6 +252,21 @@ def _stack(arrays: list[np.ndarray], shape: tuple[int, ...]) -> np.ndarray:
     if not arrays:
         return np.zeros((0, *shape), np.float32)
     return np.ascontiguousarray(np.stack(arrays), dtype=np.float32)
+
+
+def half_bits_if_exact(weights: list[np.ndarray]) -> list[np.ndarray] | None:
+    """The float16 bit patterns (uint16) of ``weights`` when every value is a float16 exactly, else None.
+
+    Checkpoints saved with ``weights_dtype='float16'`` (the shipped ones) satisfy this: the kernel
+    then reads half the bytes for identical arithmetic, since widening float16 to float32 is exact.
+    """
+    halves = []
+    for w in weights:
+        half = w.astype(np.float16)
+        if not np.array_equal(half.astype(np.float32), w):
+            return None
+        halves.append(half.view(np.uint16))
+    return halves
 
 
 class JitStepper(NumpyStepper):
@@ -253,6 +298,14 @@ class JitStepper(NumpyStepper):
             self._sparse_proj_t = np.ascontiguousarray(composed.T, np.float32)
             self._sparse_bias = (x_proj64 @ self.enc_b.astype(np.float64)).astype(np.float32)
         self._score_mc_t = np.ascontiguousarray(self.score_mc.T)  # [H, 2H]: one gemv per slot
+        # The cells' and the score's matrices (> 90 % of the bytes a step reads) in float16 when exact
+        big = [self._com[0], self._com[1], self._dec[0], self._dec[1], self._score_mc_t]
+        halves = half_bits_if_exact(big)
+        self.weights_dtype = "float16" if halves is not None else "float32"
+        if halves is not None:
+            com_w1, com_w2_t, dec_w1, dec_w2_t, self._score_mc_t = halves
+            self._com = (com_w1, com_w2_t, *self._com[2:])
+            self._dec = (dec_w1, dec_w2_t, *self._dec[2:])
         self._com_buf = np.zeros(6 * h, np.float32)
         self._dec_buf = np.zeros(4 * h, np.float32)
         self._probs = np.zeros(2 * n + 1, np.float64)
@@ -292,8 +345,14 @@ def main() -> None:
         OMPNConfig(obs_dim=40, action_type="discrete", action_dim=5, n_slots=2, slot_size=16),
         OMPNConfig(obs_dim=8, action_type="continuous", action_dim=3, n_slots=2, slot_size=16),
     ):
-        torch.manual_seed(0)
-        JitStepper(OMPNPolicy(cfg)).warm_up()
+        for half in (False, True):  # float32 and float16-exact weights compile separately
+            torch.manual_seed(0)
+            policy = OMPNPolicy(cfg)
+            if half:
+                with torch.no_grad():
+                    for p in policy.parameters():
+                        p.copy_(p.half().float())
+            JitStepper(policy).warm_up()
     print(f"ompn_ros: streaming kernel compiled in {time.perf_counter() - start:.1f} s")
 
 

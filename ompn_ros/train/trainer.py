@@ -102,6 +102,8 @@ class TrainConfig:
         progress: show a tqdm progress bar.
         bf16: run the training forward's matmuls in bfloat16 autocast (``forward_sequence(bf16=True)``,
             ~1.4x faster on AVX512-BF16 CPUs; evaluation and inference stay float32).
+        weight_decay: decoupled weight decay (AdamW) per unit learning rate; 0 = plain Adam, as the
+            authors trained.
     """
 
     lr: float = 1e-3
@@ -123,6 +125,7 @@ class TrainConfig:
     eval_batch_size: int = 64
     progress: bool = True
     bf16: bool = False
+    weight_decay: float = 0.0
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -150,6 +153,13 @@ class TrainConfig:
             "must be in [0, 1)",
         )
         self.val_ratio = float(self.val_ratio)
+        need(
+            isinstance(self.weight_decay, int | float) and not isinstance(self.weight_decay, bool)
+            and self.weight_decay >= 0,
+            "weight_decay",
+            "must be a number >= 0",
+        )
+        self.weight_decay = float(self.weight_decay)
         for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16"):
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
@@ -195,6 +205,22 @@ def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, flo
 
 
 # --- training ------------------------------------------------------------------------------------
+
+
+def train_val_episodes(
+    episodes: Sequence[Episode], cfg: TrainConfig
+) -> tuple[list[Episode], list[Episode], int]:
+    """``(train, validation, n_val)`` as :func:`train` splits ``episodes`` (``val_ratio``, ``seed``).
+
+    The validation list is capped at ``eval_episodes``; with ``val_ratio = 0`` it is the training
+    split itself and ``n_val`` is 0.
+    """
+    train_idx, val_idx = split_train_val(len(episodes), cfg.val_ratio, cfg.seed)
+    train_eps = [episodes[i] for i in train_idx]
+    val_eps = [episodes[i] for i in val_idx] if len(val_idx) else list(train_eps)
+    if cfg.eval_episodes:
+        val_eps = val_eps[: cfg.eval_episodes]
+    return train_eps, val_eps, len(val_idx)
 
 
 def _check_episodes(episodes: Sequence[Episode], model_config: OMPNConfig) -> None:
@@ -267,20 +293,20 @@ def train(
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
 
-    train_idx, val_idx = split_train_val(len(episodes), cfg.val_ratio, cfg.seed)
-    train_eps = [episodes[i] for i in train_idx]
-    val_eps = [episodes[i] for i in val_idx] if len(val_idx) else list(train_eps)
-    if not len(val_idx):
+    train_eps, val_eps, n_val = train_val_episodes(episodes, cfg)
+    if not n_val:
         LOG.warning("val_ratio=0: validation metrics are computed on the training split")
-    if cfg.eval_episodes:
-        val_eps = val_eps[: cfg.eval_episodes]
     norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)  # type: ignore[arg-type]
 
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
     policy.set_obs_normalization(norm.mean, norm.scale)
     broadcast_module(policy, ctx)
     policy.train()
-    optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
+    optimizer: torch.optim.Optimizer = (
+        torch.optim.AdamW(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        if cfg.weight_decay
+        else torch.optim.Adam(policy.parameters(), lr=cfg.lr)
+    )
 
     out_dir = Path(cfg.out_dir) if cfg.out_dir is not None else None
     state_root = out_dir / "train_state" if out_dir is not None else None
@@ -288,7 +314,7 @@ def train(
         "train_config": cfg.to_dict(),
         "obs_norm": cfg.obs_norm,
         "n_train": len(train_eps),
-        "n_val": len(val_idx),
+        "n_val": n_val,
     }
 
     start_iteration, frames = 0, 0
