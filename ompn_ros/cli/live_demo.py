@@ -75,6 +75,11 @@ class Streams:
             obs0, sub0 = obs0 + steps + 1, sub0 + steps
             for keys, received in groups[i] if i < len(groups) else []:
                 step, seen_at = int(keys["step"]), int(keys.get("detected_at", keys["step"]))
+                # A boundary on the final (done) observation closes the last subtask, whose last real
+                # step is T - 1: the same rule as the offline replay (segmenter.replay_episode).
+                step = min(step, max(steps - 1, 0))
+                if step in ep.boundaries:
+                    continue
                 ep.boundaries.append(step)
                 ep.detected_at.append(seen_at)
                 if keys.get("final") != "true" and 0 <= seen_at < len(ep.obs_times):

@@ -1,0 +1,35 @@
+"""The live demo's monitor cuts its streams into episodes by the same rules as the offline replay."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ompn_ros import layout
+from ompn_ros.cli.live_demo import Streams, _summarise
+
+
+def _streams(boundary_steps: list[tuple[int, int]], steps: int = 6) -> Streams:
+    streams = Streams()
+    streams.ends.append({layout.KEY_STEPS: str(steps), layout.KEY_EPISODE: "0"})
+    streams.obs_times = [1_000_000 * t for t in range(steps + 1)]
+    streams.subtask = [0, 0, 0, 1, 1, 1][:steps]
+    streams.pi_rows = [[0.5, 0.5, 1.5, 0.0]] * (steps + 1)
+    for ordinal, (step, detected_at) in enumerate(boundary_steps):
+        keys = {"step": str(step), "detected_at": str(detected_at), "subtask": str(ordinal)}
+        streams.boundaries.append((keys, 1_000_000 * detected_at + 500_000))
+    return streams
+
+
+def test_boundary_on_the_done_observation_closes_the_last_real_step(tmp_path) -> None:
+    # T = 6 real steps (0..5) and the done observation 6: a detection there is the final boundary 5
+    episode = _streams([(2, 3), (6, 6)]).episodes()[0]
+    assert episode.boundaries == [2, 5]
+    assert episode.latencies_ms == [0.5, 0.5]
+    summary = _summarise([episode], tmp_path)
+    assert summary["f1_tol0"] == 1.0 and summary["align_acc"] == 1.0
+
+
+def test_done_step_boundary_and_final_boundary_are_not_counted_twice(tmp_path) -> None:
+    episode = _streams([(2, 3), (5, 6), (6, 6)]).episodes()[0]
+    assert episode.boundaries == [2, 5]
+    assert np.isfinite(_summarise([episode], tmp_path)["latency_ms_p50"])
