@@ -262,7 +262,8 @@ def half_bits_if_exact(weights: list[np.ndarray]) -> list[np.ndarray] | None:
     """
     halves = []
     for w in weights:
-        half = w.astype(np.float16)
+        with np.errstate(over="ignore"):  # out of float16 range -> inf -> not exact
+            half = w.astype(np.float16)
         if not np.array_equal(half.astype(np.float32), w):
             return None
         halves.append(half.view(np.uint16))
