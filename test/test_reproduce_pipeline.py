@@ -104,3 +104,22 @@ def test_lstm_baseline_config_trains_and_evaluates(tmp_path: Path):
     assert _tiny_craft(tmp_path, "--config", str(config)) == 0
     row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
     assert 0.0 <= row["online_f1_tol1"]["mean"] <= 1.0
+
+
+def test_skip_trained_evaluates_finished_runs_and_trains_the_rest(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    assert _tiny_craft(tmp_path) == 0
+    weights = tmp_path / "work" / "runs" / "full_nosketch_seed0" / "best" / "model.safetensors"
+    before = weights.read_bytes()
+    capsys.readouterr()
+    assert _tiny_craft(tmp_path, "--skip-trained") == 0
+    assert "trained to iteration 2 already" in capsys.readouterr().out
+    assert weights.read_bytes() == before
+    # a longer schedule than the finished run is trained again
+    code = reproduce.main([
+        "craft", "--settings", "full_nosketch", "--seeds", "1", "--episodes", "8", "--iterations", "3",
+        "--extras", "none", "--threads", "1", "--work", str(tmp_path / "work"),
+        "--results", str(tmp_path / "results"), "--skip-trained",
+    ])
+    assert code == 0 and "already" not in capsys.readouterr().out

@@ -232,7 +232,7 @@ METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", 
 def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episode], test: list[Episode],
                 base: dict[str, dict[str, Any]], iterations: int | None, work: Path,
                 overrides: dict[str, Any] | None = None, tag: str = "",
-                reuse: bool = False) -> dict[str, Any]:
+                reuse: bool = False, skip_trained: bool = False) -> dict[str, Any]:
     """Train one (setting, seed), or with ``reuse`` load its existing ``best/`` checkpoint, and
     evaluate it on the held-out test episodes (the detector is tuned on the run's validation split)."""
     from ompn_ros.cli.segment import write_node_config
@@ -243,6 +243,10 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
     model_cfg, train_cfg = build_configs(domain, base, setting, seed, iterations, run_dir, overrides)
     best_dir = run_dir / "best"
     info: dict[str, float] = {}
+    if skip_trained and _trained_to_the_end(run_dir, train_cfg.iterations):
+        print(f"   {run_dir.name}: trained to iteration {train_cfg.iterations} already, evaluating it")
+        reuse = True
+        info = {"train_seconds": float("nan"), "frames_per_second": float("nan")}
     if reuse:
         try:
             policy, extra = load_checkpoint(best_dir)
@@ -265,6 +269,17 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
                           tuning["measured_on_val"],
                           f"the {tuning['n_val']} validation episodes of this run, checkpoint {best_dir}")
     return run
+
+
+def _trained_to_the_end(run_dir: Path, iterations: int) -> bool:
+    """True when ``run_dir`` holds a ``best/`` checkpoint and a ``last/`` one at ``iterations``."""
+    meta = run_dir / "last" / "meta.json"
+    if not (run_dir / "best").is_dir() or not meta.is_file():
+        return False
+    try:
+        return int(json.loads(meta.read_text()).get("extra", {}).get("iteration", -1)) == iterations
+    except (OSError, ValueError):
+        return False
 
 
 def _stored_train_config(extra: dict[str, Any], fallback: Any) -> Any:
@@ -452,6 +467,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip training: re-evaluate the existing best/ checkpoints of every setting, "
                         "seed and ablation in --work (e.g. after a change to the evaluation); "
                         "training figures are kept from the previous results")
+    p.add_argument("--skip-trained", action="store_true",
+                   help="do not retrain a run whose last/ checkpoint reached train.iterations (continue an "
+                        "interrupted reproduction, or add extras to a finished one); it is evaluated as is")
     p.add_argument("--merge", action="store_true",
                    help="keep the other settings already in results/<domain>.json (runs split over calls)")
     p.add_argument("--ablations", default=",".join(ABLATIONS),
@@ -531,7 +549,8 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         rows = []
         for seed in range(args.seeds):
             run = timer.run(f"{stage} {name} seed {seed}", run_setting, domain, setting, seed, pool, test,
-                            base, args.iterations, work, reuse=args.reevaluate)
+                            base, args.iterations, work, reuse=args.reevaluate,
+                            skip_trained=args.skip_trained)
             print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
             rows.append(run["row"])
             if seed == 0:
@@ -556,7 +575,8 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
             overrides = ABLATIONS[ab_name]
             run = timer.run(f"{'re-evaluate ' if args.reevaluate else ''}ablation {ab_name}", run_setting,
                             domain, SETTINGS[domain][primary], 0, pool, test, base, args.iterations, work,
-                            overrides, f"_{ab_name}", reuse=args.reevaluate)
+                            overrides, f"_{ab_name}", reuse=args.reevaluate,
+                            skip_trained=args.skip_trained)
             table[ab_name] = {k: run["row"][k] for k in ("align_acc", "f1_tol1", "online_f1_tol1")}
         extras[f"Ablations ({primary}, seed 0)"] = table
 
