@@ -158,7 +158,6 @@ class _Client:
         self.executor = make_executor(executor, context=ctx)
         self.executor.add_node(self.node)
         self.pub = self.node.create_publisher(Float32MultiArray, "observation", reliable)
-        self.msg_type = Float32MultiArray
         self.pi_times: list[int] = []
         self.boundaries: list[tuple[int, int]] = []  # (detected_at, arrival ns)
         self.diag: dict[str, str] = {}

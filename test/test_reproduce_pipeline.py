@@ -123,3 +123,14 @@ def test_skip_trained_evaluates_finished_runs_and_trains_the_rest(
         "--results", str(tmp_path / "results"), "--skip-trained",
     ])
     assert code == 0 and "already" not in capsys.readouterr().out
+
+
+def test_without_a_validation_split_the_detector_is_not_tuned_on_training_episodes(tmp_path: Path):
+    config = tmp_path / "no_val.yaml"
+    base = Path(reproduce.config_file("train_craft.yaml")).read_text()
+    config.write_text(base.replace("val_ratio: 0.2", "val_ratio: 0.0", 1))
+    assert "val_ratio: 0.0" in config.read_text()
+    assert _tiny_craft(tmp_path, "--config", str(config)) == 0
+    row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    assert row["online_f1_tol1"] == row["online_shipped_f1_tol1"]  # the shipped detector, not a tuned one
+    assert not (tmp_path / "work" / "runs" / "full_nosketch_seed0" / "ompn_node_craft.yaml").exists()

@@ -251,7 +251,9 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
         try:
             policy, extra = load_checkpoint(best_dir)
         except (CheckpointError, OSError) as exc:
-            raise ReproduceError(f"--reevaluate: no usable checkpoint for {run_dir.name}: {exc}") from exc
+            raise ReproduceError(
+                f"cannot reuse a trained run: no usable checkpoint for {run_dir.name}: {exc}"
+            ) from exc
         train_cfg = _stored_train_config(extra, train_cfg)
         info["best_iteration"] = float(extra.get("iteration", float("nan")))
     else:
@@ -259,8 +261,9 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
         policy = load_checkpoint(best_dir)[0] if best_dir.is_dir() else result.policy
         info = {"train_seconds": result.train_seconds, "best_iteration": result.best_iteration,
                 "frames_per_second": result.frames / max(result.train_seconds, 1e-9)}
-    _, val, _ = train_val_episodes(train_pool, train_cfg)
-    run = evaluate_policy(domain, policy, test, val)
+    _, val, n_val = train_val_episodes(train_pool, train_cfg)
+    # without a validation split the trainer validates on training episodes: never tune on those
+    run = evaluate_policy(domain, policy, test, val if n_val else ())
     run["row"].update(info)
     run["checkpoint"] = best_dir
     if run["tuning"] is not None:
