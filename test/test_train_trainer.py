@@ -14,12 +14,15 @@ from ompn_ros.detect.offline import top_k_boundaries
 from ompn_ros.metrics import mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.averaging import WeightAverage
+from ompn_ros.train.state import TrainStateError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
     TrainConfig,
     TrainConfigError,
     TrainDataError,
     evaluate,
+    learning_rate,
     selection_key,
     train,
 )
@@ -134,10 +137,14 @@ class _Kill(Exception):
     pass
 
 
-def test_resume_after_kill_matches_uninterrupted_run(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("ema_decay", "lr_schedule"), [(0.0, "constant"), (0.9, "cosine")])
+def test_resume_after_kill_matches_uninterrupted_run(
+    tmp_path: Path, ema_decay: float, lr_schedule: str
+) -> None:
     episodes = make_dataset("discrete", 24, seed=7)
     config = _model_config()
-    common = {"iterations": 7, "eval_every": 2, "batch_size": 8}
+    common = {"iterations": 7, "eval_every": 2, "batch_size": 8, "ema_decay": ema_decay,
+              "lr_schedule": lr_schedule}
     straight = train(episodes, config, _train_config(out_dir=str(tmp_path / "a"), **common))
 
     def kill_at_5(iteration: int, stats: dict) -> None:
@@ -187,6 +194,53 @@ def test_train_config_validation() -> None:
         TrainConfig(weight_decay=-0.1)
     with pytest.raises(TrainConfigError, match="weight_decay"):
         TrainConfig(weight_decay=True)  # type: ignore[arg-type]
+    for bad in (1.0, -0.5, "0.9"):
+        with pytest.raises(TrainConfigError, match="ema_decay"):
+            TrainConfig(ema_decay=bad)  # type: ignore[arg-type]
+
+
+def test_cosine_schedule_decays_from_lr_towards_zero() -> None:
+    cfg = TrainConfig(lr=0.01, iterations=100, lr_schedule="cosine")
+    assert learning_rate(cfg, 1) == pytest.approx(0.01)
+    assert learning_rate(cfg, 51) == pytest.approx(0.005)
+    assert 0 < learning_rate(cfg, 100) < 1e-5
+    assert learning_rate(TrainConfig(lr=0.01), 100) == 0.01
+    with pytest.raises(TrainConfigError, match="lr_schedule"):
+        TrainConfig(lr_schedule="step")
+
+
+def test_weight_average_follows_the_warm_up_schedule() -> None:
+    module = torch.nn.Linear(3, 2)
+    average = WeightAverage(module, 0.9)
+    start = module.weight.detach().clone()
+    with torch.no_grad():
+        module.weight.add_(1.0)
+    average.update(module, 1)  # d = min(0.9, 2/11)
+    d1 = 2 / 11
+    assert torch.allclose(average.module.weight, d1 * start + (1 - d1) * module.weight)
+    assert average.decay_at(1000) == 0.9
+    assert not any(p.requires_grad for p in average.module.parameters())
+    with pytest.raises(ValueError, match="decay"):
+        WeightAverage(module, 1.0)
+
+
+def test_ema_checkpoints_hold_the_average_and_resume_needs_it(tmp_path: Path) -> None:
+    episodes = make_dataset("discrete", 24, seed=7)
+    config = _model_config()
+    common = {"iterations": 4, "eval_every": 2, "batch_size": 8}
+    result = train(episodes, config, _train_config(out_dir=str(tmp_path / "a"), ema_decay=0.9, **common))
+    state_dir = tmp_path / "a" / "train_state" / "it00000004"
+    raw = load_checkpoint(state_dir / "model")[0].state_dict()
+    ema = load_checkpoint(state_dir / "ema")[0].state_dict()
+    last = load_checkpoint(tmp_path / "a" / "last")[0].state_dict()
+    for key, value in result.policy.state_dict().items():
+        assert torch.equal(value, ema[key]) and torch.equal(value, last[key]), key
+    assert any(not torch.equal(raw[k], ema[k]) for k in raw if raw[k].dtype.is_floating_point)
+    # a state saved without averaging cannot continue an averaged run
+    train(episodes, config, _train_config(out_dir=str(tmp_path / "b"), **common))
+    with pytest.raises(TrainStateError, match="ema_decay"):
+        train(episodes, config, _train_config(out_dir=str(tmp_path / "b"), resume=True, ema_decay=0.9,
+                                              **{**common, "iterations": 6}))
 
 
 def test_weight_decay_shrinks_the_weights_against_plain_adam() -> None:

@@ -41,6 +41,7 @@ from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.factory import PolicyModule, build_policy
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
+from ompn_ros.train.averaging import WeightAverage
 from ompn_ros.train.batching import (
     Batch,
     ObsNormalization,
@@ -67,6 +68,7 @@ from ompn_ros.train.state import (
 LOG = logging.getLogger("ompn_ros.train")
 
 SELECTIONS = ("align", "f1_tol1", "val_loss")
+LR_SCHEDULES = ("constant", "cosine")
 
 
 class TrainConfigError(ValueError):
@@ -104,6 +106,13 @@ class TrainConfig:
             ~1.4x faster on AVX512-BF16 CPUs; evaluation and inference stay float32).
         weight_decay: decoupled weight decay (AdamW) per unit learning rate; 0 = plain Adam, as the
             authors trained.
+        ema_decay: Polyak averaging of the weights (0 = off).  After every update the averaged copy
+            moves by ``1 − d`` towards the trained weights, with ``d = min(ema_decay, (1+i)/(10+i))`` at
+            iteration ``i`` so that early averages are not dominated by the initial weights.  When on,
+            evaluation, selection and the ``best/`` and ``last/`` checkpoints use the averaged weights;
+            the resumable state keeps both.
+        lr_schedule: ``'constant'`` (the authors) or ``'cosine'``: the learning rate of update ``i``
+            is ``lr · (1 + cos(π (i − 1) / iterations)) / 2``, a function of ``i`` alone (resume-exact).
     """
 
     lr: float = 1e-3
@@ -126,6 +135,8 @@ class TrainConfig:
     progress: bool = True
     bf16: bool = False
     weight_decay: float = 0.0
+    ema_decay: float = 0.0
+    lr_schedule: str = "constant"
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -160,8 +171,16 @@ class TrainConfig:
             "must be a number >= 0",
         )
         self.weight_decay = float(self.weight_decay)
+        need(
+            isinstance(self.ema_decay, int | float) and not isinstance(self.ema_decay, bool)
+            and 0.0 <= self.ema_decay < 1.0,
+            "ema_decay",
+            "must be a number in [0, 1)",
+        )
+        self.ema_decay = float(self.ema_decay)
         for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16"):
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
+        need(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"must be one of {LR_SCHEDULES}")
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
         need(self.obs_norm in ("none", "maxabs"), "obs_norm", "must be 'none' or 'maxabs'")
         need(
@@ -194,6 +213,13 @@ class TrainResult:
     out_dir: str | None = None
     train_seconds: float = 0.0
     frames: int = 0
+
+
+def learning_rate(cfg: TrainConfig, iteration: int) -> float:
+    """The learning rate of update number ``iteration`` (1-based) under ``cfg.lr_schedule``."""
+    if cfg.lr_schedule == "cosine":
+        return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * (iteration - 1) / cfg.iterations))
+    return cfg.lr
 
 
 def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, float]:
@@ -302,6 +328,9 @@ def train(
     policy.set_obs_normalization(norm.mean, norm.scale)
     broadcast_module(policy, ctx)
     policy.train()
+    average = WeightAverage(policy, cfg.ema_decay) if cfg.ema_decay else None
+    # the weights that are evaluated, selected and exported (the average when ema_decay is on)
+    evaluated: PolicyModule = average.module if average is not None else policy  # type: ignore[assignment]
     optimizer: torch.optim.Optimizer = (
         torch.optim.AdamW(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         if cfg.weight_decay
@@ -331,6 +360,13 @@ def train(
                     f"cannot resume from {state_dir}: its model config differs from the requested one"
                 )
             policy.load_state_dict(loaded.state_dict())
+            if average is not None:
+                if not (state_dir / "ema").is_dir():
+                    raise TrainStateError(
+                        f"cannot resume from {state_dir} with ema_decay={cfg.ema_decay}: the state has no "
+                        "averaged weights (it was saved with ema_decay=0)"
+                    )
+                average.module.load_state_dict(load_checkpoint(state_dir / "ema")[0].state_dict())
             optimizer_from_files(optimizer, opt_tensors, doc["param_groups"])
             start_iteration = int(doc["iteration"])
             frames = int(doc.get("frames", 0))
@@ -359,8 +395,8 @@ def train(
             return
         extra = {**extra_base, "iteration": iteration, "metrics": metrics}
         if is_best:
-            save_checkpoint(out_dir / "best", policy, extra=extra)
-        save_checkpoint(out_dir / "last", policy, extra=extra)
+            save_checkpoint(out_dir / "best", evaluated, extra=extra)
+        save_checkpoint(out_dir / "last", evaluated, extra=extra)
         assert state_root is not None
         payload = {
             "frames": frames,
@@ -369,9 +405,13 @@ def train(
             "last_metrics": metrics,
             "history": history,
         }
-        save_state(
-            state_root, iteration, lambda d: save_checkpoint(d, policy, extra=extra), optimizer, payload
-        )
+
+        def save_models(model_dir: Path) -> None:
+            save_checkpoint(model_dir, policy, extra=extra)
+            if average is not None:
+                save_checkpoint(model_dir.parent / "ema", evaluated, extra=extra)
+
+        save_state(state_root, iteration, save_models, optimizer, payload)
 
     started = time.perf_counter()
     iteration = start_iteration
@@ -381,8 +421,12 @@ def train(
             epoch, index = divmod(iteration - 1, per_epoch)
             global_idx = epoch_batches(n_train, cfg.batch_size, cfg.seed, epoch)[index]
             shard = global_idx[ctx.rank :: ctx.world_size]
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate(cfg, iteration)
             stats = train_step(policy, optimizer, [train_eps[i] for i in shard], model_config, cfg, ctx)
             frames += int(stats["global_valid"])
+            if average is not None:
+                average.update(policy, iteration)
             if progress is not None:
                 progress.update(1)
                 progress.set_postfix(loss=f"{stats['loss']:.3f}")
@@ -392,7 +436,7 @@ def train(
                 if ctx.is_main:
                     metrics = _scalars(
                         evaluate(
-                            cast(OMPNPolicy, policy),  # evaluate() only uses forward_sequence and config
+                            cast(OMPNPolicy, evaluated),  # evaluate() only uses forward_sequence and config
                             val_eps,
                             bptt=cfg.bptt,
                             batch_size=cfg.eval_batch_size,
@@ -425,7 +469,7 @@ def train(
         if sinks is not None:
             sinks.close()
     return TrainResult(
-        policy=policy,
+        policy=evaluated,
         iterations=iteration,
         best_iteration=best_iteration,
         best_metrics=best_metrics,
