@@ -88,6 +88,16 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     assert "--reevaluate" in meta["command"] and "--reevaluate" not in meta["trained"]["command"]
     assert any(stage.startswith("train+eval") for stage in meta["trained"]["stages"])
     assert "Re-evaluated without training" in (tmp_path / "results" / "craft.md").read_text()
+    # runs added to the work directory later (e.g. more seeds) keep their command through re-evaluation
+    extras_file = tmp_path / "results" / "craft_extras.json"
+    doc = json.loads(extras_file.read_text())
+    doc["meta"]["trained"]["later_commands"] = [["ompn_reproduce", "craft", "--seeds", "5", "--skip-trained"]]
+    extras_file.write_text(json.dumps(doc))
+    assert _tiny_craft(tmp_path, "--reevaluate") == 0
+    meta = json.loads(extras_file.read_text())["meta"]
+    assert meta["trained"]["later_commands"] == [["ompn_reproduce", "craft", "--seeds", "5", "--skip-trained"]]
+    assert "added later in the same work directory by: `ompn_reproduce craft --seeds 5 --skip-trained`" in (
+        tmp_path / "results" / "craft.md").read_text()
 
 
 def test_reevaluate_without_checkpoints_names_the_missing_run(

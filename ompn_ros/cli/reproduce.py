@@ -410,6 +410,10 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
         lines.append(f"- total: {trained.get('total_seconds', float('nan')):.1f}")
         trained_by = [trained.get("command", []), *trained.get("parallel_commands", [])]
         lines += ["", "Trained by: " + "; ".join(f"`{' '.join(c)}`" for c in trained_by if c)]
+        later = trained.get("later_commands", [])
+        if later:
+            lines += ["", "Runs added later in the same work directory by: "
+                      + "; ".join(f"`{' '.join(c)}`" for c in later)]
         lines += ["", f"Re-evaluated without training (`{' '.join(meta['command'])}`):", ""]
     lines += [f"- {k}: {v:.1f}" for k, v in meta["stages"].items()]
     lines.append(f"- total: {meta['total_seconds']:.1f}")
@@ -609,8 +613,8 @@ def _write(args, domain, results, extras, timer, start, figures, data) -> dict[s
         trained = json.loads(extras_file.read_text()).get("meta", {})
         if "trained" in trained:
             trained = trained["trained"]
-        meta["trained"] = {k: trained[k] for k in ("command", "parallel_commands", "stages", "total_seconds")
-                           if k in trained}
+        keep = ("command", "parallel_commands", "later_commands", "stages", "total_seconds")
+        meta["trained"] = {k: trained[k] for k in keep if k in trained}
     (args.results / f"{domain}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
     extras_doc = {"extras": extras, "meta": meta}
     extras_file.write_text(json.dumps(extras_doc, indent=1) + "\n")
