@@ -1,0 +1,41 @@
+"""The committed reproduction results: the issue's JSON shape, and the README quotes them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SETTINGS = {
+    "craft": {"full_nosketch": "Craft full, no sketch", "partial_nosketch": "Craft partial, no sketch",
+              "full_sketch": "Craft full, sketch", "partial_sketch": "Craft partial, sketch"},
+    "dial": {"nosketch": "Dial, no sketch (auto threshold)", "sketch": "Dial, sketch (auto threshold)"},
+}
+
+
+@pytest.mark.parametrize("domain", sorted(SETTINGS))
+def test_results_json_has_the_documented_shape(domain: str) -> None:
+    results = json.loads((ROOT / "results" / f"{domain}.json").read_text())
+    meta = json.loads((ROOT / "results" / f"{domain}_extras.json").read_text())["meta"]
+    assert set(results) == set(SETTINGS[domain])
+    for setting, row in results.items():
+        for metric in ("align_acc", "f1_tol1", "f1_tol0", "online_f1_tol1"):
+            cell = row[metric]
+            assert set(cell) == {"mean", "std", "n"}, (setting, metric)
+            assert 0.0 <= cell["mean"] <= 1.0 and cell["std"] >= 0.0, (setting, metric)
+            assert cell["n"] == meta["seeds"], (setting, metric)
+
+
+@pytest.mark.parametrize("domain", sorted(SETTINGS))
+def test_readme_table_quotes_the_committed_results(domain: str) -> None:
+    results = json.loads((ROOT / "results" / f"{domain}.json").read_text())
+    readme = (ROOT / "README.md").read_text()
+    for setting, label in SETTINGS[domain].items():
+        row = next((line for line in readme.splitlines() if line.startswith(f"| {label} |")), None)
+        assert row is not None, f"README has no results row for {label}"
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        for column, metric in ((1, "align_acc"), (2, "f1_tol1")):
+            cell = results[setting][metric]
+            assert cells[column] == f"{100 * cell['mean']:.1f} ± {100 * cell['std']:.1f}", (label, metric)
