@@ -91,11 +91,12 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     # runs added to the work directory later (e.g. more seeds) keep their command through re-evaluation
     extras_file = tmp_path / "results" / "craft_extras.json"
     doc = json.loads(extras_file.read_text())
-    doc["meta"]["trained"]["later_commands"] = [["ompn_reproduce", "craft", "--seeds", "5", "--skip-trained"]]
+    later = [["ompn_reproduce", "craft", "--seeds", "5", "--skip-trained"]]
+    doc["meta"]["trained"]["later_commands"] = later
     extras_file.write_text(json.dumps(doc))
     assert _tiny_craft(tmp_path, "--reevaluate") == 0
     meta = json.loads(extras_file.read_text())["meta"]
-    assert meta["trained"]["later_commands"] == [["ompn_reproduce", "craft", "--seeds", "5", "--skip-trained"]]
+    assert meta["trained"]["later_commands"] == later
     assert "added later in the same work directory by: `ompn_reproduce craft --seeds 5 --skip-trained`" in (
         tmp_path / "results" / "craft.md").read_text()
 

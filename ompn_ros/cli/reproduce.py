@@ -458,7 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="ompn_reproduce", description=__doc__.splitlines()[0])
     p.add_argument("domain", choices=sorted(SETTINGS))
     p.add_argument("--settings", default="", help="comma-separated subset (default: all of the domain)")
-    p.add_argument("--seeds", type=int, default=5, help="training seeds per setting (default 5, as the paper)")
+    p.add_argument("--seeds", type=int, default=5,
+                   help="training seeds per setting (default 5, as the paper)")
     p.add_argument("--episodes", type=int, default=None,
                    help="demonstrations (Craft: per task, default 500; Dial: total, default 1400)")
     p.add_argument("--data-seed", type=int, default=0, help="seed of the demonstration collection")
