@@ -134,6 +134,21 @@ def test_skip_trained_evaluates_finished_runs_and_trains_the_rest(
         "--results", str(tmp_path / "results"), "--skip-trained",
     ])
     assert code == 0 and "already" not in capsys.readouterr().out
+    # a finished run trained with another configuration is not taken for this one
+    config = tmp_path / "other.yaml"
+    base = Path(reproduce.config_file("train_craft.yaml")).read_text()
+    config.write_text(base.replace("weight_decay: 1.0", "weight_decay: 0.5", 1))
+    assert "weight_decay: 0.5" in config.read_text()
+    trained = weights.read_bytes()
+    code = reproduce.main([
+        "craft", "--settings", "full_nosketch", "--seeds", "1", "--episodes", "8", "--iterations", "3",
+        "--extras", "none", "--threads", "1", "--work", str(tmp_path / "work"),
+        "--results", str(tmp_path / "results"), "--skip-trained", "--config", str(config),
+    ])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "finished with another configuration (train.weight_decay), training again" in out
+    assert "already" not in out and weights.read_bytes() != trained
 
 
 def test_without_a_validation_split_the_detector_is_not_tuned_on_training_episodes(tmp_path: Path):

@@ -243,7 +243,7 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
     model_cfg, train_cfg = build_configs(domain, base, setting, seed, iterations, run_dir, overrides)
     best_dir = run_dir / "best"
     info: dict[str, float] = {}
-    if skip_trained and _trained_to_the_end(run_dir, train_cfg.iterations):
+    if skip_trained and _trained_to_the_end(run_dir, model_cfg, train_cfg):
         print(f"   {run_dir.name}: trained to iteration {train_cfg.iterations} already, evaluating it")
         reuse = True
         info = {"train_seconds": float("nan"), "frames_per_second": float("nan")}
@@ -274,15 +274,34 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
     return run
 
 
-def _trained_to_the_end(run_dir: Path, iterations: int) -> bool:
-    """True when ``run_dir`` holds a ``best/`` checkpoint and a ``last/`` one at ``iterations``."""
-    meta = run_dir / "last" / "meta.json"
-    if not (run_dir / "best").is_dir() or not meta.is_file():
+# TrainConfig fields that change how a run is executed, not what it learns
+_RUNTIME_FIELDS = ("out_dir", "resume", "tensorboard", "threads", "progress", "eval_batch_size")
+
+
+def _trained_to_the_end(run_dir: Path, model_cfg: Any, train_cfg: Any) -> bool:
+    """True when ``run_dir`` holds a ``best/`` checkpoint and a ``last/`` one at ``train.iterations``
+    that was trained with the requested model and training configuration (runtime fields aside).
+    A finished run with another configuration is reported and trained again."""
+    last = run_dir / "last"
+    if not (run_dir / "best").is_dir() or not (last / "meta.json").is_file():
         return False
     try:
-        return int(json.loads(meta.read_text()).get("extra", {}).get("iteration", -1)) == iterations
+        extra = json.loads((last / "meta.json").read_text()).get("extra", {})
+        stored_model = json.loads((last / "config.json").read_text())
+        stored_train = _stored_train_config(extra, None)
     except (OSError, ValueError):
         return False
+    if int(extra.get("iteration", -1)) != train_cfg.iterations:
+        return False
+    requested_train = train_cfg.to_dict()
+    differ = sorted(k for k, v in model_cfg.to_dict().items() if stored_model.get(k) != v)
+    if stored_train is not None:
+        differ += sorted(f"train.{k}" for k, v in stored_train.to_dict().items()
+                         if k not in _RUNTIME_FIELDS and requested_train.get(k) != v)
+    if differ:
+        print(f"   {run_dir.name}: finished with another configuration ({', '.join(differ)}), training again")
+        return False
+    return True
 
 
 def _stored_train_config(extra: dict[str, Any], fallback: Any) -> Any:
@@ -478,8 +497,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "seed and ablation in --work (e.g. after a change to the evaluation); "
                         "training figures are kept from the previous results")
     p.add_argument("--skip-trained", action="store_true",
-                   help="do not retrain a run whose last/ checkpoint reached train.iterations (continue an "
-                        "interrupted reproduction, or add extras to a finished one); it is evaluated as is")
+                   help="do not retrain a run whose last/ checkpoint reached train.iterations with the same "
+                        "model and training config (continue an interrupted reproduction, add seeds or "
+                        "extras to a finished one); it is evaluated as is")
     p.add_argument("--merge", action="store_true",
                    help="keep the other settings already in results/<domain>.json (runs split over calls)")
     p.add_argument("--ablations", default=",".join(ABLATIONS),
