@@ -21,6 +21,7 @@ from ompn_ros.train.trainer import (
     TrainConfig,
     TrainConfigError,
     TrainDataError,
+    dropout_inputs,
     evaluate,
     learning_rate,
     selection_key,
@@ -137,14 +138,16 @@ class _Kill(Exception):
     pass
 
 
-@pytest.mark.parametrize(("ema_decay", "lr_schedule"), [(0.0, "constant"), (0.9, "cosine")])
+@pytest.mark.parametrize(
+    ("ema_decay", "lr_schedule", "obs_dropout"), [(0.0, "constant", 0.0), (0.9, "cosine", 0.3)]
+)
 def test_resume_after_kill_matches_uninterrupted_run(
-    tmp_path: Path, ema_decay: float, lr_schedule: str
+    tmp_path: Path, ema_decay: float, lr_schedule: str, obs_dropout: float
 ) -> None:
     episodes = make_dataset("discrete", 24, seed=7)
     config = _model_config()
     common = {"iterations": 7, "eval_every": 2, "batch_size": 8, "ema_decay": ema_decay,
-              "lr_schedule": lr_schedule}
+              "lr_schedule": lr_schedule, "obs_dropout": obs_dropout}
     straight = train(episodes, config, _train_config(out_dir=str(tmp_path / "a"), **common))
 
     def kill_at_5(iteration: int, stats: dict) -> None:
@@ -197,6 +200,55 @@ def test_train_config_validation() -> None:
     for bad in (1.0, -0.5, "0.9"):
         with pytest.raises(TrainConfigError, match="ema_decay"):
             TrainConfig(ema_decay=bad)  # type: ignore[arg-type]
+        with pytest.raises(TrainConfigError, match="obs_dropout"):
+            TrainConfig(obs_dropout=bad)  # type: ignore[arg-type]
+    for span in ([3], [4, 4], [-1, 2], [0.5, 2], "0:4", 7):
+        with pytest.raises(TrainConfigError, match="obs_dropout_range"):
+            TrainConfig(obs_dropout_range=span)  # type: ignore[arg-type]
+    assert TrainConfig.from_dict(TrainConfig(obs_dropout_range=[2, 5]).to_dict()).obs_dropout_range == [2, 5]
+
+
+def test_input_dropout_is_seeded_by_key_and_keeps_the_expectation() -> None:
+    obs = torch.ones(64, 30, 50)
+    first = dropout_inputs(obs, 0.25, (0, 3, 0))
+    assert torch.equal(first, dropout_inputs(obs, 0.25, (0, 3, 0)))
+    assert not torch.equal(first, dropout_inputs(obs, 0.25, (0, 4, 0)))
+    assert not torch.equal(first, dropout_inputs(obs, 0.25, (1, 3, 0)))
+    zeroed = float((first == 0).float().mean())
+    assert abs(zeroed - 0.25) < 0.01
+    assert torch.allclose(first[first != 0], torch.tensor(1 / 0.75))
+    assert abs(float(first.mean()) - 1.0) < 0.02
+
+
+def test_input_dropout_changes_the_training_batches_within_its_range(monkeypatch: pytest.MonkeyPatch) -> None:
+    import ompn_ros.train.trainer as trainer_module
+
+    episodes = make_dataset("discrete", 16, seed=3)
+    config = _model_config()
+    common = {"iterations": 3, "eval_every": 3, "batch_size": 8}
+    clean = train(episodes, config, _train_config(**common))
+    dropped = train(episodes, config, _train_config(obs_dropout=0.5, **common))
+    assert clean.history[0]["train_loss"] != dropped.history[0]["train_loss"]
+
+    seen: list[torch.Tensor] = []
+    real_forward = trainer_module.OMPNPolicy.forward_sequence
+
+    def spy(self, obs, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if self.training:
+            seen.append(obs.clone())
+        return real_forward(self, obs, *args, **kwargs)
+
+    monkeypatch.setattr(trainer_module.OMPNPolicy, "forward_sequence", spy)
+    cfg = _train_config(obs_dropout=0.5, obs_dropout_range=[1, 3], **common)
+    train(episodes, config, cfg)
+    train_eps = trainer_module.train_val_episodes(episodes, cfg)[0]
+    first = trainer_module.epoch_batches(len(train_eps), 8, 0, 0)[0]
+    batch = trainer_module.collate([train_eps[i] for i in first], "discrete", config.action_dim)
+    assert torch.equal(seen[0][..., :1], batch.obs[..., :1])
+    assert torch.equal(seen[0][..., 3:], batch.obs[..., 3:])
+    assert not torch.equal(seen[0][..., 1:3], batch.obs[..., 1:3])
+    with pytest.raises(TrainConfigError, match="obs_dim"):
+        train(episodes, config, _train_config(obs_dropout=0.5, obs_dropout_range=[1, 999], **common))
 
 
 def test_cosine_schedule_decays_from_lr_towards_zero() -> None:

@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
@@ -113,6 +114,13 @@ class TrainConfig:
             the resumable state keeps both.
         lr_schedule: ``'constant'`` (the authors) or ``'cosine'``: the learning rate of update ``i``
             is ``lr · (1 + cos(π (i − 1) / iterations)) / 2``, a function of ``i`` alone (resume-exact).
+        obs_dropout: input dropout on the training batches (0 = off, as the authors): each
+            observation feature of each step is zeroed with this probability and the rest are scaled
+            by ``1 / (1 − p)``.  The masks come from a generator seeded by ``(seed, iteration)``, so a
+            resumed run draws the same ones.  Validation, selection and inference see clean inputs.
+        obs_dropout_range: ``[start, stop)`` feature indices that ``obs_dropout`` applies to (empty =
+            every feature).  The Craft config drops only the max-pooled global map block
+            (525..1049, spec craft §1.7), which keeps the local view, inventory and direction intact.
     """
 
     lr: float = 1e-3
@@ -137,6 +145,8 @@ class TrainConfig:
     weight_decay: float = 0.0
     ema_decay: float = 0.0
     lr_schedule: str = "constant"
+    obs_dropout: float = 0.0
+    obs_dropout_range: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -178,6 +188,22 @@ class TrainConfig:
             "must be a number in [0, 1)",
         )
         self.ema_decay = float(self.ema_decay)
+        need(
+            isinstance(self.obs_dropout, int | float) and not isinstance(self.obs_dropout, bool)
+            and 0.0 <= self.obs_dropout < 1.0,
+            "obs_dropout",
+            "must be a number in [0, 1)",
+        )
+        self.obs_dropout = float(self.obs_dropout)
+        span = self.obs_dropout_range
+        listed = isinstance(span, list | tuple)
+        pair = listed and len(span) == 2 and all(is_int(v) for v in span) and 0 <= span[0] < span[1]
+        need(
+            listed and (len(span) == 0 or pair),
+            "obs_dropout_range",
+            "must be [] or [start, stop] with 0 <= start < stop (feature indices, stop exclusive)",
+        )
+        self.obs_dropout_range = [int(v) for v in span]
         for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16"):
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
         need(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"must be one of {LR_SCHEDULES}")
@@ -222,6 +248,13 @@ def learning_rate(cfg: TrainConfig, iteration: int) -> float:
     return cfg.lr
 
 
+def dropout_inputs(obs: torch.Tensor, p: float, key: tuple[int, int, int]) -> torch.Tensor:
+    """Inverted dropout of ``obs`` with probability ``p`` from a generator seeded by ``key``."""
+    generator = torch.Generator().manual_seed(int(np.random.SeedSequence(key).generate_state(1)[0]))
+    keep = torch.rand(obs.shape, generator=generator) >= p
+    return torch.where(keep, obs / (1.0 - p), 0.0)
+
+
 def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, float]:
     """Larger is better: ``(score, −val_loss)``; for ``'val_loss'`` the score is ``−loss``."""
     loss = float(metrics.get("loss", math.inf))
@@ -247,6 +280,14 @@ def train_val_episodes(
     if cfg.eval_episodes:
         val_eps = val_eps[: cfg.eval_episodes]
     return train_eps, val_eps, len(val_idx)
+
+
+def _check_dropout_range(cfg: TrainConfig, model_config: OMPNConfig) -> None:
+    if cfg.obs_dropout_range and cfg.obs_dropout_range[1] > model_config.obs_dim:
+        raise TrainConfigError(
+            f"TrainConfig.obs_dropout_range {cfg.obs_dropout_range} reaches past the model's "
+            f"obs_dim={model_config.obs_dim}"
+        )
 
 
 def _check_episodes(episodes: Sequence[Episode], model_config: OMPNConfig) -> None:
@@ -315,6 +356,7 @@ def train(
     cfg = train_config
     ctx = dist_ctx or DistContext()
     _check_episodes(episodes, model_config)
+    _check_dropout_range(cfg, model_config)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -423,7 +465,9 @@ def train(
             shard = global_idx[ctx.rank :: ctx.world_size]
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(cfg, iteration)
-            stats = train_step(policy, optimizer, [train_eps[i] for i in shard], model_config, cfg, ctx)
+            stats = train_step(
+                policy, optimizer, [train_eps[i] for i in shard], model_config, cfg, ctx, iteration=iteration
+            )
             frames += int(stats["global_valid"])
             if average is not None:
                 average.update(policy, iteration)
@@ -488,8 +532,12 @@ def train_step(
     model_config: OMPNConfig,
     cfg: TrainConfig,
     ctx: DistContext | None = None,
+    iteration: int = 0,
 ) -> dict[str, float]:
     """One Adam update on this rank's shard of whole episodes, including collation.
+
+    ``iteration`` seeds the input-dropout masks (``cfg.obs_dropout``) together with ``cfg.seed``
+    and the rank.
 
     Gradients are averaged over ranks (see :mod:`ompn_ros.train.distributed`), clipped to
     ``cfg.clip_norm`` and applied.  Returns the :func:`bc_loss` statistics plus ``loss`` (global
@@ -504,6 +552,11 @@ def train_step(
     if shard:
         batch = collate(shard, model_config.action_type, model_config.action_dim, use_sketch)
         local_valid = float(batch.valid_steps)
+        if cfg.obs_dropout:
+            start, stop = cfg.obs_dropout_range or (0, batch.obs.shape[-1])
+            batch.obs[..., start:stop] = dropout_inputs(
+                batch.obs[..., start:stop], cfg.obs_dropout, (cfg.seed, iteration, ctx.rank)
+            )
     global_valid = all_reduce_sum(local_valid, ctx)
     stats: dict[str, float] = {}
     if batch is not None:
