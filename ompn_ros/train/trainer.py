@@ -181,20 +181,14 @@ class TrainConfig:
             "must be a number >= 0",
         )
         self.weight_decay = float(self.weight_decay)
-        need(
-            isinstance(self.ema_decay, int | float) and not isinstance(self.ema_decay, bool)
-            and 0.0 <= self.ema_decay < 1.0,
-            "ema_decay",
-            "must be a number in [0, 1)",
-        )
-        self.ema_decay = float(self.ema_decay)
-        need(
-            isinstance(self.obs_dropout, int | float) and not isinstance(self.obs_dropout, bool)
-            and 0.0 <= self.obs_dropout < 1.0,
-            "obs_dropout",
-            "must be a number in [0, 1)",
-        )
-        self.obs_dropout = float(self.obs_dropout)
+        for name in ("ema_decay", "obs_dropout"):
+            value = getattr(self, name)
+            need(
+                isinstance(value, int | float) and not isinstance(value, bool) and 0.0 <= value < 1.0,
+                name,
+                "must be a number in [0, 1)",
+            )
+            setattr(self, name, float(value))
         span = self.obs_dropout_range
         listed = isinstance(span, list | tuple)
         pair = listed and len(span) == 2 and all(is_int(v) for v in span) and 0 <= span[0] < span[1]
