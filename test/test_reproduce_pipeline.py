@@ -27,11 +27,46 @@ def test_held_out_split_is_disjoint_stratified_and_seeded():
     assert [(e.task, e.seed) for e in again] == [(e.task, e.seed) for e in test]
 
 
+def _labelled(subtask: list[int]) -> Episode:
+    steps = len(subtask)
+    return Episode(observations=np.zeros((steps + 1, 2), np.float32), actions=np.zeros(steps, np.int64),
+                   task="t", seed=0, subtask=np.asarray(subtask, np.int64))
+
+
+def _p_hat(expand_at: list[int], steps: int) -> np.ndarray:
+    """[pi_end, top, bottom] rows: bottom everywhere, a full expansion to the top at ``expand_at``."""
+    p = np.tile([0.0, 0.0, 1.0], (steps, 1))
+    p[expand_at] = [0.0, 1.0, 0.0]
+    return p
+
+
+def test_ensemble_averages_p_hat_over_seeds_before_decoding():
+    episode = _labelled([0, 0, 0, 1, 1, 1])  # boundaries 2 and 5
+    right, wrong = _p_hat([2, 5], 6), _p_hat([1, 5], 6)
+    assert reproduce.ensemble_scores("craft", [[right], [right]], [episode])["f1_tol0"] == 1.0
+    # two seeds that disagree at step 1 vs 2 tie; a third that agrees with `right` breaks the tie
+    two = reproduce.ensemble_scores("craft", [[wrong], [wrong]], [episode])
+    three = reproduce.ensemble_scores("craft", [[right], [wrong], [right]], [episode])
+    assert two["f1_tol0"] == 0.5 and three["f1_tol0"] == 1.0 and three["align_acc"] == 1.0
+    assert two["align_acc"] == pytest.approx(5 / 6)
+    with pytest.raises(reproduce.ReproduceError, match="at least 2 seeds"):
+        reproduce.ensemble_scores("craft", [[right]], [episode])
+
+
+def test_unknown_extra_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    code = reproduce.main(["craft", "--extras", "ksweeps", "--work", str(tmp_path / "work"),
+                           "--results", str(tmp_path / "results")])
+    assert code == 2
+    assert "unknown extras ['ksweeps']" in capsys.readouterr().err
+    assert not (tmp_path / "work").exists()  # rejected before any collection
+
+
 def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
     results = tmp_path / "results"
     code = reproduce.main([
         "craft", "--settings", "full_nosketch", "--seeds", "2", "--episodes", "8", "--iterations", "2",
-        "--extras", "ksweep", "--threads", "1", "--work", str(tmp_path / "work"), "--results", str(results),
+        "--extras", "ksweep,ensemble", "--threads", "1", "--work", str(tmp_path / "work"),
+        "--results", str(results),
     ])
     assert code == 0
     table = json.loads((results / "craft.json").read_text())
@@ -41,8 +76,11 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
         assert set(cell) == {"mean", "std", "n"} and cell["n"] == 2
         assert 0.0 <= cell["mean"] <= 1.0
     extras = json.loads((results / "craft_extras.json").read_text())
-    sweep = next(iter(extras["extras"].values()))
+    sweep = next(v for k, v in extras["extras"].items() if k.startswith("K sweep"))
     assert list(sweep) == ["K=2", "K=3", "K=4", "K=5", "K=6"]
+    ensemble = next(v for k, v in extras["extras"].items() if k.startswith("Ensemble of the 2 seeds"))
+    assert set(ensemble["full_nosketch"]) == {"align_acc", "f1_tol1", "f1_tol0"}
+    assert all(0.0 <= v <= 1.0 for v in ensemble["full_nosketch"].values())
     # recall can only grow with K (more predictions, same ground truth)
     recalls = [sweep[k]["recall_tol1"] for k in sweep]
     assert recalls == sorted(recalls)
