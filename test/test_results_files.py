@@ -39,3 +39,19 @@ def test_readme_table_quotes_the_committed_results(domain: str) -> None:
         for column, metric in ((1, "align_acc"), (2, "f1_tol1")):
             cell = results[setting][metric]
             assert cells[column] == f"{100 * cell['mean']:.1f} ± {100 * cell['std']:.1f}", (label, metric)
+
+
+@pytest.mark.parametrize("domain", sorted(SETTINGS))
+def test_readme_ensemble_table_quotes_the_committed_extras(domain: str) -> None:
+    extras = json.loads((ROOT / "results" / f"{domain}_extras.json").read_text())["extras"]
+    results = json.loads((ROOT / "results" / f"{domain}.json").read_text())
+    ensemble = next(table for title, table in extras.items() if title.startswith("Ensemble of the 5 seeds"))
+    lines = [line.strip() for line in (ROOT / "README.md").read_text().splitlines()]
+    for setting, label in SETTINGS[domain].items():
+        row = next((line for line in lines if line.startswith(f"| {label}, ensemble of 5 |")), None)
+        assert row is not None, f"README has no ensemble row for {label}"
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[1] == f"{100 * ensemble[setting]['align_acc']:.1f}", label
+        assert cells[2] == f"{100 * ensemble[setting]['f1_tol1']:.1f}", label
+        single = results[setting]
+        assert cells[3] == f"{100 * single['align_acc']['mean']:.1f} / {100 * single['f1_tol1']['mean']:.1f}"
