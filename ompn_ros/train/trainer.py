@@ -116,11 +116,12 @@ class TrainConfig:
             is ``lr · (1 + cos(π (i − 1) / iterations)) / 2``, a function of ``i`` alone (resume-exact).
         obs_dropout: input dropout on the training batches (0 = off, as the authors): each
             observation feature of each step is zeroed with this probability and the rest are scaled
-            by ``1 / (1 − p)``.  The masks come from a generator seeded by ``(seed, iteration)``, so a
-            resumed run draws the same ones.  Validation, selection and inference see clean inputs.
+            by ``1 / (1 − p)``.  The masks come from a generator seeded by ``(seed, iteration, rank)``,
+            so a resumed run draws the same ones.  Validation, selection and inference see clean
+            inputs.
         obs_dropout_range: ``[start, stop)`` feature indices that ``obs_dropout`` applies to (empty =
-            every feature).  The Craft config drops only the max-pooled global map block
-            (525..1049, spec craft §1.7), which keeps the local view, inventory and direction intact.
+            every feature).  ``[525, 1050]`` is Craft's max-pooled global map block (spec craft
+            §1.7): dropping only it keeps the local view, inventory and direction intact.
     """
 
     lr: float = 1e-3
