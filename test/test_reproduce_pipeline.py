@@ -198,3 +198,10 @@ def test_without_a_validation_split_the_detector_is_not_tuned_on_training_episod
     row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
     assert row["online_f1_tol1"] == row["online_shipped_f1_tol1"]  # the shipped detector, not a tuned one
     assert not (tmp_path / "work" / "runs" / "full_nosketch_seed0" / "ompn_node_craft.yaml").exists()
+
+
+def test_ensemble_with_one_seed_is_skipped_with_a_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    assert _tiny_craft(tmp_path, "--extras", "ensemble") == 0
+    assert "ensemble extra skipped" in capsys.readouterr().out
+    extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]
+    assert not any(title.startswith("Ensemble") for title in extras)

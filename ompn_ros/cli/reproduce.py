@@ -594,6 +594,9 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
                timer, start, figures, data)
         return 0
     ensembles: dict[str, dict[str, float]] = {}
+    want_ensemble = "ensemble" in extras_wanted and args.seeds >= 2
+    if "ensemble" in extras_wanted and not want_ensemble:
+        print("   ensemble extra skipped: it averages several seeds and needs --seeds 2 or more")
     for name in names:
         setting = SETTINGS[domain][name]
         pool, test = data[setting.partial]
@@ -605,12 +608,12 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
                             skip_trained=args.skip_trained)
             print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
             rows.append(run["row"])
-            if "ensemble" in extras_wanted:
+            if want_ensemble:
                 seed_p_hats.append(run["p_hat"])
             if seed == 0:
                 runs[name] = run
         results[name] = aggregate(rows)
-        if "ensemble" in extras_wanted and len(seed_p_hats) >= 2:
+        if want_ensemble:
             ensembles[name] = ensemble_scores(domain, seed_p_hats, test)
         if args.reevaluate:
             kept = old_results.get(name, {})
