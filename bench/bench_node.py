@@ -134,6 +134,26 @@ def bench_in_process(steps: int) -> Result:
     return out
 
 
+def bench_ensemble_in_process(path: Path, domain: str, steps: int) -> Result:
+    """Segmenter step of an ensemble checkpoint directory (``ensemble.json``) vs one of its members."""
+    import torch
+
+    from ompn_ros.detect.online import DetectorConfig
+    from ompn_ros.model.factory import stepper_from_checkpoint
+    from ompn_ros.segmenter import StreamingSegmenter
+
+    torch.set_num_threads(1)
+    ensemble = stepper_from_checkpoint(path)
+    members = len(getattr(ensemble, "members", [ensemble]))
+    obs, starts = _observations(domain, steps)
+    out: Result = {}
+    seg = StreamingSegmenter(ensemble, DetectorConfig(high=0.5))
+    times = _time_steps(seg.reset, seg.step, obs, starts)
+    out[f"{domain}_ensemble{members}_segmenter_step_p50"] = (_pct(times, 50), "us")
+    out[f"{domain}_ensemble{members}_segmenter_step_p99"] = (_pct(times, 99), "us")
+    return out
+
+
 def _cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
@@ -221,10 +241,10 @@ class _Client:
 
 
 def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "events",
-              client: str = "events") -> Result:
-    """``ompn_node`` (shipped checkpoint and detector of ``domain``) in its own process, fed with real
-    expert observations of one long stream (no resets: step index = accepted count); 1 kHz run only
-    when ``duration`` > 0."""
+              client: str = "events", checkpoint: Path | None = None, label: str = "") -> Result:
+    """``ompn_node`` (shipped checkpoint, or ``checkpoint``, and the shipped detector of ``domain``)
+    in its own process, fed with real expert observations of one long stream (no resets: step index
+    = accepted count); 1 kHz run only when ``duration`` > 0.  ``label`` prefixes the figure names."""
     import rclpy
 
     from ompn_ros.paths import config_file
@@ -246,6 +266,8 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
         "-p",
         "qos_depth:=1000",
     ]
+    if checkpoint is not None:
+        cmd += ["-p", f"checkpoint:={checkpoint}"]
     log_path = tmp / f"node_{domain}_{executor}.log"
     log = open(log_path, "w")  # closed in the finally block
     proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)
@@ -253,7 +275,7 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
     rclpy.init(context=ctx)
     try:
         client = _Client(ctx, client)
-        executor = f"{domain}_{executor}"
+        executor = f"{domain}{label}_{executor}"
         if not client.pump(lambda: bool(client.diag) and client.pub.get_subscription_count() > 0, 30):
             raise RuntimeError(f"ompn_node did not come up: {log_path.read_text()}")
         client.pump(lambda: False, 0.5)
@@ -326,8 +348,18 @@ def main() -> None:
     parser.add_argument("--client-executor", choices=("events", "single"), default="events",
                         help="executor of the publishing/subscribing benchmark client")
     parser.add_argument("--parts", choices=("all", "step", "dds"), default="all")
+    parser.add_argument("--ensemble", type=Path, default=None, metavar="DIR",
+                        help="instead: a Craft ensemble checkpoint directory (ensemble.json, written by "
+                             "ompn_reproduce --members), in process and in ompn_node at 100 Hz")
     args = parser.parse_args()
-    results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts)
+    if args.ensemble is not None:
+        results = bench_ensemble_in_process(args.ensemble, "craft", 1000 if args.quick else 5000)
+        members = next(iter(results)).split("_")[1]
+        results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if args.quick else 2000,
+                                 executor=args.executor, client=args.client_executor,
+                                 checkpoint=args.ensemble.resolve(), label=f"_{members}"))
+    else:
+        results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts)
     width = max(len(k) for k in results)
     for name, (value, unit) in results.items():
         print(f"{name:<{width}}  {value:12.3f}  {unit}")

@@ -11,6 +11,7 @@ from ompn_ros.detect.offline import (
     auto_threshold,
     auto_threshold_boundaries,
     boundaries_from_threshold,
+    constrained_top_k_boundaries,
     depth_scores,
     standardise,
     threshold_boundaries,
@@ -127,3 +128,70 @@ def test_bad_arguments_are_rejected() -> None:
         depth_scores(P_HAT, "median")  # type: ignore[arg-type]
     with pytest.raises(DetectorError, match="standardisation"):
         standardise(np.array([0.0, 1.0]), "zscore")  # type: ignore[arg-type]
+
+
+def _brute_force(scores: np.ndarray, k: int, min_length: int, end: bool) -> tuple[float, list[int]]:
+    """Best score sum over every boundary set that satisfies the constraints (earliest on ties)."""
+    import itertools
+
+    best: tuple[float, list[int]] = (-np.inf, [])
+    for combo in itertools.combinations(range(len(scores)), k):
+        if end and combo[-1] != len(scores) - 1:
+            continue
+        starts = np.diff(np.concatenate([[-1], combo]))
+        if starts.min() < min_length:
+            continue
+        total = float(scores[list(combo)].sum())
+        if total > best[0] + 1e-12:
+            best = (total, list(combo))
+    return best
+
+
+@pytest.mark.parametrize("min_length", [1, 2, 3])
+@pytest.mark.parametrize("end", [True, False])
+def test_constrained_top_k_is_the_best_feasible_set(min_length: int, end: bool) -> None:
+    rng = np.random.default_rng(min_length + 10 * end)
+    for _ in range(40):
+        steps, k = int(rng.integers(9, 13)), int(rng.integers(1, 4))
+        p_hat = rng.dirichlet(np.ones(3), size=steps)
+        got = constrained_top_k_boundaries(p_hat, k, min_length=min_length, end_is_boundary=end)
+        scores = depth_scores(p_hat)
+        total, expected = _brute_force(scores, k, min_length, end)
+        assert float(scores[got].sum()) == pytest.approx(total)
+        np.testing.assert_array_equal(got, expected)
+        assert got.dtype == np.int64 and np.all(np.diff(np.concatenate([[-1], got])) >= min_length)
+
+
+def test_constrained_top_k_without_constraints_is_top_k() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        p_hat = rng.dirichlet(np.ones(3), size=20)
+        np.testing.assert_array_equal(
+            constrained_top_k_boundaries(p_hat, 4, min_length=1, end_is_boundary=False),
+            top_k_boundaries(p_hat, 4),
+        )
+
+
+def test_constrained_top_k_keeps_one_of_two_neighbouring_peaks_and_the_end() -> None:
+    # one expansion spread over steps 3 and 4 takes two places in plain Top-K; the true boundary at 7
+    # (a weaker peak) and the episode end are what the constraints recover
+    scores = [0.0, 0.0, 0.1, 0.9, 0.8, 0.0, 0.1, 0.5, 0.0, 0.3]
+    p_hat = np.array([[0.0, s, 1.0 - s] for s in scores])
+    np.testing.assert_array_equal(top_k_boundaries(p_hat, 3), [3, 4, 7])
+    np.testing.assert_array_equal(constrained_top_k_boundaries(p_hat, 3), [3, 7, 9])
+    np.testing.assert_array_equal(constrained_top_k_boundaries(p_hat, 3, end_is_boundary=False), [3, 7, 9])
+    np.testing.assert_array_equal(constrained_top_k_boundaries(p_hat, 2, end_is_boundary=False), [3, 7])
+
+
+def test_constrained_top_k_on_short_episodes() -> None:
+    p_hat = np.tile([0.0, 0.5, 0.5], (5, 1))
+    # 3 subtasks of >= 2 steps do not fit in 5 steps: min_length drops to 5 // 3 = 1
+    got = constrained_top_k_boundaries(p_hat, 3, min_length=2)
+    assert len(got) == 3 and got[-1] == 4 and len(set(got.tolist())) == 3
+    np.testing.assert_array_equal(constrained_top_k_boundaries(p_hat[:2], 3), [0, 1])
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True])
+def test_constrained_top_k_rejects_a_bad_min_length(bad: object) -> None:
+    with pytest.raises(DetectorError, match="min_length"):
+        constrained_top_k_boundaries(P_HAT, 2, min_length=bad)  # type: ignore[arg-type]

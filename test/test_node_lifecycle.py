@@ -24,8 +24,9 @@ from std_msgs.msg import Float32MultiArray, Int32  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
+from ompn_ros.model.ensemble import write_ensemble  # noqa: E402
+from ompn_ros.model.factory import stepper_from_checkpoint  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
-from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 
@@ -122,7 +123,7 @@ def make_node(ctx, ckpt: Path, **params) -> OMPNNode:
 
 
 def reference_pi(ckpt: Path, observations: np.ndarray) -> np.ndarray:
-    seg = StreamingSegmenter(StreamingPolicy.from_checkpoint(ckpt), DetectorConfig())
+    seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DetectorConfig())
     rows = []
     for x in observations:
         so = seg.step(x).step_output
@@ -146,6 +147,26 @@ def test_configure_fails_on_mismatched_checkpoint_with_reason(ctx, ckpt: Path, t
     node = make_node(ctx, tmp_path / "missing")
     assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
     assert "not a directory" in node.last_error
+    node.destroy_node()
+
+
+def test_node_runs_an_ensemble_checkpoint(ctx, ckpt: Path, tmp_path: Path) -> None:
+    torch.manual_seed(4)
+    other = tmp_path / "other"
+    save_checkpoint(other, OMPNPolicy(OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3,
+                                                 n_slots=3, slot_size=16)))
+    write_ensemble(tmp_path / "ensemble", [ckpt, other])
+    node = make_node(ctx, tmp_path / "ensemble")
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS, node.last_error
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    h = Harness(ctx, node)
+    h.wait_matched()
+    obs = np.random.default_rng(7).normal(size=(10, OBS_DIM)).astype(np.float32)
+    for x in obs:
+        h.send(x)
+    assert h.pump(lambda: len(h.pi) == 10 and len(h.actions) == 10)
+    np.testing.assert_allclose(np.array(h.pi), reference_pi(tmp_path / "ensemble", obs), atol=1e-6)
+    assert not np.allclose(np.array(h.pi), reference_pi(ckpt, obs), atol=1e-4)  # not just one member
     node.destroy_node()
 
 

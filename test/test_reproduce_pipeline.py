@@ -49,7 +49,7 @@ def test_ensemble_averages_p_hat_over_seeds_before_decoding():
     three = reproduce.ensemble_scores("craft", [[right], [wrong], [right]], [episode])
     assert two["f1_tol0"] == 0.5 and three["f1_tol0"] == 1.0 and three["align_acc"] == 1.0
     assert two["align_acc"] == pytest.approx(5 / 6)
-    with pytest.raises(reproduce.ReproduceError, match="at least 2 seeds"):
+    with pytest.raises(reproduce.ReproduceError, match="at least 2 models"):
         reproduce.ensemble_scores("craft", [[right]], [episode])
 
 
@@ -71,7 +71,8 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
     assert code == 0
     table = json.loads((results / "craft.json").read_text())
     row = table["full_nosketch"]
-    for metric in ("align_acc", "f1_tol1", "f1_tol0", "online_f1_tol1", "online_align_strict"):
+    for metric in ("align_acc", "f1_tol1", "f1_tol0", "online_f1_tol1", "online_align_strict",
+                   "constrained_align", "constrained_f1_tol1"):
         cell = row[metric]
         assert set(cell) == {"mean", "std", "n"} and cell["n"] == 2
         assert 0.0 <= cell["mean"] <= 1.0
@@ -79,7 +80,8 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
     sweep = next(v for k, v in extras["extras"].items() if k.startswith("K sweep"))
     assert list(sweep) == ["K=2", "K=3", "K=4", "K=5", "K=6"]
     ensemble = next(v for k, v in extras["extras"].items() if k.startswith("Ensemble of the 2 seeds"))
-    assert set(ensemble["full_nosketch"]) == {"align_acc", "f1_tol1", "f1_tol0"}
+    assert set(ensemble["full_nosketch"]) == {"align_acc", "f1_tol1", "f1_tol0", "constrained_align",
+                                              "constrained_f1_tol1", "constrained_f1_tol0"}
     assert all(0.0 <= v <= 1.0 for v in ensemble["full_nosketch"].values())
     # recall can only grow with K (more predictions, same ground truth)
     recalls = [sweep[k]["recall_tol1"] for k in sweep]
@@ -205,3 +207,55 @@ def test_ensemble_with_one_seed_is_skipped_with_a_message(tmp_path: Path, capsys
     assert "ensemble extra skipped" in capsys.readouterr().out
     extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]
     assert not any(title.startswith("Ensemble") for title in extras)
+
+
+def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path: Path):
+    from ompn_ros.model.checkpoint import load_checkpoint
+    from ompn_ros.train.trainer import TrainConfig, train_val_episodes
+
+    assert _tiny_craft(tmp_path, "--members", "2") == 0
+    runs = tmp_path / "work" / "runs"
+    configs = {}
+    for name in ("full_nosketch_seed0", "full_nosketch_seed0_m1"):
+        extra = load_checkpoint(runs / name / "best")[1]
+        configs[name] = TrainConfig.from_dict(extra["train_config"])
+    member = configs["full_nosketch_seed0_m1"]
+    assert member.seed == reproduce.MEMBER_SEED_STRIDE and member.split_seed == 0
+    assert configs["full_nosketch_seed0"].seed == 0
+    # the same validation episodes, so the ensemble's detector is tuned on episodes no member saw
+    episodes = reproduce.read_bags("craft", tmp_path / "work" / "bags" / "craft_full")
+    pool, _ = reproduce.held_out_split(episodes, reproduce.DEFAULT_TEST_RATIO, 0)
+    val_own = train_val_episodes(pool, configs["full_nosketch_seed0"])[1]
+    val_member = train_val_episodes(pool, member)[1]
+    assert [(e.task, e.seed) for e in val_member] == [(e.task, e.seed) for e in val_own]
+    weights = [(runs / n / "best" / "model.safetensors").read_bytes() for n in configs]
+    assert weights[0] != weights[1]  # another initialisation
+    extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]
+    table = next(v for k, v in extras.items() if k.startswith("Ensembles per seed"))
+    row = table["full_nosketch"]
+    assert row["members"]["mean"] == 2.0
+    assert row["align_acc"]["n"] == 1 and 0.0 <= row["constrained_align"]["mean"] <= 1.0
+    assert row["constrained_min_length"]["mean"] in (1.0, 2.0, 3.0)
+    assert 0.0 <= row["online_f1_tol1"]["mean"] <= 1.0
+    assert "Ensembles per seed" in (tmp_path / "results" / "craft.md").read_text()
+    # the ensemble is written as a checkpoint the node loads, with its tuned detector beside it
+    from ompn_ros.model.ensemble import EnsembleStepper, read_ensemble
+    from ompn_ros.model.factory import stepper_from_checkpoint
+
+    ensemble_dir = runs / "full_nosketch_seed0_ensemble2"
+    members, extra = read_ensemble(ensemble_dir)
+    assert [m.resolve() for m in members] == [(runs / n / "best").resolve() for n in configs]
+    assert extra["constrained_min_length"] == row["constrained_min_length"]["mean"]
+    assert isinstance(stepper_from_checkpoint(ensemble_dir), EnsembleStepper)
+    assert "detector_high" in (ensemble_dir / "ompn_node_craft.yaml").read_text()
+
+
+def test_members_spec_is_checked_before_any_collection(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    assert reproduce.parse_members("3", ["a", "b"]) == {"a": 3, "b": 3}
+    assert reproduce.parse_members("b=5", ["a", "b"]) == {"a": 1, "b": 5}
+    for spec, message in (("0", "must be >= 1"), ("two", "integer M or SETTING=M"),
+                          ("partial_nosketch=2", "'partial_nosketch', which is not among the settings"),
+                          ("full_nosketch=x", "must be an integer")):
+        assert _tiny_craft(tmp_path, "--members", spec) == 2
+        assert message in capsys.readouterr().err, spec
+    assert not (tmp_path / "work").exists()

@@ -206,6 +206,23 @@ def test_train_config_validation() -> None:
         with pytest.raises(TrainConfigError, match="obs_dropout_range"):
             TrainConfig(obs_dropout_range=span)  # type: ignore[arg-type]
     assert TrainConfig.from_dict(TrainConfig(obs_dropout_range=[2, 5]).to_dict()).obs_dropout_range == [2, 5]
+    for bad_seed in (-1, 1.5, "3", True):
+        with pytest.raises(TrainConfigError, match="split_seed"):
+            TrainConfig(split_seed=bad_seed)  # type: ignore[arg-type]
+    assert TrainConfig.from_dict(TrainConfig(split_seed=4).to_dict()).split_seed == 4
+
+
+def test_split_seed_decides_the_split_and_seed_the_rest() -> None:
+    from ompn_ros.train.trainer import train_val_episodes
+
+    episodes = make_dataset("discrete", 20, seed=1)
+
+    def val_ids(**kw: int) -> list[int]:
+        return [id(ep) for ep in train_val_episodes(episodes, TrainConfig(**kw))[1]]
+
+    assert val_ids(seed=7, split_seed=3) == val_ids(seed=3) == val_ids(seed=9, split_seed=3)
+    assert val_ids(seed=7) != val_ids(seed=3)
+    assert val_ids(seed=7, split_seed=None) == val_ids(seed=7)
 
 
 def test_input_dropout_is_seeded_by_key_and_keeps_the_expectation() -> None:
@@ -330,3 +347,29 @@ def test_decomposition_metrics_with_fixed_thresholds_and_k() -> None:
     assert k2["topk_precision_tol0"] == 1.0 and k2["topk_recall_tol0"] == 0.5
     with pytest.raises(EvaluationError, match="rows"):
         decomposition_metrics([p_hat[:-1]], [ep])
+
+
+def test_constrained_top_k_metrics_and_min_length_tuning() -> None:
+    from ompn_ros.data.episode import Episode
+    from ompn_ros.train.evaluation import EvaluationError, decomposition_metrics, tune_min_length
+
+    # subtasks of 4, 4 and 2 steps; the model expands over two neighbouring steps at the first boundary
+    labels = np.array([0, 0, 0, 0, 1, 1, 1, 1, 2, 2])
+    ep = Episode(observations=np.zeros((11, 2), np.float32), actions=np.zeros(10, np.int64), task="t",
+                 seed=0, subtask=labels)
+    scores = np.array([0.0, 0.0, 0.1, 0.9, 0.8, 0.0, 0.1, 0.5, 0.0, 0.3])
+    p_hat = np.stack([np.zeros(10), scores, 1.0 - scores], axis=1)
+    m = decomposition_metrics([p_hat], [ep])
+    assert m["topk_f1_tol0"] < 1.0 and m["topkc_f1_tol0"] == m["topkc_align"] == 1.0
+    assert m["align"] == m["topk_align"]  # the unprefixed keys stay the paper's detector
+    best, table = tune_min_length([p_hat], [ep], candidates=(3, 1, 2))
+    assert list(table) == [1, 2, 3] and best == 2  # 1 gives [3, 4, 9] (3 steps wrong), 3 gives [3, 6, 9]
+    assert table == {1: 0.7, 2: 1.0, 3: 0.9}
+    peaks = np.eye(10)[[3, 7, 9]].sum(axis=0)
+    clean = np.stack([np.zeros(10), peaks, 1.0 - peaks], axis=1)
+    assert tune_min_length([clean], [ep]) == (1, {1: 1.0, 2: 1.0, 3: 0.9})  # tie: the weaker one
+    with pytest.raises(EvaluationError, match="candidate"):
+        tune_min_length([p_hat], [ep], candidates=())
+    with pytest.raises(EvaluationError, match="subtask labels"):
+        tune_min_length([p_hat], [Episode(observations=np.zeros((11, 2), np.float32),
+                                          actions=np.zeros(10, np.int64), task="t", seed=0)])

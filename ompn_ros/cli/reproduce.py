@@ -183,14 +183,14 @@ def build_configs(domain: str, base: dict[str, dict[str, Any]], setting: Setting
     return OMPNConfig.from_dict(model), TrainConfig.from_dict(train)
 
 
-def offline_metrics(policy: Any, test: Sequence[Episode]) -> dict[str, Any]:
-    from ompn_ros.train.trainer import evaluate
+def evaluate(policy: Any, episodes: Sequence[Episode], **kwargs: Any) -> dict[str, Any]:
+    from ompn_ros.train.trainer import evaluate as teacher_forced_evaluate
 
-    return evaluate(policy, test, keep_p_hat=True)
+    return teacher_forced_evaluate(policy, episodes, **kwargs)
 
 
 def online_metrics(
-    policy: Any, test: Sequence[Episode], domain: str, val: Sequence[Episode] = ()
+    policy: Any, test: Sequence[Episode], domain: str, val: Sequence[Episode] = (), stepper: Any = None
 ) -> tuple[dict[str, float], list[Any], Any]:
     """The causal detector replayed through ``StreamingSegmenter`` (as live) on ``test``.
 
@@ -198,7 +198,7 @@ def online_metrics(
     (``online_shipped_*``; it was tuned on the shipped checkpoint) and one tuned for this checkpoint
     by ``ompn_segment --tune``'s grid search (the domain's default objective) on ``val``, the run's
     validation episodes, never the test ones (``online_*``).  Without ``val`` the shipped setting is
-    reported under both names.
+    reported under both names.  ``stepper`` replaces ``policy``'s own stepper (an ensemble's).
     Returns ``(metrics, replays with the primary setting, tuning record or None)``.
     """
     from ompn_ros.cli.segment import (
@@ -211,7 +211,7 @@ def online_metrics(
     from ompn_ros.model.factory import build_stepper
 
     shipped = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
-    stream = build_stepper(policy)
+    stream = stepper if stepper is not None else build_stepper(policy)
     configs = {"shipped": shipped}
     tuning = None
     if val:
@@ -233,15 +233,22 @@ METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", 
 def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episode], test: list[Episode],
                 base: dict[str, dict[str, Any]], iterations: int | None, work: Path,
                 overrides: dict[str, Any] | None = None, tag: str = "",
-                reuse: bool = False, skip_trained: bool = False) -> dict[str, Any]:
+                reuse: bool = False, skip_trained: bool = False, member: int = 0) -> dict[str, Any]:
     """Train one (setting, seed), or with ``reuse`` load its existing ``best/`` checkpoint, and
-    evaluate it on the held-out test episodes (the detector is tuned on the run's validation split)."""
+    evaluate it on the held-out test episodes (the detectors are tuned on the run's validation split).
+
+    ``member`` > 0 trains an extra ensemble member of the seed (``<setting>_seed<seed>_m<member>``):
+    training seed ``seed + MEMBER_SEED_STRIDE * member`` on the split of ``seed`` (``split_seed``),
+    evaluated offline only."""
     from ompn_ros.cli.segment import write_node_config
     from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
     from ompn_ros.train.trainer import train, train_val_episodes
 
-    run_dir = work / "runs" / f"{setting.name}{tag}_seed{seed}"
-    model_cfg, train_cfg = build_configs(domain, base, setting, seed, iterations, run_dir, overrides)
+    run_dir = work / "runs" / f"{setting.name}{tag}_seed{seed}{f'_m{member}' if member else ''}"
+    if member:
+        overrides = {**(overrides or {}), "_train.split_seed": seed}
+    model_cfg, train_cfg = build_configs(domain, base, setting, seed + MEMBER_SEED_STRIDE * member,
+                                         iterations, run_dir, overrides)
     best_dir = run_dir / "best"
     info: dict[str, float] = {}
     if skip_trained and _trained_to_the_end(run_dir, model_cfg, train_cfg):
@@ -264,7 +271,8 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
                 "frames_per_second": result.frames / max(result.train_seconds, 1e-9)}
     _, val, n_val = train_val_episodes(train_pool, train_cfg)
     # without a validation split the trainer validates on training episodes: never tune on those
-    run = evaluate_policy(domain, policy, test, val if n_val else ())
+    run = evaluate_policy(domain, policy, test, val if n_val else (), online=not member)
+    run["val"] = val if n_val else []
     run["row"].update(info)
     run["checkpoint"] = best_dir
     if run["tuning"] is not None:
@@ -273,6 +281,11 @@ def run_setting(domain: str, setting: Setting, seed: int, train_pool: list[Episo
                           tuning["measured_on_val"],
                           f"the {tuning['n_val']} validation episodes of this run, checkpoint {best_dir}")
     return run
+
+
+MEMBER_SEED_STRIDE = 1000
+"""Ensemble member ``j`` of seed ``s`` trains with seed ``s + MEMBER_SEED_STRIDE * j`` (member 0 is
+the seed's own run)."""
 
 
 # TrainConfig fields that change how a run is executed, not what it learns
@@ -313,17 +326,67 @@ def _stored_train_config(extra: dict[str, Any], fallback: Any) -> Any:
     return TrainConfig.from_dict(stored) if isinstance(stored, dict) else fallback
 
 
+CONSTRAINED_KEYS = ("align", "f1_tol1", "f1_tol0")
+"""Metrics of the constrained Top-K reported beside the paper's detector (``constrained_<key>``)."""
+DEFAULT_MIN_LENGTH = 2
+"""min_length of the constrained Top-K when a run has no validation episodes to tune it on."""
+
+
+def parse_members(spec: str, names: Sequence[str]) -> dict[str, int]:
+    """``--members``: ``'M'`` for every setting of the run, or ``'setting=M,...'`` (others get 1)."""
+    text = spec.strip()
+    if "=" not in text:
+        try:
+            count = int(text)
+        except ValueError:
+            raise ReproduceError(f"--members must be an integer M or SETTING=M pairs, got {spec!r}") from None
+        per = {name: count for name in names}
+    else:
+        per = {name: 1 for name in names}
+        for part in filter(None, (p.strip() for p in text.split(","))):
+            name, _, value = part.partition("=")
+            if name not in per:
+                raise ReproduceError(f"--members names {name!r}, which is not among the settings of this "
+                                     f"run {list(names)}")
+            try:
+                per[name] = int(value)
+            except ValueError:
+                raise ReproduceError(f"--members {part!r}: the member count must be an integer") from None
+    bad = {k: v for k, v in per.items() if v < 1}
+    if bad:
+        raise ReproduceError(f"--members must be >= 1 (1 = single models), got {bad}")
+    return per
+
+
+def tuned_min_length(val_p_hats: Sequence[np.ndarray], val: Sequence[Episode]) -> int:
+    """The constrained Top-K's ``min_length`` chosen on validation episodes (never the test ones)."""
+    from ompn_ros.train.evaluation import tune_min_length
+
+    return tune_min_length(val_p_hats, val)[0] if val else DEFAULT_MIN_LENGTH
+
+
 def evaluate_policy(
-    domain: str, policy: Any, test: list[Episode], val: Sequence[Episode] = ()
+    domain: str, policy: Any, test: list[Episode], val: Sequence[Episode] = (), online: bool = True
 ) -> dict[str, Any]:
-    """Offline (Top-K for Craft, automatic threshold for Dial) and online metrics on ``test``."""
-    offline = offline_metrics(policy, test)
-    online, replays, tuning = online_metrics(policy, test, domain, val)
+    """Offline (Top-K for Craft, automatic threshold for Dial; and the constrained Top-K with its
+    ``min_length`` tuned on ``val``) and, with ``online``, online metrics on ``test``."""
+    from ompn_ros.train.evaluation import teacher_forced_p_hat
+
+    val_p_hats = teacher_forced_p_hat(policy, list(val))[0] if val else []
+    min_length = tuned_min_length(val_p_hats, val)
+    offline = evaluate(policy, test, keep_p_hat=True, min_length=min_length)
     row: dict[str, Any] = {"align_acc": offline["align"]}
     primary = "topk_" if domain == "craft" else "auto_"
     row.update({k: offline[primary + k] for k in METRIC_KEYS})
-    row.update(online)
-    return {"row": row, "p_hat": offline["p_hat"], "replays": replays, "policy": policy, "tuning": tuning}
+    row.update({f"constrained_{k}": offline[f"topkc_{k}"] for k in CONSTRAINED_KEYS})
+    row["constrained_min_length"] = float(min_length)
+    replays: list[Any] = []
+    tuning = None
+    if online:
+        online_row, replays, tuning = online_metrics(policy, test, domain, val)
+        row.update(online_row)
+    return {"row": row, "p_hat": offline["p_hat"], "val_p_hat": val_p_hats, "replays": replays,
+            "policy": policy, "tuning": tuning}
 
 
 def aggregate(rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -369,20 +432,56 @@ def threshold_sweep(p_hats: Sequence[np.ndarray], test: Sequence[Episode],
     return table
 
 
-def ensemble_scores(domain: str, p_hats_per_seed: Sequence[Sequence[np.ndarray]],
-                    test: Sequence[Episode]) -> dict[str, float]:
-    """The domain's offline detector (Top-K for Craft, automatic threshold for Dial) on the test
-    ``p_hat`` averaged, episode by episode, over the checkpoints of several seeds.
+def average_p_hats(p_hats_per_model: Sequence[Sequence[np.ndarray]]) -> list[np.ndarray]:
+    """Episode by episode, the mean ``p_hat`` of several checkpoints (an ensemble's expansion
+    distribution)."""
+    if len(p_hats_per_model) < 2:
+        raise ReproduceError("an ensemble needs the checkpoints of at least 2 models")
+    return [np.mean(np.stack(per_episode), axis=0) for per_episode in zip(*p_hats_per_model, strict=True)]
 
-    An ensemble measurement only: every table row is one model, and ``ompn_node`` runs one model.
-    """
+
+def ensemble_scores(domain: str, p_hats_per_model: Sequence[Sequence[np.ndarray]],
+                    test: Sequence[Episode], min_length: int = DEFAULT_MIN_LENGTH) -> dict[str, float]:
+    """The domain's offline detector (Top-K for Craft, automatic threshold for Dial) and the
+    constrained Top-K (``min_length``) on the test ``p_hat`` averaged over several checkpoints."""
     from ompn_ros.train.evaluation import decomposition_metrics
 
-    if len(p_hats_per_seed) < 2:
-        raise ReproduceError("an ensemble needs the checkpoints of at least 2 seeds (--seeds 2 or more)")
-    mean = [np.mean(np.stack(per_episode), axis=0) for per_episode in zip(*p_hats_per_seed, strict=True)]
-    scores = decomposition_metrics(mean, test, primary="topk" if domain == "craft" else "auto")
-    return {"align_acc": scores["align"], "f1_tol1": scores["f1_tol1"], "f1_tol0": scores["f1_tol0"]}
+    mean = average_p_hats(p_hats_per_model)
+    scores = decomposition_metrics(mean, test, primary="topk" if domain == "craft" else "auto",
+                                   min_length=min_length)
+    out = {"align_acc": scores["align"], "f1_tol1": scores["f1_tol1"], "f1_tol0": scores["f1_tol0"]}
+    out.update({f"constrained_{k}": scores[f"topkc_{k}"] for k in CONSTRAINED_KEYS})
+    return out
+
+
+def member_ensemble_row(domain: str, member_runs: Sequence[dict[str, Any]], test: Sequence[Episode],
+                        ensemble_dir: Path) -> dict[str, float]:
+    """One seed's ensemble, written as an ensemble checkpoint (``ensemble_dir/ensemble.json``, what
+    ``ompn_node`` loads) and scored on ``test``: offline, the members' test ``p_hat`` averaged with
+    the constrained Top-K's ``min_length`` tuned on their shared validation split; online, the
+    ensemble stepper replayed as live with the causal detector tuned on that split (written to
+    ``ensemble_dir/ompn_node_<domain>.yaml``)."""
+    from ompn_ros.cli.segment import write_node_config
+    from ompn_ros.model.ensemble import write_ensemble
+    from ompn_ros.model.factory import stepper_from_checkpoint
+
+    val = member_runs[0]["val"]
+    min_length = tuned_min_length(average_p_hats([r["val_p_hat"] for r in member_runs]) if val else [], val)
+    row = ensemble_scores(domain, [r["p_hat"] for r in member_runs], test, min_length)
+    row["constrained_min_length"] = float(min_length)
+    write_ensemble(ensemble_dir, [r["checkpoint"] for r in member_runs],
+                   {"constrained_min_length": min_length, "offline_metrics": dict(row)})
+    online, _, tuning = online_metrics(None, test, domain, val, stepper=stepper_from_checkpoint(ensemble_dir))
+    row.update({k: v for k, v in online.items() if k in ENSEMBLE_ONLINE_KEYS})
+    if tuning is not None:
+        write_node_config(ensemble_dir / f"ompn_node_{domain}.yaml", domain, tuning["config"],
+                          tuning["measured_on_val"],
+                          f"the {tuning['n_val']} validation episodes shared by the ensemble {ensemble_dir}")
+    return row
+
+
+ENSEMBLE_ONLINE_KEYS = ("online_f1_tol1", "online_align_strict", "online_delay_mean")
+"""Online cells reported for an ensemble (with the detector tuned on its validation split)."""
 
 
 def sweeps(domain: str, setting: str, wanted: set[str], p_hats: Sequence[np.ndarray],
@@ -411,6 +510,14 @@ def _fmt(cell: dict[str, float] | None, scale: float = 100.0, digits: int = 1) -
     return f"{cell['mean'] * scale:.{digits}f} ({cell['std'] * scale:.{digits}f})"
 
 
+def _cell(column: str, value: Any) -> str:
+    """An extras-table cell: fractions in %, ``min_length`` (a step count) as it is."""
+    scale, digits = (1.0, 1) if column.endswith(("min_length", "members")) else (100.0, 1)
+    if isinstance(value, dict):
+        return _fmt(value, scale, digits)
+    return f"{scale * value:.{digits}f}"
+
+
 def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta: dict[str, Any]) -> str:
     seeds = {name: int(row["align_acc"]["n"]) for name, row in results.items()}
     lines = [f"# OMPN reproduction: {domain}", "",
@@ -418,14 +525,19 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
              f"{seeds}; mean (std) over seeds, in %. Paper numbers in brackets.", "",
              "Online = the causal detector of `ompn_node`, tuned for each checkpoint on that run's "
              "validation episodes; 'shipped det.' = the package's default detector settings instead.", "",
-             "| setting | align acc | F1 tol=1 | F1 tol=0 | online F1 tol=1 | online align | "
+             "'Constrained' = Top-K restricted to subtasks of at least min_length steps that end at the "
+             "episode's last step (our detector, min_length tuned on each run's validation episodes); the "
+             "other offline columns use the paper's detector.", "",
+             "| setting | align acc | F1 tol=1 | F1 tol=0 | constrained align | constrained F1 tol=1 | "
+             "online F1 tol=1 | online align | "
              "online delay (steps) | false alarms / ep | online F1, shipped det. | paper align / F1 |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, row in results.items():
         paper = PAPER[domain].get(name, (None, None))
         paper_txt = " / ".join("–" if v is None else str(v) for v in paper)
         lines.append(
             f"| {name} | {_fmt(row['align_acc'])} | {_fmt(row['f1_tol1'])} | {_fmt(row['f1_tol0'])} | "
+            f"{_fmt(row.get('constrained_align'))} | {_fmt(row.get('constrained_f1_tol1'))} | "
             f"{_fmt(row['online_f1_tol1'])} | {_fmt(row['online_align_strict'])} | "
             f"{_fmt(row['online_delay_mean'], 1, 2)} | "
             f"{_fmt(row['online_false_alarms_per_episode'], 1, 2)} | "
@@ -437,7 +549,7 @@ def markdown(domain: str, results: dict[str, Any], extras: dict[str, Any], meta:
         lines.append("| | " + " | ".join(cols) + " |")
         lines.append("|---|" + "---|" * len(cols))
         for key, cells in table.items():
-            shown = [(_fmt(c) if isinstance(c, dict) else f"{100 * c:.1f}") for c in cells.values()]
+            shown = [_cell(col, c) for col, c in cells.items()]
             lines.append(f"| {key} | " + " | ".join(shown) + " |")
     lines += ["", "## Wall time per stage (s)", ""]
     trained = meta.get("trained")
@@ -503,6 +615,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--test-ratio", type=float, default=DEFAULT_TEST_RATIO)
     p.add_argument("--config", type=Path, default=None,
                    help="train YAML (default config/train_<domain>.yaml)")
+    p.add_argument("--members", default="1", metavar="M | SETTING=M,...",
+                   help="ensemble members per seed: M for every setting, or per setting (e.g. "
+                        "full_nosketch=3,partial_nosketch=5; settings not named get none). Default 1 = "
+                        "single models only; with M > 1 every seed also trains M-1 members on its split "
+                        "and their ensemble is reported in its own table")
     p.add_argument("--extras", default="all", help="all | none | comma list of "
                    "ksweep,thresholds,ablations,ensemble (ensemble: the seeds' p_hat averaged, offline)")
     p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
@@ -552,6 +669,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
         set() if args.extras == "none" else set(args.extras.split(",")))
     if extras_wanted - set(EXTRAS):
         raise ReproduceError(f"unknown extras {sorted(extras_wanted - set(EXTRAS))}; known: {list(EXTRAS)}")
+    members_of = parse_members(args.members, names)
     episodes_n = args.episodes or DEFAULT_EPISODES[domain]
     base = load_train_config(domain, args.config)
     if args.threads is not None:
@@ -594,13 +712,14 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
                timer, start, figures, data)
         return 0
     ensembles: dict[str, dict[str, float]] = {}
+    member_ensembles: dict[str, dict[str, dict[str, float]]] = {}
     want_ensemble = "ensemble" in extras_wanted and args.seeds >= 2
     if "ensemble" in extras_wanted and not want_ensemble:
         print("   ensemble extra skipped: it averages several seeds and needs --seeds 2 or more")
     for name in names:
         setting = SETTINGS[domain][name]
         pool, test = data[setting.partial]
-        rows = []
+        rows, member_rows = [], []
         seed_p_hats = []
         for seed in range(args.seeds):
             run = timer.run(f"{stage} {name} seed {seed}", run_setting, domain, setting, seed, pool, test,
@@ -612,9 +731,25 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
                 seed_p_hats.append(run["p_hat"])
             if seed == 0:
                 runs[name] = run
+            if members_of[name] > 1:
+                members = [run] + [
+                    timer.run(f"{stage} {name} seed {seed} member {j}", run_setting, domain, setting, seed,
+                              pool, test, base, args.iterations, work, reuse=args.reevaluate,
+                              skip_trained=args.skip_trained, member=j)
+                    for j in range(1, members_of[name])]
+                ensemble_dir = work / "runs" / f"{name}_seed{seed}_ensemble{members_of[name]}"
+                scores = timer.run(f"ensemble {name} seed {seed}", member_ensemble_row,
+                                   domain, members, test, ensemble_dir)
+                member_rows.append({"members": float(len(members)), **scores})
+                print(f"   ensemble of {members_of[name]}: " + ", ".join(
+                    f"{k} {v:.3f}" for k, v in member_rows[-1].items()))
         results[name] = aggregate(rows)
+        if member_rows:
+            member_ensembles[name] = aggregate(member_rows)
         if want_ensemble:
-            ensembles[name] = ensemble_scores(domain, seed_p_hats, test)
+            lengths = [int(r["constrained_min_length"]) for r in rows]
+            ensembles[name] = ensemble_scores(domain, seed_p_hats, test,
+                                              min(set(lengths), key=lambda v: (-lengths.count(v), v)))
         if args.reevaluate:
             kept = old_results.get(name, {})
             results[name].update({k: kept[k] for k in TRAINING_CELLS if k in kept})
@@ -624,9 +759,13 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     primary = PRIMARY[domain] if PRIMARY[domain] in runs else names[0]
     pool, test = data[SETTINGS[domain][primary].partial]
     extras = sweeps(domain, primary, extras_wanted, runs[primary]["p_hat"], test)
+    if member_ensembles:
+        title = ("Ensembles per seed (members share the seed's split and differ in initialisation; "
+                 f"p_hat averaged; mean (std) over {args.seeds} seeds)")
+        extras[title] = member_ensembles
     if ensembles:
-        extras[f"Ensemble of the {args.seeds} seeds (p_hat averaged offline; one model per table row, "
-               "one model in ompn_node)"] = ensembles
+        extras[f"Ensemble of the {args.seeds} seeds (p_hat averaged offline; constrained Top-K with the "
+               "min_length most seeds chose)"] = ensembles
     if "ablations" in extras_wanted:
         table = {}
         chosen = [a for a in args.ablations.split(",") if a]

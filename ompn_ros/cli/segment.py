@@ -321,7 +321,8 @@ def run_replay(
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="ompn_segment", description=__doc__.split("\n")[0])
     p.add_argument("--bag", help="bag file/directory/glob to replay")
-    p.add_argument("--checkpoint", required=True, help="checkpoint directory (safetensors + JSON)")
+    p.add_argument("--checkpoint", required=True,
+                   help="checkpoint directory (safetensors + JSON), or an ensemble directory (ensemble.json)")
     p.add_argument("--reader-config", help="bag reader spec YAML (config/reader_*.yaml)")
     p.add_argument(
         "--domain", choices=("craft", "dial"), help="reader preset / episode generator / config name"
@@ -349,10 +350,15 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import torch
 
-    from ompn_ros.model.streaming import StreamingPolicy
+    from ompn_ros.model.checkpoint import CheckpointError
+    from ompn_ros.model.factory import stepper_from_checkpoint
 
     torch.set_num_threads(1)
-    policy = StreamingPolicy.from_checkpoint(args.checkpoint)
+    try:
+        policy = stepper_from_checkpoint(args.checkpoint)
+    except CheckpointError as exc:
+        print(f"ompn_segment: error: --checkpoint: {exc}", file=sys.stderr)
+        return 2
     episodes = _load_episodes(args)
     if not episodes:
         print("no episodes found", file=sys.stderr)

@@ -124,6 +124,61 @@ def top_k_boundaries(
     return np.sort(chosen).astype(np.int64)
 
 
+def constrained_top_k_boundaries(
+    p_hat: np.ndarray,
+    k: int,
+    *,
+    min_length: int = 2,
+    end_is_boundary: bool = True,
+    weighting: Weighting = "code",
+) -> np.ndarray:
+    """Top-K restricted to boundary sets every episode can have (our extension; not in the paper).
+
+    Plain Top-K (:func:`top_k_boundaries`) picks the ``k`` steps whose scores
+    (:func:`depth_scores`) have the largest sum.  This detector maximises the same sum, but only
+    over sets in which
+
+    * every subtask lasts at least ``min_length`` steps (``b_1 + 1 ≥ min_length`` and
+      ``b_{i+1} − b_i ≥ min_length``), so one expansion spread over two neighbouring steps cannot
+      take two of the ``k`` places, and
+    * with ``end_is_boundary``, the last step ``T − 1`` is one of the boundaries: an episode ends
+      when its last subtask ends, and the ground truth always contains ``T − 1``.
+
+    The maximum is found exactly by dynamic programming over (boundary count, last boundary),
+    ``O(k·T)``; ties go to the earlier steps.  With ``min_length = 1`` and ``end_is_boundary=False``
+    it is plain Top-K (up to ties at step 0).  When the episode is too short for ``k`` subtasks of
+    ``min_length`` steps, ``min_length`` is lowered to ``T // k``; when ``T < k`` every step is
+    returned.
+    """
+    k = _check_k(k)
+    if isinstance(min_length, bool) or int(min_length) != min_length or min_length < 1:
+        raise DetectorError(f"min_length (steps per subtask) must be an integer >= 1, got {min_length!r}")
+    scores = depth_scores(p_hat, weighting)
+    length = len(scores)
+    if length <= k:
+        return np.arange(length, dtype=np.int64)
+    gap = min(int(min_length), length // k)
+    # best[c, t]: the largest score sum of c + 1 boundaries with the last one at step t
+    best = np.full((k, length), -np.inf)
+    prev = np.full((k, length), -1, dtype=np.int64)
+    best[0, gap - 1 :] = scores[gap - 1 :]
+    for c in range(1, k):
+        running, arg = -np.inf, -1
+        for t in range(length):
+            before = t - gap
+            if before >= 0 and best[c - 1, before] > running:
+                running, arg = best[c - 1, before], before
+            if arg >= 0:
+                best[c, t] = scores[t] + running
+                prev[c, t] = arg
+    last = length - 1 if end_is_boundary else int(np.argmax(best[k - 1]))
+    chosen = [last]
+    for c in range(k - 1, 0, -1):
+        last = int(prev[c, last])
+        chosen.append(last)
+    return np.asarray(chosen[::-1], dtype=np.int64)
+
+
 def standardise(scores: np.ndarray, mode: Standardisation = "code") -> np.ndarray:
     """Scale scores for thresholding.
 

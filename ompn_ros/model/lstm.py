@@ -197,6 +197,7 @@ class LSTMStreamingPolicy:
             p_hat=p_hat_t[0].numpy().astype(np.float32),
             expected_position=float(np.dot(np.arange(1, pi.size + 1), pi)),
             done_prob=pi_end,
+            action_logits=logits if self.config.action_type == "discrete" else None,
         )
 
 

@@ -50,6 +50,8 @@ class StepOutput:
         p_hat: ``[n+1]`` ordered [pi_end, slot n (top), ..., slot 1], sums to 1.
         expected_position: ``sum_i i pi_i`` for i = 1..n (paper pi_avg).
         done_prob: p'(done) = pi_end.
+        action_logits: discrete: the env-action logits ``[A]`` (float32; their softmax is the
+            action distribution given "not done"); continuous: None.
     """
 
     action: np.ndarray | int
@@ -58,6 +60,7 @@ class StepOutput:
     p_hat: np.ndarray
     expected_position: float
     done_prob: float
+    action_logits: np.ndarray | None = None
 
 
 def checked_observation(obs: np.ndarray, obs_dim: int, ready: bool) -> np.ndarray:
@@ -156,8 +159,10 @@ class StreamingPolicy:
     ) -> StepOutput:
         pi_arr = np.array(pi, dtype=np.float32)
         p_hat = np.array([pi_end, *pi_hat[::-1]], dtype=np.float32)
+        logits = None
         if self.config.action_type == "discrete":
             action: np.ndarray | int = int(action_out.argmax())
+            logits = np.array(action_out, dtype=np.float32)  # a copy: the numpy backend reuses its buffer
         else:
             action = action_out.astype(np.float32)
         return StepOutput(
@@ -167,6 +172,7 @@ class StreamingPolicy:
             p_hat=p_hat,
             expected_position=float(sum(k * p for k, p in enumerate(pi, start=1))),
             done_prob=float(pi_end),
+            action_logits=logits,
         )
 
     def _step_torch(self, arr: np.ndarray) -> StepOutput:

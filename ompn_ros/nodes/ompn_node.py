@@ -131,7 +131,9 @@ class OMPNNode(LifecycleNode):
             "domain", "", _desc("'craft' | 'dial' | '' (checks sizes, picks the default checkpoint)")
         )
         self.declare_parameter(
-            "checkpoint", "", _desc("checkpoint directory; '' = the shipped one for 'domain'")
+            "checkpoint", "",
+            _desc("checkpoint directory, or an ensemble directory (ensemble.json); '' = the shipped one "
+                  "for 'domain'"),
         )
         self.declare_parameter("obs_source", "array", _desc("'array' (observation topic) | 'joint_state'"))
         self.declare_parameter(

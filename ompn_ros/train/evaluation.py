@@ -14,7 +14,12 @@ import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.offline import auto_threshold_boundaries, threshold_boundaries, top_k_boundaries
+from ompn_ros.detect.offline import (
+    auto_threshold_boundaries,
+    constrained_top_k_boundaries,
+    threshold_boundaries,
+    top_k_boundaries,
+)
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
@@ -46,14 +51,18 @@ def decomposition_metrics(
     k: int | None = None,
     thresholds: Sequence[float] = (),
     primary: str = "topk",
+    min_length: int = 2,
 ) -> dict[str, float]:
     """Metrics of the offline detectors on per-episode ``p_hat`` ``[T, n+1]`` (real steps only).
 
-    Keys: ``topk_*`` (Top-K, spec craft §5.2), ``auto_*`` (automatic threshold, paper Algorithm 2,
-    plus ``auto_fallback_rate``), and ``thr<θ>_*`` for every fixed threshold in ``thresholds``
-    (paper Algorithm 1), each with ``f1_tol0/1``, ``precision_tol0/1``, ``recall_tol0/1``, ``align``
-    (authors' decoding) and ``align_strict``.  The unprefixed ``f1_tol0``, ``f1_tol1``, ``align`` and
-    ``align_strict`` repeat the ``primary`` detector (``'topk'`` or ``'auto'``).
+    Keys: ``topk_*`` (Top-K, spec craft §5.2), ``topkc_*`` (Top-K constrained to subtasks of at
+    least ``min_length`` steps ending at the episode's last step,
+    :func:`~ompn_ros.detect.offline.constrained_top_k_boundaries`), ``auto_*`` (automatic
+    threshold, paper Algorithm 2, plus ``auto_fallback_rate``), and ``thr<θ>_*`` for every fixed
+    threshold in ``thresholds`` (paper Algorithm 1), each with ``f1_tol0/1``, ``precision_tol0/1``,
+    ``recall_tol0/1``, ``align`` (authors' decoding) and ``align_strict``.  The unprefixed
+    ``f1_tol0``, ``f1_tol1``, ``align`` and ``align_strict`` repeat the ``primary`` detector
+    (``'topk'`` or ``'auto'``; the paper's detectors).
     """
     if len(p_hats) != len(episodes):
         raise EvaluationError(f"got {len(p_hats)} p_hat sequences for {len(episodes)} episodes")
@@ -69,7 +78,10 @@ def decomposition_metrics(
     ks = [k if k is not None else len(ep.boundaries) for ep in episodes]
     topk = [top_k_boundaries(p, kk) for p, kk in zip(p_hats, ks, strict=True)]
     auto_runs = [auto_threshold_boundaries(p, kk) for p, kk in zip(p_hats, ks, strict=True)]
+    constrained = [constrained_top_k_boundaries(p, kk, min_length=min_length)
+                   for p, kk in zip(p_hats, ks, strict=True)]
     out = _scores("topk_", topk, episodes)
+    out.update(_scores("topkc_", constrained, episodes))
     out.update(_scores("auto_", [b for b, _ in auto_runs], episodes))
     out["auto_fallback_rate"] = float(np.mean([a.fallback for _, a in auto_runs]))
     for theta in thresholds:
@@ -80,6 +92,30 @@ def decomposition_metrics(
     for key in ("f1_tol0", "f1_tol1", "align", "align_strict"):
         out[key] = out[f"{primary}_{key}"]
     return out
+
+
+def tune_min_length(
+    p_hats: Sequence[np.ndarray], episodes: Sequence[Episode], candidates: Sequence[int] = (1, 2, 3)
+) -> tuple[int, dict[int, float]]:
+    """The ``min_length`` of the constrained Top-K with the best alignment on ``episodes``.
+
+    Meant for a run's validation episodes (never the test ones).  Returns ``(best, {candidate:
+    alignment})``; ties go to the smaller ``min_length`` (the weaker assumption).
+    """
+    if not candidates:
+        raise EvaluationError("tune_min_length needs at least one candidate min_length")
+    if any(ep.subtask is None for ep in episodes):
+        raise EvaluationError("tune_min_length needs episodes with subtask labels")
+    labels = [np.asarray(ep.subtask) for ep in episodes]
+    if len(p_hats) != len(episodes):
+        raise EvaluationError(f"got {len(p_hats)} p_hat sequences for {len(episodes)} episodes")
+    scores: dict[int, float] = {}
+    for length in sorted(set(int(c) for c in candidates)):
+        preds = [constrained_top_k_boundaries(p, len(ep.boundaries), min_length=length)
+                 for p, ep in zip(p_hats, episodes, strict=True)]
+        scores[length] = alignment_accuracy(preds, labels, variant="authors")
+    best = max(scores, key=lambda length: (scores[length], -length))
+    return best, scores
 
 
 def teacher_forced_p_hat(
@@ -133,6 +169,7 @@ def evaluate(
     keep_p_hat: bool = True,
     k: int | None = None,
     thresholds: Sequence[float] = (),
+    min_length: int = 2,
 ) -> dict[str, Any]:
     """Teacher-forced evaluation of ``policy`` on whole ``episodes`` (each from the initial memory).
 
@@ -152,7 +189,9 @@ def evaluate(
     }
     if all(ep.subtask is not None for ep in episodes):
         primary = "topk" if policy.config.action_type == "discrete" else "auto"
-        result.update(decomposition_metrics(p_hats, episodes, k=k, thresholds=thresholds, primary=primary))
+        result.update(decomposition_metrics(
+            p_hats, episodes, k=k, thresholds=thresholds, primary=primary, min_length=min_length
+        ))
     if keep_p_hat:
         result["p_hat"] = p_hats
     return result

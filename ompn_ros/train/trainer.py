@@ -93,6 +93,9 @@ class TrainConfig:
         eval_every: evaluate, save ``last/`` + the resumable state every this many iterations.
         val_ratio: fraction of episodes held out for validation (seeded split).
         seed: seeds the model init, the split and the batch order.
+        split_seed: seeds the train/validation split instead of ``seed`` (None = ``seed``).  The
+            members of an ensemble share one split, so that its validation episodes are unseen by
+            every member, and differ in ``seed``.
         out_dir: checkpoint/log directory (None = keep nothing on disk).
         resume: continue from ``out_dir/train_state`` if present.
         tensorboard: write TensorBoard scalars to ``out_dir/tb`` (if tensorboard is installed).
@@ -132,6 +135,7 @@ class TrainConfig:
     eval_every: int = 20
     val_ratio: float = 0.2
     seed: int = 0
+    split_seed: int | None = None
     out_dir: str | None = None
     resume: bool = False
     tensorboard: bool = False
@@ -161,6 +165,11 @@ class TrainConfig:
             need(is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
         for name in ("seed", "threads", "eval_episodes"):
             need(is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
+        need(
+            self.split_seed is None or (is_int(self.split_seed) and self.split_seed >= 0),
+            "split_seed",
+            "must be None (use seed) or an int >= 0",
+        )
         for name in ("lr", "clip_norm"):
             value = getattr(self, name)
             need(
@@ -264,12 +273,14 @@ def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, flo
 def train_val_episodes(
     episodes: Sequence[Episode], cfg: TrainConfig
 ) -> tuple[list[Episode], list[Episode], int]:
-    """``(train, validation, n_val)`` as :func:`train` splits ``episodes`` (``val_ratio``, ``seed``).
+    """``(train, validation, n_val)`` as :func:`train` splits ``episodes`` (``val_ratio``, and
+    ``split_seed``, or ``seed`` when it is None).
 
     The validation list is capped at ``eval_episodes``; with ``val_ratio = 0`` it is the training
     split itself and ``n_val`` is 0.
     """
-    train_idx, val_idx = split_train_val(len(episodes), cfg.val_ratio, cfg.seed)
+    split_seed = cfg.seed if cfg.split_seed is None else cfg.split_seed
+    train_idx, val_idx = split_train_val(len(episodes), cfg.val_ratio, split_seed)
     train_eps = [episodes[i] for i in train_idx]
     val_eps = [episodes[i] for i in val_idx] if len(val_idx) else list(train_eps)
     if cfg.eval_episodes:
