@@ -367,7 +367,8 @@ def test_constrained_top_k_metrics_and_min_length_tuning() -> None:
     assert table == {1: 0.7, 2: 1.0, 3: 0.9}
     peaks = np.eye(10)[[3, 7, 9]].sum(axis=0)
     clean = np.stack([np.zeros(10), peaks, 1.0 - peaks], axis=1)
-    assert tune_min_length([clean], [ep]) == (1, {1: 1.0, 2: 1.0, 3: 0.9})  # tie: the weaker one
+    assert tune_min_length([clean], [ep], (1, 2, 3)) == (1, {1: 1.0, 2: 1.0, 3: 0.9})  # tie: weaker one
+    assert tune_min_length([p_hat], [ep])[0] == 2  # the default grid
     with pytest.raises(EvaluationError, match="candidate"):
         tune_min_length([p_hat], [ep], candidates=())
     with pytest.raises(EvaluationError, match="subtask labels"):
