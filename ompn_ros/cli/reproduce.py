@@ -183,10 +183,11 @@ def build_configs(domain: str, base: dict[str, dict[str, Any]], setting: Setting
     return OMPNConfig.from_dict(model), TrainConfig.from_dict(train)
 
 
-def evaluate(policy: Any, episodes: Sequence[Episode], **kwargs: Any) -> dict[str, Any]:
-    from ompn_ros.train.trainer import evaluate as teacher_forced_evaluate
+def offline_metrics(policy: Any, episodes: Sequence[Episode], min_length: int) -> dict[str, Any]:
+    """Teacher-forced loss, ``p_hat`` and the offline detectors' metrics on ``episodes``."""
+    from ompn_ros.train.trainer import evaluate
 
-    return teacher_forced_evaluate(policy, episodes, **kwargs)
+    return evaluate(policy, episodes, keep_p_hat=True, min_length=min_length)
 
 
 def online_metrics(
@@ -374,7 +375,7 @@ def evaluate_policy(
 
     val_p_hats = teacher_forced_p_hat(policy, list(val))[0] if val else []
     min_length = tuned_min_length(val_p_hats, val)
-    offline = evaluate(policy, test, keep_p_hat=True, min_length=min_length)
+    offline = offline_metrics(policy, test, min_length)
     row: dict[str, Any] = {"align_acc": offline["align"]}
     primary = "topk_" if domain == "craft" else "auto_"
     row.update({k: offline[primary + k] for k in METRIC_KEYS})
@@ -696,11 +697,15 @@ def _run(args: argparse.Namespace, argv: Sequence[str]) -> int:
     figures: list[str] = []
     args.results.mkdir(parents=True, exist_ok=True)
     if args.evaluate is not None:
-        from ompn_ros.model.checkpoint import load_checkpoint
+        from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
 
         setting = SETTINGS[domain][names[0]]
         test = data[setting.partial][1]
-        policy = load_checkpoint(args.evaluate)[0]
+        try:
+            policy = load_checkpoint(args.evaluate)[0]
+        except CheckpointError as exc:
+            raise ReproduceError(f"--evaluate takes one checkpoint directory (ensembles are scored with "
+                                 f"--members): {exc}") from exc
         run = timer.run(f"evaluate {args.evaluate}", evaluate_policy, domain, policy, test)
         print("   " + ", ".join(f"{k} {v:.3f}" for k, v in run["row"].items() if isinstance(v, float)))
         # Re-evaluation refreshes the metric cells and keeps the training figures of an earlier run.
