@@ -239,7 +239,13 @@ def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path:
 
     assert row["constrained_min_length"]["mean"] in MIN_LENGTH_CANDIDATES
     assert 0.0 <= row["online_f1_tol1"]["mean"] <= 1.0
-    assert "Ensembles per seed" in (tmp_path / "results" / "craft.md").read_text()
+    table_md = (tmp_path / "results" / "craft.md").read_text().split("## Ensembles per seed")[1]
+    row_md = next(line for line in table_md.splitlines() if line.startswith("| full_nosketch |"))
+    cells = [c.strip() for c in row_md.strip("|").split("|")]
+    columns = list(row)
+    assert cells[1 + columns.index("members")] == "2 (0)"  # a count, not a percentage
+    delay = row["online_delay_mean"]
+    assert cells[1 + columns.index("online_delay_mean")] == f"{delay['mean']:.2f} ({delay['std']:.2f})"
     # the ensemble is written as a checkpoint the node loads, with its tuned detector beside it
     from ompn_ros.model.ensemble import EnsembleStepper, read_ensemble
     from ompn_ros.model.factory import stepper_from_checkpoint

@@ -511,9 +511,14 @@ def _fmt(cell: dict[str, float] | None, scale: float = 100.0, digits: int = 1) -
     return f"{cell['mean'] * scale:.{digits}f} ({cell['std'] * scale:.{digits}f})"
 
 
+UNSCALED_COLUMNS = {"members": 0, "min_length": 1, "delay_mean": 2}
+"""Extras columns that are counts or steps, not fractions (suffix -> decimals shown)."""
+
+
 def _cell(column: str, value: Any) -> str:
-    """An extras-table cell: fractions in %, ``min_length`` (a step count) as it is."""
-    scale, digits = (1.0, 1) if column.endswith(("min_length", "members")) else (100.0, 1)
+    """An extras-table cell: fractions in %, counts and step delays (``UNSCALED_COLUMNS``) as they are."""
+    suffix = next((k for k in UNSCALED_COLUMNS if column.endswith(k)), None)
+    scale, digits = (1.0, UNSCALED_COLUMNS[suffix]) if suffix else (100.0, 1)
     if isinstance(value, dict):
         return _fmt(value, scale, digits)
     return f"{scale * value:.{digits}f}"
