@@ -51,7 +51,7 @@ doctor: setup
 	$(PY) -m ompn_ros.cli.demo --smoke
 
 reproduce-craft: setup
-	$(PY) -m ompn_ros.cli.reproduce craft
+	$(PY) -m ompn_ros.cli.reproduce craft --members full_nosketch=3,partial_nosketch=3
 
 reproduce-dial: setup
 	$(PY) -m ompn_ros.cli.reproduce dial
