@@ -131,6 +131,7 @@ class EnsembleStepper:
         self.config = self.members[0].config
         self._steps = [getattr(m, "step_trusted", m.step) for m in self.members]
         self._ready = self.config.sketch_mode == "none"
+        self._positions = np.arange(1, self.config.n_slots + 1, dtype=np.float32)
 
     def reset(self, sketch: np.ndarray | None = None) -> None:
         """Start a new episode in every member."""
@@ -145,27 +146,36 @@ class EnsembleStepper:
     def step_trusted(self, arr: np.ndarray) -> StepOutput:
         """:meth:`step` on an observation already checked by the caller (float32 ``[obs_dim]``)."""
         outs = [step(arr) for step in self._steps]
-        p_hat = np.mean([o.p_hat for o in outs], axis=0).astype(np.float32)
+        # plain loops over the few members: cheaper than stacking small arrays on every step
+        p_hat = np.array(outs[0].p_hat, dtype=np.float64)
+        for out in outs[1:]:
+            p_hat += out.p_hat
+        p_hat /= len(outs)
         pi_end = float(p_hat[0])
-        slots = p_hat[1:][::-1].astype(np.float64)  # lowest slot first
+        slots = p_hat[:0:-1]  # lowest slot first
         mass = float(slots.sum())
-        pi = slots / mass if mass > 0 else np.mean([o.pi for o in outs], axis=0)
+        pi = (slots / mass if mass > 0 else np.mean([o.pi for o in outs], axis=0)).astype(np.float32)
+        logits: np.ndarray | None = None
         if self.config.action_type == "discrete":
-            if any(o.action_logits is None for o in outs):
-                raise StreamingInputError("an ensemble member returned no action logits")
-            probs = np.mean([_softmax(np.asarray(o.action_logits, np.float64)) for o in outs], axis=0)
+            probs = np.zeros(self.config.action_dim, dtype=np.float64)
+            for out in outs:
+                if out.action_logits is None:
+                    raise StreamingInputError("an ensemble member returned no action logits")
+                probs += _softmax(np.asarray(out.action_logits, np.float64))
+            probs /= len(outs)
             action: np.ndarray | int = int(probs.argmax())
-            logits: np.ndarray | None = np.log(np.maximum(probs, 1e-30)).astype(np.float32)
+            logits = np.log(np.maximum(probs, 1e-30)).astype(np.float32)
         else:
-            action = np.mean([np.asarray(o.action, np.float32) for o in outs], axis=0).astype(np.float32)
-            logits = None
-        pi32 = pi.astype(np.float32)
+            mean = np.array(outs[0].action, dtype=np.float32)
+            for out in outs[1:]:
+                mean += out.action
+            action = mean / np.float32(len(outs))
         return StepOutput(
             action=action,
-            pi=pi32,
+            pi=pi,
             pi_end=pi_end,
-            p_hat=p_hat,
-            expected_position=float(np.dot(np.arange(1, pi32.size + 1), pi32)),
+            p_hat=p_hat.astype(np.float32),
+            expected_position=float(pi @ self._positions),
             done_prob=pi_end,
             action_logits=logits,
         )
