@@ -144,7 +144,7 @@ def bench_ensemble_in_process(path: Path, domain: str, steps: int) -> Result:
 
     torch.set_num_threads(1)
     ensemble = stepper_from_checkpoint(path)
-    members = len(getattr(ensemble, "members", [ensemble]))
+    members = len(ensemble.members)
     obs, starts = _observations(domain, steps)
     out: Result = {}
     seg = StreamingSegmenter(ensemble, DetectorConfig(high=0.5))
@@ -353,11 +353,13 @@ def main() -> None:
                              "ompn_reproduce --members), in process and in ompn_node at 100 Hz")
     args = parser.parse_args()
     if args.ensemble is not None:
+        from ompn_ros.model.ensemble import read_ensemble
+
+        members = len(read_ensemble(args.ensemble)[0])
         results = bench_ensemble_in_process(args.ensemble, "craft", 1000 if args.quick else 5000)
-        members = next(iter(results)).split("_")[1]
         results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if args.quick else 2000,
                                  executor=args.executor, client=args.client_executor,
-                                 checkpoint=args.ensemble.resolve(), label=f"_{members}"))
+                                 checkpoint=args.ensemble.resolve(), label=f"_ensemble{members}"))
     else:
         results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts)
     width = max(len(k) for k in results)

@@ -160,17 +160,16 @@ def constrained_top_k_boundaries(
     gap = min(int(min_length), length // k)
     # best[c, t]: the largest score sum of c + 1 boundaries with the last one at step t
     best = np.full((k, length), -np.inf)
-    prev = np.full((k, length), -1, dtype=np.int64)
+    prev = np.zeros((k, length), dtype=np.int64)
     best[0, gap - 1 :] = scores[gap - 1 :]
+    steps = np.arange(length)
     for c in range(1, k):
-        running, arg = -np.inf, -1
-        for t in range(length):
-            before = t - gap
-            if before >= 0 and best[c - 1, before] > running:
-                running, arg = best[c - 1, before], before
-            if arg >= 0:
-                best[c, t] = scores[t] + running
-                prev[c, t] = arg
+        # the best predecessor at or before each step (its running maximum; the first one on ties)
+        running = np.maximum.accumulate(best[c - 1])
+        rises = np.concatenate([[best[c - 1, 0] > -np.inf], best[c - 1, 1:] > running[:-1]])
+        first = np.maximum.accumulate(np.where(rises, steps, 0))
+        best[c, gap:] = scores[gap:] + running[:-gap]
+        prev[c, gap:] = first[:-gap]
     last = length - 1 if end_is_boundary else int(np.argmax(best[k - 1]))
     chosen = [last]
     for c in range(k - 1, 0, -1):
