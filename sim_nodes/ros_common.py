@@ -24,7 +24,7 @@ in the ``cmd_action`` callback).  ``episodes`` = 0 means forever; otherwise the 
 ``wait_for_subscribers`` = N (> 0) holds the first episode until every topic in ``wait_topics``
 (default ``['*']``: all topics of the sim, the recorder case; an ``ompn_node`` in policy mode only needs
 ``['observation']``) has N matched subscribers, then waits 0.5 s more.  All topics use :data:`SIM_QOS`.
-Invalid parameters raise :class:`SimParameterError` at startup; :func:`run_sim_node` prints it and
+Invalid parameters raise :class:`ParameterError` at startup; :func:`run_sim_node` prints it and
 returns exit code 2.
 """
 
@@ -39,8 +39,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterException
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -49,6 +48,7 @@ from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray, MultiArrayDi
 
 from ompn_ros import layout
 from ompn_ros.layout import DomainLayout
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
 from sim_nodes import SEED_MAX, derive_seed
 
 SIM_QOS = QoSProfile(
@@ -67,63 +67,16 @@ _SETTLE_S = 0.5
 _FINAL_ANSWER_GRACE_S = 1.0
 
 
-class SimParameterError(ValueError):
-    """A sim node parameter is invalid; the message names the parameter."""
-
-    def __init__(self, name: str, reason: str) -> None:
-        self.parameter = name
-        super().__init__(f"invalid parameter '{name}': {reason}")
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """A node parameter with its validation rules (ranges become ROS descriptors)."""
-
-    name: str
-    default: Any
-    description: str
-    int_range: tuple[int, int] | None = None
-    float_range: tuple[float, float] | None = None
-    choices: tuple[str, ...] | None = None
-    read_only: bool = True
-
-    def descriptor(self) -> ParameterDescriptor:
-        desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
-        if self.int_range is not None:
-            desc.integer_range = [
-                IntegerRange(from_value=self.int_range[0], to_value=self.int_range[1], step=1)
-            ]
-        if self.float_range is not None:
-            lo, hi = self.float_range
-            desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-        if self.choices is not None:
-            desc.additional_constraints = "one of: " + ", ".join(self.choices)
-        return desc
-
-    def validate(self, value: Any) -> None:
-        """Raise :class:`SimParameterError` if ``value`` breaks a rule (ROS checks ranges too)."""
-        if self.choices is not None and value not in self.choices:
-            raise SimParameterError(self.name, f"{value!r} is not one of {list(self.choices)}")
-        if self.int_range is not None and not self.int_range[0] <= value <= self.int_range[1]:
-            raise SimParameterError(
-                self.name, f"{value} is outside [{self.int_range[0]}, {self.int_range[1]}]"
-            )
-        if self.float_range is not None and not self.float_range[0] <= value <= self.float_range[1]:
-            raise SimParameterError(
-                self.name, f"{value} is outside [{self.float_range[0]}, {self.float_range[1]}]"
-            )
-
-
 COMMON_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", "expert", "'expert' or 'policy' (actions from cmd_action)", choices=MODES),
     ParamSpec(
-        "rate", 10.0, "steps per second (0 = as fast as possible)", float_range=(0.0, 1e4), read_only=False
+        "rate", 10.0, "steps per second (0 = as fast as possible)", float_range=(0.0, 1e4), apply="live"
     ),
     ParamSpec("seed", 0, "base seed; episode i uses derive_seed(seed, i)", int_range=(0, SEED_MAX)),
     ParamSpec("episodes", 0, "number of episodes to run, then exit (0 = forever)", int_range=(0, 2**31 - 1)),
     ParamSpec(
         "policy_timeout", 5.0, "policy mode: seconds without cmd_action before a (throttled) warning",
-        float_range=(0.01, 3600.0), read_only=False,
+        float_range=(0.01, 3600.0), apply="live",
     ),
     ParamSpec(
         "wait_for_subscribers", 0,
@@ -135,19 +88,6 @@ COMMON_PARAMS: tuple[ParamSpec, ...] = (
         "wait_topics", ["*"], "topics checked by wait_for_subscribers; '*' = every topic the sim publishes",
     ),
 )  # fmt: skip
-
-
-def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
-    """Declare and validate ``specs`` on ``node``; any problem raises :class:`SimParameterError`."""
-    values: dict[str, Any] = {}
-    for spec in specs:
-        try:
-            value = node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
-        except ParameterException as exc:
-            raise SimParameterError(spec.name, str(exc)) from None
-        spec.validate(value)
-        values[spec.name] = value
-    return values
 
 
 # --- message builders (one place for the layout's message shapes) -------------------------------------
@@ -262,8 +202,9 @@ class SimNode(Node):
     def __init__(self, node_name: str, domain: DomainLayout, domain_params: Sequence[ParamSpec] = ()) -> None:
         super().__init__(node_name)
         self.domain = domain
-        self.param_specs = {s.name: s for s in (*COMMON_PARAMS, *domain_params)}
-        self.params = declare_parameters(self, list(self.param_specs.values()))
+        # A domain may override a common parameter (dial_sim's real-time rate): the last row wins.
+        self.param_table = ParamTable({s.name: s for s in (*COMMON_PARAMS, *domain_params)}.values())
+        self.params = self.param_table.declare(self)
         self.mode: str = self.params["mode"]
         self.rate: float = float(self.params["rate"])
         self.policy_timeout: float = float(self.params["policy_timeout"])
@@ -316,14 +257,9 @@ class SimNode(Node):
         return 1.0 / self.rate if self.rate > 0 else _FAST_TICK_S
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        for p in params:
-            spec = self.param_specs.get(p.name)
-            if spec is None:
-                continue
-            try:
-                spec.validate(p.value)
-            except SimParameterError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
+        result = self.param_table.check_changes(params)
+        if not result.successful:
+            return result
         for p in params:
             if p.name == "rate":
                 self.rate = float(p.value)
@@ -342,7 +278,7 @@ class SimNode(Node):
             return known
         unknown = [n for n in names if n not in known]
         if unknown:
-            raise SimParameterError("wait_topics", f"unknown topics {unknown}; this sim publishes {known}")
+            raise ParameterError("wait_topics", f"unknown topics {unknown}; this sim publishes {known}")
         return names
 
     def _ready(self) -> bool:
@@ -454,7 +390,7 @@ def run_sim_node(factory: Callable[[], SimNode], args: list[str] | None = None, 
         deadline = time.monotonic() + _LINGER_S
         while rclpy.ok() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
-    except SimParameterError as exc:
+    except ParameterError as exc:
         print(f"{name}: {exc}", file=sys.stderr, flush=True)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -10,10 +10,9 @@ from builtin_interfaces.msg import Time
 from std_msgs.msg import Float32MultiArray, Int32
 
 from ompn_ros import layout
+from ompn_ros.nodes.params import ParameterError, ParamSpec
 from sim_nodes.ros_common import (
     COMMON_PARAMS,
-    ParamSpec,
-    SimParameterError,
     action_msg,
     episode_marker,
     observation_msg,
@@ -62,13 +61,13 @@ def test_episode_marker_keys():
 
 def test_param_rules_name_the_parameter():
     specs = {s.name: s for s in COMMON_PARAMS}
-    with pytest.raises(SimParameterError, match="'mode'"):
+    with pytest.raises(ParameterError, match="'mode'"):
         specs["mode"].validate("autopilot")
-    with pytest.raises(SimParameterError, match="'rate'"):
+    with pytest.raises(ParameterError, match="'rate'"):
         specs["rate"].validate(-1.0)
     specs["rate"].validate(0.0)
     spec = ParamSpec("k", 1, "test", int_range=(0, 3))
     desc = spec.descriptor()
     assert desc.integer_range[0].from_value == 0 and desc.integer_range[0].to_value == 3 and desc.read_only
-    with pytest.raises(SimParameterError, match="'k'"):
+    with pytest.raises(ParameterError, match="'k'"):
         spec.validate(4)

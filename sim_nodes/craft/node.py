@@ -19,11 +19,12 @@ import numpy as np
 from std_msgs.msg import String
 
 from ompn_ros import layout
+from ompn_ros.nodes.params import ParamSpec
 from sim_nodes.craft.env import CraftEnv
 from sim_nodes.craft.expert import generate_episode
 from sim_nodes.craft.render import render_ansi
 from sim_nodes.craft.world import TASKS
-from sim_nodes.ros_common import SIM_QOS, EpisodeStart, ParamSpec, SimNode, run_sim_node
+from sim_nodes.ros_common import SIM_QOS, EpisodeStart, SimNode, run_sim_node
 
 NODE_NAME = "craft_sim"
 CRAFT_PARAMS = (

@@ -40,6 +40,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
 from ompn_ros import layout
+from ompn_ros.nodes.params import ParameterError, ParamSpec
 from sim_nodes import derive_seed
 from sim_nodes.dial.env import (
     MAX_STEPS_PER_SUBTASK,
@@ -56,12 +57,12 @@ from sim_nodes.dial.expert import (
     episode_sketch,
     generate_episode,
 )
-from sim_nodes.ros_common import SIM_QOS, EpisodeStart, ParamSpec, SimNode, SimParameterError, run_sim_node
+from sim_nodes.ros_common import SIM_QOS, EpisodeStart, SimNode, run_sim_node
 
 NODE_NAME = "dial_sim"
 DIAL_PARAMS = (
     ParamSpec("rate", 25.0, "steps per second (25 = real time, 0 = as fast as possible)",
-              float_range=(0.0, 10000.0), read_only=False),
+              float_range=(0.0, 10000.0), apply="live"),
     ParamSpec("sketch", Parameter.Type.INTEGER_ARRAY,
               "4 digits to press (no immediate repeat); unset/empty = drawn from the episode seed"),
     ParamSpec("press_tolerance", PRESS_TOLERANCE, "L1 distance (m) of the finger reference to a press point",
@@ -85,7 +86,7 @@ class DialSim(SimNode):
             try:
                 self.sketch = validate_sketch(list(raw_sketch), SKETCH_LENGTH)
             except DialConfigError as exc:
-                raise SimParameterError("sketch", str(exc)) from None
+                raise ParameterError("sketch", str(exc)) from None
         self.noise = float(self.params["noise"])
         self.permute = bool(self.params["permute_labels"])
         self.env = DialEnv(

@@ -1,0 +1,139 @@
+"""One way to declare, validate and change node parameters, shared by every node of the package.
+
+A node lists its parameters as :class:`ParamSpec` rows and calls :func:`declare_parameters` once in its
+constructor.  Each row carries its descriptor (description, range or choices, read-only flag), its own
+validation and *when* a change takes effect:
+
+* ``"live"``: accepted at any time, the node applies it from its next step (detector thresholds);
+* ``"configure"``: accepted only while a lifecycle node is not active; it is applied by the next
+  ``configure`` (``checkpoint``, ``domain``).  While active, a change is refused with that reason;
+* ``"startup"``: read-only after start-up (a ROS read-only descriptor).
+
+Start-up values that break a rule raise :class:`ParameterError`, whose one-line message names the
+parameter and the allowed values; :func:`exit_code_for` turns it into exit code 2 in ``main()``.
+Changes at run time go through :meth:`ParamTable.check_changes`, for a node's
+``add_on_set_parameters_callback``.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+
+Apply = Literal["live", "configure", "startup"]
+
+
+class ParameterError(ValueError):
+    """A parameter value is invalid; the message names the parameter and what is allowed."""
+
+    def __init__(self, name: str, reason: str) -> None:
+        self.parameter = name
+        super().__init__(f"invalid parameter '{name}': {reason}")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A node parameter: default, description, rules and when a change applies.
+
+    ``choices`` restricts a string parameter, or every item of a string-array parameter.  ``check`` is an
+    extra rule that returns a reason (or ``None``) for values the range and choices cannot express.
+    """
+
+    name: str
+    default: Any
+    description: str
+    int_range: tuple[int, int] | None = None
+    float_range: tuple[float, float] | None = None
+    choices: tuple[str, ...] | None = None
+    apply: Apply = "startup"
+    check: Callable[[Any], str | None] | None = None
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ROS descriptor: ranges as ROS ranges, choices as a constraint text."""
+        desc = ParameterDescriptor(description=self.description, read_only=self.apply == "startup")
+        if self.int_range is not None:
+            lo, hi = self.int_range
+            desc.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=1)]
+        if self.float_range is not None:
+            flo, fhi = self.float_range
+            desc.floating_point_range = [FloatingPointRange(from_value=flo, to_value=fhi, step=0.0)]
+        if self.choices is not None:
+            desc.additional_constraints = "one of: " + ", ".join(self.choices)
+        return desc
+
+    def validate(self, value: Any) -> None:
+        """Raise :class:`ParameterError` if ``value`` breaks a rule of this parameter."""
+        if self.choices is not None:
+            items = value if isinstance(value, (list, tuple)) else [value]
+            bad = [v for v in items if v not in self.choices]
+            if bad:
+                raise ParameterError(self.name, f"{value!r} is not one of {list(self.choices)}")
+        for bounds in (self.int_range, self.float_range):
+            if bounds is not None and not bounds[0] <= value <= bounds[1]:
+                raise ParameterError(self.name, f"{value} is outside [{bounds[0]}, {bounds[1]}]")
+        if self.check is not None:
+            reason = self.check(value)
+            if reason:
+                raise ParameterError(self.name, reason)
+
+
+class ParamTable:
+    """The parameters of one node, declared once; validates start-up values and run-time changes."""
+
+    def __init__(self, specs: Iterable[ParamSpec]) -> None:
+        self.specs: dict[str, ParamSpec] = {}
+        for spec in specs:
+            if spec.name in self.specs:
+                raise ValueError(f"parameter '{spec.name}' is listed twice")
+            self.specs[spec.name] = spec
+
+    def declare(self, node: Node) -> dict[str, Any]:
+        """Declare every parameter on ``node`` and validate its start-up value."""
+        values: dict[str, Any] = {}
+        for spec in self.specs.values():
+            try:
+                value = node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
+            except ParameterException as exc:
+                raise ParameterError(spec.name, str(exc)) from None
+            spec.validate(value)
+            values[spec.name] = value
+        return values
+
+    def check_changes(self, params: Sequence[Any], *, active: bool = False) -> SetParametersResult:
+        """Accept or refuse a set of changes (for ``add_on_set_parameters_callback``).
+
+        Unknown names (``use_sim_time`` and other rclpy parameters) are left to rclpy.  A change to a
+        ``"configure"`` parameter is refused while ``active``, with the way to apply it.
+        """
+        for param in params:
+            spec = self.specs.get(param.name)
+            if spec is None:
+                continue
+            if spec.apply == "configure" and active:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"'{spec.name}' cannot change while the node is active: deactivate, "
+                    "clean up, set it, then configure",
+                )
+            try:
+                spec.validate(param.value)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+
+def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """Declare and validate ``specs`` on ``node`` (shorthand for ``ParamTable(specs).declare(node)``)."""
+    return ParamTable(specs).declare(node)
+
+
+def exit_code_for(prog: str, exc: ParameterError) -> int:
+    """Print ``exc`` as one line naming ``prog`` and return exit code 2 (for a node's ``main()``)."""
+    print(f"{prog}: {exc}", file=sys.stderr)
+    return 2
