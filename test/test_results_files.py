@@ -2,8 +2,9 @@
 
 README's results summary must equal ``results/{craft,dial}.json`` as README formats it
 (``mean ± std`` in %), README stays a manual (≤ 15 KiB), every relative link or image in README,
-BENCHMARKS.md and ``docs/*.md`` resolves to a file of the repository, and no tracked file names a
-machine path.
+BENCHMARKS.md and ``docs/*.md`` resolves to a file of the repository, every section of
+``docs/craft.md`` / ``docs/dial.md`` that the code cites ("craft §3.5.4", "dial §4.5") exists, and no
+tracked file names a machine path.
 """
 
 from __future__ import annotations
@@ -38,6 +39,12 @@ LINK_ALLOW_MISSING: Final = frozenset({"results/README.md"})
 
 MACHINE_PATHS: Final = ("/wo" "rk/", "../sha" "red")  # split so that this file does not match itself
 USER_DOC_WORDS: Final = ("session", "helper")
+
+_SECTION = r"§ ?[0-9][0-9.]*(?:\s*[–-]\s*[0-9][0-9.]*)?"
+CITATION = re.compile(rf"\b(?:(craft|dial)(?:\.md)?|spec) ({_SECTION}(?:,\s*{_SECTION})*)")
+"""A citation of an environment document: the domain (or "spec" in a file of one domain), sections."""
+HEADING = re.compile(r"^#{2,4} ([0-9]+(?:\.[0-9]+)*)\.? ", flags=re.MULTILINE)
+CITING_DIRS: Final = ("ompn_ros", "sim_nodes", "bench", "test", "config")
 
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 
@@ -160,3 +167,27 @@ def test_user_documents_speak_to_users(doc: Path) -> None:
     text = doc.read_text(encoding="utf-8")
     found = [w for w in USER_DOC_WORDS if re.search(rf"\b{w}s?\b", text, flags=re.IGNORECASE)]
     assert not found, f"{doc.relative_to(ROOT)} uses {found}"
+
+
+def cited_sections() -> dict[str, set[str]]:
+    """``{domain: {section}}`` for every citation of craft/dial sections in the code and configs."""
+    cited: dict[str, set[str]] = {"craft": set(), "dial": set()}
+    for folder in CITING_DIRS:
+        for path in (ROOT / folder).rglob("*"):
+            if path.suffix not in {".py", ".yaml"}:
+                continue
+            where = f"{path.parent.name}/{path.name}"  # sim_nodes/dial/env.py cites "spec §2.1"
+            implied = next((d for d in cited if d in where), None)
+            for domain, sections in CITATION.findall(path.read_text(encoding="utf-8", errors="replace")):
+                if domain or implied:
+                    cited[domain or str(implied)].update(re.findall(r"[0-9][0-9.]*[0-9]|[0-9]", sections))
+    return cited
+
+
+@pytest.mark.parametrize("domain", ["craft", "dial"])
+def test_cited_sections_exist(domain: str) -> None:
+    headings = set(HEADING.findall((ROOT / "docs" / f"{domain}.md").read_text(encoding="utf-8")))
+    cited = cited_sections()[domain]
+    assert cited, f"no citation of docs/{domain}.md found: is the citation pattern still right?"
+    missing = sorted(cited - headings, key=lambda x: [int(p) for p in x.split(".")])
+    assert not missing, f"docs/{domain}.md lacks the cited sections {missing}"
