@@ -13,7 +13,7 @@
    Measured with the node's SingleThreadedExecutor (the EventsExecutor does not work with it, see
    the ompn_node docstring).
 
-Run: ``cd /work/main && .venv/bin/python bench/bench_node.py [--quick]``.
+Run: ``.venv/bin/python bench/bench_node.py [--quick]`` from the repository root.
 """
 
 from __future__ import annotations
