@@ -30,6 +30,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from sim_nodes.craft import TASKS, CraftEnv
+from sim_nodes.dial import DialEnv
+from sim_nodes.dial.expert import episode_sketch
+
 EVAL_SEED_BASE = 10_000
 """First evaluation seed; see the module docstring."""
 CRAFT_EVAL_TASKS: tuple[str, ...] = ("makebed", "makeaxe", "makeshears")
@@ -121,8 +125,6 @@ def agent_uses_sketch(agent: Any) -> bool:
 def run_craft_episode(agent: Agent, task: str, seed: int, *, full_obs: bool = True, use_sketch: bool = True,
                       max_steps: int = 64, record_actions: bool = False) -> EpisodeResult:  # fmt: skip
     """One greedy Craft rollout of ``agent`` on map ``seed`` (``CraftEnv.reset(seed=seed)``)."""
-    from sim_nodes.craft import CraftEnv
-
     env = CraftEnv(task, full_obs=full_obs, max_steps=max_steps)
     obs, info = env.reset(seed=seed)
     agent.reset(np.asarray(env.sketch, dtype=np.int64) if use_sketch else None)
@@ -157,8 +159,6 @@ def run_craft(
     record_actions: bool = False,
 ) -> ClosedLoopReport:
     """``episodes`` rollouts per task (seeds :func:`eval_seeds` unless given) -> report."""
-    from sim_nodes.craft import TASKS
-
     unknown = [t for t in tasks if t not in TASKS]
     if unknown or not tasks:
         raise ClosedLoopError(f"unknown Craft tasks {unknown or list(tasks)}; known: {sorted(TASKS)}")
@@ -197,9 +197,6 @@ def run_dial(
 ) -> ClosedLoopReport:
     """Dial rollouts: ``DialEnv.reset(seed=seed)`` with the sketch ``episode_sketch(seed)`` (as the
     collector and ``dial_sim`` draw it) unless ``sketches`` is given."""
-    from sim_nodes.dial import DialEnv
-    from sim_nodes.dial.expert import episode_sketch
-
     seed_list = list(seeds) if seeds is not None else eval_seeds(episodes)
     if sketches is not None and len(sketches) != len(seed_list):
         raise ClosedLoopError(f"got {len(sketches)} sketches for {len(seed_list)} seeds")

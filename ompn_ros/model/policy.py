@@ -49,6 +49,8 @@ from torch import Tensor, nn
 
 from ompn_ros.model.cells import ComCell, DecomCell, ScoreMLP, plain_layer_norm
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.expansion import SequenceOutput, expansion_sums, stick_breaking, to_p_hat
+from ompn_ros.model.fused import fused_forward_sequence
 
 
 class ModelInputError(ValueError):
@@ -82,49 +84,6 @@ class StepTensors:
     p_hat: Tensor
     pi: Tensor
     pi_end: Tensor
-
-
-@dataclass
-class SequenceOutput:
-    """Outputs of :meth:`OMPNPolicy.forward_sequence`; padded steps hold zeros.
-
-    ``action_out [B, T, A]``, ``p_hat [B, T, n+1]`` ([pi_end, top, ..., bottom]), ``pi [B, T, n]``
-    (lowest slot first), ``mask [B, T]`` (valid steps).
-    """
-
-    action_out: Tensor
-    p_hat: Tensor
-    pi: Tensor
-    mask: Tensor
-
-    @property
-    def pi_end(self) -> Tensor:
-        return self.p_hat[..., 0]
-
-
-def stick_breaking(logits: Tensor) -> tuple[Tensor, Tensor]:
-    """Slot probabilities and pi_end from score logits ``[..., n]`` (lowest slot first).
-
-    ``beta_i = sigmoid(s_i)``; ``pi_hat_i = beta_i prod_{j<i}(1 - beta_j)``; ``pi_end = prod_j (1 - beta_j)``
-    (paper §3.1 with f_i = 1 - beta_i).  Returns ``(pi_hat [..., n], pi_end [...])``.
-    """
-    beta = torch.sigmoid(logits)
-    survive = torch.cumprod(torch.sigmoid(-logits), dim=-1)  # prod_{j<=i} f_j
-    below = torch.cat([torch.ones_like(survive[..., :1]), survive[..., :-1]], dim=-1)
-    return beta * below, survive[..., -1]
-
-
-def expansion_sums(pi_hat: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Normalise pi_hat (L1, floor 1e-12) and return ``(pi, rcp, cp)``, all ``[..., n]`` lowest first."""
-    pi = pi_hat / pi_hat.sum(dim=-1, keepdim=True).clamp_min(1e-12)
-    rcp = torch.cumsum(pi, dim=-1)
-    cp = torch.flip(torch.cumsum(torch.flip(pi, dims=[-1]), dim=-1), dims=[-1])
-    return pi, rcp, cp
-
-
-def to_p_hat(pi_hat: Tensor, pi_end: Tensor) -> Tensor:
-    """``[pi_end, slot n, ..., slot 1]`` from ``pi_hat`` (lowest first) and ``pi_end``."""
-    return torch.cat([pi_end.unsqueeze(-1), torch.flip(pi_hat, dims=[-1])], dim=-1)
 
 
 def lengths_from_mask(mask: Tensor) -> Tensor:
@@ -348,8 +307,6 @@ class OMPNPolicy(PolicyInputs, nn.Module):
             raise ModelInputError(f"bptt must be a positive number of steps, got {bptt}")
         lengths = lengths_from_mask(mask)
         if impl == "fused":
-            from ompn_ros.model.fused import fused_forward_sequence
-
             return fused_forward_sequence(self, obs, mask, lengths, sketch, bptt, bf16=bf16)
         if impl != "reference":
             raise ModelInputError(f"impl must be 'fused' or 'reference', got {impl!r}")

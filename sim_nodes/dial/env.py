@@ -42,6 +42,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from sim_nodes.dial.render import make_renderer, render_frame
 from sim_nodes.dial.scene import FRAME_SKIP, N_KEYS, TORQUE_SCALE, DialModel, shared_model
 from sim_nodes.dial.targets import Targets, shared_targets
 
@@ -239,8 +240,6 @@ class DialEnv(gym.Env):
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         if self.render_mode != "rgb_array":
             return None
-        from sim_nodes.dial.render import make_renderer, render_frame
-
         if self._renderer is None:
             self._renderer = make_renderer(self.model)
         return render_frame(self._renderer, self.data)
