@@ -31,6 +31,11 @@ Streaming: p50/p99 latency of ``StreamingPolicy.step`` (batch 1) for the Craft (
 Dial (39 -> 64, n=2, 9-d Gaussian: ``config/train_dial.yaml``) configurations, numpy fast path vs the
 eager torch step, 1 thread.  ``load_avg_1min`` is the machine's load when the run started (2 cores
 shared with other processes: compare figures of one run, not across runs).
+
+Every run also reports the CPU: ``cpu_model``, ``cpu_simd_flags`` (the SIMD and bfloat16 flags of
+``/proc/cpuinfo`` that decide matmul speed) and ``cpu_bf16_native`` (1 when the CPU has native
+bfloat16 arithmetic, the condition under which the trainer honours ``train.bf16``; without it the
+bf16 figures measure PyTorch's emulation and are far slower than float32).
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from torch import Tensor, nn
 
 from ompn_ros.model import OMPNConfig, OMPNPolicy, StreamingPolicy, bc_loss
 from ompn_ros.model.cells import ComCell, DecomCell
+from ompn_ros.train.precision import cpu_flags, cpu_model, native_bf16
 
 AUTHORS_FPS = 3000.0  # spec craft §7.3: 1.97 s/iteration, ≈5 900 valid frames per batch, 2 threads
 SPEC_FRAMES = 5900.0  # valid frames of one 256-episode Craft batch (spec craft §7.3)
@@ -310,13 +316,28 @@ def latency_figures(steps: int) -> dict[str, tuple[float, str]]:
     return figures
 
 
-def run(quick: bool = False) -> dict[str, tuple[float, str]]:
-    """Return ``{figure: (value, unit)}``; see the module docstring."""
+SIMD_FLAG_PREFIXES = ("avx", "amx", "fma", "f16c", "sse4", "neon", "asimd", "sve", "bf16")
+
+
+def cpu_figures() -> dict[str, tuple[float | str, str]]:
+    """The CPU model, its SIMD/bfloat16 flags and whether bf16 is native (see the module docstring)."""
+    flags = cpu_flags()
+    simd = sorted(f for f in flags if f.startswith(SIMD_FLAG_PREFIXES) or "bf16" in f)
+    return {
+        "cpu_model": (cpu_model(), "name"),
+        "cpu_simd_flags": (" ".join(simd) or "unknown", "flags"),
+        "cpu_bf16_native": (1.0 if native_bf16(flags) else 0.0, "bool"),
+    }
+
+
+def run(quick: bool = False) -> dict[str, tuple[float | str, str]]:
+    """Return ``{figure: (value, unit)}``, the CPU description first; see the module docstring."""
     import os
 
     threads_before = torch.get_num_threads()
     try:
-        figures = {"load_avg_1min": (os.getloadavg()[0], "procs")}
+        figures: dict[str, tuple[float | str, str]] = {**cpu_figures()}
+        figures["load_avg_1min"] = (os.getloadavg()[0], "procs")
         figures.update(latency_figures(steps=1000 if quick else 4000))
         figures.update(train_figures(threads=2, iters=2 if quick else 4))
         figures.update(train_figures(threads=1, iters=2 if quick else 4))
@@ -345,7 +366,8 @@ def main() -> None:
     width = max(len(k) for k in figures)
     print(f"{'figure':<{width}}  {'value':>10}  unit")
     for name, (value, unit) in figures.items():
-        print(f"{name:<{width}}  {value:>10.4g}  {unit}")
+        shown = f"{value:>10.4g}" if isinstance(value, float) else value
+        print(f"{name:<{width}}  {shown}  {unit}")
 
 
 if __name__ == "__main__":

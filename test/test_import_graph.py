@@ -28,7 +28,14 @@ ENTRY_POINT_PACKAGES = ("ompn_ros.cli", "ompn_ros.nodes")
 MAX_ENTRY_POINT_LOCAL_IMPORTS = 57
 """A ratchet for ``cli/`` and ``nodes/``: lower it whenever one of their local imports goes."""
 SIM_NODES_MAY_IMPORT = ("ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages")
-"""The public ompn_ros API the ROS-free part of sim_nodes uses (see ``sim_nodes/__init__.py``)."""
+"""The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""
+OMPN_ROS_MAY_IMPORT = ("sim_nodes.registry",)
+"""The sim_nodes module ompn_ros uses (see ``sim_nodes/__init__.py``)."""
+PENDING_DOMAIN_IMPORTS = {
+    "ompn_ros.cli.collect": {"sim_nodes", "sim_nodes.craft", "sim_nodes.dial"},
+    "ompn_ros.cli.segment": {"sim_nodes.craft", "sim_nodes.dial"},
+}
+"""Imports that bypass the registry and are still to move to it; the list may only shrink."""
 
 
 def _modules() -> dict[str, Path]:
@@ -181,13 +188,26 @@ def test_entry_point_local_imports_stay_few():
     )
 
 
-def test_ros_free_sim_nodes_use_only_the_public_api():
+def test_sim_nodes_use_only_the_public_api():
     edges, _ = _graph()
     offenders = [
         f"{name} -> {target}"
         for name, targets in edges.items()
-        if name.startswith("sim_nodes") and not name.endswith(".node") and name != "sim_nodes.ros_common"
+        if name.startswith("sim_nodes")
         for target in targets
         if target.startswith("ompn_ros") and target not in SIM_NODES_MAY_IMPORT
     ]
     assert not offenders, "sim_nodes imports ompn_ros internals:\n" + "\n".join(offenders)
+
+
+def test_ompn_ros_reaches_the_domains_through_the_registry():
+    edges, _ = _graph()
+    offenders = [
+        f"{name} -> {target}"
+        for name, targets in edges.items()
+        if name.startswith("ompn_ros")
+        for target in targets
+        if target.startswith("sim_nodes") and target not in OMPN_ROS_MAY_IMPORT
+        and target not in PENDING_DOMAIN_IMPORTS.get(name, set())
+    ]
+    assert not offenders, "ompn_ros imports sim_nodes around sim_nodes.registry:\n" + "\n".join(offenders)

@@ -30,9 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from sim_nodes.craft import TASKS, CraftEnv
-from sim_nodes.dial import DialEnv
-from sim_nodes.dial.expert import episode_sketch
+from sim_nodes.registry import CRAFT_TASKS, CraftEnv, DialEnv, dial_episode_sketch
 
 EVAL_SEED_BASE = 10_000
 """First evaluation seed; see the module docstring."""
@@ -159,9 +157,9 @@ def run_craft(
     record_actions: bool = False,
 ) -> ClosedLoopReport:
     """``episodes`` rollouts per task (seeds :func:`eval_seeds` unless given) -> report."""
-    unknown = [t for t in tasks if t not in TASKS]
+    unknown = [t for t in tasks if t not in CRAFT_TASKS]
     if unknown or not tasks:
-        raise ClosedLoopError(f"unknown Craft tasks {unknown or list(tasks)}; known: {sorted(TASKS)}")
+        raise ClosedLoopError(f"unknown Craft tasks {unknown or list(tasks)}; known: {sorted(CRAFT_TASKS)}")
     seed_list = list(seeds) if seeds is not None else eval_seeds(episodes)
     sketch = agent_uses_sketch(agent) if use_sketch is None else use_sketch
     report = ClosedLoopReport("craft")
@@ -205,7 +203,7 @@ def run_dial(
     report = ClosedLoopReport("dial")
     start = time.perf_counter()
     for i, seed in enumerate(seed_list):
-        sketch = list(sketches[i]) if sketches is not None else episode_sketch(seed).tolist()
+        sketch = list(sketches[i]) if sketches is not None else dial_episode_sketch(seed).tolist()
         obs, info = env.reset(seed=seed, options={"sketch": sketch})
         agent.reset(np.asarray(info["sketch"], dtype=np.int64) if sketch_on else None)
         steps, terminated, truncated = 0, False, False

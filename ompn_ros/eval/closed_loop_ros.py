@@ -51,7 +51,7 @@ from ompn_ros.eval.closed_loop import (
     EpisodeResult,
 )
 from ompn_ros.ros_env import child_env
-from sim_nodes import derive_seed
+from sim_nodes.registry import derive_seed
 
 SIM_MODULES = {"craft": "sim_nodes.craft.node", "dial": "sim_nodes.dial.node"}
 
