@@ -12,11 +12,14 @@ import numpy as np
 import pytest
 import torch
 
+from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
 from ompn_ros.model import checkpoint
 from ompn_ros.model.atomic import remove_stale_temps
 from ompn_ros.model.build import build_policy, check_model_size, expected_tensors
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.load import shipped_stepper
+from ompn_ros.model.lstm import LSTMPolicy
 from ompn_ros.model.policy import OMPNPolicy
 
 
@@ -169,3 +172,22 @@ def test_save_removes_temporaries_of_killed_writers_only(tmp_path: Path) -> None
     left = sorted(p.name for p in tmp_path.iterdir())
     assert left == sorted(["ckpt", live.name, other.name, legacy_new.name])
     assert remove_stale_temps(tmp_path) == [other]
+
+
+def test_build_policy_draws_the_same_initial_weights_as_the_constructors() -> None:
+    # the size check builds on the meta device first: it must not consume the random stream
+    for arch, cls in (("ompn", OMPNPolicy), ("lstm", LSTMPolicy)):
+        cfg = OMPNConfig(obs_dim=9, action_type="discrete", action_dim=4, n_slots=2, slot_size=6, arch=arch)
+        torch.manual_seed(5)
+        built = build_policy(cfg).state_dict()
+        torch.manual_seed(5)
+        direct = cls(cfg).state_dict()
+        assert all(torch.equal(built[k], direct[k]) for k in direct)
+
+
+def test_shipped_steppers_load_by_domain() -> None:
+    for domain in ("craft", "dial"):
+        stepper = shipped_stepper(domain, backend="numpy")
+        assert stepper.config == load_config(shipped_checkpoint(domain))
+    with pytest.raises(MissingCheckpointError, match="grid"):
+        shipped_stepper("grid")
