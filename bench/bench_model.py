@@ -2,19 +2,19 @@
 
 Training: one iteration = forward + loss + backward + clip-norm 0.2 + Adam step on a batch of 256
 synthetic Craft-shaped episodes (obs 1075 sparse binary, 5 actions + done, lengths drawn 10..45 incl.
-the done step, zero-padded), n=3, m=128 (spec craft §4 hyper-parameters).  Figures are *valid*
+the done step, zero-padded), n=3, m=128 (docs/craft.md §4 hyper-parameters).  Figures are *valid*
 frames per second.  Models:
 
 * ``fast``: :meth:`OMPNPolicy.forward_sequence` (``impl='fused'``, float32) + :func:`bc_loss`;
 * ``fast_bf16``: the same with ``bf16=True`` (cell matmuls in bfloat16 autocast, the opt-in
   ``TrainConfig.bf16`` training option);
 * ``authors_style``: :class:`AuthorsStyleOMPN` below, a straightforward per-slot eager model
-  written to mimic the structure of the authors' ``OMStackBot`` (spec craft §3): flat memory,
+  written to mimic the structure of the authors' ``OMStackBot`` (docs/craft.md §3): flat memory,
   full padded batch at every step, first-step rows by masking, all n DecomCells, per-slot score
   calls, 4H-wide cell inputs, Categorical-style loss over the padded batch.
 
 For reference, the authors' own code measured 1.97 s/iteration ≈ 3 000 frames/s on this machine
-with 2 threads while it was otherwise idle (spec craft §7.3).  While these figures are taken the 2
+with 2 threads while it was otherwise idle (docs/craft.md §7.3).  While these figures are taken the 2
 cores are shared with other helpers: 2-thread figures suffer most (OpenMP threads wait for a busy
 core), so 1-thread figures are reported as well.  Compare ratios measured in the same run.  Each
 training figure is the best of N iterations (after one warm-up), the least disturbed by other load.
@@ -22,7 +22,7 @@ training figure is the best of N iterations (after one warm-up), the least distu
 ``2proc_x_1t``: two single-thread processes each train on half of every batch at the same time
 (the layout of the team's ``torchrun`` trainer); the gradient all-reduce is not included.
 
-``train_s_per_5900_frame_batch_*`` converts a figure to the spec's batch (256 Craft episodes ≈ 5 900
+``train_s_per_5900_frame_batch_*`` converts a figure to the paper setting's batch (256 Craft episodes ≈ 5 900
 valid frames; target ≤ 0.65 s = 3x the authors' 3 000 frames/s); the synthetic batches here hold
 ≈ 7 200 frames (lengths 10..45).
 
@@ -51,8 +51,8 @@ from ompn_ros.model import OMPNConfig, OMPNPolicy, StreamingPolicy, bc_loss
 from ompn_ros.model.cells import ComCell, DecomCell
 from ompn_ros.train.precision import cpu_flags, cpu_model, native_bf16
 
-AUTHORS_FPS = 3000.0  # spec craft §7.3: 1.97 s/iteration, ≈5 900 valid frames per batch, 2 threads
-SPEC_FRAMES = 5900.0  # valid frames of one 256-episode Craft batch (spec craft §7.3)
+AUTHORS_FPS = 3000.0  # docs/craft.md §7.3: 1.97 s/iteration, ≈5 900 valid frames per batch, 2 threads
+SPEC_FRAMES = 5900.0  # valid frames of one 256-episode Craft batch (docs/craft.md §7.3)
 
 
 class AuthorsStyleOMPN(nn.Module):
@@ -108,7 +108,7 @@ class AuthorsStyleOMPN(nn.Module):
             parent = rcp[:, i : i + 1] * cand[:, i] + (1 - rcp[:, i : i + 1]) * child
             child = self.decom[i](parent, u)
         child_m = torch.stack(children, dim=1)
-        aliased_prev = cand  # the code's in-place write makes prev_m == cand here (spec craft §3.5.4)
+        aliased_prev = cand  # the code's in-place write makes prev_m == cand here (docs/craft.md §3.5.4)
         m = aliased_prev * (1 - cp).unsqueeze(-1) + cand * p.unsqueeze(-1) + child_m * (1 - rcp).unsqueeze(-1)
         out = m[:, -1]
         feats = torch.cat([out, env_emb, x], dim=-1)

@@ -1,7 +1,7 @@
 """Closed-loop (free-run) evaluation of a behaviour-cloned policy in the env, ROS-free.
 
 The policy acts on its own observations (no teacher forcing), as in the authors' free-run
-evaluation (spec craft §4, dial §2.6; paper Fig. 6):
+evaluation (docs/craft.md §4, docs/dial.md §2.6; paper Fig. 6):
 
 * **Craft**: greedy rollout of at most 64 steps; the action is the argmax over the env actions
   (the policy's ``StepOutput.action``; DONE is a no-op in the env, so done is never taken).

@@ -1,4 +1,4 @@
-"""LSTM behaviour-cloning baseline with the OMPN policy interface (spec craft §3.11, paper Fig. 6).
+"""LSTM behaviour-cloning baseline with the OMPN policy interface (docs/craft.md §3.11, paper Fig. 6).
 
 Architecture (the authors' ``lstm`` bot, adapted to our interface):
 

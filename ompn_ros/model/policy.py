@@ -1,7 +1,7 @@
 """OMPNPolicy: the Ordered Memory Policy Network (Lu et al., ICLR 2021, §3 and appendix A).
 
 Memory ``M`` has n slots of size m (``[B, n, m]``, index 0 = paper slot 1 = the *lowest* slot).
-One step (paper §3.1, code branch "not initial", spec craft §3.5):
+One step (paper §3.1, code branch "not initial", docs/craft.md §3.5):
 
 1. ``x = W_in((s - mean) / scale) + b_in``; ``u = [x; e]`` with e the task (sketch) embedding.
 2. Bottom-up: ``C_0 = x``; ``C_i = ComCell_i(C_{i-1}, M^{t-1}_i, u)`` for i = 1..n.
@@ -10,10 +10,11 @@ One step (paper §3.1, code branch "not initial", spec craft §3.5):
    ``rcp_i = sum_{j<=i} pi_j``, ``cp_i = sum_{j>=i} pi_j``.
 4. Top-down: ``M_hat_n = 0``; ``M_hat_{i-1} = DecomCell_i(rcp_i C_i + (1 - rcp_i) M_hat_i, u)``.
 5. Memory update, ``memory_update='paper'`` (paper Eq. 2): ``M^t = M^{t-1}(1-cp) + C pi + M_hat(1-rcp)``;
-   ``'code'`` (what the authors' code executes, spec craft §3.5.4): ``M^t_i = rcp_i C_i + (1-rcp_i) M_hat_i``.
+   ``'code'`` (what the authors' code executes, docs/craft.md §3.5.4):
+   ``M^t_i = rcp_i C_i + (1-rcp_i) M_hat_i``.
 6. Output ``O = M^t_1``; action head ``W_a [O; e; x] + b_a`` (logits, or the Gaussian mean).
 
-Places where we follow the authors' code rather than the paper's text (spec craft §3.10):
+Places where we follow the authors' code rather than the paper's text (docs/craft.md §3.10):
 
 * First step (paper appendix A says only "skip bottom-up, expand from the top"): per sample, the
   bottom-up pass is skipped (``C := M^0``), the score MLP is not used, ``p_hat = [0, 1, 0, ..., 0]``
@@ -336,7 +337,7 @@ class OMPNPolicy(PolicyInputs, nn.Module):
 
 
 def gaussian_log_prob(actions: Tensor, mean: Tensor, variance: float) -> Tensor:
-    """log N(a; mu, variance * I) summed over the last dim (Dial head, spec dial §4.3)."""
+    """log N(a; mu, variance * I) summed over the last dim (Dial head, docs/dial.md §4.3)."""
     dim = actions.shape[-1]
     return -((actions - mean) ** 2).sum(-1) / (2 * variance) - 0.5 * dim * float(np.log(2 * np.pi * variance))
 

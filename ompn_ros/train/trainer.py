@@ -1,4 +1,4 @@
-"""Behaviour cloning of an OMPN with the done step (paper §3.2, Algorithm 1; spec craft §4, dial §4).
+"""Behaviour cloning of an OMPN with the done step (paper §3.2, Alg. 1; docs/craft.md §4, docs/dial.md §4).
 
 One iteration = one Adam update on a batch of whole, zero-padded episodes (teacher forcing from the
 initial memory, memory detached every ``bptt`` steps, loss = mean ``−log p'`` per valid step
@@ -88,7 +88,7 @@ class TrainDataError(ValueError):
 
 @dataclass
 class TrainConfig:
-    """Training hyper-parameters (defaults: the Craft paper values, spec craft §4).
+    """Training hyper-parameters (defaults: the Craft paper values, docs/craft.md §4).
 
     Attributes:
         lr: Adam learning rate (Craft 1e-3, Dial 5e-4).
@@ -132,8 +132,8 @@ class TrainConfig:
             so a resumed run draws the same ones.  Validation, selection and inference see clean
             inputs.
         obs_dropout_range: ``[start, stop)`` feature indices that ``obs_dropout`` applies to (empty =
-            every feature).  ``[525, 1050]`` is Craft's max-pooled global map block (spec craft
-            §1.7): dropping only it keeps the local view, inventory and direction intact.
+            every feature).  ``[525, 1050]`` is Craft's max-pooled global map block
+            (docs/craft.md §1.7): dropping only it keeps the local view, inventory and direction intact.
     """
 
     lr: float = 1e-3
