@@ -2,19 +2,19 @@
 
 Training: one iteration = forward + loss + backward + clip-norm 0.2 + Adam step on a batch of 256
 synthetic Craft-shaped episodes (obs 1075 sparse binary, 5 actions + done, lengths drawn 10..45 incl.
-the done step, zero-padded), n=3, m=128 (spec craft §4 hyper-parameters).  Figures are *valid*
+the done step, zero-padded), n=3, m=128 (docs/craft.md §4 hyper-parameters).  Figures are *valid*
 frames per second.  Models:
 
 * ``fast``: :meth:`OMPNPolicy.forward_sequence` (``impl='fused'``, float32) + :func:`bc_loss`;
 * ``fast_bf16``: the same with ``bf16=True`` (cell matmuls in bfloat16 autocast, the opt-in
   ``TrainConfig.bf16`` training option);
 * ``authors_style``: :class:`AuthorsStyleOMPN` below, a straightforward per-slot eager model
-  written to mimic the structure of the authors' ``OMStackBot`` (spec craft §3): flat memory,
+  written to mimic the structure of the authors' ``OMStackBot`` (docs/craft.md §3): flat memory,
   full padded batch at every step, first-step rows by masking, all n DecomCells, per-slot score
   calls, 4H-wide cell inputs, Categorical-style loss over the padded batch.
 
 For reference, the authors' own code measured 1.97 s/iteration ≈ 3 000 frames/s on this machine
-with 2 threads while it was otherwise idle (spec craft §7.3).  While these figures are taken the 2
+with 2 threads while it was otherwise idle (docs/craft.md §7.3).  While these figures are taken the 2
 cores are shared with other helpers: 2-thread figures suffer most (OpenMP threads wait for a busy
 core), so 1-thread figures are reported as well.  Compare ratios measured in the same run.  Each
 training figure is the best of N iterations (after one warm-up), the least disturbed by other load.
@@ -22,7 +22,7 @@ training figure is the best of N iterations (after one warm-up), the least distu
 ``2proc_x_1t``: two single-thread processes each train on half of every batch at the same time
 (the layout of the team's ``torchrun`` trainer); the gradient all-reduce is not included.
 
-``train_s_per_5900_frame_batch_*`` converts a figure to the spec's batch (256 Craft episodes ≈ 5 900
+``train_s_per_5900_frame_batch_*`` converts a figure to the paper setting's batch (256 Craft episodes ≈ 5 900
 valid frames; target ≤ 0.65 s = 3x the authors' 3 000 frames/s); the synthetic batches here hold
 ≈ 7 200 frames (lengths 10..45).
 
@@ -31,6 +31,11 @@ Streaming: p50/p99 latency of ``StreamingPolicy.step`` (batch 1) for the Craft (
 Dial (39 -> 64, n=2, 9-d Gaussian: ``config/train_dial.yaml``) configurations, numpy fast path vs the
 eager torch step, 1 thread.  ``load_avg_1min`` is the machine's load when the run started (2 cores
 shared with other processes: compare figures of one run, not across runs).
+
+Every run also reports the CPU: ``cpu_model``, ``cpu_simd_flags`` (the SIMD and bfloat16 flags of
+``/proc/cpuinfo`` that decide matmul speed) and ``cpu_bf16_native`` (1 when the CPU has native
+bfloat16 arithmetic, the condition under which the trainer honours ``train.bf16``; without it the
+bf16 figures measure PyTorch's emulation and are far slower than float32).
 """
 
 from __future__ import annotations
@@ -44,9 +49,10 @@ from torch import Tensor, nn
 
 from ompn_ros.model import OMPNConfig, OMPNPolicy, StreamingPolicy, bc_loss
 from ompn_ros.model.cells import ComCell, DecomCell
+from ompn_ros.train.precision import cpu_flags, cpu_model, native_bf16
 
-AUTHORS_FPS = 3000.0  # spec craft §7.3: 1.97 s/iteration, ≈5 900 valid frames per batch, 2 threads
-SPEC_FRAMES = 5900.0  # valid frames of one 256-episode Craft batch (spec craft §7.3)
+AUTHORS_FPS = 3000.0  # docs/craft.md §7.3: 1.97 s/iteration, ≈5 900 valid frames per batch, 2 threads
+SPEC_FRAMES = 5900.0  # valid frames of one 256-episode Craft batch (docs/craft.md §7.3)
 
 
 class AuthorsStyleOMPN(nn.Module):
@@ -102,7 +108,7 @@ class AuthorsStyleOMPN(nn.Module):
             parent = rcp[:, i : i + 1] * cand[:, i] + (1 - rcp[:, i : i + 1]) * child
             child = self.decom[i](parent, u)
         child_m = torch.stack(children, dim=1)
-        aliased_prev = cand  # the code's in-place write makes prev_m == cand here (spec craft §3.5.4)
+        aliased_prev = cand  # the code's in-place write makes prev_m == cand here (docs/craft.md §3.5.4)
         m = aliased_prev * (1 - cp).unsqueeze(-1) + cand * p.unsqueeze(-1) + child_m * (1 - rcp).unsqueeze(-1)
         out = m[:, -1]
         feats = torch.cat([out, env_emb, x], dim=-1)
@@ -310,13 +316,28 @@ def latency_figures(steps: int) -> dict[str, tuple[float, str]]:
     return figures
 
 
-def run(quick: bool = False) -> dict[str, tuple[float, str]]:
-    """Return ``{figure: (value, unit)}``; see the module docstring."""
+SIMD_FLAG_PREFIXES = ("avx", "amx", "fma", "f16c", "sse4", "neon", "asimd", "sve", "bf16")
+
+
+def cpu_figures() -> dict[str, tuple[float | str, str]]:
+    """The CPU model, its SIMD/bfloat16 flags and whether bf16 is native (see the module docstring)."""
+    flags = cpu_flags()
+    simd = sorted(f for f in flags if f.startswith(SIMD_FLAG_PREFIXES) or "bf16" in f)
+    return {
+        "cpu_model": (cpu_model(), "name"),
+        "cpu_simd_flags": (" ".join(simd) or "unknown", "flags"),
+        "cpu_bf16_native": (1.0 if native_bf16(flags) else 0.0, "bool"),
+    }
+
+
+def run(quick: bool = False) -> dict[str, tuple[float | str, str]]:
+    """Return ``{figure: (value, unit)}``, the CPU description first; see the module docstring."""
     import os
 
     threads_before = torch.get_num_threads()
     try:
-        figures = {"load_avg_1min": (os.getloadavg()[0], "procs")}
+        figures: dict[str, tuple[float | str, str]] = {**cpu_figures()}
+        figures["load_avg_1min"] = (os.getloadavg()[0], "procs")
         figures.update(latency_figures(steps=1000 if quick else 4000))
         figures.update(train_figures(threads=2, iters=2 if quick else 4))
         figures.update(train_figures(threads=1, iters=2 if quick else 4))
@@ -345,7 +366,8 @@ def main() -> None:
     width = max(len(k) for k in figures)
     print(f"{'figure':<{width}}  {'value':>10}  unit")
     for name, (value, unit) in figures.items():
-        print(f"{name:<{width}}  {value:>10.4g}  {unit}")
+        shown = f"{value:>10.4g}" if isinstance(value, float) else value
+        print(f"{name:<{width}}  {shown}  {unit}")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,18 @@
 """Simulated domains (Craft, Dial) and their ROS 2 sim nodes.
 
 Everything here except ``*/node.py`` and ``ros_common.py`` is ROS-free.
+
+The two packages meet at two small interfaces (``test/test_import_graph.py`` checks both):
+
+* **sim_nodes -> ompn_ros**: only these public modules of ``ompn_ros`` are imported here:
+
+  - ``ompn_ros.layout``: topic names, types and sizes, the step contract, sketch vocabularies;
+  - ``ompn_ros.data.episode``: the :class:`~ompn_ros.data.episode.Episode` the experts return;
+  - ``ompn_ros.data.messages``: the ROS-free CDR message codec.
+
+* **ompn_ros -> sim_nodes**: ``ompn_ros`` imports only :mod:`sim_nodes.registry` (expert episodes
+  by domain name, the envs, task lists, :func:`derive_seed`); the sim nodes themselves are started
+  as processes, never imported.
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import sim_nodes.craft  # noqa: F401  (registers ompn_ros/Craft-v0)
+from sim_nodes import registry
 from sim_nodes.craft import CraftEnv, generate_episode
 from sim_nodes.craft.world import UnknownTaskError
 
@@ -65,3 +66,17 @@ def test_bad_arguments():
         CraftEnv("makepizza")
     with pytest.raises(ValueError, match="render_mode"):
         CraftEnv(render_mode="human")
+
+
+def test_registry_generates_by_domain_name_and_names_bad_input() -> None:
+    assert registry.default_tasks("craft") == ("makebed", "makeaxe", "makeshears")
+    via_registry = registry.expert_episode("craft", 11, task="makeaxe", partial=True)
+    direct = generate_episode(11, task="makeaxe", full_obs=False)
+    assert via_registry.task == "makeaxe"
+    np.testing.assert_array_equal(via_registry.observations, direct.observations)
+    with pytest.raises(registry.UnknownDomainError, match="unknown domain 'grid'"):
+        registry.default_tasks("grid")
+    with pytest.raises(registry.UnknownDomainError, match="unknown Craft task 'fly'"):
+        registry.expert_episode("craft", 0, task="fly")
+    with pytest.raises(registry.UnknownDomainError, match="Dial task 'makebed'"):
+        registry.expert_episode("dial", 0, task="makebed")

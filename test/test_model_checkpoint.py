@@ -3,14 +3,23 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
+from ompn_ros.model import checkpoint
+from ompn_ros.model.atomic import remove_stale_temps
+from ompn_ros.model.build import build_policy, check_model_size, expected_tensors
+from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.load import shipped_stepper
+from ompn_ros.model.lstm import LSTMPolicy
 from ompn_ros.model.policy import OMPNPolicy
 
 
@@ -117,3 +126,68 @@ def test_half_precision_storage_halves_the_file_and_loads_as_float32(tmp_path) -
     (tmp_path / "half" / "meta.json").write_text('{"format_version": 1, "extra": {}}')
     with pytest.raises(CheckpointError, match="float16"):
         load_checkpoint(tmp_path / "half")
+
+
+def test_huge_config_is_rejected_before_any_allocation(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    save_checkpoint(tmp_path / "ckpt", policy())
+    config = json.loads((tmp_path / "ckpt" / "config.json").read_text())
+
+    def no_build(config: OMPNConfig) -> None:
+        raise AssertionError("the model was built before the shape check")
+
+    monkeypatch.setattr(checkpoint, "build_policy", no_build)
+    config["slot_size"] = 100_000  # 2.6e11 values: would need ~1 TB
+    (tmp_path / "ckpt" / "config.json").write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match=r"config\.json.*limit"):
+        load_checkpoint(tmp_path / "ckpt")
+    config["slot_size"] = 64  # plausible size, but not what the file holds
+    (tmp_path / "ckpt" / "config.json").write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match=r"model.safetensors: tensor '.*' has shape \(8,"):
+        load_checkpoint(tmp_path / "ckpt")
+
+
+def test_expected_tensors_match_the_built_model() -> None:
+    for arch in ("ompn", "lstm"):
+        cfg = OMPNConfig(obs_dim=9, action_type="discrete", action_dim=4, n_slots=2, slot_size=6,
+                         sketch_mode="sum", sketch_vocab=3, arch=arch)
+        built = {k: (tuple(v.shape), v.dtype) for k, v in build_policy(cfg).state_dict().items()}
+        assert expected_tensors(cfg) == built
+        assert check_model_size(cfg) == sum(int(np.prod(shape)) for shape, _ in built.values())
+
+
+def test_save_removes_temporaries_of_killed_writers_only(tmp_path: Path) -> None:
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True)
+    dead_pid = int(dead.stdout)
+    stale = tmp_path / f".ckpt.tmp-{dead_pid}-abc123"
+    live = tmp_path / f".ckpt.tmp-{os.getppid()}-def456"  # a running process (pytest's parent)
+    other = tmp_path / f".other.tmp-{dead_pid}-abc123"  # another checkpoint's: left alone
+    legacy_old, legacy_new = tmp_path / ".ckpt.tmp-k2j4h5g6", tmp_path / ".ckpt.old-q1w2e3r4"
+    for d in (stale, live, other, legacy_old, legacy_new):
+        d.mkdir()
+    os.utime(legacy_old, (0, 0))
+    save_checkpoint(tmp_path / "ckpt", policy())
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted(["ckpt", live.name, other.name, legacy_new.name])
+    assert remove_stale_temps(tmp_path) == [other]
+
+
+def test_build_policy_draws_the_same_initial_weights_as_the_constructors() -> None:
+    # the size check builds on the meta device first: it must not consume the random stream
+    for arch, cls in (("ompn", OMPNPolicy), ("lstm", LSTMPolicy)):
+        cfg = OMPNConfig(obs_dim=9, action_type="discrete", action_dim=4, n_slots=2, slot_size=6, arch=arch)
+        torch.manual_seed(5)
+        built = build_policy(cfg).state_dict()
+        torch.manual_seed(5)
+        direct = cls(cfg).state_dict()
+        assert all(torch.equal(built[k], direct[k]) for k in direct)
+
+
+def test_shipped_steppers_load_by_domain() -> None:
+    for domain in ("craft", "dial"):
+        stepper = shipped_stepper(domain, backend="numpy")
+        assert stepper.config == load_config(shipped_checkpoint(domain))
+    with pytest.raises(MissingCheckpointError, match="grid"):
+        shipped_stepper("grid")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -180,6 +182,21 @@ def test_resume_without_state_starts_fresh(tmp_path: Path) -> None:
         _train_config(out_dir=str(tmp_path), resume=True, iterations=1, batch_size=4),
     )
     assert result.iterations == 1
+
+
+def test_a_run_removes_temporaries_left_by_a_killed_run(tmp_path: Path) -> None:
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                           text=True, check=True)
+    root = tmp_path / "train_state"
+    root.mkdir()
+    stale_dir = root / f".it00000005.tmp-{int(child.stdout)}-x1"
+    stale_dir.mkdir()
+    stale_file = root / f".LATEST.tmp-{int(child.stdout)}-y2"
+    stale_file.write_text("{}")
+    train(make_dataset("discrete", 6, seed=1), _model_config(),
+          _train_config(out_dir=str(tmp_path), iterations=1, eval_every=1, batch_size=4))
+    assert not stale_dir.exists() and not stale_file.exists()
+    assert sorted(p.name for p in root.iterdir()) == ["LATEST", "it00000001"]
 
 
 def test_train_config_validation() -> None:

@@ -1,7 +1,7 @@
 """Closed-loop (free-run) evaluation of a behaviour-cloned policy in the env, ROS-free.
 
 The policy acts on its own observations (no teacher forcing), as in the authors' free-run
-evaluation (spec craft §4, dial §2.6; paper Fig. 6):
+evaluation (docs/craft.md §4, docs/dial.md §2.6; paper Fig. 6):
 
 * **Craft**: greedy rollout of at most 64 steps; the action is the argmax over the env actions
   (the policy's ``StepOutput.action``; DONE is a no-op in the env, so done is never taken).
@@ -29,6 +29,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+
+from sim_nodes.registry import CRAFT_TASKS, CraftEnv, DialEnv, dial_episode_sketch
 
 EVAL_SEED_BASE = 10_000
 """First evaluation seed; see the module docstring."""
@@ -121,8 +123,6 @@ def agent_uses_sketch(agent: Any) -> bool:
 def run_craft_episode(agent: Agent, task: str, seed: int, *, full_obs: bool = True, use_sketch: bool = True,
                       max_steps: int = 64, record_actions: bool = False) -> EpisodeResult:  # fmt: skip
     """One greedy Craft rollout of ``agent`` on map ``seed`` (``CraftEnv.reset(seed=seed)``)."""
-    from sim_nodes.craft import CraftEnv
-
     env = CraftEnv(task, full_obs=full_obs, max_steps=max_steps)
     obs, info = env.reset(seed=seed)
     agent.reset(np.asarray(env.sketch, dtype=np.int64) if use_sketch else None)
@@ -157,11 +157,9 @@ def run_craft(
     record_actions: bool = False,
 ) -> ClosedLoopReport:
     """``episodes`` rollouts per task (seeds :func:`eval_seeds` unless given) -> report."""
-    from sim_nodes.craft import TASKS
-
-    unknown = [t for t in tasks if t not in TASKS]
+    unknown = [t for t in tasks if t not in CRAFT_TASKS]
     if unknown or not tasks:
-        raise ClosedLoopError(f"unknown Craft tasks {unknown or list(tasks)}; known: {sorted(TASKS)}")
+        raise ClosedLoopError(f"unknown Craft tasks {unknown or list(tasks)}; known: {sorted(CRAFT_TASKS)}")
     seed_list = list(seeds) if seeds is not None else eval_seeds(episodes)
     sketch = agent_uses_sketch(agent) if use_sketch is None else use_sketch
     report = ClosedLoopReport("craft")
@@ -197,9 +195,6 @@ def run_dial(
 ) -> ClosedLoopReport:
     """Dial rollouts: ``DialEnv.reset(seed=seed)`` with the sketch ``episode_sketch(seed)`` (as the
     collector and ``dial_sim`` draw it) unless ``sketches`` is given."""
-    from sim_nodes.dial import DialEnv
-    from sim_nodes.dial.expert import episode_sketch
-
     seed_list = list(seeds) if seeds is not None else eval_seeds(episodes)
     if sketches is not None and len(sketches) != len(seed_list):
         raise ClosedLoopError(f"got {len(sketches)} sketches for {len(seed_list)} seeds")
@@ -208,7 +203,7 @@ def run_dial(
     report = ClosedLoopReport("dial")
     start = time.perf_counter()
     for i, seed in enumerate(seed_list):
-        sketch = list(sketches[i]) if sketches is not None else episode_sketch(seed).tolist()
+        sketch = list(sketches[i]) if sketches is not None else dial_episode_sketch(seed).tolist()
         obs, info = env.reset(seed=seed, options={"sketch": sketch})
         agent.reset(np.asarray(info["sketch"], dtype=np.int64) if sketch_on else None)
         steps, terminated, truncated = 0, False, False

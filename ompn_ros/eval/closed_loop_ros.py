@@ -51,6 +51,7 @@ from ompn_ros.eval.closed_loop import (
     EpisodeResult,
 )
 from ompn_ros.ros_env import child_env
+from sim_nodes.registry import derive_seed
 
 SIM_MODULES = {"craft": "sim_nodes.craft.node", "dial": "sim_nodes.dial.node"}
 
@@ -62,8 +63,6 @@ class RosEvalError(RuntimeError):
 def ros_eval_seeds(n: int, base: int = EVAL_SEED_BASE) -> list[int]:
     """Episode seeds of a ROS run: episode i is a sim started with ``seed:=base + i, episodes:=1``,
     whose episode 0 uses ``derive_seed(base + i, 0)`` (the sims' seed rule)."""
-    from sim_nodes import derive_seed
-
     return [derive_seed(base + i, 0) for i in range(n)]
 
 

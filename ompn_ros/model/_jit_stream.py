@@ -18,14 +18,17 @@ pays it in ``on_configure``, never on its first message.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
+import torch
 from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
 from ompn_ros.model._fast_stream import SPARSE_FRACTION, NumpyStepper
 from ompn_ros.model.cells import LN_EPS
+from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.policy import OMPNPolicy
 
 
@@ -335,12 +338,6 @@ class JitStepper(NumpyStepper):
 
 def main() -> None:
     """``python -m ompn_ros.model._jit_stream``: compile the kernel into numba's cache (``make setup``)."""
-    import time
-
-    import torch
-
-    from ompn_ros.model.config import OMPNConfig
-
     start = time.perf_counter()
     for cfg in (
         OMPNConfig(obs_dim=40, action_type="discrete", action_dim=5, n_slots=2, slot_size=16),

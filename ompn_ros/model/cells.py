@@ -1,4 +1,4 @@
-"""Gated recursive cells of the ordered memory (paper appendix A; spec craft §3.3–3.4).
+"""Gated recursive cells of the ordered memory (paper appendix A; docs/craft.md §3.3–3.4).
 
 Each memory slot owns one untied :class:`ComCell` (bottom-up, the horizontal update F) and
 slots 2..n own one :class:`DecomCell` (top-down, the vertical expansion h).  The :class:`ScoreMLP`
@@ -69,7 +69,7 @@ class DecomCell(nn.Module):
 
 
 class ScoreMLP(nn.Module):
-    """Score logit s_i with beta_i = sigmoid(s_i) = 1 - f_i, "expand at slot i" (spec craft §3.4).
+    """Score logit s_i with beta_i = sigmoid(s_i) = 1 - f_i, "expand at slot i" (docs/craft.md §3.4).
 
     Input ``[x; e; M^{t-1}_i; C_i]`` (the code's choice; the paper writes G(x, C_i, M^t_i)).
     """

@@ -7,7 +7,12 @@
   checkpoint small; they are cast back to float32 on load (the model always computes in float32).
 
 Saving is atomic: the files go to a temporary sibling directory that replaces ``path`` with
-``os.replace``.  Loading never unpickles anything.
+``os.replace``; temporary directories left by a killed writer are removed by the next save.
+Loading never unpickles anything, and checks every stored tensor's name, dtype and shape (read from
+the safetensors header) against the config before the model is allocated.
+
+The module itself comes from :mod:`ompn_ros.model.build` (config -> model); streaming steppers and
+ensembles from :mod:`ompn_ros.model.load` (path -> stepper).
 """
 
 from __future__ import annotations
@@ -15,22 +20,28 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors import SafetensorError
+from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 
+from ompn_ros.model.atomic import make_temp_dir, remove_stale_temps
+from ompn_ros.model.build import PolicyModule, build_policy, check_model_size, expected_tensors
 from ompn_ros.model.config import ConfigError, OMPNConfig
-from ompn_ros.model.factory import PolicyModule, build_policy
 
 CHECKPOINT_FORMAT_VERSION = 1
 STORED_DTYPES = {"float32": torch.float32, "float16": torch.float16}
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 META_FILE = "meta.json"
+SAFETENSORS_DTYPES = {
+    "F32": torch.float32, "F16": torch.float16, "BF16": torch.bfloat16, "F64": torch.float64,
+    "I64": torch.int64, "I32": torch.int32, "I16": torch.int16, "I8": torch.int8, "U8": torch.uint8,
+    "BOOL": torch.bool,
+}
+"""safetensors header dtype names -> torch dtypes."""
 
 
 class CheckpointError(RuntimeError):
@@ -63,8 +74,8 @@ def save_checkpoint(
         k: v.detach().to("cpu", dtype=stored if v.is_floating_point() else v.dtype).contiguous().clone()
         for k, v in policy.state_dict().items()
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    remove_stale_temps(path.parent, path.name)
+    tmp = make_temp_dir(path.parent, path.name)
     try:
         save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": "ompn_ros"})
         (tmp / CONFIG_FILE).write_text(policy.config.to_json())
@@ -74,7 +85,7 @@ def save_checkpoint(
         for file in tmp.iterdir():
             file.chmod(0o644)
         if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old-", dir=path.parent))
+            old = make_temp_dir(path.parent, path.name, "old")
             os.replace(path, old / "ckpt")
             os.replace(tmp, path)
             shutil.rmtree(old, ignore_errors=True)
@@ -98,60 +109,96 @@ def load_config(path: str | Path) -> OMPNConfig:
         raise CheckpointError(f"{file}: {exc}") from exc
 
 
-def load_checkpoint(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
-    """Load a checkpoint directory; returns ``(policy in eval mode, extra metadata)``.
-
-    The module class follows ``config.json``'s ``arch`` (``'ompn'`` or ``'lstm'``, see ``factory.py``).
-    """
-    path = Path(path)
-    if not path.is_dir():
-        raise CheckpointError(f"{path}: checkpoint directory does not exist")
-    config = load_config(path)
+def _read_meta(path: Path) -> tuple[dict[str, Any], torch.dtype]:
+    """``(extra, stored float dtype)`` from ``meta.json`` (absent: ``({}, float32)``)."""
     meta_file = path / META_FILE
-    extra: dict[str, Any] = {}
-    stored = torch.float32
-    if meta_file.is_file():
-        try:
-            meta = json.loads(meta_file.read_text())
-        except json.JSONDecodeError as exc:
-            raise CheckpointError(f"{meta_file}: not valid JSON: {exc}") from exc
-        if meta.get("format_version") != CHECKPOINT_FORMAT_VERSION:
-            raise CheckpointError(
-                f"{meta_file}: checkpoint format_version {meta.get('format_version')!r} is not supported "
-                f"(expected {CHECKPOINT_FORMAT_VERSION})"
-            )
-        extra = meta.get("extra", {})
-        stored_name = meta.get("weights_dtype", "float32")
-        if stored_name not in STORED_DTYPES:
-            raise CheckpointError(
-                f"{meta_file}: weights_dtype {stored_name!r} is not one of {sorted(STORED_DTYPES)}"
-            )
-        stored = STORED_DTYPES[stored_name]
-    weights_file = path / WEIGHTS_FILE
-    if not weights_file.is_file():
-        raise CheckpointError(f"{weights_file}: missing")
+    if not meta_file.is_file():
+        return {}, torch.float32
     try:
-        tensors = load_file(str(weights_file))
+        meta = json.loads(meta_file.read_text())
+    except json.JSONDecodeError as exc:
+        raise CheckpointError(f"{meta_file}: not valid JSON: {exc}") from exc
+    if not isinstance(meta, dict) or meta.get("format_version") != CHECKPOINT_FORMAT_VERSION:
+        version = meta.get("format_version") if isinstance(meta, dict) else None
+        raise CheckpointError(
+            f"{meta_file}: checkpoint format_version {version!r} is not supported "
+            f"(expected {CHECKPOINT_FORMAT_VERSION})"
+        )
+    stored_name = meta.get("weights_dtype", "float32")
+    if stored_name not in STORED_DTYPES:
+        raise CheckpointError(
+            f"{meta_file}: weights_dtype {stored_name!r} is not one of {sorted(STORED_DTYPES)}"
+        )
+    extra = meta.get("extra", {})
+    return (extra if isinstance(extra, dict) else {}), STORED_DTYPES[stored_name]
+
+
+def _check_header(weights_file: Path, config: OMPNConfig, stored: torch.dtype) -> None:
+    """Compare the safetensors header (names, dtypes, shapes) with the model of ``config``.
+
+    Reads only the header; neither the model nor the tensors are allocated.  O(#tensors).
+    """
+    expected = expected_tensors(config)
+    try:
+        with safe_open(str(weights_file), framework="pt") as handle:
+            header = {k: (tuple(handle.get_slice(k).get_shape()), handle.get_slice(k).get_dtype())
+                      for k in handle.keys()}
     except (SafetensorError, OSError, ValueError) as exc:
         raise CheckpointError(f"{weights_file}: not a readable safetensors file: {exc}") from exc
-    policy = build_policy(config)
-    expected = policy.state_dict()
-    missing = sorted(set(expected) - set(tensors))
-    unexpected = sorted(set(tensors) - set(expected))
+    missing = sorted(set(expected) - set(header))
+    unexpected = sorted(set(header) - set(expected))
     if missing or unexpected:
         raise CheckpointError(
             f"{weights_file}: tensors do not match the config in {CONFIG_FILE}: missing {missing}, "
             f"unexpected {unexpected}"
         )
-    for name, value in expected.items():
-        if value.is_floating_point() and tensors[name].dtype == stored:
-            tensors[name] = tensors[name].to(value.dtype)  # half-precision storage, float32 compute
-        if tensors[name].shape != value.shape or tensors[name].dtype != value.dtype:
+    for name, (shape, dtype) in expected.items():
+        got_shape, got_dtype = header[name][0], SAFETENSORS_DTYPES.get(header[name][1], header[name][1])
+        accepted = (dtype, stored) if dtype.is_floating_point else (dtype,)
+        if got_shape != shape or got_dtype not in accepted:
             raise CheckpointError(
-                f"{weights_file}: tensor '{name}' has shape {tuple(tensors[name].shape)} "
-                f"{tensors[name].dtype}, the config needs {tuple(value.shape)} {value.dtype}"
+                f"{weights_file}: tensor '{name}' has shape {got_shape} {got_dtype}, "
+                f"the config needs {shape} {accepted[-1]}"
             )
+
+
+def load_checkpoint(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
+    """Load a checkpoint directory; returns ``(policy in eval mode, extra metadata)``.
+
+    The module class follows ``config.json``'s ``arch`` (``'ompn'`` or ``'lstm'``, see ``build.py``).
+    Sizes are bounded and the stored shapes checked before the model is allocated.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: checkpoint directory does not exist")
+    config = load_config(path)
+    extra, stored = _read_meta(path)
+    weights_file = path / WEIGHTS_FILE
+    if not weights_file.is_file():
+        raise CheckpointError(f"{weights_file}: missing")
+    try:
+        check_model_size(config)
+    except ConfigError as exc:
+        raise CheckpointError(f"{path / CONFIG_FILE}: {exc}") from exc
+    _check_header(weights_file, config, stored)
+    try:
+        tensors = load_file(str(weights_file))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise CheckpointError(f"{weights_file}: not a readable safetensors file: {exc}") from exc
+    policy = build_policy(config)
+    for name, value in policy.state_dict().items():
+        if value.is_floating_point() and tensors[name].dtype != value.dtype:
+            tensors[name] = tensors[name].to(value.dtype)  # half-precision storage, float32 compute
     with torch.no_grad():
         policy.load_state_dict(tensors, strict=True)
     policy.eval()
     return policy, extra
+
+
+__all__ = [
+    "CHECKPOINT_FORMAT_VERSION",
+    "CheckpointError",
+    "load_checkpoint",
+    "load_config",
+    "save_checkpoint",
+]

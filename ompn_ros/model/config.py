@@ -34,7 +34,8 @@ class OMPNConfig:
             learned subtask embeddings over the sketch; ids 0..sketch_vocab-1, -1 = padding).
         sketch_vocab: number of subtask ids (required > 0 with ``sketch_mode='sum'``).
         memory_update: ``'paper'`` = paper Eq. (2) M^t = M^{t-1}(1-cp) + C^t pi + M_hat(1-rcp);
-            ``'code'`` = what the authors' code runs (spec craft §3.5.4): M_i = rcp_i C_i + (1-rcp_i) M_hat_i.
+            ``'code'`` = what the authors' code runs (docs/craft.md §3.5.4):
+            M_i = rcp_i C_i + (1-rcp_i) M_hat_i.
         no_bottom_up: ablation "No Bottomup": skip the bottom-up pass (C_i := M^{t-1}_i).
         no_top_down: ablation "No Topdown": M_hat := 0.
         no_bottom_up_recurrence: ablation "No Bottomup Recurr": ComCell_i gets v = 0.

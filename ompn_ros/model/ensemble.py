@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.model.checkpoint import CheckpointError, load_config
-from ompn_ros.model.streaming import StepOutput, StreamingInputError, checked_observation
+from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation
 
 ENSEMBLE_FILE = "ensemble.json"
 ENSEMBLE_FORMAT = "ompn_ros.ensemble"

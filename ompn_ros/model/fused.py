@@ -25,17 +25,34 @@ Gradients agree with the reference to float32 rounding (``test_model_policy.py``
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ompn_ros.model.cells import LN_EPS
-from ompn_ros.model.policy import SequenceOutput, expansion_sums, plain_layer_norm, stick_breaking, to_p_hat
+from ompn_ros.model.cells import LN_EPS, ComCell, DecomCell, ScoreMLP, plain_layer_norm
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.expansion import SequenceOutput, expansion_sums, stick_breaking, to_p_hat
 
-if TYPE_CHECKING:
-    from ompn_ros.model.policy import OMPNPolicy
+
+class FusedModule(Protocol):
+    """What the fused path reads of an :class:`~ompn_ros.model.policy.OMPNPolicy` (its weights)."""
+
+    config: OMPNConfig
+    encoder: torch.nn.Linear
+    obs_mean: Tensor
+    obs_scale: Tensor
+    score: ScoreMLP
+    head: torch.nn.Linear
+
+    @property
+    def com_list(self) -> list[ComCell]: ...
+
+    @property
+    def decom_list(self) -> list[DecomCell]: ...
+
+    def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor: ...
 
 
 def _gated(z: Tensor, split: int, hidden: int, norm: torch.nn.LayerNorm) -> tuple[list[Tensor], Tensor]:
@@ -50,7 +67,7 @@ def _linear_fp32(x: Tensor, weight: Tensor, bias: Tensor | None) -> Tensor:
 
 
 def fused_forward_sequence(
-    policy: OMPNPolicy,
+    policy: FusedModule,
     obs: Tensor,
     mask: Tensor,
     lengths: Tensor,
@@ -64,7 +81,7 @@ def fused_forward_sequence(
 
 
 def _fused(
-    policy: OMPNPolicy, obs: Tensor, mask: Tensor, lengths: Tensor, sketch: Tensor | None, bptt: int
+    policy: FusedModule, obs: Tensor, mask: Tensor, lengths: Tensor, sketch: Tensor | None, bptt: int
 ) -> SequenceOutput:
     cfg = policy.config
     n, h, a = cfg.n_slots, cfg.slot_size, cfg.action_dim

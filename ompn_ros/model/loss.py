@@ -1,4 +1,4 @@
-"""Behaviour-cloning loss with the 'done' augmentation (paper §3.2; spec craft §3.8, dial §4.3).
+"""Behaviour-cloning loss with the 'done' augmentation (paper §3.2; docs/craft.md §3.8, docs/dial.md §4.3).
 
 Discrete (Craft): ``p'(a) = softmax(logits)_a (1 - pi_end)`` for env actions, ``p'(done) = pi_end``.
 Continuous (Dial): ``log p' = log(1 - pi_end) + log N(a; mu, var I)`` for real steps and
@@ -91,7 +91,7 @@ def bc_loss(
         done_mask: ``[B, T]`` bool, the appended done step of each episode.  Discrete: a step is
             also a done step when its action equals ``action_dim``.
         no_done_loss: the "No Done" ablation: done steps leave the numerator but stay in the
-            denominator (spec craft §3.8, ``ignore_index``).
+            denominator (docs/craft.md §3.8, ``ignore_index``).
 
     Returns:
         ``(loss, stats)`` with stats ``loss``, ``nll_action`` (mean over real steps), ``nll_done``

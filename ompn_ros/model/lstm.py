@@ -1,4 +1,4 @@
-"""LSTM behaviour-cloning baseline with the OMPN policy interface (spec craft §3.11, paper Fig. 6).
+"""LSTM behaviour-cloning baseline with the OMPN policy interface (docs/craft.md §3.11, paper Fig. 6).
 
 Architecture (the authors' ``lstm`` bot, adapted to our interface):
 
@@ -23,7 +23,6 @@ consumers work for both architectures.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -32,7 +31,7 @@ from torch import Tensor, nn
 
 from ompn_ros.model.config import ConfigError, OMPNConfig
 from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput, lengths_from_mask
-from ompn_ros.model.streaming import StepOutput, StreamingInputError, checked_observation, sketch_tensor
+from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation, sketch_tensor
 
 LSTMState = tuple[Tensor, Tensor]
 
@@ -160,15 +159,6 @@ class LSTMStreamingPolicy:
         self._e: Tensor | None = None
         if self.config.sketch_mode == "none":
             self.reset()
-
-    @classmethod
-    def from_checkpoint(cls, path: str | Path, backend: str = "torch") -> LSTMStreamingPolicy:
-        from ompn_ros.model.checkpoint import load_checkpoint
-
-        policy, _ = load_checkpoint(path)
-        if not isinstance(policy, LSTMPolicy):
-            raise StreamingInputError(f"{path}: not an LSTM checkpoint (arch={policy.config.arch!r})")
-        return cls(policy, backend=backend)
 
     def reset(self, sketch: np.ndarray | None = None) -> None:
         """Start a new episode: ``(h0, c0)`` from the task embedding."""

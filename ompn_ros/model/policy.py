@@ -1,7 +1,7 @@
 """OMPNPolicy: the Ordered Memory Policy Network (Lu et al., ICLR 2021, §3 and appendix A).
 
 Memory ``M`` has n slots of size m (``[B, n, m]``, index 0 = paper slot 1 = the *lowest* slot).
-One step (paper §3.1, code branch "not initial", spec craft §3.5):
+One step (paper §3.1, code branch "not initial", docs/craft.md §3.5):
 
 1. ``x = W_in((s - mean) / scale) + b_in``; ``u = [x; e]`` with e the task (sketch) embedding.
 2. Bottom-up: ``C_0 = x``; ``C_i = ComCell_i(C_{i-1}, M^{t-1}_i, u)`` for i = 1..n.
@@ -10,10 +10,11 @@ One step (paper §3.1, code branch "not initial", spec craft §3.5):
    ``rcp_i = sum_{j<=i} pi_j``, ``cp_i = sum_{j>=i} pi_j``.
 4. Top-down: ``M_hat_n = 0``; ``M_hat_{i-1} = DecomCell_i(rcp_i C_i + (1 - rcp_i) M_hat_i, u)``.
 5. Memory update, ``memory_update='paper'`` (paper Eq. 2): ``M^t = M^{t-1}(1-cp) + C pi + M_hat(1-rcp)``;
-   ``'code'`` (what the authors' code executes, spec craft §3.5.4): ``M^t_i = rcp_i C_i + (1-rcp_i) M_hat_i``.
+   ``'code'`` (what the authors' code executes, docs/craft.md §3.5.4):
+   ``M^t_i = rcp_i C_i + (1-rcp_i) M_hat_i``.
 6. Output ``O = M^t_1``; action head ``W_a [O; e; x] + b_a`` (logits, or the Gaussian mean).
 
-Places where we follow the authors' code rather than the paper's text (spec craft §3.10):
+Places where we follow the authors' code rather than the paper's text (docs/craft.md §3.10):
 
 * First step (paper appendix A says only "skip bottom-up, expand from the top"): per sample, the
   bottom-up pass is skipped (``C := M^0``), the score MLP is not used, ``p_hat = [0, 1, 0, ..., 0]``
@@ -49,6 +50,8 @@ from torch import Tensor, nn
 
 from ompn_ros.model.cells import ComCell, DecomCell, ScoreMLP, plain_layer_norm
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.expansion import SequenceOutput, expansion_sums, stick_breaking, to_p_hat
+from ompn_ros.model.fused import fused_forward_sequence
 
 
 class ModelInputError(ValueError):
@@ -82,49 +85,6 @@ class StepTensors:
     p_hat: Tensor
     pi: Tensor
     pi_end: Tensor
-
-
-@dataclass
-class SequenceOutput:
-    """Outputs of :meth:`OMPNPolicy.forward_sequence`; padded steps hold zeros.
-
-    ``action_out [B, T, A]``, ``p_hat [B, T, n+1]`` ([pi_end, top, ..., bottom]), ``pi [B, T, n]``
-    (lowest slot first), ``mask [B, T]`` (valid steps).
-    """
-
-    action_out: Tensor
-    p_hat: Tensor
-    pi: Tensor
-    mask: Tensor
-
-    @property
-    def pi_end(self) -> Tensor:
-        return self.p_hat[..., 0]
-
-
-def stick_breaking(logits: Tensor) -> tuple[Tensor, Tensor]:
-    """Slot probabilities and pi_end from score logits ``[..., n]`` (lowest slot first).
-
-    ``beta_i = sigmoid(s_i)``; ``pi_hat_i = beta_i prod_{j<i}(1 - beta_j)``; ``pi_end = prod_j (1 - beta_j)``
-    (paper §3.1 with f_i = 1 - beta_i).  Returns ``(pi_hat [..., n], pi_end [...])``.
-    """
-    beta = torch.sigmoid(logits)
-    survive = torch.cumprod(torch.sigmoid(-logits), dim=-1)  # prod_{j<=i} f_j
-    below = torch.cat([torch.ones_like(survive[..., :1]), survive[..., :-1]], dim=-1)
-    return beta * below, survive[..., -1]
-
-
-def expansion_sums(pi_hat: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Normalise pi_hat (L1, floor 1e-12) and return ``(pi, rcp, cp)``, all ``[..., n]`` lowest first."""
-    pi = pi_hat / pi_hat.sum(dim=-1, keepdim=True).clamp_min(1e-12)
-    rcp = torch.cumsum(pi, dim=-1)
-    cp = torch.flip(torch.cumsum(torch.flip(pi, dims=[-1]), dim=-1), dims=[-1])
-    return pi, rcp, cp
-
-
-def to_p_hat(pi_hat: Tensor, pi_end: Tensor) -> Tensor:
-    """``[pi_end, slot n, ..., slot 1]`` from ``pi_hat`` (lowest first) and ``pi_end``."""
-    return torch.cat([pi_end.unsqueeze(-1), torch.flip(pi_hat, dims=[-1])], dim=-1)
 
 
 def lengths_from_mask(mask: Tensor) -> Tensor:
@@ -348,8 +308,6 @@ class OMPNPolicy(PolicyInputs, nn.Module):
             raise ModelInputError(f"bptt must be a positive number of steps, got {bptt}")
         lengths = lengths_from_mask(mask)
         if impl == "fused":
-            from ompn_ros.model.fused import fused_forward_sequence
-
             return fused_forward_sequence(self, obs, mask, lengths, sketch, bptt, bf16=bf16)
         if impl != "reference":
             raise ModelInputError(f"impl must be 'fused' or 'reference', got {impl!r}")
@@ -379,7 +337,7 @@ class OMPNPolicy(PolicyInputs, nn.Module):
 
 
 def gaussian_log_prob(actions: Tensor, mean: Tensor, variance: float) -> Tensor:
-    """log N(a; mu, variance * I) summed over the last dim (Dial head, spec dial §4.3)."""
+    """log N(a; mu, variance * I) summed over the last dim (Dial head, docs/dial.md §4.3)."""
     dim = actions.shape[-1]
     return -((actions - mean) ** 2).sum(-1) / (2 * variance) - 0.5 * dim * float(np.log(2 * np.pi * variance))
 

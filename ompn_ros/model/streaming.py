@@ -19,7 +19,6 @@ changes to the module are not seen (build a new StreamingPolicy after training).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -27,64 +26,13 @@ import numpy as np
 import torch
 
 from ompn_ros.model._fast_stream import NumpyStepper
+from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.policy import MemoryState, ModelInputError, OMPNPolicy
+from ompn_ros.model.policy import MemoryState, OMPNPolicy
+from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation, sketch_tensor
 
 Backend = Literal["jit", "numpy", "torch"]
 BACKENDS: tuple[Backend, ...] = ("jit", "numpy", "torch")
-
-
-class StreamingInputError(ModelInputError):
-    """Bad input to :class:`StreamingPolicy` (wrong observation size, missing sketch, ...)."""
-
-
-@dataclass(frozen=True)
-class StepOutput:
-    """One streaming step.
-
-    Attributes:
-        action: discrete: argmax over the env actions (int, done excluded); continuous: the Gaussian
-            mean (float32 ``[A]``).
-        pi: ``[n]`` normalised expansion distribution, lowest slot first.
-        pi_end: probability that every subtask is finished (paper pi_end).
-        p_hat: ``[n+1]`` ordered [pi_end, slot n (top), ..., slot 1], sums to 1.
-        expected_position: ``sum_i i pi_i`` for i = 1..n (paper pi_avg).
-        done_prob: p'(done) = pi_end.
-        action_logits: discrete: the env-action logits ``[A]`` (float32; their softmax is the
-            action distribution given "not done"); continuous: None.
-    """
-
-    action: np.ndarray | int
-    pi: np.ndarray
-    pi_end: float
-    p_hat: np.ndarray
-    expected_position: float
-    done_prob: float
-    action_logits: np.ndarray | None = None
-
-
-def checked_observation(obs: np.ndarray, obs_dim: int, ready: bool) -> np.ndarray:
-    """``obs`` as a flat float32 vector, or a StreamingInputError naming what is wrong with it."""
-    if not ready:
-        raise StreamingInputError("this model has sketch_mode='sum': call reset(sketch) before step()")
-    arr = np.asarray(obs, dtype=np.float32).reshape(-1)
-    if arr.size != obs_dim:
-        raise StreamingInputError(
-            f"observation has {np.asarray(obs).size} values, the model expects obs_dim={obs_dim}"
-        )
-    if not np.isfinite(arr).all():
-        raise StreamingInputError("observation contains NaN or inf")
-    return arr
-
-
-def sketch_tensor(sketch: np.ndarray | None) -> torch.Tensor | None:
-    """A streaming sketch ``[K]`` as the ``[1, K]`` int64 tensor the policies take (None stays None)."""
-    if sketch is None:
-        return None
-    arr = np.asarray(sketch)
-    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
-        raise StreamingInputError(f"sketch must be a 1-D integer array [K], got {arr.shape} {arr.dtype}")
-    return torch.as_tensor(arr.astype(np.int64)).unsqueeze(0)
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -102,6 +50,7 @@ class StreamingPolicy:
         self.backend = backend
         self._w: NumpyStepper | None = None
         if backend == "jit":
+            # numba is imported only for this backend (it adds ~0.6 s to the import of torch)
             from ompn_ros.model._jit_stream import JitStepper
 
             jit = JitStepper(policy)
@@ -116,13 +65,13 @@ class StreamingPolicy:
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, backend: Backend = "jit") -> StreamingPolicy:
-        from ompn_ros.model.checkpoint import load_checkpoint
-
+        """The stepper of an OMPN checkpoint (``arch='ompn'``); for any architecture or an ensemble
+        directory use :func:`ompn_ros.model.load.stepper_from_checkpoint`."""
         policy, _ = load_checkpoint(path)
-        if not isinstance(policy, OMPNPolicy):  # arch='lstm': see ompn_ros.model.factory
+        if not isinstance(policy, OMPNPolicy):
             raise StreamingInputError(
                 f"{path}: arch={policy.config.arch!r} is not an OMPN checkpoint; use "
-                "ompn_ros.model.factory.stepper_from_checkpoint for any architecture"
+                "ompn_ros.model.load.stepper_from_checkpoint for any architecture"
             )
         return cls(policy, backend=backend)
 
@@ -186,3 +135,14 @@ class StreamingPolicy:
         assert self._w is not None
         action_out, pi_hat, pi_end, pi = self._w.step(s)
         return self._finish(action_out, pi_hat, pi_end, pi)
+
+
+__all__ = [
+    "BACKENDS",
+    "Backend",
+    "StepOutput",
+    "StreamingInputError",
+    "StreamingPolicy",
+    "checked_observation",
+    "sketch_tensor",
+]

@@ -39,7 +39,7 @@ class ObsNormalization:
 def obs_normalization(episodes: Sequence[Episode], mode: ObsNormMode) -> ObsNormalization:
     """Statistics from the training split.
 
-    ``'maxabs'`` (ompn_dial, spec dial §4.1): mean over all observation rows and scale = the max
+    ``'maxabs'`` (ompn_dial, docs/dial.md §4.1): mean over all observation rows and scale = the max
     absolute raw value per feature (the code calls it "std"); features that are always 0 get scale 1.
     ``'none'``: mean 0, scale 1 (Craft's one-hot features are used raw).
     """

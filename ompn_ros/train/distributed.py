@@ -5,7 +5,7 @@
 same global batch (the shuffle is seeded), keeps its shard ``batch[rank::world]``, and gradients are
 summed across ranks after each backward pass.  The local loss is scaled by
 ``world · local_valid_steps / global_valid_steps`` first, so the averaged gradient equals the
-gradient of the per-token mean over the *global* batch (spec craft §3.8's loss), whatever the shard
+gradient of the per-token mean over the *global* batch (docs/craft.md §3.8's loss), whatever the shard
 sizes.  ``DistributedDataParallel`` is not used because training calls
 ``OMPNPolicy.forward_sequence`` rather than ``forward``; an explicit all-reduce is simpler and exact.
 Only rank 0 evaluates, logs and writes checkpoints.

@@ -55,7 +55,7 @@ def decomposition_metrics(
 ) -> dict[str, float]:
     """Metrics of the offline detectors on per-episode ``p_hat`` ``[T, n+1]`` (real steps only).
 
-    Keys: ``topk_*`` (Top-K, spec craft §5.2), ``topkc_*`` (Top-K constrained to subtasks of at
+    Keys: ``topk_*`` (Top-K, docs/craft.md §5.2), ``topkc_*`` (Top-K constrained to subtasks of at
     least ``min_length`` steps ending at the episode's last step,
     :func:`~ompn_ros.detect.offline.constrained_top_k_boundaries`), ``auto_*`` (automatic
     threshold, paper Algorithm 2, plus ``auto_fallback_rate``), and ``thr<θ>_*`` for every fixed

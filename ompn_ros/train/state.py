@@ -8,7 +8,9 @@ Layout under ``<out_dir>/train_state/``::
     it00000120/state.json    iteration, best record, history, optimizer param_groups
 
 A state directory is complete before the pointer names it, so a kill at any moment leaves either the
-previous or the new state readable.  Older state directories are removed after the pointer moves.
+previous or the new state readable.  Older state directories are removed after the pointer moves, and
+temporaries left by a killed run (``.<name>.tmp-<pid>-*``) on every save and when training starts
+(:func:`clean_state_root`).
 No pickle is involved anywhere.
 """
 
@@ -24,6 +26,8 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
+from ompn_ros.model.atomic import make_temp_dir, remove_stale_temps, temp_prefix
+
 POINTER = "LATEST"
 STATE_FORMAT = 1
 
@@ -35,7 +39,7 @@ class TrainStateError(RuntimeError):
 def atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name))
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
@@ -88,10 +92,10 @@ def save_state(
 
     ``save_model(directory)`` writes the model checkpoint (``save_checkpoint`` bound to the policy).
     """
-    root.mkdir(parents=True, exist_ok=True)
+    clean_state_root(root)
     name = f"it{iteration:08d}"
     target = root / name
-    tmp = Path(tempfile.mkdtemp(dir=root, prefix=f".{name}."))
+    tmp = make_temp_dir(root, name)
     try:
         save_model(tmp / "model")
         tensors, groups = optimizer_to_files(optimizer)
@@ -109,6 +113,11 @@ def save_state(
         if old.is_dir() and old.name != name and not old.name.startswith("."):
             shutil.rmtree(old, ignore_errors=True)
     return target
+
+
+def clean_state_root(root: Path) -> list[Path]:
+    """Remove the temporaries a killed run left in ``root`` (see :mod:`ompn_ros.model.atomic`)."""
+    return remove_stale_temps(root)
 
 
 def latest_state_dir(root: Path) -> Path | None:

@@ -1,4 +1,4 @@
-"""Behaviour cloning of an OMPN with the done step (paper §3.2, Algorithm 1; spec craft §4, dial §4).
+"""Behaviour cloning of an OMPN with the done step (paper §3.2, Alg. 1; docs/craft.md §4, docs/dial.md §4).
 
 One iteration = one Adam update on a batch of whole, zero-padded episodes (teacher forcing from the
 initial memory, memory detached every ``bptt`` steps, loss = mean ``−log p'`` per valid step
@@ -29,17 +29,17 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Literal, cast, get_args
 
 import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.factory import PolicyModule, build_policy
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.averaging import WeightAverage
@@ -58,8 +58,10 @@ from ompn_ros.train.distributed import (
     broadcast_module,
 )
 from ompn_ros.train.evaluation import evaluate
+from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.state import (
     TrainStateError,
+    clean_state_root,
     latest_state_dir,
     optimizer_from_files,
     read_state,
@@ -68,8 +70,12 @@ from ompn_ros.train.state import (
 
 LOG = logging.getLogger("ompn_ros.train")
 
-SELECTIONS = ("align", "f1_tol1", "val_loss")
-LR_SCHEDULES = ("constant", "cosine")
+Selection = Literal["align", "f1_tol1", "val_loss"]
+ObsNorm = Literal["none", "maxabs"]
+LrSchedule = Literal["constant", "cosine"]
+SELECTIONS: tuple[Selection, ...] = get_args(Selection)
+OBS_NORMS: tuple[ObsNorm, ...] = get_args(ObsNorm)
+LR_SCHEDULES: tuple[LrSchedule, ...] = get_args(LrSchedule)
 
 
 class TrainConfigError(ValueError):
@@ -82,7 +88,7 @@ class TrainDataError(ValueError):
 
 @dataclass
 class TrainConfig:
-    """Training hyper-parameters (defaults: the Craft paper values, spec craft §4).
+    """Training hyper-parameters (defaults: the Craft paper values, docs/craft.md §4).
 
     Attributes:
         lr: Adam learning rate (Craft 1e-3, Dial 5e-4).
@@ -107,7 +113,10 @@ class TrainConfig:
         eval_batch_size: episodes per teacher-forced evaluation batch.
         progress: show a tqdm progress bar.
         bf16: run the training forward's matmuls in bfloat16 autocast (``forward_sequence(bf16=True)``,
-            ~1.4x faster on AVX512-BF16 CPUs; evaluation and inference stay float32).
+            ~1.4x faster on AVX512-BF16 CPUs; evaluation and inference stay float32).  Honoured only
+            on a CPU with native bfloat16 (:mod:`ompn_ros.train.precision`); elsewhere training warns
+            and runs in float32, and the checkpoints' ``train_config`` records ``bf16: false``.
+        force_bf16: with ``bf16``, use bfloat16 even on a CPU without native support (slow).
         weight_decay: decoupled weight decay (AdamW) per unit learning rate; 0 = plain Adam, as the
             authors trained.
         ema_decay: Polyak averaging of the weights (0 = off).  After every update the averaged copy
@@ -123,8 +132,8 @@ class TrainConfig:
             so a resumed run draws the same ones.  Validation, selection and inference see clean
             inputs.
         obs_dropout_range: ``[start, stop)`` feature indices that ``obs_dropout`` applies to (empty =
-            every feature).  ``[525, 1050]`` is Craft's max-pooled global map block (spec craft
-            §1.7): dropping only it keeps the local view, inventory and direction intact.
+            every feature).  ``[525, 1050]`` is Craft's max-pooled global map block
+            (docs/craft.md §1.7): dropping only it keeps the local view, inventory and direction intact.
     """
 
     lr: float = 1e-3
@@ -141,17 +150,18 @@ class TrainConfig:
     tensorboard: bool = False
     no_done_loss: bool = False
     threads: int = 1
-    selection: str = "align"
-    obs_norm: str = "none"
+    selection: Selection = "align"
+    obs_norm: ObsNorm = "none"
     eval_episodes: int = 0
     eval_batch_size: int = 64
     progress: bool = True
     bf16: bool = False
     weight_decay: float = 0.0
     ema_decay: float = 0.0
-    lr_schedule: str = "constant"
+    lr_schedule: LrSchedule = "constant"
     obs_dropout: float = 0.0
     obs_dropout_range: list[int] = field(default_factory=list)
+    force_bf16: bool = False
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -208,11 +218,11 @@ class TrainConfig:
             "must be [] or [start, stop] with 0 <= start < stop (feature indices, stop exclusive)",
         )
         self.obs_dropout_range = [int(v) for v in span]
-        for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16"):
+        for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16"):
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
         need(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"must be one of {LR_SCHEDULES}")
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
-        need(self.obs_norm in ("none", "maxabs"), "obs_norm", "must be 'none' or 'maxabs'")
+        need(self.obs_norm in OBS_NORMS, "obs_norm", f"must be one of {OBS_NORMS}")
         need(
             self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
         )
@@ -360,6 +370,8 @@ def train(
             training (used to simulate a kill in tests).
     """
     cfg = train_config
+    if cfg.bf16 and not resolve_bf16(cfg.bf16, cfg.force_bf16):
+        cfg = replace(cfg, bf16=False)  # what runs is what the checkpoints record
     ctx = dist_ctx or DistContext()
     _check_episodes(episodes, model_config)
     _check_dropout_range(cfg, model_config)
@@ -370,7 +382,7 @@ def train(
     train_eps, val_eps, n_val = train_val_episodes(episodes, cfg)
     if not n_val:
         LOG.warning("val_ratio=0: validation metrics are computed on the training split")
-    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)  # type: ignore[arg-type]
+    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
 
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
     policy.set_obs_normalization(norm.mean, norm.scale)
@@ -387,6 +399,8 @@ def train(
 
     out_dir = Path(cfg.out_dir) if cfg.out_dir is not None else None
     state_root = out_dir / "train_state" if out_dir is not None else None
+    if state_root is not None and ctx.is_main:
+        clean_state_root(state_root)  # temporaries of a killed earlier run
     extra_base = {
         "train_config": cfg.to_dict(),
         "obs_norm": cfg.obs_norm,

@@ -1,4 +1,4 @@
-"""Craft domain (spec craft.md §1-2): world, features, sketches, expert, gymnasium env (ROS-free)."""
+"""Craft domain (docs/craft.md §1-2): world, features, sketches, expert, gymnasium env (ROS-free)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The authors' expert bot (spec craft.md §2) and the demonstration generator.
+"""The authors' expert bot (docs/craft.md §2) and the demonstration generator.
 
 Full observation: one BFS plan per subtask with the authors' quirky queue (``list.insert(-1, node)``),
 which yields ~11% non-shortest paths and the published episode-length statistics.  Partial observation:
@@ -69,7 +69,7 @@ def _move_toward(src: Cell, dst: Cell) -> int:
 def find_path(
     belief: np.ndarray, start: Cell, target: Cell, passable: frozenset[int] = frozenset()
 ) -> list[Cell] | None:
-    """The authors' BFS (spec §2.2): pop the front, enqueue with ``insert(-1, node)``.
+    """The authors' BFS (docs/craft.md §2.2): pop the front, enqueue with ``insert(-1, node)``.
 
     Neighbour order left, down, right, up.  Passable: empty cells (0), kinds in ``passable``, and the
     target itself.  Returns the cells from ``start`` to ``target`` inclusive, or ``None``.
@@ -155,7 +155,10 @@ class GoTo(_Subgoal):
 
 
 class Explore(_Subgoal):
-    """Walk toward the first unknown cell in (x, then y) order until ``target`` is seen (spec §2.3)."""
+    """Walk toward the first unknown cell in (x, then y) order until ``target`` is seen.
+
+    docs/craft.md §2.3.
+    """
 
     _ORDER = (Action.RIGHT, Action.LEFT, Action.UP, Action.DOWN)
     _FALLBACK = (Action.UP, Action.DOWN, Action.LEFT, Action.RIGHT)
@@ -186,7 +189,7 @@ class Explore(_Subgoal):
 
 
 class ExpertBot:
-    """Stack of subgoals, one GoTo per sketch entry (spec §2.1); Explore pushed on demand.
+    """Stack of subgoals, one GoTo per sketch entry (docs/craft.md §2.1); Explore pushed on demand.
 
     The authors keep one belief per GoTo, all updated every step from the same observations, hence
     identical: one shared belief is equivalent.
@@ -225,7 +228,7 @@ class ExpertBot:
         self.belief[x0:x1, y0:y1] = obs.img[x0 - x + r : x1 - x + r, y0 - y + r : y1 - y + r]
 
     def act(self, obs: BotObservation) -> int:
-        """The next action (spec §2.1 steps 1-4); raises :class:`PlanningError`."""
+        """The next action (docs/craft.md §2.1 steps 1-4); raises :class:`PlanningError`."""
         self.update(obs)
         while self.stack and self.stack[0].satisfied(self, self.prev_action):
             self.stack.pop(0)
@@ -280,7 +283,7 @@ def rollout(seed: int, task: str | Task = "makebed", *, full_obs: bool = True) -
 def generate_episode(
     seed: int, *, task: str = "makebed", full_obs: bool = True, max_retries: int = 100
 ) -> Episode:
-    """A *successful* expert episode (the authors' filter, spec §2.4).
+    """A *successful* expert episode (the authors' filter, docs/craft.md §2.4).
 
     Attempt 0 uses ``seed``; attempt k ≥ 1 uses ``derive_seed(seed, k, stream=1)``.  The returned
     ``Episode.seed`` is the seed actually used, so ``rollout(ep.seed, ...)`` reproduces it.

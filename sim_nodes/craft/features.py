@@ -1,4 +1,4 @@
-"""The 1075-float Craft feature vector (spec craft.md §1.7-1.8) and its compact uint8 storage form.
+"""The 1075-float Craft feature vector (docs/craft.md §1.7-1.8) and its compact uint8 storage form.
 
 Layout (index order of the authors' ``_obs``):
 

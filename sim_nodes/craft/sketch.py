@@ -1,4 +1,4 @@
-"""Subtask vocabulary and sketch ids for the weakly supervised ("sketch") setting (spec craft.md §1.9).
+"""Subtask vocabulary and sketch ids for the weakly supervised ("sketch") setting (docs/craft.md §1.9).
 
 Deviation from the authors: their ids come from ``list(set(names))``, i.e. Python's per-process string
 hash order, so they change between runs.  Ours are the **sorted** names, ids 1..8, 0 = padding, fixed.

@@ -1,6 +1,6 @@
-"""The Craft grid world (spec craft.md §1): kinds, recipes, tasks and the step dynamics.
+"""The Craft grid world (docs/craft.md §1): kinds, recipes, tasks and the step dynamics.
 
-Grid convention (spec §1.3): ``grid[x, y]`` with x left→right and y **down→up** (UP is y+1).  The
+Grid convention (docs/craft.md §1.3): ``grid[x, y]`` with x left→right and y **down→up** (UP is y+1).  The
 agent is not written into the grid; its cell stays empty (0).
 """
 
@@ -14,9 +14,9 @@ import numpy as np
 
 WIDTH: Final = 10
 HEIGHT: Final = 10
-MAX_STEPS: Final = 64  # the authors' TimeLimit wrapper (spec §1.5)
+MAX_STEPS: Final = 64  # the authors' TimeLimit wrapper (docs/craft.md §1.5)
 
-# --- object kinds (spec §1.1) --------------------------------------------------------------------
+# --- object kinds (docs/craft.md §1.1) --------------------------------------------------------------------
 KIND_NAMES: Final = (
     "empty", "boundary", "water", "stone", "toolshed", "workbench", "factory",
     "iron", "grass", "wood", "gold", "gem",
@@ -33,7 +33,7 @@ GRABBABLE: Final = frozenset(range(1, N_KINDS)) - ENVIRONMENT_KINDS - WORKSHOPS
 
 
 class Action(IntEnum):
-    """Env actions (spec §1.4); the facing direction uses the same order for 0..3."""
+    """Env actions (docs/craft.md §1.4); the facing direction uses the same order for 0..3."""
 
     DOWN = 0
     UP = 1
@@ -48,7 +48,7 @@ DIRECTION_NAMES: Final = ("down", "up", "left", "right")
 DIRECTION_DELTA: Final = ((0, -1), (0, 1), (-1, 0), (1, 0))  # (dx, dy) per direction / move action
 
 
-# --- recipes (spec §1.2), in the global order the env tries them ----------------------------------
+# --- recipes (docs/craft.md §1.2), in the global order the env tries them ----------------------------------
 @dataclass(frozen=True)
 class Recipe:
     output: int
@@ -69,7 +69,7 @@ RECIPES: Final = (
 )
 
 
-# --- tasks (spec §1.6, envs.yaml order = env id) ---------------------------------------------------
+# --- tasks (docs/craft.md §1.6, envs.yaml order = env id) ---------------------------------------------------
 @dataclass(frozen=True)
 class Task:
     """A Craft task: the goal item and its sketch of subtask strings ('get wood', 'make at toolshed')."""
@@ -130,7 +130,7 @@ def get_task(name: str) -> Task:
 @dataclass
 class StepResult:
     reward: float
-    terminated: bool  # goal item held (spec §1.5); the time limit is the env wrapper's business
+    terminated: bool  # goal item held (docs/craft.md §1.5); the time limit is the env wrapper's business
     completed_subtask: int | None  # sketch index completed by this step, if any
 
 
@@ -146,14 +146,14 @@ class CraftWorld:
         self.sketch_index = 0
         self.steps = 0
 
-    # --- map generation (spec §1.3) ---------------------------------------------------------------
+    # --- map generation (docs/craft.md §1.3) ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator) -> None:
         """Build a new map: boundary, gold island / gem cave if the goal needs it, the 6 objects, agent."""
         grid = np.zeros((WIDTH, HEIGHT), dtype=np.int8)
         grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = BOUNDARY
         self.grid = grid
         # The agent is placed last, so no object can land on it.
-        # Gold and gem are surrounded by water / stone (spec §1.3 gives no geometry: our choice is
+        # Gold and gem are surrounded by water / stone (docs/craft.md §1.3 gives no geometry: our choice is
         # the 4-neighbourhood of a cell at least 2 cells from the wall).
         for special, cover in ((GOLD, WATER), (GEM, STONE)):
             if self.task.goal == special:
@@ -176,7 +176,7 @@ class CraftWorld:
             if self.grid[x, y] == EMPTY:
                 return x, y
 
-    # --- dynamics (spec §1.4-1.5) -------------------------------------------------------------------
+    # --- dynamics (docs/craft.md §1.4-1.5) ------------------------------------------------------------------
     @property
     def front(self) -> tuple[int, int]:
         dx, dy = DIRECTION_DELTA[self.direction]
@@ -217,7 +217,7 @@ class CraftWorld:
         elif kind in WORKSHOPS:
             self._craft(kind)
         elif kind == WATER and self.inventory[KIND["bridge"]] > 0:
-            self.grid[fx, fy] = EMPTY  # the bridge is not consumed (spec §1.4)
+            self.grid[fx, fy] = EMPTY  # the bridge is not consumed (docs/craft.md §1.4)
         elif kind == STONE and self.inventory[KIND["axe"]] > 0:
             self.grid[fx, fy] = EMPTY
         completed = None

@@ -1,6 +1,6 @@
 """Dial: a Kinova JACO arm presses a sketch of 4 digits on a phone keypad (MuJoCo).
 
-Rebuild of the TACO/OMPN "jacopinpad" domain (spec dial.md) on dm_control's JACO model, which is
+Rebuild of the TACO/OMPN "jacopinpad" domain (docs/dial.md) on dm_control's JACO model, which is
 loaded from the installed ``dm_control`` package.  Importing this package registers the gymnasium
 env ``ompn_ros/Dial-v0`` and defaults ``MUJOCO_GL`` to ``egl`` (offscreen rendering) when mujoco
 has not been imported yet.

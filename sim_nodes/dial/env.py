@@ -1,9 +1,9 @@
 """Gymnasium environment ``ompn_ros/Dial-v0``: press a sketch of 4 digits on a phone keypad.
 
-Rebuild of TACO/OMPN's ``jacopinpad-v0`` (spec dial.md §2) on dm_control's JACO arm
+Rebuild of TACO/OMPN's ``jacopinpad-v0`` (docs/dial.md §2) on dm_control's JACO arm
 (see :mod:`sim_nodes.dial.scene` for the scene and its deviations).
 
-Observation (39 float32, spec §2.1):
+Observation (39 float32, docs/dial.md §2.1):
     ``obs[0:9]``   raw joint angles (rad, unwrapped): arm joints 1-6, fingers 1-3.
     ``obs[9:39]``  for label k = 0..9: ``p_ref - p_press[perm[k]]`` (metres), where ``p_ref`` is
                    the reference site (``arm/hand/pinchsite``) and ``perm`` is the identity unless
@@ -13,23 +13,23 @@ Action (9 float32 in [-1, 1]): normalised joint torques, applied for ``FRAME_SKI
 steps of 2 ms (25 Hz).  ``torque_i = TORQUE_SCALE[i] * clip(a_i, -1, 1)`` with
 ``TORQUE_SCALE = (30.5, 30.5, 30.5, 6.8, 6.8, 6.8, 1, 1, 1)`` N·m (dm_control's JACO force limits;
 implemented as motor gear with ctrlrange [-1, 1]).  The original used raw, asymmetric ctrl
-limits (spec §2.2) instead.
+limits (docs/dial.md §2.2) instead.
 
 Task: a sketch of ``sketch_length`` (default 4) labels, uniform over 0..9 with no immediate repeat
-(spec §2.5), drawn from the ``reset`` seed.  A press of label k happens when the L1 distance
+(docs/dial.md §2.5), drawn from the ``reset`` seed.  A press of label k happens when the L1 distance
 ``|p_ref - p_press[perm[k]]|_1 < press_tolerance``; it is tested on every physics sub-step (on the
 pose that sub-step's forward pass computed) and on the pose at the end of the step; after a press
 the remaining sub-steps already test the next label (as the original did).
 Default tolerance 0.01 m (the demonstrator's threshold; the original gym env used 0.1, exported
 as :data:`ORIGINAL_GYM_TOLERANCE`).  Reward is 1 on the step that completes the whole sketch
 (``terminated``), else 0; ``truncated`` when one subtask takes ``max_steps_per_subtask`` steps
-(default 500, spec §2.6).
+(default 500, docs/dial.md §2.6).
 
 ``info``: ``subtasks_done`` (0..4, the paper's return), ``subtask_index`` (label ordinal being
 worked on, = subtasks_done capped at K-1), ``target_label``, ``steps_in_subtask``,
 ``is_success``, ``sketch``, ``permutation``.
 
-Initial state (spec §3.5): the home pose + U(-0.1, 0.1) rad on all 9 joints, joint 1 + U(0, 0.2),
+Initial state (docs/dial.md §3.5): the home pose + U(-0.1, 0.1) rad on all 9 joints, joint 1 + U(0, 0.2),
 joint 2 - U(0, 0.2), zero velocity (``init_noise=False`` starts exactly at home).
 """
 
@@ -42,6 +42,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from sim_nodes.dial.render import make_renderer, render_frame
 from sim_nodes.dial.scene import FRAME_SKIP, N_KEYS, TORQUE_SCALE, DialModel, shared_model
 from sim_nodes.dial.targets import Targets, shared_targets
 
@@ -59,7 +60,7 @@ class DialConfigError(ValueError):
 
 
 def sample_sketch(rng: np.random.Generator, length: int = SKETCH_LENGTH) -> np.ndarray:
-    """``length`` labels uniform over 0..9, each differing from its predecessor (spec §2.5)."""
+    """``length`` labels uniform over 0..9, each differing from its predecessor (docs/dial.md §2.5)."""
     out = [int(rng.integers(N_KEYS))]
     while len(out) < length:
         nxt = int(rng.integers(N_KEYS - 1))
@@ -239,8 +240,6 @@ class DialEnv(gym.Env):
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         if self.render_mode != "rgb_array":
             return None
-        from sim_nodes.dial.render import make_renderer, render_frame
-
         if self._renderer is None:
             self._renderer = make_renderer(self.model)
         return render_frame(self._renderer, self.data)

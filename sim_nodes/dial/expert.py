@@ -1,7 +1,7 @@
-"""Scripted Dial demonstrator and the episode generators (spec dial.md §3, §5.6).
+"""Scripted Dial demonstrator and the episode generators (docs/dial.md §3, §5.6).
 
-Control law (replaces the original's saturated joint-space PI without IK, spec §3.1, which does
-not transfer to dm_control's arm, spec §5.5).  At 25 Hz, per subtask:
+Control law (replaces the original's saturated joint-space PI without IK, docs/dial.md §3.1, which does
+not transfer to dm_control's arm, docs/dial.md §5.5).  At 25 Hz, per subtask:
 
 1. **retract** (not for the first subtask): lift the reference point :data:`RETRACT_HEIGHT`
    above the previous key's press point (replaces the original's shoulder "kick", §3.3);
@@ -14,14 +14,14 @@ joint-space PID with gravity/Coriolis compensation from ``qfrc_bias``::
 
     tau = Kp (q_ref - q) - Kd qdot + Ki integral(q_ref - q) + qfrc_bias,  a = clip(tau / scale, -1, 1)
 
-DART-style noise (spec §3.4): per episode an amount in {0, 2/3, 1} x ``noise`` and a hold time of
+DART-style noise (docs/dial.md §3.4): per episode an amount in {0, 2/3, 1} x ``noise`` and a hold time of
 ``persist`` in 1..5 env steps; every ``persist`` steps a new N(0, sigma) vector is drawn with
 ``sigma = amount`` (normalised action units) and joint 1 gets an extra U(0, noise/3).  The env
 executes ``clip(a + noise)``; the episode records the noise-free ``a``.  Deviation: the original
 held noise for 5-29 *physics* steps (0.01-0.06 s) and drew sigma relative to its asymmetric ctrl
 box; here the noise acts at the 25 Hz control rate.
 
-Calibration (spec §3.8): the reference's top joint speed is drawn per episode, log-uniform in
+Calibration (docs/dial.md §3.8): the reference's top joint speed is drawn per episode, log-uniform in
 ``ExpertGains.joint_speed_range`` = [0.38, 1.8] rad/s (an operator "tempo"; in the original the
 spread came from friction stick-slip and the noise amount).  Measured on seeds 0..1399 with the
 defaults (noise 0.1, no retries): 1400/1400 succeed; length mean 204.0, std 63.3, min 110, 5th pct
@@ -30,7 +30,7 @@ demos); per subtask mean 51.0, min 21, max 134 (original 51, 6.5, 134).  The sho
 longer than the original's because every subtask after the first begins with an explicit lift.
 
 The ground-truth subtask ordinal recorded at step t is the subtask being worked on when action t
-is chosen, so the step that completes a subtask still carries its ordinal (spec §3.6).
+is chosen, so the step that completes a subtask still carries its ordinal (docs/dial.md §3.6).
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ class ExpertGains:
 
 
 class DartNoise:
-    """Persistent Gaussian action noise held for ``persist`` control steps (spec §3.4)."""
+    """Persistent Gaussian action noise held for ``persist`` control steps (docs/dial.md §3.4)."""
 
     def __init__(self, rng: np.random.Generator, noise: float, dim: int = 9) -> None:
         self.rng = rng

@@ -5,16 +5,15 @@ is imported).  When no GL context can be created, :class:`RenderError` says what
 set.  MP4 is written only when an ``ffmpeg`` executable is on ``PATH``; otherwise the episode is
 saved as numbered PNG frames.  PNGs are encoded here with ``zlib`` (no imaging dependency).
 
-CLI::
+CLI (``render_cli.py``)::
 
-    python -m sim_nodes.dial.render --scene docs/dial_scene.png
-    python -m sim_nodes.dial.render --episode 3 --out /tmp/dial_ep3   # frames (or .mp4)
-    python -m sim_nodes.dial.render --episode 3 --out /tmp/dial_ep3 --strip docs/dial_presses.png
+    python -m sim_nodes.dial.render_cli --scene docs/dial_scene.png
+    python -m sim_nodes.dial.render_cli --episode 3 --out /tmp/dial_ep3   # frames (or .mp4)
+    python -m sim_nodes.dial.render_cli --episode 3 --out /tmp/dial_ep3 --strip docs/dial_presses.png
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import struct
@@ -27,6 +26,7 @@ import numpy as np
 
 from ompn_ros.data.episode import Episode
 from sim_nodes.dial.scene import KEY_TOP_Z, KEY_XY, N_KEYS, shared_model
+from sim_nodes.dial.targets import shared_targets
 
 WIDTH, HEIGHT = 640, 480
 
@@ -91,8 +91,6 @@ def project(data: mujoco.MjData, model: mujoco.MjModel, camera: str, points: np.
 
 def save_scene_png(path: str | Path, qpos: np.ndarray | None = None, *, label_keys: bool = True) -> Path:
     """Render the scene (home pose by default) to ``path``, digits annotated with matplotlib."""
-    from sim_nodes.dial.targets import shared_targets
-
     dm = shared_model()
     data = mujoco.MjData(dm.model)
     data.qpos[dm.qpos_adr] = shared_targets().home if qpos is None else qpos
@@ -191,28 +189,3 @@ def save_press_strip(episode: Episode, path: str | Path) -> Path:
     fig.savefig(path)
     plt.close(fig)
     return Path(path)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Render the Dial scene or an expert episode offscreen.")
-    parser.add_argument("--scene", help="write a still of the scene (home pose) to this PNG")
-    parser.add_argument("--episode", type=int, help="seed of an expert episode to render")
-    parser.add_argument("--out", default="dial_episode", help="output stem/directory for --episode")
-    parser.add_argument("--every", type=int, default=2, help="render every n-th step")
-    parser.add_argument("--strip", help="with --episode: also write a PNG with one frame per press")
-    args = parser.parse_args(argv)
-    if args.scene:
-        print(save_scene_png(args.scene))
-    if args.episode is not None:
-        from sim_nodes.dial.expert import generate_episode
-
-        episode = generate_episode(args.episode)
-        paths = save_episode(episode, args.out, every=args.every)
-        print(f"wrote {len(paths)} file(s) under {paths[0].parent}")
-        if args.strip:
-            print(save_press_strip(episode, args.strip))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,13 +1,13 @@
-"""The Dial scene built in code with ``mujoco.MjSpec`` (spec dial.md §1.2, §5.4, §5.6).
+"""The Dial scene built in code with ``mujoco.MjSpec`` (docs/dial.md §1.2, §5.4, §5.6).
 
 A Kinova JACO 6-DoF arm with its 3-finger hand, loaded from the *installed* ``dm_control``
 package (``dm_control/third_party/kinova``, BSD-3-Clause, Kinova Robotics / dm_control authors;
 the files are read in place and never copied into this repository), stands on a pedestal at
 (0, 0, 0.25) next to a table carrying a number pad with 10 keys in telephone layout at the
-original coordinates (spec §1.2).  Every key has two sites: ``key<d>_approach`` and
+original coordinates (docs/dial.md §1.2).  Every key has two sites: ``key<d>_approach`` and
 ``key<d>_press``.  Nine ``motor`` actuators drive the 6 arm and 3 finger joints.
 
-Deviations from the original ``jaco_pinpad.xml`` (spec §5.2), all deliberate:
+Deviations from the original ``jaco_pinpad.xml`` (docs/dial.md §5.2), all deliberate:
 
 * Arm and hand are dm_control's JACO: 60° wrist (original 55°), Kinova zero-angle convention,
   joint_2/joint_3 limited, dm_control joint dynamics (armature 4/2, frictionloss 2/1, damping
@@ -19,7 +19,7 @@ Deviations from the original ``jaco_pinpad.xml`` (spec §5.2), all deliberate:
   point (the original stored hand-picked poses whose finger-3 knuckle sat 10-13 cm above the key
   centre, 1.7-5.7 cm L1 from the approach pose).
 * Keys are plain primitives without digit textures (the original PNG textures are not
-  redistributable, spec §5.3); the body names are ``key<digit>``, so name == digit.
+  redistributable, docs/dial.md §5.3); the body names are ``key<digit>``, so name == digit.
 * Actuators are torque motors as in the original (dm_control's own JACO uses velocity
   actuators); gear = torque scale, ``ctrlrange`` [-1, 1], so ``ctrl`` is the normalised action
   (see :data:`TORQUE_SCALE`; original gears 50/100/100/50/50/50/10/10/10 with Python-side clips).
@@ -60,7 +60,7 @@ joints 4-6); fingers use dm_control's finger force limit of 1."""
 
 REFERENCE_SITE = "arm/hand/pinchsite"
 
-# Telephone keypad (spec §1.2): digit -> key centre (x, y) in the world frame.
+# Telephone keypad (docs/dial.md §1.2): digit -> key centre (x, y) in the world frame.
 KEY_XY: dict[int, tuple[float, float]] = {
     1: (0.36, 0.21), 4: (0.36, 0.07), 7: (0.36, -0.07),
     2: (0.50, 0.21), 5: (0.50, 0.07), 8: (0.50, -0.07), 0: (0.50, -0.21),

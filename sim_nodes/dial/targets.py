@@ -1,13 +1,13 @@
-"""Joint-space waypoints of the Dial task, derived by IK on the compiled scene (spec §5.6).
+"""Joint-space waypoints of the Dial task, derived by IK on the compiled scene (docs/dial.md §5.6).
 
-The original stored hand-picked joint angles (``targ_def.p``, spec §1.8); they do not transfer
+The original stored hand-picked joint angles (``targ_def.p``, docs/dial.md §1.8); they do not transfer
 to dm_control's arm, so every waypoint is re-derived with :func:`sim_nodes.dial.ik.solve_ik`,
 chained from one home posture so all solutions share an IK branch:
 
 * ``home``: reference site at :data:`~sim_nodes.dial.scene.HOME_XYZ`, hand vertical;
 * ``approach[d]`` / ``press[d]``: the key's approach / press sites;
 * ``retract[d]``: :data:`RETRACT_HEIGHT` above the press point (the explicit lift between digits
-  that replaces the original's shoulder "kick", spec §3.3).
+  that replaces the original's shoulder "kick", docs/dial.md §3.3).
 """
 
 from __future__ import annotations

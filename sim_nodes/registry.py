@@ -1,0 +1,71 @@
+"""The simulated domains as ``ompn_ros`` uses them: the one module of ``sim_nodes`` it imports.
+
+Collectors, replay, evaluation and the command-line tools reach the domains through these names
+only, so the two packages meet at two small interfaces: this module (ompn_ros -> sim_nodes) and the
+public ompn_ros API listed in ``sim_nodes/__init__.py`` (sim_nodes -> ompn_ros).
+
+Importing this module imports both domains (Craft: numpy + gymnasium; Dial: MuJoCo, with
+``MUJOCO_GL`` defaulting to ``egl``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+from ompn_ros.data.episode import Episode
+from sim_nodes import SEED_MAX, derive_seed
+from sim_nodes.craft import PAPER_TASKS, CraftEnv
+from sim_nodes.craft import TASKS as CRAFT_TASKS
+from sim_nodes.craft import generate_episode as craft_episode
+from sim_nodes.dial import DialEnv
+from sim_nodes.dial import generate_episode as dial_episode
+from sim_nodes.dial.expert import episode_sketch as dial_episode_sketch
+
+Domain = Literal["craft", "dial"]
+DOMAINS: tuple[Domain, ...] = get_args(Domain)
+DIAL_TASK = "dial"
+
+
+class UnknownDomainError(ValueError):
+    """A domain or task name that no simulator provides."""
+
+
+def default_tasks(domain: str) -> tuple[str, ...]:
+    """The tasks demonstrations are collected for: Craft's three paper tasks, Dial's one task."""
+    if domain == "craft":
+        return tuple(PAPER_TASKS)
+    if domain == "dial":
+        return (DIAL_TASK,)
+    raise UnknownDomainError(f"unknown domain '{domain}', expected one of {list(DOMAINS)}")
+
+
+def expert_episode(domain: str, seed: int, *, task: str | None = None, partial: bool = False) -> Episode:
+    """One expert demonstration with ground truth (``generate_episode`` of the domain).
+
+    ``task`` defaults to the domain's first task; ``partial`` selects Craft's partial observation
+    (Dial has one observation).
+    """
+    name = task if task is not None else default_tasks(domain)[0]
+    if domain == "craft":
+        if name not in CRAFT_TASKS:
+            raise UnknownDomainError(f"unknown Craft task '{name}'; known: {sorted(CRAFT_TASKS)}")
+        return craft_episode(seed, task=name, full_obs=not partial)
+    if name != DIAL_TASK:
+        raise UnknownDomainError(f"unknown Dial task '{name}'; Dial has the one task '{DIAL_TASK}'")
+    return dial_episode(seed)
+
+
+__all__ = [
+    "CRAFT_TASKS",
+    "DIAL_TASK",
+    "DOMAINS",
+    "SEED_MAX",
+    "CraftEnv",
+    "DialEnv",
+    "Domain",
+    "UnknownDomainError",
+    "default_tasks",
+    "derive_seed",
+    "dial_episode_sketch",
+    "expert_episode",
+]

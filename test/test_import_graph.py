@@ -1,0 +1,213 @@
+"""The module import graph of ``ompn_ros`` and ``sim_nodes`` has no cycles.
+
+Every module is parsed with :mod:`ast` (nothing is imported).  An edge ``a -> b`` is any import of
+project module ``b`` anywhere in ``a``: at module level, inside a function, or under
+``if TYPE_CHECKING:``.  Relative imports are resolved, and ``from pkg import name`` points at the
+submodule ``pkg.name`` when that is a module, otherwise at ``pkg`` itself.  Parent packages that
+Python initialises on the way are not edges (a package ``__init__`` re-exporting its submodules is
+not a circle).
+
+Function-local imports of project modules are counted as well: they are how circles used to be
+hidden.  Library modules have one, listed in ``LIBRARY_LOCAL_IMPORTS`` (an optional heavy
+dependency loaded only when its feature is used).  Command-line entry points and nodes may defer a
+heavy subcommand (torch, MuJoCo, matplotlib) so that ``--help`` and the other subcommands start
+fast; their count is bounded by a ratchet.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("ompn_ros", "sim_nodes")
+LIBRARY_LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backend only"}
+"""The function-local project imports allowed outside the command-line and ROS node packages."""
+ENTRY_POINT_PACKAGES = ("ompn_ros.cli", "ompn_ros.nodes")
+MAX_ENTRY_POINT_LOCAL_IMPORTS = 57
+"""A ratchet for ``cli/`` and ``nodes/``: lower it whenever one of their local imports goes."""
+SIM_NODES_MAY_IMPORT = ("ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages")
+"""The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""
+OMPN_ROS_MAY_IMPORT = ("sim_nodes.registry",)
+"""The sim_nodes module ompn_ros uses (see ``sim_nodes/__init__.py``)."""
+PENDING_DOMAIN_IMPORTS = {
+    "ompn_ros.cli.collect": {"sim_nodes", "sim_nodes.craft", "sim_nodes.dial"},
+    "ompn_ros.cli.segment": {"sim_nodes.craft", "sim_nodes.dial"},
+}
+"""Imports that bypass the registry and are still to move to it; the list may only shrink."""
+
+
+def _modules() -> dict[str, Path]:
+    found: dict[str, Path] = {}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            name = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            found[name] = path
+    return found
+
+
+MODULES = _modules()
+
+
+def _is_package(name: str) -> bool:
+    return MODULES[name].name == "__init__.py"
+
+
+def _imports(module: str, tree: ast.Module) -> Iterator[tuple[str, bool, int]]:
+    """``(imported project module, function-local?, line)`` for every import in ``tree``."""
+    local_nodes = {
+        id(inner)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        for inner in ast.walk(node)
+    }
+    base = module if _is_package(module) else module.rpartition(".")[0]
+    for node in ast.walk(tree):
+        local = id(node) in local_nodes
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name in MODULES:
+                    yield alias.name, local, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = base.split(".")
+                anchor = parts[: len(parts) - node.level + 1]
+                target = ".".join(anchor + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                if sub in MODULES:
+                    yield sub, local, node.lineno
+                elif target in MODULES:
+                    yield target, local, node.lineno
+
+
+def _graph() -> tuple[dict[str, set[str]], list[str]]:
+    """Edges between project modules, and one ``module:line -> target`` per function-local import."""
+    edges: dict[str, set[str]] = {name: set() for name in MODULES}
+    local: set[str] = set()
+    for name, path in MODULES.items():
+        for target, is_local, line in _imports(name, ast.parse(path.read_text(), str(path))):
+            if target != name:
+                edges[name].add(target)
+            if is_local:
+                local.add(f"{name}:{line} -> {target}")
+    return edges, sorted(local)
+
+
+def _find_cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle per strongly connected component with more than one module (Tarjan, O(V + E))."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(edges[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                components.append(sorted(component))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return [_one_cycle(edges, set(c), c[0]) for c in components]
+
+
+def _one_cycle(edges: dict[str, set[str]], members: set[str], start: str) -> list[str]:
+    """A shortest path from ``start`` back to itself inside one component (breadth first)."""
+    parents: dict[str, str] = {}
+    frontier = [start]
+    while frontier:
+        following = []
+        for v in frontier:
+            for w in sorted(edges[v] & members):
+                if w == start:
+                    path = [v]
+                    while path[-1] != start:
+                        path.append(parents[path[-1]])
+                    return [start, *reversed(path[:-1]), start] if len(path) > 1 else [start, v, start]
+                if w not in parents:
+                    parents[w] = v
+                    following.append(w)
+        frontier = following
+    return [start]
+
+
+def test_the_graph_sees_known_edges():
+    edges, _ = _graph()
+    assert "ompn_ros.model.config" in edges["ompn_ros.model.checkpoint"]
+    assert "ompn_ros.data.episode" in edges["sim_nodes.craft.expert"]
+    assert "sim_nodes" in edges["sim_nodes.ros_common"]  # from sim_nodes import derive_seed
+
+
+def test_cycle_finder_reports_a_cycle():
+    edges = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert _find_cycles(edges) == [["a", "b", "c", "a"]]
+    assert _find_cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycles():
+    edges, _ = _graph()
+    cycles = _find_cycles(edges)
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_library_modules_import_at_top_level():
+    _, local = _graph()
+    library = [entry for entry in local if not entry.startswith(ENTRY_POINT_PACKAGES)]
+    unexpected = [entry for entry in library if entry.split(":")[0] not in LIBRARY_LOCAL_IMPORTS]
+    assert not unexpected, "function-local imports of project modules:\n" + "\n".join(unexpected)
+    assert len(library) <= len(LIBRARY_LOCAL_IMPORTS)
+
+
+def test_entry_point_local_imports_stay_few():
+    _, local = _graph()
+    entry_points = [entry for entry in local if entry.startswith(ENTRY_POINT_PACKAGES)]
+    assert len(entry_points) <= MAX_ENTRY_POINT_LOCAL_IMPORTS, (
+        f"{len(entry_points)} function-local imports of project modules in {ENTRY_POINT_PACKAGES} "
+        f"(bound {MAX_ENTRY_POINT_LOCAL_IMPORTS}):\n" + "\n".join(entry_points)
+    )
+
+
+def test_sim_nodes_use_only_the_public_api():
+    edges, _ = _graph()
+    offenders = [
+        f"{name} -> {target}"
+        for name, targets in edges.items()
+        if name.startswith("sim_nodes")
+        for target in targets
+        if target.startswith("ompn_ros") and target not in SIM_NODES_MAY_IMPORT
+    ]
+    assert not offenders, "sim_nodes imports ompn_ros internals:\n" + "\n".join(offenders)
+
+
+def test_ompn_ros_reaches_the_domains_through_the_registry():
+    edges, _ = _graph()
+    offenders = [
+        f"{name} -> {target}"
+        for name, targets in edges.items()
+        if name.startswith("ompn_ros")
+        for target in targets
+        if target.startswith("sim_nodes") and target not in OMPN_ROS_MAY_IMPORT
+        and target not in PENDING_DOMAIN_IMPORTS.get(name, set())
+    ]
+    assert not offenders, "ompn_ros imports sim_nodes around sim_nodes.registry:\n" + "\n".join(offenders)
