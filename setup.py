@@ -15,7 +15,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
     ],
     python_requires=">=3.10",
     install_requires=[
@@ -24,15 +25,19 @@ setup(
         "scipy>=1.10",  # BLAS for numba's np.dot
         "PyYAML>=6",
         "torch>=2.4,<3",
+        "llvmlite>=0.43",  # imported directly by the numba step
         "safetensors>=0.4",
         "rosbags>=0.11.9,<0.12",
+        "mcap>=1.2",  # damaged-bag salvage in the bag reader
         "gymnasium>=1.0",
         "mujoco>=3.2",
         "dm_control>=1.0.20",
         "tqdm>=4.60",
         "matplotlib>=3.8",
+        "pillow>=10",
+        "tensorboard>=2.15",  # optional TensorBoard scalars (train.tensorboard: true)
     ],
-    extras_require={"test": ["pytest>=8", "pytest-timeout", "mcap>=1.2", "mcap-ros2-support>=0.5"]},
+    extras_require={"test": ["pytest>=8", "pytest-timeout", "hypothesis>=6", "mcap-ros2-support>=0.5"]},
     zip_safe=False,
     maintainer="ompn_ros maintainers",
     maintainer_email="maintainers@ompn-ros.invalid",
