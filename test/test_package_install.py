@@ -69,7 +69,7 @@ def test_ament_index_resolves_package_and_share(colcon_install: Path):
     info = json.loads(result.stdout.strip().splitlines()[-1])
     assert Path(info["prefix"]) == colcon_install / "ompn_ros"
     assert "package.xml" in info["files"]
-    shipped = sorted(p.name for p in (ROOT / "config").glob("*.yaml"))
+    shipped = sorted(p.name for pattern in ("*.yaml", "*.xml") for p in (ROOT / "config").glob(pattern))
     assert shipped and info["config"] == shipped
 
 
