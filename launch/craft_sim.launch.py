@@ -14,13 +14,19 @@ from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+
+def _text(argument: str) -> ParameterValue:
+    """A string parameter from a launch argument (a plain substitution would be parsed as YAML: '' fails)."""
+    return ParameterValue(LaunchConfiguration(argument), value_type=str)
 
 
 def generate_launch_description() -> LaunchDescription:
     """The launch arguments, then the three nodes (the recorder only with ``record:=true``)."""
     namespace = LaunchConfiguration("namespace")
-    use_sim_time = LaunchConfiguration("use_sim_time")
+    use_sim_time = ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool)
     record = LaunchConfiguration("record")
     share = FindPackageShare("ompn_ros")
     return LaunchDescription([
@@ -52,7 +58,7 @@ def generate_launch_description() -> LaunchDescription:
             output="screen",
             parameters=[
                 LaunchConfiguration("params_file"),
-                {"checkpoint": LaunchConfiguration("checkpoint"), "use_sim_time": use_sim_time},
+                {"checkpoint": _text("checkpoint"), "use_sim_time": use_sim_time},
             ],
         ),
         Node(
@@ -64,8 +70,7 @@ def generate_launch_description() -> LaunchDescription:
             condition=IfCondition(record),
             parameters=[
                 PathJoinSubstitution([share, "config", "bag_recorder.yaml"]),
-                {"output": LaunchConfiguration("bag"), "storage": LaunchConfiguration("storage"),
-                 "use_sim_time": use_sim_time},
+                {"output": _text("bag"), "storage": _text("storage"), "use_sim_time": use_sim_time},
             ],
         ),
         Node(
@@ -75,13 +80,15 @@ def generate_launch_description() -> LaunchDescription:
             namespace=namespace,
             output="screen",
             parameters=[{
-                "mode": LaunchConfiguration("mode"),
-                "task": LaunchConfiguration("task"),
-                "rate": LaunchConfiguration("rate"),
-                "seed": LaunchConfiguration("seed"),
-                "episodes": LaunchConfiguration("episodes"),
+                "mode": _text("mode"),
+                "task": _text("task"),
+                "rate": ParameterValue(LaunchConfiguration("rate"), value_type=float),
+                "seed": ParameterValue(LaunchConfiguration("seed"), value_type=int),
+                "episodes": ParameterValue(LaunchConfiguration("episodes"), value_type=int),
                 # hold the first episode until ompn_node (and the recorder) subscribe to observation
-                "wait_for_subscribers": PythonExpression(["2 if '", record, "' == 'true' else 1"]),
+                "wait_for_subscribers": ParameterValue(
+                    PythonExpression(["2 if '", record, "' == 'true' else 1"]), value_type=int
+                ),
                 "wait_topics": ["observation"],
                 "use_sim_time": use_sim_time,
             }],

@@ -16,6 +16,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 
@@ -46,8 +47,8 @@ def generate_launch_description() -> LaunchDescription:
             parameters=[
                 LaunchConfiguration("params_file"),
                 {
-                    "checkpoint": LaunchConfiguration("checkpoint"),
-                    "use_sim_time": LaunchConfiguration("use_sim_time"),
+                    "checkpoint": ParameterValue(LaunchConfiguration("checkpoint"), value_type=str),
+                    "use_sim_time": ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool),
                 },
             ],
             remappings=[

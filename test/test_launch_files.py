@@ -73,6 +73,7 @@ class LaunchSummary:
 
     arguments: dict[str, ast.expr | None] = field(default_factory=dict)
     executables: list[str] = field(default_factory=list)
+    inline_parameters: dict[str, set[str]] = field(default_factory=dict)
     share_paths: list[Path] = field(default_factory=list)
 
 
@@ -146,12 +147,22 @@ def _keyword(call: ast.Call, name: str, position: int | None = None) -> ast.expr
     return None
 
 
-class _Evaluator:
-    """Launch-time values of expressions: str, list, or None when only known at run time."""
+@dataclass(frozen=True)
+class Required:
+    """The value of a launch argument without a default: the user must give it."""
 
-    def __init__(self, where: str, install: Install, names: dict[str, ast.expr],
+    argument: str
+
+
+class _Evaluator:
+    """Launch-time values of expressions: str, number, list, :class:`Required`, or None when only known at
+    run time.  Calls of the file's own one-``return`` helper functions are evaluated inline."""
+
+    def __init__(self, where: str, install: Install, tree: ast.Module, names: dict[str, ast.expr],
                  arguments: dict[str, ast.expr | None]) -> None:
         self.where, self.install, self.names, self.arguments = where, install, names, arguments
+        self.helpers = {f.name: f for f in tree.body if isinstance(f, ast.FunctionDef)
+                        and f.name != "generate_launch_description" and isinstance(f.body[-1], ast.Return)}
         self.share_paths: list[Path] = []
 
     def fail(self, message: str) -> LaunchCheckError:
@@ -166,18 +177,33 @@ class _Evaluator:
             return self.value(self.names.get(node.id))
         if isinstance(node, ast.List | ast.Tuple):
             return [self.value(e) for e in node.elts]
+        if not isinstance(node, ast.Call):
+            return None
         name = _call_name(node)
-        assert not name or isinstance(node, ast.Call)
         if name == "LaunchConfiguration":
-            return self.value(self.arguments[self.argument(node)])  # type: ignore[arg-type]
+            argument = self.argument(node)
+            default = self.arguments[argument]
+            return Required(argument) if default is None else self.value(default)
         if name == "FindPackageShare":
-            package = self.value(node.args[0])  # type: ignore[attr-defined]
+            package = self.value(node.args[0])
             if package != PACKAGE:
                 raise self.fail(f"FindPackageShare({package!r}): only {PACKAGE}'s share can be checked")
             return str(self.install.share)
         if name == "PathJoinSubstitution":
-            return self._join(node)  # type: ignore[arg-type]
+            return self._join(node)
+        if name == "ParameterValue":
+            return self.value(node.args[0])
+        if name in self.helpers:
+            return self._inline(self.helpers[name], node)
         return None  # PythonExpression, EnvironmentVariable, ...: run-time values
+
+    def _inline(self, func: ast.FunctionDef, call: ast.Call) -> object:
+        bound = dict(zip((a.arg for a in func.args.args), call.args))
+        saved, self.names = self.names, {**self.names, **bound}
+        try:
+            return self.value(func.body[-1].value)  # type: ignore[attr-defined]
+        finally:
+            self.names = saved
 
     def argument(self, call: ast.Call) -> str:
         name = self.value(call.args[0])
@@ -221,23 +247,27 @@ def _arguments(func: ast.FunctionDef, where: str) -> dict[str, ast.expr | None]:
 def check_launch_file(path: Path, install: Install) -> LaunchSummary:
     """Resolve every name ``path`` gives against ``install``; raise :class:`LaunchCheckError` if one fails."""
     where = path.name
-    func = _function(ast.parse(path.read_text(), filename=str(path)), where)
+    tree = ast.parse(path.read_text(), filename=str(path))
+    func = _function(tree, where)
     names = {t.id: n.value for n in ast.walk(func) if isinstance(n, ast.Assign)
              for t in n.targets if isinstance(t, ast.Name)}
     summary = LaunchSummary(arguments=_arguments(func, where))
-    ev = _Evaluator(where, install, names, summary.arguments)
+    ev = _Evaluator(where, install, tree, names, summary.arguments)
     for node in ast.walk(func):  # every LaunchConfiguration and share path, wherever it is used
-        if _call_name(node) in ("LaunchConfiguration", "PathJoinSubstitution"):
+        if _call_name(node) in ("LaunchConfiguration", "PathJoinSubstitution", *ev.helpers):
             ev.value(node)  # type: ignore[arg-type]
     scripts = _console_scripts(install)
     for node in ast.walk(func):
         if _call_name(node) == "Node":
-            summary.executables.append(_check_node(node, ev, scripts))  # type: ignore[arg-type]
+            executable, inline = _check_node(node, ev, scripts)  # type: ignore[arg-type]
+            summary.executables.append(executable)
+            summary.inline_parameters[executable] = inline
     summary.share_paths = sorted(set(ev.share_paths))
     return summary
 
 
-def _check_node(call: ast.Call, ev: _Evaluator, scripts: dict[str, str]) -> str:
+def _check_node(call: ast.Call, ev: _Evaluator, scripts: dict[str, str]) -> tuple[str, set[str]]:
+    """Check one ``Node(...)``; return its executable and the keys of its inline parameters."""
     package, executable = ev.value(_keyword(call, "package")), ev.value(_keyword(call, "executable"))
     if package != PACKAGE:
         raise ev.fail(f"Node package {package!r} is not {PACKAGE}")
@@ -259,10 +289,15 @@ def _check_node(call: ast.Call, ev: _Evaluator, scripts: dict[str, str]) -> str:
     unknown = sorted(k for k in (*from_files, *inline) if k not in declared)
     if unknown:
         raise ev.fail(f"parameter(s) {unknown} are not declared by {executable}")
+    for key, expr in inline.items():
+        # launch_ros parses a bare substitution's text as YAML, and '' (None) is no parameter value
+        if _call_name(expr) == "LaunchConfiguration" and ev.value(expr) == "":
+            raise ev.fail(f"parameter {key!r} gets the bare default '' (YAML null): wrap it in "
+                          "ParameterValue(..., value_type=str)")
     _check_remaps(call, ev)
     if executable == "ompn_node":
         _check_checkpoint(ev, from_files, inline)
-    return str(executable)
+    return str(executable), set(inline)
 
 
 def _params_file_section(ev: _Evaluator, path: Path, node_name: str) -> dict[str, object]:
@@ -285,11 +320,9 @@ def _check_remaps(call: ast.Call, ev: _Evaluator) -> None:
 
 
 def _check_checkpoint(ev: _Evaluator, from_files: dict[str, object], inline: dict[str, ast.expr]) -> None:
-    expr = inline.get("checkpoint")
-    if isinstance(expr, ast.Call) and _call_name(expr) == "LaunchConfiguration":
-        if ev.arguments[ev.argument(expr)] is None:
-            return  # a required argument: the user names the checkpoint
-    checkpoint = ev.value(expr) if expr is not None else from_files.get("checkpoint")
+    checkpoint = ev.value(inline["checkpoint"]) if "checkpoint" in inline else from_files.get("checkpoint")
+    if isinstance(checkpoint, Required):
+        return  # the user names the checkpoint
     if checkpoint:
         path = Path(str(checkpoint))
         if not ((path / "config.json").is_file() or (path / "ensemble.json").is_file()):
@@ -345,6 +378,7 @@ def test_node_launch_file_requires_the_checkpoint(install: Install):
     summary = check_launch_file(install.share / "launch" / "ompn_node.launch.py", install)
     assert summary.executables == ["ompn_node"]
     assert summary.arguments["checkpoint"] is None  # no default: `checkpoint:=...` is required
+    assert {"use_sim_time", "checkpoint"} <= summary.inline_parameters["ompn_node"]
     assert {"obs_topic", "joint_states_topic"} <= set(summary.arguments)
 
 
@@ -355,13 +389,15 @@ BROKEN = [
      "config/ompn_node_dail.yaml does not exist"),
     ("dial_sim.launch.py", '"wait_topics": ', '"wait_topic": ',
      r"\['wait_topic'\] are not declared by dial_sim"),
-    ("craft_sim.launch.py", 'LaunchConfiguration("bag")', 'LaunchConfiguration("bags")',
+    ("craft_sim.launch.py", '_text("bag")', '_text("bags")',
      "LaunchConfiguration\\('bags'\\) has no DeclareLaunchArgument"),
     ("craft_sim.launch.py", '"ompn_node_craft.yaml"', '"ompn_node.yaml"', "ompn_node gets no checkpoint"),
     ("craft_sim.launch.py", '"checkpoint", default_value=""', '"checkpoint", default_value="/no/such/ckpt"',
      "checkpoint '/no/such/ckpt' does not resolve"),
     ("ompn_node.launch.py", '("observation", ', '("observations", ', "remaps 'observations'"),
     ("ompn_node.launch.py", 'package="ompn_ros"', 'package="ompn_ros2"', "Node package 'ompn_ros2'"),
+    ("dial_sim.launch.py", '"output": _text("bag")', '"output": LaunchConfiguration("bag")',
+     "parameter 'output' gets the bare default ''"),
 ]
 
 
