@@ -1,16 +1,20 @@
 """ament_python build script for ompn_ros (works with colcon and with plain pip)."""
 
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "ompn_ros"
+# The shipped checkpoints (ompn_ros/checkpoints/<name>/*.json, *.safetensors) are package data of their
+# own directories; naming those as packages keeps setuptools from warning that they are left out.
+CHECKPOINTS = sorted(f"{PACKAGE}.checkpoints.{Path(d).name}" for d in glob(f"{PACKAGE}/checkpoints/*/"))
 
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=find_packages(include=["ompn_ros", "ompn_ros.*", "sim_nodes", "sim_nodes.*"]),
-    package_data={PACKAGE: ["checkpoints/*/*.json", "checkpoints/*/*.safetensors"]},
+    packages=find_packages(include=["ompn_ros", "ompn_ros.*", "sim_nodes", "sim_nodes.*"]) + CHECKPOINTS,
+    package_data={name: ["*.json", "*.safetensors"] for name in CHECKPOINTS},
     include_package_data=True,
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
