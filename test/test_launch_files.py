@@ -20,6 +20,7 @@ The negative tests break one name at a time in a copy and expect the matching on
 from __future__ import annotations
 
 import ast
+import configparser
 import os
 import shutil
 import subprocess
@@ -79,15 +80,14 @@ class LaunchSummary:
 
 # --- what the install space declares -------------------------------------------------------------
 def _console_scripts(install: Install) -> dict[str, str]:
-    """Console script name -> module, from setup.py (the scripts themselves are checked on disk)."""
-    tree = ast.parse((ROOT / "setup.py").read_text())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Dict):
-            for key, value in zip(node.keys, node.values):
-                if isinstance(key, ast.Constant) and key.value == "console_scripts":
-                    pairs = [str(ast.literal_eval(e)).split("=") for e in value.elts]  # type: ignore[attr-defined]
-                    return {name.strip(): target.split(":")[0].strip() for name, target in pairs}
-    raise LaunchCheckError("setup.py declares no console_scripts")
+    """Console script name -> module, from the installed ``entry_points.txt`` (the scripts themselves
+    are checked on disk)."""
+    found = sorted(install.site.glob(f"{PACKAGE}-*.egg-info/entry_points.txt"))
+    if not found:
+        raise LaunchCheckError(f"no {PACKAGE} entry_points.txt in {install.site}")
+    parser = configparser.ConfigParser()
+    parser.read(found[0])
+    return {name: target.split(":")[0].strip() for name, target in parser["console_scripts"].items()}
 
 
 def _module_file(install: Install, module: str) -> Path:
