@@ -9,7 +9,8 @@ evaluated statically (``DeclareLaunchArgument`` defaults, ``LaunchConfiguration`
 * every ``Node`` runs an ``ompn_ros`` console script found in ``lib/ompn_ros``;
 * every parameter key it passes (inline dicts and the node's section of every params file) is declared
   by that node's source in the install space (``declare_parameter`` / ``ParamSpec``), or is
-  ``use_sim_time``;
+  ``use_sim_time``, and reaches the node with the type of the declared default (``ParameterValue``
+  ``value_type``, a literal, or the YAML value; a bare substitution of '' would be YAML null);
 * every remapped name is a topic of ``ompn_ros/layout.py``;
 * ``ompn_node`` gets a checkpoint: a required argument, an installed checkpoint directory, or the
   shipped checkpoint of the ``domain`` its params file sets.
@@ -22,7 +23,6 @@ from __future__ import annotations
 import ast
 import configparser
 import os
-import shutil
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -34,7 +34,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 PACKAGE = "ompn_ros"
-BUILTIN_PARAMETERS = frozenset({"use_sim_time"})  # declared by every rclpy node
+BUILTIN_PARAMETERS: dict[str, type | None] = {"use_sim_time": bool}  # declared by every rclpy node
+VALUE_TYPES = {"bool": bool, "int": int, "float": float, "str": str}
 LAUNCH_FILES = ("dial_sim.launch.py", "craft_sim.launch.py", "ompn_node.launch.py")
 
 
@@ -95,9 +96,10 @@ def _module_file(install: Install, module: str) -> Path:
     return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
 
 
-def declared_parameters(install: Install, module: str) -> set[str]:
-    """Names passed to ``declare_parameter``/``ParamSpec`` in ``module`` and the package modules it
-    imports from (one level: the sims' shared parameters live in ``sim_nodes.ros_common``)."""
+def declared_parameters(install: Install, module: str) -> dict[str, type | None]:
+    """Name -> type of the literal default (None: not a literal) of every ``declare_parameter`` /
+    ``ParamSpec`` call in ``module`` and the package modules it imports from (one level: the sims'
+    shared parameters live in ``sim_nodes.ros_common``)."""
     tree = ast.parse(_module_file(install, module).read_text())
     sources = [tree]
     for node in ast.walk(tree):
@@ -105,15 +107,22 @@ def declared_parameters(install: Install, module: str) -> set[str]:
             imported = _module_file(install, node.module)
             if node.module.split(".")[0] in ("ompn_ros", "sim_nodes") and imported.is_file():
                 sources.append(ast.parse(imported.read_text()))
-    names = set(BUILTIN_PARAMETERS)
+    names = dict(BUILTIN_PARAMETERS)
     for source in sources:
         for node in ast.walk(source):
             if isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant):
                 func = node.func
                 called = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
                 if called in ("declare_parameter", "ParamSpec") and isinstance(node.args[0].value, str):
-                    names.add(node.args[0].value)
+                    names[node.args[0].value] = _literal_type(node.args[1] if len(node.args) > 1 else None)
     return names
+
+
+def _literal_type(node: ast.expr | None) -> type | None:
+    try:
+        return type(ast.literal_eval(node)) if node is not None else None
+    except ValueError:
+        return None
 
 
 def layout_topics(install: Install) -> set[str]:
@@ -289,15 +298,31 @@ def _check_node(call: ast.Call, ev: _Evaluator, scripts: dict[str, str]) -> tupl
     unknown = sorted(k for k in (*from_files, *inline) if k not in declared)
     if unknown:
         raise ev.fail(f"parameter(s) {unknown} are not declared by {executable}")
+    for key, value in from_files.items():
+        if declared[key] is not None and type(value) is not declared[key]:
+            raise ev.fail(f"params file value {key}: {value!r} is a {type(value).__name__}, but "
+                          f"{executable} declares it as {declared[key].__name__}")  # type: ignore[union-attr]
     for key, expr in inline.items():
-        # launch_ros parses a bare substitution's text as YAML, and '' (None) is no parameter value
-        if _call_name(expr) == "LaunchConfiguration" and ev.value(expr) == "":
-            raise ev.fail(f"parameter {key!r} gets the bare default '' (YAML null): wrap it in "
-                          "ParameterValue(..., value_type=str)")
+        _check_type(ev, str(executable), key, expr, declared[key])
     _check_remaps(call, ev)
     if executable == "ompn_node":
         _check_checkpoint(ev, from_files, inline)
     return str(executable), set(inline)
+
+
+def _check_type(ev: _Evaluator, executable: str, key: str, expr: ast.expr, declared: type | None) -> None:
+    """A parameter must reach the node with its declared type (rclpy rejects a changed type)."""
+    if _call_name(expr) == "LaunchConfiguration" and ev.value(expr) == "":
+        # launch_ros parses a bare substitution's text as YAML, and '' (null) is no parameter value
+        raise ev.fail(f"parameter {key!r} gets the bare default '' (YAML null): wrap it in "
+                      "ParameterValue(..., value_type=str)")
+    if _call_name(expr) == "ParameterValue":
+        given = VALUE_TYPES.get(getattr(_keyword(expr, "value_type"), "id", ""))  # type: ignore[arg-type]
+    else:
+        given = _literal_type(expr)
+    if declared is not None and given is not None and given is not declared:
+        raise ev.fail(f"parameter {key!r} is passed as {given.__name__}, but {executable} declares it "
+                      f"as {declared.__name__}")
 
 
 def _params_file_section(ev: _Evaluator, path: Path, node_name: str) -> dict[str, object]:
@@ -398,6 +423,10 @@ BROKEN = [
     ("ompn_node.launch.py", 'package="ompn_ros"', 'package="ompn_ros2"', "Node package 'ompn_ros2'"),
     ("dial_sim.launch.py", '"output": _text("bag")', '"output": LaunchConfiguration("bag")',
      "parameter 'output' gets the bare default ''"),
+    ("dial_sim.launch.py", '("rate"), value_type=float', '("rate"), value_type=int',
+     "parameter 'rate' is passed as int, but dial_sim declares it as float"),
+    ("craft_sim.launch.py", '"wait_topics": ["observation"]', '"wait_topics": "observation"',
+     "parameter 'wait_topics' is passed as str, but craft_sim declares it as list"),
 ]
 
 
@@ -412,14 +441,21 @@ def test_a_broken_name_fails_the_check(install: Install, tmp_path: Path, name: s
         check_launch_file(broken, install)
 
 
-def test_an_undeclared_key_in_a_params_file_fails_the_check(install: Install, tmp_path: Path):
+@pytest.mark.parametrize(("old", "new", "error"), [
+    ("detector_high:", "detector_hi:", r"\['detector_hi'\] are not declared by ompn_node"),
+    ("detector_high: 0.1", "detector_high: 1",
+     "detector_high: 1 is a int, but ompn_node declares it as float"),
+])
+def test_a_broken_params_file_fails_the_check(install: Install, tmp_path: Path, old: str, new: str,
+                                              error: str):
     params = tmp_path / "params.yaml"
-    shutil.copy(install.share / "config" / "ompn_node_dial.yaml", params)
-    params.write_text(params.read_text().replace("detector_high:", "detector_hi:"))
-    text = (install.share / "launch" / "dial_sim.launch.py").read_text()
-    old = 'PathJoinSubstitution([share, "config", "ompn_node_dial.yaml"])'
+    text = (install.share / "config" / "ompn_node_dial.yaml").read_text()
     assert old in text
+    params.write_text(text.replace(old, new))
+    launch = (install.share / "launch" / "dial_sim.launch.py").read_text()
+    reference = 'PathJoinSubstitution([share, "config", "ompn_node_dial.yaml"])'
+    assert reference in launch
     broken = tmp_path / "dial_sim.launch.py"
-    broken.write_text(text.replace(old, repr(str(params))))
-    with pytest.raises(LaunchCheckError, match=r"\['detector_hi'\] are not declared by ompn_node"):
+    broken.write_text(launch.replace(reference, repr(str(params))))
+    with pytest.raises(LaunchCheckError, match=error):
         check_launch_file(broken, install)
