@@ -18,12 +18,12 @@ setup: $(STAMP)
 
 # Order matters: the CPU torch first (otherwise pip resolves a multi-GB CUDA build), then the
 # ROS 2 Jazzy wheels, then the rest, then this package in editable mode.
-$(STAMP): requirements.txt setup.py setup.cfg package.xml
+$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet torch==2.13.0
 	$(PIP) install --quiet 'ros-jazzy-rclpy[fastrtps]==7.1.6' 'ros-jazzy-common-interfaces==5.3.6'
-	$(PIP) install --quiet -r requirements.txt
+	$(PIP) install --quiet -r requirements-dev.txt
 	$(PIP) install --quiet --no-deps --no-build-isolation -e .
 	$(PY) -m ompn_ros.model._jit_stream
 	touch $(STAMP)

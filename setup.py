@@ -1,21 +1,26 @@
 """ament_python build script for ompn_ros (works with colcon and with plain pip)."""
 
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "ompn_ros"
+# The shipped checkpoints (ompn_ros/checkpoints/<name>/*.json, *.safetensors) are package data of their
+# own directories; naming those as packages keeps setuptools from warning that they are left out.
+CHECKPOINTS = sorted(f"{PACKAGE}.checkpoints.{Path(d).name}" for d in glob(f"{PACKAGE}/checkpoints/*/"))
 
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=find_packages(include=["ompn_ros", "ompn_ros.*", "sim_nodes", "sim_nodes.*"]),
-    package_data={PACKAGE: ["checkpoints/*/*.json", "checkpoints/*/*.safetensors"]},
+    packages=find_packages(include=["ompn_ros", "ompn_ros.*", "sim_nodes", "sim_nodes.*"]) + CHECKPOINTS,
+    package_data={name: ["*.json", "*.safetensors"] for name in CHECKPOINTS},
     include_package_data=True,
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
     ],
     python_requires=">=3.10",
     install_requires=[
@@ -24,15 +29,19 @@ setup(
         "scipy>=1.10",  # BLAS for numba's np.dot
         "PyYAML>=6",
         "torch>=2.4,<3",
+        "llvmlite>=0.43",  # imported directly by the numba step
         "safetensors>=0.4",
         "rosbags>=0.11.9,<0.12",
+        "mcap>=1.2",  # damaged-bag salvage in the bag reader
         "gymnasium>=1.0",
         "mujoco>=3.2",
         "dm_control>=1.0.20",
         "tqdm>=4.60",
         "matplotlib>=3.8",
+        "pillow>=10",
+        "tensorboard>=2.15",  # optional TensorBoard scalars (train.tensorboard: true)
     ],
-    extras_require={"test": ["pytest>=8", "pytest-timeout", "mcap>=1.2", "mcap-ros2-support>=0.5"]},
+    extras_require={"test": ["pytest>=8", "pytest-timeout", "hypothesis>=6", "mcap-ros2-support>=0.5"]},
     zip_safe=False,
     maintainer="ompn_ros maintainers",
     maintainer_email="maintainers@ompn-ros.invalid",
