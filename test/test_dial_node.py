@@ -13,7 +13,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray  # noqa: E402
 
@@ -42,7 +42,7 @@ class Recorder:
             self.node.create_subscription(
                 msg_type, f"/{namespace}/{topic}",
                 lambda m, info, t=topic: self.log.append((t, m, time.monotonic(), info["source_timestamp"])),
-                RELIABLE,
+                qos_profile_sensor_data if topic == layout.JOINT_STATES else RELIABLE,  # as a driver's
             )  # fmt: skip
 
     def spin_until(self, done, timeout: float) -> None:
