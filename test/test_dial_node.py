@@ -102,6 +102,7 @@ def test_topics_arrive_at_rate_in_contract_order(ros_env: dict[str, str]) -> Non
     assert start.message == layout.EPISODE_START
     assert {kv.key: kv.value for kv in start.values}[layout.KEY_SKETCH] == "1,2,3,4"
     assert list(rec.of(layout.SKETCH)[0].data) == [1, 2, 3, 4]
+    assert rec.of(layout.SKETCH)[0].layout.dim[0].label == "sketch"  # as in collected bags
     obs = rec.of(layout.OBSERVATION)[0]
     assert len(obs.data) == 39 and obs.layout.dim[0].label == "obs"
     js = rec.of(layout.JOINT_STATES)

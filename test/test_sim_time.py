@@ -60,8 +60,8 @@ class Listener:
         rclpy.try_shutdown(context=self.ctx)
 
 
-def launch(env: dict[str, str], namespace: str, *params: str) -> subprocess.Popen:
-    args = [sys.executable, "-m", "sim_nodes.dial.node", "--ros-args", "-r", f"__ns:=/{namespace}"]
+def launch(env: dict[str, str], namespace: str, *params: str, sim: str = "dial") -> subprocess.Popen:
+    args = [sys.executable, "-m", f"sim_nodes.{sim}.node", "--ros-args", "-r", f"__ns:=/{namespace}"]
     for p in params:
         args += ["-p", p]
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -147,3 +147,31 @@ def test_without_publish_clock_stamps_follow_the_node_clock(ros_env: dict[str, s
     stamps += [stamp_ns(m.header.stamp) for m in lis.of(f"/{ns}/{layout.EPISODE}")]
     assert len(stamps) > 40, err
     assert all(base <= s <= base + pub[1] * 10_000_000 for s in stamps), stamps[:5]
+
+
+def test_craft_sim_runs_on_its_own_clock(ros_env: dict[str, str]) -> None:
+    ns = f"crafttime_{uuid.uuid4().hex[:6]}"
+    lis = Listener()
+    lis.listen("/clock", Clock, RELIABLE)
+    lis.listen(f"/{ns}/{layout.EPISODE}", DiagnosticArray, RELIABLE)
+    proc = launch(ros_env, ns, "use_sim_time:=true", "rate:=0.0", "episodes:=2", "wait_for_subscribers:=1",
+                  "wait_topics:=[episode]", sim="craft")  # fmt: skip
+    try:
+        lis.spin_until(lambda: proc.poll() is not None, timeout=60)
+        lis.spin_until(lambda: False, timeout=0.3)
+        code, err = finish(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        lis.close()
+    assert code == 0, err
+    markers = lis.of(f"/{ns}/{layout.EPISODE}")
+    assert len(markers) == 4, err
+    start0, end0, start1, end1 = (stamp_ns(m.header.stamp) for m in markers)
+    steps = [int({kv.key: kv.value for kv in m.status[0].values}[layout.KEY_STEPS]) for m in markers[1::2]]
+    assert start0 == layout.EPISODE_GAP_NS  # the sim's time, not the wall clock
+    assert (end0 - start0, end1 - start1) == (steps[0] * STEP_NS, steps[1] * STEP_NS)
+    assert start1 - end0 == layout.EPISODE_GAP_NS
+    clock = [stamp_ns(m.clock) for m in lis.of("/clock")]
+    assert clock == sorted(clock) and clock[-1] == end1  # the last /clock is the final observation's time
