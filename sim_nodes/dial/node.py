@@ -23,8 +23,8 @@ Two profiles (parameter ``profile``):
 
 ``joint_states`` (``sensor_msgs/JointState``, sensor-data QoS: best effort, depth 5, like a driver;
 ``joint_states_qos:=reliable`` for RELIABLE-only subscribers, and for a lossless recording at
-``rate:=0``, where a best-effort subscriber misses some of the bursts) carries the names, positions, velocities
-and efforts of the 9 joints (``sim_nodes.dial.JOINT_STATE_NAMES``).  Effort is the actuator torque
+``rate:=0``, where a best-effort subscriber misses some of the bursts) carries the names, positions,
+velocities and efforts of the 9 joints (``sim_nodes.dial.JOINT_STATE_NAMES``).  Effort is the actuator torque
 applied during the step that led to the observation.  Its stamp, like every stamp of the sim, is the
 simulated time (25 Hz steps of 40 ms MuJoCo time, 1 s or ``episode_pause`` between episodes, published
 on ``/clock``); with ``publish_clock:=false`` the node clock instead (see :mod:`sim_nodes.ros_common`).
