@@ -171,3 +171,16 @@ def test_policy_mode_steps_only_on_cmd_action(ros_env: dict[str, str]) -> None:
     np.testing.assert_allclose([m.data for m in rec.of(layout.ACTION)], sent, atol=1e-6)
     assert [m.data for m in rec.of(layout.SUBTASK)] == [0] * 5
     assert "no cmd_action" in err
+
+
+def test_reliable_joint_state_subscriber_is_told_the_parameter(ros_env: dict[str, str]) -> None:
+    """JointState is best effort like a driver's: a RELIABLE-only subscriber gets one line naming the fix."""
+    rec = Recorder("dial_qos")
+    rec.node.create_subscription(JointState, "/dial_qos/joint_states", lambda m: None, RELIABLE)
+    proc = launch(ros_env, "dial_qos", "rate:=5.0")
+    try:
+        rec.spin_until(lambda: len(rec.of(layout.OBSERVATION)) >= 3, timeout=60)
+    finally:
+        err = stop(proc)
+        rec.close()
+    assert "joint_states_qos:=reliable" in err, err

@@ -58,8 +58,10 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from rclpy.event_handler import PublisherEventCallbacks, QoSOfferedIncompatibleQoSInfo
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import qos_policy_name_from_kind
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Int32
 
@@ -170,6 +172,7 @@ class DialSim(SimNode):
         self.joint_pub = self.create_publisher(
             JointState, ROBOT_JOINT_STATES if robot else layout.JOINT_STATES,
             JOINT_STATES_QOS[self.params["joint_states_qos"]],
+            event_callbacks=PublisherEventCallbacks(incompatible_qos=self._on_incompatible_qos),
         )  # fmt: skip
         self.effort_pub = (
             self.create_publisher(Float64MultiArray, ROBOT_EFFORT_COMMAND, SIM_QOS) if robot else None
@@ -180,6 +183,14 @@ class DialSim(SimNode):
             f"sketch={'seeded' if self.sketch is None else self.sketch.tolist()} "
             f"press_tolerance={self.env.press_tolerance} noise={self.noise} "
             f"publish_clock={self.publish_clock}"
+        )
+
+    def _on_incompatible_qos(self, info: QoSOfferedIncompatibleQoSInfo) -> None:
+        policy = qos_policy_name_from_kind(info.last_policy_kind)
+        self.get_logger().warning(
+            f"a subscriber of {self.joint_pub.topic_name} requests a QoS this publisher does not offer"
+            f" ({policy}) and receives nothing: subscribe with best effort (sensor data QoS) or start"
+            f" {NODE_NAME} with joint_states_qos:=reliable"
         )
 
     # --- SimNode hooks -----------------------------------------------------------------------------
