@@ -11,7 +11,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import Float64MultiArray, Int32  # noqa: E402
+from std_msgs.msg import Float32MultiArray, Float64MultiArray, Int32  # noqa: E402
 from test_sim_time import RELIABLE, Listener, finish, launch, stamp_ns  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
@@ -73,3 +73,19 @@ def test_robot_profile_refuses_policy_mode(ros_env: dict[str, str]) -> None:
     proc = launch(ros_env, "robot_bad", "profile:=robot", "mode:=policy")
     code, err = finish(proc, timeout=60)
     assert code == 2 and "'profile'" in err, err
+
+
+def test_effort_command_type_float32(ros_env: dict[str, str]) -> None:
+    ns = f"robot32_{uuid.uuid4().hex[:6]}"
+    lis = Listener()
+    topic = f"/{ns}/jaco/effort_command"
+    lis.listen(topic, Float32MultiArray, RELIABLE)
+    proc = launch(ros_env, ns, "profile:=robot", "rate:=50.0", "effort_command_type:=float32")
+    try:
+        lis.spin_until(lambda: len(lis.of(topic)) >= 2, timeout=60)
+    finally:
+        proc.terminate()
+        _, err = finish(proc)
+        lis.close()
+    efforts = lis.of(topic)
+    assert len(efforts) >= 2 and len(efforts[0].data) == 9, err

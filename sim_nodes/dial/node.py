@@ -16,8 +16,9 @@ Two profiles (parameter ``profile``):
       then a pause of at least 1 s (``episode_pause``) before the next episode
 
   ``jaco/skill_id`` (``std_msgs/Int32``, reliable) is the digit being pressed (an id, not an ordinal);
-  ``jaco/effort_command`` (``std_msgs/Float64MultiArray``, dimension ``effort``, reliable) is the torque
-  command executed during the step (N·m, DART noise included).  No episode markers, no sketch, no
+  ``jaco/effort_command`` (``std_msgs/Float64MultiArray`` as ros2_control's effort controllers take it, or
+  ``Float32MultiArray`` with ``effort_command_type:=float32``; dimension ``effort``, reliable) is the
+  torque command executed during the step (N·m, DART noise included).  No episode markers, no sketch, no
   observation vector: episodes are told apart by the pauses.  The names are relative (they follow the
   node's namespace) and can be remapped (``-r jaco/joint_states:=/my_arm/joint_states``).
 
@@ -35,6 +36,7 @@ policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause)
 * ``rate`` (float, default 25.0 Hz = real time; 0 = as fast as possible);
 * ``profile`` (``ompn`` | ``robot``, default ``ompn``);
 * ``joint_states_qos`` (``sensor_data`` | ``reliable``, default ``sensor_data``);
+* ``effort_command_type`` (``float64`` | ``float32``, default ``float64``; robot profile);
 * ``sketch`` (int array of 4 digits, no immediate repeat; unset or empty = drawn from the seed);
 * ``press_tolerance`` (float, L1 metres, default 0.01; the original gym env used 0.1);
 * ``noise`` (float >= 0, expert DART noise scale, default ``DEFAULT_NOISE``);
@@ -63,10 +65,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_policy_name_from_kind
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, Int32
+from std_msgs.msg import Float32MultiArray, Float64MultiArray, Int32
 
 from ompn_ros import layout
-from ompn_ros.data.messages import encode_int32
+from ompn_ros.data.messages import encode_float32_array, encode_int32
 from ompn_ros.nodes.params import ParameterError, ParamSpec
 from sim_nodes import derive_seed
 from sim_nodes._codec_extra import encode_float64_array, encode_joint_state
@@ -94,6 +96,7 @@ JOINT_STATES_QOS = {"sensor_data": SENSOR_QOS, "reliable": SIM_QOS}
 ROBOT_JOINT_STATES = "jaco/joint_states"
 ROBOT_SKILL_ID = "jaco/skill_id"
 ROBOT_EFFORT_COMMAND = "jaco/effort_command"
+EFFORT_TYPES = {"float64": Float64MultiArray, "float32": Float32MultiArray}
 ROBOT_MIN_PAUSE_S = 1.0  # the robot profile's episodes are split by pauses of at least this long
 DIAL_PARAMS = (
     ParamSpec("rate", 25.0, "steps per second (25 = real time, 0 = as fast as possible)",
@@ -103,6 +106,8 @@ DIAL_PARAMS = (
               choices=PROFILES),
     ParamSpec("joint_states_qos", "sensor_data", "QoS of the JointState publisher",
               choices=tuple(JOINT_STATES_QOS)),
+    ParamSpec("effort_command_type", "float64", "robot profile: std_msgs/Float64MultiArray or"
+              " Float32MultiArray on jaco/effort_command", choices=tuple(EFFORT_TYPES)),
     ParamSpec("sketch", Parameter.Type.INTEGER_ARRAY,
               "4 digits to press (no immediate repeat); unset/empty = drawn from the episode seed"),
     ParamSpec("press_tolerance", PRESS_TOLERANCE, "L1 distance (m) of the finger reference to a press point",
@@ -174,8 +179,10 @@ class DialSim(SimNode):
             JOINT_STATES_QOS[self.params["joint_states_qos"]],
             event_callbacks=PublisherEventCallbacks(incompatible_qos=self._on_incompatible_qos),
         )  # fmt: skip
+        effort_type = self.params["effort_command_type"]
+        self._encode_effort = encode_float64_array if effort_type == "float64" else encode_float32_array
         self.effort_pub = (
-            self.create_publisher(Float64MultiArray, ROBOT_EFFORT_COMMAND, SIM_QOS) if robot else None
+            self.create_publisher(EFFORT_TYPES[effort_type], ROBOT_EFFORT_COMMAND, SIM_QOS) if robot else None
         )
         self.get_logger().info(
             f"dial_sim: profile={self.profile} mode={self.mode} rate={self.rate} Hz "
@@ -226,7 +233,7 @@ class DialSim(SimNode):
     def apply_action(self, action: np.ndarray) -> bool:
         self.rollout.execute(np.asarray(action, dtype=np.float64), add_noise=self.mode == "expert")
         if self.effort_pub is not None:
-            self.effort_pub.publish(encode_float64_array(self.env.joint_effort, label="effort"))
+            self.effort_pub.publish(self._encode_effort(self.env.joint_effort, label="effort"))
         return self.rollout.done
 
     def episode_success(self) -> bool:
