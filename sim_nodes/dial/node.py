@@ -88,7 +88,7 @@ from sim_nodes.dial.expert import (
     generate_episode,
 )
 from sim_nodes.dial.scene import FRAME_SKIP
-from sim_nodes.ros_common import SENSOR_QOS, SIM_QOS, EpisodeStart, SimNode, run_sim_node
+from sim_nodes.ros_common import SENSOR_QOS, SIM_QOS, EpisodeStart, SimNode, Streams, run_sim_node
 
 NODE_NAME = "dial_sim"
 PROFILES = ("ompn", "robot")
@@ -201,7 +201,7 @@ class DialSim(SimNode):
         )
 
     # --- SimNode hooks -----------------------------------------------------------------------------
-    def make_streams(self) -> Any:
+    def make_streams(self) -> Streams:
         if self.params["profile"] == "robot":
             return RobotStreams(self, lambda: self.env.target_digit)
         return super().make_streams()
