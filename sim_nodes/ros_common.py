@@ -1,11 +1,15 @@
-"""What the sim nodes (craft_sim, dial_sim) share: parameters, the topic layout, modes and the main loop.
+"""What the sim nodes (craft_sim, dial_sim) share: parameters, topic layout, modes, time and the main loop.
 
 A sim node subclasses :class:`SimNode` and implements the domain hooks (``begin_episode``,
 ``observation``, ``current_subtask``, ``expert_action``, ``apply_action``, ``episode_success`` and
-optionally ``publish_step_extras``).  The base class owns the state machine and publishes strictly in
-the step contract of :mod:`ompn_ros.layout`::
+optionally ``publish_step_extras`` and ``make_streams``).  The base class owns the state machine and, with
+the default streams (:class:`LayoutPublisher`), publishes strictly in the step contract of
+:mod:`ompn_ros.layout`::
 
     start marker, sketch, (observation_t, [extras_t], subtask_t, action_t) * T, observation_T, end marker
+
+Every message is built as CDR bytes by the codec (:mod:`ompn_ros.data.messages`, plus
+:mod:`sim_nodes._codec_extra`) and handed to rclpy as an already serialized message.
 
 Modes:
 
@@ -20,12 +24,30 @@ Modes:
 ``rate`` = 0 means as fast as possible (expert: a batch of steps per 1 ms tick; policy: the step runs
 in the ``cmd_action`` callback).  ``episodes`` = 0 means forever; otherwise the node returns from
 :func:`run_sim_node` after the last episode.  Episode ``i`` uses ``derive_seed(seed, i)``.
+``episode_pause`` holds the node that many (wall-clock) seconds between episodes.
+
+**Time.**  A sim keeps its own *simulated time*: it advances by ``step_ns`` (40 ms, 25 Hz, unless the
+domain says otherwise) per step and by ``max(1 s, episode_pause)`` before every episode (the first one
+included, so no stamp is 0), and never goes back while the node runs.  With ``publish_clock:=true``
+(the default, as a simulator does) the sim publishes it on ``/clock`` (``rosgraph_msgs/Clock``) before
+each observation, so every node of the graph can run with ``use_sim_time:=true``, the sim itself
+included (its step timer runs on the steady clock, so it never waits for its own ``/clock``).  Every
+stamp the sim writes (episode markers, ``JointState`` headers) comes from ONE source: the simulated
+time when it publishes ``/clock``, otherwise the node clock (wall time, or another publisher's
+``/clock`` under ``use_sim_time:=true``).  Run one ``/clock`` publisher per graph: with several sims
+(or a bag played with ``--clock``), set ``publish_clock:=false`` on all but one.
+
+**QoS.**  The step-contract topics and ``cmd_action`` use :data:`SIM_QOS` (reliable, depth 100: the
+1 kHz zero-loss path).  ``sensor_msgs/JointState`` is published like a robot driver does, with the
+sensor-data profile (BEST_EFFORT, depth 5; ``joint_states_qos:=reliable`` for subscribers that only
+accept RELIABLE publishers); ``/clock`` is reliable with depth 1, so both reliable and best-effort
+clock subscribers receive it.
 
 ``wait_for_subscribers`` = N (> 0) holds the first episode until every topic in ``wait_topics``
 (default ``['*']``: all topics of the sim, the recorder case; an ``ompn_node`` in policy mode only needs
-``['observation']``) has N matched subscribers, then waits 0.5 s more.  All topics use :data:`SIM_QOS`.
-Invalid parameters raise :class:`ParameterError` at startup; :func:`run_sim_node` prints it and
-returns exit code 2.
+``['observation']``) has N matched subscribers (a subscriber whose QoS does not match is not counted),
+then waits 0.5 s more.  Invalid parameters raise :class:`ParameterError` at startup; :func:`run_sim_node`
+prints it and returns exit code 2.
 """
 
 from __future__ import annotations
@@ -34,22 +56,26 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray, MultiArrayDimension
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 
 from ompn_ros import layout
+from ompn_ros.data import messages
 from ompn_ros.layout import DomainLayout
 from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
 from sim_nodes import SEED_MAX, derive_seed
+from sim_nodes._codec_extra import encode_clock, encode_int32_array
 
 SIM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -57,9 +83,20 @@ SIM_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-"""QoS of every sim topic (and of ``cmd_action``): reliable, volatile, depth 100."""
+"""QoS of the step-contract topics (and of ``cmd_action``): reliable, volatile, depth 100."""
 
+SENSOR_QOS: QoSProfile = qos_profile_sensor_data
+"""QoS of ``JointState`` (``joint_states_qos:=sensor_data``): best effort, volatile, depth 5."""
+
+CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)  # fmt: skip
+"""QoS of ``/clock``: reliable (serves reliable and best-effort subscribers), depth 1."""
+
+CLOCK_TOPIC = "/clock"
 MODES = ("expert", "policy")
+EPISODE_GAP_NS = layout.EPISODE_GAP_NS  # minimum simulated time between two episodes
 _FAST_TICK_S = 0.001
 _FAST_BATCH = 64  # steps per tick when rate == 0
 _LINGER_S = 0.5  # keep spinning after the last episode so reliable messages get delivered
@@ -87,36 +124,40 @@ COMMON_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "wait_topics", ["*"], "topics checked by wait_for_subscribers; '*' = every topic the sim publishes",
     ),
+    ParamSpec(
+        "publish_clock", True,
+        "publish the simulated time on /clock and stamp every message with it (false: stamps from the"
+        " node clock)",
+    ),
+    ParamSpec(
+        "episode_pause", 0.0, "wall-clock seconds the sim holds between two episodes",
+        float_range=(0.0, 3600.0), apply="live",
+    ),
 )  # fmt: skip
 
 
-# --- message builders (one place for the layout's message shapes) -------------------------------------
-def observation_msg(obs: np.ndarray) -> Float32MultiArray:
+# --- message builders: CDR bytes from the codec (one place for the layout's message shapes) -----------
+def encode_observation(obs: np.ndarray) -> bytes:
     """``Float32MultiArray`` with ``layout.dim=[('obs', D, D)]``."""
-    data = np.asarray(obs, dtype=np.float32).ravel()
-    msg = Float32MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label="obs", size=data.size, stride=data.size)]
-    msg.data = data.tolist()
-    return msg
+    return messages.encode_float32_array(obs, label="obs")
 
 
-def sketch_msg(ids: np.ndarray) -> Int32MultiArray:
-    data = [int(i) for i in np.asarray(ids).ravel()]
-    msg = Int32MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label="subtask", size=len(data), stride=len(data))]
-    msg.data = data
-    return msg
+def encode_sketch(ids: np.ndarray) -> bytes:
+    """``Int32MultiArray`` of the episode's subtask ids, dimension labelled ``sketch``."""
+    return encode_int32_array(np.asarray(ids).ravel(), label="sketch")
 
 
-def action_msg(domain: DomainLayout, action: Any) -> Int32 | Float32MultiArray:
+def encode_action(domain: DomainLayout, action: Any) -> bytes:
     """The executed action in the domain's message type (Int32 or Float32MultiArray labelled 'action')."""
     if domain.action_msg == layout.INT32:
-        return Int32(data=int(action))
-    data = np.asarray(action, dtype=np.float32).ravel()
-    msg = Float32MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label="action", size=data.size, stride=data.size)]
-    msg.data = data.tolist()
-    return msg
+        return messages.encode_int32(int(action))
+    return messages.encode_float32_array(np.asarray(action, dtype=np.float32), label="action")
+
+
+def encode_marker(stamp_ns: int, phase: str, values: dict[str, object]) -> bytes:
+    """The episode start/end ``DiagnosticArray`` (status name 'episode', message 'start'|'end')."""
+    text = {key: messages.marker_value(value) for key, value in values.items()}
+    return messages.encode_diagnostic_status(stamp_ns, layout.EPISODE_STATUS_NAME, phase, text)
 
 
 def action_msg_type(domain: DomainLayout) -> type:
@@ -136,16 +177,6 @@ def parse_action(domain: DomainLayout, msg: Any) -> int | np.ndarray:
     return data
 
 
-def episode_marker(stamp: Any, phase: str, values: dict[str, Any]) -> DiagnosticArray:
-    """The episode start/end ``DiagnosticArray`` (status name 'episode', message 'start'|'end')."""
-    msg = DiagnosticArray()
-    msg.header.stamp = stamp
-    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=layout.EPISODE_STATUS_NAME, message=phase)
-    status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-    msg.status = [status]
-    return msg
-
-
 @dataclass
 class EpisodeStart:
     """What ``begin_episode`` reports: the task, the seed actually used and the sketch ids."""
@@ -155,49 +186,63 @@ class EpisodeStart:
     sketch: np.ndarray
 
 
+class Streams(Protocol):
+    """What a sim publishes at each position of the step contract (the layout, or a robot's topics)."""
+
+    def topic_names(self) -> list[str]:
+        """Relative names of the topics these streams publish (``wait_topics`` choices)."""
+        ...
+
+    def episode_start(self, index: int, start: EpisodeStart, stamp_ns: int) -> None: ...
+
+    def observation(self, obs: np.ndarray) -> None: ...
+
+    def subtask(self, ordinal: int) -> None: ...
+
+    def action(self, action: Any) -> None: ...
+
+    def episode_end(self, index: int, start: EpisodeStart, steps: int, success: bool, stamp_ns: int) -> None:
+        ...
+
+
 class LayoutPublisher:
-    """Publishers of one domain's layout topics, with one method per contract position."""
+    """:class:`Streams` of the topic layout (:mod:`ompn_ros.layout`), one method per contract position."""
 
     def __init__(self, node: Node, domain: DomainLayout) -> None:
-        self.node = node
         self.domain = domain
-        self.observation = node.create_publisher(Float32MultiArray, layout.OBSERVATION, SIM_QOS)
-        self.subtask = node.create_publisher(Int32, layout.SUBTASK, SIM_QOS)
-        self.action = node.create_publisher(action_msg_type(domain), layout.ACTION, SIM_QOS)
-        self.sketch = node.create_publisher(Int32MultiArray, layout.SKETCH, SIM_QOS)
-        self.episode = node.create_publisher(DiagnosticArray, layout.EPISODE, SIM_QOS)
+        self.observation_pub = node.create_publisher(Float32MultiArray, layout.OBSERVATION, SIM_QOS)
+        self.subtask_pub = node.create_publisher(Int32, layout.SUBTASK, SIM_QOS)
+        self.action_pub = node.create_publisher(action_msg_type(domain), layout.ACTION, SIM_QOS)
+        self.sketch_pub = node.create_publisher(Int32MultiArray, layout.SKETCH, SIM_QOS)
+        self.episode_pub = node.create_publisher(DiagnosticArray, layout.EPISODE, SIM_QOS)
 
-    def _stamp(self) -> Any:
-        return self.node.get_clock().now().to_msg()
+    def topic_names(self) -> list[str]:
+        return list(layout.topic_types(self.domain))
 
-    def episode_start(self, index: int, start: EpisodeStart) -> None:
-        sketch = ",".join(str(int(i)) for i in np.asarray(start.sketch).ravel())
-        values = {
-            layout.KEY_EPISODE: index, layout.KEY_TASK: start.task, layout.KEY_SEED: start.seed,
-            layout.KEY_SKETCH: sketch,
-        }  # fmt: skip
-        self.episode.publish(episode_marker(self._stamp(), layout.EPISODE_START, values))
-        self.sketch.publish(sketch_msg(start.sketch))
+    def episode_start(self, index: int, start: EpisodeStart, stamp_ns: int) -> None:
+        values = messages.start_marker_values(index, start.task, start.seed, start.sketch)
+        self.episode_pub.publish(encode_marker(stamp_ns, layout.EPISODE_START, values))
+        self.sketch_pub.publish(encode_sketch(start.sketch))
 
-    def publish_observation(self, obs: np.ndarray) -> None:
-        self.observation.publish(observation_msg(obs))
+    def observation(self, obs: np.ndarray) -> None:
+        self.observation_pub.publish(encode_observation(obs))
 
-    def publish_subtask(self, subtask: int) -> None:
-        self.subtask.publish(Int32(data=int(subtask)))
+    def subtask(self, ordinal: int) -> None:
+        self.subtask_pub.publish(messages.encode_int32(int(ordinal)))
 
-    def publish_action(self, action: Any) -> None:
-        self.action.publish(action_msg(self.domain, action))
+    def action(self, action: Any) -> None:
+        self.action_pub.publish(encode_action(self.domain, action))
 
-    def episode_end(self, index: int, start: EpisodeStart, steps: int, success: bool) -> None:
-        values = {
-            layout.KEY_EPISODE: index, layout.KEY_TASK: start.task, layout.KEY_SEED: start.seed,
-            layout.KEY_STEPS: steps, layout.KEY_SUCCESS: "true" if success else "false",
-        }  # fmt: skip
-        self.episode.publish(episode_marker(self._stamp(), layout.EPISODE_END, values))
+    def episode_end(self, index: int, start: EpisodeStart, steps: int, success: bool, stamp_ns: int) -> None:
+        values = messages.end_marker_values(index, start.task, start.seed, steps, success)
+        self.episode_pub.publish(encode_marker(stamp_ns, layout.EPISODE_END, values))
 
 
 class SimNode(Node):
-    """Base of a sim node: parameters, publishers, expert/policy state machine.  Subclass hooks below."""
+    """Base of a sim node: parameters, publishers, simulated time, expert/policy state machine.
+
+    Subclass hooks below; ``step_ns`` (simulated nanoseconds per step) may be set by the subclass.
+    """
 
     def __init__(self, node_name: str, domain: DomainLayout, domain_params: Sequence[ParamSpec] = ()) -> None:
         super().__init__(node_name)
@@ -208,7 +253,14 @@ class SimNode(Node):
         self.mode: str = self.params["mode"]
         self.rate: float = float(self.params["rate"])
         self.policy_timeout: float = float(self.params["policy_timeout"])
-        self.publisher = LayoutPublisher(self, domain)
+        self.episode_pause: float = max(float(self.params["episode_pause"]), self.min_episode_pause())
+        self.publish_clock: bool = bool(self.params["publish_clock"])
+        self.step_ns: int = layout.STEP_NS
+        self.sim_time_ns = 0  # simulated time, monotonic over the node's life
+        self.streams = self.make_streams()
+        self._clock_pub = (
+            self.create_publisher(ClockMsg, CLOCK_TOPIC, CLOCK_QOS) if self.publish_clock else None
+        )
         self.finished = False
         self.episode_index = 0
         self.step_index = 0
@@ -218,14 +270,22 @@ class SimNode(Node):
         # Policy mode: a policy also answers the final observation; wait (briefly) for that answer and
         # drop it, so that it is never executed as the answer to the next episode's first observation.
         self._drain_until = 0.0
+        self._resume_at = 0.0  # end of the pause between episodes (monotonic seconds)
         self._ready_since: float | None = None
         self._wait_topic_names = self._wait_topics()
         if self.mode == "policy":
             self.create_subscription(action_msg_type(domain), layout.CMD_ACTION, self._on_cmd_action, SIM_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._timer = self.create_timer(self._tick_period(), self._tick)
+        # The step timer runs on the steady clock: under use_sim_time a ROS-time timer would wait for
+        # the /clock this node itself publishes only when it steps.
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._timer = self.create_timer(self._tick_period(), self._tick, clock=self._steady)
 
     # --- hooks -------------------------------------------------------------------------------------
+    def make_streams(self) -> Streams:
+        """The publishers of the step contract (called once, after the parameters are declared)."""
+        return LayoutPublisher(self, self.domain)
+
     def begin_episode(self, index: int, seed: int) -> EpisodeStart:
         """Reset the simulation for episode ``index`` from ``seed``; return task, seed used, sketch."""
         raise NotImplementedError
@@ -252,6 +312,17 @@ class SimNode(Node):
     def publish_step_extras(self, final: bool) -> None:
         """Called right after each observation (e.g. joint_states, render); ``final`` for observation_T."""
 
+    # --- time ----------------------------------------------------------------------------------------
+    def stamp_ns(self) -> int:
+        """The stamp of anything published now: simulated time with ``publish_clock``, else the node clock."""
+        return self.sim_time_ns if self.publish_clock else self.get_clock().now().nanoseconds
+
+    def _advance(self, ns: int) -> None:
+        """Advance the simulated time by ``ns`` and publish it on /clock."""
+        self.sim_time_ns += int(ns)
+        if self._clock_pub is not None:
+            self._clock_pub.publish(encode_clock(self.sim_time_ns))
+
     # --- parameters ----------------------------------------------------------------------------------
     def _tick_period(self) -> float:
         return 1.0 / self.rate if self.rate > 0 else _FAST_TICK_S
@@ -265,14 +336,20 @@ class SimNode(Node):
                 self.rate = float(p.value)
                 self._timer.cancel()
                 self.destroy_timer(self._timer)
-                self._timer = self.create_timer(self._tick_period(), self._tick)
+                self._timer = self.create_timer(self._tick_period(), self._tick, clock=self._steady)
             elif p.name == "policy_timeout":
                 self.policy_timeout = float(p.value)
+            elif p.name == "episode_pause":
+                self.episode_pause = max(float(p.value), self.min_episode_pause())
         return SetParametersResult(successful=True)
+
+    def min_episode_pause(self) -> float:
+        """Lower bound of ``episode_pause`` (a domain profile may require a pause)."""
+        return 0.0
 
     # --- state machine -------------------------------------------------------------------------------
     def _wait_topics(self) -> list[str]:
-        known = list(layout.topic_types(self.domain))
+        known = self.streams.topic_names()
         names = list(self.params["wait_topics"])
         if "*" in names:
             return known
@@ -297,22 +374,25 @@ class SimNode(Node):
         return [p for p in self.publishers if p.topic_name in resolved]
 
     def _publish_observation(self, final: bool = False) -> None:
-        self.publisher.publish_observation(self.observation())
+        self.streams.observation(self.observation())
         self.publish_step_extras(final)
         self._pending_action = None  # a command sent before this observation is stale
         self._awaiting_since = time.monotonic()
 
     def _start_episode(self) -> None:
         seed = derive_seed(int(self.params["seed"]), self.episode_index)
+        self._advance(max(EPISODE_GAP_NS, round(self.episode_pause * 1e9)))
         self._start = self.begin_episode(self.episode_index, seed)
         self.step_index = 0
-        self.publisher.episode_start(self.episode_index, self._start)
+        self.streams.episode_start(self.episode_index, self._start, self.stamp_ns())
         self._publish_observation()
 
     def _end_episode(self) -> None:
         assert self._start is not None
-        self.publisher.episode_end(self.episode_index, self._start, self.step_index, self.episode_success())
+        success = self.episode_success()
+        self.streams.episode_end(self.episode_index, self._start, self.step_index, success, self.stamp_ns())
         self._start = None
+        self._resume_at = time.monotonic() + self.episode_pause
         self.episode_index += 1
         total = int(self.params["episodes"])
         if total and self.episode_index >= total:
@@ -320,10 +400,11 @@ class SimNode(Node):
             self._timer.cancel()
 
     def _take_step(self, action: Any) -> None:
-        self.publisher.publish_subtask(self.current_subtask())
-        self.publisher.publish_action(action)
+        self.streams.subtask(self.current_subtask())
+        self.streams.action(action)
         over = self.apply_action(action)
         self.step_index += 1
+        self._advance(self.step_ns)
         self._publish_observation(final=over)
         if over:
             if self.mode == "policy":
@@ -335,8 +416,8 @@ class SimNode(Node):
             return
         for _ in range(_FAST_BATCH if self.rate == 0 else 1):
             if self._start is None:
-                if time.monotonic() < self._drain_until:
-                    return  # still waiting for the policy's answer to the final observation
+                if time.monotonic() < max(self._drain_until, self._resume_at):
+                    return  # pausing, or waiting for the policy's answer to the final observation
                 self._start_episode()
                 if self.mode == "policy":
                     return

@@ -6,36 +6,51 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
-from builtin_interfaces.msg import Time
-from std_msgs.msg import Float32MultiArray, Int32
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.serialization import deserialize_message
+from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 
 from ompn_ros import layout
+from ompn_ros.data import messages as m
 from ompn_ros.nodes.params import ParameterError, ParamSpec
 from sim_nodes.ros_common import (
     COMMON_PARAMS,
-    action_msg,
-    episode_marker,
-    observation_msg,
+    encode_action,
+    encode_marker,
+    encode_observation,
+    encode_sketch,
     parse_action,
-    sketch_msg,
 )
 
 
 def test_observation_and_sketch_messages():
     obs = np.arange(1075, dtype=np.float32) / 7
-    msg = observation_msg(obs)
+    msg = deserialize_message(encode_observation(obs), Float32MultiArray)
     dim = msg.layout.dim[0]
     assert (dim.label, dim.size, dim.stride) == ("obs", 1075, 1075)
     assert np.array_equal(np.asarray(msg.data, dtype=np.float32), obs)
-    sk = sketch_msg(np.array([7, 6, 4, 8]))
+    sk = deserialize_message(encode_sketch(np.array([7, 6, 4, 8])), Int32MultiArray)
     assert list(sk.data) == [7, 6, 4, 8] and sk.layout.dim[0].size == 4
+    assert sk.layout.dim[0].label == "sketch"  # the label collected bags use
 
 
 def test_action_messages_per_domain():
-    assert action_msg(layout.CRAFT, np.int64(4)).data == 4
-    dial = action_msg(layout.DIAL, np.ones(9))
-    assert isinstance(dial, Float32MultiArray) and dial.layout.dim[0].label == "action"
-    assert len(dial.data) == 9
+    assert deserialize_message(encode_action(layout.CRAFT, np.int64(4)), Int32).data == 4
+    dial = deserialize_message(encode_action(layout.DIAL, np.ones(9) / 3), Float32MultiArray)
+    assert dial.layout.dim[0].label == "action"
+    np.testing.assert_array_equal(np.asarray(dial.data), np.full(9, 1 / 3, dtype=np.float32))
+
+
+def test_builders_match_the_codec_builders():
+    """The bytes equal rosbags' serialization of the codec's message objects."""
+    obs = np.linspace(-1, 1, 39, dtype=np.float32)
+    assert encode_observation(obs) == m.serialize(m.float32_array(obs, label="obs"))
+    assert encode_sketch(np.array([3, 1, 4])) == m.serialize(m.int32_array([3, 1, 4], label="sketch"))
+    assert encode_action(layout.CRAFT, 2) == m.serialize(m.int32(2))
+    values = m.end_marker_values(2, "dial", 7, 130, True)
+    assert encode_marker(5_000_000_007, layout.EPISODE_END, values) == m.serialize(
+        m.episode_marker(layout.EPISODE_END, 5_000_000_007, values)
+    )
 
 
 def test_parse_action_validates():
@@ -52,11 +67,14 @@ def test_parse_action_validates():
 
 
 def test_episode_marker_keys():
-    msg = episode_marker(Time(sec=3, nanosec=5), "start", {"task": "x", "episode": 2})
-    assert msg.header.stamp.sec == 3
+    values = m.start_marker_values(2, "x", 11, np.array([1, 2]))
+    msg = deserialize_message(encode_marker(3_000_000_005, "start", values), DiagnosticArray)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (3, 5)
     status = msg.status[0]
     assert status.name == layout.EPISODE_STATUS_NAME and status.message == "start"
-    assert [(kv.key, kv.value) for kv in status.values] == [("task", "x"), ("episode", "2")]
+    assert [(kv.key, kv.value) for kv in status.values] == [
+        ("episode", "2"), ("task", "x"), ("seed", "11"), ("sketch", "1,2")
+    ]
 
 
 def test_param_rules_name_the_parameter():
@@ -65,6 +83,8 @@ def test_param_rules_name_the_parameter():
         specs["mode"].validate("autopilot")
     with pytest.raises(ParameterError, match="'rate'"):
         specs["rate"].validate(-1.0)
+    with pytest.raises(ParameterError, match="'episode_pause'"):
+        specs["episode_pause"].validate(-0.5)
     specs["rate"].validate(0.0)
     spec = ParamSpec("k", 1, "test", int_range=(0, 3))
     desc = spec.descriptor()

@@ -13,7 +13,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray  # noqa: E402
 
@@ -42,7 +42,7 @@ class Recorder:
             self.node.create_subscription(
                 msg_type, f"/{namespace}/{topic}",
                 lambda m, info, t=topic: self.log.append((t, m, time.monotonic(), info["source_timestamp"])),
-                RELIABLE,
+                qos_profile_sensor_data if topic == layout.JOINT_STATES else RELIABLE,  # as a driver's
             )  # fmt: skip
 
     def spin_until(self, done, timeout: float) -> None:
@@ -102,6 +102,7 @@ def test_topics_arrive_at_rate_in_contract_order(ros_env: dict[str, str]) -> Non
     assert start.message == layout.EPISODE_START
     assert {kv.key: kv.value for kv in start.values}[layout.KEY_SKETCH] == "1,2,3,4"
     assert list(rec.of(layout.SKETCH)[0].data) == [1, 2, 3, 4]
+    assert rec.of(layout.SKETCH)[0].layout.dim[0].label == "sketch"  # as in collected bags
     obs = rec.of(layout.OBSERVATION)[0]
     assert len(obs.data) == 39 and obs.layout.dim[0].label == "obs"
     js = rec.of(layout.JOINT_STATES)
@@ -170,3 +171,16 @@ def test_policy_mode_steps_only_on_cmd_action(ros_env: dict[str, str]) -> None:
     np.testing.assert_allclose([m.data for m in rec.of(layout.ACTION)], sent, atol=1e-6)
     assert [m.data for m in rec.of(layout.SUBTASK)] == [0] * 5
     assert "no cmd_action" in err
+
+
+def test_reliable_joint_state_subscriber_is_told_the_parameter(ros_env: dict[str, str]) -> None:
+    """JointState is best effort like a driver's: a RELIABLE-only subscriber gets one line naming the fix."""
+    rec = Recorder("dial_qos")
+    rec.node.create_subscription(JointState, "/dial_qos/joint_states", lambda m: None, RELIABLE)
+    proc = launch(ros_env, "dial_qos", "rate:=5.0")
+    try:
+        rec.spin_until(lambda: len(rec.of(layout.OBSERVATION)) >= 3, timeout=60)
+    finally:
+        err = stop(proc)
+        rec.close()
+    assert "joint_states_qos:=reliable" in err, err

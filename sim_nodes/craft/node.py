@@ -1,7 +1,7 @@
 """``craft_sim``: the Craft world as a ROS 2 node (topics and step contract from :mod:`ompn_ros.layout`).
 
 Parameters (besides the common ones of :mod:`sim_nodes.ros_common`: mode, rate, seed, episodes,
-policy_timeout, wait_for_subscribers):
+policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause):
 
 * ``task`` (string, one of the 13 Craft tasks, default 'makebed');
 * ``full_obs`` (bool, default true).
@@ -9,6 +9,10 @@ policy_timeout, wait_for_subscribers):
 Expert mode publishes exactly the episodes of ``generate_episodes(n, task=..., full_obs=..., seed=seed)``
 (successful expert demonstrations, failed maps are regenerated from derived seeds) by replaying them in
 the live env.  Every observation is followed by its ANSI rendering on ``render``.
+
+Simulated time advances by ``layout.STEP_NS`` (40 ms) per step and 1 s between episodes, the spacing of
+``ompn_collect`` bags; with ``publish_clock:=true`` (default) it is published on ``/clock`` and stamps the
+episode markers.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from std_msgs.msg import String
 
 from ompn_ros import layout
 from ompn_ros.nodes.params import ParamSpec
+from sim_nodes._codec_extra import encode_string
 from sim_nodes.craft.env import CraftEnv
 from sim_nodes.craft.expert import generate_episode
 from sim_nodes.craft.render import render_ansi
@@ -78,7 +83,7 @@ class CraftSim(SimNode):
         return self.env.world.all_subtasks_done
 
     def publish_step_extras(self, final: bool) -> None:
-        self.render_pub.publish(String(data=render_ansi(self.env.world)))
+        self.render_pub.publish(encode_string(render_ansi(self.env.world)))
 
 
 def main(args: list[str] | None = None) -> int:
