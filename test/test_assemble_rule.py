@@ -3,6 +3,8 @@ counted by reason, late partners, bad bytes, wrong sizes and types; the extracto
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 import pytest
 
@@ -252,3 +254,26 @@ def test_assemble_stream_is_the_assembler_in_record_order() -> None:
     wrong = assemble_stream(msgs[:10], SPEC, types={"/arm/ft": "geometry_msgs/msg/PoseStamped"})
     assert wrong.type_problems and wrong.observations.shape == (0, 7)
     assert {d.reason for d in wrong.drops} == {"wrong_type"}
+
+
+def test_joint_state_parser_relearns_when_the_layout_changes() -> None:
+    from ompn_ros.data.obs.cdr import JointStateParser
+
+    parser = JointStateParser()
+    rng = np.random.default_rng(1)
+    variants = [(("a", "b"), ""), (("a", "b"), ""), (("b", "a"), ""), (("a", "c"), ""), (("a", "b"), "x"),
+                (("a", "b", "c"), ""), (("a", "b"), "")]
+    for names, frame in variants:
+        msg = m.joint_state(int(rng.integers(1, 10**12)), list(names), rng.normal(size=len(names)),
+                            rng.normal(size=len(names)) if frame else ())
+        msg.header.frame_id = frame
+        raw = m.serialize(msg)
+        got_stamp, got, got_names = parser.parse(raw)
+        want_names, want_stamp, want = m.parse_joint_state(raw)
+        assert (got_names, got_stamp) == (tuple(want_names), want_stamp)
+        for field in ("position", "velocity", "effort"):
+            np.testing.assert_array_equal(got[field], want[field])
+        with pytest.raises((ValueError, struct.error)):
+            parser.parse(raw[:-3])
+    padded = m.serialize(m.joint_state(5, ["a"], [1.0])) + b"\0" * 4  # Fast CDR's trailing padding
+    assert parser.parse(padded)[1]["position"].tolist() == [1.0]

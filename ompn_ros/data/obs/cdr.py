@@ -54,7 +54,7 @@ def header_stamp(raw: bytes | memoryview) -> int:
 
 
 def parse_float64_array(raw: bytes | memoryview) -> np.ndarray:
-    """Data of one ``std_msgs/Float64MultiArray`` as float64."""
+    """Data of one ``std_msgs/Float64MultiArray`` as float64 (a read-only view into ``raw``)."""
     if not _little_endian(raw):
         return np.asarray(m.deserialize(raw, "std_msgs/msg/Float64MultiArray").data, dtype=np.float64)
     pos = 4
@@ -70,19 +70,20 @@ def parse_float64_array(raw: bytes | memoryview) -> np.ndarray:
     if n:
         pos = _align(pos, 8)
     _check_end(raw, pos + 8 * n, "Float64MultiArray")
-    return np.frombuffer(raw, dtype="<f8", count=n, offset=pos).astype(np.float64)
+    return np.frombuffer(raw, dtype="<f8", count=n, offset=pos)
 
 
 def parse_stamped_doubles(raw: bytes | memoryview, count: int, typename: str) -> tuple[int, np.ndarray]:
     """``(header_stamp_ns, float64 [count])`` of a message made of a Header and ``count`` float64
-    (``WrenchStamped``: force xyz, torque xyz; ``PoseStamped``: position xyz, orientation xyzw)."""
+    (``WrenchStamped``: force xyz, torque xyz; ``PoseStamped``: position xyz, orientation xyzw).
+    The vector is a read-only view into ``raw``."""
     if not _little_endian(raw):
         return _stamped_doubles_fallback(raw, typename)
     stamp = header_stamp(raw)
     (flen,) = _U32.unpack_from(raw, 12)
     pos = _align(16 + flen, 8)
     _check_end(raw, pos + 8 * count, typename.rsplit("/", 1)[-1])
-    return stamp, np.frombuffer(raw, dtype="<f8", count=count, offset=pos).astype(np.float64)
+    return stamp, np.frombuffer(raw, dtype="<f8", count=count, offset=pos)
 
 
 def _stamped_doubles_fallback(raw: bytes | memoryview, typename: str) -> tuple[int, np.ndarray]:
@@ -111,3 +112,71 @@ def parse_float64(raw: bytes | memoryview) -> float:
         _check_end(raw, 12, "Float64")
         return float(_F64.unpack_from(raw, 4)[0])
     return float(m.deserialize(raw, "std_msgs/msg/Float64").data)
+
+
+JOINT_FIELDS = ("position", "velocity", "effort")
+
+
+class JointStateParser:
+    """``sensor_msgs/JointState`` reader that remembers the last message's layout.
+
+    A driver publishes the same joints in every message, so after the first message the joint names,
+    array sizes and offsets are known: a message of the same length with the same bytes from
+    ``frame_id`` to the last name and the same array counts is read with three ``np.frombuffer``
+    views (the returned ``names`` tuple is then the same object as before).  Other messages are
+    parsed fully (big-endian or otherwise unusual bytes through the ``rosbags`` typestore).
+    """
+
+    def __init__(self) -> None:
+        self._len = -1
+        self._key = b""
+        self._names: tuple[str, ...] = ()
+        self._counts: tuple[tuple[int, int], ...] = ()  # (offset of a u32 count, its value)
+        self._fields: dict[str, tuple[int, int]] = {}  # field -> (offset, count)
+
+    def parse(self, raw: bytes | memoryview) -> tuple[int, dict[str, np.ndarray], tuple[str, ...]]:
+        """``(header stamp ns, {field: float64 [count]}, joint names)``."""
+        end = 12 + len(self._key)
+        if (len(raw) == self._len and raw[12:end] == self._key
+                and all(_U32.unpack_from(raw, p)[0] == c for p, c in self._counts)):
+            return header_stamp(raw), self._views(raw), self._names
+        if not _little_endian(raw):
+            names, stamp, values = m.parse_joint_state(raw)
+            return stamp, values, tuple(names)
+        self._learn(raw)
+        return header_stamp(raw), self._views(raw), self._names
+
+    def _views(self, raw: bytes | memoryview) -> dict[str, np.ndarray]:
+        return {f: np.frombuffer(raw, dtype="<f8", count=n, offset=o) for f, (o, n) in self._fields.items()}
+
+    def _learn(self, raw: bytes | memoryview) -> None:
+        self._len = -1  # invalid until the whole layout is read
+        pos = 12
+        (flen,) = _U32.unpack_from(raw, pos)
+        pos = _align(pos + 4 + flen, 4)
+        (count,) = _U32.unpack_from(raw, pos)
+        if count > 100_000:
+            raise ValueError(f"implausible number of joints {count}")
+        pos += 4
+        names = []
+        for _ in range(count):
+            pos = _align(pos, 4)
+            (slen,) = _U32.unpack_from(raw, pos)
+            if slen == 0 or pos + 4 + slen > len(raw):
+                raise ValueError("joint name runs past the message")
+            names.append(bytes(raw[pos + 4:pos + 3 + slen]).decode())
+            pos += 4 + slen
+        key_end = pos
+        counts, fields = [], {}
+        for name in JOINT_FIELDS:
+            pos = _align(pos, 4)
+            (n,) = _U32.unpack_from(raw, pos)
+            counts.append((pos, n))
+            pos += 4
+            if n:
+                pos = _align(pos, 8)
+            fields[name] = (pos, n)
+            pos += 8 * n
+        _check_end(raw, pos, "JointState")
+        self._key, self._names = bytes(raw[12:key_end]), tuple(names)
+        self._counts, self._fields, self._len = tuple(counts), fields, len(raw)

@@ -1,7 +1,7 @@
 """Per-topic field extraction from raw CDR bytes, with the size and joint-order checks.
 
 A :class:`TopicExtractor` serves every field the spec takes from one topic: one parse per message,
-then one float64 vector per field.  What a first message decides is pinned for the extractor's life:
+then one float vector per field.  What a first message decides is pinned for the extractor's life:
 the size of a MultiArray field without a declared size, and the joint order of a JointState field
 without ``names`` (later messages are mapped by joint name to that order, so a driver that reorders
 its joints still gives the same observation layout).
@@ -33,8 +33,9 @@ from .spec import (
 )
 
 ExtractReason = Literal["malformed", "wrong_size"]
-Parsed = tuple[int | None, dict[str, np.ndarray], list[str] | None]
-"""``(header stamp or None, {field: float64 vector}, joint names or None)`` of one message."""
+Parsed = tuple[int | None, dict[str, np.ndarray], tuple[str, ...] | None]
+"""``(header stamp or None, {field: float vector}, joint names or None)`` of one message (the vectors
+may be read-only views into the message bytes)."""
 
 _SLICES = {
     (WRENCH_STAMPED, "force"): slice(0, 3), (WRENCH_STAMPED, "torque"): slice(3, 6),
@@ -52,11 +53,6 @@ class ExtractError(Exception):
         super().__init__(f"{reason}: {detail}")
 
 
-def _parse_joint_state(raw: bytes | memoryview) -> Parsed:
-    names, stamp, values = m.parse_joint_state(raw)
-    return stamp, values, names
-
-
 def _parse_stamped(typename: str, count: int) -> Callable[[bytes | memoryview], Parsed]:
     def parse(raw: bytes | memoryview) -> Parsed:
         stamp, values = cdr.parse_stamped_doubles(raw, count, typename)
@@ -67,7 +63,7 @@ def _parse_stamped(typename: str, count: int) -> Callable[[bytes | memoryview], 
 
 def _parse_vector(fn: Callable[[bytes | memoryview], np.ndarray]) -> Callable[[bytes | memoryview], Parsed]:
     def parse(raw: bytes | memoryview) -> Parsed:
-        return None, {"data": np.asarray(fn(raw), dtype=np.float64)}, None
+        return None, {"data": fn(raw)}, None
 
     return parse
 
@@ -80,7 +76,6 @@ def _parse_scalar(fn: Callable[[bytes | memoryview], float]) -> Callable[[bytes 
 
 
 PARSERS: Mapping[str, Callable[[bytes | memoryview], Parsed]] = {
-    JOINT_STATE: _parse_joint_state,
     FLOAT32_ARRAY: _parse_vector(m.parse_float32_array),
     FLOAT64_ARRAY: _parse_vector(cdr.parse_float64_array),
     FLOAT32: _parse_scalar(cdr.parse_float32),
@@ -88,7 +83,8 @@ PARSERS: Mapping[str, Callable[[bytes | memoryview], Parsed]] = {
     WRENCH_STAMPED: _parse_stamped(WRENCH_STAMPED, 6),
     POSE_STAMPED: _parse_stamped(POSE_STAMPED, 7),
 }
-"""Parser of each supported type (raw CDR -> :data:`Parsed`)."""
+"""Parser of each supported type but JointState (raw CDR -> :data:`Parsed`); JointState uses a
+:class:`~ompn_ros.data.obs.cdr.JointStateParser` per extractor (it keeps the last layout)."""
 
 
 @dataclass
@@ -98,6 +94,8 @@ class _FieldState:
     joints: tuple[str, ...] | None  # JointState: the joints taken, in order (spec names or pinned)
     labels: tuple[str, ...] | None = None
     index_cache: dict[tuple[str, ...], np.ndarray] = field(default_factory=dict)  # message joints -> take
+    last_names: tuple[str, ...] | None = None  # the joint tuple of the last message and its take
+    last_index: np.ndarray | None = None
 
 
 class TopicExtractor:
@@ -109,7 +107,7 @@ class TopicExtractor:
         self.topic = topic
         self.type = fields[0].type
         self.has_header = self.type in (JOINT_STATE, WRENCH_STAMPED, POSE_STAMPED)
-        self._parse = PARSERS[self.type]
+        self._parse = cdr.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]
         self._fields = [_FieldState(f, f.declared_size, f.names) for f in fields]
         for state in self._fields:
             if state.size is not None:
@@ -126,7 +124,7 @@ class TopicExtractor:
         return [s.labels for s in self._fields]
 
     def extract(self, raw: bytes | memoryview) -> tuple[int | None, list[np.ndarray]]:
-        """``(header stamp ns or None, one float64 vector per field)``; raises :class:`ExtractError`.
+        """``(header stamp ns or None, one float vector per field)``; raises :class:`ExtractError`.
 
         The header stamp is ``None`` for header-less types and for a zero stamp (unset by the driver).
         """
@@ -139,11 +137,11 @@ class TopicExtractor:
         return (stamp or None), out
 
     def _field(
-        self, state: _FieldState, values: dict[str, np.ndarray], names: list[str] | None
+        self, state: _FieldState, values: dict[str, np.ndarray], names: tuple[str, ...] | None
     ) -> np.ndarray:
         spec = state.spec
         if self.type == JOINT_STATE:
-            vec = self._joint_field(state, values[spec.field], names or [])
+            vec = self._joint_field(state, values[spec.field], names or ())
         elif (self.type, spec.field) in _SLICES:
             vec = values["all"][_SLICES[(self.type, spec.field)]]
         else:
@@ -158,7 +156,7 @@ class TopicExtractor:
                                f"{state.size}")
         return vec
 
-    def _joint_field(self, state: _FieldState, arr: np.ndarray, names: list[str]) -> np.ndarray:
+    def _joint_field(self, state: _FieldState, arr: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
         name = state.spec.field
         if names and arr.size != len(names):
             raise ExtractError("wrong_size", f"{name} has {arr.size} values for {len(names)} joints")
@@ -170,6 +168,8 @@ class TopicExtractor:
             state.labels = tuple(names) if names else tuple(str(i) for i in range(arr.size))
         if not state.joints:  # joints without names: positional
             return arr
+        if names is state.last_names:  # the parser returns the same tuple for an unchanged layout
+            return arr[state.last_index]
         key = tuple(names)
         index = state.index_cache.get(key)
         if index is None:
@@ -181,6 +181,7 @@ class TopicExtractor:
             index = np.asarray([position[n] for n in state.joints], dtype=np.intp)
             if len(state.index_cache) < 64:
                 state.index_cache[key] = index
+        state.last_names, state.last_index = names, index
         return arr[index]
 
 
