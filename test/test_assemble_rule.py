@@ -277,3 +277,12 @@ def test_joint_state_parser_relearns_when_the_layout_changes() -> None:
             parser.parse(raw[:-3])
     padded = m.serialize(m.joint_state(5, ["a"], [1.0])) + b"\0" * 4  # Fast CDR's trailing padding
     assert parser.parse(padded)[1]["position"].tolist() == [1.0]
+
+
+def test_partner_offered_from_a_reused_buffer_is_kept_intact() -> None:
+    asm = ObservationAssembler(SPEC)
+    buffer = bytearray(grip(1.0, 2.0))
+    asm.offer("/arm/grip", 0, memoryview(buffer))
+    buffer[:] = grip(7.0, 7.0)  # a reader reusing its buffer for the next message
+    asm.offer("/arm/ft", 0, memoryview(bytearray(wrench(1))))
+    np.testing.assert_array_equal(asm.step(2, memoryview(bytearray(js(2)))), expected(g=(1, 2)))

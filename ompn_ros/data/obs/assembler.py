@@ -203,6 +203,8 @@ class ObservationAssembler:
         if topic in self._wrong_type:
             self._count_rejected(topic, "wrong_type")
             return Drop("wrong_type", topic, int(stamp_ns), self._wrong_type[topic])
+        if not isinstance(raw, bytes):  # the kept vectors may view the bytes: never a reusable buffer
+            raw = bytes(raw)
         try:
             header, vectors = self._ex[topic].extract(raw)
         except ExtractError as err:
