@@ -281,8 +281,8 @@ def test_joint_state_parser_relearns_when_the_layout_changes() -> None:
 
 def test_partner_offered_from_a_reused_buffer_is_kept_intact() -> None:
     asm = ObservationAssembler(SPEC)
-    buffer = bytearray(grip(1.0, 2.0))
-    asm.offer("/arm/grip", 0, memoryview(buffer))
-    buffer[:] = grip(7.0, 7.0)  # a reader reusing its buffer for the next message
-    asm.offer("/arm/ft", 0, memoryview(bytearray(wrench(1))))
+    buffer = bytearray(wrench(1, force=(1.0, 2.0, 3.0)))
+    asm.offer("/arm/ft", 0, memoryview(buffer))
+    buffer[:] = wrench(1, force=(9.0, 9.0, 9.0))  # a reader reusing its buffer for the next message
+    asm.offer("/arm/grip", 0, memoryview(bytearray(grip(1.0, 2.0))))
     np.testing.assert_array_equal(asm.step(2, memoryview(bytearray(js(2)))), expected(g=(1, 2)))
