@@ -137,6 +137,7 @@ def test_wrong_type_reported_once_per_check_and_counted() -> None:
     problem = asm.check_type("/arm/grip", "std_msgs/msg/Float64MultiArray")
     assert problem == ("topic '/arm/grip' has type std_msgs/msg/Float64MultiArray, the observation spec "
                        "expects std_msgs/msg/Float32MultiArray")
+    assert asm.check_type("/arm/grip", "std_msgs/msg/Float64MultiArray") == problem  # polled: counted once
     assert asm.check_type("/arm/ft", "geometry_msgs/WrenchStamped") is None
     assert asm.check_type("/elsewhere", "std_msgs/msg/String") is None
     asm.offer("/arm/ft", 0, wrench(0))

@@ -176,7 +176,9 @@ class ObservationAssembler:
     def check_type(self, topic: str, typename: str) -> str | None:
         """Declare the type ``topic`` has (from the ROS graph or the bag); returns the one-line problem
         when it differs from the spec (then every message of it is rejected and every step dropped as
-        ``wrong_type``, until a call with the right type), ``None`` when it is fine or not used."""
+        ``wrong_type``, until a call with the right type), ``None`` when it is fine or not used.
+        The report itself is counted once per change (``rejected[(topic, 'wrong_type')]``), so the
+        graph may be polled."""
         if topic not in self._ex:
             return None
         want = self._ex[topic].type
@@ -184,8 +186,9 @@ class ObservationAssembler:
             self._wrong_type.pop(topic, None)
             return None
         problem = f"topic '{topic}' has type {typename}, the observation spec expects {want}"
-        self._wrong_type[topic] = problem
-        self._count_rejected(topic, "wrong_type")
+        if self._wrong_type.get(topic) != problem:  # counted once per change, not per poll of the graph
+            self._wrong_type[topic] = problem
+            self._count_rejected(topic, "wrong_type")
         return problem
 
     def offer(self, topic: str, stamp_ns: int, raw: bytes | memoryview) -> Drop | None:
