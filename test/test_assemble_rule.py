@@ -251,6 +251,8 @@ def test_assemble_stream_is_the_assembler_in_record_order() -> None:
     assert res.stats.ignored == 200 and res.observations.shape[1] == 7 and len(res.names) == 7
     js_log = np.asarray([s for tp, s, _ in msgs if tp == "/arm/js"])[res.kept]
     np.testing.assert_array_equal(res.log_stamps, js_log)
+    np.testing.assert_array_equal(res.step_log_stamps[res.kept], js_log)
+    assert len(res.step_log_stamps) == len(steps)
     np.testing.assert_array_equal(res.stamps, js_log - 50)  # header stamps
     wrong = assemble_stream(msgs[:10], SPEC, types={"/arm/ft": "geometry_msgs/msg/PoseStamped"})
     assert wrong.type_problems and wrong.observations.shape == (0, 7)

@@ -110,3 +110,22 @@ def test_layout_from_first_messages() -> None:
     assert dim == 3 + 2 + 4
     assert names == ("js/velocity/a", "js/velocity/b", "js/velocity/c", "g/data/0", "g/data/1",
                      "p/orientation/x", "p/orientation/y", "p/orientation/z", "p/orientation/w")
+
+
+def test_from_param_inline_or_path_and_reader_file(tmp_path) -> None:
+    yaml = pytest.importorskip("yaml")
+    inline = ObservationSpec.from_param(yaml.safe_dump(ARM, default_flow_style=True).replace("\n", " "))
+    assert inline == ObservationSpec.from_dict(ARM)
+    path = tmp_path / "reader.yaml"  # an observation block among other (reader) keys
+    path.write_text(yaml.safe_dump({"tolerance": 5.0, "observation": ARM}))
+    assert ObservationSpec.from_param(str(path)) == inline
+    with pytest.raises(ObservationSpecError, match="cannot read observation spec"):
+        ObservationSpec.from_param(str(tmp_path / "missing.yaml"))
+    with pytest.raises(ObservationSpecError, match="empty"):
+        ObservationSpec.from_param("  ")
+
+
+def test_single_topic_is_the_sims_observation() -> None:
+    spec = ObservationSpec.single_topic("observation", 39)
+    assert spec.declared_dim() == 39 and spec.partner_topics == ()
+    assert spec.fields[0].type == "std_msgs/msg/Float32MultiArray"

@@ -270,8 +270,16 @@ class ObservationSpec:
         return cls(fields=parsed, **kwargs)
 
     @classmethod
+    def single_topic(
+        cls, topic: str, size: int | None = None, type_name: str = FLOAT32_ARRAY
+    ) -> ObservationSpec:
+        """The one-topic observation (e.g. our sims' ``observation`` Float32MultiArray)."""
+        return cls(step_topic=topic, fields=(FieldSpec(topic, type_name, "data", size=size),))
+
+    @classmethod
     def from_yaml(cls, path: str | Path) -> ObservationSpec:
-        """Load from a YAML file holding the mapping (or an ``observation:`` key)."""
+        """Load from a YAML file: the spec mapping itself, or a file with an ``observation:`` block
+        among other keys (a reader-spec or params file)."""
         import yaml
 
         try:
@@ -280,14 +288,37 @@ class ObservationSpec:
         except (OSError, yaml.YAMLError) as err:
             raise ObservationSpecError(f"cannot read observation spec '{path}': {err}") from err
         try:
-            return cls.from_dict(data)
+            return cls.from_dict(_observation_block(data))
         except ObservationSpecError as err:
             raise ObservationSpecError(f"{path}: {err}") from err
+
+    @classmethod
+    def from_param(cls, value: str) -> ObservationSpec:
+        """From a string parameter: inline YAML/JSON (a mapping, e.g. ``{step_topic: ..., fields: [...]}``)
+        or the path of a YAML file (see :meth:`from_yaml`)."""
+        import yaml
+
+        text = value.strip()
+        if not text:
+            raise ObservationSpecError("observation spec parameter is empty")
+        if not text.startswith("{") and "\n" not in text:
+            return cls.from_yaml(text)
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise ObservationSpecError(f"observation spec parameter is not valid YAML: {err}") from err
+        return cls.from_dict(_observation_block(data))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain mapping; ``from_dict(to_dict())`` round-trips."""
         return {"step_topic": self.step_topic, "tolerance_s": float(self.tolerance_s), "stamp": self.stamp,
                 "fields": [f.to_dict() for f in self.fields]}
+
+
+def _observation_block(data: Any) -> Any:
+    if isinstance(data, Mapping) and "observation" in data and isinstance(data["observation"], Mapping):
+        return data["observation"]
+    return data
 
 
 def resolve_name(name: str, namespace: str) -> str:

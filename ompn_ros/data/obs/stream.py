@@ -23,8 +23,10 @@ class AssembledStream:
     Attributes:
         observations: float32 ``[N, D]``, the kept steps in record order.
         stamps: int64 ``[N]`` stamps of the kept steps under the spec's stamp rule.
-        log_stamps: int64 ``[N]`` record (log) stamps of the kept steps (the bag's step clock).
+        log_stamps: int64 ``[N]`` record (log) stamps of the kept steps.
         kept: bool ``[S]``, one per step-topic message in record order (``N = kept.sum()``).
+        step_log_stamps: int64 ``[S]`` record stamps of every step-topic message, kept or dropped (the
+            bag's step clock: align other per-step topics on it, then remove the dropped steps).
         drops: one :class:`Drop` per dropped step, in record order.
         stats: the assembler's counters (steps, kept, dropped by reason, rejected partner messages).
         names: element names of the observation (empty when no step was kept and the size is not
@@ -36,6 +38,7 @@ class AssembledStream:
     stamps: np.ndarray
     log_stamps: np.ndarray
     kept: np.ndarray
+    step_log_stamps: np.ndarray
     drops: tuple[Drop, ...]
     stats: AssemblerStats
     names: tuple[str, ...]
@@ -67,12 +70,14 @@ def assemble_stream(
     stamps: list[int] = []
     log_stamps: list[int] = []
     kept: list[bool] = []
+    step_log_stamps: list[int] = []
     drops: list[Drop] = []
     for topic, stamp, raw in messages:
         if topic != step_topic:
             asm.offer(topic, stamp, raw)
             continue
         result = asm.step(stamp, raw)
+        step_log_stamps.append(int(stamp))
         kept.append(not isinstance(result, Drop))
         if isinstance(result, Drop):
             drops.append(result)
@@ -87,6 +92,7 @@ def assemble_stream(
         stamps=np.asarray(stamps, dtype=np.int64),
         log_stamps=np.asarray(log_stamps, dtype=np.int64),
         kept=np.asarray(kept, dtype=bool),
+        step_log_stamps=np.asarray(step_log_stamps, dtype=np.int64),
         drops=tuple(drops),
         stats=asm.stats,
         names=asm.obs_names() if dim is not None else (),
