@@ -14,6 +14,9 @@ this process's receive times drift apart under load).  Figures, over ``duration`
 * ``assemble_p50_us`` / ``assemble_p99_us``: ``ObservationAssembler.step`` wall time per step;
 * ``offer_p50_us``: ``offer`` wall time per partner message;
 * ``header_rule_kept_ratio``: kept / received of the ``stamp: header`` assembler;
+* ``max_gap_<topic>_ms``: the longest time this process received nothing on a topic.  A partner
+  topic whose delivery stalls longer than the tolerance (50 ms; e.g. a reliable-repair pause of DDS on
+  a loaded machine) makes the steps of that stall ``stale``: counted drops, by the rule;
 * ``offline_msgs_per_s``: ``assemble_stream`` over the same messages replayed from memory.
 
 Run: ``.venv/bin/python bench/bench_assemble.py [--quick]`` from the repository root.
@@ -122,6 +125,8 @@ class _Subscriber:
         self.offer_ns: list[int] = []
         self.recorded: list[tuple[str, int, bytes]] = []
         self.last = 0
+        self.last_seen: dict[str, int] = {}
+        self.max_gap_ns: dict[str, int] = {}  # longest time without a message, per topic
         self.node = rclpy.create_node("bench_assembler", context=ctx)
         self.ex = EventsExecutor(context=ctx)
         self.ex.add_node(self.node)
@@ -135,6 +140,10 @@ class _Subscriber:
 
         def on_message(raw: bytes) -> None:
             now = self.last = max(time.time_ns(), self.last + 1)
+            previous = self.last_seen.get(topic)
+            if previous is not None:
+                self.max_gap_ns[topic] = max(self.max_gap_ns.get(topic, 0), now - previous)
+            self.last_seen[topic] = now
             self.recorded.append((topic, now, raw))
             t0 = time.perf_counter_ns()
             if step:
@@ -188,6 +197,8 @@ def bench_dds(duration: float) -> Result:
         "offer_p50_us": (_pct(sub.offer_ns, 50), "us"),
         "header_rule_kept_ratio": (hstats.kept / max(hstats.steps, 1), "fraction"),
     }
+    for topic, gap in sorted(sub.max_gap_ns.items()):  # delivery stalls explain 'stale' drops
+        result[f"max_gap_{topic.rsplit('/', 1)[-1]}_ms"] = (gap / 1e6, "ms")
     result.update(bench_offline(sub.recorded))
     return result
 
