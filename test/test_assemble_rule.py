@@ -289,3 +289,14 @@ def test_partner_offered_from_a_reused_buffer_is_kept_intact() -> None:
     buffer[:] = wrench(1, force=(9.0, 9.0, 9.0))  # a reader reusing its buffer for the next message
     asm.offer("/arm/grip", 0, memoryview(bytearray(grip(1.0, 2.0))))
     np.testing.assert_array_equal(asm.step(2, memoryview(bytearray(js(2)))), expected(g=(1, 2)))
+
+
+def test_same_field_twice_with_other_joints() -> None:
+    spec = ObservationSpec.from_dict({"step_topic": "/js", "fields": [
+        {"topic": "/js", "type": "JointState", "field": "position", "names": ["j1"]},
+        {"topic": "/g", "type": "Float64", "field": "data"},
+        {"topic": "/js", "type": "JointState", "field": "position", "names": ["j3", "j2"]}]})
+    asm = ObservationAssembler(spec)
+    asm.offer("/g", 0, m.serialize(C("std_msgs/msg/Float64")(data=7.0)))
+    np.testing.assert_array_equal(asm.step(0, js(1)), [1, 7, 3, 2])
+    assert asm.obs_names() == ("js/position/j1", "g/data/data", "js/position/j3", "js/position/j2")

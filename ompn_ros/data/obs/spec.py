@@ -193,7 +193,7 @@ class ObservationSpec:
         if self.stamp not in ("header", "receive"):
             raise ObservationSpecError(f"stamp must be 'header' or 'receive', got {self.stamp!r}")
         types: dict[str, tuple[str, str]] = {}
-        seen: dict[tuple[str, str], str] = {}
+        seen: dict[tuple[str, str, tuple[str, ...] | None], str] = {}
         for i, f in enumerate(self.fields):
             at = f"fields[{i}]"
             if not isinstance(f, FieldSpec):
@@ -202,10 +202,10 @@ class ObservationSpec:
             if prev[0] != f.type:
                 raise ObservationSpecError(f"{at}.type: topic '{f.topic}' is {prev[0]} in {prev[1]}, "
                                            f"not {f.type}")
-            if (f.topic, f.field) in seen:
-                raise ObservationSpecError(f"{at}: field '{f.field}' of '{f.topic}' is already "
-                                           f"{seen[(f.topic, f.field)]}")
-            seen[(f.topic, f.field)] = at
+            key = (f.topic, f.field, f.names)  # the same field may appear again with other joints
+            if key in seen:
+                raise ObservationSpecError(f"{at}: field '{f.field}' of '{f.topic}' is already {seen[key]}")
+            seen[key] = at
         if self.step_topic not in types:
             raise ObservationSpecError(f"step_topic '{self.step_topic}' gives no field; the step topic must "
                                        f"be the topic of at least one field (topics: {sorted(types)})")
