@@ -257,6 +257,12 @@ def test_assemble_stream_is_the_assembler_in_record_order() -> None:
     wrong = assemble_stream(msgs[:10], SPEC, types={"/arm/ft": "geometry_msgs/msg/PoseStamped"})
     assert wrong.type_problems and wrong.observations.shape == (0, 7)
     assert {d.reason for d in wrong.drops} == {"wrong_type"}
+    half = ObservationAssembler(SPEC)  # continuing one assembler over two parts = one pass
+    first = assemble_stream(msgs[:300], SPEC, assembler=half)
+    rest = assemble_stream(msgs[300:], SPEC, assembler=half)
+    np.testing.assert_array_equal(np.concatenate([first.observations, rest.observations]), res.observations)
+    with pytest.raises(ValueError, match="another observation spec"):
+        assemble_stream(msgs, ObservationSpec.single_topic("/arm/js"), assembler=half)
 
 
 def test_joint_state_parser_relearns_when_the_layout_changes() -> None:

@@ -63,6 +63,8 @@ def assemble_stream(
         assembler: continue with this assembler (its partner history and counters) instead of a
             fresh one, e.g. across the files of one recording.
     """
+    if assembler is not None and assembler.spec != spec:
+        raise ValueError("assemble_stream: the given assembler was built for another observation spec")
     asm = assembler if assembler is not None else ObservationAssembler(spec)
     problems = [p for t, name in (types or {}).items() if (p := asm.check_type(t, name)) is not None]
     step_topic = spec.step_topic
