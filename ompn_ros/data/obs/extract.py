@@ -1,0 +1,226 @@
+"""Per-topic field extraction from raw CDR bytes, with the size and joint-order checks.
+
+A :class:`TopicExtractor` serves every field the spec takes from one topic: one parse per message,
+then one float vector per field.  What a first message decides is pinned for the extractor's life:
+the size of a MultiArray field without a declared size, and the joint order of a JointState field
+without ``names`` (later messages are mapped by joint name to that order, so a driver that reorders
+its joints still gives the same observation layout).
+
+Complexity per message: O(message size + joints) (joint-name lookups are cached per name list).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from ompn_ros.data import messages as m
+
+from . import cdr
+from .spec import (
+    FLOAT32,
+    FLOAT32_ARRAY,
+    FLOAT64,
+    FLOAT64_ARRAY,
+    JOINT_STATE,
+    POSE_STAMPED,
+    WRENCH_STAMPED,
+    FieldSpec,
+    ObservationSpec,
+)
+
+ExtractReason = Literal["malformed", "wrong_size"]
+Parsed = tuple[int | None, dict[str, np.ndarray], tuple[str, ...] | None]
+"""``(header stamp or None, {field: float vector}, joint names or None)`` of one message (the vectors
+may be read-only views into the message bytes)."""
+
+_SLICES = {
+    (WRENCH_STAMPED, "force"): slice(0, 3), (WRENCH_STAMPED, "torque"): slice(3, 6),
+    (WRENCH_STAMPED, "wrench"): slice(0, 6), (POSE_STAMPED, "position"): slice(0, 3),
+    (POSE_STAMPED, "orientation"): slice(3, 7), (POSE_STAMPED, "pose"): slice(0, 7),
+}
+
+
+class ExtractError(Exception):
+    """A message that cannot give its fields: ``reason`` is ``'malformed'`` or ``'wrong_size'``."""
+
+    def __init__(self, reason: ExtractReason, detail: str) -> None:
+        self.reason: ExtractReason = reason
+        self.detail = detail
+        super().__init__(f"{reason}: {detail}")
+
+
+def _parse_stamped(typename: str, count: int) -> Callable[[bytes | memoryview], Parsed]:
+    def parse(raw: bytes | memoryview) -> Parsed:
+        stamp, values = cdr.parse_stamped_doubles(raw, count, typename)
+        return stamp, {"all": values}, None
+
+    return parse
+
+
+def _parse_vector(fn: Callable[[bytes | memoryview], np.ndarray]) -> Callable[[bytes | memoryview], Parsed]:
+    def parse(raw: bytes | memoryview) -> Parsed:
+        return None, {"data": fn(raw)}, None
+
+    return parse
+
+
+def _parse_scalar(fn: Callable[[bytes | memoryview], float]) -> Callable[[bytes | memoryview], Parsed]:
+    def parse(raw: bytes | memoryview) -> Parsed:
+        return None, {"data": np.array([fn(raw)], dtype=np.float64)}, None
+
+    return parse
+
+
+PARSERS: Mapping[str, Callable[[bytes | memoryview], Parsed]] = {
+    FLOAT32_ARRAY: _parse_vector(m.parse_float32_array),
+    FLOAT64_ARRAY: _parse_vector(cdr.parse_float64_array),
+    FLOAT32: _parse_scalar(cdr.parse_float32),
+    FLOAT64: _parse_scalar(cdr.parse_float64),
+    WRENCH_STAMPED: _parse_stamped(WRENCH_STAMPED, 6),
+    POSE_STAMPED: _parse_stamped(POSE_STAMPED, 7),
+}
+"""Parser of each supported type but JointState (raw CDR -> :data:`Parsed`); JointState uses a
+:class:`~ompn_ros.data.obs.cdr.JointStateParser` per extractor (it keeps the last layout)."""
+
+
+@dataclass
+class _FieldState:
+    spec: FieldSpec
+    size: int | None  # declared, or pinned by the first good message
+    joints: tuple[str, ...] | None  # JointState: the joints taken, in order (spec names or pinned)
+    labels: tuple[str, ...] | None = None
+    index_cache: dict[tuple[str, ...], np.ndarray] = field(default_factory=dict)  # message joints -> take
+    last_names: tuple[str, ...] | None = None  # the joint tuple of the last message and its take
+    last_index: np.ndarray | None = None
+
+
+class TopicExtractor:
+    """Extracts every spec field of one topic from raw CDR bytes (one parse per message)."""
+
+    def __init__(self, topic: str, fields: Sequence[FieldSpec]) -> None:
+        if not fields or any(f.topic != topic or f.type != fields[0].type for f in fields):
+            raise ValueError(f"TopicExtractor('{topic}') needs fields of that topic and one type")
+        self.topic = topic
+        self.type = fields[0].type
+        self.has_header = self.type in (JOINT_STATE, WRENCH_STAMPED, POSE_STAMPED)
+        self._parse = cdr.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]
+        self._fields = [_FieldState(f, f.declared_size, f.names) for f in fields]
+        for state in self._fields:
+            if state.size is not None:
+                state.labels = state.spec.labels(state.size)
+
+    @property
+    def sizes(self) -> list[int | None]:
+        """Element count of each field (``None`` until a first message decides it)."""
+        return [s.size for s in self._fields]
+
+    @property
+    def labels(self) -> list[tuple[str, ...] | None]:
+        """Element labels of each field (``None`` until a first message decides them)."""
+        return [s.labels for s in self._fields]
+
+    def extract(self, raw: bytes | memoryview) -> tuple[int | None, list[np.ndarray]]:
+        """``(header stamp ns or None, one float vector per field)``; raises :class:`ExtractError`.
+
+        The header stamp is ``None`` for header-less types and for a zero stamp (unset by the driver).
+        """
+        try:
+            stamp, values, names = self._parse(raw)
+        except Exception as err:  # struct, rosbags and numpy raise several types on bad bytes
+            detail = f"cannot decode {self.type}: {type(err).__name__}: {err}"
+            raise ExtractError("malformed", detail) from err
+        out = [self._field(state, values, names) for state in self._fields]
+        return (stamp or None), out
+
+    def _field(
+        self, state: _FieldState, values: dict[str, np.ndarray], names: tuple[str, ...] | None
+    ) -> np.ndarray:
+        spec = state.spec
+        if self.type == JOINT_STATE:
+            vec = self._joint_field(state, values[spec.field], names or ())
+        elif (self.type, spec.field) in _SLICES:
+            vec = values["all"][_SLICES[(self.type, spec.field)]]
+        else:
+            vec = values["data"]
+        if state.size is None:  # first good message pins the size
+            if vec.size == 0:
+                raise ExtractError("wrong_size", f"field '{spec.field}' is empty")
+            state.size = int(vec.size)
+            state.labels = spec.labels(state.size)
+        elif vec.size != state.size:
+            raise ExtractError("wrong_size", f"field '{spec.field}' has {vec.size} elements, expected "
+                               f"{state.size}")
+        return vec
+
+    def _joint_field(self, state: _FieldState, arr: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+        name = state.spec.field
+        if names and arr.size != len(names):
+            raise ExtractError("wrong_size", f"{name} has {arr.size} values for {len(names)} joints")
+        if state.joints is None:  # no names in the spec: pin the first message's joints
+            if arr.size == 0:
+                raise ExtractError("wrong_size", f"field '{name}' is empty")
+            state.joints = tuple(names)
+            state.size = int(arr.size)
+            state.labels = tuple(names) if names else tuple(str(i) for i in range(arr.size))
+        if not state.joints:  # joints without names: positional
+            return arr
+        if names is state.last_names:  # the parser returns the same tuple for an unchanged layout
+            return arr[state.last_index]
+        key = tuple(names)
+        index = state.index_cache.get(key)
+        if index is None:
+            position = {n: i for i, n in enumerate(key)}
+            missing = [n for n in state.joints if n not in position]
+            if missing:
+                raise ExtractError("malformed", f"joint{'s' if len(missing) > 1 else ''} {missing} not in "
+                                   f"the message (joints {list(key)})")
+            index = np.asarray([position[n] for n in state.joints], dtype=np.intp)
+            if len(state.index_cache) < 64:
+                state.index_cache[key] = index
+        state.last_names, state.last_index = names, index
+        return arr[index]
+
+
+def extractors(spec: ObservationSpec) -> dict[str, TopicExtractor]:
+    """One :class:`TopicExtractor` per topic of ``spec`` (the step topic first)."""
+    return {t: TopicExtractor(t, [f for f in spec.fields if f.topic == t]) for t in spec.topics}
+
+
+def observation_layout(
+    spec: ObservationSpec, first_messages: Mapping[str, bytes | memoryview] | None = None
+) -> tuple[int, tuple[str, ...]]:
+    """``(dim, names)`` of the observation: from the declared sizes, else from one message per topic.
+
+    Names are ``<topic without leading '/'>/<field>/<label>``, e.g. ``arm1/joint_states/position/j1``.
+    Raises ``ValueError`` naming the topic whose message is needed and missing or unusable.
+    """
+    given = dict(first_messages or {})
+    by_topic = extractors(spec)
+    for topic, ex in by_topic.items():
+        if all(s is not None for s in ex.sizes) and all(lab is not None for lab in ex.labels):
+            continue
+        if topic not in given:
+            raise ValueError(f"the size of topic '{topic}' is not declared: a first message of it is needed")
+        try:
+            ex.extract(given[topic])
+        except ExtractError as err:
+            raise ValueError(f"topic '{topic}': first message unusable: {err}") from err
+    return layout_of(spec, by_topic)
+
+
+def layout_of(spec: ObservationSpec, by_topic: Mapping[str, TopicExtractor]) -> tuple[int, tuple[str, ...]]:
+    """``(dim, names)`` from extractors whose sizes are known (``ValueError`` names the first unknown)."""
+    names: list[str] = []
+    position = {topic: 0 for topic in by_topic}
+    for f in spec.fields:
+        k = position[f.topic]
+        position[f.topic] += 1
+        labels = by_topic[f.topic].labels[k]
+        if labels is None:
+            raise ValueError(f"the size of field '{f.field}' of topic '{f.topic}' is not known yet")
+        names.extend(f"{f.topic.lstrip('/')}/{f.field}/{label}" for label in labels)
+    return len(names), tuple(names)
