@@ -21,9 +21,16 @@ from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.factory import build_policy
 
 ROOT = Path(__file__).resolve().parents[1]
-CLIS = {"ompn_train": train, "ompn_collect": collect, "ompn_segment": segment, "ompn_ensemble": ensemble,
-        "ompn_reproduce": reproduce, "ompn_closed_loop": closed_loop, "ompn_demo": demo,
-        "ompn_live_demo": live_demo}
+CLIS = {
+    "ompn_train": train,
+    "ompn_collect": collect,
+    "ompn_segment": segment,
+    "ompn_ensemble": ensemble,
+    "ompn_reproduce": reproduce,
+    "ompn_closed_loop": closed_loop,
+    "ompn_demo": demo,
+    "ompn_live_demo": live_demo,
+}
 
 
 def _one_line_error(err: str, prog: str, *needles: str) -> None:
@@ -37,9 +44,22 @@ def _one_line_error(err: str, prog: str, *needles: str) -> None:
 
 def test_a_missing_bag_is_one_line_and_exit_2_in_a_real_process(tmp_path: Path, ros_env: dict[str, str]):
     result = subprocess.run(
-        [sys.executable, "-m", "ompn_ros.cli.train", "--bags", str(tmp_path / "no_such_bag"),
-         "--config", str(ROOT / "config" / "train_craft.yaml"), "--out", str(tmp_path / "out")],
-        env=ros_env, capture_output=True, text=True, timeout=300, cwd=tmp_path,
+        [
+            sys.executable,
+            "-m",
+            "ompn_ros.cli.train",
+            "--bags",
+            str(tmp_path / "no_such_bag"),
+            "--config",
+            str(ROOT / "config" / "train_craft.yaml"),
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
     )
     assert result.returncode == 2, result.stderr
     _one_line_error(result.stderr, "ompn_train", "no_such_bag")
@@ -48,7 +68,9 @@ def test_a_missing_bag_is_one_line_and_exit_2_in_a_real_process(tmp_path: Path, 
 @pytest.fixture(scope="module")
 def truncated_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     bag = tmp_path_factory.mktemp("corrupt") / "bag"
-    write_episodes(bag, make_episodes("craft", 25, seed=5, min_steps=30, max_steps=30), "craft", storage="mcap")
+    write_episodes(
+        bag, make_episodes("craft", 25, seed=5, min_steps=30, max_steps=30), "craft", storage="mcap"
+    )
     file = next(p for p in bag.iterdir() if p.suffix == ".mcap")
     with open(file, "r+b") as fh:
         fh.truncate(file.stat().st_size * 3 // 4)
@@ -58,8 +80,18 @@ def truncated_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_a_corrupt_bag_is_one_line_or_its_good_part_with_skip_tail(
     truncated_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):
-    args = ["--bag", str(truncated_bag), "--checkpoint", str(shipped_checkpoint("craft")), "--domain", "craft",
-            "--plot-episodes", "0", "--out", str(tmp_path / "out")]
+    args = [
+        "--bag",
+        str(truncated_bag),
+        "--checkpoint",
+        str(shipped_checkpoint("craft")),
+        "--domain",
+        "craft",
+        "--plot-episodes",
+        "0",
+        "--out",
+        str(tmp_path / "out"),
+    ]
     assert segment.main(args) == 2
     _one_line_error(capsys.readouterr().err, "ompn_segment", ".mcap")
     assert segment.main([*args, "--on-error", "skip_tail"]) == 0
@@ -74,7 +106,9 @@ def test_a_corrupt_bag_is_one_line_or_its_good_part_with_skip_tail(
 
 def test_a_wrong_checkpoint_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
     (tmp_path / "empty").mkdir()
-    assert segment.main(["--checkpoint", str(tmp_path / "empty"), "--generate", "1", "--domain", "craft"]) == 2
+    assert (
+        segment.main(["--checkpoint", str(tmp_path / "empty"), "--generate", "1", "--domain", "craft"]) == 2
+    )
     _one_line_error(capsys.readouterr().err, "ompn_segment", "--checkpoint")
     code = ensemble.main(["--out", str(tmp_path / "ens"), str(tmp_path / "empty"), str(tmp_path / "empty")])
     assert code == 2
@@ -88,8 +122,18 @@ def test_a_model_that_produces_nan_names_the_episode(tmp_path: Path, capsys: pyt
         for parameter in policy.parameters():
             parameter.fill_(float("nan"))
     save_checkpoint(tmp_path / "nan", policy)
-    code = segment.main(["--checkpoint", str(tmp_path / "nan"), "--generate", "1", "--domain", "craft",
-                         "--out", str(tmp_path / "out")])
+    code = segment.main(
+        [
+            "--checkpoint",
+            str(tmp_path / "nan"),
+            "--generate",
+            "1",
+            "--domain",
+            "craft",
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
     assert code == 2
     _one_line_error(capsys.readouterr().err, "ompn_segment", "episode 0", "non-finite p_hat")
 
@@ -123,8 +167,9 @@ def test_every_flag_has_help_with_its_default_and_no_markup(prog: str):
 
 
 @pytest.mark.parametrize("prog", sorted(CLIS))
-def test_help_has_no_side_effects(prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                  capsys: pytest.CaptureFixture[str]):
+def test_help_has_no_side_effects(
+    prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as info:
         CLIS[prog].main(["--help"])

@@ -33,15 +33,36 @@ def _cell(mean: float, std: float = 0.0, n: int = 2) -> dict[str, float]:
 
 
 def _write_tiny(results: Path) -> None:
-    row = {k: _cell(0.5) for k in ("align_acc", "f1_tol1", "f1_tol0", "online_f1_tol1", "online_align_strict",
-                                   "online_delay_mean", "online_false_alarms_per_episode")}
-    extras = {"k_sweep": report.table(report.k_sweep_title("full_nosketch"),
-                                      {"K=2": {"f1_tol1": 0.25, "precision_tol1": 1.0, "recall_tol1": 0.125}}),
-              "ensembles_per_seed": report.table(report.ensembles_per_seed_title(2),
-                                                 {"full_nosketch": {"members": _cell(3.0),
-                                                                    "online_delay_mean": _cell(0.5, 0.25)}})}
-    meta = {"seeds": 2, "stages": {"train": 1.0}, "total_seconds": 2.0, "n_test": {"full": 6}, "figures": [],
-            "command": ["ompn_reproduce", "craft"]}
+    row = {
+        k: _cell(0.5)
+        for k in (
+            "align_acc",
+            "f1_tol1",
+            "f1_tol0",
+            "online_f1_tol1",
+            "online_align_strict",
+            "online_delay_mean",
+            "online_false_alarms_per_episode",
+        )
+    }
+    extras = {
+        "k_sweep": report.table(
+            report.k_sweep_title("full_nosketch"),
+            {"K=2": {"f1_tol1": 0.25, "precision_tol1": 1.0, "recall_tol1": 0.125}},
+        ),
+        "ensembles_per_seed": report.table(
+            report.ensembles_per_seed_title(2),
+            {"full_nosketch": {"members": _cell(3.0), "online_delay_mean": _cell(0.5, 0.25)}},
+        ),
+    }
+    meta = {
+        "seeds": 2,
+        "stages": {"train": 1.0},
+        "total_seconds": 2.0,
+        "n_test": {"full": 6},
+        "figures": [],
+        "command": ["ompn_reproduce", "craft"],
+    }
     report.write_results(results, "craft", {"full_nosketch": row}, extras, meta)
 
 

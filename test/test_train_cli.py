@@ -127,9 +127,12 @@ def test_train_from_a_users_bag_with_a_reader_spec(
     assert (config["obs_dim"], config["action_type"], config["action_dim"]) == (1075, "discrete", 5)
 
 
-def test_a_non_empty_out_dir_needs_resume_or_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_non_empty_out_dir_needs_resume_or_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "run"
-    args = ["--synthetic", "discrete", "--episodes", "12", "--out", str(out), *SMALL, "--set", "train.iterations=1"]
+    args = ["--synthetic", "discrete", "--episodes", "12", "--out", str(out), *SMALL,
+            "--set", "train.iterations=1"]
     assert main(args) == 0
     weights = (out / "best" / "model.safetensors").read_bytes()
     capsys.readouterr()

@@ -72,6 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
         default="all",
         help=f"all | none | comma list of {','.join(EXTRAS)} (ensemble: the seeds' p_hat averaged, offline)",
     )
+    return _add_modes(p)
+
+
+def _add_modes(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Where the files go and which stages run (evaluate only, re-evaluate, skip, merge, ship)."""
     p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
     p.add_argument("--results", type=Path, default=Path("results"), help="directory of the result files")
     p.add_argument("--threads", type=int, default=None, help="override train.threads (torch threads)")

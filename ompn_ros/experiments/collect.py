@@ -15,8 +15,11 @@ import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from tqdm import tqdm
 
 from ompn_ros import layout
 from ompn_ros.data.bag_writer import STORAGES, EpisodeBagWriter
@@ -127,6 +130,89 @@ def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
     tmp.replace(out / MANIFEST)
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """What one collection writes: the settings and the generator of its episodes."""
+
+    domain: str
+    tasks: Sequence[str]
+    episodes: int
+    seed: int
+    storage: str
+    partial: bool
+    generator: Generator
+
+
+def _check(
+    domain: str,
+    tasks: Sequence[str],
+    episodes: int,
+    storage: str,
+    split_every: int | None,
+    partial: bool,
+    resume: bool,
+    overwrite: bool,
+) -> None:
+    """Raise :class:`CollectError` naming the first bad option."""
+    if domain not in layout.DOMAINS:
+        raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
+    if storage not in STORAGES:
+        raise CollectError(f"unknown storage '{storage}', expected one of {STORAGES}")
+    if episodes < 1:
+        raise CollectError(f"--episodes must be >= 1, got {episodes}")
+    if split_every is not None and split_every < 1:
+        raise CollectError(f"--split-every must be >= 1, got {split_every}")
+    if not tasks:
+        raise CollectError("--task needs at least one task name")
+    if partial and domain != "craft":
+        raise CollectError("--partial (egocentric observations) applies to --domain craft only")
+    if resume and overwrite:
+        raise CollectError("--resume and --overwrite exclude each other")
+
+
+def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) -> dict[str, Any]:
+    """Write the episodes ``indices`` as part ``k`` (under a temporary name, renamed when complete)."""
+    tmp = out / f".{part_name(k)}.tmp"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    record: dict[str, Any] = {
+        "name": part_name(k),
+        "episodes": indices,
+        "seeds": [],
+        "tasks": [],
+        "steps": 0,
+        "successes": 0,
+    }
+    start = time.perf_counter()
+    dom = layout.DOMAINS[plan.domain]
+    with EpisodeBagWriter(tmp, dom, storage=plan.storage, first_episode_index=indices[0]) as writer:
+        for i in indices:
+            ep_seed = episode_seed(plan.seed, i)
+            task = plan.tasks[i % len(plan.tasks)]
+            episode = plan.generator(ep_seed, task, plan.partial)
+            writer.write_episode(episode, episode_index=i)
+            record["seeds"].append(ep_seed)
+            record.setdefault("episode_seeds", []).append(int(episode.seed))
+            record["tasks"].append(task)
+            record["steps"] += episode.length
+            record["successes"] += int(episode.success)
+            bar.update(1)
+    record["messages"] = writer.stats.total_messages
+    record["seconds"] = round(time.perf_counter() - start, 3)
+    tmp.rename(out / part_name(k))
+    return record
+
+
+def _totals(parts: list[dict[str, Any]]) -> dict[str, int]:
+    return {
+        "parts": len(parts),
+        "episodes": sum(len(p["episodes"]) for p in parts),
+        "steps": sum(p["steps"] for p in parts),
+        "successes": sum(p["successes"] for p in parts),
+        "messages": sum(p["messages"] for p in parts),
+    }
+
+
 def collect(
     out: str | Path,
     *,
@@ -147,34 +233,17 @@ def collect(
 
     Returns the manifest (also written to ``out/collect.json``).
     """
-    if domain not in layout.DOMAINS:
-        raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
-    if storage not in STORAGES:
-        raise CollectError(f"unknown storage '{storage}', expected one of {STORAGES}")
-    if episodes < 1:
-        raise CollectError(f"--episodes must be >= 1, got {episodes}")
-    if split_every is not None and split_every < 1:
-        raise CollectError(f"--split-every must be >= 1, got {split_every}")
-    if not tasks:
-        raise CollectError("--task needs at least one task name")
-    if partial and domain != "craft":
-        raise CollectError("--partial (egocentric observations) applies to --domain craft only")
-    if resume and overwrite:
-        raise CollectError("--resume and --overwrite exclude each other")
+    _check(domain, tasks, episodes, storage, split_every, partial, resume, overwrite)
     out = Path(out)
     settings = _settings(domain, tasks, episodes, seed, storage, split_every, partial)
     manifest = _prepare_output(out, settings, resume, overwrite)
     manifest["command"] = list(command if command is not None else sys.argv)
-    gen = generator or default_generator(domain)
-    dom = layout.DOMAINS[domain]
+    plan = _Plan(domain, tasks, episodes, seed, storage, partial, generator or default_generator(domain))
     per_part = split_every or episodes
     n_parts = (episodes + per_part - 1) // per_part
     done = {p["name"] for p in manifest["parts"]}
     todo = [k for k in range(n_parts) if part_name(k) not in done]
     remaining = sum(min(per_part, episodes - k * per_part) for k in todo)
-
-    from tqdm import tqdm
-
     bar = tqdm(
         total=episodes,
         initial=episodes - remaining,
@@ -185,44 +254,11 @@ def collect(
     try:
         for k in todo:
             indices = list(range(k * per_part, min((k + 1) * per_part, episodes)))
-            tmp = out / f".{part_name(k)}.tmp"
-            if tmp.exists():
-                shutil.rmtree(tmp)
-            record: dict[str, Any] = {
-                "name": part_name(k),
-                "episodes": indices,
-                "seeds": [],
-                "tasks": [],
-                "steps": 0,
-                "successes": 0,
-            }
-            start = time.perf_counter()
-            with EpisodeBagWriter(tmp, dom, storage=storage, first_episode_index=indices[0]) as writer:
-                for i in indices:
-                    ep_seed = episode_seed(seed, i)
-                    task = tasks[i % len(tasks)]
-                    episode = gen(ep_seed, task, partial)
-                    writer.write_episode(episode, episode_index=i)
-                    record["seeds"].append(ep_seed)
-                    record.setdefault("episode_seeds", []).append(int(episode.seed))
-                    record["tasks"].append(task)
-                    record["steps"] += episode.length
-                    record["successes"] += int(episode.success)
-                    bar.update(1)
-            record["messages"] = writer.stats.total_messages
-            record["seconds"] = round(time.perf_counter() - start, 3)
-            tmp.rename(out / part_name(k))
-            manifest["parts"].append(record)
+            manifest["parts"].append(_write_part(out, k, indices, plan, bar))
             manifest["parts"].sort(key=lambda p: p["name"])
             _write_manifest(out, manifest)
     finally:
         bar.close()
-    manifest["totals"] = {
-        "parts": len(manifest["parts"]),
-        "episodes": sum(len(p["episodes"]) for p in manifest["parts"]),
-        "steps": sum(p["steps"] for p in manifest["parts"]),
-        "successes": sum(p["successes"] for p in manifest["parts"]),
-        "messages": sum(p["messages"] for p in manifest["parts"]),
-    }
+    manifest["totals"] = _totals(manifest["parts"])
     _write_manifest(out, manifest)
     return manifest

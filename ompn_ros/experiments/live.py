@@ -60,6 +60,32 @@ class Streams:
     pi_rows: list[list[float]] = field(default_factory=list)
     boundaries: list[tuple[dict[str, str], int]] = field(default_factory=list)  # (keys, receive ns)
 
+    def on_episode(self, msg: Any) -> None:
+        """A ``diagnostic_msgs/DiagnosticArray`` on the episode topic: starts printed, ends kept."""
+        for status in msg.status:
+            if status.name != layout.EPISODE_STATUS_NAME:
+                continue
+            keys = _kv(status)
+            if status.message == layout.EPISODE_START:
+                print(f"episode {keys.get(layout.KEY_EPISODE, '?')} started", flush=True)
+            elif status.message == layout.EPISODE_END:
+                self.ends.append(keys)
+
+    def on_boundary(self, msg: Any) -> None:
+        """A boundary event of the node: kept with its receive time and printed."""
+        received = time.monotonic_ns()
+        for status in msg.status:
+            keys = _kv(status)
+            if "step" not in keys:
+                continue
+            self.boundaries.append((keys, received))
+            final = " (episode end)" if keys.get("final") == "true" else ""
+            print(
+                f"   detected boundary: step {int(keys['step']):4d} "
+                f"(subtask {keys.get('subtask', '?')}){final}",
+                flush=True,
+            )
+
     def episodes(self) -> list[LiveEpisode]:
         out: list[LiveEpisode] = []
         obs0, sub0 = 0, 0
@@ -108,31 +134,7 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
     )
     streams = Streams()
 
-    def on_episode(msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            if status.name != layout.EPISODE_STATUS_NAME:
-                continue
-            keys = _kv(status)
-            if status.message == layout.EPISODE_START:
-                print(f"episode {keys.get(layout.KEY_EPISODE, '?')} started", flush=True)
-            elif status.message == layout.EPISODE_END:
-                streams.ends.append(keys)
-
-    def on_boundary(msg: DiagnosticArray) -> None:
-        received = time.monotonic_ns()
-        for status in msg.status:
-            keys = _kv(status)
-            if "step" not in keys:
-                continue
-            streams.boundaries.append((keys, received))
-            final = " (episode end)" if keys.get("final") == "true" else ""
-            print(
-                f"   detected boundary: step {int(keys['step']):4d} "
-                f"(subtask {keys.get('subtask', '?')}){final}",
-                flush=True,
-            )
-
-    node.create_subscription(DiagnosticArray, layout.EPISODE, on_episode, reliable)
+    node.create_subscription(DiagnosticArray, layout.EPISODE, streams.on_episode, reliable)
 
     def on_subtask(msg: Int32) -> None:
         streams.subtask.append(int(msg.data))
@@ -148,7 +150,7 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
     )
     node.create_subscription(Int32, layout.SUBTASK, on_subtask, reliable)
     node.create_subscription(Float32MultiArray, f"/{node_name}/pi", on_pi, reliable)
-    node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", on_boundary, events_qos)
+    node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", streams.on_boundary, events_qos)
     deadline = time.monotonic() + timeout
     try:
         while time.monotonic() < deadline and len(streams.ends) < episodes:
