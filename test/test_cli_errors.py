@@ -15,6 +15,7 @@ from test_data_common import make_episodes
 
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli import closed_loop, collect, demo, ensemble, live_demo, reproduce, segment, train
+from ompn_ros.cli._common import missing_default_texts
 from ompn_ros.data import write_episodes
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
@@ -161,9 +162,11 @@ def test_every_flag_has_help_with_its_default_and_no_markup(prog: str):
     assert issubclass(parser.formatter_class, argparse.ArgumentDefaultsHelpFormatter)
     for action in parser._actions:
         assert action.help, (prog, action.dest)
+    assert missing_default_texts(parser) == [], "say what the option does when it is not given"
     text = parser.format_help()
     assert "``" not in text and ":mod:" not in text and ":func:" not in text
-    assert "(default: " in text
+    if any(a.default not in (None, False) and a.option_strings for a in parser._actions if a.dest != "help"):
+        assert "(default: " in text
 
 
 @pytest.mark.parametrize("prog", sorted(CLIS))

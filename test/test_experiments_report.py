@@ -90,3 +90,12 @@ def test_report_command_regenerates_the_readme(tmp_path: Path, capsys: pytest.Ca
     assert (tmp_path / "README.md").read_text() == (RESULTS / "README.md").read_text()
     assert report.main([str(tmp_path / "missing")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_ompn_reproduce_report_only_regenerates_the_readme(tmp_path: Path):
+    from ompn_ros.cli import reproduce
+
+    _write_tiny(tmp_path)
+    (tmp_path / "README.md").write_text("stale\n")
+    assert reproduce.main(["--report-only", "--results", str(tmp_path)]) == 0
+    assert (tmp_path / "README.md").read_text() == report.render_readme(tmp_path)

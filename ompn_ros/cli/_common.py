@@ -30,7 +30,31 @@ Body = Callable[[argparse.Namespace], int]
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    """Defaults shown after every help text; the description keeps its line breaks."""
+    """Defaults shown after every help text (the description keeps its line breaks).
+
+    An option without a value to show (a flag, a required option, a default of None) has none
+    appended: its help says what happens without it (:func:`missing_default_texts` checks that).
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default in (None, False) or action.required:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def missing_default_texts(parser: argparse.ArgumentParser) -> list[str]:
+    """Options whose help text neither shows a default nor explains the behaviour without them."""
+    missing = []
+    grouped = {id(a) for g in parser._mutually_exclusive_groups if g.required for a in g._group_actions}
+    for action in parser._actions:
+        if not action.option_strings or action.required or id(action) in grouped:
+            continue
+        text = (action.help or "").lower()
+        if action.default is None and not any(word in text for word in ("default", "none", "without")):
+            missing.append(action.option_strings[-1])
+        elif not action.help:
+            missing.append(action.option_strings[-1])
+    return missing
 
 
 def make_parser(prog: str, description: str | None) -> argparse.ArgumentParser:

@@ -53,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--task",
         default=None,
-        help="comma-separated task names (craft: e.g. makebed,makeaxe, required; dial: ignored)",
+        help="comma-separated task names (craft: e.g. makebed,makeaxe, required; dial: none needed)",
     )
     parser.add_argument("--episodes", type=int, required=True, help="number of demonstrations")
     parser.add_argument("--seed", type=int, default=0, help="run seed; episode i uses episode_seed(seed, i)")

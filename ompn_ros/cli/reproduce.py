@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="demonstrations (Craft: per task, default 500; Dial: total, default 1400)",
     )
     p.add_argument("--data-seed", type=int, default=0, help="seed of the demonstration collection")
-    p.add_argument("--iterations", type=int, default=None, help="override train.iterations")
+    p.add_argument(
+        "--iterations", type=int, default=None, help="override train.iterations (none: the config's)"
+    )
     p.add_argument(
         "--test-ratio",
         type=float,
@@ -79,13 +81,19 @@ def _add_modes(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Where the files go and which stages run (evaluate only, re-evaluate, skip, merge, ship)."""
     p.add_argument("--work", type=Path, default=None, help="work directory (default runs/reproduce_<domain>)")
     p.add_argument("--results", type=Path, default=Path("results"), help="directory of the result files")
-    p.add_argument("--threads", type=int, default=None, help="override train.threads (torch threads)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="override train.threads, the torch threads (none: the config's)",
+    )
     p.add_argument(
         "--evaluate",
         type=Path,
         default=None,
         metavar="CHECKPOINT",
-        help="skip training: evaluate this checkpoint on the held-out split of the first setting",
+        help="skip training: evaluate this checkpoint on the held-out split of the first setting "
+        "(none: train)",
     )
     p.add_argument(
         "--reevaluate",

@@ -57,13 +57,16 @@ __all__ = [
 
 def build_parser() -> argparse.ArgumentParser:
     p = make_parser("ompn_segment", __doc__)
-    p.add_argument("--bag", help="bag file/directory/glob to replay")
+    p.add_argument("--bag", help="bag file/directory/glob to replay (none: give --generate)")
     p.add_argument(
         "--checkpoint",
         required=True,
         help="checkpoint directory (safetensors + JSON), or an ensemble directory (ensemble.json)",
     )
-    p.add_argument("--reader-config", help="bag reader spec YAML (config/reader_*.yaml)")
+    p.add_argument(
+        "--reader-config",
+        help="bag reader spec YAML, e.g. config/reader_craft.yaml (none: the preset of --domain)",
+    )
     p.add_argument(
         "--on-error",
         choices=("raise", "skip_tail"),
@@ -71,9 +74,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="a corrupt bag: stop with an error, or keep the episodes before the corrupt tail",
     )
     p.add_argument(
-        "--domain", choices=("craft", "dial"), help="reader preset / episode generator / config name"
+        "--domain",
+        choices=("craft", "dial"),
+        help="reader preset / episode generator / config name (none: the reader's defaults)",
     )
-    p.add_argument("--detector-config", help="YAML with detector_* keys (e.g. config/ompn_node_craft.yaml)")
+    p.add_argument(
+        "--detector-config",
+        help="YAML with detector_* keys, e.g. config/ompn_node_craft.yaml (none: the detector defaults)",
+    )
     p.add_argument("--out", default="segment_out", help="output directory (replay mode)")
     p.add_argument("--plot-episodes", type=int, default=3, help="number of episodes to plot")
     p.add_argument("--tune", action="store_true", help="grid-search the online detector instead of replaying")
@@ -82,7 +90,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=10_000, help="first seed of --generate")
     p.add_argument(
-        "--write-config", help="with --tune: write the chosen settings as an ompn_node params file"
+        "--write-config",
+        help="with --tune: write the chosen settings as an ompn_node params file (none: print only)",
     )
     p.add_argument(
         "--objective",
