@@ -179,3 +179,21 @@ def test_help_has_no_side_effects(
     assert info.value.code == 0
     assert "usage:" in capsys.readouterr().out
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_commands_do_not_import_each_other():
+    import ast
+
+    for path in sorted((ROOT / "ompn_ros" / "cli").glob("*.py")):
+        tree = ast.parse(path.read_text())
+        imported = {
+            node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module
+        }
+        imported |= {
+            f"ompn_ros.cli.{a.name}"
+            for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module == "ompn_ros.cli"
+            for a in node.names
+        }
+        others = {m for m in imported if m.startswith("ompn_ros.cli.") and m != "ompn_ros.cli._common"}
+        assert not others, (path.name, others)
