@@ -123,20 +123,10 @@ def test_a_model_that_produces_nan_names_the_episode(tmp_path: Path, capsys: pyt
         for parameter in policy.parameters():
             parameter.fill_(float("nan"))
     save_checkpoint(tmp_path / "nan", policy)
-    code = segment.main(
-        [
-            "--checkpoint",
-            str(tmp_path / "nan"),
-            "--generate",
-            "1",
-            "--domain",
-            "craft",
-            "--out",
-            str(tmp_path / "out"),
-        ]
-    )
-    assert code == 2
-    _one_line_error(capsys.readouterr().err, "ompn_segment", "episode 0", "non-finite p_hat")
+    args = ["--checkpoint", str(tmp_path / "nan"), "--generate", "1", "--domain", "craft"]
+    for mode in (["--out", str(tmp_path / "out")], ["--tune"]):  # replay and tuning
+        assert segment.main([*args, *mode]) == 2
+        _one_line_error(capsys.readouterr().err, "ompn_segment", "episode 0", "non-finite p_hat")
 
 
 def test_an_invalid_config_is_one_line_and_debug_shows_the_traceback(

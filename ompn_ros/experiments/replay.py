@@ -109,6 +109,7 @@ def choose_detector(
     """Replay once, then grid-search the online detector (:func:`ompn_ros.detect.tune.choose_on_replays`)."""
     grid = list(grid or default_grid())
     replays = replay_all(policy, episodes, grid[0])
+    check_finite(replays, episodes)
     return choose_on_replays(replays, episodes, grid, objective)
 
 
