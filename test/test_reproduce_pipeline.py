@@ -10,6 +10,8 @@ import pytest
 
 from ompn_ros.cli import reproduce
 from ompn_ros.data.episode import Episode
+from ompn_ros.experiments import data, ensembles, spec
+from ompn_ros.paths import config_file
 
 
 def _episode(task: str, seed: int) -> Episode:
@@ -19,11 +21,11 @@ def _episode(task: str, seed: int) -> Episode:
 
 def test_held_out_split_is_disjoint_stratified_and_seeded():
     episodes = [_episode(task, s) for task in ("a", "b") for s in range(10)]
-    train, test = reproduce.held_out_split(episodes, 0.2, seed=3)
+    train, test = data.held_out_split(episodes, 0.2, seed=3)
     assert len(test) == 4 and len(train) == 16
     assert sorted(ep.task for ep in test) == ["a", "a", "b", "b"]
     assert not {(e.task, e.seed) for e in train} & {(e.task, e.seed) for e in test}
-    again = reproduce.held_out_split(episodes, 0.2, seed=3)[1]
+    again = data.held_out_split(episodes, 0.2, seed=3)[1]
     assert [(e.task, e.seed) for e in again] == [(e.task, e.seed) for e in test]
 
 
@@ -43,14 +45,14 @@ def _p_hat(expand_at: list[int], steps: int) -> np.ndarray:
 def test_ensemble_averages_p_hat_over_seeds_before_decoding():
     episode = _labelled([0, 0, 0, 1, 1, 1])  # boundaries 2 and 5
     right, wrong = _p_hat([2, 5], 6), _p_hat([1, 5], 6)
-    assert reproduce.ensemble_scores("craft", [[right], [right]], [episode])["f1_tol0"] == 1.0
+    assert ensembles.ensemble_scores("craft", [[right], [right]], [episode])["f1_tol0"] == 1.0
     # two seeds that disagree at step 1 vs 2 tie; a third that agrees with `right` breaks the tie
-    two = reproduce.ensemble_scores("craft", [[wrong], [wrong]], [episode])
-    three = reproduce.ensemble_scores("craft", [[right], [wrong], [right]], [episode])
+    two = ensembles.ensemble_scores("craft", [[wrong], [wrong]], [episode])
+    three = ensembles.ensemble_scores("craft", [[right], [wrong], [right]], [episode])
     assert two["f1_tol0"] == 0.5 and three["f1_tol0"] == 1.0 and three["align_acc"] == 1.0
     assert two["align_acc"] == pytest.approx(5 / 6)
-    with pytest.raises(reproduce.ReproduceError, match="at least 2 models"):
-        reproduce.ensemble_scores("craft", [[right]], [episode])
+    with pytest.raises(spec.ReproduceError, match="at least 2 models"):
+        ensembles.ensemble_scores("craft", [[right]], [episode])
 
 
 def test_unknown_extra_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
@@ -77,9 +79,12 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
         assert set(cell) == {"mean", "std", "n"} and cell["n"] == 2
         assert 0.0 <= cell["mean"] <= 1.0
     extras = json.loads((results / "craft_extras.json").read_text())
-    sweep = next(v for k, v in extras["extras"].items() if k.startswith("K sweep"))
+    assert list(extras["extras"]) == ["k_sweep", "ensemble_of_seeds"]
+    assert extras["extras"]["k_sweep"]["title"] == "K sweep (full_nosketch, seed 0, tol=1)"
+    sweep = extras["extras"]["k_sweep"]["rows"]
     assert list(sweep) == ["K=2", "K=3", "K=4", "K=5", "K=6"]
-    ensemble = next(v for k, v in extras["extras"].items() if k.startswith("Ensemble of the 2 seeds"))
+    assert extras["extras"]["ensemble_of_seeds"]["title"].startswith("Ensemble of the 2 seeds")
+    ensemble = extras["extras"]["ensemble_of_seeds"]["rows"]
     assert set(ensemble["full_nosketch"]) == {"align_acc", "f1_tol1", "f1_tol0", "constrained_align",
                                               "constrained_f1_tol1", "constrained_f1_tol0"}
     assert all(0.0 <= v <= 1.0 for v in ensemble["full_nosketch"].values())
@@ -87,7 +92,7 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
     recalls = [sweep[k]["recall_tol1"] for k in sweep]
     assert recalls == sorted(recalls)
     assert extras["meta"]["n_test"] == {"full": 6}  # 20 % of 3 tasks x 8 episodes
-    assert "full_nosketch" in (results / "craft.md").read_text()
+    assert "| full_nosketch |" in (results / "README.md").read_text()
     assert len(list((results / "figures").glob("*.png"))) == 3
     # the bags are rosbag2 directories that the reader accepted
     assert list((tmp_path / "work" / "bags" / "craft_full").glob("part_*/metadata.yaml"))
@@ -127,7 +132,7 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     meta = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["meta"]
     assert "--reevaluate" in meta["command"] and "--reevaluate" not in meta["trained"]["command"]
     assert any(stage.startswith("train+eval") for stage in meta["trained"]["stages"])
-    assert "Re-evaluated without training" in (tmp_path / "results" / "craft.md").read_text()
+    assert "Re-evaluated without training" in (tmp_path / "results" / "README.md").read_text()
     # runs added to the work directory later (e.g. more seeds) keep their command through re-evaluation
     extras_file = tmp_path / "results" / "craft_extras.json"
     doc = json.loads(extras_file.read_text())
@@ -138,7 +143,7 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     meta = json.loads(extras_file.read_text())["meta"]
     assert meta["trained"]["later_commands"] == later
     assert "added later in the same work directory by: `ompn_reproduce craft --seeds 5 --skip-trained`" in (
-        tmp_path / "results" / "craft.md").read_text()
+        tmp_path / "results" / "README.md").read_text()
 
 
 def test_reevaluate_without_checkpoints_names_the_missing_run(
@@ -150,7 +155,7 @@ def test_reevaluate_without_checkpoints_names_the_missing_run(
 
 def test_lstm_baseline_config_trains_and_evaluates(tmp_path: Path):
     config = tmp_path / "lstm.yaml"
-    base = (Path(reproduce.config_file("train_craft.yaml"))).read_text()
+    base = (Path(config_file("train_craft.yaml"))).read_text()
     config.write_text(base.replace("model:\n", "model:\n  arch: lstm\n", 1))
     assert _tiny_craft(tmp_path, "--config", str(config)) == 0
     row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
@@ -176,7 +181,7 @@ def test_skip_trained_evaluates_finished_runs_and_trains_the_rest(
     assert code == 0 and "already" not in capsys.readouterr().out
     # a finished run trained with another configuration is not taken for this one
     config = tmp_path / "other.yaml"
-    base = Path(reproduce.config_file("train_craft.yaml")).read_text()
+    base = Path(config_file("train_craft.yaml")).read_text()
     config.write_text(base.replace("weight_decay: 1.0", "weight_decay: 0.5", 1))
     assert "weight_decay: 0.5" in config.read_text()
     trained = weights.read_bytes()
@@ -193,7 +198,7 @@ def test_skip_trained_evaluates_finished_runs_and_trains_the_rest(
 
 def test_without_a_validation_split_the_detector_is_not_tuned_on_training_episodes(tmp_path: Path):
     config = tmp_path / "no_val.yaml"
-    base = Path(reproduce.config_file("train_craft.yaml")).read_text()
+    base = Path(config_file("train_craft.yaml")).read_text()
     config.write_text(base.replace("val_ratio: 0.2", "val_ratio: 0.0", 1))
     assert "val_ratio: 0.0" in config.read_text()
     assert _tiny_craft(tmp_path, "--config", str(config)) == 0
@@ -206,7 +211,7 @@ def test_ensemble_with_one_seed_is_skipped_with_a_message(tmp_path: Path, capsys
     assert _tiny_craft(tmp_path, "--extras", "ensemble") == 0
     assert "ensemble extra skipped" in capsys.readouterr().out
     extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]
-    assert not any(title.startswith("Ensemble") for title in extras)
+    assert "ensemble_of_seeds" not in extras and "ensembles_per_seed" not in extras
 
 
 def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path: Path):
@@ -220,18 +225,18 @@ def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path:
         extra = load_checkpoint(runs / name / "best")[1]
         configs[name] = TrainConfig.from_dict(extra["train_config"])
     member = configs["full_nosketch_seed0_m1"]
-    assert member.seed == reproduce.MEMBER_SEED_STRIDE and member.split_seed == 0
+    assert member.seed == spec.MEMBER_SEED_STRIDE and member.split_seed == 0
     assert configs["full_nosketch_seed0"].seed == 0
     # the same validation episodes, so the ensemble's detector is tuned on episodes no member saw
-    episodes = reproduce.read_bags("craft", tmp_path / "work" / "bags" / "craft_full")
-    pool, _ = reproduce.held_out_split(episodes, reproduce.DEFAULT_TEST_RATIO, 0)
+    episodes = data.read_bags("craft", tmp_path / "work" / "bags" / "craft_full")
+    pool, _ = data.held_out_split(episodes, spec.DEFAULT_TEST_RATIO, 0)
     val_own = train_val_episodes(pool, configs["full_nosketch_seed0"])[1]
     val_member = train_val_episodes(pool, member)[1]
     assert [(e.task, e.seed) for e in val_member] == [(e.task, e.seed) for e in val_own]
     weights = [(runs / n / "best" / "model.safetensors").read_bytes() for n in configs]
     assert weights[0] != weights[1]  # another initialisation
     extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]
-    table = next(v for k, v in extras.items() if k.startswith("Ensembles per seed"))
+    table = extras["ensembles_per_seed"]["rows"]
     row = table["full_nosketch"]
     assert row["members"]["mean"] == 2.0
     assert row["align_acc"]["n"] == 1 and 0.0 <= row["constrained_align"]["mean"] <= 1.0
@@ -239,7 +244,7 @@ def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path:
 
     assert row["constrained_min_length"]["mean"] in MIN_LENGTH_CANDIDATES
     assert 0.0 <= row["online_f1_tol1"]["mean"] <= 1.0
-    table_md = (tmp_path / "results" / "craft.md").read_text().split("## Ensembles per seed")[1]
+    table_md = (tmp_path / "results" / "README.md").read_text().split("### Ensembles per seed")[1]
     row_md = next(line for line in table_md.splitlines() if line.startswith("| full_nosketch |"))
     cells = [c.strip() for c in row_md.strip("|").split("|")]
     columns = list(row)
@@ -259,13 +264,13 @@ def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path:
 
 
 def test_members_spec_is_checked_before_any_collection(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
-    assert reproduce.parse_members("3", ["a", "b"]) == {"a": 3, "b": 3}
-    assert reproduce.parse_members("b=5", ["a", "b"]) == {"a": 1, "b": 5}
-    for spec, message in (("0", "must be >= 1"), ("two", "integer M or SETTING=M"),
-                          ("partial_nosketch=2", "'partial_nosketch', which is not among the settings"),
-                          ("full_nosketch=x", "must be an integer")):
-        assert _tiny_craft(tmp_path, "--members", spec) == 2
-        assert message in capsys.readouterr().err, spec
+    assert spec.parse_members("3", ["a", "b"]) == {"a": 3, "b": 3}
+    assert spec.parse_members("b=5", ["a", "b"]) == {"a": 1, "b": 5}
+    for members, message in (("0", "must be >= 1"), ("two", "integer M or SETTING=M"),
+                              ("partial_nosketch=2", "'partial_nosketch', which is not among the settings"),
+                              ("full_nosketch=x", "must be an integer")):
+        assert _tiny_craft(tmp_path, "--members", members) == 2
+        assert message in capsys.readouterr().err, members
     assert not (tmp_path / "work").exists()
 
 

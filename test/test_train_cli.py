@@ -125,3 +125,42 @@ def test_train_from_a_users_bag_with_a_reader_spec(
                  "--set", "train.iterations=1"]) == 0
     config = json.loads((tmp_path / "out" / "best" / "config.json").read_text())
     assert (config["obs_dim"], config["action_type"], config["action_dim"]) == (1075, "discrete", 5)
+
+
+def test_a_non_empty_out_dir_needs_resume_or_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    args = ["--synthetic", "discrete", "--episodes", "12", "--out", str(out), *SMALL,
+            "--set", "train.iterations=1"]
+    assert main(args) == 0
+    weights = (out / "best" / "model.safetensors").read_bytes()
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "is not empty" in err and "--overwrite" in err and "Traceback" not in err
+    assert (out / "best" / "model.safetensors").read_bytes() == weights  # untouched
+    (out / "notes.txt").write_text("mine")
+    assert main([*args, "--overwrite", "--set", "train.seed=7"]) == 0
+    assert (out / "best" / "model.safetensors").read_bytes() != weights  # trained again from scratch
+    assert (out / "notes.txt").read_text() == "mine"  # only ompn_train's own outputs are replaced
+    with pytest.raises(SystemExit, match="2"):  # argparse: the two exclude each other
+        main([*args, "--overwrite", "--resume"])
+
+
+def test_the_read_report_is_printed_and_stored_with_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ompn_ros.data.bag_writer import write_episodes
+    from ompn_ros.train.synthetic import make_dataset
+
+    write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 6, seed=0), "craft")
+    out = tmp_path / "out"
+    args = ["--bags", str(tmp_path / "bag"), "--config", str(ROOT / "config" / "train_craft.yaml"),
+            "--out", str(out), *SMALL, "--set", "train.iterations=1", "--set", "data.on_error=skip_tail"]
+    assert main(args) == 0
+    assert "6 episode(s)" in capsys.readouterr().err
+    report = json.loads((out / "read_report.json").read_text())
+    assert report["episodes"] == 6 and report["on_error"] == "skip_tail"
+    assert report["summary"].startswith("1 bag(s), 6 episode(s)")
+    assert (out / "read_report.txt").read_text().strip() == report["summary"]

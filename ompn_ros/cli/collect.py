@@ -1,222 +1,76 @@
-"""``ompn_collect``: expert demonstrations -> rosbag2 parts, without DDS.
+"""ompn_collect: expert demonstrations -> rosbag2 parts, without DDS.
 
-Example::
+Example:
 
-    ompn_collect --domain craft --task makebed,makeaxe --episodes 200 --seed 0 --out bags/craft \
+    ompn_collect --domain craft --task makebed,makeaxe --episodes 200 --seed 0 --out bags/craft \\
         --split-every 50
 
-writes ``bags/craft/part_000/ ... part_003/`` (one rosbag2 v9 directory per part; a single
-``part_000`` without ``--split-every``) and ``bags/craft/collect.json`` (command, seeds, counts).
-Episode ``i`` uses task ``tasks[i % len(tasks)]`` and seed :func:`episode_seed` ``(seed, i)``.
-Each part is written under a hidden temporary name and renamed when complete, so ``--resume``
-continues after the last complete part and never reads a half-written one.
+writes bags/craft/part_000/ ... part_003/ (one rosbag2 v9 directory per part; a single part_000
+without --split-every) and bags/craft/collect.json (command, seeds, counts).  Episode i uses task
+tasks[i % len(tasks)] and seed episode_seed(seed, i).  Each part is written under a hidden
+temporary name and renamed when complete, so --resume continues after the last complete part and
+never reads a half-written one.  The library is ompn_ros.experiments.collect.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import shutil
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 from ompn_ros import layout
-from ompn_ros.data.bag_writer import STORAGES, EpisodeBagWriter
-from ompn_ros.data.episode import Episode
+from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.data.bag_writer import STORAGES
+from ompn_ros.experiments.collect import (
+    MANIFEST,
+    CollectError,
+    Generator,
+    collect,
+    default_generator,
+    episode_seed,
+    part_name,
+)
 
-MANIFEST = "collect.json"
-Generator = Callable[[int, str, bool], Episode]
-
-
-class CollectError(RuntimeError):
-    """The collection cannot start or continue (existing output, mismatched resume, ...)."""
-
-
-def episode_seed(seed: int, index: int) -> int:
-    """Seed of episode ``index`` of a run seeded with ``seed``: ``sim_nodes.derive_seed(seed, index)``,
-    the same as the sim nodes use, so ``ompn_collect --seed S`` and ``craft_sim seed:=S`` agree."""
-    from sim_nodes import derive_seed
-
-    return derive_seed(int(seed), int(index))
-
-
-def default_generator(domain: str) -> Generator:
-    """The domain's expert generator (imported lazily: the sims are heavy)."""
-    if domain == "craft":
-        from sim_nodes import craft
-
-        def gen_craft(seed: int, task: str, partial: bool) -> Episode:
-            return craft.generate_episode(seed, task=task, full_obs=not partial)
-
-        return gen_craft
-    if domain == "dial":
-        from sim_nodes import dial
-
-        def gen_dial(seed: int, task: str, partial: bool) -> Episode:
-            return dial.generate_episode(seed)
-
-        return gen_dial
-    raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
-
-
-def part_name(index: int) -> str:
-    return f"part_{index:03d}"
-
-
-def _settings(domain: str, tasks: Sequence[str], episodes: int, seed: int, storage: str,
-              split_every: int | None, partial: bool) -> dict[str, Any]:
-    return {"domain": domain, "tasks": list(tasks), "episodes": episodes, "seed": seed,
-            "storage": storage, "split_every": split_every, "partial": partial}
-
-
-def _prepare_output(out: Path, settings: dict[str, Any], resume: bool, overwrite: bool) -> dict[str, Any]:
-    """Create/validate ``out``; returns the manifest to continue from."""
-    manifest_file = out / MANIFEST
-    fresh = {"settings": settings, "parts": [], "version": 1}
-    if not out.exists() or (out.is_dir() and not any(out.iterdir())):
-        out.mkdir(parents=True, exist_ok=True)
-        return fresh
-    if not out.is_dir():
-        raise CollectError(f"output '{out}' exists and is not a directory")
-    ours = manifest_file.is_file() or any(p.name.startswith("part_") for p in out.iterdir())
-    if overwrite:
-        if not ours:
-            raise CollectError(f"output directory '{out}' exists and does not look like an ompn_collect "
-                               "output (no collect.json, no part_* directories); refusing to delete it")
-        shutil.rmtree(out)
-        out.mkdir(parents=True)
-        return fresh
-    if not resume:
-        raise CollectError(f"output directory '{out}' already exists; pass --overwrite to replace it "
-                           "or --resume to continue after its last complete part")
-    if not manifest_file.is_file():
-        raise CollectError(f"cannot resume: '{manifest_file}' is missing")
-    manifest = json.loads(manifest_file.read_text(encoding="utf-8"))
-    old = manifest.get("settings", {})
-    if old != settings:
-        diff = {k: (old.get(k), v) for k, v in settings.items() if old.get(k) != v}
-        raise CollectError(f"cannot resume '{out}': settings differ from the first run (old, new): {diff}")
-    for tmp in out.glob(".part_*.tmp"):
-        shutil.rmtree(tmp)  # a part interrupted mid-write
-    done = {p["name"] for p in manifest["parts"]}
-    for part in out.glob("part_*"):
-        if part.name not in done:
-            shutil.rmtree(part)  # renamed but not recorded: redo it
-    return dict(manifest)
-
-
-def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
-    tmp = out / f".{MANIFEST}.tmp"
-    tmp.write_text(json.dumps(manifest, indent=1), encoding="utf-8")
-    tmp.replace(out / MANIFEST)
-
-
-def collect(
-    out: str | Path,
-    *,
-    domain: str,
-    tasks: Sequence[str],
-    episodes: int,
-    seed: int = 0,
-    storage: str = "mcap",
-    split_every: int | None = None,
-    partial: bool = False,
-    resume: bool = False,
-    overwrite: bool = False,
-    generator: Generator | None = None,
-    progress: bool = True,
-    command: Sequence[str] | None = None,
-) -> dict[str, Any]:
-    """Generate ``episodes`` expert episodes and write them as bag parts under ``out``.
-
-    Returns the manifest (also written to ``out/collect.json``).
-    """
-    if domain not in layout.DOMAINS:
-        raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
-    if storage not in STORAGES:
-        raise CollectError(f"unknown storage '{storage}', expected one of {STORAGES}")
-    if episodes < 1:
-        raise CollectError(f"--episodes must be >= 1, got {episodes}")
-    if split_every is not None and split_every < 1:
-        raise CollectError(f"--split-every must be >= 1, got {split_every}")
-    if not tasks:
-        raise CollectError("--task needs at least one task name")
-    if partial and domain != "craft":
-        raise CollectError("--partial (egocentric observations) applies to --domain craft only")
-    if resume and overwrite:
-        raise CollectError("--resume and --overwrite exclude each other")
-    out = Path(out)
-    settings = _settings(domain, tasks, episodes, seed, storage, split_every, partial)
-    manifest = _prepare_output(out, settings, resume, overwrite)
-    manifest["command"] = list(command if command is not None else sys.argv)
-    gen = generator or default_generator(domain)
-    dom = layout.DOMAINS[domain]
-    per_part = split_every or episodes
-    n_parts = (episodes + per_part - 1) // per_part
-    done = {p["name"] for p in manifest["parts"]}
-    todo = [k for k in range(n_parts) if part_name(k) not in done]
-    remaining = sum(min(per_part, episodes - k * per_part) for k in todo)
-
-    from tqdm import tqdm
-
-    bar = tqdm(total=episodes, initial=episodes - remaining, unit="ep", disable=not progress,
-               desc=f"{domain} -> {out}")
-    try:
-        for k in todo:
-            indices = list(range(k * per_part, min((k + 1) * per_part, episodes)))
-            tmp = out / f".{part_name(k)}.tmp"
-            if tmp.exists():
-                shutil.rmtree(tmp)
-            record: dict[str, Any] = {"name": part_name(k), "episodes": indices, "seeds": [],
-                                      "tasks": [], "steps": 0, "successes": 0}
-            start = time.perf_counter()
-            with EpisodeBagWriter(tmp, dom, storage=storage, first_episode_index=indices[0]) as writer:
-                for i in indices:
-                    ep_seed = episode_seed(seed, i)
-                    task = tasks[i % len(tasks)]
-                    episode = gen(ep_seed, task, partial)
-                    writer.write_episode(episode, episode_index=i)
-                    record["seeds"].append(ep_seed)
-                    record.setdefault("episode_seeds", []).append(int(episode.seed))
-                    record["tasks"].append(task)
-                    record["steps"] += episode.length
-                    record["successes"] += int(episode.success)
-                    bar.update(1)
-            record["messages"] = writer.stats.total_messages
-            record["seconds"] = round(time.perf_counter() - start, 3)
-            tmp.rename(out / part_name(k))
-            manifest["parts"].append(record)
-            manifest["parts"].sort(key=lambda p: p["name"])
-            _write_manifest(out, manifest)
-    finally:
-        bar.close()
-    manifest["totals"] = {
-        "parts": len(manifest["parts"]),
-        "episodes": sum(len(p["episodes"]) for p in manifest["parts"]),
-        "steps": sum(p["steps"] for p in manifest["parts"]),
-        "successes": sum(p["successes"] for p in manifest["parts"]),
-        "messages": sum(p["messages"] for p in manifest["parts"]),
-    }
-    _write_manifest(out, manifest)
-    return manifest
+__all__ = [
+    "MANIFEST",
+    "CollectError",
+    "Generator",
+    "build_parser",
+    "collect",
+    "default_generator",
+    "episode_seed",
+    "main",
+    "part_name",
+]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="ompn_collect", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--domain", required=True, choices=sorted(layout.DOMAINS))
-    parser.add_argument("--task", default=None,
-                        help="comma-separated task names (craft: e.g. makebed,makeaxe; dial: ignored)")
-    parser.add_argument("--episodes", type=int, required=True)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--storage", choices=STORAGES, default="mcap")
-    parser.add_argument("--split-every", type=int, default=None, metavar="M",
-                        help="write a new bag part every M episodes")
-    parser.add_argument("--partial", action="store_true",
-                        help="craft: partial (egocentric) observations instead of the full grid")
+    parser = make_parser("ompn_collect", __doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--domain", required=True, choices=sorted(layout.DOMAINS), help="which simulator's expert"
+    )
+    parser.add_argument(
+        "--task",
+        default=None,
+        help="comma-separated task names (craft: e.g. makebed,makeaxe, required; dial: none needed)",
+    )
+    parser.add_argument("--episodes", type=int, required=True, help="number of demonstrations")
+    parser.add_argument("--seed", type=int, default=0, help="run seed; episode i uses episode_seed(seed, i)")
+    parser.add_argument("--out", required=True, type=Path, help="output directory of the bag parts")
+    parser.add_argument("--storage", choices=STORAGES, default="mcap", help="rosbag2 storage plugin format")
+    parser.add_argument(
+        "--split-every",
+        type=int,
+        default=None,
+        metavar="M",
+        help="write a new bag part every M episodes (none: one part)",
+    )
+    parser.add_argument(
+        "--partial",
+        action="store_true",
+        help="craft: partial (egocentric) observations instead of the full grid",
+    )
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="continue after the last complete part")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing output")
@@ -224,29 +78,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
+    def body(args: argparse.Namespace) -> int:
+        if args.task:
+            tasks = [t.strip() for t in args.task.split(",") if t.strip()]
+        elif args.domain == "dial":
+            tasks = ["dial"]
+        else:
+            raise CollectError("--task is required for craft")
+        # looked up here, so a test can replace this module's default_generator
+        manifest = collect(
+            args.out,
+            domain=args.domain,
+            tasks=tasks,
+            episodes=args.episodes,
+            seed=args.seed,
+            storage=args.storage,
+            split_every=args.split_every,
+            partial=args.partial,
+            resume=args.resume,
+            overwrite=args.overwrite,
+            progress=not args.quiet,
+            generator=default_generator(args.domain),
+            command=command_line("ompn_collect", argv),
+        )
+        t = manifest["totals"]
+        print(
+            f"wrote {t['episodes']} episodes ({t['steps']} steps, {t['successes']} successful, "
+            f"{t['messages']} messages) in {t['parts']} part(s) under {args.out}"
+        )
+        return 0
+
+    return body
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point; returns the exit status (2 on a usage/output problem)."""
-    args = build_parser().parse_args(argv)
-    if args.task:
-        tasks = [t.strip() for t in args.task.split(",") if t.strip()]
-    elif args.domain == "dial":
-        tasks = ["dial"]
-    else:
-        print("ompn_collect: error: --task is required for craft", file=sys.stderr)
-        return 2
-    try:
-        manifest = collect(args.out, domain=args.domain, tasks=tasks, episodes=args.episodes,
-                           seed=args.seed, storage=args.storage, split_every=args.split_every,
-                           partial=args.partial, resume=args.resume, overwrite=args.overwrite,
-                           progress=not args.quiet,
-                           command=["ompn_collect", *(sys.argv[1:] if argv is None else argv)])
-    except CollectError as err:
-        print(f"ompn_collect: error: {err}", file=sys.stderr)
-        return 2
-    t = manifest["totals"]
-    print(f"wrote {t['episodes']} episodes ({t['steps']} steps, {t['successes']} successful, "
-          f"{t['messages']} messages) in {t['parts']} part(s) under {args.out}")
-    return 0
+    return run_cli(build_parser(), _body(argv), argv, extra_errors=(CollectError,))
 
 
 if __name__ == "__main__":

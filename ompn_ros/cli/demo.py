@@ -1,7 +1,7 @@
-"""`make demo`: the main job on the shipped defaults.
+"""ompn_demo (make demo): the main job on the shipped defaults.
 
-``--smoke`` runs the DDS self-check: ``smoke_listener`` and ``smoke_talker`` as two processes.
-Without it, the live segmentation demo runs (see ``ompn_ros.cli.live_demo``).
+--smoke runs the DDS self-check: smoke_listener and smoke_talker as two processes.  Without it, the
+live segmentation demo runs: a sim and ompn_node as processes, monitored (ompn_ros.experiments.live).
 """
 
 from __future__ import annotations
@@ -12,6 +12,9 @@ import subprocess
 import sys
 import time
 
+from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
+from ompn_ros.experiments import live
 from ompn_ros.ros_env import child_env
 
 
@@ -22,28 +25,41 @@ def run_smoke(count: int = 100, rate: float = 100.0) -> int:
     start = time.perf_counter()
     listener = subprocess.Popen(
         [sys.executable, "-m", "ompn_ros.nodes.smoke", "listener", *common, "-p", "timeout:=15.0"],
-        stdout=subprocess.PIPE, text=True, env=env,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
     )
     talker = subprocess.run(
         [sys.executable, "-m", "ompn_ros.nodes.smoke", "talker", *common, "-p", "wait_for_subscriber:=15.0"],
-        env=env, capture_output=True, text=True, timeout=120,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     out, _ = listener.communicate(timeout=60)
     summary = json.loads(out.strip().splitlines()[-1]) if out.strip() else {"lost": count}
-    print(f"smoke: talker exit {talker.returncode}, listener {summary}, "
-          f"{time.perf_counter() - start:.1f} s (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']})")
+    print(
+        f"smoke: talker exit {talker.returncode}, listener {summary}, "
+        f"{time.perf_counter() - start:.1f} s (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']})"
+    )
     return 0 if talker.returncode == 0 and summary.get("lost") == 0 else 1
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="ompn_ros demo")
+def build_parser() -> argparse.ArgumentParser:
+    parser = make_parser("ompn_demo", __doc__.split("\n\n")[0])
     parser.add_argument("--smoke", action="store_true", help="only the two-process DDS self-check")
-    args, rest = parser.parse_known_args(argv)
+    return add_live_demo_arguments(parser)
+
+
+def _run(args: argparse.Namespace) -> int:
     if args.smoke:
         return run_smoke()
-    from ompn_ros.cli import live_demo
+    checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
+    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout)
 
-    return live_demo.main(rest)
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), _run, argv)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,117 @@
+"""What every ``ompn_*`` command shares: the parser style and one way of reporting known errors.
+
+A known error (a bad bag, checkpoint, config or option: :data:`KNOWN_ERRORS`) is printed as one line
+``<prog>: error: <message>`` on stderr and the command exits with code 2; ``--debug`` shows the
+traceback instead.  Anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from ompn_ros import layout
+from ompn_ros.data.errors import BagError, ReaderSpecError
+from ompn_ros.model.checkpoint import CheckpointError
+
+KNOWN_ERRORS: tuple[type[BaseException], ...] = (
+    BagError,
+    ReaderSpecError,
+    CheckpointError,
+    ValueError,
+    OSError,
+)
+"""Errors a user can fix: bags, reader specs, checkpoints, validated configs (every config and
+detector error class of the package derives from ``ValueError``), files."""
+
+Body = Callable[[argparse.Namespace], int]
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """Defaults shown after every help text (the description keeps its line breaks).
+
+    An option without a value to show (a flag, a required option, a default of None) has none
+    appended: its help says what happens without it (:func:`missing_default_texts` checks that).
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default in (None, False) or action.required:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def missing_default_texts(parser: argparse.ArgumentParser) -> list[str]:
+    """Options whose help text neither shows a default nor explains the behaviour without them."""
+    missing = []
+    grouped = {id(a) for g in parser._mutually_exclusive_groups if g.required for a in g._group_actions}
+    for action in parser._actions:
+        if not action.option_strings or action.required or id(action) in grouped:
+            continue
+        text = (action.help or "").lower()
+        if action.default is None and not any(word in text for word in ("default", "none", "without")):
+            missing.append(action.option_strings[-1])
+        elif not action.help:
+            missing.append(action.option_strings[-1])
+    return missing
+
+
+def make_parser(prog: str, description: str | None) -> argparse.ArgumentParser:
+    """An argument parser showing defaults, with ``--debug`` (tracebacks instead of one-line errors)."""
+    parser = argparse.ArgumentParser(
+        prog=prog, description=_plain(description or ""), formatter_class=_Formatter
+    )
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    return parser
+
+
+def _plain(text: str) -> str:
+    """Docstring text without reStructuredText markup (double backquotes, ``::``)."""
+    return text.replace("``", "").replace("::", ":")
+
+
+def error_line(exc: BaseException) -> str:
+    """The first line of an error message (the type name when the message is empty)."""
+    text = str(exc).strip()
+    if isinstance(exc, KeyError) or not text:
+        text = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    return text.splitlines()[0]
+
+
+def run_cli(
+    parser: argparse.ArgumentParser,
+    body: Body,
+    argv: Sequence[str] | None = None,
+    extra_errors: tuple[type[BaseException], ...] = (),
+) -> int:
+    """Parse ``argv``, run ``body(args)`` and turn a known error into one line on stderr and exit code 2."""
+    args = parser.parse_args(None if argv is None else list(argv))
+    try:
+        return body(args)
+    except (*KNOWN_ERRORS, *extra_errors) as exc:
+        if getattr(args, "debug", False):
+            raise
+        print(f"{parser.prog}: error: {error_line(exc)}", file=sys.stderr)
+        return 2
+
+
+def command_line(prog: str, argv: Sequence[str] | None) -> list[str]:
+    """The command as run (for provenance records): ``prog`` and its arguments."""
+    return [prog, *(sys.argv[1:] if argv is None else argv)]
+
+
+def add_live_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The options of the live segmentation demo (``ompn_demo`` and ``python -m ompn_ros.cli.live_demo``)."""
+    parser.add_argument("--domain", choices=sorted(layout.DOMAINS), default="dial", help="which simulator")
+    parser.add_argument("--episodes", type=int, default=3, help="episodes to segment")
+    parser.add_argument("--rate", type=float, default=100.0, help="sim rate in Hz (Dial real time is 25)")
+    parser.add_argument("--seed", type=int, default=1000, help="first episode seed (held out from training)")
+    parser.add_argument(
+        "--checkpoint", type=Path, default=None, help="checkpoint directory (none: the shipped one)"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="directory of the summary and plot"
+    )
+    parser.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the episodes")
+    return parser

@@ -1,0 +1,239 @@
+"""Scoring and tuning of the online boundary detector on labelled, already replayed episodes.
+
+The inputs are per-episode score curves and expansion distributions (anything with ``scores``
+``[T]`` and ``p_hat`` ``[T, n + 1]`` attributes, e.g. :class:`ompn_ros.segmenter.ReplayResult`),
+so everything here is ROS-free and model-free: replaying the model is the caller's job.
+
+* :func:`score_online` / :func:`compare_on_replays`: the causal detector of ``ompn_node``
+  (:func:`ompn_ros.detect.online.detect_sequence`) against the offline detectors of the paper
+  (Top-K, Algorithm 1; automatic threshold, Algorithm 2; Lu et al., ICLR 2021, §3.3) with K = the
+  true number of boundaries.
+* :func:`choose_on_replays`: a grid search over :class:`DetectorConfig` maximising boundary F1
+  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2).
+* :func:`write_node_config` / :func:`load_detector_yaml`: the chosen settings as an ``ompn_node``
+  ``--params-file`` and back.
+
+Cost: one detector pass is O(T) per episode, so a grid of G settings costs O(G · Σ T).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Literal, Protocol
+
+import numpy as np
+import yaml
+
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect import offline
+from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, detect_sequence
+from ompn_ros.metrics import alignment_accuracy, mean_f1
+
+Objective = Literal["f1", "align"]
+OBJECTIVES: tuple[Objective, ...] = ("f1", "align")
+"""What tuning maximises first: boundary F1 at tolerance 1, or strict alignment accuracy."""
+DEFAULT_OBJECTIVE: dict[str, Objective] = {"craft": "f1", "dial": "align"}
+"""Per domain, the paper's headline metric (Craft: F1 of the boundaries; Dial: alignment)."""
+MATCH_TOLERANCE = 2
+"""A detection within this many steps of a true boundary counts as that boundary (for delays)."""
+
+Metrics = dict[str, float]
+
+
+class TuneError(ValueError):
+    """Bad input to detector scoring or tuning (names the argument at fault)."""
+
+
+class Replayed(Protocol):
+    """One replayed episode: per-step online scores and expansion distributions."""
+
+    @property
+    def scores(self) -> np.ndarray: ...
+
+    @property
+    def p_hat(self) -> np.ndarray: ...
+
+
+def delay_stats(
+    events: Sequence[Sequence[BoundaryEvent] | Sequence[int] | np.ndarray],
+    gts: Sequence[np.ndarray],
+    detected_at: Sequence[Sequence[int]] | None = None,
+) -> Metrics:
+    """Detection delay (``detected_at - true boundary``) and false alarms per episode.
+
+    The final boundary (``T - 1``, closed by the episode end) is excluded from both.  A true
+    boundary is detected by the first non-final detection within ``MATCH_TOLERANCE`` steps; a
+    detection more than one step from every true boundary is a false alarm.  O(B²) per episode
+    for B boundaries.
+    """
+    delays: list[int] = []
+    false_alarms = 0
+    for i, (evs, gt) in enumerate(zip(events, gts, strict=True)):
+        steps = [int(e.step) if isinstance(e, BoundaryEvent) else int(e) for e in evs]
+        when = (
+            [int(e.detected_at) for e in evs if isinstance(e, BoundaryEvent)]
+            if detected_at is None
+            else list(detected_at[i])
+        )
+        last = int(gt[-1])
+        inner = [(s, w) for s, w in zip(steps, when, strict=True) if s != last]
+        for g in gt[:-1]:
+            hits = [w for s, w in inner if abs(s - int(g)) <= MATCH_TOLERANCE]
+            if hits:
+                delays.append(min(hits) - int(g))
+        false_alarms += sum(1 for s, _ in inner if np.min(np.abs(gt - s)) > 1)
+    return {
+        "delay_mean": float(np.mean(delays)) if delays else float("nan"),
+        "delay_max": float(np.max(delays)) if delays else float("nan"),
+        "false_alarms_per_episode": false_alarms / max(1, len(gts)),
+    }
+
+
+def score_predictions(preds: Sequence[np.ndarray], episodes: Sequence[Episode]) -> Metrics:
+    """F1 at tolerance 0 and 1 and alignment accuracy (authors' and strict decoding), paper §4."""
+    gts = [ep.boundaries for ep in episodes]
+    labels = [np.asarray(ep.subtask) for ep in episodes]
+    return {
+        "f1_tol0": mean_f1(preds, gts, 0).f1,
+        "f1_tol1": mean_f1(preds, gts, 1).f1,
+        "align": alignment_accuracy(preds, labels, "authors"),
+        "align_strict": alignment_accuracy(preds, labels, "strict"),
+    }
+
+
+def _check_labelled(replays: Sequence[Replayed], episodes: Sequence[Episode]) -> None:
+    if not episodes or any(ep.subtask is None for ep in episodes):
+        raise TuneError("detector scoring needs episodes with subtask labels")
+    if len(replays) != len(episodes):
+        raise TuneError(f"replays: {len(replays)} replays for {len(episodes)} episodes")
+
+
+def score_online(replays: Sequence[Replayed], episodes: Sequence[Episode], config: DetectorConfig) -> Metrics:
+    """The causal detector ``config`` on the replayed scores: F1, alignment and delays (O(Σ T))."""
+    events = [detect_sequence(r.scores, config) for r in replays]
+    preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
+    return {**score_predictions(preds, episodes), **delay_stats(events, [ep.boundaries for ep in episodes])}
+
+
+def compare_on_replays(
+    replays: Sequence[Replayed],
+    episodes: Sequence[Episode],
+    online_configs: dict[str, DetectorConfig],
+    offline_thresholds: Iterable[float] = (0.5,),
+) -> dict[str, Metrics]:
+    """Online vs offline detectors on the same replays (paper Algorithms 1-2, K = true count).
+
+    Online detectors see the scores causally (delay ``detected_at - boundary``); offline ones need
+    the whole episode, so their delay is measured to the episode end (``T - 1 - boundary``).
+    Returns ``{detector name: {metric: value}}``.
+    """
+    _check_labelled(replays, episodes)
+    results = {name: score_online(replays, episodes, cfg) for name, cfg in online_configs.items()}
+    thresholds = list(offline_thresholds)
+    preds: dict[str, list[np.ndarray]] = {"offline_topk": [], "offline_auto": []}
+    preds.update({f"offline_thr{thr:g}": [] for thr in thresholds})
+    gts = [ep.boundaries for ep in episodes]
+    for r, gt in zip(replays, gts, strict=True):
+        k = len(gt)
+        preds["offline_topk"].append(offline.top_k_boundaries(r.p_hat, k))
+        preds["offline_auto"].append(offline.auto_threshold_boundaries(r.p_hat, k)[0])
+        for thr in thresholds:
+            preds[f"offline_thr{thr:g}"].append(offline.threshold_boundaries(r.p_hat, thr, k))
+    for name, found in preds.items():
+        at_end = [[len(r.scores) - 1] * len(p) for r, p in zip(replays, found, strict=True)]
+        results[name] = {**score_predictions(found, episodes), **delay_stats(found, gts, at_end)}
+    return results
+
+
+def default_grid() -> list[DetectorConfig]:
+    """The detector settings searched by :func:`choose_on_replays` (18 highs × 2 × 2 × modes)."""
+    highs = [round(float(h), 2) for h in np.arange(0.05, 0.91, 0.05)]
+    return [
+        DetectorConfig(
+            high=high,
+            low=max(0.0, round(high - hyst, 2)) if hyst else None,
+            min_segment_length=min_len,
+            mode=mode,
+        )
+        for high, hyst, min_len, mode in itertools.product(highs, (0.0, 0.1), (1, 3), MODES)
+    ]
+
+
+def objective_key(metrics: Metrics, objective: Objective = "f1") -> tuple[float, float, float]:
+    """Sort key of a detector's metrics: the objective, then the other metric, then a short delay."""
+    delay = metrics["delay_mean"]
+    first, second = ("f1_tol1", "align_strict") if objective == "f1" else ("align_strict", "f1_tol1")
+    return (metrics[first], metrics[second], -(delay if np.isfinite(delay) else 1e9))
+
+
+def choose_on_replays(
+    replays: Sequence[Replayed],
+    episodes: Sequence[Episode],
+    grid: Sequence[DetectorConfig] | None = None,
+    objective: str = "f1",
+) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
+    """Grid-search the online detector, maximising ``objective`` (one of ``OBJECTIVES``).
+
+    The first setting with the best :func:`objective_key` wins.  Returns ``(best config, its
+    metrics, comparison with the offline detectors)``.  O(|grid| · Σ T).
+    """
+    if objective not in OBJECTIVES:
+        raise TuneError(f"detector tuning objective must be one of {OBJECTIVES}, got {objective!r}")
+    _check_labelled(replays, episodes)
+    best: tuple[tuple[float, float, float], DetectorConfig, Metrics] | None = None
+    for cfg in list(grid or default_grid()):
+        metrics = score_online(replays, episodes, cfg)
+        key = objective_key(metrics, objective)  # type: ignore[arg-type]
+        if best is None or key > best[0]:
+            best = (key, cfg, metrics)
+    if best is None:
+        raise TuneError("grid: no detector settings to search")
+    return best[1], best[2], compare_on_replays(replays, episodes, {"online": best[1]})
+
+
+def write_node_config(
+    path: str | Path, domain: str, config: DetectorConfig, measured: dict[str, Metrics], source: str
+) -> Path:
+    """Write an ``ompn_node`` ``--params-file`` with ``config``, the measurements as comments. O(1)."""
+    lines = [
+        f"# ompn_node defaults for the {domain} domain, chosen by `ompn_segment --tune` on {source}.",
+        "# Measured on the tuning episodes (online = these settings;",
+        "# offline = whole-episode detectors with K = the true number of boundaries):",
+    ]
+    for name, m in measured.items():
+        lines.append(f"#   {name}: " + ", ".join(f"{k}={v:.3f}" for k, v in m.items()))
+    lines += [
+        "/**/ompn_node:",
+        "  ros__parameters:",
+        f"    domain: {domain}",
+        f"    detector_high: {config.high}",
+        f"    detector_hysteresis: {round(config.high - config.low_threshold, 4)}",
+        f"    detector_min_segment_length: {config.min_segment_length}",
+        f"    detector_mode: {config.mode}",
+        f"    detector_force_first_step_low: {str(config.force_first_step_low).lower()}",
+        "",
+    ]
+    out = Path(path)
+    out.write_text("\n".join(lines), encoding="utf-8")
+    return out
+
+
+def load_detector_yaml(path: str | Path) -> DetectorConfig:
+    """Detector settings from an ompn_node params file (``detector_*`` keys) or a plain mapping."""
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise TuneError(f"detector config {path}: {str(exc).splitlines()[0]}") from exc
+    for _ in range(3):  # unwrap '/**' / node name / 'ros__parameters'
+        if isinstance(data, dict) and len(data) == 1 and not any(str(k).startswith("detector") for k in data):
+            data = next(iter(data.values()))
+    if not isinstance(data, dict):
+        raise TuneError(f"detector config {path}: expected a mapping with detector_* keys")
+    params = {k[len("detector_") :]: v for k, v in data.items() if str(k).startswith("detector_")}
+    if "hysteresis" in params:
+        hysteresis = float(params.pop("hysteresis"))
+        if hysteresis > 0:
+            params["low"] = max(0.0, round(float(params.get("high", 0.5)) - hysteresis, 6))
+    return DetectorConfig.from_dict(params)

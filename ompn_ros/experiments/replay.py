@@ -1,0 +1,179 @@
+"""Replay episodes through the :class:`~ompn_ros.segmenter.StreamingSegmenter` (as the node runs
+them) and score or tune the online detector on the replays (:mod:`ompn_ros.detect.tune`).
+
+This is the library behind ``ompn_segment``: :func:`run_replay` writes the replay files
+(``pi.npz``, ``boundaries.json``, ``metrics.json``, plots) of a bag or generated episodes.
+Cost: one model step per observation, O(Σ T) steps in all.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ompn_ros.data.bag_reader import OnError, ReaderSpec, ReadResult, read_episodes
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect import offline
+from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
+from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
+
+
+class ReplayError(ValueError):
+    """A replay cannot be scored (names the episode at fault)."""
+
+
+def read_bag_episodes(
+    bag: str, reader_config: str | None, domain: str | None, on_error: OnError = "raise"
+) -> ReadResult:
+    """Episodes of ``bag`` with the reader spec of ``reader_config`` (YAML), else of ``domain``."""
+    spec = (
+        ReaderSpec.from_yaml(reader_config)
+        if reader_config
+        else (ReaderSpec.for_domain(domain) if domain else None)
+    )
+    return read_episodes(bag, spec=spec, on_error=on_error)
+
+
+def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:
+    """``count`` fresh expert episodes of ``domain`` with seeds ``seed, seed + 1, ...`` (Craft: the
+    paper's tasks in turn, as in the training data)."""
+    if domain == "craft":
+        from sim_nodes.craft import PAPER_TASKS, generate_episode  # the simulators load only when asked
+
+        tasks = list(PAPER_TASKS)
+        return [generate_episode(seed + i, task=tasks[i % len(tasks)]) for i in range(count)]
+    if domain == "dial":
+        from sim_nodes.dial import generate_episode as generate_dial
+
+        return [generate_dial(seed + i) for i in range(count)]
+    raise ReplayError(f"--generate needs --domain craft|dial, got {domain!r}")
+
+
+def write_read_report(out: Path, result: ReadResult, on_error: str) -> None:
+    """Store what the bag reader kept and dropped beside the replay (``read_report.json`` / ``.txt``)."""
+    out.mkdir(parents=True, exist_ok=True)
+    summary = result.report.summary()
+    doc = {
+        "on_error": on_error,
+        "episodes": len(result.episodes),
+        "errors": result.report.errors,
+        "summary": summary,
+    }
+    (out / "read_report.json").write_text(json.dumps(doc, indent=1) + "\n")
+    (out / "read_report.txt").write_text(summary + "\n")
+
+
+def replay_all(policy: Any, episodes: Sequence[Episode], config: DetectorConfig) -> list[ReplayResult]:
+    """Replay every episode (done step included, as live) through one StreamingSegmenter."""
+    segmenter = StreamingSegmenter(policy, config)
+    return [replay_episode(segmenter, ep, include_done_step=True) for ep in episodes]
+
+
+def check_finite(replays: Sequence[ReplayResult], episodes: Sequence[Episode]) -> None:
+    """Raise :class:`ReplayError` naming the first episode whose ``p_hat`` is not finite."""
+    for i, (r, ep) in enumerate(zip(replays, episodes, strict=True)):
+        if not np.all(np.isfinite(r.p_hat)):
+            raise ReplayError(
+                f"episode {i} ({ep.task}, seed {ep.seed}): the model produced non-finite "
+                "p_hat (NaN or inf); the checkpoint or the observations are broken"
+            )
+
+
+def compare_detectors(
+    policy: Any,
+    episodes: Sequence[Episode],
+    online_configs: dict[str, DetectorConfig] | None = None,
+    *,
+    offline_thresholds: Iterable[float] = (0.5,),
+    replays: Sequence[ReplayResult] | None = None,
+) -> dict[str, Metrics]:
+    """Online vs offline detectors on ``episodes`` (see :func:`ompn_ros.detect.tune.compare_on_replays`)."""
+    configs = online_configs or {"online": DetectorConfig()}
+    if replays is None:
+        replays = replay_all(policy, episodes, next(iter(configs.values())))
+    return compare_on_replays(replays, episodes, configs, offline_thresholds)
+
+
+def choose_detector(
+    policy: Any,
+    episodes: Sequence[Episode],
+    grid: Sequence[DetectorConfig] | None = None,
+    objective: str = "f1",
+) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
+    """Replay once, then grid-search the online detector (:func:`ompn_ros.detect.tune.choose_on_replays`)."""
+    grid = list(grid or default_grid())
+    replays = replay_all(policy, episodes, grid[0])
+    check_finite(replays, episodes)
+    return choose_on_replays(replays, episodes, grid, objective)
+
+
+def json_safe(value: Any) -> Any:
+    """NaN/inf -> None (strict JSON), recursively."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _episode_doc(i: int, ep: Episode, r: ReplayResult) -> dict[str, Any]:
+    return {
+        "episode": i,
+        "task": ep.task,
+        "seed": ep.seed,
+        "steps": ep.length,
+        "boundaries": [asdict(b) for b in r.boundaries],
+        "true_boundaries": ep.boundaries.tolist() if ep.subtask is not None else None,
+    }
+
+
+def _plot(path: Path, ep: Episode, r: ReplayResult, config: DetectorConfig) -> None:
+    from ompn_ros.plotting import plot_episode  # matplotlib only when plotting
+
+    gt = ep.boundaries.tolist() if ep.subtask is not None else None
+    auto = offline.auto_threshold_boundaries(r.p_hat, len(gt))[0].tolist() if gt else None
+    plot_episode(
+        path,
+        r.pi,
+        r.pi_end,
+        r.scores,
+        true_boundaries=gt,
+        detected_boundaries=[b.step for b in r.boundaries],
+        offline_boundaries=auto,
+        high=config.high,
+        low=config.low_threshold,
+        title=f"{ep.task} seed {ep.seed}: online detector {config.mode}",
+    )
+
+
+def run_replay(
+    policy: Any, episodes: Sequence[Episode], config: DetectorConfig, out: Path, plot_episodes: int = 3
+) -> dict[str, Any]:
+    """Replay ``episodes`` and write the output files into ``out``; returns the summary."""
+    out.mkdir(parents=True, exist_ok=True)
+    replays = replay_all(policy, episodes, config)
+    check_finite(replays, episodes)
+    arrays: dict[str, np.ndarray] = {}
+    for i, r in enumerate(replays):
+        for key in ("pi", "p_hat", "pi_end", "expected_position", "scores"):
+            arrays[f"ep{i}_{key.rstrip('s') if key == 'scores' else key}"] = getattr(r, key)
+    for i, (ep, r) in enumerate(zip(episodes[:plot_episodes], replays, strict=False)):
+        _plot(out / f"episode_{i}.png", ep, r, config)
+    np.savez_compressed(out / "pi.npz", **arrays)  # type: ignore[arg-type]
+    doc = [_episode_doc(i, ep, r) for i, (ep, r) in enumerate(zip(episodes, replays, strict=True))]
+    (out / "boundaries.json").write_text(
+        json.dumps({"detector": config.to_dict(), "episodes": doc}, indent=1)
+    )
+    summary: dict[str, Any] = {"episodes": len(episodes), "detector": config.to_dict()}
+    if episodes and all(ep.subtask is not None for ep in episodes):
+        summary["metrics"] = compare_detectors(policy, episodes, {"online": config}, replays=replays)
+        (out / "metrics.json").write_text(json.dumps(json_safe(summary["metrics"]), indent=1))
+    return summary

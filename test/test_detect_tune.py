@@ -1,0 +1,102 @@
+"""Detector scoring and tuning on replayed score curves (ompn_ros.detect.tune), without a model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect import tune
+from ompn_ros.detect.online import DetectorConfig
+
+
+@dataclass
+class Replay:
+    scores: np.ndarray
+    p_hat: np.ndarray
+
+
+def _episode(subtask: list[int]) -> Episode:
+    steps = len(subtask)
+    return Episode(
+        observations=np.zeros((steps + 1, 2), np.float32),
+        actions=np.zeros(steps, np.int64),
+        task="t",
+        seed=0,
+        subtask=np.asarray(subtask, np.int64),
+    )
+
+
+def _replay(peaks: list[int], steps: int, height: float) -> Replay:
+    """Scores low everywhere with a peak of ``height`` at ``peaks``; p_hat expanding there."""
+    scores = np.full(steps, 0.05)
+    scores[peaks] = height
+    p_hat = np.tile([0.0, 0.0, 1.0], (steps, 1))
+    p_hat[peaks] = [0.0, 1.0, 0.0]
+    return Replay(scores, p_hat)
+
+
+EPISODE = _episode([0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2])  # boundaries 3, 7, 11
+
+
+def test_a_detector_that_fires_at_the_boundaries_scores_perfectly():
+    replay = _replay([3, 7], 12, 0.6)
+    metrics = tune.score_online([replay], [EPISODE], DetectorConfig(high=0.4, mode="peak"))
+    assert metrics["f1_tol1"] == 1.0 and metrics["align_strict"] == 1.0
+    assert metrics["false_alarms_per_episode"] == 0.0
+    # above the peaks nothing fires but the episode end: two of three boundaries missed
+    blind = tune.score_online([replay], [EPISODE], DetectorConfig(high=0.9, mode="peak"))
+    assert blind["f1_tol1"] < metrics["f1_tol1"]
+
+
+def test_the_grid_search_finds_a_threshold_below_the_peaks():
+    replay = _replay([3, 7], 12, 0.3)
+    grid = [DetectorConfig(high=h, mode="peak") for h in (0.8, 0.5, 0.2)]
+    best, metrics, comparison = tune.choose_on_replays([replay], [EPISODE], grid, objective="f1")
+    assert best.high == 0.2 and metrics["f1_tol1"] == 1.0
+    assert {"online", "offline_topk", "offline_auto"} <= set(comparison)
+    assert comparison["online"] == metrics
+
+
+def test_tuning_needs_labels_a_known_objective_and_matching_replays():
+    replay = _replay([3, 7], 12, 0.3)
+    with pytest.raises(tune.TuneError, match="objective"):
+        tune.choose_on_replays([replay], [EPISODE], objective="recall")
+    unlabelled = Episode(
+        observations=np.zeros((3, 2), np.float32), actions=np.zeros(2, np.int64), task="t", seed=0
+    )
+    with pytest.raises(tune.TuneError, match="subtask labels"):
+        tune.compare_on_replays([replay], [unlabelled], {"online": DetectorConfig()})
+    with pytest.raises(tune.TuneError, match="2 replays for 1 episodes"):
+        tune.compare_on_replays([replay, replay], [EPISODE], {"online": DetectorConfig()})
+
+
+def test_delays_count_late_detections_and_false_alarms():
+    gt = np.array([3, 7, 11])
+    stats = tune.delay_stats([[0, 3, 7, 11]], [gt], detected_at=[[0, 4, 9, 11]])
+    assert stats["delay_mean"] == pytest.approx(1.5)  # 3 found at 4, 7 found at 9
+    assert stats["delay_max"] == 2.0 and stats["false_alarms_per_episode"] == 1.0  # step 0
+
+
+def test_objective_orders_by_the_chosen_metric_first():
+    a = {"f1_tol1": 0.9, "align_strict": 0.5, "delay_mean": 1.0}
+    b = {"f1_tol1": 0.8, "align_strict": 0.7, "delay_mean": 1.0}
+    assert tune.objective_key(a, "f1") > tune.objective_key(b, "f1")
+    assert tune.objective_key(b, "align") > tune.objective_key(a, "align")
+
+
+def test_node_config_round_trip(tmp_path: Path):
+    config = DetectorConfig(high=0.35, low=0.25, min_segment_length=3, mode="rising_edge")
+    path = tune.write_node_config(
+        tmp_path / "node.yaml", "craft", config, {"online": {"f1_tol1": 0.9}}, "a test"
+    )
+    assert "# ompn_node defaults for the craft domain" in path.read_text()
+    assert tune.load_detector_yaml(path) == config
+
+
+def test_a_missing_detector_file_is_named(tmp_path: Path):
+    with pytest.raises(tune.TuneError, match=r"nope\.yaml"):
+        tune.load_detector_yaml(tmp_path / "nope.yaml")
