@@ -27,7 +27,9 @@ LIBRARY_LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backe
 ENTRY_POINT_PACKAGES = ("ompn_ros.cli", "ompn_ros.nodes")
 MAX_ENTRY_POINT_LOCAL_IMPORTS = 57
 """A ratchet for ``cli/`` and ``nodes/``: lower it whenever one of their local imports goes."""
-SIM_NODES_MAY_IMPORT = ("ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages")
+SIM_NODES_MAY_IMPORT = (
+    "ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages", "ompn_ros.nodes.params",
+)
 """The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""
 OMPN_ROS_MAY_IMPORT = ("sim_nodes.registry",)
 """The sim_nodes module ompn_ros uses (see ``sim_nodes/__init__.py``)."""

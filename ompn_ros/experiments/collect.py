@@ -24,6 +24,7 @@ from tqdm import tqdm
 from ompn_ros import layout
 from ompn_ros.data.bag_writer import STORAGES, EpisodeBagWriter
 from ompn_ros.data.episode import Episode
+from sim_nodes.registry import DOMAINS, derive_seed, expert_episode
 
 MANIFEST = "collect.json"
 Generator = Callable[[int, str, bool], Episode]
@@ -36,28 +37,18 @@ class CollectError(RuntimeError):
 def episode_seed(seed: int, index: int) -> int:
     """Seed of episode ``index`` of a run seeded with ``seed``: ``sim_nodes.derive_seed(seed, index)``,
     the same as the sim nodes use, so ``ompn_collect --seed S`` and ``craft_sim seed:=S`` agree."""
-    from sim_nodes import derive_seed
-
     return derive_seed(int(seed), int(index))
 
 
 def default_generator(domain: str) -> Generator:
-    """The domain's expert generator (imported lazily: the sims are heavy)."""
-    if domain == "craft":
-        from sim_nodes import craft
+    """The domain's expert generator (``sim_nodes.registry.expert_episode``)."""
+    if domain not in DOMAINS:
+        raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
 
-        def gen_craft(seed: int, task: str, partial: bool) -> Episode:
-            return craft.generate_episode(seed, task=task, full_obs=not partial)
+    def generate(seed: int, task: str, partial: bool) -> Episode:
+        return expert_episode(domain, seed, task=task, partial=partial)
 
-        return gen_craft
-    if domain == "dial":
-        from sim_nodes import dial
-
-        def gen_dial(seed: int, task: str, partial: bool) -> Episode:
-            return dial.generate_episode(seed)
-
-        return gen_dial
-    raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
+    return generate
 
 
 def part_name(index: int) -> str:

@@ -21,7 +21,9 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
+from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
+from sim_nodes.registry import DOMAINS, default_tasks, expert_episode
 
 
 class ReplayError(ValueError):
@@ -43,16 +45,10 @@ def read_bag_episodes(
 def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:
     """``count`` fresh expert episodes of ``domain`` with seeds ``seed, seed + 1, ...`` (Craft: the
     paper's tasks in turn, as in the training data)."""
-    if domain == "craft":
-        from sim_nodes.craft import PAPER_TASKS, generate_episode  # the simulators load only when asked
-
-        tasks = list(PAPER_TASKS)
-        return [generate_episode(seed + i, task=tasks[i % len(tasks)]) for i in range(count)]
-    if domain == "dial":
-        from sim_nodes.dial import generate_episode as generate_dial
-
-        return [generate_dial(seed + i) for i in range(count)]
-    raise ReplayError(f"--generate needs --domain craft|dial, got {domain!r}")
+    if domain not in DOMAINS:
+        raise ReplayError(f"--generate needs --domain craft|dial, got {domain!r}")
+    tasks = default_tasks(domain)
+    return [expert_episode(domain, seed + i, task=tasks[i % len(tasks)]) for i in range(count)]
 
 
 def write_read_report(out: Path, result: ReadResult, on_error: str) -> None:
@@ -136,8 +132,6 @@ def _episode_doc(i: int, ep: Episode, r: ReplayResult) -> dict[str, Any]:
 
 
 def _plot(path: Path, ep: Episode, r: ReplayResult, config: DetectorConfig) -> None:
-    from ompn_ros.plotting import plot_episode  # matplotlib only when plotting
-
     gt = ep.boundaries.tolist() if ep.subtask is not None else None
     auto = offline.auto_threshold_boundaries(r.p_hat, len(gt))[0].tolist() if gt else None
     plot_episode(
