@@ -66,8 +66,8 @@ def windows_from_markers(ctx: BagContext, markers: list[Marker], obs_stamps: np.
     for stamp, kind, values, i in markers:
         if kind == layout.EPISODE_START:
             if open_start is not None:
-                ctx.report.dropped_episodes += 1
-                ctx.report.notes.append(f"episode started at {open_start[0]} ns has no end marker")
+                ctx.report.drop_episode("no end marker",
+                                        f"episode started at {open_start[0]} ns has no end marker")
             open_start = (stamp, values)
         elif kind == layout.EPISODE_END:
             if open_start is None:
@@ -79,9 +79,8 @@ def windows_from_markers(ctx: BagContext, markers: list[Marker], obs_stamps: np.
             windows.append(Window(a, b, open_start[0], open_start[1], values, i))
             open_start = None
     if open_start is not None:
-        ctx.report.dropped_episodes += 1
-        ctx.report.notes.append(f"last episode (started at {open_start[0]} ns) has no end marker "
-                                "(recording stopped or corrupt tail); dropped")
+        ctx.report.drop_episode("no end marker", f"last episode (started at {open_start[0]} ns) has no "
+                                "end marker (recording stopped or corrupt tail); dropped")
     return windows
 
 

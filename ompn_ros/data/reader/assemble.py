@@ -42,6 +42,8 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
     episodes: list[Episode] = []
     prev_stop_stamp = -1
     for w in windows:
+        if not _trusted(ctx, dec, w):
+            continue
         steps = _steps(ctx, topics, dec, partners, w)
         if steps is None:
             continue
@@ -53,6 +55,18 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
                             "the last observation was duplicated as row T (s_{T+1} = s_T)")
     report.episodes = len(episodes)
     return episodes
+
+
+def _trusted(ctx: BagContext, dec: Decoded, w: Window) -> bool:
+    """False (and the drop reported) when the window holds a non-finite value or the bag is untrusted."""
+    if ctx.raw.untrusted is not None:
+        ctx.report.drop_episode("storage damage not located")
+        return False
+    for row, err in dec.nonfinite:
+        if w.first_obs <= row < w.stop_obs:
+            ctx.report.drop_episode("non-finite values", f"{err}; episode dropped")
+            return False
+    return True
 
 
 def _attach_all(ctx: BagContext, topics: Topics, dec: Decoded) -> Partners:
@@ -76,8 +90,8 @@ def _windows(ctx: BagContext, dec: Decoded) -> list[Window]:
     windows = windows_from_gaps(ctx.spec.time_gap, dec.obs_stamps)
     if ctx.raw.corrupt is not None and windows:
         windows.pop()
-        ctx.report.dropped_episodes += 1
-        ctx.report.notes.append("last time-gap episode dropped: it precedes the corruption")
+        ctx.report.drop_episode("precedes the corruption", "last time-gap episode dropped: it precedes "
+                                "the corruption")
     return windows
 
 
@@ -86,8 +100,7 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
     report = ctx.report
     a, b = w.first_obs, w.stop_obs
     if b - a == 0:
-        report.dropped_episodes += 1
-        report.notes.append(f"episode at {w.start_stamp} ns has no observations; dropped")
+        report.drop_episode("no observations", f"episode at {w.start_stamp} ns has no observations; dropped")
         return None
     act = partners.act
     if act[b - 1] >= 0:
@@ -105,8 +118,8 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
         report.dropped_steps += int(lacking.size)
         steps = steps[act[steps] >= 0]
     if steps.size == 0:
-        report.dropped_episodes += 1
-        report.notes.append(f"episode of observations #{a}..#{b - 1} has no step with an action; dropped")
+        report.drop_episode("no action", f"episode of observations #{a}..#{b - 1} has no step with an "
+                            "action; dropped")
         return None
     return steps
 

@@ -55,6 +55,7 @@ class BagContext:
             candidates = [t for t in self.raw.types if t.endswith("/" + name)]
             if len(candidates) == 1:
                 self.report.notes.append(f"topic '{name}' resolved to '{candidates[0]}'")
+                self.report.guessed.append(f"topic '{name}' = '{candidates[0]}' (unique suffix match)")
                 return candidates[0]
         if required:
             raise MissingTopicError(f"required topic not in bag (bag topics: {sorted(self.raw.types)})",

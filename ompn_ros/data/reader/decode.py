@@ -6,6 +6,11 @@ from the spec or from its topic's first message, a JointState lacking a named jo
 the bag is cut at the earliest of their stamps and decoded once more.  That second pass cannot
 fail: every message left precedes the first bad message of its own topic, and each topic's first
 message (the reference length) is kept or the topic is empty.  So a bag is decoded at most twice.
+
+Decoded observation and action vectors must be finite.  A NaN or infinite value (a damaged page or
+chunk, a broken publisher) raises :class:`NonFiniteValueError` naming bag, topic and message
+(``on_error='raise'``) or drops the episode holding that step (``'skip_tail'``), never reaching
+training silently.
 """
 
 from __future__ import annotations
@@ -19,10 +24,11 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
-from ..errors import BagError, CorruptBagError
+from ..errors import BagError, CorruptBagError, NonFiniteValueError
 from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors
 from .spec import OnError, VectorSource
+from .verify import nonfinite_rows
 
 T = TypeVar("T")
 Marker = tuple[int, str, dict[str, str], int]  # stamp, 'start' | 'end', key/values, message index
@@ -42,20 +48,44 @@ class Decoded:
     joint_stamps: np.ndarray | None = None
     sketches: list[tuple[int, np.ndarray]] = field(default_factory=list)
     markers: list[Marker] | None = None  # None: no episode topic
+    obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
+    nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
 
 
 def decode_bag(ctx: BagContext, topics: Topics, on_error: OnError) -> Decoded:
     """Decoded arrays of ``ctx.raw`` (see the module docstring for the corrupt-tail rule)."""
     errors: list[BagError] | None = [] if on_error == "skip_tail" else None
     decoded = _decode_all(ctx, topics, errors)
-    if not errors:
-        return decoded
-    first = min(errors, key=lambda e: e.stamp if e.stamp is not None else 0)
-    assert first.stamp is not None  # unstamped errors are raised by _guard
-    ctx.raw.truncate(first.stamp)
-    ctx.raw.corrupt = CorruptBagError(first.reason, path=ctx.path, topic=first.topic, index=first.index)
-    ctx.report.error = str(first)
-    return _decode_all(ctx, topics, None)
+    if errors:
+        first = min(errors, key=lambda e: e.stamp if e.stamp is not None else 0)
+        assert first.stamp is not None  # unstamped errors are raised by _guard
+        ctx.raw.truncate(first.stamp)
+        ctx.raw.corrupt = CorruptBagError(first.reason, path=ctx.path, topic=first.topic, index=first.index)
+        ctx.report.error = str(first)
+        decoded = _decode_all(ctx, topics, None)
+    decoded.nonfinite = _nonfinite(ctx, topics, decoded)
+    if decoded.nonfinite and on_error == "raise":
+        raise decoded.nonfinite[0][1]
+    return decoded
+
+
+def _nonfinite(ctx: BagContext, topics: Topics, dec: Decoded) -> list[tuple[int, NonFiniteValueError]]:
+    """Observation rows whose observation or action message holds NaN/inf, in row order."""
+    found: list[tuple[int, NonFiniteValueError]] = []
+    for row in nonfinite_rows(dec.obs):
+        index = int(row if dec.obs_order is None else dec.obs_order[row])
+        found.append((int(row), NonFiniteValueError(
+            "observation holds NaN or infinite values", path=ctx.path, topic=topics.obs, index=index,
+            stamp=int(dec.obs_stamps[row]))))
+    for k in nonfinite_rows(dec.act):
+        if dec.act_stamps is None:
+            row, index, stamp = int(k), int(k if dec.obs_order is None else dec.obs_order[k]), 0
+        else:
+            stamp = int(dec.act_stamps[k])
+            row, index = int(np.searchsorted(dec.obs_stamps, stamp, side="right")) - 1, int(k)
+        found.append((row, NonFiniteValueError("action holds NaN or infinite values", path=ctx.path,
+                                               topic=topics.act, index=index, stamp=stamp)))
+    return sorted(found, key=lambda item: item[0])
 
 
 def _guard(errors: list[BagError] | None, fn: Callable[[], T]) -> T | None:
@@ -73,7 +103,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
     out = Decoded()
     obs = _guard(errors, lambda: _observations(ctx, topics))
     if obs is not None:
-        out.obs, out.obs_stamps = obs[0], obs[1]
+        out.obs, out.obs_stamps, out.obs_order = obs[0], obs[1], obs[2]
     act = _guard(errors, lambda: _actions(ctx, topics, obs))  # decoded even after a bad observation
     if act is not None:
         out.act, out.act_stamps = act

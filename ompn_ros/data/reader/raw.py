@@ -32,6 +32,7 @@ class RawBag:
     types: dict[str, str]
     topics: dict[str, TopicData]
     corrupt: CorruptBagError | None = None
+    untrusted: str | None = None  # damage found that no scan could locate: no episode is trusted
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""

@@ -12,26 +12,74 @@ from ..errors import CorruptBagError
 from .assemble import bag_episodes
 from .context import BagContext
 from .decode import decode_bag
-from .paths import metadata_topic_types, resolve_bag_paths, wanted_topics
+from .paths import metadata_topic_types, resolve_bag_paths, storage_files, wanted_topics
 from .raw import RawBag, collect_rosbags
 from .report import BagReport, ReadReport, ReadResult
 from .salvage import salvage
 from .spec import OnError, ReaderSpec
+from .verify import mcap_bad_chunks, mcap_chunks_without_crc, sqlite_problem
 
 
 def read_raw(bag: Path, spec: ReaderSpec, on_error: OnError) -> RawBag:
-    """Raw messages of the topics ``spec`` may use; a corrupt storage raises or is salvaged."""
+    """Raw messages of the topics ``spec`` may use; a corrupt storage raises or is salvaged.
+
+    sqlite3 files pass ``PRAGMA quick_check`` first; with ``skip_tail`` a damaged one is scanned
+    row by row and cut where the scan breaks, and when it does not break (damage inside message
+    payloads) no episode of the bag is trusted.
+    """
     types = metadata_topic_types(bag)
     wanted = wanted_topics(spec, types) if types is not None else None
+    damage = _sqlite_damage(bag)
+    if damage is not None:
+        if on_error == "raise":
+            raise damage
+        raw = salvage(bag, wanted, damage)
+        if raw.corrupt is damage:
+            raw.untrusted = str(damage)
+        return raw
     try:
         raw = collect_rosbags(bag, wanted)
     except CorruptBagError as err:
         if on_error == "raise":
             raise
         raw = salvage(bag, wanted, err)
-    if raw.corrupt is not None and on_error == "raise":
-        raise raw.corrupt
+    if raw.corrupt is not None:
+        raw.corrupt = _locate_crc_failure(bag, raw.corrupt)
+        if on_error == "raise":
+            raise raw.corrupt
     return raw
+
+
+def _sqlite_damage(bag: Path) -> CorruptBagError | None:
+    for file in storage_files(bag):
+        if file.suffix == ".db3":
+            problem = sqlite_problem(file)
+            if problem is not None:
+                return CorruptBagError(f"sqlite database is malformed (PRAGMA quick_check: {problem})",
+                                       path=file)
+    return None
+
+
+def _locate_crc_failure(bag: Path, err: CorruptBagError) -> CorruptBagError:
+    """Name the mcap file and chunk behind a checksum failure reported by ``rosbags``."""
+    if "checksum" not in err.reason.lower():
+        return err
+    for file in storage_files(bag):
+        bad = mcap_bad_chunks(file) if file.suffix == ".mcap" else []
+        if bad:
+            number, first, last = bad[0]
+            return CorruptBagError(f"mcap chunk #{number} (messages stamped {first}..{last} ns) fails its "
+                                   f"CRC check ({err.reason})", path=file)
+    return err
+
+
+def _crc_note(bag: Path, report: BagReport) -> None:
+    for file in storage_files(bag):
+        if file.suffix == ".mcap":
+            chunks, zero = mcap_chunks_without_crc(file)
+            if zero:
+                report.notes.append(f"{file.name}: {zero} of {chunks} mcap chunks carry no CRC; their bytes "
+                                    "are not verified (decoded values are still checked finite)")
 
 
 def read_bag(bag: Path, spec: ReaderSpec, on_error: OnError, report: BagReport) -> list[Episode]:
@@ -39,6 +87,7 @@ def read_bag(bag: Path, spec: ReaderSpec, on_error: OnError, report: BagReport) 
     raw = read_raw(bag, spec, on_error)
     if raw.corrupt is not None:
         report.error = str(raw.corrupt)
+    _crc_note(bag, report)
     ctx = BagContext(raw, spec, report)
     topics = ctx.resolve_all()
     decoded = decode_bag(ctx, topics, on_error)
