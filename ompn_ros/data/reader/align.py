@@ -47,6 +47,18 @@ def attach(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarr
     return first
 
 
+def attach_events(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """Per observation, whether an event message attaches to it (same rule; repeats count once)."""
+    tol = round(ctx.spec.tolerance * 1e9)
+    idx = np.searchsorted(obs_stamps, stamps, side="right") - 1
+    ok = idx >= 0
+    ok[ok] = (stamps[ok] - obs_stamps[idx[ok]]) <= tol
+    ctx.report._add(ctx.report.unattached, topic, int((~ok).sum()))
+    flags = np.zeros(len(obs_stamps), dtype=bool)
+    flags[idx[ok]] = True
+    return flags
+
+
 @dataclass
 class Window:
     """Observations ``first_obs .. stop_obs - 1`` of one episode, with its markers' key/values."""
@@ -92,3 +104,11 @@ def windows_from_gaps(gap_s: float, obs_stamps: np.ndarray) -> list[Window]:
     cuts = np.flatnonzero(np.diff(obs_stamps) > gap) + 1
     bounds = np.concatenate([[0], cuts, [obs_stamps.size]])
     return [Window(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
+
+
+def windows_from_topic(split_stamps: np.ndarray, obs_stamps: np.ndarray) -> list[Window]:
+    """Every split-topic message starts an episode at the first observation stamped at or after it;
+    observations before the first message are not used."""
+    starts = np.unique(np.searchsorted(obs_stamps, np.sort(split_stamps), side="left"))
+    bounds = np.concatenate([starts, [obs_stamps.size]])
+    return [Window(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]

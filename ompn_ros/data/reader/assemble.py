@@ -1,8 +1,9 @@
 """Assemble the episodes of one decoded bag: windows, steps with actions, labels, extras, metadata.
 
 Within an episode the last observation without an action becomes row ``T`` (the final observation
-of the step contract).  If every observation has an action (foreign bags), the last observation is
-duplicated as row ``T`` and the report notes it.  Cost: O(N) over the bag's observations.
+of the step contract).  When every observation has an action (the observation after the last
+command was not recorded) ``ReaderSpec.final_observation`` decides.  Cost: O(N) over the bag's
+observations.
 """
 
 from __future__ import annotations
@@ -17,10 +18,14 @@ from ompn_ros import layout
 from .. import messages as m
 from ..episode import Episode
 from ..errors import AlignmentError
-from .align import Window, attach, windows_from_gaps, windows_from_markers
+from .align import Window, attach, attach_events, windows_from_gaps, windows_from_markers, windows_from_topic
 from .context import BagContext, Topics
 from .decode import Decoded
 from .joints import JointBlock
+from .labels import LabelSite, ordinals_from_events, ordinals_from_ids, ordinals_from_values
+
+DROPPED_LAST = "last step dropped (no final observation)"
+DUPLICATED_LAST = "last observation duplicated as row T"
 
 
 @dataclass
@@ -29,6 +34,7 @@ class Partners:
 
     act: np.ndarray
     sub: np.ndarray | None = None
+    events: np.ndarray | None = None  # boundary labels: the observation's step ends a subtask
     joints: np.ndarray | None = None
 
 
@@ -36,7 +42,7 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
     """The episodes of one bag (see the module docstrings for the rules)."""
     report = ctx.report
     partners = _attach_all(ctx, topics, dec)
-    windows = _windows(ctx, dec)
+    windows = _windows(ctx, topics, dec)
     used = sum(w.stop_obs - w.first_obs for w in windows)
     report._add(report.unattached, topics.obs, len(dec.obs_stamps) - used)
     episodes: list[Episode] = []
@@ -44,15 +50,16 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
     for w in windows:
         if not _trusted(ctx, dec, w):
             continue
-        steps = _steps(ctx, topics, dec, partners, w)
+        steps = _steps(ctx, topics, dec, partners, w, len(episodes))
         if steps is None:
             continue
-        episodes.append(_episode(ctx, topics, dec, partners, w, steps, prev_stop_stamp))
+        episodes.append(_episode(ctx, topics, dec, partners, w, steps, prev_stop_stamp, len(episodes)))
         prev_stop_stamp = int(dec.obs_stamps[w.stop_obs - 1])
         report.steps += len(steps)
     if report.final_duplicated:
         report.notes.append(f"every observation had an action in {report.final_duplicated} episode(s): "
                             "the last observation was duplicated as row T (s_{T+1} = s_T)")
+        report.guessed.append("row T = the last observation (final_observation: duplicate)")
     report.episodes = len(episodes)
     return episodes
 
@@ -76,26 +83,35 @@ def _attach_all(ctx: BagContext, topics: Topics, dec: Decoded) -> Partners:
         act = attach(ctx, topics.act, dec.obs_stamps, dec.act_stamps)
     out = Partners(act)
     if topics.sub and dec.sub_stamps is not None:
-        out.sub = attach(ctx, topics.sub, dec.obs_stamps, dec.sub_stamps)
+        if topics.labels == layout.LABELS_BOUNDARY:
+            out.events = attach_events(ctx, topics.sub, dec.obs_stamps, dec.sub_stamps)
+        else:
+            out.sub = attach(ctx, topics.sub, dec.obs_stamps, dec.sub_stamps)
     if topics.joints and dec.joint_stamps is not None:
         out.joints = attach(ctx, topics.joints, dec.obs_stamps, dec.joint_stamps)
     return out
 
 
-def _windows(ctx: BagContext, dec: Decoded) -> list[Window]:
-    if dec.markers:
+def _windows(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Window]:
+    split = ctx.spec.split
+    if split == "topic" and dec.split_stamps is not None:
+        ctx.report.split = "topic"
+        windows = windows_from_topic(dec.split_stamps, dec.obs_stamps)
+    elif split == "markers" or (split == "auto" and dec.markers):
         ctx.report.split = "markers"
-        return windows_from_markers(ctx, dec.markers, dec.obs_stamps)
-    ctx.report.split = "time_gap"
-    windows = windows_from_gaps(ctx.spec.time_gap, dec.obs_stamps)
+        return windows_from_markers(ctx, dec.markers or [], dec.obs_stamps)
+    else:
+        ctx.report.split = "time_gap"
+        windows = windows_from_gaps(ctx.spec.time_gap, dec.obs_stamps)
     if ctx.raw.corrupt is not None and windows:
         windows.pop()
-        ctx.report.drop_episode("precedes the corruption", "last time-gap episode dropped: it precedes "
-                                "the corruption")
+        ctx.report.drop_episode("precedes the corruption", f"last {ctx.report.split} episode dropped: it "
+                                "precedes the corruption")
     return windows
 
 
-def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window) -> np.ndarray | None:
+def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window,
+           number: int) -> np.ndarray | None:
     """Observation indices of the episode's action steps (``None``: the episode is dropped)."""
     report = ctx.report
     a, b = w.first_obs, w.stop_obs
@@ -103,11 +119,9 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
         report.drop_episode("no observations", f"episode at {w.start_stamp} ns has no observations; dropped")
         return None
     act = partners.act
-    if act[b - 1] >= 0:
-        steps = np.arange(a, b)
-        report.final_duplicated += 1
-    else:
-        steps = np.arange(a, b - 1)
+    steps = _final_observation(ctx, topics, dec, w, number) if act[b - 1] >= 0 else np.arange(a, b - 1)
+    if steps is None:
+        return None
     lacking = steps[act[steps] < 0]
     if lacking.size:
         report._add(report.missing, topics.act, lacking.size)
@@ -124,16 +138,36 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
     return steps
 
 
+def _final_observation(ctx: BagContext, topics: Topics, dec: Decoded, w: Window,
+                       number: int) -> np.ndarray | None:
+    """Steps of an episode whose last observation has an action (``ReaderSpec.final_observation``)."""
+    a, b = w.first_obs, w.stop_obs
+    report, how = ctx.report, ctx.spec.final_observation
+    if how == "duplicate":
+        report.final_duplicated += 1
+        report.adjusted.setdefault(DUPLICATED_LAST, []).append(number)
+        return np.arange(a, b)
+    if how == "drop_last_step":
+        report.adjusted.setdefault(DROPPED_LAST, []).append(number)
+        return np.arange(a, b - 1)
+    msg = (f"episode #{number} (observations #{a}..#{b - 1}) has no observation after its last action; "
+           "set final_observation: drop_last_step or duplicate")
+    if ctx.spec.strict:
+        raise AlignmentError(msg, path=ctx.path, topic=topics.obs, index=b - 1,
+                             stamp=int(dec.obs_stamps[b - 1]))
+    report.drop_episode("no final observation", msg)
+    return None
+
+
 def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window,
-             steps: np.ndarray, prev_stop_stamp: int) -> Episode:
-    final = w.stop_obs - 1
+             steps: np.ndarray, prev_stop_stamp: int, number: int) -> Episode:
+    final = w.stop_obs - 1  # row T: the observation after the last action (or its duplicate)
     rows = np.concatenate([steps, [final]])
     actions = dec.act[partners.act[steps]]
-    subtask = _subtask(ctx, topics, dec, partners, steps)
-    extras: dict[str, Any] = {}
-    if partners.joints is not None and dec.joints is not None:
-        extras = _joint_extras(ctx, topics.joints or "", partners.joints, dec.joints, steps, final)
     sketch = _episode_sketch(dec.sketches, w, int(dec.obs_stamps[w.first_obs]), prev_stop_stamp)
+    subtask, extras = _labels(ctx, topics, dec, partners, w, steps, sketch, number)
+    if partners.joints is not None and dec.joints is not None:
+        extras.update(_joint_extras(ctx, topics.joints or "", partners.joints, dec.joints, steps, final))
     task = w.start.get(layout.KEY_TASK, ctx.spec.task)
     seed = _int_or(w.start.get(layout.KEY_SEED), -1)
     success = w.end.get(layout.KEY_SUCCESS, "true").lower() == "true"
@@ -150,10 +184,14 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
     )
 
 
-def _subtask(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners,
-             steps: np.ndarray) -> np.ndarray | None:
+def _labels(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window, steps: np.ndarray,
+            sketch: np.ndarray | None, number: int) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """Ordinals of the steps (``ReaderSpec.labels``) and the extras keeping the user's ids."""
+    site = LabelSite(ctx.path, topics.sub or "", number, w.first_obs, w.stop_obs - 1)
+    if partners.events is not None:
+        return ordinals_from_events(partners.events[steps], site).ordinals, {}
     if partners.sub is None or dec.sub is None:
-        return None
+        return None, {}
     sidx = partners.sub[steps]
     n_missing = int((sidx < 0).sum())
     if n_missing:
@@ -162,7 +200,11 @@ def _subtask(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners,
             bad = int(steps[np.flatnonzero(sidx < 0)[0]])
             raise AlignmentError(f"observation #{bad} has no subtask partner", path=ctx.path,
                                  topic=topics.obs, index=bad, stamp=int(dec.obs_stamps[bad]))
-    return np.where(sidx >= 0, dec.sub[np.maximum(sidx, 0)], -1).astype(np.int64)
+    values = np.where(sidx >= 0, dec.sub[np.maximum(sidx, 0)], -1).astype(np.int64)
+    if topics.labels == layout.LABELS_ID:
+        labels = ordinals_from_ids(values)
+        return labels.ordinals, {"subtask_id": labels.ids}
+    return ordinals_from_values(values, None if sketch is None else len(sketch), site).ordinals, {}
 
 
 def _int_or(text: str | None, default: int) -> int:

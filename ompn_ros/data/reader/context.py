@@ -29,9 +29,11 @@ class Topics:
     sketch: str | None = None
     episode: str | None = None
     joints: str | None = None
+    split: str | None = None
+    labels: str = layout.LABELS_NONE  # the effective label kind ('none' when there is no topic)
 
     def used(self) -> list[str]:
-        names = (self.obs, self.act, self.sub, self.sketch, self.episode, self.joints)
+        names = (self.obs, self.act, self.sub, self.sketch, self.episode, self.joints, self.split)
         return sorted({t for t in names if t})
 
 
@@ -68,20 +70,34 @@ class BagContext:
         obs = self.resolve(spec.observation.topic, True)
         act = self.resolve(spec.action.topic, True)
         assert obs is not None and act is not None  # required=True raised otherwise
+        sub, labels = self._label_topic()
         topics = Topics(
             obs=obs, act=act,
             obs_type=self.check_type(obs, VECTOR_TYPES, spec.observation.type),
             act_type=self.check_type(act, ACTION_TYPES, spec.action.type),
-            sub=self.resolve(spec.subtask, False),
+            sub=sub, labels=labels,
             sketch=self.resolve(spec.sketch, False),
-            episode=self.resolve(spec.episode, False),
+            episode=self.resolve(spec.episode, spec.split == "markers"),
             joints=self.resolve(spec.joint_states, False),
+            split=self.resolve(spec.split_topic, True) if spec.split == "topic" else None,
         )
-        for topic, kind in ((topics.sub, layout.INT32), (topics.sketch, layout.INT32_ARRAY),
-                            (topics.episode, layout.DIAGNOSTIC_ARRAY), (topics.joints, layout.JOINT_STATE)):
+        for topic, kind in ((topics.sketch, layout.INT32_ARRAY), (topics.episode, layout.DIAGNOSTIC_ARRAY),
+                            (topics.joints, layout.JOINT_STATE)):
             if topic:
                 self.check_type(topic, (kind,), kind)
+        if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
+            self.check_type(sub, (layout.INT32,), layout.INT32)
         return topics
+
+    def _label_topic(self) -> tuple[str | None, str]:
+        """The subtask topic and the effective label kind (``labels: None`` = ordinal if present)."""
+        kind = self.spec.labels
+        if kind == layout.LABELS_NONE:
+            return None, layout.LABELS_NONE
+        topic = self.resolve(self.spec.subtask, kind is not None)
+        if topic is None:
+            return None, layout.LABELS_NONE
+        return topic, kind or layout.LABELS_ORDINAL
 
     def data(self, topic: str) -> tuple[np.ndarray, list[bytes]]:
         """Stamps (int64, sorted) and raw messages of ``topic``."""

@@ -48,6 +48,7 @@ class Decoded:
     joint_stamps: np.ndarray | None = None
     sketches: list[tuple[int, np.ndarray]] = field(default_factory=list)
     markers: list[Marker] | None = None  # None: no episode topic
+    split_stamps: np.ndarray | None = None  # messages of the split topic
     obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
     nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
 
@@ -109,8 +110,12 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         out.act, out.act_stamps = act
     if topics.sub:
         sub = topics.sub
-        out.sub_stamps, raws = ctx.data(sub)
-        out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=out.sub_stamps))
+        sub_stamps, raws = ctx.data(sub)
+        out.sub_stamps = sub_stamps
+        if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
+            out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
+    if topics.split:
+        out.split_stamps = ctx.data(topics.split)[0]
     if topics.joints:
         js = topics.joints
         stamps, raws = ctx.data(js)

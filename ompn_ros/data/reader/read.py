@@ -8,7 +8,7 @@ from pathlib import Path
 from rosbags.rosbag2 import Reader
 
 from ..episode import Episode
-from ..errors import CorruptBagError
+from ..errors import CorruptBagError, NoEpisodeError
 from .assemble import bag_episodes
 from .context import BagContext
 from .decode import decode_bag
@@ -93,7 +93,23 @@ def read_bag(bag: Path, spec: ReaderSpec, on_error: OnError, report: BagReport) 
     decoded = decode_bag(ctx, topics, on_error)
     for topic in topics.used():
         report.messages[topic] = len(raw.topics[topic].stamps) if topic in raw.topics else 0
-    return bag_episodes(ctx, topics, decoded)
+    episodes = bag_episodes(ctx, topics, decoded)
+    if not episodes and on_error == "raise":
+        raise NoEpisodeError(_no_episode_reason(report, topics.obs), path=bag)
+    return episodes
+
+
+def _no_episode_reason(report: BagReport, obs_topic: str) -> str:
+    """Why a bag gave no episode, in one line."""
+    parts = [f"{report.messages.get(obs_topic, 0)} observation(s) on '{obs_topic}'"]
+    if report.dropped:
+        parts.append(f"dropped episodes {report.dropped}")
+    for name in ("unattached", "missing"):
+        table = getattr(report, name)
+        if table:
+            parts.append(f"{name} {table}")
+    return ("no complete episode (" + "; ".join(parts) + "); check the reader spec's topics, "
+            "tolerance and split (on_error='skip_tail' returns no episode instead)")
 
 
 def read_episodes(

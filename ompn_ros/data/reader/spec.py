@@ -17,6 +17,11 @@ from ompn_ros import layout
 from ..errors import ReaderSpecError
 
 OnError = Literal["raise", "skip_tail"]
+LabelKind = Literal["ordinal", "id", "boundary", "none"]
+FinalObservation = Literal["drop_last_step", "duplicate", "require"]
+Split = Literal["auto", "markers", "gaps", "topic"]
+FINAL_OBSERVATION = ("drop_last_step", "duplicate", "require")
+SPLITS = ("auto", "markers", "gaps", "topic")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.JOINT_STATE)
 
@@ -66,6 +71,41 @@ class ReaderSpec:
         stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics;
             meant for foreign bags whose per-step topics are all JointState on one clock).
         task: task name for episodes without a start marker.
+        labels: what the ``subtask`` topic holds (YAML key ``labels``):
+
+            * ``ordinal``: an ``Int32`` per step, the 0-based subtask ordinal within the episode
+              (our sims).  Values must not decrease within an episode (nor reach the sketch
+              length); otherwise :class:`LabelError` names the episode and suggests ``id``.
+            * ``id``: an ``Int32`` per step holding a skill id (e.g. 17, 4, 4, 9).  Ordinals are
+              derived from changes, equal consecutive ids stay one subtask; the ids are kept in
+              ``Episode.extras['subtask_id']``.
+            * ``boundary``: an event topic of any type; a message marks the step it attaches to
+              (alignment rule) as the last step of a subtask.
+            * ``none``: no labels are read.
+            * ``None`` (default): ``ordinal`` when the topic is in the bag, no labels otherwise.
+
+            ``ordinal``, ``id`` and ``boundary`` require the topic (:class:`MissingTopicError`).
+            Metrics only ever see the ordinals (``Episode.subtask``).
+        final_observation: what to do with an episode whose last observation already has an
+            action, i.e. the observation after the last command was not recorded (YAML key
+            ``final_observation``):
+
+            * ``drop_last_step`` (default): the last observation becomes row ``T`` and its action
+              step is dropped.  Every remaining (observation, action) pair is one that really
+              happened, and the done step follows the last *recorded* action, so boundary timing
+              is kept.  One step per episode is lost.
+            * ``duplicate``: the last observation is repeated as row ``T`` (``s_{T+1} = s_T``).
+              This fabricates an observation; training on it shifts the done step and is known to
+              collapse boundary timing (validation F1@0 .94 -> .37 on Craft).
+            * ``require``: such an episode is an :class:`AlignmentError` (``strict``) or dropped.
+
+            The report lists the episodes each handling applied to (``BagReport.adjusted``).
+        split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
+            the ``episode`` topic, required), ``gaps`` (observations more than ``time_gap``
+            seconds apart), ``topic`` (every message on ``split_topic`` starts an episode at the
+            next observation; observations before the first one are not used) or ``auto``
+            (default: markers when the bag has any, else gaps).
+        split_topic: the topic for ``split: topic`` (any message type; only stamps are used).
     """
 
     observation: VectorSource = VectorSource(layout.OBSERVATION)
@@ -80,8 +120,13 @@ class ReaderSpec:
     strict: bool = False
     stamp: Literal["log", "header"] = "log"
     task: str = ""
+    labels: LabelKind | None = None
+    final_observation: FinalObservation = "drop_last_step"
+    split: Split = "auto"
+    split_topic: str | None = None
 
     def __post_init__(self) -> None:
+        self._check_choices()
         if self.observation.type not in VECTOR_TYPES:
             raise ReaderSpecError(f"observation type must be one of {VECTOR_TYPES}, "
                                   f"got '{self.observation.type}'")
@@ -90,6 +135,21 @@ class ReaderSpec:
                                   f"{self.tolerance})")
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
+
+    def _check_choices(self) -> None:
+        if self.labels is not None and self.labels not in layout.LABEL_KINDS:
+            raise ReaderSpecError(f"labels must be one of {layout.LABEL_KINDS}, got '{self.labels}'")
+        if self.final_observation not in FINAL_OBSERVATION:
+            raise ReaderSpecError(f"final_observation must be one of {FINAL_OBSERVATION}, "
+                                  f"got '{self.final_observation}'")
+        if self.split not in SPLITS:
+            raise ReaderSpecError(f"split must be one of {SPLITS}, got '{self.split}'")
+        if self.split == "topic" and not self.split_topic:
+            raise ReaderSpecError("split: topic needs split_topic (the topic whose messages start episodes)")
+        if self.split == "markers" and not self.episode:
+            raise ReaderSpecError("split: markers needs the episode topic (key 'episode')")
+        if self.labels in ("ordinal", "id", "boundary") and not self.subtask:
+            raise ReaderSpecError(f"labels: {self.labels} needs the subtask topic (key 'subtask')")
 
     @classmethod
     def for_domain(cls, domain: str | layout.DomainLayout) -> ReaderSpec:
