@@ -26,24 +26,42 @@ Alignment rule
 
 Episodes
 --------
-Episode start/end markers (``DiagnosticArray`` on the episode topic, keys in ``layout.py``) delimit
-the episodes when present; observations outside a start/end pair are not used (a recording started
-or stopped mid-episode) and an unfinished episode is dropped and reported.  Without markers,
-episodes are split where consecutive observations are more than ``time_gap`` seconds apart.
+``split`` (:class:`ReaderSpec`) chooses how episodes are delimited.  Episode start/end markers
+(``DiagnosticArray`` on the episode topic, keys in ``layout.py``) delimit them when present
+(``auto``) or required (``markers``); observations outside a start/end pair are not used (a
+recording started or stopped mid-episode) and an unfinished episode is dropped and reported.
+Otherwise (``gaps``) episodes are split where consecutive observations are more than ``time_gap``
+seconds apart, or (``topic``) at every message of ``split_topic``.
 
 Within an episode the last observation without an action becomes row ``T`` (the final observation
-of the step contract).  If every observation has an action (foreign bags), the last observation is
-duplicated as row ``T`` (the paper's ``s_{T+1} = s_T`` variant) and the report notes it.  The sketch
-is the sketch message of the episode (between its start marker and first observation, or, without
-markers, the latest one before the first observation), else the start marker's ``sketch`` key.
+of the step contract).  If every observation has an action (the observation after the last command
+was not recorded), ``final_observation`` decides: drop the last action step (default), duplicate
+the last observation (``s_{T+1} = s_T``) or refuse; the report lists the episodes concerned.  The
+sketch is the sketch message of the episode (between its start marker and first observation, or,
+without markers, the latest one before the first observation), else the start marker's ``sketch``
+key.
+
+Labels
+------
+``labels`` says what the subtask topic holds: per-step ordinals (ours), per-step skill ids (another
+lab's; ordinals follow from changes, the ids stay in ``Episode.extras['subtask_id']``), boundary
+events, or nothing.  ``Episode.subtask`` always holds ordinals.
+
+Verification
+------------
+sqlite3 files pass ``PRAGMA quick_check`` before reading; mcap chunks are checked against their
+CRC when the writer set one (the report notes chunks without); decoded observations and actions
+must be finite.  What fails is raised (``on_error='raise'``) naming the file or the bag, topic and
+message, or its episode is dropped and the reason recorded in the :class:`ReadReport`.
 
 Errors
 ------
-``on_error='raise'`` raises the first :class:`BagError`.  ``on_error='skip_tail'`` keeps the
-episodes completed before a corrupt tail (unreadable storage, undecodable or wrong-length
-message; the data from the first bad message on is discarded) and reports what was dropped.  A
-wrong message type, a missing required topic and (with ``strict``) a missing or duplicate partner
-always raise: they are not corruption.
+``on_error='raise'`` raises the first :class:`BagError`, including :class:`NoEpisodeError` for a
+bag that yields no complete episode.  ``on_error='skip_tail'`` keeps the episodes completed before
+a corrupt tail (unreadable storage, undecodable or wrong-length message; the data from the first
+bad message on is discarded), drops episodes holding non-finite values, and reports what was
+dropped.  A wrong message type, a missing required topic, labels that do not fit their kind and
+(with ``strict``) a missing or duplicate partner always raise: they are not corruption.
 
 Modules
 -------
@@ -56,17 +74,29 @@ from __future__ import annotations
 from .reader.paths import STORAGE_SUFFIXES, resolve_bag_paths, storage_files
 from .reader.read import iter_raw_messages, read_bag, read_episodes
 from .reader.report import BagReport, ReadReport, ReadResult
-from .reader.spec import ACTION_TYPES, VECTOR_TYPES, OnError, ReaderSpec, VectorSource
+from .reader.spec import (
+    ACTION_TYPES,
+    VECTOR_TYPES,
+    FinalObservation,
+    LabelKind,
+    OnError,
+    ReaderSpec,
+    Split,
+    VectorSource,
+)
 
 __all__ = [
     "ACTION_TYPES",
     "STORAGE_SUFFIXES",
     "VECTOR_TYPES",
     "BagReport",
+    "FinalObservation",
+    "LabelKind",
     "OnError",
     "ReadReport",
     "ReadResult",
     "ReaderSpec",
+    "Split",
     "VectorSource",
     "iter_raw_messages",
     "read_bag",
