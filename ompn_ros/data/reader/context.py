@@ -62,6 +62,7 @@ class BagContext:
         if required:
             raise MissingTopicError(f"required topic not in bag (bag topics: {sorted(self.raw.types)})",
                                     path=self.path, topic=topic)
+        self.report.notes.append(f"spec topic '{name}' ({topic}) is not in the bag: not used")
         return None
 
     def resolve_all(self) -> Topics:
