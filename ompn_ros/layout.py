@@ -64,6 +64,16 @@ KEY_SKETCH: Final = "sketch"  # comma-separated subtask ids
 KEY_STEPS: Final = "steps"  # end marker: number of real steps T
 KEY_SUCCESS: Final = "success"  # end marker: 'true' | 'false'
 
+# --- JointState fields a reader or node may take vectors from (in message order) -------------------
+JOINT_FIELDS: Final = ("position", "velocity", "effort")
+
+# --- what a subtask topic holds (bag reader ``labels``) -------------------------------------------
+LABELS_ORDINAL: Final = "ordinal"  # Int32 per step: 0-based subtask ordinal within the episode (ours)
+LABELS_ID: Final = "id"  # Int32 per step: a skill id; ordinals follow from changes between steps
+LABELS_BOUNDARY: Final = "boundary"  # an event topic: one message at the last step of each subtask
+LABELS_NONE: Final = "none"  # no labels are read
+LABEL_KINDS: Final = (LABELS_ORDINAL, LABELS_ID, LABELS_BOUNDARY, LABELS_NONE)
+
 # --- synthetic stamps used by ompn_collect (nanoseconds) ------------------------------------------
 STEP_NS: Final = 40_000_000  # 25 Hz
 TOPIC_OFFSET_NS: Final = 1_000  # spacing of the topics within one step

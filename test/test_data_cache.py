@@ -71,3 +71,18 @@ def test_cache_dir_from_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     with np.load(arrays.cache_path, allow_pickle=False) as data:  # no object arrays inside
         assert all(data[k].dtype != object for k in data.files)
     assert load_arrays(tmp_path / "bag").cache_hit
+
+
+def test_cache_keeps_the_users_subtask_ids(tmp_path: Path) -> None:
+    from ompn_ros.data.cache import EpisodeArrays
+
+    episodes = make_episodes("craft", 3, seed=4)
+    for i, ep in enumerate(episodes):
+        assert ep.subtask is not None
+        ep.extras["subtask_id"] = np.asarray([17, 4, 9])[ep.subtask] + i
+    arrays = EpisodeArrays.from_episodes(episodes)
+    arrays.save(tmp_path / "c.npz")
+    loaded = EpisodeArrays.load(tmp_path / "c.npz")
+    for a, b in zip(episodes, loaded.episodes()):
+        np.testing.assert_array_equal(a.extras["subtask_id"], b.extras["subtask_id"])
+        assert_same_episode(a, b)

@@ -10,6 +10,7 @@ import pytest
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
+from ompn_ros.data.errors import NoEpisodeError
 
 SPEC_FILE = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
 JOINTS = ["shoulder", "elbow", "wrist"]
@@ -61,12 +62,14 @@ def _write_foreign_bag(path: Path, rng: np.random.Generator, storage: str) -> di
     return truth
 
 
-@pytest.mark.parametrize(("storage", "stamp"), [("mcap", "header"), ("sqlite3", "log")])
-def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str) -> None:
+@pytest.mark.parametrize(("storage", "stamp", "final"), [("mcap", "header", "duplicate"),
+                                                         ("sqlite3", "log", "duplicate"),
+                                                         ("mcap", "log", "drop_last_step")])
+def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: str) -> None:
+    """No observation after the last command: duplicated as row T, or the last step dropped."""
     truth = _write_foreign_bag(tmp_path / "bag", np.random.default_rng(3), storage)
-    spec = ReaderSpec.from_yaml(SPEC_FILE)
-    if stamp == "log":
-        spec = ReaderSpec.from_dict({**spec.to_dict(), "stamp": "log"})
+    spec = ReaderSpec.from_dict({**ReaderSpec.from_yaml(SPEC_FILE).to_dict(), "stamp": stamp,
+                                 "final_observation": final})
     result = read_episodes(tmp_path / "bag", spec=spec)
     report = result.report.bags[0]
     assert report.split == "time_gap"
@@ -74,12 +77,18 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str) -> None:
     assert report.missing == {"/arm/joint_command": truth["dropped"]}
     assert report.duplicates == {"/arm/joint_command": truth["duplicates"]}
     assert report.dropped_steps == truth["dropped"]
-    assert report.final_duplicated == 3
-    assert any("s_{T+1} = s_T" in note for note in report.notes)
+    duplicate = final == "duplicate"
+    assert report.final_duplicated == (3 if duplicate else 0)
+    assert any("s_{T+1} = s_T" in note for note in report.notes) == duplicate
+    assert report.adjusted == {("last observation duplicated as row T" if duplicate
+                                else "last step dropped (no final observation)"): [0, 1, 2]}
     for want, got in zip(truth["episodes"], result.episodes):
-        np.testing.assert_allclose(got.observations, want["observations"].astype(np.float32))
-        np.testing.assert_allclose(got.actions, want["actions"].astype(np.float32))
-        np.testing.assert_array_equal(got.observations[-1], got.observations[-2])  # s_{T+1} = s_T
+        want_obs, want_act = want["observations"], want["actions"]
+        if not duplicate:  # the last recorded observation is row T, its action is dropped
+            want_obs, want_act = want_obs[:-1], want_act[:-1]
+        np.testing.assert_allclose(got.observations, want_obs.astype(np.float32))
+        np.testing.assert_allclose(got.actions, want_act.astype(np.float32))
+        assert np.array_equal(got.observations[-1], got.observations[-2]) == duplicate  # s_{T+1} = s_T
         assert got.subtask is None and got.sketch is None and got.task == "arm_demo"
     assert "missing" in result.report.summary()
 
@@ -87,11 +96,15 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str) -> None:
 def test_tight_tolerance_reports_unattached(tmp_path: Path) -> None:
     _write_foreign_bag(tmp_path / "bag", np.random.default_rng(4), "mcap")
     spec = ReaderSpec.from_dict({**ReaderSpec.from_yaml(SPEC_FILE).to_dict(), "tolerance": 0.005})
-    result = read_episodes(tmp_path / "bag", spec=spec)
+    with pytest.raises(NoEpisodeError) as info:
+        read_episodes(tmp_path / "bag", spec=spec)
+    assert str(tmp_path / "bag") in str(info.value) and "no complete episode" in str(info.value)
+    assert "'/arm/joint_command'" in str(info.value) and "no action" in str(info.value)
+    result = read_episodes(tmp_path / "bag", spec=spec, on_error="skip_tail")
     report = result.report.bags[0]
     n_cmd = report.messages["/arm/joint_command"]
     assert report.unattached["/arm/joint_command"] == n_cmd  # commands lag by 10 ms > 5 ms
-    assert result.episodes == [] and report.dropped_episodes == 3
+    assert result.episodes == [] and report.dropped_episodes == 3 and report.dropped == {"no action": 3}
 
 
 def test_action_from_the_observation_topic_with_reordered_stamps(tmp_path: Path) -> None:
@@ -117,10 +130,10 @@ def test_action_from_the_observation_topic_with_reordered_stamps(tmp_path: Path)
         "subtask": None, "sketch": None, "episode": None, "stamp": "header", "time_gap": 1.0,
     })
     result = read_episodes(tmp_path / "bag", spec=spec)
-    assert [e.length for e in result.episodes] == [10, 10]
+    assert [e.length for e in result.episodes] == [9, 9]  # final_observation: drop_last_step
     for i, ep in enumerate(result.episodes):
         rows = slice(10 * i, 10 * i + 10)
-        np.testing.assert_array_equal(ep.observations[:10], pos[rows].astype(np.float32))
-        np.testing.assert_array_equal(ep.observations[10], ep.observations[9])
-        np.testing.assert_array_equal(ep.actions, vel[rows].astype(np.float32))
-    assert result.report.bags[0].final_duplicated == 2
+        np.testing.assert_array_equal(ep.observations, pos[rows].astype(np.float32))
+        np.testing.assert_array_equal(ep.actions, vel[rows][:9].astype(np.float32))
+    assert result.report.bags[0].final_duplicated == 0
+    assert result.report.bags[0].adjusted == {"last step dropped (no final observation)": [0, 1]}

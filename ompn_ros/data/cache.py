@@ -24,9 +24,10 @@ import numpy as np
 from .bag_reader import OnError, ReaderSpec, read_episodes, resolve_bag_paths, storage_files
 from .episode import Episode
 
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2  # 2: per-step extras (the user's subtask ids)
 _CHUNK = 1 << 20
 _JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")
+_STEP_KEYS = ("subtask_id",)  # per-step extras [T] (labels: id)
 
 
 def default_cache_dir() -> Path:
@@ -42,8 +43,9 @@ class EpisodeArrays:
     Episode ``i`` has observations ``observations[obs_offsets[i]:obs_offsets[i+1]]`` (``T_i + 1``
     rows) and actions/subtask ``[act_offsets[i]:act_offsets[i+1]]`` (``T_i`` rows).  ``subtask`` is
     ``-1`` where an episode has no labels (``has_subtask[i]`` False); sketches are concatenated
-    with ``sketch_offsets`` (``has_sketch[i]`` False = no sketch).  ``extras`` holds joint arrays
-    aligned with the observations when every episode has them.
+    with ``sketch_offsets`` (``has_sketch[i]`` False = no sketch).  ``step_extras`` holds per-step
+    arrays aligned with the actions (``subtask_id``), ``extras`` joint arrays aligned with the
+    observations, each when every episode has them.
     """
 
     observations: np.ndarray
@@ -59,6 +61,7 @@ class EpisodeArrays:
     seeds: np.ndarray
     success: np.ndarray
     extras: dict[str, np.ndarray] = field(default_factory=dict)
+    step_extras: dict[str, np.ndarray] = field(default_factory=dict)
     report: str = ""  # ReadReport.summary() of the parse that built the arrays
     key: str = ""
     cache_hit: bool = False
@@ -73,6 +76,7 @@ class EpisodeArrays:
         a0, a1 = self.act_offsets[i], self.act_offsets[i + 1]
         s0, s1 = self.sketch_offsets[i], self.sketch_offsets[i + 1]
         extras: dict[str, Any] = {k: v[o0:o1] for k, v in self.extras.items()}
+        extras.update({k: v[a0:a1] for k, v in self.step_extras.items()})
         return Episode(
             observations=self.observations[o0:o1],
             actions=self.actions[a0:a1],
@@ -101,6 +105,9 @@ class EpisodeArrays:
         for key in _JOINT_KEYS:
             if all(key in e.extras and len(e.extras[key]) == len(e.observations) for e in episodes):
                 extras[key] = np.concatenate([np.asarray(e.extras[key]) for e in episodes])
+        step_extras = {key: np.concatenate([np.asarray(e.extras[key]) for e in episodes])
+                       for key in _STEP_KEYS
+                       if all(key in e.extras and len(e.extras[key]) == e.length for e in episodes)}
         return cls(
             observations=np.concatenate([e.observations for e in episodes]).astype(np.float32, copy=False),
             obs_offsets=obs_offsets.astype(np.int64),
@@ -116,6 +123,7 @@ class EpisodeArrays:
             seeds=np.asarray([e.seed for e in episodes], dtype=np.int64),
             success=np.asarray([e.success for e in episodes]),
             extras=extras,
+            step_extras=step_extras,
         )
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -123,6 +131,7 @@ class EpisodeArrays:
                  "sketch", "sketch_offsets", "has_sketch", "tasks", "seeds", "success")
         out = {n: getattr(self, n) for n in names}
         out.update({f"extras__{k}": v for k, v in self.extras.items()})
+        out.update({f"step_extras__{k}": v for k, v in self.step_extras.items()})
         out["format"] = np.asarray(CACHE_FORMAT)
         out["report"] = np.asarray(self.report, dtype=str)
         return out
@@ -149,9 +158,11 @@ class EpisodeArrays:
                                  f"expected {CACHE_FORMAT}")
             arrays = {k: data[k] for k in data.files}
         extras = {k[len("extras__"):]: arrays.pop(k) for k in list(arrays) if k.startswith("extras__")}
+        step = {k[len("step_extras__"):]: arrays.pop(k) for k in list(arrays)
+                if k.startswith("step_extras__")}
         arrays.pop("format")
         report = str(arrays.pop("report"))
-        return cls(**arrays, extras=extras, report=report, cache_path=path)
+        return cls(**arrays, extras=extras, step_extras=step, report=report, cache_path=path)
 
 
 def content_key(bags: Sequence[Path], spec: ReaderSpec, on_error: str) -> str:

@@ -48,6 +48,10 @@ class CorruptBagError(BagError):
     """The storage file cannot be read (truncated mcap, malformed sqlite database, bad CDR)."""
 
 
+class NonFiniteValueError(CorruptBagError):
+    """A decoded vector holds NaN or infinite values (damaged storage or a broken publisher)."""
+
+
 class UnknownTypeError(BagError):
     """A message type the reader cannot decode (not in the Jazzy typestore or unsupported)."""
 
@@ -66,6 +70,14 @@ class VectorLengthError(BagError):
 
 class AlignmentError(BagError):
     """Per-step messages do not line up with the observation clock (missing or duplicate partner)."""
+
+
+class LabelError(BagError):
+    """The subtask topic's values do not fit the label kind the reader spec names."""
+
+
+class NoEpisodeError(BagError):
+    """A bag holds no complete episode under the reader spec."""
 
 
 class ReaderSpecError(ValueError):

@@ -1,0 +1,128 @@
+"""One bag's resolved topics, its stamps and type checks, with errors naming the file."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ompn_ros import layout
+
+from .. import messages as m
+from ..bag_writer import resolve_topic
+from ..errors import MissingTopicError, TopicTypeError, UnknownTypeError
+from .raw import RawBag
+from .report import BagReport
+from .spec import ACTION_TYPES, VECTOR_TYPES, ReaderSpec
+
+
+@dataclass(frozen=True)
+class Topics:
+    """Bag topic names the spec resolved to (``None`` = not used)."""
+
+    obs: str
+    act: str
+    obs_type: str
+    act_type: str
+    sub: str | None = None
+    sketch: str | None = None
+    episode: str | None = None
+    joints: str | None = None
+    split: str | None = None
+    labels: str = layout.LABELS_NONE  # the effective label kind ('none' when there is no topic)
+
+    def used(self) -> list[str]:
+        names = (self.obs, self.act, self.sub, self.sketch, self.episode, self.joints, self.split)
+        return sorted({t for t in names if t})
+
+
+class BagContext:
+    """Resolved topics of one bag and helpers naming the file in errors."""
+
+    def __init__(self, raw: RawBag, spec: ReaderSpec, report: BagReport) -> None:
+        self.raw = raw
+        self.spec = spec
+        self.report = report
+        self.path = str(raw.path)
+
+    def resolve(self, name: str | None, required: bool) -> str | None:
+        """Bag topic of spec name ``name``; a unique ``/<name>`` suffix match is noted."""
+        if name is None:
+            return None
+        topic = resolve_topic(name, self.spec.namespace)
+        if topic in self.raw.types:
+            return topic
+        if not name.startswith("/"):
+            candidates = [t for t in self.raw.types if t.endswith("/" + name)]
+            if len(candidates) == 1:
+                self.report.notes.append(f"topic '{name}' resolved to '{candidates[0]}'")
+                self.report.guessed.append(f"topic '{name}' = '{candidates[0]}' (unique suffix match)")
+                return candidates[0]
+        if required:
+            raise MissingTopicError(f"required topic not in bag (bag topics: {sorted(self.raw.types)})",
+                                    path=self.path, topic=topic)
+        self.report.notes.append(f"spec topic '{name}' ({topic}) is not in the bag: not used")
+        return None
+
+    def resolve_all(self) -> Topics:
+        """Resolve and type-check every topic of the spec (raises on a missing required one)."""
+        spec = self.spec
+        obs = self.resolve(spec.observation.topic, True)
+        act = self.resolve(spec.action.topic, True)
+        assert obs is not None and act is not None  # required=True raised otherwise
+        sub, labels = self._label_topic()
+        topics = Topics(
+            obs=obs, act=act,
+            obs_type=self.check_type(obs, VECTOR_TYPES, spec.observation.type),
+            act_type=self.check_type(act, ACTION_TYPES, spec.action.type),
+            sub=sub, labels=labels,
+            sketch=self.resolve(spec.sketch, False),
+            episode=self.resolve(spec.episode, spec.split == "markers"),
+            joints=self.resolve(spec.joint_states, False),
+            split=self.resolve(spec.split_topic, True) if spec.split == "topic" else None,
+        )
+        for topic, kind in ((topics.sketch, layout.INT32_ARRAY), (topics.episode, layout.DIAGNOSTIC_ARRAY),
+                            (topics.joints, layout.JOINT_STATE)):
+            if topic:
+                self.check_type(topic, (kind,), kind)
+        if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
+            self.check_type(sub, (layout.INT32,), layout.INT32)
+        return topics
+
+    def _label_topic(self) -> tuple[str | None, str]:
+        """The subtask topic and the effective label kind (``labels: None`` = ordinal if present)."""
+        kind = self.spec.labels
+        if kind == layout.LABELS_NONE:
+            return None, layout.LABELS_NONE
+        topic = self.resolve(self.spec.subtask, kind is not None)
+        if topic is None:
+            return None, layout.LABELS_NONE
+        return topic, kind or layout.LABELS_ORDINAL
+
+    def data(self, topic: str) -> tuple[np.ndarray, list[bytes]]:
+        """Stamps (int64, sorted) and raw messages of ``topic``."""
+        tdata = self.raw.topics.get(topic)
+        if tdata is None:
+            return np.zeros(0, dtype=np.int64), []
+        stamps = np.asarray(tdata.stamps, dtype=np.int64)
+        if stamps.size > 1 and np.any(np.diff(stamps) < 0):
+            order = np.argsort(stamps, kind="stable")
+            stamps = stamps[order]
+            tdata.raws = [tdata.raws[i] for i in order]
+            tdata.stamps = stamps.tolist()
+        return stamps, tdata.raws
+
+    def check_type(self, topic: str, allowed: Sequence[str], expected: str | None) -> str:
+        """The topic's message type, after checking it is decodable and what the spec expects."""
+        msgtype = self.raw.types[topic]
+        if msgtype not in m.typestore().types:
+            raise UnknownTypeError(f"message type '{msgtype}' is not in the ROS 2 Jazzy typestore",
+                                   path=self.path, topic=topic, index=0)
+        if expected is not None and msgtype != expected:
+            raise TopicTypeError(f"carries '{msgtype}', the reader spec expects '{expected}'",
+                                 path=self.path, topic=topic, index=0)
+        if msgtype not in allowed:
+            raise TopicTypeError(f"carries '{msgtype}', expected one of {list(allowed)}",
+                                 path=self.path, topic=topic, index=0)
+        return msgtype

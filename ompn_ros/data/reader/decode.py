@@ -1,0 +1,199 @@
+"""Decode every used topic of one bag into arrays, isolating a corrupt tail in one bounded step.
+
+Decoding errors are properties of single messages (undecodable CDR, a vector whose length differs
+from the spec or from its topic's first message, a JointState lacking a named joint).  With
+``on_error='skip_tail'`` every topic is decoded and the first bad message *of each topic* noted;
+the bag is cut at the earliest of their stamps and decoded once more.  That second pass cannot
+fail: every message left precedes the first bad message of its own topic, and each topic's first
+message (the reference length) is kept or the topic is empty.  So a bag is decoded at most twice.
+
+Decoded observation and action vectors must be finite.  A NaN or infinite value (a damaged page or
+chunk, a broken publisher) raises :class:`NonFiniteValueError` naming bag, topic and message
+(``on_error='raise'``) or drops the episode holding that step (``'skip_tail'``), never reaching
+training silently.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TypeVar
+
+import numpy as np
+
+from ompn_ros import layout
+
+from .. import messages as m
+from ..errors import BagError, CorruptBagError, NonFiniteValueError
+from .context import BagContext, Topics
+from .joints import JointBlock, decode_joint_states, joint_vectors
+from .spec import OnError, VectorSource
+from .verify import nonfinite_rows
+
+T = TypeVar("T")
+Marker = tuple[int, str, dict[str, str], int]  # stamp, 'start' | 'end', key/values, message index
+
+
+@dataclass
+class Decoded:
+    """Arrays of one bag.  ``obs_stamps`` is the step clock (sorted)."""
+
+    obs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    obs_stamps: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    act: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    act_stamps: np.ndarray | None = None  # None: the action comes with each observation
+    sub: np.ndarray | None = None
+    sub_stamps: np.ndarray | None = None
+    joints: JointBlock | None = None
+    joint_stamps: np.ndarray | None = None
+    sketches: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    markers: list[Marker] | None = None  # None: no episode topic
+    split_stamps: np.ndarray | None = None  # messages of the split topic
+    obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
+    nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
+
+
+def decode_bag(ctx: BagContext, topics: Topics, on_error: OnError) -> Decoded:
+    """Decoded arrays of ``ctx.raw`` (see the module docstring for the corrupt-tail rule)."""
+    errors: list[BagError] | None = [] if on_error == "skip_tail" else None
+    decoded = _decode_all(ctx, topics, errors)
+    if errors:
+        first = min(errors, key=lambda e: e.stamp if e.stamp is not None else 0)
+        assert first.stamp is not None  # unstamped errors are raised by _guard
+        ctx.raw.truncate(first.stamp)
+        ctx.raw.corrupt = CorruptBagError(first.reason, path=ctx.path, topic=first.topic, index=first.index)
+        ctx.report.error = str(first)
+        decoded = _decode_all(ctx, topics, None)
+    decoded.nonfinite = _nonfinite(ctx, topics, decoded)
+    if decoded.nonfinite and on_error == "raise":
+        raise decoded.nonfinite[0][1]
+    return decoded
+
+
+def _nonfinite(ctx: BagContext, topics: Topics, dec: Decoded) -> list[tuple[int, NonFiniteValueError]]:
+    """Observation rows whose observation or action message holds NaN/inf, in row order."""
+    found: list[tuple[int, NonFiniteValueError]] = []
+    for row in nonfinite_rows(dec.obs):
+        index = int(row if dec.obs_order is None else dec.obs_order[row])
+        found.append((int(row), NonFiniteValueError(
+            "observation holds NaN or infinite values", path=ctx.path, topic=topics.obs, index=index,
+            stamp=int(dec.obs_stamps[row]))))
+    for k in nonfinite_rows(dec.act):
+        if dec.act_stamps is None:
+            row, index, stamp = int(k), int(k if dec.obs_order is None else dec.obs_order[k]), 0
+        else:
+            stamp = int(dec.act_stamps[k])
+            row, index = int(np.searchsorted(dec.obs_stamps, stamp, side="right")) - 1, int(k)
+        found.append((row, NonFiniteValueError("action holds NaN or infinite values", path=ctx.path,
+                                               topic=topics.act, index=index, stamp=stamp)))
+    return sorted(found, key=lambda item: item[0])
+
+
+def _guard(errors: list[BagError] | None, fn: Callable[[], T]) -> T | None:
+    """``fn()``; a stamped BagError is collected (skip_tail) instead of raised."""
+    try:
+        return fn()
+    except BagError as err:
+        if errors is None or err.stamp is None:
+            raise
+        errors.append(err)
+        return None
+
+
+def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) -> Decoded:
+    out = Decoded()
+    obs = _guard(errors, lambda: _observations(ctx, topics))
+    if obs is not None:
+        out.obs, out.obs_stamps, out.obs_order = obs[0], obs[1], obs[2]
+    act = _guard(errors, lambda: _actions(ctx, topics, obs))  # decoded even after a bad observation
+    if act is not None:
+        out.act, out.act_stamps = act
+    if topics.sub:
+        sub = topics.sub
+        sub_stamps, raws = ctx.data(sub)
+        out.sub_stamps = sub_stamps
+        if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
+            out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
+    if topics.split:
+        out.split_stamps = ctx.data(topics.split)[0]
+    if topics.joints:
+        js = topics.joints
+        stamps, raws = ctx.data(js)
+        out.joints = _guard(errors, lambda: decode_joint_states(ctx.path, js, stamps, raws))
+        if out.joints is not None:
+            out.joint_stamps = out.joints.header if ctx.spec.stamp == "header" else stamps
+    if topics.sketch:
+        stamps, raws = ctx.data(topics.sketch)
+        out.sketches = [(int(s), m.parse_int32_array(r)) for s, r in zip(stamps, raws)]
+    if topics.episode:
+        out.markers = _guard(errors, lambda: _markers(ctx, topics.episode or ""))
+    return out
+
+
+ObsParts = tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, JointBlock | None]
+
+
+def _observations(ctx: BagContext, topics: Topics) -> ObsParts:
+    """Observations sorted by their clock, the reorder applied (if any), log stamps, JointBlock."""
+    log_stamps, raws = ctx.data(topics.obs)
+    values, stamps, block = _vectors(ctx, topics.obs, topics.obs_type, ctx.spec.observation, log_stamps, raws)
+    order = None  # header stamps may order the steps differently from the bag
+    if stamps is not log_stamps and np.any(np.diff(stamps) < 0):
+        order = np.argsort(stamps, kind="stable")
+        values, stamps = values[order], stamps[order]
+    return values, stamps, order, log_stamps, block
+
+
+def _actions(ctx: BagContext, topics: Topics, obs: ObsParts | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Action values and their stamps (``None`` stamps: one action per observation, same topic)."""
+    spec = ctx.spec
+    if topics.act == topics.obs:  # e.g. JointState: observation = position, action = velocity
+        obs_order, obs_log, obs_block = _same_topic_parts(ctx, topics, obs)
+        if obs_block is not None:
+            values = joint_vectors(ctx.path, topics.act, spec.action, obs_log, obs_block)
+        else:
+            raws = ctx.data(topics.obs)[1]
+            values = _vectors(ctx, topics.act, topics.act_type, spec.action, obs_log, raws)[0]
+        return (values if obs_order is None else values[obs_order]), None
+    stamps, raws = ctx.data(topics.act)
+    if topics.act_type == layout.INT32:
+        return m.stack_int32(raws, path=ctx.path, topic=topics.act, stamps=stamps), stamps
+    values, act_stamps, _ = _vectors(ctx, topics.act, topics.act_type, spec.action, stamps, raws)
+    return values, act_stamps
+
+
+def _same_topic_parts(ctx: BagContext, topics: Topics,
+                      obs: ObsParts | None) -> tuple[np.ndarray | None, np.ndarray, JointBlock | None]:
+    """Observation reorder, log stamps and JointBlock; decoded afresh when the observations failed
+    (so a bad action field earlier than the bad observation is still found in the same pass)."""
+    if obs is not None:
+        return obs[2], obs[3], obs[4]
+    stamps, raws = ctx.data(topics.obs)
+    if topics.obs_type != layout.JOINT_STATE:
+        return None, stamps, None
+    return None, stamps, decode_joint_states(ctx.path, topics.obs, stamps, raws)
+
+
+def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamps: np.ndarray,
+             raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, JointBlock | None]:
+    """Decode a vector topic: values ``[N, D]``, the stamps to align with, the JointBlock (if any)."""
+    if msgtype == layout.FLOAT32_ARRAY:
+        values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
+        return values, stamps, None
+    block = decode_joint_states(ctx.path, topic, stamps, raws)
+    values = joint_vectors(ctx.path, topic, src, stamps, block)
+    return values, (block.header if ctx.spec.stamp == "header" else stamps), block
+
+
+def _markers(ctx: BagContext, topic: str) -> list[Marker]:
+    stamps, raws = ctx.data(topic)
+    markers: list[Marker] = []
+    for i, data in enumerate(raws):
+        try:
+            parsed = m.parse_marker(data)
+        except Exception as err:  # rosbags raises several types on bad CDR
+            raise CorruptBagError(f"cannot decode episode marker: {err}", path=ctx.path, topic=topic,
+                                  index=i, stamp=int(stamps[i])) from err
+        if parsed is not None:
+            markers.append((int(stamps[i]), parsed[0], parsed[1], i))
+    return markers

@@ -1,0 +1,119 @@
+"""JointState decoding: bulk when every message shares one layout, else message by message.
+
+Cost: O(N · J) per topic; the bulk path is one ``np.frombuffer`` over the joined messages.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ompn_ros import layout
+
+from .. import messages as m
+from ..errors import CorruptBagError, VectorLengthError
+from .spec import VectorSource
+
+
+@dataclass
+class JointBlock:
+    """Decoded JointState messages of one topic: header stamps, names and NaN-padded field arrays."""
+
+    header: np.ndarray  # int64 [N]
+    names: list[tuple[str, ...]]  # per message
+    arrays: dict[str, np.ndarray]  # field -> float64 [N, W] (W = width of the first message)
+    widths: dict[str, np.ndarray]  # field -> int [N] actual width per message
+
+    @property
+    def uniform_names(self) -> bool:
+        return all(n == self.names[0] for n in self.names)
+
+
+def decode_joint_states(path: str, topic: str, stamps: np.ndarray, raws: list[bytes]) -> JointBlock:
+    """Every JointState of a topic; an undecodable one raises :class:`CorruptBagError` at its index."""
+    fast = m.stack_joint_states(raws)
+    if fast is not None:
+        shared_names, shared_header, bulk = fast
+        n = len(raws)
+        return JointBlock(shared_header, [tuple(shared_names)] * n, bulk,
+                          {f: np.full(n, a.shape[1]) for f, a in bulk.items()})
+    header = np.zeros(len(raws), dtype=np.int64)
+    names_list: list[tuple[str, ...]] = []
+    rows: dict[str, list[np.ndarray]] = {f: [] for f in layout.JOINT_FIELDS}
+    for i, data in enumerate(raws):
+        try:
+            names, header[i], values = m.parse_joint_state(data)
+        except Exception as err:  # rosbags raises several types on bad CDR
+            raise CorruptBagError(f"cannot decode JointState: {err}", path=path, topic=topic,
+                                  index=i, stamp=int(stamps[i])) from err
+        names_list.append(tuple(names))
+        for f in layout.JOINT_FIELDS:
+            rows[f].append(values[f])
+    arrays: dict[str, np.ndarray] = {}
+    widths: dict[str, np.ndarray] = {}
+    for f in layout.JOINT_FIELDS:
+        w = len(rows[f][0]) if rows[f] else 0
+        arr = np.full((len(raws), w), np.nan)
+        widths[f] = np.asarray([len(r) for r in rows[f]], dtype=np.int64)
+        for i, r in enumerate(rows[f]):
+            if len(r) == w:
+                arr[i] = r
+        arrays[f] = arr
+    return JointBlock(header, names_list, arrays, widths)
+
+
+def joint_vectors(path: str, topic: str, src: VectorSource, stamps: np.ndarray,
+                  block: JointBlock) -> np.ndarray:
+    """Vectors ``[N, D]`` from the JointState fields of ``src`` (reordered by joint name if asked)."""
+    parts = []
+    for name in src.fields:
+        if src.joint_names is None:
+            parts.append(_field_as_is(path, topic, name, stamps, block))
+        else:
+            parts.append(_field_by_name(path, topic, name, src.joint_names, stamps, block))
+    n = len(stamps)
+    values = np.concatenate(parts, axis=1).astype(np.float32)
+    if src.dim is not None and values.shape[1] != src.dim:
+        raise VectorLengthError(f"vector has {values.shape[1]} elements, expected {src.dim}", path=path,
+                                topic=topic, index=0, stamp=int(stamps[0]) if n else None)
+    return values
+
+
+def _field_as_is(path: str, topic: str, name: str, stamps: np.ndarray, block: JointBlock) -> np.ndarray:
+    arr, widths = block.arrays[name], block.widths[name]
+    bad = np.flatnonzero(widths != arr.shape[1])
+    if bad.size:
+        i = int(bad[0])
+        raise VectorLengthError(f"JointState.{name} has {widths[i]} values, the topic's first "
+                                f"message {arr.shape[1]}", path=path, topic=topic, index=i,
+                                stamp=int(stamps[i]))
+    return arr
+
+
+def _field_by_name(path: str, topic: str, name: str, joint_names: tuple[str, ...], stamps: np.ndarray,
+                   block: JointBlock) -> np.ndarray:
+    arr, widths = block.arrays[name], block.widths[name]
+    n = len(stamps)
+    out = np.empty((n, len(joint_names)))
+    cache: dict[tuple[str, ...], np.ndarray] = {}
+    groups = [range(n)] if block.uniform_names else [[i] for i in range(n)]
+    for rows in groups:
+        i = rows[0]
+        key = block.names[i]
+        order = cache.get(key)
+        if order is None:
+            index = {nm: k for k, nm in enumerate(key)}
+            absent = [nm for nm in joint_names if nm not in index]
+            if absent:
+                raise VectorLengthError(f"JointState lacks joints {absent}", path=path,
+                                        topic=topic, index=i, stamp=int(stamps[i]))
+            order = cache[key] = np.asarray([index[nm] for nm in joint_names])
+        sel = np.asarray(rows)
+        bad = sel[widths[sel] != len(key)]
+        if bad.size:
+            j = int(bad[0])
+            raise VectorLengthError(f"JointState.{name} has {widths[j]} values for {len(key)} joint "
+                                    "names", path=path, topic=topic, index=j, stamp=int(stamps[j]))
+        out[sel] = arr[sel][:, order]
+    return out

@@ -1,0 +1,147 @@
+"""The entry points: read one bag, read many bags, iterate raw messages."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+from rosbags.rosbag2 import Reader
+
+from ..episode import Episode
+from ..errors import CorruptBagError, NoEpisodeError
+from .assemble import bag_episodes
+from .context import BagContext
+from .decode import decode_bag
+from .paths import metadata_topic_types, resolve_bag_paths, storage_files, wanted_topics
+from .raw import RawBag, collect_rosbags
+from .report import BagReport, ReadReport, ReadResult
+from .salvage import salvage
+from .spec import OnError, ReaderSpec
+from .verify import mcap_bad_chunks, mcap_chunks_without_crc, sqlite_problem
+
+
+def read_raw(bag: Path, spec: ReaderSpec, on_error: OnError) -> RawBag:
+    """Raw messages of the topics ``spec`` may use; a corrupt storage raises or is salvaged.
+
+    sqlite3 files pass ``PRAGMA quick_check`` first; with ``skip_tail`` a damaged one is scanned
+    row by row and cut where the scan breaks, and when it does not break (damage inside message
+    payloads) no episode of the bag is trusted.
+    """
+    types = metadata_topic_types(bag)
+    wanted = wanted_topics(spec, types) if types is not None else None
+    damage = _sqlite_damage(bag)
+    if damage is not None:
+        if on_error == "raise":
+            raise damage
+        raw = salvage(bag, wanted, damage)
+        if raw.corrupt is damage:
+            raw.untrusted = str(damage)
+        return raw
+    try:
+        raw = collect_rosbags(bag, wanted)
+    except CorruptBagError as err:
+        if on_error == "raise":
+            raise
+        raw = salvage(bag, wanted, err)
+    if raw.corrupt is not None:
+        raw.corrupt = _locate_crc_failure(bag, raw.corrupt)
+        if on_error == "raise":
+            raise raw.corrupt
+    return raw
+
+
+def _sqlite_damage(bag: Path) -> CorruptBagError | None:
+    for file in storage_files(bag):
+        if file.suffix == ".db3":
+            problem = sqlite_problem(file)
+            if problem is not None:
+                return CorruptBagError(f"sqlite database is malformed (PRAGMA quick_check: {problem})",
+                                       path=file)
+    return None
+
+
+def _locate_crc_failure(bag: Path, err: CorruptBagError) -> CorruptBagError:
+    """Name the mcap file and chunk behind a checksum failure reported by ``rosbags``."""
+    if "checksum" not in err.reason.lower():
+        return err
+    for file in storage_files(bag):
+        bad = mcap_bad_chunks(file) if file.suffix == ".mcap" else []
+        if bad:
+            number, first, last = bad[0]
+            return CorruptBagError(f"mcap chunk #{number} (messages stamped {first}..{last} ns) fails its "
+                                   f"CRC check ({err.reason})", path=file)
+    return err
+
+
+def _crc_note(bag: Path, report: BagReport) -> None:
+    for file in storage_files(bag):
+        if file.suffix == ".mcap":
+            chunks, zero = mcap_chunks_without_crc(file)
+            if zero:
+                report.notes.append(f"{file.name}: {zero} of {chunks} mcap chunks carry no CRC; their bytes "
+                                    "are not verified (decoded values are still checked finite)")
+
+
+def read_bag(bag: Path, spec: ReaderSpec, on_error: OnError, report: BagReport) -> list[Episode]:
+    """Read one bag (see :func:`read_episodes`); ``report`` is filled in."""
+    raw = read_raw(bag, spec, on_error)
+    if raw.corrupt is not None:
+        report.error = str(raw.corrupt)
+    _crc_note(bag, report)
+    ctx = BagContext(raw, spec, report)
+    topics = ctx.resolve_all()
+    decoded = decode_bag(ctx, topics, on_error)
+    for topic in topics.used():
+        report.messages[topic] = len(raw.topics[topic].stamps) if topic in raw.topics else 0
+    episodes = bag_episodes(ctx, topics, decoded)
+    if not episodes and on_error == "raise":
+        raise NoEpisodeError(_no_episode_reason(report, topics.obs), path=bag)
+    return episodes
+
+
+def _no_episode_reason(report: BagReport, obs_topic: str) -> str:
+    """Why a bag gave no episode, in one line."""
+    parts = [f"{report.messages.get(obs_topic, 0)} observation(s) on '{obs_topic}'"]
+    if report.dropped:
+        parts.append(f"dropped episodes {report.dropped}")
+    for name in ("unattached", "missing"):
+        table = getattr(report, name)
+        if table:
+            parts.append(f"{name} {table}")
+    return ("no complete episode (" + "; ".join(parts) + "); check the reader spec's topics, "
+            "tolerance and split (on_error='skip_tail' returns no episode instead)")
+
+
+def read_episodes(
+    paths: str | Path | Sequence[str | Path],
+    *,
+    spec: ReaderSpec | None = None,
+    on_error: OnError = "raise",
+) -> ReadResult:
+    """Read the episodes of one or more bags.
+
+    Args:
+        paths: a storage file, a bag directory, a directory of bags, a glob, or a sequence of them.
+        spec: topics/types/alignment; ``None`` = defaults (our topic names, types as in the bag).
+        on_error: ``'raise'`` or ``'skip_tail'`` (keep episodes before a corrupt tail, report it).
+
+    Returns:
+        ``ReadResult(episodes, report)``.
+    """
+    if on_error not in ("raise", "skip_tail"):
+        raise ValueError(f"on_error must be 'raise' or 'skip_tail', got '{on_error}'")
+    spec = spec or ReaderSpec()
+    report = ReadReport()
+    episodes: list[Episode] = []
+    for bag in resolve_bag_paths(paths):
+        bag_report = BagReport(str(bag))
+        report.bags.append(bag_report)
+        episodes.extend(read_bag(bag, spec, on_error, bag_report))
+    return ReadResult(episodes, report)
+
+
+def iter_raw_messages(bag: str | Path) -> Iterator[tuple[str, int, bytes]]:
+    """``(topic, stamp, raw)`` of every message (rosbags order); the baseline of the benchmark."""
+    with Reader(Path(bag)) as reader:
+        for conn, stamp, data in reader.messages():
+            yield conn.topic, stamp, data

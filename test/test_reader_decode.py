@@ -1,0 +1,61 @@
+"""The corrupt-tail cut: bad messages on several topics, the bag is cut once at the earliest."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from test_data_common import assert_same_episode, make_episodes
+
+from ompn_ros import layout
+from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data import messages as m
+from ompn_ros.data.bag_writer import EpisodeBagWriter
+from ompn_ros.layout import JOINT_FIELDS
+
+
+def _bag_with_bad_messages(path: Path, bad: dict[str, int]) -> list:
+    """Craft bag (4 episodes of 6 steps) whose message #bad[topic] of each named topic is broken."""
+    episodes = make_episodes("craft", 4, seed=11, min_steps=6, max_steps=6)
+    with EpisodeBagWriter(path, layout.CRAFT) as writer:
+        real = writer._write
+        counter: dict[str, int] = {}
+
+        def write(name: str, stamp: int, raw: bytes) -> None:
+            i = counter.get(name, 0)
+            counter[name] = i + 1
+            if bad.get(name) == i:
+                short = m.serialize(m.float32_array(np.zeros(100)))
+                raw = short if name == layout.OBSERVATION else b"\x00\x01"
+            real(name, stamp, raw)
+
+        writer._write = write  # type: ignore[method-assign]
+        for ep in episodes:
+            writer.write_episode(ep)
+    return episodes
+
+
+def test_cut_at_the_earliest_bad_message_of_any_topic(tmp_path: Path) -> None:
+    # observation #17 is in episode 2; action #8 (step 2 of episode 1) comes earlier in time
+    episodes = _bag_with_bad_messages(tmp_path / "bag", {layout.OBSERVATION: 17, layout.ACTION: 8})
+    result = read_episodes(tmp_path / "bag", spec=ReaderSpec.for_domain("craft"), on_error="skip_tail")
+    assert len(result.episodes) == 1
+    assert_same_episode(episodes[0], result.episodes[0])
+    report = result.report.bags[0]
+    assert report.error is not None and "'/action'" in report.error and "message #8" in report.error
+    assert report.dropped_episodes == 1  # episode 1 lost its end marker with the tail
+
+
+def test_later_bad_message_alone_keeps_more(tmp_path: Path) -> None:
+    episodes = _bag_with_bad_messages(tmp_path / "bag", {layout.ACTION: 20})  # step 2 of episode 3
+    result = read_episodes(tmp_path / "bag", spec=ReaderSpec.for_domain("craft"), on_error="skip_tail")
+    assert len(result.episodes) == 3
+    for a, b in zip(episodes, result.episodes):
+        assert_same_episode(a, b)
+
+
+def test_joint_fields_have_one_definition() -> None:
+    from ompn_ros.data.reader import joints, spec
+
+    assert JOINT_FIELDS == ("position", "velocity", "effort")
+    assert not hasattr(spec, "JOINT_FIELDS") and not hasattr(joints, "JOINT_FIELDS")
