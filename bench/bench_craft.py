@@ -1,4 +1,4 @@
-"""Craft benchmark: env steps/s, expert episodes/s, and 3×500 demos vs the authors' 16.3 s (spec §7.2).
+"""Craft benchmark: env steps/s, expert episodes/s, 3×500 demos vs the authors' 16.3 s (docs/craft.md §7.2).
 
 Run: ``.venv/bin/python bench/bench_craft.py`` (``--quick`` for a short run).
 """

@@ -3,7 +3,7 @@
 One iteration = collate 256 whole episodes (1075 features, ~24 steps + done) + teacher-forced
 forward + loss + backward + clip + Adam step, i.e. :func:`ompn_ros.train.trainer.train_step` with
 the Craft paper model (n = 3, m = 128).  Frames = valid rows including the done step.  The authors'
-code measured ~3 000 frames/s (1.97 s/iteration) on this machine with 2 threads (spec craft §7.3).
+code measured ~3 000 frames/s (1.97 s/iteration) on this machine with 2 threads (docs/craft.md §7.3).
 
 Run: ``.venv/bin/python bench/bench_train.py [--quick]``.
 """

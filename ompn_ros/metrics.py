@@ -40,7 +40,7 @@ def _as_index_array(values: Sequence[int] | np.ndarray, name: str) -> np.ndarray
 
 
 def f1_with_tolerance(pred: Sequence[int] | np.ndarray, gt: Sequence[int] | np.ndarray, tol: int) -> F1Result:
-    """F1 of predicted vs ground-truth boundaries for one episode (spec craft §5.4).
+    """F1 of predicted vs ground-truth boundaries for one episode (docs/craft.md §5.4).
 
     ``precision = #{p ∈ pred : ∃ g ∈ gt, |p − g| ≤ tol} / #pred`` and
     ``recall = #{g ∈ gt : ∃ p ∈ pred, |g − p| ≤ tol} / #gt``; ``F1 = 2PR / (P + R)`` or 0 if
@@ -91,7 +91,7 @@ def labels_from_boundaries(
 
     Steps ``(b_{i−1}, b_i]`` (``b_0 = −1``) get label ``i − 1``.  Steps after the last boundary:
 
-    * ``variant='authors'`` (Craft ``get_subtask_seq``, spec craft §5.5): they keep the default
+    * ``variant='authors'`` (Craft ``get_subtask_seq``, docs/craft.md §5.5): they keep the default
       label **0**, which is a valid subtask id, so they can be accidentally "correct".
     * ``variant='strict'`` (what ompn_dial's ``get_subtask_seq`` does by filling with the last sketch
       token): they belong to the episode's final subtask, label ``num_subtasks − 1``.
@@ -140,8 +140,8 @@ def alignment_accuracy(
 ) -> float:
     """Alignment accuracy (paper Appendix D.2), **micro-averaged over steps** of all episodes.
 
-    ``Σ_episodes #{t : decoded_t == gt_t} / Σ_episodes T`` (a length-weighted mean, spec craft
-    §5.5, dial §4.6).  For ``variant='strict'`` the number of subtasks of each episode is taken as
+    ``Σ_episodes #{t : decoded_t == gt_t} / Σ_episodes T`` (a length-weighted mean, docs/craft.md
+    §5.5, docs/dial.md §4.6).  For ``variant='strict'`` the number of subtasks of each episode is taken as
     ``max(gt_labels) + 1`` (the K the user gives the detector).
     """
     if len(pred_boundaries) != len(gt_labels):

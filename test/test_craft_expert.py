@@ -1,4 +1,4 @@
-"""Expert bot: the quirky BFS, seeded determinism, and demo statistics (spec craft.md §2)."""
+"""Expert bot: the quirky BFS, seeded determinism, and demo statistics (docs/craft.md §2)."""
 
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ def test_full_obs_bot_statistics(task):
     for ep in eps:
         check_episode(ep, task)
     mean = np.mean([ep.length for ep in eps])
-    assert 21.0 <= mean <= 26.5, mean  # spec §2.5: 23.5-23.8 on 500 episodes (SE of 100 ≈ 0.7)
+    assert 21.0 <= mean <= 26.5, mean  # docs/craft.md §2.5: 23.5-23.8 on 500 episodes (SE of 100 ≈ 0.7)
     assert np.mean([ep.extras["attempts"] for ep in eps]) < 1.05  # ~0.2 % rejected
 
 
@@ -80,7 +80,7 @@ def test_partial_obs_bot_statistics(task):
         check_episode(ep, task)
         assert ep.observations[:, 525:1050].sum() == 0
     mean = np.mean([ep.length for ep in eps])
-    assert 31.0 <= mean <= 41.0, mean  # spec §2.5: 34.8-36.5
+    assert 31.0 <= mean <= 41.0, mean  # docs/craft.md §2.5: 34.8-36.5
     first = np.mean([np.sum(ep.subtask == 0) for ep in eps])
     assert first > 9.0  # the first subtask carries the exploration (spec: 12.8-13.8)
 

@@ -8,13 +8,13 @@ indices; a boundary ``b`` means "step ``b`` is the last step of a subtask".
 Two ways of summarising ``p_hat`` into one score per step are offered (higher = the memory expands
 from a higher level = more likely a boundary):
 
-* ``weighting='code'`` (authors' code, spec craft §5.2–5.3, dial §4.5): ``a_t = Σ_k w_k p̂_t[k]``
+* ``weighting='code'`` (authors' code, docs/craft.md §5.2–5.3, docs/dial.md §4.5): ``a_t = Σ_k w_k p̂_t[k]``
   with ``w = [n, n−1, …, 0]``, so ``π_end`` weighs ``n`` and the bottom slot ``0``.
 * ``weighting='paper'`` (paper §3.3): ``π_avg = Σ_{i=1..n} i·π_i`` over the *normalised* slot
   distribution ``π = p̂[slots] / (1 − π_end)``, lowest slot ``i = 1``; ``π_end`` is ignored.
 
 In both, step 0 is forced to "expand at the bottom" by default (the code does this because the
-first step hard-codes an expansion from the top slot, spec craft §3.6).
+first step hard-codes an expansion from the top slot, docs/craft.md §3.6).
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def depth_scores(
     """Per-step expected expansion height, higher = higher expansion (``[T]`` float64).
 
     ``weighting='code'``: ``a_t = Σ_k (n − k) p̂_t[k]`` (π_end → n, top slot → n−1, bottom → 0).
-    This is ``n − depth_t`` with the Top-K "depth" of spec craft §5.2, so the K largest scores are the
+    This is ``n − depth_t`` with the Top-K "depth" of docs/craft.md §5.2, so the K largest scores are the
     K smallest depths.  ``weighting='paper'``: ``π_avg = Σ_{i=1..n} i·π_i`` (paper §3.3).
     With ``force_first_bottom`` step 0 gets the bottom-slot value (code: 0, paper: 1).
     """
@@ -109,7 +109,7 @@ def top_k_boundaries(
     weighting: Weighting = "code",
     exclude_first: bool = True,
 ) -> np.ndarray:
-    """Top-K detection (spec craft §5.2): the ``k`` steps with the highest score, sorted by time.
+    """Top-K detection (docs/craft.md §5.2): the ``k`` steps with the highest score, sorted by time.
 
     Ties are broken towards the earlier step (deterministic; the code's ``torch.topk`` leaves them
     implementation-defined).  With ``exclude_first`` step 0 can never be chosen (in the code step 0
@@ -182,7 +182,7 @@ def standardise(scores: np.ndarray, mode: Standardisation = "code") -> np.ndarra
     """Scale scores for thresholding.
 
     ``mode='code'`` reproduces the authors' code: ``a / (max − min)`` **without subtracting the
-    min** (spec craft §5.3, dial §4.5 (b)); with step 0 forced to the bottom the min is 0 under the
+    min** (docs/craft.md §5.3, docs/dial.md §4.5 (b)); with step 0 forced to the bottom the min is 0 under the
     code weighting, so this equals ``a / max``.  ``mode='minmax'`` is the strict ``(a − min) / (max −
     min)`` of the paper's wording ("standardize from 0 to 1").  A constant curve (max == min) maps to
     all zeros in both modes, so no step is above any threshold ≥ 0.
@@ -225,7 +225,7 @@ def threshold_boundaries(
     weighting: Weighting = "code",
     standardisation: Standardisation = "code",
 ) -> np.ndarray:
-    """Threshold detection (paper §3.3 and Algorithm 1; spec dial §4.5 steps 1–4)."""
+    """Threshold detection (paper §3.3 and Algorithm 1; docs/dial.md §4.5 steps 1–4)."""
     std = standardise(depth_scores(p_hat, weighting), standardisation)
     return boundaries_from_threshold(std, threshold, k)
 
