@@ -12,7 +12,7 @@ export ROS_DOMAIN_ID
 export PYTHONDONTWRITEBYTECODE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: setup demo test test-slow lint colcon bench doctor reproduce-craft reproduce-dial clean
+.PHONY: setup demo test test-fast test-slow lint colcon bench doctor reproduce-craft reproduce-dial clean
 
 setup: $(STAMP)
 
@@ -33,6 +33,9 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest test -m "not slow" -q -p no:cacheprovider
+
+test-fast: setup
+	$(PY) -m pytest test -m "not slow and not ros and not integration" -q -p no:cacheprovider
 
 test-slow: setup
 	$(PY) -m pytest test -m slow -q -p no:cacheprovider

@@ -51,3 +51,30 @@ def synthetic_checkpoint(tmp_path_factory: pytest.TempPathFactory):
                                         lr=3e-3, progress=False)
         trainer.train(synthetic.make_dataset("discrete", 64, seed=0), cfg, train_cfg)
     return path / "best"
+
+
+# --- test categories ------------------------------------------------------------------------------
+# `ros`: starts rclpy (a DDS participant, often a second process); `integration`: builds, trains or
+# runs other programs. The rest is the fast core: `make test-fast` runs it in well under a minute.
+_INTEGRATION_HINTS = ("subprocess", "synthetic_checkpoint", "trainer.train", "torchrun", "colcon")
+
+
+def _categories(path: str) -> set[str]:
+    with open(path, encoding="utf-8") as handle:
+        source = handle.read()
+    found = set()
+    if "rclpy" in source or "ros_env" in source:
+        found.add("ros")
+    if any(hint in source for hint in _INTEGRATION_HINTS):
+        found.add("integration")
+    return found
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    cache: dict[str, set[str]] = {}
+    for item in items:
+        path = str(item.path)
+        if path not in cache:
+            cache[path] = _categories(path)
+        for name in sorted(cache[path]):
+            item.add_marker(getattr(pytest.mark, name))
