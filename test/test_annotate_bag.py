@@ -16,7 +16,7 @@ mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")
 from rosbags.highlevel import AnyReader  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
-from ompn_ros.data.annotate import AnnotateError, annotate_bag  # noqa: E402
+from ompn_ros.data.annotate import AnnotateError, annotate_bag, match_observation_stamps  # noqa: E402
 from ompn_ros.data.bag_reader import read_episodes  # noqa: E402
 from ompn_ros.data.bag_writer import write_episodes  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
@@ -178,11 +178,10 @@ def test_sqlite3_input(tmp_path: Path) -> None:
     write_episodes(bag, synthetic.make_dataset("discrete", 2, seed=4), DOMAIN, storage="sqlite3")
     episodes = read_episodes(bag).episodes
     stamps = _observation_stamps(bag, [e.length for e in episodes])
+    matched = match_observation_stamps(bag, episodes)  # what ompn_segment has: episodes, no stamps
+    assert [x.tolist() for x in matched] == [x.tolist() for x in stamps]
     seg = _segmenter(episodes[0].observations.shape[1], 0.3)
-    outputs = []
-    for ep, st in zip(episodes, stamps):
-        seg.forget_stamps()
-        outputs.append((st[: ep.length], replay_episode(seg, ep, stamps_ns=st)))
+    outputs = [(st, replay_episode(seg, ep)) for ep, st in zip(episodes, matched)]
     report = annotate_bag(bag, tmp_path / "out", outputs)
     got = _mcap_messages(tmp_path / "out")
     with AnyReader([bag]) as reader:
@@ -229,3 +228,32 @@ def test_refuses_a_bag_that_already_has_the_topics(annotated, recorded, tmp_path
         annotate_bag(out, tmp_path / "twice", list(zip(stamps, results)))
     report = annotate_bag(out, tmp_path / "twice", list(zip(stamps, results)), namespace="/ompn_b")
     assert report.added["/ompn_b/pi"] == report.steps
+
+
+def test_match_observation_stamps(recorded) -> None:
+    _, bag, episodes, stamps, _ = recorded
+    matched = match_observation_stamps(bag, episodes, topic="/observation")
+    assert [x.tolist() for x in matched] == [x.tolist() for x in stamps]
+    # a final row that is not the bag's next observation (e.g. a reader that duplicated another
+    # observation as row T): T stamps for that episode, the next episode still lines up
+    ep = episodes[1]
+    assert not np.array_equal(ep.observations[0], ep.observations[-1])
+    dup = dataclasses.replace(ep, observations=np.concatenate([ep.observations[:-1], ep.observations[:1]]))
+    matched = match_observation_stamps(bag, [episodes[0], dup, episodes[2]])
+    assert matched[1].tolist() == stamps[1][:-1].tolist() and matched[2].tolist() == stamps[2].tolist()
+    # a subset of the episodes (the others dropped by the reader) still lines up
+    assert match_observation_stamps(bag, [episodes[2]])[0].tolist() == stamps[2].tolist()
+
+
+def test_match_observation_stamps_refuses(recorded) -> None:
+    _, bag, episodes, *_ = recorded
+    wrong = dataclasses.replace(episodes[0], observations=episodes[0].observations + 0.5)
+    with pytest.raises(AnnotateError, match=r"episode #1: observation of step 0 not found"):
+        match_observation_stamps(bag, [episodes[0], wrong])
+    with pytest.raises(AnnotateError, match=r"topic '/subtask'.*not Float32MultiArray"):
+        match_observation_stamps(bag, episodes, topic="subtask")
+    with pytest.raises(AnnotateError, match=r"topic '/robot/obs'.*not in the bag"):
+        match_observation_stamps(bag, episodes, topic="obs", namespace="/robot")
+    # episodes out of bag order cannot be matched forward
+    with pytest.raises(AnnotateError, match=r"episode #1: observation of step \d+ not found"):
+        match_observation_stamps(bag, [episodes[2], episodes[0]])

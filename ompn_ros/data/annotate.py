@@ -20,7 +20,8 @@ one :func:`ompn_ros.segmenter.replay_episode` computes, i.e. the very segmenter 
 Stamps.  Each episode needs the bag log stamps of its observations (``T`` real steps, optionally the
 final observation ``T`` too, used when a boundary was committed on the done step).  Pass them as an
 int64 array, or pass the :class:`~ompn_ros.data.episode.Episode` when its reader stored them in
-``extras[STAMPS_KEY]``.
+``extras[STAMPS_KEY]``.  :func:`match_observation_stamps` recovers them from the bag for episodes
+read from a ``Float32MultiArray`` observation topic.
 
 Complexity: one pass over the input (``O(M)`` messages, each copied once) merged with the
 ``O(ΣT)`` annotations; memory ``O(ΣT)`` for the annotations only.
@@ -28,8 +29,10 @@ Complexity: one pass over the input (``O(M)`` messages, each copied once) merged
 
 from __future__ import annotations
 
+import hashlib
 import heapq
 import shutil
+from bisect import bisect_right
 from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -201,6 +204,78 @@ def output_topics(namespace: str) -> tuple[dict[str, str], str]:
     topics = {key: resolve_topic(name.removeprefix("~/"), ns)
               for key, name in (("pi", layout.PI), ("segment", SEGMENT), ("boundary", layout.BOUNDARY))}
     return topics, f"{node}/{BOUNDARY_STATUS_SUFFIX}"
+
+
+def match_observation_stamps(src: str | Path, episodes: Sequence[Episode], *,
+                             topic: str = layout.OBSERVATION, namespace: str = "/") -> list[np.ndarray]:
+    """Log stamps of the observations of ``episodes`` (read from bag ``src``, in bag order).
+
+    Every observation message of ``topic`` is fingerprinted (BLAKE2b of its float32 data); each
+    episode row ``t < T`` is matched to the first message after the previous match with the same
+    data (exact equality), and the final row ``T`` to the message right after row ``T - 1`` when
+    its data equals it (else the episode gets ``T`` stamps: a reader that duplicated the last
+    observation).  O(N·D + ΣT·log N) time, O(N) memory.  An observation skipped by the reader
+    that equals the next kept one takes its place (same data, earlier stamp).
+
+    Raises:
+        AnnotateError: the topic is missing or not ``Float32MultiArray`` (observations assembled
+            from other messages: pass their stamps explicitly), or a row is not found.
+    """
+    path = Path(src)
+    reader = _open_reader(path)
+    try:
+        name = resolve_topic(topic, namespace)
+        conns = [c for c in reader.connections if c.topic == name]
+        if not conns and not topic.startswith("/"):
+            found = sorted({c.topic for c in reader.connections if c.topic.endswith("/" + topic)})
+            conns = [c for c in reader.connections if len(found) == 1 and c.topic == found[0]]
+        if not conns:
+            raise AnnotateError("observation topic not in the bag", path=path, topic=name)
+        if any(c.msgtype != layout.FLOAT32_ARRAY for c in conns):
+            raise AnnotateError(f"observations are '{conns[0].msgtype}', not Float32MultiArray: pass "
+                                "their stamps explicitly", path=path, topic=conns[0].topic)
+        stamps, keys = _fingerprints(reader, conns, path)
+    finally:
+        reader.close()
+    positions: dict[bytes, list[int]] = {}
+    for i, key in enumerate(keys):
+        positions.setdefault(key, []).append(i)
+    out = []
+    cursor = -1
+    for number, episode in enumerate(episodes):
+        rows = [_fingerprint(row) for row in np.asarray(episode.observations, dtype=np.float32)]
+        found_rows = []
+        for t, key in enumerate(rows[:-1]):
+            candidates = positions.get(key, [])
+            j = bisect_right(candidates, cursor)
+            if j == len(candidates):
+                raise AnnotateError(f"episode #{number}: observation of step {t} not found after the "
+                                    "previous step's", path=path, topic=conns[0].topic)
+            cursor = candidates[j]
+            found_rows.append(cursor)
+        if cursor + 1 < len(keys) and keys[cursor + 1] == rows[-1] and found_rows:
+            cursor += 1
+            found_rows.append(cursor)
+        out.append(stamps[np.asarray(found_rows, dtype=np.int64)])
+    return out
+
+
+def _fingerprint(values: np.ndarray) -> bytes:
+    return hashlib.blake2b(np.ascontiguousarray(values, dtype="<f4").tobytes(), digest_size=16).digest()
+
+
+def _fingerprints(reader: Any, conns: list[Any], path: Path) -> tuple[np.ndarray, list[bytes]]:
+    """Log stamps (int64, bag order) and data fingerprints of the messages of ``conns``."""
+    stamps: list[int] = []
+    keys: list[bytes] = []
+    try:
+        for _, stamp, data in reader.messages(connections=conns):
+            keys.append(_fingerprint(m.parse_float32_array(data)))
+            stamps.append(int(stamp))
+    except Exception as err:
+        raise AnnotateError(f"cannot read observation #{len(stamps)}: {type(err).__name__} {err}",
+                            path=path, topic=conns[0].topic) from err
+    return np.asarray(stamps, dtype=np.int64), keys
 
 
 # --- bag copy -------------------------------------------------------------------------------------
@@ -375,6 +450,7 @@ __all__ = [
     "boundary_message",
     "episode_messages",
     "episode_stamps",
+    "match_observation_stamps",
     "output_topics",
     "pi_rows",
     "segment_labels",
