@@ -16,7 +16,13 @@ mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")
 from rosbags.highlevel import AnyReader  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
-from ompn_ros.data.annotate import AnnotateError, annotate_bag, match_observation_stamps  # noqa: E402
+from ompn_ros.data.annotate import (  # noqa: E402
+    STAMPS_KEY,
+    AnnotateError,
+    annotate_bag,
+    match_observation_stamps,
+    observation_stamps,
+)
 from ompn_ros.data.bag_reader import read_episodes  # noqa: E402
 from ompn_ros.data.bag_writer import write_episodes  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
@@ -188,6 +194,12 @@ def test_sqlite3_input(tmp_path: Path) -> None:
         original = sorted((c.topic, s, bytes(d)) for c, s, d in reader.messages())
     assert sorted((t, s, d) for t, _, s, d in got if t not in (PI, SEGMENT, BOUNDARY)) == original
     assert sum(t == PI for t, *_ in got) == report.steps == sum(e.length for e in episodes)
+    # the storage file alone is a bag too, and sqlite3 is an output storage as well
+    db3 = annotate_bag(next(bag.glob("*.db3")), tmp_path / "out_db", outputs, storage="sqlite3")
+    with AnyReader([tmp_path / "out_db"]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert db3.copied == report.copied and counts[PI] == report.steps
+    assert counts[BOUNDARY] == sum(len(r.boundaries) for _, r in outputs)
 
 
 def test_refuses_bad_input_and_existing_output(recorded, annotated, tmp_path: Path) -> None:
@@ -206,6 +218,9 @@ def test_refuses_bad_input_and_existing_output(recorded, annotated, tmp_path: Pa
     report = annotate_bag(bag, existing, outputs, overwrite=True)
     assert report.copied > 0 and (existing / "metadata.yaml").is_file()
     assert not list(tmp_path.glob(".*partial"))
+    with pytest.raises(AnnotateError, match=r"must not be the input bag, lie inside it or contain it"):
+        annotate_bag(bag, bag.parent, outputs, overwrite=True)
+    assert (bag / "metadata.yaml").is_file()
 
 
 def test_refuses_mismatched_replay_outputs(recorded, tmp_path: Path) -> None:
@@ -257,3 +272,16 @@ def test_match_observation_stamps_refuses(recorded) -> None:
     # episodes out of bag order cannot be matched forward
     with pytest.raises(AnnotateError, match=r"episode #1: observation of step \d+ not found"):
         match_observation_stamps(bag, [episodes[2], episodes[0]])
+
+
+def test_observation_stamps_prefers_the_readers_stamps(recorded, tmp_path: Path) -> None:
+    _, bag, episodes, stamps, results = recorded
+    assert [x.tolist() for x in observation_stamps(bag, episodes)] == [x.tolist() for x in stamps]
+    kept = [dataclasses.replace(ep, extras={**ep.extras, STAMPS_KEY: st + 7})
+            for ep, st in zip(episodes, stamps)]
+    got = observation_stamps(tmp_path / "no_bag_needed", kept)
+    assert [x.tolist() for x in got] == [(st + 7).tolist() for st in stamps]
+    # Episodes carrying their stamps go straight into annotate_bag
+    report = annotate_bag(bag, tmp_path / "out", [(ep, r) for ep, r in zip(kept[:1], results)])
+    pis = _decoded(tmp_path / "out", PI)
+    assert [t for t, _ in pis] == (stamps[0][: episodes[0].length] + 7).tolist() and report.episodes == 1

@@ -12,7 +12,9 @@ published while that recording played:
 * ``<ns>/boundary`` (``diagnostic_msgs/DiagnosticArray``, the node's ``~/boundary`` event: one
   status ``'<node>/subtask_boundary'`` with keys step, subtask, score, level, detected_at, stamp_ns,
   final; ``header.stamp`` = the boundary step's observation stamp) logged at the stamp of the step
-  where the online detector committed it (``detected_at``).
+  where the online detector committed it (``detected_at``; a boundary committed on the done step is
+  logged at the final observation's stamp when the episode's stamps include it, else at the last
+  real step's).
 
 Opened in Foxglove or PlotJuggler, π then runs under the robot's own data.  The segmentation is the
 one :func:`ompn_ros.segmenter.replay_episode` computes, i.e. the very segmenter ``ompn_node`` runs.
@@ -20,8 +22,8 @@ one :func:`ompn_ros.segmenter.replay_episode` computes, i.e. the very segmenter 
 Stamps.  Each episode needs the bag log stamps of its observations (``T`` real steps, optionally the
 final observation ``T`` too, used when a boundary was committed on the done step).  Pass them as an
 int64 array, or pass the :class:`~ompn_ros.data.episode.Episode` when its reader stored them in
-``extras[STAMPS_KEY]``.  :func:`match_observation_stamps` recovers them from the bag for episodes
-read from a ``Float32MultiArray`` observation topic.
+``extras[STAMPS_KEY]``.  :func:`observation_stamps` returns those, or recovers them from the bag
+(:func:`match_observation_stamps`) for episodes read from a ``Float32MultiArray`` observation topic.
 
 Complexity: one pass over the input (``O(M)`` messages, each copied once) merged with the
 ``O(ΣT)`` annotations; memory ``O(ΣT)`` for the annotations only.
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import hashlib
 import heapq
+import re
 import shutil
 from bisect import bisect_right
 from collections import Counter
@@ -66,6 +69,7 @@ STAMPS_KEY = "obs_stamp_ns"
 SEGMENT = "~/segment"  # Int32: segment ordinal per step (annotated bags only)
 BOUNDARY_STATUS_SUFFIX = "subtask_boundary"
 STORAGES: tuple[Storage, ...] = ("mcap", "sqlite3")
+_ROS_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _RANK = {"boundary": 1, "pi": 2, "segment": 3}  # order at one stamp: the node publishes events first
 
 
@@ -198,12 +202,20 @@ def output_topics(namespace: str) -> tuple[dict[str, str], str]:
     """``({'pi', 'segment', 'boundary'} -> absolute topic, boundary status name)`` for ``namespace``."""
     ns = "/" + namespace.strip("/")
     node = ns.rsplit("/", 1)[-1]
-    if not node or any(not part or not (part.replace("_", "a").isalnum() and not part[0].isdigit())
-                       for part in ns.strip("/").split("/")):
+    if not node or not all(_ROS_NAME.fullmatch(part) for part in ns.strip("/").split("/")):
         raise AnnotateError(f"namespace must be a ROS name like '/ompn_node', got {namespace!r}")
     topics = {key: resolve_topic(name.removeprefix("~/"), ns)
               for key, name in (("pi", layout.PI), ("segment", SEGMENT), ("boundary", layout.BOUNDARY))}
     return topics, f"{node}/{BOUNDARY_STATUS_SUFFIX}"
+
+
+def observation_stamps(src: str | Path, episodes: Sequence[Episode], *,
+                       topic: str = layout.OBSERVATION, namespace: str = "/") -> list[np.ndarray]:
+    """Observation log stamps per episode: ``extras[STAMPS_KEY]`` when every episode has them (the
+    bag is then not read), else :func:`match_observation_stamps` on ``src``."""
+    if episodes and all(STAMPS_KEY in ep.extras for ep in episodes):
+        return [episode_stamps(ep, number) for number, ep in enumerate(episodes)]
+    return match_observation_stamps(src, episodes, topic=topic, namespace=namespace)
 
 
 def match_observation_stamps(src: str | Path, episodes: Sequence[Episode], *,
@@ -298,8 +310,9 @@ def _open_reader(src: Path) -> Any:
 
 def _prepare_output(out: Path, src: Path, overwrite: bool) -> Path:
     """Check ``out`` and return the temporary sibling the bag is written into first."""
-    if out.resolve() == src.resolve() or src.resolve() in out.resolve().parents:
-        raise AnnotateError("the output must not be the input bag or lie inside it", path=out)
+    o, i = out.resolve(), src.resolve()
+    if o == i or i in o.parents or o in i.parents:
+        raise AnnotateError("the output must not be the input bag, lie inside it or contain it", path=out)
     if out.exists() and not overwrite:
         raise AnnotateError("output exists (pass overwrite=True to replace it)", path=out)
     if not out.parent.is_dir():
@@ -434,7 +447,7 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
         except AnnotateError:
             raise
         except Exception as err:
-            raise AnnotateError(f"read failed after {copied} messages: {type(err).__name__} {err}",
+            raise AnnotateError(f"copy failed after {copied} messages: {type(err).__name__} {err}",
                                 path=src) from err
     finally:
         writer.close()
@@ -451,6 +464,7 @@ __all__ = [
     "episode_messages",
     "episode_stamps",
     "match_observation_stamps",
+    "observation_stamps",
     "output_topics",
     "pi_rows",
     "segment_labels",
