@@ -4,19 +4,24 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 torch = pytest.importorskip("torch")
 mcap_reader = pytest.importorskip("mcap.reader")
 mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")
 
 from rosbags.highlevel import AnyReader  # noqa: E402
+from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
+from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.annotate import (  # noqa: E402
+    CUSTOM_DATA_KEY,
     STAMPS_KEY,
     AnnotateError,
     annotate_bag,
@@ -164,7 +169,10 @@ def test_boundary_events_match_the_replay(recorded, annotated) -> None:
 def test_output_opens_with_rosbags_anyreader(recorded, annotated) -> None:
     _, bag, *_ = recorded
     out, report = annotated
-    assert (out / "metadata.yaml").is_file()
+    info = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["version"] == 9 and info["storage_identifier"] == "mcap"
+    note = json.loads(info["custom_data"][CUSTOM_DATA_KEY])
+    assert note == {"source": "in", "namespace": NS, "segment_labels": "boundary"}
     with AnyReader([out]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         types = {c.topic: c.msgtype for c in reader.connections}
@@ -285,3 +293,21 @@ def test_observation_stamps_prefers_the_readers_stamps(recorded, tmp_path: Path)
     report = annotate_bag(bag, tmp_path / "out", [(ep, r) for ep, r in zip(kept[:1], results)])
     pis = _decoded(tmp_path / "out", PI)
     assert [t for t, _ in pis] == (stamps[0][: episodes[0].length] + 7).tolist() and report.episodes == 1
+
+
+def test_foreign_bag_keeps_custom_data_qos_and_message_definitions(tmp_path: Path) -> None:
+    bag = tmp_path / "foreign"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        writer.set_custom_data("robot", "jaco")
+        conn = writer.add_connection("/jaco/note", layout.STRING, typestore=m.typestore())
+        for i in range(3):
+            writer.write(conn, 1_000 + i, m.serialize(m.msg_class(layout.STRING)(data=f"n{i}")))
+    report = annotate_bag(bag, tmp_path / "out", [])
+    info = yaml.safe_load((tmp_path / "out" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["custom_data"]["robot"] == "jaco" and report.copied == 3 and report.steps == 0
+    assert [msg for msg in _mcap_messages(tmp_path / "out") if msg[0] == "/jaco/note"] == _mcap_messages(bag)
+    with AnyReader([bag]) as a, AnyReader([tmp_path / "out"]) as b:
+        before = next(c for c in a.connections if c.topic == "/jaco/note")
+        after = next(c for c in b.connections if c.topic == "/jaco/note")
+        assert (after.msgtype, after.msgdef, after.digest) == (before.msgtype, before.msgdef, before.digest)
+        assert after.ext == before.ext

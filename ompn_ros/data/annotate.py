@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import hashlib
 import heapq
+import json
 import re
 import shutil
 from bisect import bisect_right
@@ -66,6 +67,8 @@ SegmentLabels = Literal["boundary", "causal"]
 STAMPS_KEY = "obs_stamp_ns"
 """``Episode.extras`` key of the observation log stamps (int64 ``[T + 1]`` or ``[T]``)."""
 
+CUSTOM_DATA_KEY = "ompn_ros.annotation"
+"""``metadata.yaml`` ``custom_data`` key of the output: JSON with source, namespace, segment_labels."""
 SEGMENT = "~/segment"  # Int32: segment ordinal per step (annotated bags only)
 BOUNDARY_STATUS_SUFFIX = "subtask_boundary"
 STORAGES: tuple[Storage, ...] = ("mcap", "sqlite3")
@@ -412,7 +415,9 @@ def annotate_bag(
         if clash:
             raise AnnotateError("the input already has this topic; annotate under another namespace",
                                 path=src, topic=clash[0])
-        copied = _write(reader, tmp, storage, topics, added, src)
+        note = json.dumps({"source": src.name, "namespace": "/" + namespace.strip("/"),
+                           "segment_labels": labels})
+        copied = _write(reader, tmp, storage, topics, added, src, note)
     except BaseException:
         _remove(tmp)
         raise
@@ -427,11 +432,17 @@ def annotate_bag(
 
 
 def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], added: list[_Message],
-           src: Path) -> int:
-    """Copy ``reader`` and the annotations into a new bag at ``tmp``; the number of copied messages."""
+           src: Path, note: str) -> int:
+    """Copy ``reader`` (messages and ``custom_data``) and the annotations into a new bag at ``tmp``,
+    recording ``note`` under ``custom_data[CUSTOM_DATA_KEY]``; the number of copied messages."""
     from rosbags.rosbag2 import Writer
 
     writer = Writer(tmp, version=9, storage_plugin=storage_plugin(storage))
+    custom = getattr(getattr(reader.storage, "metadata", None), "custom", None) or {}
+    for key, value in custom.items():
+        if isinstance(key, str) and isinstance(value, str):
+            writer.set_custom_data(key, value)
+    writer.set_custom_data(CUSTOM_DATA_KEY, note)
     writer.open()
     try:
         mapping = _copy_connections(reader, writer, src)
@@ -455,6 +466,7 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
 
 
 __all__ = [
+    "CUSTOM_DATA_KEY",
     "STAMPS_KEY",
     "AnnotateError",
     "AnnotateReport",
