@@ -162,5 +162,5 @@ def test_the_read_report_is_printed_and_stored_with_the_run(
     assert "6 episode(s)" in capsys.readouterr().err
     report = json.loads((out / "read_report.json").read_text())
     assert report["episodes"] == 6 and report["on_error"] == "skip_tail"
-    assert report["summary"].startswith("1 bag(s), 6 episode(s)")
+    assert report["summary"].startswith("read 1 bag(s): 6 episode(s)")
     assert (out / "read_report.txt").read_text().strip() == report["summary"]
