@@ -115,12 +115,16 @@ def test_sim_publishes_clock_and_stamps_in_its_time(ros_env: dict[str, str]) -> 
     # compare with the nearest one: within one step period, not decades apart).
     for stamp in js + [stamp_ns(m.header.stamp) for m in markers]:
         assert min(abs(stamp - c) for c in ticks) < STEP_NS, (stamp, clock[:3])
-    assert js[1] - js[0] == STEP_NS  # 40 ms of simulated time per step
     start0, end0, start1, _ = (stamp_ns(m.header.stamp) for m in markers)
     steps0 = int({kv.key: kv.value for kv in markers[1].status[0].values}[layout.KEY_STEPS])
-    assert js[0] == start0 and end0 - start0 == steps0 * STEP_NS  # markers and JointState: one clock
+    assert end0 - start0 == steps0 * STEP_NS  # 40 ms of simulated time per step, markers included
     assert start1 - end0 >= layout.EPISODE_GAP_NS  # the gap between episodes in simulated time
-    assert js[-1] - js[0] == (len(js) - 2) * STEP_NS + (start1 - end0)  # no stamp from elsewhere
+    # Best effort may drop a JointState under load, so check each stamp's place instead of counting:
+    # every JointState lies on its episode's 40 ms grid that starts at the start marker's stamp.
+    for stamp in js:
+        first = start0 if stamp <= end0 else start1
+        assert stamp >= first and (stamp - first) % STEP_NS == 0, (stamp, start0, end0, start1)
+    assert js[0] < end0 < start1 <= js[-1]  # both episodes were seen
 
 
 def test_without_publish_clock_stamps_follow_the_node_clock(ros_env: dict[str, str]) -> None:
