@@ -83,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="YAML with detector_* keys, e.g. config/ompn_node_craft.yaml (none: the detector defaults)",
     )
     p.add_argument("--out", default="segment_out", help="output directory (replay mode)")
+    p.add_argument(
+        "--annotate",
+        metavar="OUT",
+        help="replay mode, one bag: also write OUT, an mcap copy of the bag with the node's ~/pi, "
+        "~/segment and ~/boundary added at the observation stamps (none: no copy)",
+    )
     p.add_argument("--plot-episodes", type=int, default=3, help="number of episodes to plot")
     p.add_argument("--tune", action="store_true", help="grid-search the online detector instead of replaying")
     p.add_argument(
@@ -133,6 +139,8 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.annotate and (args.tune or not args.bag):
+        raise ReplayError("--annotate copies the replayed bag: it needs --bag and no --tune")
     torch.set_num_threads(1)
     try:
         policy = stepper_from_checkpoint(args.checkpoint)
@@ -144,8 +152,13 @@ def _run(args: argparse.Namespace) -> int:
     if args.tune:
         return _tune(args, policy, episodes)
     config = load_detector_yaml(args.detector_config) if args.detector_config else DetectorConfig()
-    summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes)
+    replays = replay_all(policy, episodes, config)
+    summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes, replays=replays)
     print(json.dumps(replay.json_safe(summary), indent=1))
+    if args.annotate:
+        spec = replay.reader_spec(args.reader_config, args.domain)
+        done = replay.annotate(args.bag, Path(args.annotate), episodes, replays, spec)
+        print(f"ompn_segment: annotated copy written to {done.out}", file=sys.stderr)
     return 0
 
 

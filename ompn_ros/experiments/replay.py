@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from ompn_ros.data.bag_reader import OnError, ReaderSpec, ReadResult, read_episodes
+from ompn_ros.data.annotate import AnnotateReport, annotate_bag, observation_stamps
+from ompn_ros.data.bag_reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.online import DetectorConfig
@@ -30,16 +31,18 @@ class ReplayError(ValueError):
     """A replay cannot be scored (names the episode at fault)."""
 
 
+def reader_spec(reader_config: str | None, domain: str | None) -> ReaderSpec:
+    """The reader spec of ``reader_config`` (YAML), else the preset of ``domain``, else the defaults."""
+    if reader_config:
+        return ReaderSpec.from_yaml(reader_config)
+    return ReaderSpec.for_domain(domain) if domain else ReaderSpec()
+
+
 def read_bag_episodes(
     bag: str, reader_config: str | None, domain: str | None, on_error: OnError = "raise"
 ) -> ReadResult:
-    """Episodes of ``bag`` with the reader spec of ``reader_config`` (YAML), else of ``domain``."""
-    spec = (
-        ReaderSpec.from_yaml(reader_config)
-        if reader_config
-        else (ReaderSpec.for_domain(domain) if domain else None)
-    )
-    return read_episodes(bag, spec=spec, on_error=on_error)
+    """Episodes of ``bag`` with :func:`reader_spec`."""
+    return read_episodes(bag, spec=reader_spec(reader_config, domain), on_error=on_error)
 
 
 def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:
@@ -148,12 +151,26 @@ def _plot(path: Path, ep: Episode, r: ReplayResult, config: DetectorConfig) -> N
     )
 
 
+def annotate(bag: str, out: Path, episodes: Sequence[Episode], replays: Sequence[ReplayResult],
+             spec: ReaderSpec, *, overwrite: bool = False) -> AnnotateReport:
+    """Write ``out``: a copy of ``bag`` with the node's ``~/pi``, ``~/segment`` and ``~/boundary``
+    added at the observation stamps (:func:`ompn_ros.data.annotate.annotate_bag`); one bag only."""
+    bags = resolve_bag_paths(bag)
+    if len(bags) != 1:
+        raise ReplayError(f"--annotate writes a copy of one bag, but '{bag}' names {len(bags)} bags")
+    stamps = observation_stamps(bags[0], episodes, topic=spec.observation.topic, namespace=spec.namespace)
+    return annotate_bag(bags[0], out, list(zip(stamps, replays, strict=True)), overwrite=overwrite)
+
+
 def run_replay(
-    policy: Any, episodes: Sequence[Episode], config: DetectorConfig, out: Path, plot_episodes: int = 3
+    policy: Any, episodes: Sequence[Episode], config: DetectorConfig, out: Path, plot_episodes: int = 3,
+    *, replays: Sequence[ReplayResult] | None = None,
 ) -> dict[str, Any]:
-    """Replay ``episodes`` and write the output files into ``out``; returns the summary."""
+    """Replay ``episodes`` (unless ``replays`` are given) and write the output files into ``out``;
+    returns the summary."""
     out.mkdir(parents=True, exist_ok=True)
-    replays = replay_all(policy, episodes, config)
+    if replays is None:
+        replays = replay_all(policy, episodes, config)
     check_finite(replays, episodes)
     arrays: dict[str, np.ndarray] = {}
     for i, r in enumerate(replays):
