@@ -45,11 +45,16 @@ TOPICS_3 = ("observation", "subtask", "action")
 
 
 # --- publisher child -------------------------------------------------------------------------------
-def publish(ns: str, topics: tuple[str, ...], rate: float, seconds: float, out: Path) -> int:
-    """Publish numbered steps at ``rate`` Hz (one message per topic per step) for ``seconds``."""
+def publish(ns: str, topics: tuple[str, ...], rate: float, seconds: float, out: Path,
+            clock: bool = False) -> int:
+    """Publish numbered steps at ``rate`` Hz (one message per topic per step) for ``seconds``.
+
+    With ``clock``, also publish ``/clock`` every step: sim time 1000 s + half the elapsed time.
+    """
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
+    from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float32MultiArray, Int32
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
@@ -57,6 +62,8 @@ def publish(ns: str, topics: tuple[str, ...], rate: float, seconds: float, out: 
     qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL,
                      durability=DurabilityPolicy.VOLATILE, depth=1)
     pubs = [node.create_publisher(Float32MultiArray if t == "observation" else Int32, t, qos) for t in topics]
+    clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
+    tick = Clock()
     deadline = time.monotonic() + 30
     while any(p.get_subscription_count() < 1 for p in pubs) and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -71,6 +78,10 @@ def publish(ns: str, topics: tuple[str, ...], rate: float, seconds: float, out: 
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     try:
         while n < n_max and not stop:
+            if clock_pub is not None:
+                sim = int(1000e9 + 0.5e9 * (time.perf_counter() - t0))
+                tick.clock.sec, tick.clock.nanosec = divmod(sim, 1_000_000_000)
+                clock_pub.publish(tick)
             for k, (topic, pub) in enumerate(zip(topics, pubs)):
                 raw = (m.encode_float32_array(np.full(8, n, np.float32), "obs") if topic == "observation"
                        else m.encode_int32(n))
@@ -98,6 +109,7 @@ class CaseResult(NamedTuple):
     sent_before: int  # messages whose publish returned before the signal
     kept_before: int  # of those, in the bag
     in_bag: int
+    bag: Path
     rate: float  # achieved messages per second (all topics)
     complete_steps: bool  # every topic ends at the same step
     drain_s: float
@@ -155,7 +167,8 @@ def bag_seqs(bag: Path, ns: str, topics: tuple[str, ...]) -> dict[str, set[int]]
 
 
 def run_case(tmp: Path, *, storage: str, topics: tuple[str, ...], rate: float, stop: signal.Signals,
-             signal_after: float, busy: bool, recorder_args: tuple[str, ...] = ()) -> CaseResult:
+             signal_after: float, busy: bool, recorder_args: tuple[str, ...] = (),
+             sim_clock: bool = False) -> CaseResult:
     """One recording stopped by ``stop`` ``signal_after`` seconds into the stream (module docstring)."""
     env = containment.contain(dict(os.environ))
     env["PYTHONUNBUFFERED"] = "1"
@@ -170,7 +183,8 @@ def run_case(tmp: Path, *, storage: str, topics: tuple[str, ...], rate: float, s
     publisher = None
     try:
         publisher = _spawn([__file__, "--publish", "--ns", ns, "--rate", str(rate), "--topics",
-                            str(len(topics)), "--seconds", str(signal_after + 2.0), "--out", str(times)], env)
+                            str(len(topics)), "--seconds", str(signal_after + 2.0), "--out", str(times),
+                            *(["--clock"] if sim_clock else [])], env)
         assert publisher.stdout is not None
         line = publisher.stdout.readline()
         if "publishing" not in line:
@@ -198,7 +212,7 @@ def run_case(tmp: Path, *, storage: str, topics: tuple[str, ...], rate: float, s
     drain = re.search(r"drained ([0-9.]+) s", rec_out)
     ends = {max(s) if s else -1 for s in seqs.values()}
     return CaseResult(
-        sent_before=int(before.sum()), kept_before=kept, in_bag=sum(len(s) for s in seqs.values()),
+        sent_before=int(before.sum()), kept_before=kept, in_bag=sum(len(s) for s in seqs.values()), bag=out,
         rate=float(stamps.size / span) if span else 0.0, complete_steps=len(ends) == 1,
         drain_s=float(drain.group(1)) if drain else float("nan"),
         lost_window_s=(signal_ns - min(missing_t)) / 1e9 if missing_t else 0.0, recorder_out=rec_out)
@@ -244,9 +258,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--topics", type=int, choices=(1, 3), default=3)
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--out", type=Path, default=Path("pub_times.npy"))
+    parser.add_argument("--clock", action="store_true", help="also publish /clock (sim time)")
     args = parser.parse_args(argv)
     if args.publish:
-        return publish(args.ns, TOPICS_1 if args.topics == 1 else TOPICS_3, args.rate, args.seconds, args.out)
+        topics = TOPICS_1 if args.topics == 1 else TOPICS_3
+        return publish(args.ns, topics, args.rate, args.seconds, args.out, clock=args.clock)
     for name, (value, unit) in run(quick=args.quick).items():
         print(f"{name:<42} {value:>12.4g}  {unit}")
     return 0

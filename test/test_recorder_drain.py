@@ -53,6 +53,27 @@ def test_recorder_under_use_sim_time_without_clock_still_records(tmp_path: Path)
     assert r.sent_before > 0 and r.kept_before == r.sent_before, r.recorder_out
 
 
+def test_use_sim_time_stamps_in_sim_time_and_keeps_publish_order(tmp_path: Path) -> None:
+    from rosbags.rosbag2 import Reader
+
+    from ompn_ros.data import messages as m
+
+    r = bench.run_case(tmp_path, storage="mcap", topics=bench.TOPICS_3, rate=200.0, stop=signal.SIGTERM,
+                       signal_after=1.0, busy=False, recorder_args=("-p", "use_sim_time:=true"),
+                       sim_clock=True)
+    assert r.sent_before > 0 and r.kept_before == r.sent_before, r.recorder_out
+    rows = []
+    with Reader(r.bag) as reader:
+        for conn, stamp, data in reader.messages():
+            kind = bench.TOPICS_3.index(conn.topic.rsplit("/", 1)[-1])
+            seq = int(m.parse_float32_array(data)[0]) if kind == 0 else m.parse_int32(data)
+            rows.append((stamp, seq, kind))
+    stamps = [s for s, _, _ in rows]
+    assert 1000e9 <= min(stamps) and max(stamps) < 1100e9  # the publisher's /clock, not system time
+    by_stamp = [(seq, kind) for _, seq, kind in sorted(rows)]
+    assert by_stamp == sorted(by_stamp)  # step by step, topic by topic: the publish order
+
+
 def test_sigkill_loses_at_most_the_last_commit_period(tmp_path: Path) -> None:
     r = bench.run_case(tmp_path, storage="sqlite3", topics=bench.TOPICS_3, rate=300.0, stop=signal.SIGKILL,
                        signal_after=2.0, busy=False, recorder_args=("-p", "commit_period:=0.2"))
@@ -82,3 +103,13 @@ def test_bad_storage_is_one_line_and_exit_2(tmp_path: Path, ros_env: dict[str, s
                      ros_env)
     assert done.returncode == 2
     assert "storage='zip'" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_step_topic_falls_back_to_the_recorded_topic_with_its_base_name() -> None:
+    from ompn_ros.nodes.bag_recorder import _step_topic
+
+    wanted = {"/sim/observation", "/sim/action"}
+    assert _step_topic("/sim/observation", wanted) == "/sim/observation"
+    assert _step_topic("/observation", wanted) == "/sim/observation"
+    assert _step_topic("/observation", wanted | {"/other/observation"}) is None
+    assert _step_topic("/clock", wanted) is None

@@ -16,6 +16,7 @@ from rosbags.rosbag2 import StoragePlugin
 from ompn_ros import layout
 from ompn_ros.data import BagError, Episode, read_episodes, write_episodes
 from ompn_ros.data import messages as m
+from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.stop_cut import StopCut
 from ompn_ros.data.storage import DurableWriter, chunk_crcs
 
@@ -145,3 +146,35 @@ def test_stop_cut_without_step_topic_cuts_at_the_signal() -> None:
     assert cut.offer("a", 100, "early") == ["early"]  # before any stop request: written
     cut.request(50)
     assert _offer_all(cut, [("a", 49), ("a", 50), ("b", 10)]) == ["a@49", "b@10"]
+
+
+# --- sim-time stamps ----------------------------------------------------------------------------------
+def test_sim_stamps_follow_the_clock() -> None:
+    st = SimStamper()
+    assert st.stamp(5_000) == 5_000 and not st.started  # no /clock yet: system time
+    st.open_step(10_000, sim_now_ns=0)
+    assert not st.started
+    st.open_step(10_000, sim_now_ns=777_000)
+    assert st.started and st.stamp(10_000) == 777_000
+    st.open_step(90_000, sim_now_ns=900_000)  # sim time moved on: the next step starts there
+    assert st.stamp(90_000) == 900_000
+
+
+def test_sim_stamps_keep_publish_order_whatever_the_delivery_order() -> None:
+    rng = np.random.default_rng(1)
+    st = SimStamper()
+    # steps every 1000 ns of system time, three messages 0/100/200 ns into each step; sim time stands
+    # still for four steps at a time (coarse /clock) and runs at a quarter of system time
+    steps = range(40)
+    sim = {t: 5_000_000 + 250 * (t - t % 4) for t in steps}
+    msgs = [(t, k, 1_000 * t + 100 * k) for t in steps for k in range(3)]
+    order = rng.permutation(len(msgs))  # delivery order: any
+    stamped = {}
+    for j in order:
+        t, k, src = msgs[j]
+        if k == 0 or not st.started:
+            st.open_step(src, sim[t])
+        stamped[(t, k)] = st.stamp(src)
+    ranked = sorted(stamped, key=stamped.get)
+    assert ranked == sorted(stamped)  # (step, topic) order == stamp order
+    assert len(set(stamped.values())) == len(stamped)

@@ -14,10 +14,11 @@ Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the
     discovery_period (double): seconds between topic discovery passes (default 0.2, steady clock).
     gap_seconds (double): a per-topic stamp jump larger than this is reported as a time gap.
     step_topic (string): the topic that opens a step (default ``observation``); on stop every topic
-        ends right before its first message published after the signal ('' = end at the signal).
+        ends right before its first message published after the signal.  If it is not recorded, the
+        one recorded topic with the same base name is used; '' or no such topic = end at the signal.
     drain_timeout (double): longest drain after SIGINT/SIGTERM, in seconds (default 10).
-    drain_idle (double): the drain ends once nothing published before the cut arrived for this long
-        (default 0.3 s), or at once when every topic has delivered a message from the cut on.
+    drain_idle (double): the drain ends once nothing was written for this long (default 0.3 s), or
+        at once when every topic has delivered a message from the cut on.
     commit_period (double): seconds between storage commits (default 1.0): a SIGKILL loses at most
         this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).
 
@@ -29,10 +30,11 @@ with both volatile and transient-local publishers).  Topics are subscribed as th
 that rclpy 7.1.6 passes to a two-argument subscription callback (falling back to
 ``received_timestamp`` if a middleware gives none).  Source stamps keep the publish order of the
 step contract across topics, whatever the delivery order.  Under ``use_sim_time`` the stamps are
-moved into the input's (sim) time base: source stamp + (sim time − system time) measured when the
-step's opening message arrives, so one step keeps its publish order; before the first ``/clock``
-message they stay in system time.  Loss is detected from ``publication_sequence_number`` jumps per
-topic (a backwards jump = another publisher, not counted).
+moved into the input's (sim) time base: a step is stamped at the sim time its opening message
+arrived, its messages keep their publish order (``ompn_ros.data.sim_stamps``).  Messages taken
+before the first ``/clock`` wait for it (up to 20 000, then they are written in system time).
+Loss is detected from ``publication_sequence_number`` jumps per topic (a backwards jump = another
+publisher, not counted).
 
 **Stopping:** SIGINT/SIGTERM do not drop the queue.  The recorder drains what DDS has delivered and
 ends every topic at the same step (``ompn_ros.data.stop_cut``), closes the bag and prints a summary
@@ -65,6 +67,7 @@ from rclpy.utilities import remove_ros_args
 from ompn_ros import layout
 from ompn_ros.data import messages as m
 from ompn_ros.data.bag_writer import STORAGES, storage_plugin
+from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.stop_cut import StopCut
 from ompn_ros.data.storage import DurableWriter
 
@@ -83,9 +86,12 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "step_topic": (layout.OBSERVATION, "topic opening a step; on stop all topics end before its first "
                    "message after the signal ('' = end at the signal)"),
     "drain_timeout": (10.0, "longest drain after SIGINT/SIGTERM (seconds)"),
-    "drain_idle": (0.3, "drain ends after this long without a message before the cut (seconds)"),
+    "drain_idle": (0.3, "drain ends after this long without a message to write (seconds)"),
     "commit_period": (1.0, "seconds between storage commits (the most a SIGKILL loses)"),
 }
+
+
+PRECLOCK_LIMIT = 20_000  # under use_sim_time, messages held until the first /clock (then system time)
 
 
 class RecorderError(ValueError):
@@ -161,11 +167,11 @@ class BagRecorder(Node):
             raise RecorderError(f"output '{self.output}' already exists")
         self.output.parent.mkdir(parents=True, exist_ok=True)
         self.wanted = {self.resolve_topic_name(t) for t in p["topics"]}
-        step = self.resolve_topic_name(p["step_topic"]) if p["step_topic"] else None
+        step = _step_topic(self.resolve_topic_name(p["step_topic"]), self.wanted) if p["step_topic"] else None
         self.cut: StopCut[tuple[_Topic, int, bytes]] = StopCut(step)
-        self.sim_time = bool(self.get_parameter("use_sim_time").value)
-        self._sim_offset: int | None = None
-        self._max_stamp = 0
+        use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        self.sim_stamps = SimStamper() if use_sim_time else None
+        self._preclock: list[tuple[_Topic, int, bytes]] = []
         self.write_errors = 0
         self.drain_seconds = 0.0
         self.drain_end = ""
@@ -217,7 +223,8 @@ class BagRecorder(Node):
     def pump(self, limit: int = 5000) -> int:
         """Take up to ``limit`` queued messages straight from the subscriptions; returns how many."""
         n = 0
-        for topic in list(self.topics.values()):
+        first = self.cut.step_topic  # openers first: their step's partners come after them
+        for topic in sorted(self.topics.values(), key=lambda t: t.name != first):
             sub = topic.sub
             while n < limit:
                 with sub.handle:
@@ -242,20 +249,33 @@ class BagRecorder(Node):
             if stats.last_seq is not None and seq > stats.last_seq + 1:
                 stats.lost += seq - stats.last_seq - 1
             stats.last_seq = seq
-        stamp = self._stamp(topic.name, src)
+        sim = self.sim_stamps
+        if sim is not None and not sim.started:
+            sim.open_step(src, self.get_clock().now().nanoseconds)
+            if not sim.started and len(self._preclock) < PRECLOCK_LIMIT:
+                self._preclock.append((topic, src, raw))  # stamped once /clock arrives
+                return
+            self._flush_preclock()
+        self._offer(topic, src, raw)
+
+    def _offer(self, topic: _Topic, src: int, raw: bytes) -> None:
+        stamp = src
+        sim = self.sim_stamps
+        if sim is not None and sim.started:
+            if topic.name == self.cut.step_topic or self.cut.step_topic is None:
+                sim.open_step(src, self.get_clock().now().nanoseconds)
+            stamp = sim.stamp(src)
         for item in self.cut.offer(topic.name, src, (topic, stamp, raw)):
             self._write(*item)
 
-    def _stamp(self, name: str, src: int) -> int:
-        """Bag stamp of a message published at system time ``src`` (module docstring, Stamps)."""
-        if not self.sim_time:
-            return src
-        if self._sim_offset is None or name == self.cut.step_topic:
-            sim_now = self.get_clock().now().nanoseconds
-            if sim_now:
-                # keep publish order across steps even if sim time runs slower than system time
-                self._sim_offset = max(sim_now - time.time_ns(), self._max_stamp + 1 - src)
-        return src + (self._sim_offset or 0)
+    def _flush_preclock(self) -> None:
+        """Messages taken before the first ``/clock``: sim stamps if it came, else system time."""
+        if self._preclock and (self.sim_stamps is None or not self.sim_stamps.started):
+            self.get_logger().warning(f"use_sim_time: no /clock within {len(self._preclock)} messages; "
+                                      "those are stamped in system time")
+        pending, self._preclock = self._preclock, []
+        for topic, src, raw in pending:
+            self._offer(topic, src, raw)
 
     def _write(self, topic: _Topic, stamp: int, raw: bytes) -> None:
         if self.writer is None:
@@ -272,7 +292,6 @@ class BagRecorder(Node):
         if stats.last_stamp is not None and stamp - stats.last_stamp > self.gap_ns:
             stats.time_gaps.append((stamp - stats.last_stamp) / 1e9)
         stats.last_stamp = stamp
-        self._max_stamp = max(self._max_stamp, stamp)
 
     def tick(self) -> None:
         """Periodic storage commit while idle."""
@@ -286,11 +305,11 @@ class BagRecorder(Node):
         self.cut.request(stop.signal_ns)
         start = last = time.monotonic()
         while True:
-            before = (self.cut.held, sum(t.stats.count for t in self.topics.values()))
+            before = sum(t.stats.count for t in self.topics.values())
             executor.spin_once(timeout_sec=0.01)
             self.pump()
             now = time.monotonic()
-            if (self.cut.held, sum(t.stats.count for t in self.topics.values())) != before:
+            if sum(t.stats.count for t in self.topics.values()) != before:
                 last = now
             if self.cut.cut_ns is not None and self.cut.passed >= set(self.topics):
                 self.drain_end = "every topic reached the cut"
@@ -304,6 +323,7 @@ class BagRecorder(Node):
             if stop.count > 1:
                 self.drain_end = "second signal"
                 break
+        self._flush_preclock()
         for item in self.cut.finish():
             self._write(*item)
         self.drain_seconds = time.monotonic() - start
@@ -311,6 +331,9 @@ class BagRecorder(Node):
     def close(self) -> str:
         """Close the bag; returns the summary text."""
         if self.writer is not None:
+            self._flush_preclock()
+            for item in self.cut.finish():
+                self._write(*item)
             self.writer.close()
             self.writer = None
         return self.summary()
@@ -340,6 +363,15 @@ class BagRecorder(Node):
         if self.write_errors:
             lines.append(f"  {self.write_errors} messages could not be written")
         return "\n".join(lines)
+
+
+def _step_topic(step: str, wanted: set[str]) -> str | None:
+    """The recorded topic that opens a step: ``step`` itself, else the one recorded topic with its
+    base name (topics recorded from another namespace), else ``None`` (stop at the signal)."""
+    if step in wanted:
+        return step
+    same = [t for t in wanted if t.rsplit("/", 1)[-1] == step.rsplit("/", 1)[-1]]
+    return same[0] if len(same) == 1 else None
 
 
 def parse_cli(argv: list[str]) -> argparse.Namespace:
