@@ -17,8 +17,10 @@ Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the
         ends right before its first message published after the signal.  If it is not recorded, the
         one recorded topic with the same base name is used; '' or no such topic = end at the signal.
     drain_timeout (double): longest drain after SIGINT/SIGTERM, in seconds (default 10).
-    drain_idle (double): the drain ends once nothing was written for this long (default 0.3 s), or
-        at once when every topic has delivered a message from the cut on.
+    drain_idle (double): with no stream waiting (below), the drain ends once nothing was written
+        for this long (default 0.3 s).  It ends at once when every topic that was streaming at the
+        signal (a message at least every 0.5 s, the last within 1 s) has delivered a message from the
+        cut on; a stalled stream is waited for (up to ``drain_timeout``) while its publisher lives.
     commit_period (double): seconds between storage commits (default 1.0): a SIGKILL loses at most
         this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).
 
@@ -86,11 +88,12 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "step_topic": (layout.OBSERVATION, "topic opening a step; on stop all topics end before its first "
                    "message after the signal ('' = end at the signal)"),
     "drain_timeout": (10.0, "longest drain after SIGINT/SIGTERM (seconds)"),
-    "drain_idle": (0.3, "drain ends after this long without a message to write (seconds)"),
+    "drain_idle": (0.3, "with no live stream short of the cut, drain ends after this long idle (s)"),
     "commit_period": (1.0, "seconds between storage commits (the most a SIGKILL loses)"),
 }
 
 
+STREAM_PERIOD_S = 0.5  # a topic publishing at least every 0.5 s is a stream the drain waits for
 PRECLOCK_LIMIT = 20_000  # under use_sim_time, messages held until the first /clock (then system time)
 
 
@@ -116,6 +119,20 @@ class TopicStats:
     last_stamp: int | None = None
     time_gaps: list[float] = field(default_factory=list)
     receive_stamps: int = 0  # messages written at receive time (no source timestamp)
+    last_src: int | None = None  # source stamp of the last message taken
+    period_ns: float | None = None  # running mean of the source-stamp spacing
+
+    def taken(self, src: int) -> None:
+        """Track the spacing of the messages taken (for :meth:`streaming`)."""
+        if self.last_src is not None and src > self.last_src:
+            gap = float(src - self.last_src)
+            self.period_ns = gap if self.period_ns is None else 0.9 * self.period_ns + 0.1 * gap
+        self.last_src = src if self.last_src is None else max(self.last_src, src)
+
+    def streaming(self, at_ns: int) -> bool:
+        """A message at least every ``STREAM_PERIOD_S`` and one in the last second before ``at_ns``."""
+        return (self.period_ns is not None and self.period_ns < STREAM_PERIOD_S * 1e9
+                and self.last_src is not None and at_ns - self.last_src < 1e9)
 
 
 @dataclass
@@ -244,6 +261,7 @@ class BagRecorder(Node):
             stats.receive_stamps += 1
         if self.cut.signal_ns is None or src < self.cut.signal_ns:
             self.received_before_signal += 1
+        stats.taken(src)
         seq = info.get("publication_sequence_number")
         if seq is not None:
             if stats.last_seq is not None and seq > stats.last_seq + 1:
@@ -300,9 +318,10 @@ class BagRecorder(Node):
 
     # --- stop ---------------------------------------------------------------------------------------
     def drain(self, executor: Any, stop: StopRequest) -> None:
-        """Take what DDS delivered until every topic reached the cut, or idle/timeout (module docstring)."""
+        """Take what DDS delivers until the streams reached the cut, or idle/timeout (module docstring)."""
         assert stop.signal_ns is not None
         self.cut.request(stop.signal_ns)
+        streams = {t.name: t for t in self.topics.values() if t.stats.streaming(stop.signal_ns)}
         start = last = time.monotonic()
         while True:
             before = sum(t.stats.count for t in self.topics.values())
@@ -311,22 +330,30 @@ class BagRecorder(Node):
             now = time.monotonic()
             if sum(t.stats.count for t in self.topics.values()) != before:
                 last = now
-            if self.cut.cut_ns is not None and self.cut.passed >= set(self.topics):
-                self.drain_end = "every topic reached the cut"
-                break
-            if now - last >= self.drain_idle:
-                self.drain_end = f"nothing before the cut for {self.drain_idle:g} s"
-                break
-            if now - start >= self.drain_timeout:
-                self.drain_end = f"drain_timeout ({self.drain_timeout:g} s) reached"
-                break
-            if stop.count > 1:
-                self.drain_end = "second signal"
+            end = self._drain_over(streams, now - last, now - start, stop.count)
+            if end:
+                self.drain_end = end
                 break
         self._flush_preclock()
         for item in self.cut.finish():
             self._write(*item)
         self.drain_seconds = time.monotonic() - start
+
+    def _drain_over(self, streams: dict[str, _Topic], idle: float, elapsed: float, signals: int) -> str:
+        """Why the drain ends now ('' = go on).
+
+        Every topic that was streaming at the signal must deliver a message from the cut on (DDS
+        delivers each writer's messages in order, so all before the cut are in); a stalled stream is
+        waited for (a repaired DDS loss can take seconds) unless its publishers are gone.
+        """
+        if self.cut.cut_ns is not None and self.cut.passed >= set(streams):
+            return "every streaming topic reached the cut"
+        if idle >= self.drain_idle and all(t.sub.get_publisher_count() == 0 for t in streams.values()
+                                           if t.name not in self.cut.passed):
+            return f"nothing to write for {self.drain_idle:g} s and no stream left"
+        if elapsed >= self.drain_timeout:
+            return f"drain_timeout ({self.drain_timeout:g} s) reached"
+        return "second signal" if signals > 1 else ""
 
     def close(self) -> str:
         """Close the bag; returns the summary text."""
@@ -377,6 +404,7 @@ def _step_topic(step: str, wanted: set[str]) -> str | None:
 def parse_cli(argv: list[str]) -> argparse.Namespace:
     """The non-ROS command line (``--help`` prints every parameter with its default and exits)."""
     table = "\n".join(f"  {name} (default {default!r}): {text}" for name, (default, text) in PARAMS.items())
+    table += "\n  use_sim_time (default False): stamp in sim time (/clock), keeping the publish order"
     parser = argparse.ArgumentParser(
         prog="bag_recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Record the sim topics to a rosbag2 (v9) without decoding; SIGINT/SIGTERM drain "
