@@ -79,6 +79,7 @@ def test_sigkill_loses_at_most_the_last_commit_period(tmp_path: Path) -> None:
                        signal_after=2.0, busy=False, recorder_args=("-p", "commit_period:=0.2"))
     assert r.kept_before > 0.5 * r.sent_before
     assert r.lost_window_s < 1.0  # five commit periods of margin for a slow machine
+    assert r.complete_steps  # commits fall between steps: the salvaged bag ends with a whole step
 
 
 def _recorder(args: list[str], cwd: Path, env: dict[str, str]) -> subprocess.CompletedProcess[str]:

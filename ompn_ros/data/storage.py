@@ -100,6 +100,10 @@ class DurableWriter(Writer):
                 and time.monotonic() - self._last_checkpoint >= self.commit_period:
             self.checkpoint()
 
+    def since_checkpoint(self) -> float:
+        """Seconds since the last checkpoint (or since the writer was created)."""
+        return time.monotonic() - self._last_checkpoint
+
     def checkpoint(self) -> None:
         """Make everything written so far survive a killed process (sqlite3 COMMIT / mcap chunk flush)."""
         storage: Any = self.storage

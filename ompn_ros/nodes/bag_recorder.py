@@ -22,7 +22,9 @@ Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the
         signal (a message at least every 0.5 s, the last within 1 s) has delivered a message from the
         cut on; a stalled stream is waited for (up to ``drain_timeout``) while its publisher lives.
     commit_period (double): seconds between storage commits (default 1.0): a SIGKILL loses at most
-        this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).
+        this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).  Commits are placed
+        right before a step's opening message once half the period has passed, so a killed
+        recording normally ends with whole steps.
 
 Subscriptions are ``raw=True`` (CDR bytes go to the bag untouched), RELIABLE + VOLATILE (compatible
 with both volatile and transient-local publishers).  Topics are subscribed as they appear
@@ -166,15 +168,9 @@ class BagRecorder(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("bag_recorder", **kwargs)
         p = {name: self.declare_parameter(name, default).value for name, (default, _) in PARAMS.items()}
+        _check_params(p)
         storage = p["storage"]
-        if storage not in STORAGES:
-            raise RecorderError(f"parameter storage='{storage}' must be one of {STORAGES}")
-        for name in ("discovery_period", "drain_timeout", "drain_idle", "commit_period", "gap_seconds"):
-            if not float(p[name]) > 0:
-                raise RecorderError(f"parameter {name}={p[name]} must be > 0")
         self.qos_depth = int(p["qos_depth"])
-        if self.qos_depth < 0:
-            raise RecorderError(f"parameter qos_depth={self.qos_depth} must be >= 0 (0 = KEEP_ALL)")
         self.gap_ns = int(float(p["gap_seconds"]) * 1e9)
         self.drain_timeout = float(p["drain_timeout"])
         self.drain_idle = float(p["drain_idle"])
@@ -190,6 +186,7 @@ class BagRecorder(Node):
         self.sim_stamps = SimStamper() if use_sim_time else None
         self._preclock: list[tuple[_Topic, int, bytes]] = []
         self.write_errors = 0
+        self._max_written = 0  # largest stamp written
         self.drain_seconds = 0.0
         self.drain_end = ""
         self.received_before_signal = 0
@@ -238,19 +235,22 @@ class BagRecorder(Node):
         return on_message
 
     def pump(self, limit: int = 5000) -> int:
-        """Take up to ``limit`` queued messages straight from the subscriptions; returns how many."""
-        n = 0
-        first = self.cut.step_topic  # openers first: their step's partners come after them
-        for topic in sorted(self.topics.values(), key=lambda t: t.name != first):
+        """Take up to ``limit`` queued messages straight from the subscriptions, handle them in
+        source-stamp order (publish order across topics); returns how many."""
+        batch: list[tuple[int, int, _Topic, bytes, dict[str, Any]]] = []
+        for topic in list(self.topics.values()):
             sub = topic.sub
-            while n < limit:
+            while len(batch) < limit:
                 with sub.handle:
                     got = sub.handle.take_message(sub.msg_type, True)
                 if got is None:
                     break
-                self._on_message(topic, got[0], got[1])
-                n += 1
-        return n
+                raw, info = got
+                batch.append((info.get("source_timestamp") or 0, len(batch), topic, raw, info))
+        batch.sort(key=lambda item: item[:2])
+        for _, _, topic, raw, info in batch:
+            self._on_message(topic, raw, info)
+        return len(batch)
 
     def _on_message(self, topic: _Topic, raw: bytes, info: dict[str, Any]) -> None:
         stats = topic.stats
@@ -296,10 +296,15 @@ class BagRecorder(Node):
             self._offer(topic, src, raw)
 
     def _write(self, topic: _Topic, stamp: int, raw: bytes) -> None:
-        if self.writer is None:
+        writer = self.writer
+        if writer is None:
             return
+        if topic.name == self.cut.step_topic and stamp > self._max_written and writer.commit_period \
+                and writer.since_checkpoint() >= writer.commit_period / 2:
+            writer.checkpoint()  # commit whole steps: everything before this step's opening message
+        self._max_written = max(self._max_written, stamp)
         try:
-            self.writer.write(topic.conn, stamp, raw)
+            writer.write(topic.conn, stamp, raw)
         except OSError as err:  # disk full, ...: count and keep the node alive
             self.write_errors += 1
             if self.write_errors == 1:
@@ -390,6 +395,17 @@ class BagRecorder(Node):
         if self.write_errors:
             lines.append(f"  {self.write_errors} messages could not be written")
         return "\n".join(lines)
+
+
+def _check_params(p: dict[str, Any]) -> None:
+    """Raise :class:`RecorderError` naming the first bad parameter."""
+    if p["storage"] not in STORAGES:
+        raise RecorderError(f"parameter storage='{p['storage']}' must be one of {STORAGES}")
+    for name in ("discovery_period", "drain_timeout", "drain_idle", "commit_period", "gap_seconds"):
+        if not float(p[name]) > 0:
+            raise RecorderError(f"parameter {name}={p[name]} must be > 0")
+    if int(p["qos_depth"]) < 0:
+        raise RecorderError(f"parameter qos_depth={p['qos_depth']} must be >= 0 (0 = KEEP_ALL)")
 
 
 def _step_topic(step: str, wanted: set[str]) -> str | None:
