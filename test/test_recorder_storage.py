@@ -18,7 +18,7 @@ from ompn_ros.data import BagError, Episode, read_episodes, write_episodes
 from ompn_ros.data import messages as m
 from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.stop_cut import StopCut
-from ompn_ros.data.storage import DurableWriter, chunk_crcs
+from ompn_ros.data.storage import DurableWriter, chunk_crcs, refresh_chunk_crcs
 
 
 def _episodes(n: int = 3, steps: int = 40) -> list[Episode]:
@@ -56,6 +56,9 @@ def test_flipped_byte_in_a_chunk_is_detected(tmp_path: Path) -> None:
         list(StreamReader(fh, validate_crcs=True).records)
     with pytest.raises(BagError):  # the bag reader (rosbags) checks the CRC too
         read_episodes(bag)
+    assert refresh_chunk_crcs(path) == 1  # a deliberate edit can be made consistent again
+    assert all(stored == computed for stored, computed in chunk_crcs(path))
+    assert len(read_episodes(bag).episodes) == 3
 
 
 def _write(writer: DurableWriter, n: int) -> None:

@@ -114,37 +114,56 @@ class DurableWriter(Writer):
         self._dirty = False
 
 
-def chunk_crcs(path: str | Path) -> list[tuple[int, int]]:
-    """``(stored, computed)`` CRC-32 of every chunk of an mcap file, read record by record.
-
-    A stored 0 means "not computed" (MCAP specification).  Raises ``ValueError`` on a file that is
-    not mcap or whose records are cut short.  O(file size).
-    """
-    data = Path(path).read_bytes()
+def _chunks(data: bytes, path: str | Path) -> list[tuple[int, int, int]]:
+    """``(crc_offset, records_start, records_end)`` of every uncompressed chunk, record by record."""
     magic = b"\x89MCAP0\r\n"
     if not data.startswith(magic):
         raise ValueError(f"{path}: not an mcap file (bad magic)")
     pos = len(magic)
-    out: list[tuple[int, int]] = []
+    out = []
     while pos + 9 <= len(data):
         op = data[pos]
         length = int.from_bytes(data[pos + 1:pos + 9], "little")
-        body = data[pos + 9:pos + 9 + length]
-        if len(body) != length:
+        if pos + 9 + length > len(data):
             raise ValueError(f"{path}: record at byte {pos} is cut short")
-        if op == 0x06:  # Chunk
-            stored = int.from_bytes(body[24:28], "little")
-            comp_len = int.from_bytes(body[28:32], "little")
-            records_at = 32 + comp_len + 8
-            records_len = int.from_bytes(body[32 + comp_len:records_at], "little")
-            compression = body[32:32 + comp_len].decode()
+        if op == 0x06:  # Chunk: 3 x u64, u32 crc, string compression, u64 records length, records
+            body = pos + 9
+            comp_len = int.from_bytes(data[body + 28:body + 32], "little")
+            compression = data[body + 32:body + 32 + comp_len].decode()
             if compression:
                 raise ValueError(f"{path}: chunk at byte {pos} is '{compression}'-compressed")
-            out.append((stored, zlib.crc32(body[records_at:records_at + records_len])))
+            at = body + 32 + comp_len
+            size = int.from_bytes(data[at:at + 8], "little")
+            out.append((body + 24, at + 8, at + 8 + size))
         pos += 9 + length
         if op == 0x02:  # Footer
             break
     return out
 
 
-__all__ = ["CommittingSqlite3Writer", "CrcMcapWriter", "DurableWriter", "chunk_crcs"]
+def chunk_crcs(path: str | Path) -> list[tuple[int, int]]:
+    """``(stored, computed)`` CRC-32 of every chunk of an mcap file (a stored 0 = "not computed").
+
+    Raises ``ValueError`` on a file that is not mcap or whose records are cut short.  O(file size).
+    """
+    data = Path(path).read_bytes()
+    return [(int.from_bytes(data[crc:crc + 4], "little"), zlib.crc32(data[a:b]))
+            for crc, a, b in _chunks(data, path)]
+
+
+def refresh_chunk_crcs(path: str | Path) -> int:
+    """Rewrite every chunk CRC of an mcap file to match its records (after a deliberate edit, e.g. in
+    a test); returns how many changed.  O(file size)."""
+    data = bytearray(Path(path).read_bytes())
+    changed = 0
+    for crc, a, b in _chunks(bytes(data), path):
+        new = zlib.crc32(data[a:b]).to_bytes(4, "little")
+        if data[crc:crc + 4] != new:
+            data[crc:crc + 4] = new
+            changed += 1
+    if changed:
+        Path(path).write_bytes(bytes(data))
+    return changed
+
+
+__all__ = ["CommittingSqlite3Writer", "CrcMcapWriter", "DurableWriter", "chunk_crcs", "refresh_chunk_crcs"]
