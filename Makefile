@@ -5,8 +5,14 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.ompn_ros_installed
 
-# DDS containment: discovery stays on loopback, and every make run gets its own domain.
-export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+# DDS containment: Fast DDS on shared memory + UDP bound to 127.0.0.1 only (the profile below;
+# with LOCALHOST rmw_fastrtps would add an unrestricted UDP transport, hence SYSTEM_DEFAULT), no
+# static peers, and every make run gets its own domain. Your own shells and launches are unaffected.
+export FASTRTPS_DEFAULT_PROFILES_FILE := $(CURDIR)/config/fastdds_loopback.xml
+export FASTDDS_DEFAULT_PROFILES_FILE := $(CURDIR)/config/fastdds_loopback.xml
+export ROS_AUTOMATIC_DISCOVERY_RANGE := SYSTEM_DEFAULT
+export ROS_STATIC_PEERS :=
+unexport ROS_LOCALHOST_ONLY
 ROS_DOMAIN_ID ?= $(shell shuf -i 1-100 -n 1)
 export ROS_DOMAIN_ID
 export PYTHONDONTWRITEBYTECODE := 1

@@ -3,35 +3,33 @@
 from __future__ import annotations
 
 import os
-import random
 import sys
 
-# Fast DDS must never send discovery traffic off this machine, and concurrent runs must not
-# see each other. This runs before any test module imports rclpy, so a bare `pytest` is contained.
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ["ROS_DOMAIN_ID"]) <= 100:
-    os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+# Fast DDS must stay on loopback and shared memory (config/fastdds_loopback.xml, see
+# ompn_ros.containment), and concurrent runs must not see each other. This runs before any test
+# module imports rclpy, so a bare `pytest` is contained.
+from ompn_ros import containment
+
+containment.contain(os.environ)
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import pytest
+import pytest  # noqa: E402 (after the containment, before anything imports rclpy)
 
 
 @pytest.fixture(autouse=True)
 def _dds_stays_on_loopback():
-    """Fail any test that leaves rclpy in use with discovery widened beyond localhost."""
+    """Fail any test that leaves rclpy in use with the DDS containment undone."""
     yield
     if "rclpy" in sys.modules:
-        assert os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST", (
-            "rclpy is in use but ROS_AUTOMATIC_DISCOVERY_RANGE is not LOCALHOST: "
-            "DDS discovery would leave the machine"
-        )
+        found = containment.problems(os.environ)
+        assert not found, f"rclpy is in use but DDS is not contained: {'; '.join(found)}"
 
 
 @pytest.fixture
 def ros_env() -> dict[str, str]:
     """Environment for child processes that start rclpy (keeps LD_LIBRARY_PATH and containment)."""
     env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    containment.contain(env)
     env["PYTHONUNBUFFERED"] = "1"
     return env
 

@@ -11,7 +11,8 @@ This is the ``ompn_collect`` route (no DDS).  Per episode, with synthetic stamps
     t0 + (T+1)*STEP_NS + 10*TOPIC_OFFSET_NS   episode end marker (steps, success)
 
 and the next episode starts ``EPISODE_GAP_NS`` after the end marker.  Topics are absolute names
-under ``namespace`` (default ``/``).  JointState (dial) comes from ``episode.extras``:
+under ``namespace`` (default ``/``).  Storage goes through :class:`ompn_ros.data.storage.DurableWriter`
+(CRC'd mcap chunks, a commit at least every second).  JointState (dial) comes from ``episode.extras``:
 ``joint_position`` ``[T+1 | T, J]`` (required to publish), optional ``joint_velocity``,
 ``joint_effort`` of the same shape, and ``joint_names`` (default ``joint_0..``).
 """
@@ -100,11 +101,11 @@ class EpisodeBagWriter:
         self.stats = WriteStats()
 
     def open(self) -> EpisodeBagWriter:
-        from rosbags.rosbag2 import Writer
+        from .storage import DurableWriter  # rosbags costs ~0.5 s to import: only when writing
 
         if self.path.exists():
             raise BagError("output exists; the writer never overwrites a bag", path=self.path)
-        self._writer = Writer(self.path, version=9, storage_plugin=self._plugin)
+        self._writer = DurableWriter(self.path, version=9, storage_plugin=self._plugin)
         self._writer.open()
         ts = m.typestore()
         for name, typename in layout.topic_types(self.domain).items():

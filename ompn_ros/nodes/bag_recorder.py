@@ -1,14 +1,30 @@
 """``bag_recorder``: record the sim topics to a rosbag2 (v9, mcap or sqlite3) without decoding.
 
-Parameters:
+Usage: ``bag_recorder [TOPIC ...] [-o OUTPUT] [-s {mcap,sqlite3}] [--ros-args -p name:=value ...]``
+(``bag_recorder --help`` lists every parameter with its default and has no other effect).
+
+Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the first three):
     topics (string[]): topics to record; relative names resolve in the node's namespace.
         Default: every topic the sims publish (``ompn_ros.layout``).
     output (string): bag directory to create; default ``bags/rec_<UTC timestamp>``.
     storage (string): ``mcap`` (default) or ``sqlite3``.
-    qos_depth (int): KEEP_LAST depth of the RELIABLE subscriptions (default 1000: at the sims'
-        25-100 Hz a stall of 10 s loses nothing).
-    discovery_period (double): seconds between topic discovery passes (default 0.2).
+    qos_depth (int): 0 (default) = KEEP_ALL history: DDS never discards a message the recorder has
+        not taken yet (a reliable publisher waits instead); N > 0 = KEEP_LAST N (a stall longer than
+        N messages loses the oldest ones, counted as sequence jumps).
+    discovery_period (double): seconds between topic discovery passes (default 0.2, steady clock).
     gap_seconds (double): a per-topic stamp jump larger than this is reported as a time gap.
+    step_topic (string): the topic that opens a step (default ``observation``); on stop every topic
+        ends right before its first message published after the signal.  If it is not recorded, the
+        one recorded topic with the same base name is used; '' or no such topic = end at the signal.
+    drain_timeout (double): longest drain after SIGINT/SIGTERM, in seconds (default 10).
+    drain_idle (double): with no stream waiting (below), the drain ends once nothing was written
+        for this long (default 0.3 s).  It ends at once when every topic that was streaming at the
+        signal (a message at least every 0.5 s, the last within 1 s) has delivered a message from the
+        cut on; a stalled stream is waited for (up to ``drain_timeout``) while its publisher lives.
+    commit_period (double): seconds between storage commits (default 1.0): a SIGKILL loses at most
+        this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).  Commits are placed
+        right before a step's opening message once half the period has passed, so a killed
+        recording normally ends with whole steps.
 
 Subscriptions are ``raw=True`` (CDR bytes go to the bag untouched), RELIABLE + VOLATILE (compatible
 with both volatile and transient-local publishers).  Topics are subscribed as they appear
@@ -17,35 +33,74 @@ with both volatile and transient-local publishers).  Topics are subscribed as th
 **Stamps:** every message is written at the publisher's ``source_timestamp`` from the message info
 that rclpy 7.1.6 passes to a two-argument subscription callback (falling back to
 ``received_timestamp`` if a middleware gives none).  Source stamps keep the publish order of the
-step contract across topics, whatever the delivery order.  Loss is detected from
-``publication_sequence_number`` jumps per topic (a backwards jump = another publisher, not counted).
+step contract across topics, whatever the delivery order.  Under ``use_sim_time`` the stamps are
+moved into the input's (sim) time base: a step is stamped at the sim time its opening message
+arrived, its messages keep their publish order (``ompn_ros.data.sim_stamps``).  Messages taken
+before the first ``/clock`` wait for it (up to 20 000, then they are written in system time).
+Loss is detected from ``publication_sequence_number`` jumps per topic (a backwards jump = another
+publisher, not counted).
 
-Stops cleanly on SIGINT/SIGTERM: closes the bag and prints a summary (messages per topic, sequence
-jumps, large time gaps).
+**Stopping:** SIGINT/SIGTERM do not drop the queue.  The recorder drains what DDS has delivered and
+ends every topic at the same step (``ompn_ros.data.stop_cut``), closes the bag and prints a summary
+(messages per topic, sequence jumps, large time gaps, the drain).  A second signal ends the drain
+at once (the bag is still closed properly).
 """
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import importlib
+import signal
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from ompn_ros import layout
 from ompn_ros.data import messages as m
 from ompn_ros.data.bag_writer import STORAGES, storage_plugin
+from ompn_ros.data.sim_stamps import SimStamper
+from ompn_ros.data.stop_cut import StopCut
+from ompn_ros.data.storage import DurableWriter
 
 DEFAULT_TOPICS = [
     layout.EPISODE, layout.SKETCH, layout.OBSERVATION, layout.JOINT_STATES, layout.SUBTASK,
     layout.ACTION, layout.RENDER,
 ]
+# name -> (default, help); the single table behind declare_parameter and --help
+PARAMS: dict[str, tuple[Any, str]] = {
+    "topics": (DEFAULT_TOPICS, "topics to record (relative names follow the node's namespace)"),
+    "output": ("", "bag directory to create ('' = bags/rec_<UTC timestamp>)"),
+    "storage": ("mcap", f"storage plugin, one of {STORAGES}"),
+    "qos_depth": (0, "0 = KEEP_ALL (DDS drops nothing not yet taken); N > 0 = KEEP_LAST N"),
+    "discovery_period": (0.2, "seconds between topic discovery passes"),
+    "gap_seconds": (0.5, "report per-topic stamp jumps larger than this (seconds)"),
+    "step_topic": (layout.OBSERVATION, "topic opening a step; on stop all topics end before its first "
+                   "message after the signal ('' = end at the signal)"),
+    "drain_timeout": (10.0, "longest drain after SIGINT/SIGTERM (seconds)"),
+    "drain_idle": (0.3, "with no live stream short of the cut, drain ends after this long idle (s)"),
+    "commit_period": (1.0, "seconds between storage commits (the most a SIGKILL loses)"),
+}
+
+
+STREAM_PERIOD_S = 0.5  # a topic publishing at least every 0.5 s is a stream the drain waits for
+PRECLOCK_LIMIT = 20_000  # under use_sim_time, messages held until the first /clock (then system time)
+
+
+class RecorderError(ValueError):
+    """A bad parameter or output path (one line, names the parameter or path)."""
 
 
 def message_class(typename: str) -> Any:
@@ -59,12 +114,52 @@ class TopicStats:
     """Per-topic recording statistics."""
 
     msgtype: str
-    count: int = 0
+    count: int = 0  # messages written
+    received: int = 0  # messages taken from DDS
     last_seq: int | None = None
     lost: int = 0  # messages missing according to publication sequence numbers
     last_stamp: int | None = None
     time_gaps: list[float] = field(default_factory=list)
     receive_stamps: int = 0  # messages written at receive time (no source timestamp)
+    last_src: int | None = None  # source stamp of the last message taken
+    period_ns: float | None = None  # running mean of the source-stamp spacing
+
+    def taken(self, src: int) -> None:
+        """Track the spacing of the messages taken (for :meth:`streaming`)."""
+        if self.last_src is not None and src > self.last_src:
+            gap = float(src - self.last_src)
+            self.period_ns = gap if self.period_ns is None else 0.9 * self.period_ns + 0.1 * gap
+        self.last_src = src if self.last_src is None else max(self.last_src, src)
+
+    def streaming(self, at_ns: int) -> bool:
+        """A message at least every ``STREAM_PERIOD_S`` and one in the last second before ``at_ns``."""
+        return (self.period_ns is not None and self.period_ns < STREAM_PERIOD_S * 1e9
+                and self.last_src is not None and at_ns - self.last_src < 1e9)
+
+
+@dataclass
+class _Topic:
+    name: str
+    conn: Any
+    stats: TopicStats
+    sub: Any = None
+
+
+@dataclass
+class StopRequest:
+    """SIGINT/SIGTERM handler state: the first signal's system time and the number of signals."""
+
+    signal_ns: int | None = None
+    count: int = 0
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        if self.signal_ns is None:
+            self.signal_ns = time.time_ns()
+        self.count += 1
+
+    def install(self) -> None:
+        signal.signal(signal.SIGINT, self)
+        signal.signal(signal.SIGTERM, self)
 
 
 class BagRecorder(Node):
@@ -72,36 +167,53 @@ class BagRecorder(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("bag_recorder", **kwargs)
-        topics = self.declare_parameter("topics", DEFAULT_TOPICS).value
-        output = self.declare_parameter("output", "").value
-        storage = self.declare_parameter("storage", "mcap").value
-        self.qos_depth = int(self.declare_parameter("qos_depth", 1000).value)
-        period = float(self.declare_parameter("discovery_period", 0.2).value)
-        self.gap_ns = int(float(self.declare_parameter("gap_seconds", 0.5).value) * 1e9)
-        if storage not in STORAGES:
-            raise ValueError(f"parameter storage='{storage}' must be one of {STORAGES}")
-        if not output:
-            output = f"bags/rec_{dt.datetime.now(dt.UTC).strftime('%Y%m%d_%H%M%S')}"
+        p = {name: self.declare_parameter(name, default).value for name, (default, _) in PARAMS.items()}
+        _check_params(p)
+        storage = p["storage"]
+        self.qos_depth = int(p["qos_depth"])
+        self.gap_ns = int(float(p["gap_seconds"]) * 1e9)
+        self.drain_timeout = float(p["drain_timeout"])
+        self.drain_idle = float(p["drain_idle"])
+        output = p["output"] or f"bags/rec_{dt.datetime.now(dt.UTC).strftime('%Y%m%d_%H%M%S')}"
         self.output = Path(output)
         if self.output.exists():
-            raise FileExistsError(f"bag_recorder: output '{self.output}' already exists")
+            raise RecorderError(f"output '{self.output}' already exists")
         self.output.parent.mkdir(parents=True, exist_ok=True)
-        self.wanted = {self.resolve_topic_name(t) for t in topics}
-        from rosbags.rosbag2 import Writer
-
-        self.writer: Any = Writer(self.output, version=9, storage_plugin=storage_plugin(storage))
+        self.wanted = {self.resolve_topic_name(t) for t in p["topics"]}
+        step = _step_topic(self.resolve_topic_name(p["step_topic"]), self.wanted) if p["step_topic"] else None
+        self.cut: StopCut[tuple[_Topic, int, bytes]] = StopCut(step)
+        use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        self.sim_stamps = SimStamper() if use_sim_time else None
+        self._preclock: list[tuple[_Topic, int, bytes]] = []
+        self.write_errors = 0
+        self._max_written = 0  # largest stamp written
+        self.drain_seconds = 0.0
+        self.drain_end = ""
+        self.received_before_signal = 0
+        self.writer: DurableWriter | None = DurableWriter(
+            self.output, version=9, storage_plugin=storage_plugin(storage),
+            commit_period=float(p["commit_period"]))
         self.writer.open()
-        self.stats: dict[str, TopicStats] = {}
-        self._subs: list[Any] = []
-        self.qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                              depth=self.qos_depth, durability=DurabilityPolicy.VOLATILE)
+        self.topics: dict[str, _Topic] = {}
+        self.qos = QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+            history=HistoryPolicy.KEEP_ALL if self.qos_depth == 0 else HistoryPolicy.KEEP_LAST,
+            depth=max(self.qos_depth, 1))
         self.get_logger().info(f"recording {sorted(self.wanted)} to {self.output} ({storage})")
         self._discover()
-        self.create_timer(period, self._discover)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)  # discovery must not wait for /clock
+        self.create_timer(float(p["discovery_period"]), self._discover, clock=steady)
 
+    @property
+    def stats(self) -> dict[str, TopicStats]:
+        return {name: t.stats for name, t in self.topics.items()}
+
+    # --- discovery and intake ---------------------------------------------------------------------
     def _discover(self) -> None:
+        if self.writer is None or self.cut.stopping:
+            return
         for name, types in self.get_topic_names_and_types():
-            if name not in self.wanted or name in self.stats:
+            if name not in self.wanted or name in self.topics:
                 continue
             if len(types) != 1:
                 self.get_logger().warning(f"topic {name} has several types {types}; not recorded")
@@ -111,44 +223,158 @@ class BagRecorder(Node):
                 self.get_logger().warning(f"topic {name}: type {msgtype} unknown to the Jazzy typestore")
                 continue
             conn = self.writer.add_connection(name, msgtype, typestore=m.typestore())
-            self.stats[name] = stats = TopicStats(msgtype)
-            self._subs.append(self.create_subscription(
-                message_class(msgtype), name, self._callback(conn, stats), self.qos, raw=True))
+            topic = self.topics[name] = _Topic(name, conn, TopicStats(msgtype))
+            topic.sub = self.create_subscription(message_class(msgtype), name,
+                                                 self._callback(topic), self.qos, raw=True)
             self.get_logger().info(f"subscribed {name} [{msgtype}]")
 
-    def _callback(self, conn: Any, stats: TopicStats) -> Any:
-        writer = self.writer
-        gap_ns = self.gap_ns
-
+    def _callback(self, topic: _Topic) -> Any:
         def on_message(raw: bytes, info: dict[str, Any]) -> None:
-            stamp = info.get("source_timestamp") or 0
-            if not stamp:
-                stamp = info.get("received_timestamp") or self.get_clock().now().nanoseconds
-                stats.receive_stamps += 1
-            writer.write(conn, stamp, raw)
-            stats.count += 1
-            seq = info.get("publication_sequence_number")
-            if seq is not None:
-                if stats.last_seq is not None and seq > stats.last_seq + 1:
-                    stats.lost += seq - stats.last_seq - 1
-                stats.last_seq = seq
-            if stats.last_stamp is not None and stamp - stats.last_stamp > gap_ns:
-                stats.time_gaps.append((stamp - stats.last_stamp) / 1e9)
-            stats.last_stamp = stamp
+            self._on_message(topic, raw, info)
 
         return on_message
+
+    def pump(self, limit: int = 5000) -> int:
+        """Take up to ``limit`` queued messages straight from the subscriptions, handle them in
+        source-stamp order (publish order across topics); returns how many."""
+        batch: list[tuple[int, int, _Topic, bytes, dict[str, Any]]] = []
+        for topic in list(self.topics.values()):
+            sub = topic.sub
+            while len(batch) < limit:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, True)
+                if got is None:
+                    break
+                raw, info = got
+                batch.append((info.get("source_timestamp") or 0, len(batch), topic, raw, info))
+        batch.sort(key=lambda item: item[:2])
+        for _, _, topic, raw, info in batch:
+            self._on_message(topic, raw, info)
+        return len(batch)
+
+    def _on_message(self, topic: _Topic, raw: bytes, info: dict[str, Any]) -> None:
+        stats = topic.stats
+        stats.received += 1
+        src = info.get("source_timestamp") or 0
+        if not src:
+            src = info.get("received_timestamp") or time.time_ns()
+            stats.receive_stamps += 1
+        if self.cut.signal_ns is None or src < self.cut.signal_ns:
+            self.received_before_signal += 1
+        stats.taken(src)
+        seq = info.get("publication_sequence_number")
+        if seq is not None:
+            if stats.last_seq is not None and seq > stats.last_seq + 1:
+                stats.lost += seq - stats.last_seq - 1
+            stats.last_seq = seq
+        sim = self.sim_stamps
+        if sim is not None and not sim.started:
+            sim.open_step(src, self.get_clock().now().nanoseconds)
+            if not sim.started and len(self._preclock) < PRECLOCK_LIMIT:
+                self._preclock.append((topic, src, raw))  # stamped once /clock arrives
+                return
+            self._flush_preclock()
+        self._offer(topic, src, raw)
+
+    def _offer(self, topic: _Topic, src: int, raw: bytes) -> None:
+        stamp = src
+        sim = self.sim_stamps
+        if sim is not None and sim.started:
+            if topic.name == self.cut.step_topic or self.cut.step_topic is None:
+                sim.open_step(src, self.get_clock().now().nanoseconds)
+            stamp = sim.stamp(src)
+        for item in self.cut.offer(topic.name, src, (topic, stamp, raw)):
+            self._write(*item)
+
+    def _flush_preclock(self) -> None:
+        """Messages taken before the first ``/clock``: sim stamps if it came, else system time."""
+        if self._preclock and (self.sim_stamps is None or not self.sim_stamps.started):
+            self.get_logger().warning(f"use_sim_time: no /clock within {len(self._preclock)} messages; "
+                                      "those are stamped in system time")
+        pending, self._preclock = self._preclock, []
+        for topic, src, raw in pending:
+            self._offer(topic, src, raw)
+
+    def _write(self, topic: _Topic, stamp: int, raw: bytes) -> None:
+        writer = self.writer
+        if writer is None:
+            return
+        if topic.name == self.cut.step_topic and stamp > self._max_written and writer.commit_period \
+                and writer.since_checkpoint() >= writer.commit_period / 2:
+            writer.checkpoint()  # commit whole steps: everything before this step's opening message
+        self._max_written = max(self._max_written, stamp)
+        try:
+            writer.write(topic.conn, stamp, raw)
+        except OSError as err:  # disk full, ...: count and keep the node alive
+            self.write_errors += 1
+            if self.write_errors == 1:
+                self.get_logger().error(f"cannot write to {self.output}: {err}")
+            return
+        stats = topic.stats
+        stats.count += 1
+        if stats.last_stamp is not None and stamp - stats.last_stamp > self.gap_ns:
+            stats.time_gaps.append((stamp - stats.last_stamp) / 1e9)
+        stats.last_stamp = stamp
+
+    def tick(self) -> None:
+        """Periodic storage commit while idle."""
+        if self.writer is not None:
+            self.writer.tick()
+
+    # --- stop ---------------------------------------------------------------------------------------
+    def drain(self, executor: Any, stop: StopRequest) -> None:
+        """Take what DDS delivers until the streams reached the cut, or idle/timeout (module docstring)."""
+        assert stop.signal_ns is not None
+        self.cut.request(stop.signal_ns)
+        streams = {t.name: t for t in self.topics.values() if t.stats.streaming(stop.signal_ns)}
+        start = last = time.monotonic()
+        while True:
+            before = sum(t.stats.count for t in self.topics.values())
+            executor.spin_once(timeout_sec=0.01)
+            self.pump()
+            now = time.monotonic()
+            if sum(t.stats.count for t in self.topics.values()) != before:
+                last = now
+            end = self._drain_over(streams, now - last, now - start, stop.count)
+            if end:
+                self.drain_end = end
+                break
+        self._flush_preclock()
+        for item in self.cut.finish():
+            self._write(*item)
+        self.drain_seconds = time.monotonic() - start
+
+    def _drain_over(self, streams: dict[str, _Topic], idle: float, elapsed: float, signals: int) -> str:
+        """Why the drain ends now ('' = go on).
+
+        Every topic that was streaming at the signal must deliver a message from the cut on (DDS
+        delivers each writer's messages in order, so all before the cut are in); a stalled stream is
+        waited for (a repaired DDS loss can take seconds) unless its publishers are gone.
+        """
+        if self.cut.cut_ns is not None and self.cut.passed >= set(streams):
+            return "every streaming topic reached the cut"
+        if idle >= self.drain_idle and all(t.sub.get_publisher_count() == 0 for t in streams.values()
+                                           if t.name not in self.cut.passed):
+            return f"nothing to write for {self.drain_idle:g} s and no stream left"
+        if elapsed >= self.drain_timeout:
+            return f"drain_timeout ({self.drain_timeout:g} s) reached"
+        return "second signal" if signals > 1 else ""
 
     def close(self) -> str:
         """Close the bag; returns the summary text."""
         if self.writer is not None:
+            self._flush_preclock()
+            for item in self.cut.finish():
+                self._write(*item)
             self.writer.close()
             self.writer = None
         return self.summary()
 
     def summary(self) -> str:
-        lines = [f"bag_recorder: wrote {sum(s.count for s in self.stats.values())} messages to {self.output}"]
-        for name in sorted(self.stats):
-            s = self.stats[name]
+        written = sum(s.count for s in self.stats.values())
+        lines = [f"bag_recorder: wrote {written} messages to {self.output}"]
+        for name in sorted(self.topics):
+            s = self.topics[name].stats
             line = f"  {name} [{s.msgtype}]: {s.count} messages"
             if s.lost:
                 line += f", {s.lost} lost (sequence jumps)"
@@ -158,28 +384,90 @@ class BagRecorder(Node):
             if s.receive_stamps:
                 line += f", {s.receive_stamps} stamped at receive time"
             lines.append(line)
-        missing = sorted(self.wanted - set(self.stats))
+        missing = sorted(self.wanted - set(self.topics))
         if missing:
             lines.append(f"  never seen: {missing}")
+        if self.cut.stopping:
+            received = sum(s.received for s in self.stats.values())
+            lines.append(f"  stop: received {received} messages ({self.received_before_signal} published "
+                         f"before the signal), drained {self.drain_seconds:.2f} s ({self.drain_end}), "
+                         f"{self.cut.dropped} after the cut not recorded")
+        if self.write_errors:
+            lines.append(f"  {self.write_errors} messages could not be written")
         return "\n".join(lines)
 
 
+def _check_params(p: dict[str, Any]) -> None:
+    """Raise :class:`RecorderError` naming the first bad parameter."""
+    if p["storage"] not in STORAGES:
+        raise RecorderError(f"parameter storage='{p['storage']}' must be one of {STORAGES}")
+    for name in ("discovery_period", "drain_timeout", "drain_idle", "commit_period", "gap_seconds"):
+        if not float(p[name]) > 0:
+            raise RecorderError(f"parameter {name}={p[name]} must be > 0")
+    if int(p["qos_depth"]) < 0:
+        raise RecorderError(f"parameter qos_depth={p['qos_depth']} must be >= 0 (0 = KEEP_ALL)")
+
+
+def _step_topic(step: str, wanted: set[str]) -> str | None:
+    """The recorded topic that opens a step: ``step`` itself, else the one recorded topic with its
+    base name (topics recorded from another namespace), else ``None`` (stop at the signal)."""
+    if step in wanted:
+        return step
+    same = [t for t in wanted if t.rsplit("/", 1)[-1] == step.rsplit("/", 1)[-1]]
+    return same[0] if len(same) == 1 else None
+
+
+def parse_cli(argv: list[str]) -> argparse.Namespace:
+    """The non-ROS command line (``--help`` prints every parameter with its default and exits)."""
+    table = "\n".join(f"  {name} (default {default!r}): {text}" for name, (default, text) in PARAMS.items())
+    table += "\n  use_sim_time (default False): stamp in sim time (/clock), keeping the publish order"
+    parser = argparse.ArgumentParser(
+        prog="bag_recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Record the sim topics to a rosbag2 (v9) without decoding; SIGINT/SIGTERM drain "
+                    "and close the bag.",
+        epilog=f"ROS parameters (--ros-args -p name:=value):\n{table}")
+    parser.add_argument("topics", nargs="*", help=f"topics to record (default: {' '.join(DEFAULT_TOPICS)})")
+    parser.add_argument("-o", "--output", help="bag directory to create (default: bags/rec_<UTC timestamp>)")
+    parser.add_argument("-s", "--storage", choices=STORAGES, help="storage plugin (default: mcap)")
+    return parser.parse_args(argv)
+
+
+def _overrides(opts: argparse.Namespace) -> list[Parameter]:
+    out = []
+    if opts.topics:
+        out.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(opts.topics)))
+    if opts.output:
+        out.append(Parameter("output", Parameter.Type.STRING, opts.output))
+    if opts.storage:
+        out.append(Parameter("storage", Parameter.Type.STRING, opts.storage))
+    return out
+
+
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = None
+    argv = list(sys.argv if args is None else args)
+    opts = parse_cli(remove_ros_args(argv)[1:])  # --help / bad flags exit here, before any side effect
+    stop = StopRequest()
+    stop.install()
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = BagRecorder()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (FileExistsError, ValueError) as err:
+        node = BagRecorder(parameter_overrides=_overrides(opts))
+    except (RecorderError, OSError) as err:
         print(f"bag_recorder: error: {err}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while stop.signal_ns is None and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+            node.pump()
+            node.tick()
+        if stop.signal_ns is not None:
+            node.drain(executor, stop)
     finally:
-        if node is not None:
-            print(node.close(), flush=True)
-            node.destroy_node()
+        print(node.close(), flush=True)
+        executor.shutdown()
+        node.destroy_node()
         rclpy.try_shutdown()
     return 0
 
