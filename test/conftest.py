@@ -6,8 +6,9 @@ import os
 import sys
 
 # Fast DDS must stay on loopback and shared memory (config/fastdds_loopback.xml, see
-# ompn_ros.containment), and concurrent runs must not see each other. This runs before any test
-# module imports rclpy, so a bare `pytest` is contained.
+# ompn_ros.containment: the profile, ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT so that rmw applies
+# it untouched, no static peers), and concurrent runs must not see each other (a random
+# ROS_DOMAIN_ID). This runs before any test module imports rclpy, so a bare `pytest` is contained.
 from ompn_ros import containment
 
 containment.contain(os.environ)

@@ -11,6 +11,7 @@ from test_data_common import assert_same_episode, make_episodes
 
 from ompn_ros.data import ReaderSpec, load_arrays, write_episodes
 from ompn_ros.data import cache as cache_mod
+from ompn_ros.data.storage import refresh_chunk_crcs
 
 
 def test_cache_hit_and_content_miss(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -52,6 +53,7 @@ def test_cache_hit_and_content_miss(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     assert at > 0
     data[at:at + 4] = np.asarray([123.5], dtype="<f4").tobytes()
     file.write_bytes(bytes(data))
+    refresh_chunk_crcs(file)  # a deliberate edit: the chunk CRCs would flag it as corruption
     os.utime(file, ns=(stat.st_atime_ns, stat.st_mtime_ns))
     third = load_arrays(tmp_path / "bags", spec=spec, cache_dir=cache_dir)
     assert not third.cache_hit and calls["n"] == 1 and third.key != first.key

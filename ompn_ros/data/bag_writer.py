@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.data.storage import DurableWriter
 from ompn_ros.layout import DomainLayout
 
 from . import messages as m
@@ -101,8 +102,6 @@ class EpisodeBagWriter:
         self.stats = WriteStats()
 
     def open(self) -> EpisodeBagWriter:
-        from .storage import DurableWriter  # rosbags costs ~0.5 s to import: only when writing
-
         if self.path.exists():
             raise BagError("output exists; the writer never overwrites a bag", path=self.path)
         self._writer = DurableWriter(self.path, version=9, storage_plugin=self._plugin)

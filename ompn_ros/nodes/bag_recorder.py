@@ -74,25 +74,31 @@ from ompn_ros.data.bag_writer import STORAGES, storage_plugin
 from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.stop_cut import StopCut
 from ompn_ros.data.storage import DurableWriter
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
 
 DEFAULT_TOPICS = [
     layout.EPISODE, layout.SKETCH, layout.OBSERVATION, layout.JOINT_STATES, layout.SUBTASK,
     layout.ACTION, layout.RENDER,
 ]
-# name -> (default, help); the single table behind declare_parameter and --help
-PARAMS: dict[str, tuple[Any, str]] = {
-    "topics": (DEFAULT_TOPICS, "topics to record (relative names follow the node's namespace)"),
-    "output": ("", "bag directory to create ('' = bags/rec_<UTC timestamp>)"),
-    "storage": ("mcap", f"storage plugin, one of {STORAGES}"),
-    "qos_depth": (0, "0 = KEEP_ALL (DDS drops nothing not yet taken); N > 0 = KEEP_LAST N"),
-    "discovery_period": (0.2, "seconds between topic discovery passes"),
-    "gap_seconds": (0.5, "report per-topic stamp jumps larger than this (seconds)"),
-    "step_topic": (layout.OBSERVATION, "topic opening a step; on stop all topics end before its first "
-                   "message after the signal ('' = end at the signal)"),
-    "drain_timeout": (10.0, "longest drain after SIGINT/SIGTERM (seconds)"),
-    "drain_idle": (0.3, "with no live stream short of the cut, drain ends after this long idle (s)"),
-    "commit_period": (1.0, "seconds between storage commits (the most a SIGKILL loses)"),
-}
+# The single table behind the declared parameters and --help (ompn_ros.nodes.params).
+PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("topics", DEFAULT_TOPICS, "topics to record (relative names follow the node's namespace)"),
+    ParamSpec("output", "", "bag directory to create ('' = bags/rec_<UTC timestamp>)"),
+    ParamSpec("storage", "mcap", "storage plugin", choices=STORAGES),
+    ParamSpec("qos_depth", 0, "0 = KEEP_ALL (DDS drops nothing not yet taken); N > 0 = KEEP_LAST N",
+              int_range=(0, 1_000_000)),
+    ParamSpec("discovery_period", 0.2, "seconds between topic discovery passes", float_range=(0.001, 60.0)),
+    ParamSpec("gap_seconds", 0.5, "report per-topic stamp jumps larger than this (seconds)",
+              float_range=(0.001, 3600.0)),
+    ParamSpec("step_topic", layout.OBSERVATION, "topic opening a step; on stop all topics end before its "
+              "first message after the signal ('' = end at the signal)"),
+    ParamSpec("drain_timeout", 10.0, "longest drain after SIGINT/SIGTERM (seconds)",
+              float_range=(0.001, 3600.0)),
+    ParamSpec("drain_idle", 0.3, "with no live stream short of the cut, drain ends after this long idle (s)",
+              float_range=(0.001, 60.0)),
+    ParamSpec("commit_period", 1.0, "seconds between storage commits (the most a SIGKILL loses)",
+              float_range=(0.001, 3600.0)),
+)
 
 
 STREAM_PERIOD_S = 0.5  # a topic publishing at least every 0.5 s is a stream the drain waits for
@@ -167,8 +173,7 @@ class BagRecorder(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("bag_recorder", **kwargs)
-        p = {name: self.declare_parameter(name, default).value for name, (default, _) in PARAMS.items()}
-        _check_params(p)
+        p = ParamTable(PARAMS).declare(self)
         storage = p["storage"]
         self.qos_depth = int(p["qos_depth"])
         self.gap_ns = int(float(p["gap_seconds"]) * 1e9)
@@ -225,8 +230,18 @@ class BagRecorder(Node):
             conn = self.writer.add_connection(name, msgtype, typestore=m.typestore())
             topic = self.topics[name] = _Topic(name, conn, TopicStats(msgtype))
             topic.sub = self.create_subscription(message_class(msgtype), name,
-                                                 self._callback(topic), self.qos, raw=True)
+                                                 self._callback(topic), self._qos_for(name), raw=True)
             self.get_logger().info(f"subscribed {name} [{msgtype}]")
+
+    def _qos_for(self, name: str) -> QoSProfile:
+        """Reliable, unless every publisher of ``name`` is best effort (a sensor driver): a reliable
+        subscription would then never match, so take what they offer (as ``ros2 bag record`` does)."""
+        infos = self.get_publishers_info_by_topic(name)
+        if infos and all(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
+            self.get_logger().info(f"{name}: best-effort publishers, recording best effort")
+            return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=self.qos.durability,
+                              history=self.qos.history, depth=self.qos.depth)
+        return self.qos
 
     def _callback(self, topic: _Topic) -> Any:
         def on_message(raw: bytes, info: dict[str, Any]) -> None:
@@ -397,17 +412,6 @@ class BagRecorder(Node):
         return "\n".join(lines)
 
 
-def _check_params(p: dict[str, Any]) -> None:
-    """Raise :class:`RecorderError` naming the first bad parameter."""
-    if p["storage"] not in STORAGES:
-        raise RecorderError(f"parameter storage='{p['storage']}' must be one of {STORAGES}")
-    for name in ("discovery_period", "drain_timeout", "drain_idle", "commit_period", "gap_seconds"):
-        if not float(p[name]) > 0:
-            raise RecorderError(f"parameter {name}={p[name]} must be > 0")
-    if int(p["qos_depth"]) < 0:
-        raise RecorderError(f"parameter qos_depth={p['qos_depth']} must be >= 0 (0 = KEEP_ALL)")
-
-
 def _step_topic(step: str, wanted: set[str]) -> str | None:
     """The recorded topic that opens a step: ``step`` itself, else the one recorded topic with its
     base name (topics recorded from another namespace), else ``None`` (stop at the signal)."""
@@ -419,7 +423,7 @@ def _step_topic(step: str, wanted: set[str]) -> str | None:
 
 def parse_cli(argv: list[str]) -> argparse.Namespace:
     """The non-ROS command line (``--help`` prints every parameter with its default and exits)."""
-    table = "\n".join(f"  {name} (default {default!r}): {text}" for name, (default, text) in PARAMS.items())
+    table = "\n".join(f"  {spec.name} (default {spec.default!r}): {spec.description}" for spec in PARAMS)
     table += "\n  use_sim_time (default False): stamp in sim time (/clock), keeping the publish order"
     parser = argparse.ArgumentParser(
         prog="bag_recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -451,7 +455,7 @@ def main(args: list[str] | None = None) -> int:
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = BagRecorder(parameter_overrides=_overrides(opts))
-    except (RecorderError, OSError) as err:
+    except (RecorderError, ParameterError, OSError) as err:
         print(f"bag_recorder: error: {err}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
