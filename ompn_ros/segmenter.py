@@ -25,24 +25,15 @@ from ompn_ros.detect.online import (
     expansion_level,
     expansion_score,
 )
-
-
-class InvalidInput(ValueError):
-    """An observation was rejected without stepping the model. ``reason`` is the counter key."""
-
-    reason = "invalid"
-
-
-class EmptyObservation(InvalidInput):
-    reason = "empty"
-
-
-class WrongObservationLength(InvalidInput):
-    reason = "wrong_length"
-
-
-class NonFiniteObservation(InvalidInput):
-    reason = "non_finite"
+from ompn_ros.validate import (
+    EmptyObservation,
+    InvalidInput,
+    NonFiniteObservation,
+    SketchError,
+    WrongObservationLength,
+    validate_observation,
+    validate_sketch,
+)
 
 
 class OutOfOrderStamp(InvalidInput):
@@ -61,10 +52,6 @@ class MalformedMessage(InvalidInput):
     """The transport delivered bytes that do not decode as the expected message (raised by callers)."""
 
     reason = "malformed"
-
-
-class SketchError(ValueError):
-    """The sketch given to :meth:`StreamingSegmenter.reset` does not fit the model."""
 
 
 REJECT_REASONS = (
@@ -180,25 +167,7 @@ class StreamingSegmenter:
             raise MissingSketch("no episode started: the model needs a sketch (reset(sketch)) first")
         if self.detector.closed:
             raise EpisodeClosed("the episode was ended (end_episode); reset() starts the next one")
-        # Every numpy call costs tens of µs when a 100 Hz stream finds the caches cold: the node's
-        # parsed messages (flat contiguous float32 already) skip the conversions.
-        if type(obs) is np.ndarray and obs.dtype == np.float32 and obs.ndim == 1 and obs.flags.c_contiguous:
-            arr = obs
-        else:
-            try:
-                arr = np.asarray(obs, dtype=np.float32)
-            except (TypeError, ValueError) as exc:
-                raise NonFiniteObservation(f"observation is not numeric: {exc}") from exc
-            arr = np.ascontiguousarray(arr.reshape(-1))
-        if arr.size == 0:
-            raise EmptyObservation("observation is empty")
-        if arr.size != self.obs_dim:
-            raise WrongObservationLength(
-                f"observation has {arr.size} values, the model expects obs_dim={self.obs_dim}"
-            )
-        if not np.isfinite(arr).all():
-            bad = int(np.flatnonzero(~np.isfinite(arr))[0])
-            raise NonFiniteObservation(f"observation has a NaN/Inf value (first at index {bad})")
+        arr = validate_observation(obs, self.obs_dim)
         if stamp_ns is not None and self._last_stamp is not None and int(stamp_ns) <= self._last_stamp:
             raise OutOfOrderStamp(
                 f"observation stamp {int(stamp_ns)} ns is not after the previous step's {self._last_stamp} ns"
@@ -245,15 +214,10 @@ class StreamingSegmenter:
             if mode != "none":
                 raise SketchError(f"the model uses sketch_mode='{mode}' and needs a sketch; none was given")
             return None
-        arr = np.asarray(sketch)
-        if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
-            raise SketchError(f"sketch must be a non-empty 1-D integer array, got {arr.dtype} {arr.shape}")
         if mode == "none":
-            return None  # a sketch is published but the model ignores it
+            return None  # a sketch may be published, but this model ignores it
         vocab = getattr(self.policy.config, "sketch_vocab", None)
-        if vocab is not None and (arr.min() < 0 or arr.max() >= int(vocab)):
-            raise SketchError(f"sketch ids {arr.tolist()} outside the model's vocabulary 0..{int(vocab) - 1}")
-        return arr.astype(np.int64)
+        return validate_sketch(sketch, None if vocab is None else int(vocab))
 
 
 @dataclass
