@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -54,6 +54,45 @@ class MalformedMessage(InvalidInput):
     reason = "malformed"
 
 
+class BadStamp(InvalidInput):
+    """The stamp is not a valid ``builtin_interfaces/Time`` (raised by callers)."""
+
+    reason = "bad_stamp"
+
+
+class FutureStamp(InvalidInput):
+    """The stamp lies further ahead of the receiver's clock than allowed (raised by callers)."""
+
+    reason = "future_stamp"
+
+
+class BadSketch(InvalidInput):
+    """An episode start or sketch message carried a sketch the model cannot use (counted by callers)."""
+
+    reason = "bad_sketch"
+
+
+StampClass = Literal["ok", "future", "jump_back"]
+
+
+def classify_stamp(
+    stamp_ns: int, last_ns: int | None, now_ns: int, *, jump_back_ns: int, max_lead_ns: int
+) -> StampClass:
+    """Where ``stamp_ns`` lies against the last accepted stamp and the receiver's clock (O(1)).
+
+    ``'future'``: more than ``max_lead_ns`` ahead of ``now_ns`` (checked when both are > 0; a clock at 0
+    is sim time before the first ``/clock``).  ``'jump_back'``: more than ``jump_back_ns`` before
+    ``last_ns``: the source's clock restarted (a sim restart, a bag replayed in a loop), so a new
+    episode begins.  ``'ok'`` otherwise; a small step back stays an out-of-order rejection of
+    :meth:`StreamingSegmenter.step`.  Together these make a single stamp unable to wedge a stream.
+    """
+    if max_lead_ns > 0 and now_ns > 0 and stamp_ns - now_ns > max_lead_ns:
+        return "future"
+    if last_ns is not None and last_ns - stamp_ns > jump_back_ns:
+        return "jump_back"
+    return "ok"
+
+
 REJECT_REASONS = (
     EmptyObservation.reason,
     WrongObservationLength.reason,
@@ -62,6 +101,9 @@ REJECT_REASONS = (
     MissingSketch.reason,
     EpisodeClosed.reason,
     MalformedMessage.reason,
+    BadStamp.reason,
+    FutureStamp.reason,
+    BadSketch.reason,
 )
 
 
@@ -156,6 +198,17 @@ class StreamingSegmenter:
         self._step_index = -1
         self._ready = True
         self.episodes += 1
+
+    @property
+    def last_stamp(self) -> int | None:
+        """Stamp of the last accepted step (``None`` before the first or after :meth:`forget_stamps`)."""
+        return self._last_stamp
+
+    def stop(self) -> None:
+        """Leave the current episode without starting another: steps are rejected as ``no_sketch``
+        until the next :meth:`reset` (an episode start whose sketch was refused)."""
+        self._ready = False
+        self._step_index = -1
 
     def forget_stamps(self) -> None:
         """Accept any stamp on the next step (used between independent recordings)."""

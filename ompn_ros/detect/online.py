@@ -232,19 +232,22 @@ class OnlineDetector:
         """Close the last segment at ``last_step`` (default: the last step seen).
 
         Returns ``None`` when no step was seen or a boundary already ends at or after
-        ``last_step`` (e.g. the falling edge at the done step). Call :meth:`reset` afterwards.
+        ``last_step`` (e.g. the falling edge at the done step). A ``last_step`` older than the last
+        few steps kept (a marker that disagrees with the stream) closes at the last step seen, so
+        the event always carries a real score and stamp. Call :meth:`reset` afterwards.
         """
         self._closed = True
         if self._step < 0:
             return None
         end = self._step if last_step is None else min(int(last_step), self._step)
-        if end < 0 or self._last_boundary >= end:
+        if end < 0:
             return None
         record = next((r for step, r in self._recent if step == end), None)
-        score = record.score if record is not None else float("nan")
-        level = record.level if record is not None else 0
-        stamp = record.stamp_ns if record is not None else 0
-        return self._emit(end, self._step, score, level, stamp, final=True)
+        if record is None:  # a step too far back to be kept: close at the last step seen instead
+            end, record = self._recent[-1]
+        if self._last_boundary >= end:
+            return None
+        return self._emit(end, self._step, record.score, record.level, record.stamp_ns, final=True)
 
     def _commit(self, step: int, record: _StepRecord, detected_at: int) -> BoundaryEvent | None:
         if step - self._last_boundary < self.config.min_segment_length:
