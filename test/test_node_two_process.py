@@ -118,7 +118,9 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         sim.create_subscription(
             DiagnosticArray,
             "/diagnostics",
-            lambda m: diags.append({kv.key: kv.value for kv in m.status[0].values}),
+            lambda m: diags.extend(  # this node's status only (the domain may be shared)
+                {kv.key: kv.value for kv in s.values} for s in m.status if s.name == "/ompn_node: segmenter"
+            ),
             10,
         )
 
@@ -135,9 +137,9 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         # start markers are idempotent before the first step: repeat until the node has seen one
         for _ in range(100):
             ep_pub.publish(marker(layout.EPISODE_START, {layout.KEY_SKETCH: ""}))
-            if pump(lambda: int(diags[-1]["episodes"]) >= 2, 0.2):
+            if pump(lambda: int(diags[-1]["episode_starts"]) >= 1, 0.2):
                 break
-        assert int(diags[-1]["episodes"]) >= 2 and obs_pub.get_subscription_count() > 0
+        assert int(diags[-1]["episode_starts"]) >= 1 and obs_pub.get_subscription_count() > 0
 
         for i, ep in enumerate(episodes):
             if i > 0:
@@ -167,10 +169,11 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         state = call(sim, ex, GetState, "/ompn_node/get_state")
         assert state is not None and state.current_state.label == "active"
         pump(lambda: False, 0.5)  # let /diagnostics catch up with the last end marker's new episode
-        episodes_before = int(diags[-1]["episodes"])
+        starts_before = int(diags[-1]["episode_starts"])
+        assert int(diags[-1]["episodes"]) == int(diags[-1]["episodes_ended"]) == len(episodes)
         reset = call(sim, ex, Trigger, "/ompn_node/reset")
         assert reset is not None and reset.success, reset
-        assert pump(lambda: int(diags[-1]["episodes"]) == episodes_before + 1, 5)
+        assert pump(lambda: int(diags[-1]["episode_starts"]) == starts_before + 1, 5)
     finally:
         rclpy.try_shutdown(context=ctx)
         proc.send_signal(signal.SIGINT)
@@ -181,4 +184,5 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
             out, _ = proc.communicate()
     assert proc.returncode == 0, out
     assert "subtask boundary" in out
+    assert "FATAL" not in out and "context is invalid" not in out and "Traceback" not in out
     assert os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"

@@ -164,6 +164,13 @@ class OMPNNode(LifecycleNode):
         self._status_name = f"{self.get_name()}/subtask_boundary"
         self._n_slots = 0
         self._active = False
+        self._jump_back_ns = self._max_lead_ns = 0
+        self._cache_stamp_limits()
+
+    def _cache_stamp_limits(self) -> None:
+        """The stamp limits in ns, read once per change rather than once per step."""
+        self._jump_back_ns = int(float(self.values["clock_jump_back"]) * 1e9)
+        self._max_lead_ns = int(float(self.values["max_stamp_lead"]) * 1e9)
 
     # --- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
@@ -182,6 +189,7 @@ class OMPNNode(LifecycleNode):
         """Post-set: remember the values; live detector changes apply from the next step."""
         names = {p.name for p in params if p.name in self.params.specs}
         self.values.update({p.name: p.value for p in params if p.name in self.params.specs})
+        self._cache_stamp_limits()
         if names & LIVE_DETECTOR_KEYS and self.segmenter is not None:
             config = detector_config(self.values)
             self.segmenter.detector_config = config
@@ -272,7 +280,7 @@ class OMPNNode(LifecycleNode):
         )
         action_type = Int32 if policy.config.action_type == "discrete" else Float32MultiArray
         events = PublisherEventCallbacks(
-            incompatible_qos=lambda info: self._qos_mismatch("~/boundary", None, info)
+            incompatible_qos=lambda info: self._qos_mismatch("~/boundary", "boundary_replay", info)
         )
         self._pubs = {
             "action": self.create_lifecycle_publisher(action_type, layout.CMD_ACTION, per_step),
@@ -328,7 +336,7 @@ class OMPNNode(LifecycleNode):
         """One line per incompatible QoS pairing, naming the parameter to change."""
         policy = policy_kind_name(info.last_policy_kind)
         fix = (
-            f"set parameter '{param}' (now '{self.values[param]}') to match the publisher"
+            f"set parameter '{param}' (now '{self.values[param]}') to match the peer"
             if param
             else "the peer must use RELIABLE, VOLATILE-compatible QoS"
         )
@@ -384,19 +392,18 @@ class OMPNNode(LifecycleNode):
         # that stands still, e.g. sim time between /clock ticks, must not turn into out-of-order
         # rejections); a clock that went back further than clock_jump_back is taken as it is.
         now = self.get_clock().now().nanoseconds
-        jump_ns = float(self.values["clock_jump_back"]) * 1e9
         last = self._last_receive_ns
-        stamp = now if (now > last or last - now > jump_ns) else last + 1
+        stamp = now if (now > last or last - now > self._jump_back_ns) else last + 1
         self._last_receive_ns = stamp
-        self._on_raw_array(raw, stamp)
+        self._on_raw_array(raw, stamp, now)
 
-    def _on_raw_array(self, raw: bytes, stamp_ns: int) -> None:
+    def _on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None) -> None:
         try:
             data = parse_float32_array(raw)
         except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
             self._reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
             return
-        self.process_observation(data, stamp_ns)
+        self.process_observation(data, stamp_ns, now_ns)
 
     def _on_joint_state(self, msg: JointState) -> None:
         try:
@@ -412,12 +419,14 @@ class OMPNNode(LifecycleNode):
             self.segmenter.count_rejection(error)
             self._warn_throttled(f"skipped input ({error.reason}): {error}")
 
-    def process_observation(self, data: Any, stamp_ns: int | None) -> None:
-        """Step the segmenter on one observation and publish its outputs (or count a rejection)."""
+    def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
+        """Step the segmenter on one observation and publish its outputs (or count a rejection).
+
+        ``now_ns``: the node's clock at reception when the caller read it already."""
         seg = self.segmenter
         if seg is None or not self._active:
             return
-        if stamp_ns is not None and not self._stamp_usable(seg, stamp_ns):
+        if stamp_ns is not None and not self._stamp_usable(seg, stamp_ns, now_ns):
             return
         try:
             obs = (
@@ -452,13 +461,13 @@ class OMPNNode(LifecycleNode):
         if out.boundary is not None:
             self.log_boundary(out.boundary)
 
-    def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int) -> bool:
+    def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int, now_ns: int | None) -> bool:
         """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
+        if now_ns is None:
+            now_ns = self.get_clock().now().nanoseconds if self._max_lead_ns > 0 else 0
         verdict = classify_stamp(
-            stamp_ns, seg.last_stamp, self.get_clock().now().nanoseconds,
-            jump_back_ns=int(float(self.values["clock_jump_back"]) * 1e9),
-            max_lead_ns=int(float(self.values["max_stamp_lead"]) * 1e9),
-        )  # fmt: skip
+            stamp_ns, seg.last_stamp, now_ns, jump_back_ns=self._jump_back_ns, max_lead_ns=self._max_lead_ns
+        )
         if verdict == "future":
             self._reject(
                 FutureStamp(
@@ -475,7 +484,9 @@ class OMPNNode(LifecycleNode):
             )
             if seg.detector.steps_seen > 0 and not seg.detector.closed:
                 self._close_episode(None)
-            return self._start_episode(self._episode_sketch, count_bad=False)
+            started = self._start_episode(self._episode_sketch, count_bad=False)
+            self.events["episode_starts"] += int(started)
+            return started
         return True
 
     # --- outputs -------------------------------------------------------------------------------
@@ -576,7 +587,8 @@ class OMPNNode(LifecycleNode):
                 return
             sketch = None  # this model ignores sketches: the episode starts anyway
         self._latest_sketch = sketch if sketch is not None and sketch.size else None
-        self._start_episode(sketch)
+        if self._start_episode(sketch):
+            self.events["episode_starts"] += 1
 
     def _on_sketch(self, msg: Int32MultiArray) -> None:
         seg = self.segmenter
@@ -597,14 +609,16 @@ class OMPNNode(LifecycleNode):
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success = self._start_episode(self._episode_sketch)
+        self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
         return response
 
     # --- health --------------------------------------------------------------------------------
     def counters(self) -> dict[str, int]:
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
-        reason), episodes (that had a step), episodes_ended (end markers), boundaries published,
-        clock_jumps, bad_end_markers, qos_incompatible."""
+        reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
+        clock restarts), episodes_ended (end markers), boundaries published, clock_jumps,
+        bad_end_markers, qos_incompatible."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
