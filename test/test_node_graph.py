@@ -4,6 +4,7 @@ incompatible QoS reported by the node, two namespaced nodes, a live parameter ch
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -127,38 +128,41 @@ def marker(kind: str, **values: str) -> DiagnosticArray:
 def test_best_effort_publisher_namespaced_nodes_qos_report_and_live_parameters(
     ckpt: Path, ros_env: dict[str, str]
 ) -> None:
-    procs = [start_node(ckpt, ros_env, ns="/r1"), start_node(ckpt, ros_env, "obs_qos:=reliable", ns="/r2")]
+    r1, r2 = f"r1_{os.getpid()}", f"r2_{os.getpid()}"  # unique: the DDS domain may be shared
+    procs = [start_node(ckpt, ros_env, ns=f"/{r1}"),
+             start_node(ckpt, ros_env, "obs_qos:=reliable", ns=f"/{r2}")]
     peer = Peer(procs)
     outputs = []
     try:
-        pis: dict[str, list] = {"r1": [], "r2": []}
+        pis: dict[str, list] = {r1: [], r2: []}
         pubs = {}
         for ns in pis:
             pubs[ns] = peer.node.create_publisher(Float32MultiArray, f"/{ns}/observation", BEST_EFFORT)
             peer.node.create_subscription(Float32MultiArray, f"/{ns}/ompn_node/pi",
                                           lambda msg, ns=ns: pis[ns].append(msg.data), RELIABLE)
-        names = ("/r1/ompn_node: segmenter", "/r2/ompn_node: segmenter")
+        names = (f"/{r1}/ompn_node: segmenter", f"/{r2}/ompn_node: segmenter")
         assert peer.pump(lambda: all(peer.diags.get(n) for n in names), 60), list(peer.diags)
         obs = np.random.default_rng(0).normal(size=(40, OBS_DIM)).astype(np.float32)
         sent = 0
-        while not pis["r1"] and sent < len(obs):  # a BEST_EFFORT writer drops what it sends before matching
+        while not pis[r1] and sent < len(obs):  # a BEST_EFFORT writer drops what it sends before matching
             for ns in pubs:
                 pubs[ns].publish(Float32MultiArray(data=obs[sent].tolist()))
             sent += 1
-            peer.pump(lambda: bool(pis["r1"]), 0.5)
+            peer.pump(lambda: bool(pis[r1]), 0.5)
+        pubs[r1].publish(b"")  # a 0-byte message (dropped by Fast DDS on the way) holds nothing back
         for x in obs[sent:sent + 10]:
-            pubs["r1"].publish(Float32MultiArray(data=x.tolist()))
-            pubs["r2"].publish(Float32MultiArray(data=x.tolist()))
-        assert peer.pump(lambda: len(pis["r1"]) >= 11, 10), len(pis["r1"])
-        assert pis["r2"] == []  # RELIABLE subscription, BEST_EFFORT publisher: nothing matches
+            pubs[r1].publish(Float32MultiArray(data=x.tolist()))
+            pubs[r2].publish(Float32MultiArray(data=x.tolist()))
+        assert peer.pump(lambda: len(pis[r1]) >= 11, 10), len(pis[r1])
+        assert pis[r2] == []  # RELIABLE subscription, BEST_EFFORT publisher: nothing matches
         assert peer.pump(lambda: int(peer.last(names[1]).get("qos_incompatible", 0)) >= 1, 10)
         assert peer.last(names[0])["qos_incompatible"] == "0"
 
-        ok = peer.set_param("/r1/ompn_node", "detector_high", 0.25)
+        ok = peer.set_param(f"/{r1}/ompn_node", "detector_high", 0.25)
         assert ok.successful, ok.reason
-        refused = peer.set_param("/r1/ompn_node", "checkpoint", "/elsewhere")
+        refused = peer.set_param(f"/{r1}/ompn_node", "checkpoint", "/elsewhere")
         assert not refused.successful and "'checkpoint'" in refused.reason and "configure" in refused.reason
-        refused = peer.set_param("/r1/ompn_node", "detector_high", 2.0)
+        refused = peer.set_param(f"/{r1}/ompn_node", "detector_high", 2.0)
         assert not refused.successful and "detector_high" in refused.reason
     finally:
         peer.close()
@@ -171,20 +175,21 @@ def test_best_effort_publisher_namespaced_nodes_qos_report_and_live_parameters(
 def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
     ckpt: Path, ros_env: dict[str, str]
 ) -> None:
-    proc = start_node(ckpt, ros_env, "use_sim_time:=true", ns="/sim")
+    sim = f"sim_{os.getpid()}"
+    proc = start_node(ckpt, ros_env, "use_sim_time:=true", ns=f"/{sim}")
     peer = Peer([proc])
     try:
         clock = peer.node.create_publisher(Clock, "/clock", 10)
-        obs_pub = peer.node.create_publisher(Float32MultiArray, "/sim/observation", RELIABLE)
-        ep_pub = peer.node.create_publisher(DiagnosticArray, "/sim/episode", RELIABLE)
+        obs_pub = peer.node.create_publisher(Float32MultiArray, f"/{sim}/observation", RELIABLE)
+        ep_pub = peer.node.create_publisher(DiagnosticArray, f"/{sim}/episode", RELIABLE)
         events: list[tuple[int, dict[str, str]]] = []
         peer.node.create_subscription(
-            DiagnosticArray, "/sim/ompn_node/boundary",
+            DiagnosticArray, f"/{sim}/ompn_node/boundary",
             lambda msg: events.append((m.stamp_to_ns(msg.header.stamp),
                                        {kv.key: kv.value for kv in msg.status[0].values})), LATE)  # fmt: skip
         pis: list = []
-        peer.node.create_subscription(Float32MultiArray, "/sim/ompn_node/pi", pis.append, RELIABLE)
-        name = "/sim/ompn_node: segmenter"
+        peer.node.create_subscription(Float32MultiArray, f"/{sim}/ompn_node/pi", pis.append, RELIABLE)
+        name = f"/{sim}/ompn_node: segmenter"
         t0 = 1_000 * 1_000_000_000
 
         def tick(ns: int) -> None:

@@ -307,7 +307,7 @@ def test_diagnostics_name_the_node_fully_and_count_episodes(ctx, ckpt: Path) -> 
     node.destroy_node()
 
 
-# --- property-based: any marker, any stamp, never a crash, never a wedge -------------------------
+# --- property-based: any marker, stamp, joint state, sketch or bytes: no crash, no wedge ---------
 TEXT = st.text(max_size=30) | st.sampled_from(["99999999999999999999", "-1", "1,2", "7,9", "", "nan", "1e9"])
 MARKERS = st.builds(
     lambda name, kind, values: (name, kind, values),
@@ -316,8 +316,18 @@ MARKERS = st.builds(
     st.dictionaries(st.sampled_from(["sketch", "steps", "episode", "task", "seed", "x"]), TEXT, max_size=5),
 )
 STAMPS = st.tuples(st.integers(-(2**31), 2**31 - 1), st.integers(0, 2**32 - 1))
-EVENTS = st.lists(st.one_of(st.tuples(st.just("marker"), MARKERS), st.tuples(st.just("stamp"), STAMPS),
-                            st.tuples(st.just("reset"), st.none())), max_size=12)
+FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
+JOINTS = st.tuples(STAMPS, st.lists(st.text(max_size=4), max_size=8), st.lists(FLOATS, max_size=8),
+                   st.lists(FLOATS, max_size=8))
+RAW = st.binary(max_size=64) | st.builds(lambda n, head: m.encode_float32_array(np.ones(n))[:head],
+                                         st.integers(0, 8), st.integers(0, 64))
+EVENTS = st.lists(
+    st.one_of(st.tuples(st.just("marker"), MARKERS), st.tuples(st.just("stamp"), STAMPS),
+              st.tuples(st.just("reset"), st.none()), st.tuples(st.just("joint"), JOINTS),
+              st.tuples(st.just("sketch"), st.lists(st.integers(-(2**31), 2**31 - 1), max_size=6)),
+              st.tuples(st.just("raw"), RAW)),
+    max_size=12,
+)  # fmt: skip
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -334,9 +344,19 @@ def test_property_any_marker_or_stamp_sequence_leaves_a_working_node(ctx, ckpt: 
             node._on_episode(msg)
         elif kind == "stamp":
             node._on_joint_state(joint_state(*payload, np.ones(OBS_DIM)))
+        elif kind == "joint":
+            (sec, nanosec), names, position, velocity = payload
+            msg = JointState(name=names, position=position, velocity=velocity)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            node._on_joint_state(msg)
+        elif kind == "sketch":
+            node._on_sketch(Int32MultiArray(data=payload))
+        elif kind == "raw":
+            node._on_raw_array(payload, 1)
         else:
             node._on_reset(Trigger.Request(), Trigger.Response())
     counters = node.counters()
-    assert counters["accepted"] + counters["rejected"] >= sum(k == "stamp" for k, _ in events)
+    observations = sum(k in ("stamp", "joint", "raw") for k, _ in events)  # each one counted once
+    assert counters["accepted"] + counters["rejected"] - counters["rejected_bad_sketch"] == observations
     assert_matches_replay(node, ckpt, seed=10, joint=True)
     node.destroy_node()

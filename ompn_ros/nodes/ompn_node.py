@@ -29,7 +29,8 @@ Publications (per accepted observation; every one built by :mod:`ompn_ros.data.m
 
 Bad input never stops the node: a message that cannot be used is skipped without stepping the model,
 counted by reason (``rejected_<reason>``) and reported with a throttled warning; an invalid sketch
-rejects the episode's start (logged once) until the next valid one.
+rejects the episode's start (logged once) until the next valid one.  (A 0-byte message is dropped by
+Fast DDS before it reaches any subscriber; delivered otherwise, it is counted as ``malformed``.)
 
 Stamps and time: JointState input uses ``header.stamp``; array input uses the DDS source timestamp
 (``executor='single'``, wall time) or, with the EventsExecutor (it cannot deliver message info in rclpy
@@ -326,7 +327,8 @@ class OMPNNode(LifecycleNode):
         self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
     ) -> None:
         events = SubscriptionEventCallbacks(
-            incompatible_qos=lambda info: self._qos_mismatch(topic, param, info)
+            incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
+            message_lost=lambda info: self.events.update(messages_lost=info.total_count_change),
         )
         self._subs.append(
             self.create_subscription(msg_type, topic, callback, qos, raw=raw, event_callbacks=events)
@@ -617,8 +619,8 @@ class OMPNNode(LifecycleNode):
     def counters(self) -> dict[str, int]:
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
         reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
-        clock restarts), episodes_ended (end markers), boundaries published, clock_jumps,
-        bad_end_markers, qos_incompatible."""
+        clock restarts), episodes_ended (end markers), messages_lost (reported by the middleware),
+        boundaries published, clock_jumps, bad_end_markers, qos_incompatible."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
