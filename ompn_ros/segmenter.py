@@ -301,7 +301,7 @@ def replay_episode(
 
     With ``include_done_step`` the final observation (row T) is stepped too, as in a live stream;
     the last segment is closed at ``T - 1`` either way, and the returned arrays cover the
-    ``T`` real steps only (the offline evaluation drops the done step, spec craft §5.2).
+    ``T`` real steps only (the offline evaluation drops the done step, ``docs/craft.md`` §5.2).
     """
     sketch = episode.sketch if getattr(segmenter.policy.config, "sketch_mode", "none") != "none" else None
     segmenter.reset(sketch)

@@ -1,7 +1,7 @@
 """Causal (online) subtask-boundary detectors fed one score per step.
 
 The score is the code-weighted expected expansion position of the authors' evaluation
-(spec craft §5.3, dial §4.5 step 2), computed from the *unnormalised* ``p_hat`` ordered
+(``docs/craft.md`` §5.3, ``docs/dial.md`` §4.5 step 2), computed from the *unnormalised* ``p_hat`` ordered
 ``[pi_end, slot n (top), ..., slot 1 (bottom)]`` with weights ``w = [n, n-1, ..., 0] / n``::
 
     score_t = sum_k w_k * p_hat_t[k]   in [0, 1]
@@ -24,7 +24,7 @@ the threshold"), made causal:
 * ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``).
 
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
-hard-coded to "expand from the top", spec craft §3.6).
+hard-coded to "expand from the top", ``docs/craft.md`` §3.6).
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ class BoundaryEvent:
 def expansion_score(p_hat: np.ndarray | Sequence[float]) -> float:
     """Code-weighted expected expansion position in [0, 1] from ``p_hat`` (``[n+1]``).
 
-    ``sum_k w_k p_hat[k]`` with ``w = [n, ..., 0] / n`` (spec dial §4.5 step 2, divided by n).
+    ``sum_k w_k p_hat[k]`` with ``w = [n, ..., 0] / n`` (``docs/dial.md`` §4.5 step 2, divided by n).
     Plain float arithmetic: this runs once per streamed step on n + 1 (= 3 or 4) numbers.
     """
     p = p_hat.ravel().tolist() if isinstance(p_hat, np.ndarray) else list(p_hat)
