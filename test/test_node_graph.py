@@ -199,7 +199,7 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
                          t0 <= peer.diags[name][-1][0] < t0 + 10**9, 60), "node never followed /clock"
         for _ in range(50):  # markers are idempotent before the first step: repeat until seen
             ep_pub.publish(marker("start", sketch=""))
-            if peer.pump(lambda: int(peer.last(name).get("episode_starts", 0)) >= 1, 0.2):
+            if peer.pump(lambda: int(peer.last(name)["episode_starts"]) >= 1, 0.2):
                 break
         assert peer.pump(lambda: obs_pub.get_subscription_count() > 0, 20)
         peer.pump(lambda: False, 0.5)  # the reader side matches too

@@ -304,6 +304,7 @@ def test_diagnostics_name_the_node_fully_and_count_episodes(ctx, ckpt: Path) -> 
     assert status.name == "/robot_2/ompn_node: segmenter"
     values = {kv.key: kv.value for kv in status.values}
     assert values["episodes"] == "3" and values["episodes_ended"] == "3" and values["accepted"] == "6"
+    assert values["episode_starts"] == "3" and values["messages_lost"] == "0"
     node.destroy_node()
 
 
