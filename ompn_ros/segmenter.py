@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -25,24 +25,15 @@ from ompn_ros.detect.online import (
     expansion_level,
     expansion_score,
 )
-
-
-class InvalidInput(ValueError):
-    """An observation was rejected without stepping the model. ``reason`` is the counter key."""
-
-    reason = "invalid"
-
-
-class EmptyObservation(InvalidInput):
-    reason = "empty"
-
-
-class WrongObservationLength(InvalidInput):
-    reason = "wrong_length"
-
-
-class NonFiniteObservation(InvalidInput):
-    reason = "non_finite"
+from ompn_ros.validate import (
+    EmptyObservation,
+    InvalidInput,
+    NonFiniteObservation,
+    SketchError,
+    WrongObservationLength,
+    validate_observation,
+    validate_sketch,
+)
 
 
 class OutOfOrderStamp(InvalidInput):
@@ -63,8 +54,43 @@ class MalformedMessage(InvalidInput):
     reason = "malformed"
 
 
-class SketchError(ValueError):
-    """The sketch given to :meth:`StreamingSegmenter.reset` does not fit the model."""
+class BadStamp(InvalidInput):
+    """The stamp is not a valid ``builtin_interfaces/Time`` (raised by callers)."""
+
+    reason = "bad_stamp"
+
+
+class FutureStamp(InvalidInput):
+    """The stamp lies further ahead of the receiver's clock than allowed (raised by callers)."""
+
+    reason = "future_stamp"
+
+
+class BadSketch(InvalidInput):
+    """An episode start or sketch message carried a sketch the model cannot use (counted by callers)."""
+
+    reason = "bad_sketch"
+
+
+StampClass = Literal["ok", "future", "jump_back"]
+
+
+def classify_stamp(
+    stamp_ns: int, last_ns: int | None, now_ns: int, *, jump_back_ns: int, max_lead_ns: int
+) -> StampClass:
+    """Where ``stamp_ns`` lies against the last accepted stamp and the receiver's clock (O(1)).
+
+    ``'future'``: more than ``max_lead_ns`` ahead of ``now_ns`` (checked when both are > 0; a clock at 0
+    is sim time before the first ``/clock``).  ``'jump_back'``: more than ``jump_back_ns`` before
+    ``last_ns``: the source's clock restarted (a sim restart, a bag replayed in a loop), so a new
+    episode begins.  ``'ok'`` otherwise; a small step back stays an out-of-order rejection of
+    :meth:`StreamingSegmenter.step`.  Together these make a single stamp unable to wedge a stream.
+    """
+    if max_lead_ns > 0 and now_ns > 0 and stamp_ns - now_ns > max_lead_ns:
+        return "future"
+    if last_ns is not None and last_ns - stamp_ns > jump_back_ns:
+        return "jump_back"
+    return "ok"
 
 
 REJECT_REASONS = (
@@ -75,6 +101,9 @@ REJECT_REASONS = (
     MissingSketch.reason,
     EpisodeClosed.reason,
     MalformedMessage.reason,
+    BadStamp.reason,
+    FutureStamp.reason,
+    BadSketch.reason,
 )
 
 
@@ -170,6 +199,17 @@ class StreamingSegmenter:
         self._ready = True
         self.episodes += 1
 
+    @property
+    def last_stamp(self) -> int | None:
+        """Stamp of the last accepted step (``None`` before the first or after :meth:`forget_stamps`)."""
+        return self._last_stamp
+
+    def stop(self) -> None:
+        """Leave the current episode without starting another: steps are rejected as ``no_sketch``
+        until the next :meth:`reset` (an episode start whose sketch was refused)."""
+        self._ready = False
+        self._step_index = -1
+
     def forget_stamps(self) -> None:
         """Accept any stamp on the next step (used between independent recordings)."""
         self._last_stamp = None
@@ -180,25 +220,7 @@ class StreamingSegmenter:
             raise MissingSketch("no episode started: the model needs a sketch (reset(sketch)) first")
         if self.detector.closed:
             raise EpisodeClosed("the episode was ended (end_episode); reset() starts the next one")
-        # Every numpy call costs tens of µs when a 100 Hz stream finds the caches cold: the node's
-        # parsed messages (flat contiguous float32 already) skip the conversions.
-        if type(obs) is np.ndarray and obs.dtype == np.float32 and obs.ndim == 1 and obs.flags.c_contiguous:
-            arr = obs
-        else:
-            try:
-                arr = np.asarray(obs, dtype=np.float32)
-            except (TypeError, ValueError) as exc:
-                raise NonFiniteObservation(f"observation is not numeric: {exc}") from exc
-            arr = np.ascontiguousarray(arr.reshape(-1))
-        if arr.size == 0:
-            raise EmptyObservation("observation is empty")
-        if arr.size != self.obs_dim:
-            raise WrongObservationLength(
-                f"observation has {arr.size} values, the model expects obs_dim={self.obs_dim}"
-            )
-        if not np.isfinite(arr).all():
-            bad = int(np.flatnonzero(~np.isfinite(arr))[0])
-            raise NonFiniteObservation(f"observation has a NaN/Inf value (first at index {bad})")
+        arr = validate_observation(obs, self.obs_dim)
         if stamp_ns is not None and self._last_stamp is not None and int(stamp_ns) <= self._last_stamp:
             raise OutOfOrderStamp(
                 f"observation stamp {int(stamp_ns)} ns is not after the previous step's {self._last_stamp} ns"
@@ -245,15 +267,10 @@ class StreamingSegmenter:
             if mode != "none":
                 raise SketchError(f"the model uses sketch_mode='{mode}' and needs a sketch; none was given")
             return None
-        arr = np.asarray(sketch)
-        if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
-            raise SketchError(f"sketch must be a non-empty 1-D integer array, got {arr.dtype} {arr.shape}")
         if mode == "none":
-            return None  # a sketch is published but the model ignores it
+            return None  # a sketch may be published, but this model ignores it
         vocab = getattr(self.policy.config, "sketch_vocab", None)
-        if vocab is not None and (arr.min() < 0 or arr.max() >= int(vocab)):
-            raise SketchError(f"sketch ids {arr.tolist()} outside the model's vocabulary 0..{int(vocab) - 1}")
-        return arr.astype(np.int64)
+        return validate_sketch(sketch, None if vocab is None else int(vocab))
 
 
 @dataclass
@@ -284,7 +301,7 @@ def replay_episode(
 
     With ``include_done_step`` the final observation (row T) is stepped too, as in a live stream;
     the last segment is closed at ``T - 1`` either way, and the returned arrays cover the
-    ``T`` real steps only (the offline evaluation drops the done step, spec craft §5.2).
+    ``T`` real steps only (the offline evaluation drops the done step, ``docs/craft.md`` §5.2).
     """
     sketch = episode.sketch if getattr(segmenter.policy.config, "sketch_mode", "none") != "none" else None
     segmenter.reset(sketch)

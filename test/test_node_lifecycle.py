@@ -330,3 +330,26 @@ def test_receive_stamps_stay_increasing_when_the_clock_stands_still(ctx, ckpt: P
     assert seg.accepted == 4 and seg.rejected["out_of_order_stamp"] == 0
     assert seg.rejected["malformed"] == 1
     node.destroy_node()
+
+
+def test_a_late_boundary_subscriber_gets_the_last_event_only(ctx, ckpt: Path) -> None:
+    """boundary_replay='last': TRANSIENT_LOCAL depth 1, not the whole history."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    from ompn_ros.data.messages import encode_float32_array
+
+    node = make_node(ctx, ckpt)
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    for _ in range(3):
+        start = DiagnosticStatus(name="episode", message="start", values=[KeyValue(key="sketch", value="")])
+        node._on_episode(DiagnosticArray(status=[start]))
+        for t in range(4):
+            node._on_array(encode_float32_array(np.full(OBS_DIM, t, np.float32)))
+        end = DiagnosticStatus(name="episode", message="end", values=[KeyValue(key="steps", value="3")])
+        node._on_episode(DiagnosticArray(status=[end]))
+    assert node.counters()["boundaries"] >= 3
+    h = Harness(ctx, node)  # subscribes ~/boundary TRANSIENT_LOCAL depth 1000 only now
+    h.pump(lambda: len(h.boundaries) > 1, timeout=2.0)
+    assert len(h.boundaries) == 1 and h.boundaries[0]["final"] == "true"
+    node.destroy_node()

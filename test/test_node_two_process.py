@@ -72,12 +72,16 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
     from std_srvs.srv import Trigger
 
     ckpt = synthetic_checkpoint
+    ns = f"tp_{os.getpid()}_{executor}"  # unique: the DDS domain may be shared with other test runs
+    status_name = f"/{ns}/ompn_node: segmenter"
     episodes = synthetic.make_dataset("discrete", 2, seed=900)
     cmd = [
         sys.executable,
         "-m",
         "ompn_ros.nodes.ompn_node",
         "--ros-args",
+        "-r",
+        f"__ns:=/{ns}",
         "-p",
         f"checkpoint:={ckpt}",
         "-p",
@@ -101,24 +105,26 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         sim = rclpy.create_node("fake_sim", context=ctx)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(sim)
-        obs_pub = sim.create_publisher(Float32MultiArray, layout.OBSERVATION, RELIABLE)
-        ep_pub = sim.create_publisher(DiagnosticArray, layout.EPISODE, RELIABLE)
+        obs_pub = sim.create_publisher(Float32MultiArray, f"/{ns}/{layout.OBSERVATION}", RELIABLE)
+        ep_pub = sim.create_publisher(DiagnosticArray, f"/{ns}/{layout.EPISODE}", RELIABLE)
         pis: list[np.ndarray] = []
         events: list[dict[str, str]] = []
         diags: list[dict[str, str]] = []
         sim.create_subscription(
-            Float32MultiArray, "/ompn_node/pi", lambda m: pis.append(np.array(m.data)), RELIABLE
+            Float32MultiArray, f"/{ns}/ompn_node/pi", lambda m: pis.append(np.array(m.data)), RELIABLE
         )
         sim.create_subscription(
             DiagnosticArray,
-            "/ompn_node/boundary",
+            f"/{ns}/ompn_node/boundary",
             lambda m: events.append({kv.key: kv.value for kv in m.status[0].values}),
             EVENTS,
         )
         sim.create_subscription(
             DiagnosticArray,
             "/diagnostics",
-            lambda m: diags.append({kv.key: kv.value for kv in m.status[0].values}),
+            lambda m: diags.extend(  # this node's status only (the domain may be shared)
+                {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name
+            ),
             10,
         )
 
@@ -135,9 +141,9 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         # start markers are idempotent before the first step: repeat until the node has seen one
         for _ in range(100):
             ep_pub.publish(marker(layout.EPISODE_START, {layout.KEY_SKETCH: ""}))
-            if pump(lambda: int(diags[-1]["episodes"]) >= 2, 0.2):
+            if pump(lambda: int(diags[-1]["episode_starts"]) >= 1, 0.2):
                 break
-        assert int(diags[-1]["episodes"]) >= 2 and obs_pub.get_subscription_count() > 0
+        assert int(diags[-1]["episode_starts"]) >= 1 and obs_pub.get_subscription_count() > 0
 
         for i, ep in enumerate(episodes):
             if i > 0:
@@ -164,13 +170,14 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         assert mean_f1(preds, [ep.boundaries for ep in episodes], tol=1).f1 >= 0.75
         assert all(e["level"].isdigit() and 0.0 <= float(e["score"]) <= 1.0 for e in events)
         # the node's services are served by its executor (lifecycle state, ~/reset)
-        state = call(sim, ex, GetState, "/ompn_node/get_state")
+        state = call(sim, ex, GetState, f"/{ns}/ompn_node/get_state")
         assert state is not None and state.current_state.label == "active"
         pump(lambda: False, 0.5)  # let /diagnostics catch up with the last end marker's new episode
-        episodes_before = int(diags[-1]["episodes"])
-        reset = call(sim, ex, Trigger, "/ompn_node/reset")
+        starts_before = int(diags[-1]["episode_starts"])
+        assert int(diags[-1]["episodes"]) == int(diags[-1]["episodes_ended"]) == len(episodes)
+        reset = call(sim, ex, Trigger, f"/{ns}/ompn_node/reset")
         assert reset is not None and reset.success, reset
-        assert pump(lambda: int(diags[-1]["episodes"]) == episodes_before + 1, 5)
+        assert pump(lambda: int(diags[-1]["episode_starts"]) == starts_before + 1, 5)
     finally:
         rclpy.try_shutdown(context=ctx)
         proc.send_signal(signal.SIGINT)
@@ -181,4 +188,5 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
             out, _ = proc.communicate()
     assert proc.returncode == 0, out
     assert "subtask boundary" in out
+    assert "FATAL" not in out and "context is invalid" not in out and "Traceback" not in out
     assert os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.validate import parse_sketch_text
 
 from .errors import CorruptBagError, VectorLengthError
 
@@ -56,8 +57,8 @@ def deserialize(raw: bytes | memoryview, typename: str) -> Any:
 
 # --- builders -------------------------------------------------------------------------------------
 def _time(stamp_ns: int) -> Any:
-    return msg_class("builtin_interfaces/msg/Time")(sec=int(stamp_ns // 1_000_000_000),
-                                                     nanosec=int(stamp_ns % 1_000_000_000))
+    sec, nanosec = split_stamp(stamp_ns)
+    return msg_class("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
 
 
 def header(stamp_ns: int, frame_id: str = "") -> Any:
@@ -158,6 +159,35 @@ def end_marker_values(episode_index: int, task: str, seed: int, steps: int, succ
 
 
 # --- direct encoders (same bytes as serialize(builder(...)), several times faster) -----------------
+class StampRangeError(ValueError):
+    """A stamp does not fit ``builtin_interfaces/Time`` (int32 seconds, nanoseconds below 1e9)."""
+
+
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+STAMP_NS_MIN = INT32_MIN * 1_000_000_000
+STAMP_NS_MAX = INT32_MAX * 1_000_000_000 + 999_999_999
+
+
+def split_stamp(stamp_ns: int) -> tuple[int, int]:
+    """``stamp_ns`` -> ``(sec, nanosec)`` of ``builtin_interfaces/Time``; :class:`StampRangeError` if the
+    seconds do not fit an int32 (O(1))."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    if not INT32_MIN <= sec <= INT32_MAX:
+        raise StampRangeError(
+            f"stamp {int(stamp_ns)} ns does not fit builtin_interfaces/Time (int32 seconds)"
+        )
+    return sec, nanosec
+
+
+def join_stamp(sec: int, nanosec: int) -> int:
+    """``builtin_interfaces/Time`` fields -> ns; :class:`StampRangeError` if ``nanosec`` >= 1e9 or a field
+    is outside its CDR type (int32 / uint32)."""
+    if not INT32_MIN <= int(sec) <= INT32_MAX or not 0 <= int(nanosec) < 1_000_000_000:
+        raise StampRangeError(f"stamp sec={sec} nanosec={nanosec} is not a valid time "
+                              "(nanosec must be below 1e9)")
+    return int(sec) * 1_000_000_000 + int(nanosec)
+
+
 class _CdrWriter:
     """Little-endian CDR body writer (alignment relative to the end of the encapsulation header)."""
 
@@ -179,6 +209,18 @@ class _CdrWriter:
         data = text.encode() + b"\0"
         self.u32(len(data))
         self.out += data
+
+    def stamp(self, stamp_ns: int) -> None:
+        sec, nanosec = split_stamp(stamp_ns)
+        self.i32(sec)
+        self.u32(nanosec)
+
+    def float64s(self, values: np.ndarray | Sequence[float]) -> None:
+        data = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
+        self.u32(int(data.size))
+        if data.size:
+            self._align(8)
+            self.out += data.tobytes()
 
 
 @lru_cache(maxsize=64)
@@ -205,9 +247,49 @@ def encode_float32_array(
     return _multiarray_prefix(label, int(data.size), dim_size) + data.tobytes()
 
 
+def encode_int32_array(values: np.ndarray | Sequence[int], label: str = "sketch") -> bytes:
+    """CDR of :func:`int32_array` ``(values, label)``: an ``Int32MultiArray`` with one dimension.
+
+    Raises ``OverflowError`` naming the value when one does not fit an int32."""
+    data = np.asarray(values).reshape(-1)
+    if data.size and (int(data.min()) < INT32_MIN or int(data.max()) > INT32_MAX):
+        raise OverflowError(f"Int32MultiArray value out of int32 range: {data.tolist()}")
+    return _multiarray_prefix(label, int(data.size), None) + data.astype("<i4").tobytes()
+
+
 def encode_int32(value: int) -> bytes:
     """CDR of :func:`int32` ``(value)``."""
     return CDR_LE_HEADER + _I32.pack(int(value))
+
+
+def encode_clock(stamp_ns: int) -> bytes:
+    """CDR of ``rosgraph_msgs/Clock`` at ``stamp_ns`` (:class:`StampRangeError` if out of range)."""
+    w = _CdrWriter()
+    w.stamp(stamp_ns)
+    return bytes(w.out)
+
+
+def encode_joint_state(
+    stamp_ns: int,
+    names: Sequence[str],
+    position: np.ndarray | Sequence[float] = (),
+    velocity: np.ndarray | Sequence[float] = (),
+    effort: np.ndarray | Sequence[float] = (),
+    frame_id: str = "",
+) -> bytes:
+    """CDR of :func:`joint_state` (``sensor_msgs/JointState``), the bytes ``rosbags`` writes.
+
+    rclpy's serializer may append up to 12 padding bytes after empty arrays; both forms parse
+    with :func:`parse_joint_state`."""
+    w = _CdrWriter()
+    w.stamp(stamp_ns)
+    w.string(frame_id)
+    w.u32(len(names))
+    for name in names:
+        w.string(name)
+    for values in (position, velocity, effort):
+        w.float64s(values)
+    return bytes(w.out)
 
 
 def encode_diagnostic_status(
@@ -216,12 +298,11 @@ def encode_diagnostic_status(
     """CDR of a ``DiagnosticArray`` holding one status (``values`` as strings), built directly.
 
     The same bytes as ``serialize`` of the rosbags message (tested); used where a message object per
-    event would cost more than the event itself (``ompn_node``'s boundary events).
+    event would cost more than the event itself (``ompn_node``'s boundary events).  Values are
+    converted with :func:`marker_value`.  :class:`StampRangeError` if ``stamp_ns`` does not fit.
     """
-    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     w = _CdrWriter()
-    w.i32(sec)
-    w.u32(nanosec)
+    w.stamp(stamp_ns)
     w.string("")  # header.frame_id
     w.u32(1)  # one status
     w.out += bytes([level & 0xFF])
@@ -231,8 +312,13 @@ def encode_diagnostic_status(
     w.u32(len(values))
     for key, value in values.items():
         w.string(key)
-        w.string(str(value))
+        w.string(marker_value(value))
     return bytes(w.out)
+
+
+def encode_episode_marker(kind: str, stamp_ns: int, values: Mapping[str, object]) -> bytes:
+    """CDR of :func:`episode_marker` ``(kind, stamp_ns, values)``: the stamped start/end marker."""
+    return encode_diagnostic_status(stamp_ns, layout.EPISODE_STATUS_NAME, kind, values)
 
 
 # --- parsers --------------------------------------------------------------------------------------
@@ -245,12 +331,12 @@ def parse_marker(raw: bytes | memoryview) -> tuple[str, dict[str, str]] | None:
     return None
 
 
-def parse_sketch_value(text: str) -> np.ndarray:
-    """Comma-separated subtask ids (marker ``sketch`` key) -> int64 array."""
-    text = text.strip()
-    if not text:
-        return np.zeros(0, dtype=np.int64)
-    return np.asarray([int(v) for v in text.split(",")], dtype=np.int64)
+def parse_sketch_value(text: str, vocab: int | None = None) -> np.ndarray:
+    """Comma-separated subtask ids (marker ``sketch`` key) -> int64 array ('' -> empty).
+
+    Delegates to :func:`ompn_ros.validate.parse_sketch_text`: raises ``SketchError`` (a ``ValueError``)
+    on anything else, huge numbers included."""
+    return parse_sketch_text(text, vocab)
 
 
 def _multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
@@ -424,7 +510,7 @@ def _joint_state_layout(raw: bytes | memoryview) -> tuple[list[str], list[tuple[
             pos = _align(pos, 8)
         fields[name] = (pos, count)
         pos += 8 * count
-    if pos > len(raw) or len(raw) - pos > 8:  # rclpy/Fast CDR may append up to 8 padding bytes
+    if pos > len(raw) or len(raw) - pos >= 16:  # rclpy/Fast CDR appends up to 12 padding bytes
         raise ValueError(f"JointState CDR length {len(raw)} does not match its layout ({pos} bytes)")
     return names, struct_ranges, fields
 

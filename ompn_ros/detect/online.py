@@ -1,7 +1,7 @@
 """Causal (online) subtask-boundary detectors fed one score per step.
 
 The score is the code-weighted expected expansion position of the authors' evaluation
-(spec craft §5.3, dial §4.5 step 2), computed from the *unnormalised* ``p_hat`` ordered
+(``docs/craft.md`` §5.3, ``docs/dial.md`` §4.5 step 2), computed from the *unnormalised* ``p_hat`` ordered
 ``[pi_end, slot n (top), ..., slot 1 (bottom)]`` with weights ``w = [n, n-1, ..., 0] / n``::
 
     score_t = sum_k w_k * p_hat_t[k]   in [0, 1]
@@ -24,7 +24,7 @@ the threshold"), made causal:
 * ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``).
 
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
-hard-coded to "expand from the top", spec craft §3.6).
+hard-coded to "expand from the top", ``docs/craft.md`` §3.6).
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ class BoundaryEvent:
 def expansion_score(p_hat: np.ndarray | Sequence[float]) -> float:
     """Code-weighted expected expansion position in [0, 1] from ``p_hat`` (``[n+1]``).
 
-    ``sum_k w_k p_hat[k]`` with ``w = [n, ..., 0] / n`` (spec dial §4.5 step 2, divided by n).
+    ``sum_k w_k p_hat[k]`` with ``w = [n, ..., 0] / n`` (``docs/dial.md`` §4.5 step 2, divided by n).
     Plain float arithmetic: this runs once per streamed step on n + 1 (= 3 or 4) numbers.
     """
     p = p_hat.ravel().tolist() if isinstance(p_hat, np.ndarray) else list(p_hat)
@@ -232,19 +232,22 @@ class OnlineDetector:
         """Close the last segment at ``last_step`` (default: the last step seen).
 
         Returns ``None`` when no step was seen or a boundary already ends at or after
-        ``last_step`` (e.g. the falling edge at the done step). Call :meth:`reset` afterwards.
+        ``last_step`` (e.g. the falling edge at the done step). A ``last_step`` older than the last
+        few steps kept (a marker that disagrees with the stream) closes at the last step seen, so
+        the event always carries a real score and stamp. Call :meth:`reset` afterwards.
         """
         self._closed = True
         if self._step < 0:
             return None
         end = self._step if last_step is None else min(int(last_step), self._step)
-        if end < 0 or self._last_boundary >= end:
+        if end < 0:
             return None
         record = next((r for step, r in self._recent if step == end), None)
-        score = record.score if record is not None else float("nan")
-        level = record.level if record is not None else 0
-        stamp = record.stamp_ns if record is not None else 0
-        return self._emit(end, self._step, score, level, stamp, final=True)
+        if record is None:  # a step too far back to be kept: close at the last step seen instead
+            end, record = self._recent[-1]
+        if self._last_boundary >= end:
+            return None
+        return self._emit(end, self._step, record.score, record.level, record.stamp_ns, final=True)
 
     def _commit(self, step: int, record: _StepRecord, detected_at: int) -> BoundaryEvent | None:
         if step - self._last_boundary < self.config.min_segment_length:

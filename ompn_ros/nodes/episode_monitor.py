@@ -10,7 +10,8 @@ for two ``observation`` subscribers also waits for this monitor).  On every end 
 ``max_subtask`` is the highest ordinal published in the episode (= subtasks completed before the
 last step); ``actions`` = the executed discrete actions on ``action`` if ``record_actions`` (Craft),
 else [].  Parameters: ``episodes`` (exit after this many end markers, 0 = never), ``timeout``
-(seconds, exit code 3 when reached).  First line printed once subscriptions exist: ``{"event": "ready"}``.
+(seconds, exit code 3 when reached); an invalid parameter exits 2 with one line naming it.
+First line printed once subscriptions exist: ``{"event": "ready"}``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float32MultiArray, Int32
 
 from ompn_ros import layout
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for
 
 GRACE_S = 0.5  # wait this long after an end marker for the episode's last per-step messages
 
@@ -39,13 +41,21 @@ QOS = QoSProfile(
 )
 
 
+PARAMS = ParamTable((
+    ParamSpec("episodes", 0, "exit after this many end markers (0 = never)", int_range=(0, 10_000_000)),
+    ParamSpec("timeout", 600.0, "seconds before giving up (exit code 3)", float_range=(0.001, 1e9)),
+    ParamSpec("record_actions", False, "collect the discrete actions of each episode (Craft)"),
+))  # fmt: skip
+
+
 class EpisodeMonitor(Node):
     """Collects per-episode outcomes from a sim's markers and subtask topic."""
 
     def __init__(self) -> None:
         super().__init__("episode_monitor")
-        self.episodes = int(self.declare_parameter("episodes", 0).value)
-        self.timeout = float(self.declare_parameter("timeout", 600.0).value)
+        values = PARAMS.declare(self)  # ParameterError on an invalid value
+        self.episodes = int(values["episodes"])
+        self.timeout = float(values["timeout"])
         self.finished_count = 0
         self.max_subtask = -1
         self.n_subtasks = 0
@@ -55,7 +65,7 @@ class EpisodeMonitor(Node):
         self.create_subscription(Float32MultiArray, layout.OBSERVATION, lambda _msg: None, QOS)
         self.actions: list[int] = []
         self._pending: tuple[dict[str, Any], float] | None = None
-        self.record_actions = bool(self.declare_parameter("record_actions", False).value)
+        self.record_actions = bool(values["record_actions"])
         if self.record_actions:  # discrete (Craft) action labels
             self.create_subscription(Int32, layout.ACTION, self._on_action, QOS)
         print(json.dumps({"event": "ready"}), flush=True)
@@ -114,10 +124,12 @@ class EpisodeMonitor(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    """Exit codes: 0 done or interrupted, 2 invalid parameter (one line), 3 timeout."""
     rclpy.init(args=args)
-    node = EpisodeMonitor()
+    node: EpisodeMonitor | None = None
     code = 0
     try:
+        node = EpisodeMonitor()
         while rclpy.ok() and not node.done:
             rclpy.spin_once(node, timeout_sec=0.1)
             node.flush()
@@ -125,10 +137,13 @@ def main(args: list[str] | None = None) -> int:
                 print(json.dumps({"event": "timeout", "finished": node.finished_count}), flush=True)
                 code = 3
                 break
+    except ParameterError as exc:
+        code = exit_code_for("episode_monitor", exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
     return code
 

@@ -1,44 +1,48 @@
 """ompn_node: lifecycle ROS 2 node that runs the OMPN online on every observation.
 
-A thin wrapper around :class:`ompn_ros.segmenter.StreamingSegmenter`.
+A thin wrapper around :class:`ompn_ros.segmenter.StreamingSegmenter` (Lu et al., ICLR 2021, Sec. 2:
+the ordered memory is stepped once per observation; boundaries follow Algorithm 1, made causal).
 
 Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the namespace):
     ``observation``   Float32MultiArray (``obs_source='array'``), or ``joint_states`` JointState
-                      (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated).
+                      (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated).  QoS from
+                      ``obs_qos`` (default ``best_effort``: receives from RELIABLE and BEST_EFFORT
+                      publishers); an incompatible publisher is reported in one line naming ``obs_qos``.
     ``episode``       DiagnosticArray episode marker: 'start' resets the memory (sketch from the
                       marker, else the latest ``sketch`` message, else the ``sketch`` parameter);
                       'end' closes the last segment at step ``steps - 1``.
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
-Service: ``~/reset`` (std_srvs/Trigger) starts a new episode.
+Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state.
 
-Publications (per accepted observation):
+Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).
     ``~/pi``          Float32MultiArray, ``layout.dim=[('slot', n, n)]``, ``data`` = the n slot
                       probabilities π_1..π_n (lowest slot first), then the expected position
                       Σ i·π_i (paper π_avg), then π_end: n + 2 values.
-    ``~/boundary``    DiagnosticArray (RELIABLE + TRANSIENT_LOCAL, depth 1000), one status named
-                      '<node>/subtask_boundary' with keys step, subtask, score, level,
-                      detected_at, stamp_ns, final; ``header.stamp`` = the boundary step's stamp.
-    ``/diagnostics``  periodic DiagnosticArray with the node's counters (accepted, rejected by
-                      reason, episodes, boundaries).
-Bad observations (wrong length, NaN/Inf, empty, out-of-order stamps) are skipped without
-stepping the model, counted, and reported with a throttled warning.
+    ``~/boundary``    DiagnosticArray, one status named '<node>/subtask_boundary' with keys step, subtask,
+                      score, level, detected_at, stamp_ns, final; ``header.stamp`` = the boundary step's
+                      input stamp.  RELIABLE; a late subscriber gets the last event only
+                      (``boundary_replay='last'``, TRANSIENT_LOCAL depth 1) or nothing old ('none').
+    ``/diagnostics``  periodic DiagnosticArray, one status named '<fully qualified node name>: segmenter'
+                      with the counters (:meth:`OMPNNode.counters`).
 
-Stamps: JointState input uses ``header.stamp``.  Array input uses the publisher's DDS source
-timestamp from the message info with ``executor='single'``; the EventsExecutor cannot deliver
-message info in rclpy 7.1.6 ("SystemError: null argument to internal routine"), so with it the
-node stamps array input with its own clock at reception.
+Bad input never stops the node: a message that cannot be used is skipped without stepping the model,
+counted by reason (``rejected_<reason>``) and reported with a throttled warning; an invalid sketch
+rejects the episode's start (logged once) until the next valid one.  (A 0-byte message is dropped by
+Fast DDS before it reaches any subscriber; delivered otherwise, it is counted as ``malformed``.)
 
-Hot path: the observation subscription is ``raw=True`` (the float32 data is read straight from the
-CDR bytes) and the action and ``~/pi`` are published as pre-encoded CDR; the boundary event goes
-out before them.
+Stamps and time: JointState input uses ``header.stamp``; array input uses the DDS source timestamp
+(``executor='single'``, wall time) or, with the EventsExecutor (it cannot deliver message info in rclpy
+7.1.6) or ``use_sim_time``, the node's clock at reception.  Outputs carry the input's stamps, so under
+``use_sim_time`` everything is in sim time.  A stamp more than ``max_stamp_lead`` s ahead of the node's
+clock is rejected (``future_stamp``); one more than ``clock_jump_back`` s behind the last step is a clock
+restart (sim restart, looped bag): a new episode starts, counted (``clock_jumps``) with a warning.
 
-Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured here
-to cut the observation -> boundary latency by ~0.4-0.5 ms against ``'single'`` =
-``SingleThreadedExecutor`` (BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so
-:func:`spin_until_shutdown` drives it with ``spin_once``, which works (lifecycle and parameter
-services included).  ``'single'`` stays available should the experimental executor misbehave.
+Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured to cut the
+observation -> boundary latency by ~0.4-0.5 ms against ``'single'`` = ``SingleThreadedExecutor``
+(BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so :func:`spin_until_shutdown` drives it
+with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_node_params`.
 """
 
 from __future__ import annotations
@@ -46,40 +50,63 @@ from __future__ import annotations
 import array
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
 
 from ompn_ros import layout
+from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
 from ompn_ros.data.messages import (
+    StampRangeError,
     encode_diagnostic_status,
     encode_float32_array,
     encode_int32,
+    join_stamp,
     parse_float32_array,
+    parse_sketch_value,
 )
-from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, DetectorConfigError
-from ompn_ros.segmenter import InvalidInput, MalformedMessage, SketchError, StreamingSegmenter
+from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
+from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.ompn_node_params import (
+    EXECUTORS,
+    OBS_SOURCES,
+    SPECS,
+    boundary_qos,
+    input_qos,
+    policy_kind_name,
+)
+from ompn_ros.nodes.params import ParameterError, ParamTable, exit_code_for
+from ompn_ros.segmenter import (
+    BadSketch,
+    BadStamp,
+    FutureStamp,
+    InvalidInput,
+    MalformedMessage,
+    SketchError,
+    StreamingSegmenter,
+    classify_stamp,
+)
+from ompn_ros.validate import validate_sketch
 
 NODE_NAME = "ompn_node"
-BOUNDARY_QOS_DEPTH = 1000
-OBS_SOURCES = ("array", "joint_state")
-EXECUTORS = ("single", "events")
-JOINT_FIELDS = ("position", "velocity", "effort")
+LEVEL_OK, LEVEL_WARN = 0, 1
+LIVE_DETECTOR_KEYS = frozenset(
+    {"detector_high", "detector_hysteresis", "detector_min_segment_length", "detector_mode",
+     "detector_force_first_step_low"}
+)  # fmt: skip
+__all__ = ["EXECUTORS", "NODE_NAME", "OBS_SOURCES", "NodeConfigError", "OMPNNode", "main"]
 
 
 class NodeConfigError(ValueError):
@@ -88,8 +115,6 @@ class NodeConfigError(ValueError):
 
 def default_checkpoint(domain: str) -> Path | None:
     """The checkpoint shipped as package data for ``domain`` (``ompn_ros/checkpoints/<domain>``)."""
-    from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
-
     try:
         return shipped_checkpoint(domain)
     except MissingCheckpointError:
@@ -98,28 +123,19 @@ def default_checkpoint(domain: str) -> Path | None:
 
 def load_policy(path: str) -> Any:
     """The streaming stepper of a checkpoint directory, OMPN or LSTM (safetensors + JSON, never pickle)."""
-    from ompn_ros.model.factory import stepper_from_checkpoint
-
     return stepper_from_checkpoint(path)
 
 
-def _desc(
-    text: str,
-    *,
-    lo: float | None = None,
-    hi: float | None = None,
-    ints: bool = False,
-    read_only: bool = False,
-) -> ParameterDescriptor:
-    desc = ParameterDescriptor(description=text, read_only=read_only)
-    if lo is not None and hi is not None:
-        if ints:
-            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            desc.floating_point_range = [
-                FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)
-            ]
-    return desc
+def detector_config(values: dict[str, Any]) -> DetectorConfig:
+    """The detector of the ``detector_*`` parameter values (``low = max(0, high - hysteresis)``)."""
+    high = float(values["detector_high"])
+    return DetectorConfig(
+        high=high,
+        low=max(0.0, high - float(values["detector_hysteresis"])),
+        min_segment_length=int(values["detector_min_segment_length"]),
+        mode=str(values["detector_mode"]),
+        force_first_step_low=bool(values["detector_force_first_step_low"]),
+    )
 
 
 class OMPNNode(LifecycleNode):
@@ -127,71 +143,16 @@ class OMPNNode(LifecycleNode):
 
     def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.declare_parameter(
-            "domain", "", _desc("'craft' | 'dial' | '' (checks sizes, picks the default checkpoint)")
-        )
-        self.declare_parameter(
-            "checkpoint", "",
-            _desc("checkpoint directory, or an ensemble directory (ensemble.json); '' = the shipped one "
-                  "for 'domain'"),
-        )
-        self.declare_parameter("obs_source", "array", _desc("'array' (observation topic) | 'joint_state'"))
-        self.declare_parameter(
-            "joint_fields", ["position"], _desc("JointState arrays concatenated into the observation")
-        )
-        self.declare_parameter(
-            "obs_dim",
-            0,
-            _desc("expected observation size (0 = from domain/checkpoint)", lo=0, hi=1_000_000, ints=True),
-        )
-        self.declare_parameter(
-            "action_type", "", _desc("expected action type: 'discrete' | 'continuous' | '' (any)")
-        )
-        self.declare_parameter(
-            "sketch_mode", "", _desc("expected model sketch mode: 'none' | 'sum' | '' (any)")
-        )
-        self.declare_parameter(
-            "sketch", [-1], _desc("default sketch (subtask ids) for sketch models; [-1] = none")
-        )
-        self.declare_parameter(
-            "detector_high", 0.5, _desc("a boundary run starts when the score > high", lo=0.0, hi=1.0)
-        )
-        self.declare_parameter(
-            "detector_hysteresis", 0.0, _desc("run ends when score <= high - hysteresis", lo=0.0, hi=1.0)
-        )
-        self.declare_parameter(
-            "detector_min_segment_length",
-            1,
-            _desc("minimum steps per detected segment", lo=1, hi=100_000, ints=True),
-        )
-        self.declare_parameter("detector_mode", "falling_edge", _desc(f"one of {MODES}"))
-        self.declare_parameter("detector_force_first_step_low", True, _desc("treat step 0's score as 0"))
-        self.declare_parameter(
-            "done_threshold",
-            0.5,
-            _desc("discrete: publish done (= action_dim) when pi_end exceeds this", lo=0.0, hi=1.0),
-        )
-        self.declare_parameter(
-            "auto_start", True, _desc("configure and activate at start-up", read_only=True)
-        )
-        self.declare_parameter(
-            "qos_depth",
-            100,
-            _desc("depth of the input and per-step output queues", lo=1, hi=100_000, ints=True),
-        )
-        self.declare_parameter(
-            "diagnostics_period", 1.0, _desc("seconds between /diagnostics messages", lo=0.01, hi=3600.0)
-        )
-        self.declare_parameter(
-            "warn_throttle", 1.0, _desc("seconds between bad-input warnings", lo=0.0, hi=3600.0)
-        )
-        self.declare_parameter("executor", "events", _desc(f"one of {EXECUTORS}", read_only=True))
-        self.declare_parameter("torch_threads", 1, _desc("torch intra-op threads", lo=1, hi=64, ints=True))
+        self.params = ParamTable(SPECS)
+        self.values = self.params.declare(self)  # ParameterError on an invalid start-up value
+        detector_config(self.values)  # cross-checks the detector parameters as a whole
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
 
         self.segmenter: StreamingSegmenter | None = None
         self.last_error = ""
-        self.boundaries_published = 0
+        self.events: Counter[str] = Counter()  # node-level counters (counters())
+        self.qos_warnings: list[str] = []
         self.last_stamp_ns = 0
         self._last_receive_ns = 0
         self._pubs: dict[str, Any] = {}
@@ -199,65 +160,50 @@ class OMPNNode(LifecycleNode):
         self._service: Any = None
         self._timer: Any = None
         self._latest_sketch: np.ndarray | None = None
-        self._last_warn = 0.0
+        self._episode_sketch: np.ndarray | None = None
+        self._last_warn = -float("inf")
         self._status_name = f"{self.get_name()}/subtask_boundary"
         self._n_slots = 0
         self._active = False
-        self._done_threshold = 0.5
+        self._jump_back_ns = self._max_lead_ns = 0
+        self._cache_stamp_limits()
+
+    def _cache_stamp_limits(self) -> None:
+        """The stamp limits in ns, read once per change rather than once per step."""
+        self._jump_back_ns = int(float(self.values["clock_jump_back"]) * 1e9)
+        self._max_lead_ns = int(float(self.values["max_stamp_lead"]) * 1e9)
 
     # --- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
-        values = {p.name: p.value for p in params}
+        result = self.params.check_changes(params, active=self._active)
+        if not result.successful:
+            return result
+        merged = dict(self.values)
+        merged.update({p.name: p.value for p in params if p.name in self.params.specs})
         try:
-            self._detector_config(values)
-            if "obs_source" in values and values["obs_source"] not in OBS_SOURCES:
-                raise NodeConfigError(
-                    f"obs_source must be one of {OBS_SOURCES}, got {values['obs_source']!r}"
-                )
-            if "joint_fields" in values:
-                bad = [f for f in values["joint_fields"] if f not in JOINT_FIELDS]
-                if bad or not values["joint_fields"]:
-                    raise NodeConfigError(
-                        f"joint_fields must be a non-empty subset of {JOINT_FIELDS}, "
-                        f"got {values['joint_fields']}"
-                    )
-            for key, allowed in (
-                ("action_type", ("", "discrete", "continuous")),
-                ("sketch_mode", ("", "none", "sum")),
-                ("domain", ("", *layout.DOMAINS)),
-                ("executor", EXECUTORS),
-            ):
-                if key in values and values[key] not in allowed:
-                    raise NodeConfigError(f"{key} must be one of {allowed}, got {values[key]!r}")
-        except (NodeConfigError, DetectorConfigError) as exc:
+            detector_config(merged)
+        except DetectorConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
+        return result
 
-    def _param(self, name: str, overrides: dict[str, Any] | None = None) -> Any:
-        if overrides and name in overrides:
-            return overrides[name]
-        return self.get_parameter(name).value
-
-    def _detector_config(self, overrides: dict[str, Any] | None = None) -> DetectorConfig:
-        high = float(self._param("detector_high", overrides))
-        hysteresis = float(self._param("detector_hysteresis", overrides))
-        return DetectorConfig(
-            high=high,
-            low=max(0.0, high - hysteresis),
-            min_segment_length=int(self._param("detector_min_segment_length", overrides)),
-            mode=str(self._param("detector_mode", overrides)),
-            force_first_step_low=bool(self._param("detector_force_first_step_low", overrides)),
-        )
+    def _apply_parameters(self, params: list[Any]) -> None:
+        """Post-set: remember the values; live detector changes apply from the next step."""
+        names = {p.name for p in params if p.name in self.params.specs}
+        self.values.update({p.name: p.value for p in params if p.name in self.params.specs})
+        self._cache_stamp_limits()
+        if names & LIVE_DETECTOR_KEYS and self.segmenter is not None:
+            config = detector_config(self.values)
+            self.segmenter.detector_config = config
+            self.segmenter.detector.config = config
+            self.get_logger().info(f"detector now {config} (from the next step)")
 
     def _default_sketch(self) -> np.ndarray | None:
-        values = [int(v) for v in self.get_parameter("sketch").value]
-        # [-1] means "no default sketch": 0 is a valid id (Dial digit 0), and ROS cannot declare an
-        # empty integer array.
-        return np.asarray(values, dtype=np.int64) if values and values != [-1] else None
+        values = [int(v) for v in self.values["sketch"]]
+        # [-1] = no default sketch: 0 is a valid id and ROS cannot declare an empty integer array
+        return np.asarray(values, dtype=np.int64) if values != [-1] else None
 
     def _resolve_checkpoint(self) -> str:
-        path = str(self.get_parameter("checkpoint").value)
-        domain = str(self.get_parameter("domain").value)
+        path, domain = str(self.values["checkpoint"]), str(self.values["domain"])
         if path:
             if not Path(path).is_dir():
                 raise NodeConfigError(f"checkpoint '{path}' is not a directory")
@@ -274,30 +220,30 @@ class OMPNNode(LifecycleNode):
         return str(found)
 
     def _validate_model(self, config: Any) -> None:
-        domain = str(self.get_parameter("domain").value)
-        expected_dim = int(self.get_parameter("obs_dim").value)
-        expected_action = str(self.get_parameter("action_type").value)
+        domain = str(self.values["domain"])
+        expected_dim = int(self.values["obs_dim"])
+        expected_action = str(self.values["action_type"])
         if domain:
             dom = layout.DOMAINS[domain]
-            if self.get_parameter("obs_source").value == "array":
+            if self.values["obs_source"] == "array":
                 expected_dim = expected_dim or dom.obs_dim
             expected_action = expected_action or dom.action_type
             if config.action_dim != dom.action_dim:
                 raise NodeConfigError(
-                    f"checkpoint action_dim={config.action_dim} does not fit domain '{domain}' "
-                    f"(action_dim={dom.action_dim})"
+                    f"checkpoint action_dim={config.action_dim} does not fit domain "
+                    f"'{domain}' (action_dim={dom.action_dim})"
                 )
         if expected_dim and config.obs_dim != expected_dim:
             raise NodeConfigError(
-                f"checkpoint obs_dim={config.obs_dim} does not match the expected observation size "
-                f"{expected_dim}"
+                f"checkpoint obs_dim={config.obs_dim} does not match the expected "
+                f"observation size {expected_dim}"
             )
         if expected_action and config.action_type != expected_action:
             raise NodeConfigError(
-                f"checkpoint action_type='{config.action_type}' does not match the expected "
-                f"'{expected_action}'"
+                f"checkpoint action_type='{config.action_type}' does not match the "
+                f"expected '{expected_action}'"
             )
-        sketch_mode = str(self.get_parameter("sketch_mode").value)
+        sketch_mode = str(self.values["sketch_mode"])
         if sketch_mode and config.sketch_mode != sketch_mode:
             raise NodeConfigError(
                 f"checkpoint sketch_mode='{config.sketch_mode}' does not match the expected '{sketch_mode}'"
@@ -307,7 +253,7 @@ class OMPNNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             self._configure()
-        except Exception as exc:
+        except Exception as exc:  # any failure is the transition's reason, never a crash
             self.last_error = f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"configure failed: {self.last_error}")
             self.segmenter = None
@@ -318,73 +264,88 @@ class OMPNNode(LifecycleNode):
     def _configure(self) -> None:
         import torch
 
-        torch.set_num_threads(int(self.get_parameter("torch_threads").value))
+        torch.set_num_threads(int(self.values["torch_threads"]))
         path = self._resolve_checkpoint()
         policy = load_policy(path)
         self._validate_model(policy.config)
-        detector = self._detector_config()
-        segmenter = StreamingSegmenter(policy, detector)
-        if segmenter.needs_sketch and self._default_sketch() is not None:
-            segmenter.reset(self._default_sketch())
+        segmenter = StreamingSegmenter(policy, detector_config(self.values))
+        default = self._default_sketch()
+        if segmenter.needs_sketch and default is not None:
+            segmenter.reset(default)
+            self._episode_sketch = default
         self.segmenter = segmenter
-        self._done_threshold = float(self.get_parameter("done_threshold").value)
-        n = int(policy.config.n_slots)
-        self._n_slots = n
-        depth = int(self.get_parameter("qos_depth").value)
+        self._n_slots = int(policy.config.n_slots)
+        depth = int(self.values["qos_depth"])
         per_step = QoSProfile(
             depth=depth, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
         )
-        events = QoSProfile(
-            depth=BOUNDARY_QOS_DEPTH,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-            history=HistoryPolicy.KEEP_LAST,
-        )
         action_type = Int32 if policy.config.action_type == "discrete" else Float32MultiArray
+        events = PublisherEventCallbacks(
+            incompatible_qos=lambda info: self._qos_mismatch("~/boundary", "boundary_replay", info)
+        )
         self._pubs = {
             "action": self.create_lifecycle_publisher(action_type, layout.CMD_ACTION, per_step),
             "pi": self.create_lifecycle_publisher(Float32MultiArray, layout.PI, per_step),
-            "boundary": self.create_lifecycle_publisher(DiagnosticArray, layout.BOUNDARY, events),
+            "boundary": self.create_lifecycle_publisher(
+                DiagnosticArray,
+                layout.BOUNDARY,
+                boundary_qos(str(self.values["boundary_replay"])),
+                event_callbacks=events,
+            ),
             "diagnostics": self.create_lifecycle_publisher(DiagnosticArray, layout.DIAGNOSTICS, 10),
         }
         self.get_logger().info(
-            f"configured: checkpoint={path} obs_dim={policy.config.obs_dim} n_slots={n} "
-            f"action={policy.config.action_type} sketch_mode={policy.config.sketch_mode} detector={detector}"
+            f"configured: checkpoint={path} obs_dim={policy.config.obs_dim} n_slots={self._n_slots} "
+            f"action={policy.config.action_type} sketch_mode={policy.config.sketch_mode} "
+            f"detector={segmenter.detector_config}"
         )
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self.segmenter is None:
             self.last_error = "activate without a configured segmenter"
             return TransitionCallbackReturn.FAILURE
-        depth = int(self.get_parameter("qos_depth").value)
-        inputs = QoSProfile(
-            depth=depth, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
-        )
+        inputs = input_qos(str(self.values["obs_qos"]), int(self.values["qos_depth"]))
         markers = QoSProfile(
             depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
-        self._subs.append(
-            self.create_subscription(DiagnosticArray, layout.EPISODE, self._on_episode, markers)
-        )
-        self._subs.append(self.create_subscription(Int32MultiArray, layout.SKETCH, self._on_sketch, markers))
-        if self.get_parameter("obs_source").value == "joint_state":
-            self._subs.append(
-                self.create_subscription(JointState, layout.JOINT_STATES, self._on_joint_state, inputs)
-            )
+        self._subscribe(DiagnosticArray, layout.EPISODE, self._on_episode, markers, None)
+        self._subscribe(Int32MultiArray, layout.SKETCH, self._on_sketch, markers, None)
+        if self.values["obs_source"] == "joint_state":
+            self._subscribe(JointState, layout.JOINT_STATES, self._on_joint_state, inputs, "obs_qos")
         else:  # raw CDR: the float32 data is read in place, no message object is built
             callback = self._on_array_info if self.uses_message_info else self._on_array
-            self._subs.append(
-                self.create_subscription(Float32MultiArray, layout.OBSERVATION, callback, inputs, raw=True)
-            )
+            self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
         self._service = self.create_service(Trigger, "~/reset", self._on_reset)
-        self._timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
-        )
+        self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics)
         self._active = True
         self.get_logger().info("activated")
         return super().on_activate(state)
+
+    def _subscribe(
+        self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
+    ) -> None:
+        events = SubscriptionEventCallbacks(
+            incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
+            message_lost=lambda info: self.events.update(messages_lost=info.total_count_change),
+        )
+        self._subs.append(
+            self.create_subscription(msg_type, topic, callback, qos, raw=raw, event_callbacks=events)
+        )
+
+    def _qos_mismatch(self, topic: str, param: str | None, info: Any) -> None:
+        """One line per incompatible QoS pairing, naming the parameter to change."""
+        policy = policy_kind_name(info.last_policy_kind)
+        fix = (
+            f"set parameter '{param}' (now '{self.values[param]}') to match the peer"
+            if param
+            else "the peer must use RELIABLE, VOLATILE-compatible QoS"
+        )
+        text = f"QoS of '{topic}' incompatible with a peer ({policy}, {info.total_count} so far): {fix}"
+        self.events["qos_incompatible"] += 1
+        self.qos_warnings.append(text)
+        self.get_logger().error(text)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._teardown_inputs()
@@ -417,45 +378,57 @@ class OMPNNode(LifecycleNode):
 
     @property
     def uses_message_info(self) -> bool:
-        """Array input takes its stamp from the DDS source timestamp (needs message info)."""
+        """Array input takes its stamp from the DDS source timestamp (needs message info, wall time)."""
         return (
-            self.get_parameter("obs_source").value == "array"
-            and self.get_parameter("executor").value != "events"
+            self.values["obs_source"] == "array"
+            and self.values["executor"] != "events"
+            and not self.get_parameter("use_sim_time").value
         )
 
-    # --- callbacks -----------------------------------------------------------------------------
+    # --- input callbacks (each one survives any message) ---------------------------------------
     def _on_array_info(self, raw: bytes, info: dict[str, Any]) -> None:
         self._on_raw_array(raw, int(info["source_timestamp"]))
 
     def _on_array(self, raw: bytes) -> None:
-        # The EventsExecutor cannot pass message info: stamp with the receive time instead, kept
-        # strictly increasing (reception order is delivery order; a clock that stands still, e.g.
-        # sim time between /clock ticks, must not turn into out-of-order rejections).
-        stamp = max(self.get_clock().now().nanoseconds, self._last_receive_ns + 1)
+        # Without message info, stamp with the clock at reception, kept strictly increasing (a clock
+        # that stands still, e.g. sim time between /clock ticks, must not turn into out-of-order
+        # rejections); a clock that went back further than clock_jump_back is taken as it is.
+        now = self.get_clock().now().nanoseconds
+        last = self._last_receive_ns
+        stamp = now if (now > last or last - now > self._jump_back_ns) else last + 1
         self._last_receive_ns = stamp
-        self._on_raw_array(raw, stamp)
+        self._on_raw_array(raw, stamp, now)
 
-    def _on_raw_array(self, raw: bytes, stamp_ns: int) -> None:
+    def _on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None) -> None:
         try:
             data = parse_float32_array(raw)
-        except Exception as exc:  # any undecodable message is counted, never fatal
-            if self.segmenter is not None and self._active:
-                error = MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}")
-                self.segmenter.count_rejection(error)
-                self._warn_throttled(f"skipped observation ({error.reason}): {error}")
+        except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
+            self._reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
             return
-        self.process_observation(data, stamp_ns)
+        self.process_observation(data, stamp_ns, now_ns)
 
     def _on_joint_state(self, msg: JointState) -> None:
-        fields = self.get_parameter("joint_fields").value
-        parts = [np.asarray(getattr(msg, f), dtype=np.float32) for f in fields]
-        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-        self.process_observation(np.concatenate(parts) if parts else np.zeros(0, np.float32), stamp)
+        try:
+            stamp = join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        except StampRangeError as exc:
+            self._reject(BadStamp(str(exc)))
+            return
+        parts = [np.asarray(getattr(msg, f), dtype=np.float32) for f in self.values["joint_fields"]]
+        self.process_observation(np.concatenate(parts), stamp)
 
-    def process_observation(self, data: Any, stamp_ns: int | None) -> None:
-        """Step the segmenter on one observation and publish its outputs (or count a rejection)."""
+    def _reject(self, error: InvalidInput) -> None:
+        if self.segmenter is not None and self._active:
+            self.segmenter.count_rejection(error)
+            self._warn_throttled(f"skipped input ({error.reason}): {error}")
+
+    def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
+        """Step the segmenter on one observation and publish its outputs (or count a rejection).
+
+        ``now_ns``: the node's clock at reception when the caller read it already."""
         seg = self.segmenter
         if seg is None or not self._active:
+            return
+        if stamp_ns is not None and not self._stamp_usable(seg, stamp_ns, now_ns):
             return
         try:
             obs = (
@@ -468,27 +441,59 @@ class OMPNNode(LifecycleNode):
             self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
             return
         self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
+        if out.step_index == 0:
+            self.events["episodes"] += 1
         # The boundary event goes out first: it is the latency-critical product of this node
         # (logged after the per-step outputs, which must not wait for the console).
         if out.boundary is not None:
             self.publish_boundary(out.boundary, log=False)
         so = out.step_output
-        # Pre-encoded CDR (same bytes as the message classes would give, without building them).
-        if seg.policy.config.action_type == "discrete":
-            done = so.done_prob > self._done_threshold
-            self._pubs["action"].publish(encode_int32(seg.policy.config.action_dim if done else so.action))
+        config = seg.policy.config
+        if config.action_type == "discrete":
+            done = so.done_prob > self.values["done_threshold"]
+            self._pubs["action"].publish(encode_int32(config.action_dim if done else so.action))
         else:
             self._pubs["action"].publish(encode_float32_array(so.action, "action"))
-        pi_values = np.empty(self._n_slots + 2, np.float32)
-        pi_values[: self._n_slots] = so.pi
-        pi_values[self._n_slots] = so.expected_position
-        pi_values[self._n_slots + 1] = so.pi_end
-        self._pubs["pi"].publish(encode_float32_array(pi_values, "slot", self._n_slots))
+        n = self._n_slots
+        pi_values = np.empty(n + 2, np.float32)
+        pi_values[:n] = so.pi
+        pi_values[n] = so.expected_position
+        pi_values[n + 1] = so.pi_end
+        self._pubs["pi"].publish(encode_float32_array(pi_values, "slot", n))
         if out.boundary is not None:
             self.log_boundary(out.boundary)
 
+    def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int, now_ns: int | None) -> bool:
+        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
+        if now_ns is None:
+            now_ns = self.get_clock().now().nanoseconds if self._max_lead_ns > 0 else 0
+        verdict = classify_stamp(
+            stamp_ns, seg.last_stamp, now_ns, jump_back_ns=self._jump_back_ns, max_lead_ns=self._max_lead_ns
+        )
+        if verdict == "future":
+            self._reject(
+                FutureStamp(
+                    f"stamp {stamp_ns} ns is more than max_stamp_lead="
+                    f"{self.values['max_stamp_lead']} s ahead of the node's clock"
+                )
+            )
+            return False
+        if verdict == "jump_back":
+            self.events["clock_jumps"] += 1
+            self.get_logger().warning(
+                f"input clock jumped back from {seg.last_stamp} to {stamp_ns} ns (more than "
+                f"clock_jump_back={self.values['clock_jump_back']} s): starting a new episode"
+            )
+            if seg.detector.steps_seen > 0 and not seg.detector.closed:
+                self._close_episode(None)
+            started = self._start_episode(self._episode_sketch, count_bad=False)
+            self.events["episode_starts"] += int(started)
+            return started
+        return True
+
+    # --- outputs -------------------------------------------------------------------------------
     def publish_boundary(self, event: BoundaryEvent, log: bool = True) -> None:
-        """Publish ``event`` on ``~/boundary`` (CDR built directly) and, with ``log``, log it."""
+        """Publish ``event`` on ``~/boundary`` (CDR built by the codec) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
         values = {
             "step": event.step,
@@ -497,12 +502,10 @@ class OMPNNode(LifecycleNode):
             "level": event.level,
             "detected_at": event.detected_at,
             "stamp_ns": event.stamp_ns,
-            "final": "true" if event.final else "false",
+            "final": event.final,
         }
-        self._pubs["boundary"].publish(
-            encode_diagnostic_status(stamp, self._status_name, "boundary", values, DiagnosticStatus.OK[0])
-        )
-        self.boundaries_published += 1
+        self._pubs["boundary"].publish(encode_diagnostic_status(stamp, self._status_name, "boundary", values))
+        self.events["boundaries"] += 1
         if log:
             self.log_boundary(event)
 
@@ -514,12 +517,14 @@ class OMPNNode(LifecycleNode):
 
     def _warn_throttled(self, text: str) -> None:
         now = time.monotonic()
-        if now - self._last_warn >= float(self.get_parameter("warn_throttle").value):
+        if now - self._last_warn >= float(self.values["warn_throttle"]):
             self._last_warn = now
             total = self.segmenter.rejected_total if self.segmenter else 0
             self.get_logger().warning(f"{text} [{total} rejected so far]")
 
-    def _start_episode(self, sketch: np.ndarray | None) -> bool:
+    # --- episodes ------------------------------------------------------------------------------
+    def _start_episode(self, sketch: np.ndarray | None, count_bad: bool = True) -> bool:
+        """Reset the memory and every per-episode state (stamps included) for a new episode."""
         seg = self.segmenter
         if seg is None:
             return False
@@ -528,74 +533,136 @@ class OMPNNode(LifecycleNode):
         try:
             seg.reset(sketch)
         except SketchError as exc:
-            self._warn_throttled(f"episode start ignored: {exc}")
+            seg.stop()
+            if count_bad:
+                seg.count_rejection(BadSketch(str(exc)))
+            self.get_logger().warning(f"episode start rejected: {exc}; waiting for the next valid start")
             return False
+        seg.forget_stamps()
+        self._last_receive_ns = 0
+        self.last_stamp_ns = 0
+        self._episode_sketch = sketch
         return True
 
-    def _on_episode(self, msg: DiagnosticArray) -> None:
-        from ompn_ros.data.messages import parse_sketch_value
+    def _close_episode(self, steps: int | None) -> None:
+        """Close the last segment at ``steps - 1`` (the marker's count; the last step seen if unknown)."""
+        seg = self.segmenter
+        assert seg is not None
+        last = seg.step_index
+        if steps is not None and steps < last:  # fewer steps than observed: the marker is wrong
+            self.events["bad_end_markers"] += 1
+            self.get_logger().warning(
+                f"end marker says steps={steps} after {last + 1} observations: closing at the last step seen"
+            )
+            steps = None
+        final = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
+        self.events["episodes_ended"] += 1
+        if final is not None:
+            self.publish_boundary(final)
 
+    def _on_episode(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name != layout.EPISODE_STATUS_NAME:
+            if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
             values = {kv.key: kv.value for kv in status.values}
             if status.message == layout.EPISODE_START:
-                try:
-                    sketch = parse_sketch_value(values.get(layout.KEY_SKETCH, ""))
-                except ValueError:
-                    sketch = None
-                self._latest_sketch = sketch if sketch is not None and sketch.size else None
-                self._start_episode(sketch)
-            elif status.message == layout.EPISODE_END and self.segmenter is not None and self.segmenter.ready:
-                try:
-                    steps = int(values.get(layout.KEY_STEPS, ""))
-                except ValueError:
-                    steps = 0
-                final = self.segmenter.end_episode(steps - 1 if steps > 0 else None)
-                if final is not None:
-                    self.publish_boundary(final)
-                self._start_episode(None)  # observations before the next start marker: new episode
+                self._on_start_marker(values.get(layout.KEY_SKETCH, ""))
+            elif status.message == layout.EPISODE_END and self.segmenter.ready:
+                steps = _int_or_none(values.get(layout.KEY_STEPS, ""))
+                if not self.segmenter.detector.closed:
+                    self._close_episode(steps)
+                self._start_episode(self._episode_sketch, count_bad=False)  # steps before the next start
+
+    def _on_start_marker(self, text: str) -> None:
+        seg = self.segmenter
+        assert seg is not None
+        vocab = getattr(seg.policy.config, "sketch_vocab", None) if seg.needs_sketch else None
+        try:
+            sketch = parse_sketch_value(text, None if vocab is None else int(vocab))
+        except SketchError as exc:
+            seg.count_rejection(BadSketch(str(exc)))
+            if seg.needs_sketch:
+                seg.stop()
+                self.get_logger().warning(
+                    f"episode start rejected: marker {exc}; waiting for the next valid start"
+                )
+                return
+            sketch = None  # this model ignores sketches: the episode starts anyway
+        self._latest_sketch = sketch if sketch is not None and sketch.size else None
+        if self._start_episode(sketch):
+            self.events["episode_starts"] += 1
 
     def _on_sketch(self, msg: Int32MultiArray) -> None:
-        sketch = np.asarray(msg.data, dtype=np.int64)
-        if sketch.size == 0:
-            return
-        self._latest_sketch = sketch
         seg = self.segmenter
-        if seg is not None and (not seg.ready or seg.step_index < 0):
+        if seg is None or not self._active or len(msg.data) == 0:
+            return
+        sketch = np.asarray(msg.data, dtype=np.int64)
+        if seg.needs_sketch:
+            vocab = getattr(seg.policy.config, "sketch_vocab", None)
+            try:
+                sketch = validate_sketch(sketch, None if vocab is None else int(vocab))
+            except SketchError as exc:
+                seg.count_rejection(BadSketch(str(exc)))
+                self._warn_throttled(f"sketch message rejected: {exc}")
+                return
+        self._latest_sketch = sketch
+        if not seg.ready or seg.step_index < 0:  # no step yet: the episode starts with this sketch
             self._start_episode(sketch)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        response.success = self._start_episode(None)
+        response.success = self._start_episode(self._episode_sketch)
+        self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
         return response
 
+    # --- health --------------------------------------------------------------------------------
     def counters(self) -> dict[str, int]:
-        """The node's health counters (also published on /diagnostics)."""
+        """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
+        reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
+        clock restarts), episodes_ended (end markers), messages_lost (reported by the middleware),
+        boundaries published, clock_jumps, bad_end_markers, qos_incompatible."""
         seg = self.segmenter
-        out = {"accepted": 0, "rejected": 0, "episodes": 0, "boundaries": self.boundaries_published}
+        out = {"accepted": 0, "rejected": 0}
         if seg is not None:
-            out.update(accepted=seg.accepted, rejected=seg.rejected_total, episodes=seg.episodes)
+            out.update(accepted=seg.accepted, rejected=seg.rejected_total)
+        for key in (
+            "episodes",
+            "episode_starts",
+            "episodes_ended",
+            "messages_lost",
+            "boundaries",
+            "clock_jumps",
+            "bad_end_markers",
+            "qos_incompatible",
+        ):
+            out[key] = int(self.events[key])
+        if seg is not None:
             out.update({f"rejected_{k}": int(v) for k, v in seg.rejected.items()})
         return out
 
     def publish_diagnostics(self) -> None:
-        if "diagnostics" not in self._pubs:
+        """Publish the counters on /diagnostics (silently skipped once the context is shutting down)."""
+        pub = self._pubs.get("diagnostics")
+        if pub is None or not self.context.ok():
             return
         counters = self.counters()
-        level = DiagnosticStatus.WARN if counters["rejected"] else DiagnosticStatus.OK
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [
-            DiagnosticStatus(
-                level=level,
-                name=f"{self.get_name()}: segmenter",
-                message="rejected input" if counters["rejected"] else "ok",
-                hardware_id="",
-                values=[KeyValue(key=k, value=str(v)) for k, v in counters.items()],
-            )
-        ]
-        self._pubs["diagnostics"].publish(msg)
+        rejected = counters["rejected"] > 0
+        raw = encode_diagnostic_status(
+            self.get_clock().now().nanoseconds, f"{self.get_fully_qualified_name()}: segmenter",
+            "rejected input" if rejected else "ok", counters, LEVEL_WARN if rejected else LEVEL_OK,
+        )  # fmt: skip
+        try:
+            pub.publish(raw)
+        except Exception as exc:  # SIGINT tears the context down while the timer is due: not an error
+            if "context" not in str(exc):
+                self._warn_throttled(f"/diagnostics not published: {exc}")
+
+
+def _int_or_none(text: str) -> int | None:
+    try:
+        return int(text)
+    except ValueError:
+        return None
 
 
 def make_executor(kind: str, context: Any = None) -> Any:
@@ -618,29 +685,36 @@ def spin_until_shutdown(executor: Any, context: Any = None, period: float = 0.1)
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin."""
+    """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
+
+    Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
+    start-up parameter (one line naming it and the allowed values)."""
     rclpy.init(args=args)
-    node = OMPNNode()
-    code = 0
+    node: OMPNNode | None = None
     executor = None
     try:
-        if node.get_parameter("auto_start").value:
+        node = OMPNNode()
+        if node.values["auto_start"]:
             node.trigger_configure()
             if node.segmenter is None:
                 node.get_logger().fatal(f"cannot start: {node.last_error}")
                 return 1
             node.trigger_activate()
-        executor = make_executor(str(node.get_parameter("executor").value))
+        executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)
         spin_until_shutdown(executor)
+    except (ParameterError, DetectorConfigError) as exc:
+        error = exc if isinstance(exc, ParameterError) else ParameterError("detector_*", str(exc))
+        return exit_code_for(NODE_NAME, error)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if executor is not None:
             executor.shutdown()
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
-    return code
+    return 0
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 ``smoke_talker`` publishes ``count`` stamped messages on ``smoke`` at ``rate`` Hz, then exits.
 ``smoke_listener`` counts what it receives, prints a one-line JSON summary (received, lost,
 latency percentiles) and exits after ``count`` messages or ``timeout`` seconds of silence.
-Both run under ``ros2 run ompn_ros smoke_talker`` and accept ``--ros-args --params-file``.
+Both run under ``ros2 run ompn_ros smoke_talker`` and accept ``--ros-args --params-file``; an invalid
+parameter ends them with one line naming it and exit code 2.
 """
 
 from __future__ import annotations
@@ -13,33 +14,29 @@ import sys
 import time
 
 import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for
+
 TOPIC = "smoke"
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-
-
-def _declare_common(node: Node) -> None:
-    node.declare_parameter(
-        "count",
-        50,
-        ParameterDescriptor(
-            description="number of messages to exchange",
-            integer_range=[IntegerRange(from_value=1, to_value=1_000_000, step=1)],
-        ),
-    )
-    node.declare_parameter(
-        "rate",
-        50.0,
-        ParameterDescriptor(
-            description="publish rate in Hz",
-            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=10_000.0, step=0.0)],
-        ),
-    )
+COMMON = (
+    ParamSpec("count", 50, "number of messages to exchange", int_range=(1, 1_000_000)),
+    ParamSpec("rate", 50.0, "publish rate in Hz", float_range=(0.1, 10_000.0)),
+)
+TALKER_PARAMS = ParamTable((
+    *COMMON,
+    ParamSpec("wait_for_subscriber", 5.0, "seconds to wait for a subscriber before publishing",
+              float_range=(0.0, 3600.0)),
+))  # fmt: skip
+LISTENER_PARAMS = ParamTable((
+    *COMMON,
+    ParamSpec("timeout", 10.0, "seconds of silence after which the listener gives up",
+              float_range=(0.1, 3600.0)),
+))  # fmt: skip
 
 
 class SmokeTalker(Node):
@@ -47,19 +44,14 @@ class SmokeTalker(Node):
 
     def __init__(self) -> None:
         super().__init__("smoke_talker")
-        _declare_common(self)
-        self.declare_parameter(
-            "wait_for_subscriber",
-            5.0,
-            ParameterDescriptor(description="seconds to wait for a subscriber before publishing"),
-        )
-        self.count = self.get_parameter("count").value
-        self.period = 1.0 / self.get_parameter("rate").value
+        self.values = TALKER_PARAMS.declare(self)  # ParameterError on an invalid value
+        self.count = int(self.values["count"])
+        self.period = 1.0 / float(self.values["rate"])
         self.publisher = self.create_publisher(JointState, TOPIC, QOS)
         self.sent = 0
 
     def run(self) -> None:
-        deadline = time.monotonic() + self.get_parameter("wait_for_subscriber").value
+        deadline = time.monotonic() + float(self.values["wait_for_subscriber"])
         while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
             rclpy.spin_once(self, timeout_sec=0.05)
         next_due = time.monotonic()
@@ -84,14 +76,9 @@ class SmokeListener(Node):
 
     def __init__(self) -> None:
         super().__init__("smoke_listener")
-        _declare_common(self)
-        self.declare_parameter(
-            "timeout",
-            10.0,
-            ParameterDescriptor(description="seconds of silence after which the listener gives up"),
-        )
-        self.count = self.get_parameter("count").value
-        self.timeout = self.get_parameter("timeout").value
+        self.values = LISTENER_PARAMS.declare(self)  # ParameterError on an invalid value
+        self.count = int(self.values["count"])
+        self.timeout = float(self.values["timeout"])
         self.seen: set[int] = set()
         self.latencies_ms: list[float] = []
         self.create_subscription(JointState, TOPIC, self._on_message, QOS)
@@ -129,9 +116,10 @@ class SmokeListener(Node):
         }
 
 
-def _main(node_cls: type[Node], args: list[str] | None) -> int:
+def _main(node_cls: type[SmokeTalker] | type[SmokeListener], args: list[str] | None) -> int:
+    """Run one role; exit 0 (all delivered), 1 (messages lost) or 2 (invalid parameter, one line)."""
     rclpy.init(args=args)
-    node = None
+    node: SmokeTalker | SmokeListener | None = None
     code = 0
     try:
         node = node_cls()
@@ -139,6 +127,8 @@ def _main(node_cls: type[Node], args: list[str] | None) -> int:
         if isinstance(result, dict):
             print(json.dumps(result), flush=True)
             code = 0 if result["lost"] == 0 else 1
+    except ParameterError as exc:
+        code = exit_code_for("smoke_listener" if node_cls is SmokeListener else "smoke_talker", exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -157,6 +147,6 @@ def listener_main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    role = sys.argv[1] if len(sys.argv) > 1 else "talker"
-    rest = [sys.argv[0], *sys.argv[2:]]
+    role = sys.argv[1] if len(sys.argv) > 1 and sys.argv[1] in ("talker", "listener") else "talker"
+    rest = [sys.argv[0], *sys.argv[2:]] if len(sys.argv) > 1 and sys.argv[1] == role else sys.argv
     sys.exit(_main(SmokeTalker if role == "talker" else SmokeListener, rest))

@@ -1,0 +1,133 @@
+"""The parameters of ``ompn_node`` (one :class:`~ompn_ros.nodes.params.ParamSpec` row each) and its QoS.
+
+When a change applies (``ompn_ros.nodes.params``):
+
+* live, from the next step: ``detector_*``, ``done_threshold``, ``sketch`` (the default sketch),
+  ``warn_throttle``, ``max_stamp_lead``, ``clock_jump_back``;
+* at the next ``configure`` (refused while active, with the way out): ``checkpoint``, ``domain``,
+  ``obs_source``, ``joint_fields``, ``obs_dim``, ``action_type``, ``sketch_mode``, ``qos_depth``,
+  ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``;
+* at start-up only: ``auto_start``, ``executor``.
+
+QoS of the observation and joint-state subscriptions (``obs_qos``): ``best_effort`` (default) receives
+from RELIABLE and BEST_EFFORT publishers alike (``sensor_msgs/JointState`` is usually published
+BEST_EFFORT); ``reliable`` matches RELIABLE publishers only; ``sensor_data`` is rclpy's sensor profile
+(BEST_EFFORT, depth 5).
+
+``~/boundary`` durability (``boundary_replay``): ``last`` (default) = RELIABLE + TRANSIENT_LOCAL with
+depth 1, so a subscriber that joins late receives the last boundary event only; ``none`` = VOLATILE,
+late subscribers receive nothing old.  Live subscribers get every event either way.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+from ompn_ros import layout
+from ompn_ros.detect.online import MODES
+from ompn_ros.layout import JOINT_FIELDS
+from ompn_ros.nodes.params import ParamSpec
+
+OBS_SOURCES: Final = ("array", "joint_state")
+EXECUTORS: Final = ("single", "events")
+OBS_QOS: Final = ("best_effort", "reliable", "sensor_data")
+BOUNDARY_REPLAY: Final = ("last", "none")
+BOUNDARY_QOS_DEPTH: Final = 100  # history of a VOLATILE ~/boundary writer (nothing is replayed)
+
+
+def _sketch_rule(value: Any) -> str | None:
+    ids = list(value)
+    if ids == [-1]:
+        return None
+    if not ids or any(int(v) < 0 for v in ids):
+        return f"{ids} is not [-1] (no default sketch) or a list of ids >= 0"
+    return None
+
+
+def _fields_rule(value: Any) -> str | None:
+    return None if list(value) else f"must name at least one of {list(JOINT_FIELDS)}"
+
+
+SPECS: Final = (
+    ParamSpec("domain", "", "'craft' | 'dial' | '' (checks sizes, picks the shipped checkpoint)",
+              choices=("", *layout.DOMAINS), apply="configure"),
+    ParamSpec("checkpoint", "", "checkpoint directory, or an ensemble directory (ensemble.json); "
+              "'' = the shipped one for 'domain'", apply="configure"),
+    ParamSpec("obs_source", "array", "'array' (observation topic) | 'joint_state'", choices=OBS_SOURCES,
+              apply="configure"),
+    ParamSpec("joint_fields", ["position"], "JointState arrays concatenated into the observation",
+              choices=JOINT_FIELDS, apply="configure", check=_fields_rule),
+    ParamSpec("obs_dim", 0, "expected observation size (0 = from domain/checkpoint)",
+              int_range=(0, 1_000_000), apply="configure"),
+    ParamSpec("action_type", "", "expected action type", choices=("", "discrete", "continuous"),
+              apply="configure"),
+    ParamSpec("sketch_mode", "", "expected model sketch mode", choices=("", "none", "sum"),
+              apply="configure"),
+    ParamSpec("sketch", [-1], "default sketch (subtask ids) for sketch models; [-1] = none",
+              apply="live", check=_sketch_rule),
+    ParamSpec("detector_high", 0.5, "a boundary run starts when the score > high",
+              float_range=(0.0, 1.0), apply="live"),
+    ParamSpec("detector_hysteresis", 0.0, "a run ends when score <= high - hysteresis",
+              float_range=(0.0, 1.0), apply="live"),
+    ParamSpec("detector_min_segment_length", 1, "minimum steps per detected segment",
+              int_range=(1, 100_000), apply="live"),
+    ParamSpec("detector_mode", "falling_edge", "boundary commit rule", choices=MODES, apply="live"),
+    ParamSpec("detector_force_first_step_low", True, "treat step 0's score as 0", apply="live"),
+    ParamSpec("done_threshold", 0.5, "discrete: publish done (= action_dim) when pi_end exceeds this",
+              float_range=(0.0, 1.0), apply="live"),
+    ParamSpec("auto_start", True, "configure and activate at start-up"),
+    ParamSpec("qos_depth", 100, "depth of the input and per-step output queues", int_range=(1, 100_000),
+              apply="configure"),
+    ParamSpec("obs_qos", "best_effort", "QoS of the observation / joint_states subscription",
+              choices=OBS_QOS, apply="configure"),
+    ParamSpec("boundary_replay", "last", "what a late ~/boundary subscriber receives",
+              choices=BOUNDARY_REPLAY, apply="configure"),
+    ParamSpec("diagnostics_period", 1.0, "seconds between /diagnostics messages",
+              float_range=(0.01, 3600.0), apply="configure"),
+    ParamSpec("warn_throttle", 1.0, "seconds between bad-input warnings", float_range=(0.0, 3600.0),
+              apply="live"),
+    ParamSpec("max_stamp_lead", 60.0, "seconds an input stamp may lie ahead of the node's clock "
+              "(0 = no check)", float_range=(0.0, 1e9), apply="live"),
+    ParamSpec("clock_jump_back", 1.0, "seconds back in time that count as a clock restart (a new "
+              "episode) rather than an out-of-order message", float_range=(0.0, 1e9), apply="live"),
+    ParamSpec("executor", "events", "callback executor", choices=EXECUTORS),
+    ParamSpec("torch_threads", 1, "torch intra-op threads", int_range=(1, 64), apply="configure"),
+)  # fmt: skip
+
+
+def input_qos(kind: str, depth: int) -> QoSProfile:
+    """QoS of the observation / joint-state subscription for ``obs_qos`` = ``kind``."""
+    if kind == "sensor_data":
+        return qos_profile_sensor_data
+    reliability = ReliabilityPolicy.RELIABLE if kind == "reliable" else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(depth=depth, reliability=reliability, history=HistoryPolicy.KEEP_LAST)
+
+
+def boundary_qos(replay: str) -> QoSProfile:
+    """QoS of ``~/boundary`` for ``boundary_replay`` = ``replay`` (module docstring)."""
+    if replay == "last":
+        return QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            history=HistoryPolicy.KEEP_LAST,
+        )
+    return QoSProfile(
+        depth=BOUNDARY_QOS_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+        history=HistoryPolicy.KEEP_LAST,
+    )
+
+
+def policy_kind_name(kind: Any) -> str:
+    """Readable name of a ``QoSPolicyKind`` (e.g. 'RELIABILITY')."""
+    return str(getattr(kind, "name", kind)).replace("RMW_QOS_POLICY_", "")
