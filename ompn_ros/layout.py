@@ -133,4 +133,3 @@ def topic_types(domain: DomainLayout) -> dict[str, str]:
     if domain.name == "craft":
         types[RENDER] = STRING
     return types
-JOINT_FIELDS: tuple[str, ...] = ("position", "velocity", "effort")

@@ -8,8 +8,8 @@ the default streams (:class:`LayoutPublisher`), publishes strictly in the step c
 
     start marker, sketch, (observation_t, [extras_t], subtask_t, action_t) * T, observation_T, end marker
 
-Every message is built as CDR bytes by the codec (:mod:`ompn_ros.data.messages`, plus
-:mod:`sim_nodes._codec_extra`) and handed to rclpy as an already serialized message.
+Every message is built as CDR bytes by the codec (:mod:`ompn_ros.data.messages`)
+and handed to rclpy as an already serialized message.
 
 Modes:
 
@@ -75,7 +75,6 @@ from ompn_ros.data import messages
 from ompn_ros.layout import DomainLayout
 from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
 from sim_nodes import SEED_MAX, derive_seed
-from sim_nodes._codec_extra import encode_clock, encode_int32_array
 
 SIM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -144,7 +143,7 @@ def encode_observation(obs: np.ndarray) -> bytes:
 
 def encode_sketch(ids: np.ndarray) -> bytes:
     """``Int32MultiArray`` of the episode's subtask ids, dimension labelled ``sketch``."""
-    return encode_int32_array(np.asarray(ids).ravel(), label="sketch")
+    return messages.encode_int32_array(np.asarray(ids).ravel(), label="sketch")
 
 
 def encode_action(domain: DomainLayout, action: Any) -> bytes:
@@ -321,7 +320,7 @@ class SimNode(Node):
         """Advance the simulated time by ``ns`` and publish it on /clock."""
         self.sim_time_ns += int(ns)
         if self._clock_pub is not None:
-            self._clock_pub.publish(encode_clock(self.sim_time_ns))
+            self._clock_pub.publish(messages.encode_clock(self.sim_time_ns))
 
     # --- parameters ----------------------------------------------------------------------------------
     def _tick_period(self) -> float:

@@ -130,7 +130,7 @@ def test_sketch_validation_names_the_problem() -> None:
         validate_sketch([1, 1, 2, 3])
     with pytest.raises(DialConfigError, match=r"0\.\.9"):
         validate_sketch([1, 10, 2, 3])
-    with pytest.raises(DialConfigError, match="4 digits"):
+    with pytest.raises(DialConfigError, match="4 ids"):
         validate_sketch([1, 2, 3], 4)
     with pytest.raises(DialConfigError, match="press_tolerance"):
         DialEnv(press_tolerance=0.0)

@@ -1,4 +1,4 @@
-"""sim_nodes._codec_extra: the same bytes as rosbags' serializer, readable by rclpy's deserializer."""
+"""The encoders the sims use: the same bytes as rosbags' serializer, readable by rclpy's deserializer."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ompn_ros.data import messages as m
-from sim_nodes import _codec_extra as c
+
+c = m  # the encoders under test
 
 NAMES9 = [f"joint_{i}" for i in range(9)]
 JOINT_CASES = [  # names, position, velocity, effort: full, partial and empty arrays, odd name lengths

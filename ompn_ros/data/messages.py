@@ -257,6 +257,21 @@ def encode_int32_array(values: np.ndarray | Sequence[int], label: str = "sketch"
     return _multiarray_prefix(label, int(data.size), None) + data.astype("<i4").tobytes()
 
 
+def encode_float64_array(values: np.ndarray | Sequence[float], label: str) -> bytes:
+    """CDR of a ``Float64MultiArray`` with one dimension ``(label, n, n)`` (e.g. an effort command)."""
+    data = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
+    head = _multiarray_prefix(label, int(data.size), None)
+    pad = b"\0" * (-(len(head) - 4) % 8) if data.size else b""
+    return head + pad + data.tobytes()
+
+
+def encode_string(text: str) -> bytes:
+    """CDR of ``std_msgs/String``."""
+    w = _CdrWriter()
+    w.string(text)
+    return bytes(w.out)
+
+
 def encode_int32(value: int) -> bytes:
     """CDR of :func:`int32` ``(value)``."""
     return CDR_LE_HEADER + _I32.pack(int(value))

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from ompn_ros.model.policy import ModelInputError
+from ompn_ros.validate import InvalidInput, validate_observation
 
 
 class StreamingInputError(ModelInputError):
@@ -47,14 +48,10 @@ def checked_observation(obs: np.ndarray, obs_dim: int, ready: bool) -> np.ndarra
     """``obs`` as a flat float32 vector, or a StreamingInputError naming what is wrong with it."""
     if not ready:
         raise StreamingInputError("this model has sketch_mode='sum': call reset(sketch) before step()")
-    arr = np.asarray(obs, dtype=np.float32).reshape(-1)
-    if arr.size != obs_dim:
-        raise StreamingInputError(
-            f"observation has {np.asarray(obs).size} values, the model expects obs_dim={obs_dim}"
-        )
-    if not np.isfinite(arr).all():
-        raise StreamingInputError("observation contains NaN or inf")
-    return arr
+    try:
+        return validate_observation(obs, obs_dim)
+    except InvalidInput as exc:
+        raise StreamingInputError(str(exc)) from None
 
 
 def sketch_tensor(sketch: np.ndarray | None) -> torch.Tensor | None:

@@ -23,8 +23,8 @@ import numpy as np
 from std_msgs.msg import String
 
 from ompn_ros import layout
+from ompn_ros.data.messages import encode_string
 from ompn_ros.nodes.params import ParamSpec
-from sim_nodes._codec_extra import encode_string
 from sim_nodes.craft.env import CraftEnv
 from sim_nodes.craft.expert import generate_episode
 from sim_nodes.craft.render import render_ansi

@@ -42,6 +42,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from ompn_ros import validate
 from sim_nodes.dial.render import make_renderer, render_frame
 from sim_nodes.dial.scene import FRAME_SKIP, N_KEYS, TORQUE_SCALE, DialModel, shared_model
 from sim_nodes.dial.targets import Targets, shared_targets
@@ -69,17 +70,12 @@ def sample_sketch(rng: np.random.Generator, length: int = SKETCH_LENGTH) -> np.n
 
 
 def validate_sketch(sketch: Sequence[int], length: int | None = None) -> np.ndarray:
-    """Check a user-given sketch: labels in 0..9, no immediate repeat, optional length."""
-    arr = np.asarray(list(sketch), dtype=np.int64)
-    if arr.ndim != 1 or arr.size == 0:
-        raise DialConfigError(f"sketch must be a non-empty list of digits, got {list(sketch)}")
-    if length is not None and arr.size != length:
-        raise DialConfigError(f"sketch must have {length} digits, got {arr.size}: {arr.tolist()}")
-    if arr.min() < 0 or arr.max() >= N_KEYS:
-        raise DialConfigError(f"sketch digits must be in 0..{N_KEYS - 1}, got {arr.tolist()}")
-    if np.any(arr[1:] == arr[:-1]):
-        raise DialConfigError(f"sketch must not repeat a digit immediately, got {arr.tolist()}")
-    return arr
+    """Check a user-given sketch: labels in 0..9, no immediate repeat, optional length
+    (the package's one sketch validator, :func:`ompn_ros.validate.validate_sketch`)."""
+    try:
+        return validate.validate_sketch(list(sketch), N_KEYS, length=length, no_immediate_repeat=True)
+    except validate.SketchError as exc:
+        raise DialConfigError(str(exc)) from None
 
 
 class DialEnv(gym.Env):

@@ -68,10 +68,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Float64MultiArray, Int32
 
 from ompn_ros import layout
-from ompn_ros.data.messages import encode_float32_array, encode_int32
+from ompn_ros.data.messages import (
+    encode_float32_array,
+    encode_float64_array,
+    encode_int32,
+    encode_joint_state,
+)
 from ompn_ros.nodes.params import ParameterError, ParamSpec
 from sim_nodes import derive_seed
-from sim_nodes._codec_extra import encode_float64_array, encode_joint_state
 from sim_nodes.dial.env import (
     MAX_STEPS_PER_SUBTASK,
     PRESS_TOLERANCE,
