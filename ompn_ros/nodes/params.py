@@ -133,6 +133,20 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]
     return ParamTable(specs).declare(node)
 
 
+def markdown_table(specs: Iterable[ParamSpec]) -> str:
+    """The parameters as a Markdown table (name, default, allowed values, when a change applies,
+    meaning): ``docs/parameters.md`` is generated from the nodes' own tables with this."""
+    rows = ["| name | default | allowed | applies | meaning |", "|---|---|---|---|---|"]
+    for spec in specs:
+        bounds = spec.int_range or spec.float_range
+        allowed = (f"{bounds[0]:g} to {bounds[1]:g}" if bounds is not None
+                   else ", ".join(f"`{c}`" if c else "`''`" for c in spec.choices) if spec.choices else "")
+        default = spec.default if not isinstance(spec.default, str) else f"'{spec.default}'"
+        text = spec.description.replace("|", "\\|")
+        rows.append(f"| `{spec.name}` | `{default}` | {allowed} | {spec.apply} | {text} |")
+    return "\n".join(rows)
+
+
 def exit_code_for(prog: str, exc: ParameterError) -> int:
     """Print ``exc`` as one line naming ``prog`` and return exit code 2 (for a node's ``main()``)."""
     print(f"{prog}: {exc}", file=sys.stderr)
