@@ -52,7 +52,8 @@ def test_split_and_manifest(tmp_path: Path, fake: FakeDial) -> None:
     seeds = [s for p in manifest["parts"] for s in p["seeds"]]
     assert seeds == [collect_mod.episode_seed(11, i) for i in range(7)]
     assert manifest["command"][0] == "ompn_collect" and "--split-every" in manifest["command"]
-    assert list(out.glob("part_000/*.db3"))
+    # the storage file is named after its part (not hidden, found without metadata.yaml)
+    assert [p.name for p in out.glob("part_000/*.db3")] == ["part_000.db3"]
     result = read_episodes(out, spec=ReaderSpec.for_domain("dial"))
     assert [e.seed for e in result.episodes] == seeds
     for seed, ep in zip(seeds, result.episodes):

@@ -162,10 +162,14 @@ def _check(
 
 
 def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) -> dict[str, Any]:
-    """Write the episodes ``indices`` as part ``k`` (under a temporary name, renamed when complete)."""
+    """Write the episodes ``indices`` as part ``k``: in a temporary directory, moved into place when
+    complete.  The bag directory has its final name from the start, because rosbag2 names the storage
+    file after it (``part_000/part_000.mcap``)."""
     tmp = out / f".{part_name(k)}.tmp"
     if tmp.exists():
         shutil.rmtree(tmp)
+    tmp.mkdir()
+    bag = tmp / part_name(k)
     record: dict[str, Any] = {
         "name": part_name(k),
         "episodes": indices,
@@ -176,7 +180,7 @@ def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) ->
     }
     start = time.perf_counter()
     dom = layout.DOMAINS[plan.domain]
-    with EpisodeBagWriter(tmp, dom, storage=plan.storage, first_episode_index=indices[0]) as writer:
+    with EpisodeBagWriter(bag, dom, storage=plan.storage, first_episode_index=indices[0]) as writer:
         for i in indices:
             ep_seed = episode_seed(plan.seed, i)
             task = plan.tasks[i % len(plan.tasks)]
@@ -190,7 +194,8 @@ def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) ->
             bar.update(1)
     record["messages"] = writer.stats.total_messages
     record["seconds"] = round(time.perf_counter() - start, 3)
-    tmp.rename(out / part_name(k))
+    bag.rename(out / part_name(k))
+    tmp.rmdir()
     return record
 
 
