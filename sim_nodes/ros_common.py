@@ -73,7 +73,7 @@ from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from ompn_ros import layout
 from ompn_ros.data import messages
 from ompn_ros.layout import DomainLayout
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, help_text, wants_help
 from sim_nodes import SEED_MAX, derive_seed
 
 SIM_QOS = QoSProfile(
@@ -458,8 +458,14 @@ class SimNode(Node):
             self._policy_step()
 
 
-def run_sim_node(factory: Callable[[], SimNode], args: list[str] | None = None, name: str = "sim") -> int:
-    """The ``main()`` idiom: init, spin until finished or shut down, exit code 2 on bad parameters."""
+def run_sim_node(factory: Callable[[], SimNode], args: list[str] | None = None, name: str = "sim",
+                 params: Sequence[ParamSpec] = ()) -> int:
+    """The ``main()`` idiom: ``--help`` (no side effects), else init, spin until finished or shut down;
+    exit code 2 on bad parameters.  ``params`` are the domain's own rows (after the common ones)."""
+    if wants_help(args):
+        table = {s.name: s for s in (*COMMON_PARAMS, *params)}.values()
+        print(help_text(name, f"{name}: a simulator publishing the ompn_ros topic layout.", table))
+        return 0
     rclpy.init(args=args)
     node: SimNode | None = None
     code = 0

@@ -29,7 +29,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float32MultiArray, Int32
 
 from ompn_ros import layout
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
 
 GRACE_S = 0.5  # wait this long after an end marker for the episode's last per-step messages
 
@@ -125,6 +125,10 @@ class EpisodeMonitor(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Exit codes: 0 done or interrupted, 2 invalid parameter (one line), 3 timeout."""
+    if wants_help(args):
+        print(help_text("episode_monitor", "Prints one JSON line per finished sim episode.",
+                        PARAMS.specs.values()))
+        return 0
     rclpy.init(args=args)
     node: EpisodeMonitor | None = None
     code = 0

@@ -87,7 +87,7 @@ from ompn_ros.nodes.ompn_node_params import (
     input_qos,
     policy_kind_name,
 )
-from ompn_ros.nodes.params import ParameterError, ParamTable, exit_code_for
+from ompn_ros.nodes.params import ParameterError, ParamTable, exit_code_for, help_text, wants_help
 from ompn_ros.segmenter import (
     BadSketch,
     BadStamp,
@@ -689,6 +689,10 @@ def main(args: list[str] | None = None) -> int:
 
     Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
     start-up parameter (one line naming it and the allowed values)."""
+    if wants_help(args):
+        print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
+                        "publishes the action, ~/pi and ~/boundary events.", SPECS))
+        return 0
     rclpy.init(args=args)
     node: OMPNNode | None = None
     executor = None

@@ -147,6 +147,26 @@ def markdown_table(specs: Iterable[ParamSpec]) -> str:
     return "\n".join(rows)
 
 
+def help_text(prog: str, description: str, specs: Iterable[ParamSpec]) -> str:
+    """``--help`` of a node: usage, what it does, and every parameter with its default and rules."""
+    lines = [f"usage: {prog} [--ros-args -p NAME:=VALUE ... | --params-file FILE | -r FROM:=TO ...]", "",
+             description, "", "parameters (when a change applies: live | configure | startup):"]
+    for spec in specs:
+        bounds = spec.int_range or spec.float_range
+        rule = (f", {bounds[0]:g} to {bounds[1]:g}" if bounds is not None
+                else f", one of {list(spec.choices)}" if spec.choices else "")
+        lines.append(f"  {spec.name} (default {spec.default!r}{rule}; {spec.apply}): {spec.description}")
+    return "\n".join(lines)
+
+
+def wants_help(args: Sequence[str] | None) -> bool:
+    """True when the non-ROS part of the command line (``sys.argv`` when ``args`` is None) asks for
+    ``-h``/``--help``; the caller then prints :func:`help_text` and exits before touching ROS."""
+    argv = list(sys.argv if args is None else args)
+    cut = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
+    return any(a in ("-h", "--help") for a in argv[1:cut])
+
+
 def exit_code_for(prog: str, exc: ParameterError) -> int:
     """Print ``exc`` as one line naming ``prog`` and return exit code 2 (for a node's ``main()``)."""
     print(f"{prog}: {exc}", file=sys.stderr)

@@ -19,7 +19,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for
+from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
 
 TOPIC = "smoke"
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -118,6 +118,12 @@ class SmokeListener(Node):
 
 def _main(node_cls: type[SmokeTalker] | type[SmokeListener], args: list[str] | None) -> int:
     """Run one role; exit 0 (all delivered), 1 (messages lost) or 2 (invalid parameter, one line)."""
+    prog = "smoke_listener" if node_cls is SmokeListener else "smoke_talker"
+    if wants_help(args):
+        table = LISTENER_PARAMS if node_cls is SmokeListener else TALKER_PARAMS
+        about = "DDS self-check: a talker and a listener count what arrives."
+        print(help_text(prog, about, table.specs.values()))
+        return 0
     rclpy.init(args=args)
     node: SmokeTalker | SmokeListener | None = None
     code = 0
@@ -128,7 +134,7 @@ def _main(node_cls: type[SmokeTalker] | type[SmokeListener], args: list[str] | N
             print(json.dumps(result), flush=True)
             code = 0 if result["lost"] == 0 else 1
     except ParameterError as exc:
-        code = exit_code_for("smoke_listener" if node_cls is SmokeListener else "smoke_talker", exc)
+        code = exit_code_for(prog, exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

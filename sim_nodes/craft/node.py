@@ -87,7 +87,7 @@ class CraftSim(SimNode):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_sim_node(CraftSim, args=args, name=NODE_NAME)
+    return run_sim_node(CraftSim, args=args, name=NODE_NAME, params=CRAFT_PARAMS)
 
 
 if __name__ == "__main__":

@@ -252,7 +252,7 @@ class DialSim(SimNode):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``dial_sim``."""
-    return run_sim_node(DialSim, args, NODE_NAME)
+    return run_sim_node(DialSim, args, NODE_NAME, params=DIAL_PARAMS)
 
 
 if __name__ == "__main__":
