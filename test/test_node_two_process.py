@@ -28,7 +28,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
-from ompn_ros import layout  # noqa: E402
+from ompn_ros import containment, layout  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
@@ -189,4 +189,4 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
     assert proc.returncode == 0, out
     assert "subtask boundary" in out
     assert "FATAL" not in out and "context is invalid" not in out and "Traceback" not in out
-    assert os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST"
+    assert not containment.problems()  # DDS stayed on loopback and shared memory

@@ -17,6 +17,7 @@ import pytest
 from test_data_common import assert_same_episode, make_episodes
 
 from ompn_ros.data import CorruptBagError, Episode, ReaderSpec, read_episodes, write_episodes
+from ompn_ros.data.storage import refresh_chunk_crcs
 
 MAGIC = b"\x89MCAP0\r\n"
 CHUNK, FOOTER = 0x06, 0x02
@@ -100,6 +101,7 @@ def test_chunks_without_crc_are_noted_and_nan_is_caught(tmp_path: Path) -> None:
     data[at + 3] = 0x7F  # the high byte of a float32 whose exponent's low bit is set: inf or NaN
     data[at + 2] |= 0x80
     file.write_bytes(bytes(data))
+    assert refresh_chunk_crcs(file, clear=True) > 0  # as a writer without CRCs leaves them
     spec = ReaderSpec.for_domain("dial")
     with pytest.raises(CorruptBagError) as info:
         read_episodes(tmp_path / "bag", spec=spec)

@@ -151,13 +151,14 @@ def chunk_crcs(path: str | Path) -> list[tuple[int, int]]:
             for crc, a, b in _chunks(data, path)]
 
 
-def refresh_chunk_crcs(path: str | Path) -> int:
+def refresh_chunk_crcs(path: str | Path, *, clear: bool = False) -> int:
     """Rewrite every chunk CRC of an mcap file to match its records (after a deliberate edit, e.g. in
-    a test); returns how many changed.  O(file size)."""
+    a test), or with ``clear`` to 0 ("not computed", what writers without CRCs leave); returns how
+    many changed.  O(file size)."""
     data = bytearray(Path(path).read_bytes())
     changed = 0
     for crc, a, b in _chunks(bytes(data), path):
-        new = zlib.crc32(data[a:b]).to_bytes(4, "little")
+        new = bytes(4) if clear else zlib.crc32(data[a:b]).to_bytes(4, "little")
         if data[crc:crc + 4] != new:
             data[crc:crc + 4] = new
             changed += 1
