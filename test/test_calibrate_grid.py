@@ -78,7 +78,7 @@ def test_label_tuning_finds_the_planted_boundaries() -> None:
     assert result.config.high < 0.6  # the planted score is (0.3 * 2 + 0.7) / 2 = 0.65
 
 
-@pytest.mark.parametrize("reference", ["auto_threshold", "constrained_top_k"])
+@pytest.mark.parametrize("reference", ["auto_threshold_onset", "auto_threshold", "constrained_top_k"])
 def test_label_free_calibration_recovers_planted_boundaries_without_labels(reference: str) -> None:
     p_hats, labels, bounds = _planted(5)
     for p, b in zip(p_hats, bounds, strict=True):
@@ -87,6 +87,22 @@ def test_label_free_calibration_recovers_planted_boundaries_without_labels(refer
     result = calibrate_label_free(p_hats, "f1", reference)
     assert result.metrics["f1_tol1"] == 1.0 and result.target == reference
     # scored against the hidden labels, the label-free setting is as good as the tuned one
+    events = [[e.step for e in detect_sequence(s, result.config)] for s in scores_from_p_hats(p_hats)]
+    assert alignment_accuracy(events, labels) == 1.0
+
+
+def test_onset_reference_follows_plateaus_that_start_at_the_boundary() -> None:
+    """Dial-like: the expansion stays high (slowly fading) for 3 steps from the last step of each subtask."""
+    p_hats, labels, bounds = _planted(8)
+    for p, b in zip(p_hats, bounds, strict=True):
+        for step in b[:-1]:
+            for j in (1, 2):
+                p[step + j] = [0.3 - 0.02 * j, 0.7, 0.02 * j]
+    assert [reference_boundaries(p).tolist() for p in p_hats] == [b.tolist() for b in bounds]
+    ends = reference_boundaries(p_hats[0], "auto_threshold")
+    assert ends[:-1].tolist() == (bounds[0][:-1] + 2).tolist()  # Algorithm 1: the plateau's last step
+    result = calibrate_label_free(p_hats, "align")
+    assert result.config.mode == "rising_edge"
     events = [[e.step for e in detect_sequence(s, result.config)] for s in scores_from_p_hats(p_hats)]
     assert alignment_accuracy(events, labels) == 1.0
 

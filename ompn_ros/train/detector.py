@@ -37,7 +37,7 @@ from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_det
 from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
 
 LOG = logging.getLogger("ompn_ros.train")
-LABEL_FREE_REFERENCE: Reference = "auto_threshold"
+LABEL_FREE_REFERENCE: Reference = "auto_threshold_onset"
 """The whole-episode detector the label-free calibration agrees with (see ``docs/experiments.md``)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
