@@ -14,6 +14,7 @@ from ompn_ros.detect.settings import (
     DetectorSettings,
     DetectorSettingsError,
     load_detector_settings,
+    node_parameters,
     resolve_detector,
     save_detector_settings,
 )
@@ -111,3 +112,18 @@ def test_shipped_checkpoints_carry_the_shipped_node_settings(domain: str) -> Non
     assert stored.online.high == params["detector_high"] and stored.online.mode == params["detector_mode"]
     assert stored.online.min_segment_length == params["detector_min_segment_length"]
     assert stored.online.high - stored.online.low_threshold == pytest.approx(params["detector_hysteresis"])
+
+
+def test_node_parameters_round_trip_through_the_node_yaml_reader() -> None:
+    settings = _settings()
+    params = node_parameters(settings)
+    assert params["detector_mode"] == "peak" and params["done_threshold"] == 0.7
+    high, hysteresis = params["detector_high"], params["detector_hysteresis"]
+    rebuilt = DetectorConfig(
+        high=high,
+        low=round(high - hysteresis, 6) if hysteresis > 0 else None,
+        min_segment_length=params["detector_min_segment_length"],
+        mode=params["detector_mode"],
+        force_first_step_low=params["detector_force_first_step_low"],
+    )
+    assert rebuilt == settings.online

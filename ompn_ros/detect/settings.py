@@ -183,6 +183,34 @@ class DetectorSettings:
         return settings
 
 
+NODE_PARAMETERS = (
+    "detector_high",
+    "detector_hysteresis",
+    "detector_min_segment_length",
+    "detector_mode",
+    "detector_force_first_step_low",
+    "done_threshold",
+)
+"""The ``ompn_node`` parameters that :func:`node_parameters` fills from the settings."""
+
+
+def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
+    """``ompn_node`` parameter values (``NODE_PARAMETERS``) equal to ``settings``.
+
+    A node that declares these parameters with these values as defaults gets the precedence rule
+    for free: a ``-p`` or ``--params-file`` value overrides the checkpoint's.
+    """
+    online = settings.online
+    return {
+        "detector_high": float(online.high),
+        "detector_hysteresis": round(float(online.high) - online.low_threshold, 6),
+        "detector_min_segment_length": int(online.min_segment_length),
+        "detector_mode": str(online.mode),
+        "detector_force_first_step_low": bool(online.force_first_step_low),
+        "done_threshold": float(settings.done_threshold),
+    }
+
+
 def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
@@ -265,6 +293,7 @@ def resolve_detector(
 
 __all__ = [
     "DETECTOR_FILE",
+    "NODE_PARAMETERS",
     "OFFLINE_DETECTORS",
     "SOURCES",
     "DetectorSettings",
@@ -273,6 +302,7 @@ __all__ = [
     "SettingsSource",
     "detector_file",
     "load_detector_settings",
+    "node_parameters",
     "resolve_detector",
     "save_detector_settings",
 ]
