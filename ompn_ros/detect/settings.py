@@ -73,38 +73,36 @@ class DetectorSettings:
     metrics: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.check()
+        self._check()
 
-    def check(self, origin: str = "") -> None:
-        """Raise :class:`DetectorSettingsError` naming ``origin`` (a file) and the key at fault."""
+    def _check(self) -> None:
+        """Raise :class:`DetectorSettingsError` naming the key at fault."""
         if not isinstance(self.online, DetectorConfig):
-            raise DetectorSettingsError(f"{_where(origin, 'online')} must be a DetectorConfig")
+            raise DetectorSettingsError(f"{_where('', 'online')} must be a DetectorConfig")
         value = self.done_threshold
         if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
-            raise DetectorSettingsError(
-                f"{_where(origin, 'done_threshold')} must be in [0, 1], got {value!r}"
-            )
+            raise DetectorSettingsError(f"{_where('', 'done_threshold')} must be in [0, 1], got {value!r}")
         if self.offline_detector not in OFFLINE_DETECTORS:
             raise DetectorSettingsError(
-                f"{_where(origin, 'offline.detector')} must be one of {OFFLINE_DETECTORS}, "
+                f"{_where('', 'offline.detector')} must be one of {OFFLINE_DETECTORS}, "
                 f"got {self.offline_detector!r}"
             )
         length = self.min_length
         if isinstance(length, bool) or not isinstance(length, int) or length < 1:
             raise DetectorSettingsError(
-                f"{_where(origin, 'offline.min_length')} must be an int >= 1, got {length!r}"
+                f"{_where('', 'offline.min_length')} must be an int >= 1, got {length!r}"
             )
         if self.source not in SOURCES:
             raise DetectorSettingsError(
-                f"{_where(origin, 'source')} must be one of {SOURCES}, got {self.source!r}"
+                f"{_where('', 'source')} must be one of {SOURCES}, got {self.source!r}"
             )
         if not isinstance(self.provenance, str) or "\n" in self.provenance:
-            raise DetectorSettingsError(f"{_where(origin, 'provenance')} must be one line of text")
+            raise DetectorSettingsError(f"{_where('', 'provenance')} must be one line of text")
         if not isinstance(self.metrics, dict) or not all(
             isinstance(k, str) and isinstance(v, int | float) and not isinstance(v, bool)
             for k, v in self.metrics.items()
         ):
-            raise DetectorSettingsError(f"{_where(origin, 'metrics')} must map names to numbers")
+            raise DetectorSettingsError(f"{_where('', 'metrics')} must map names to numbers")
 
     def describe(self) -> str:
         """One log line: the online detector, its source and provenance."""
@@ -166,21 +164,18 @@ class DetectorSettings:
         metrics = data.get("metrics", {})
         if isinstance(metrics, dict):
             metrics = {k: math.nan if v is None else v for k, v in metrics.items()}
-        settings = cls.__new__(cls)
-        values = {
-            "online": online,
-            "done_threshold": data.get("done_threshold", DEFAULT_DONE_THRESHOLD),
-            "offline_detector": offline.get("detector", "top_k"),
-            "min_length": offline.get("min_length", DEFAULT_MIN_LENGTH),
-            "source": data.get("source", "default"),
-            "provenance": data.get("provenance", ""),
-            "metrics": metrics,
-        }
-        for name, value in values.items():
-            object.__setattr__(settings, name, value)
-        settings.check(origin)
-        object.__setattr__(settings, "done_threshold", float(settings.done_threshold))
-        return settings
+        try:
+            return cls(
+                online=online,
+                done_threshold=data.get("done_threshold", DEFAULT_DONE_THRESHOLD),
+                offline_detector=offline.get("detector", "top_k"),
+                min_length=offline.get("min_length", DEFAULT_MIN_LENGTH),
+                source=data.get("source", "default"),
+                provenance=data.get("provenance", ""),
+                metrics=metrics,
+            )
+        except DetectorSettingsError as exc:
+            raise DetectorSettingsError(f"{origin}: {exc}" if origin else str(exc)) from None
 
 
 NODE_PARAMETERS = (
