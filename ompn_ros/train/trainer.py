@@ -7,15 +7,23 @@ the training split (seeded by ``(seed, epoch)``) and cuts it into consecutive ba
 
 Every ``eval_every`` iterations (and after the last one) the validation split is evaluated by
 :func:`ompn_ros.train.evaluation.evaluate`: teacher-forced loss plus task-decomposition
-metrics.  Checkpoints under ``out_dir``:
+metrics and the label-free ``agreement``.  With ``patience`` > 0 training stops once the selection
+criterion has not improved for that many evaluations (``iterations`` is the cap).  Checkpoints
+under ``out_dir``:
 
 * ``best/``: the policy with the best validation score.  **Selection** (``selection``):
   ``'align'`` (default) = highest validation alignment accuracy of the domain's detector (Top-K for
   discrete actions, automatic threshold for continuous ones), ties broken by the lower validation
   loss; ``'f1_tol1'`` likewise with F1(tol=1); ``'val_loss'`` = lowest validation loss (what
-  ompn_dial does).  The authors' Craft code selected by free-run return, which needs an environment
-  and is not available offline.
+  ompn_dial does); ``'agreement'`` = the label-free criterion of
+  :func:`ompn_ros.detect.calibrate.agreement` (how well a causal detector reproduces the model's
+  own whole-episode segmentation), used instead of ``'align'``/``'f1_tol1'`` when the validation
+  episodes have no labels or ``labels='none'`` hides them.  The authors' Craft code selected by
+  free-run return, which needs an environment and is not available offline.
 * ``last/``: the policy after the latest evaluation.
+* ``best/detector.json`` and ``last/detector.json``: the detector settings that travel with the
+  checkpoint, written when training ends (:mod:`ompn_ros.train.detector`): tuned on the validation
+  labels, or calibrated without labels.
 * ``train_state/``: a resumable state (weights + Adam state, safetensors + JSON); ``resume=True``
   continues from it and, with the same seed and data, reaches bitwise the same weights as an
   uninterrupted run.
@@ -37,6 +45,8 @@ import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.detect.calibrate import agreement
+from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
 from ompn_ros.model.config import OMPNConfig
@@ -51,13 +61,14 @@ from ompn_ros.train.batching import (
     obs_normalization,
     split_train_val,
 )
+from ompn_ros.train.detector import bundle as bundle_detector
 from ompn_ros.train.distributed import (
     DistContext,
     all_reduce_gradients,
     all_reduce_sum,
     broadcast_module,
 )
-from ompn_ros.train.evaluation import evaluate
+from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
 from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.state import (
     TrainStateError,
@@ -70,10 +81,14 @@ from ompn_ros.train.state import (
 
 LOG = logging.getLogger("ompn_ros.train")
 
-Selection = Literal["align", "f1_tol1", "val_loss"]
+Selection = Literal["align", "f1_tol1", "val_loss", "agreement"]
+Labels = Literal["auto", "none"]
 ObsNorm = Literal["none", "maxabs"]
 LrSchedule = Literal["constant", "cosine"]
 SELECTIONS: tuple[Selection, ...] = get_args(Selection)
+LABEL_MODES: tuple[Labels, ...] = get_args(Labels)
+LABELLED_SELECTIONS = ("align", "f1_tol1")
+"""Selections that read validation labels; without labels the trainer selects by ``'agreement'``."""
 OBS_NORMS: tuple[ObsNorm, ...] = get_args(ObsNorm)
 LR_SCHEDULES: tuple[LrSchedule, ...] = get_args(LrSchedule)
 
@@ -107,7 +122,16 @@ class TrainConfig:
         tensorboard: write TensorBoard scalars to ``out_dir/tb`` (if tensorboard is installed).
         no_done_loss: the "No Done" ablation (done steps leave the loss numerator).
         threads: ``torch.set_num_threads`` value (0 = leave torch's default).
-        selection: best-checkpoint criterion, one of ``SELECTIONS`` (see module docstring).
+        selection: best-checkpoint criterion, one of ``SELECTIONS`` (see module docstring).  ``'align'``
+            and ``'f1_tol1'`` need validation labels; without them (or with ``labels='none'``)
+            ``'agreement'`` is used instead.
+        labels: ``'auto'`` = use the validation episodes' subtask labels when every one has them;
+            ``'none'`` = hide them from checkpoint selection, early stopping and the detector
+            calibration (they are still scored and logged), to measure the label-free path.
+        patience: stop when the selection criterion has not improved for this many evaluations
+            (``iterations`` is then the cap); 0 = off, train exactly ``iterations`` updates.  0 is
+            the default because every run recorded before this option trained without it (a stored
+            ``train_config`` without the key reads back as what it did); e.g. 10 for new data.
         obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.
@@ -151,6 +175,8 @@ class TrainConfig:
     no_done_loss: bool = False
     threads: int = 1
     selection: Selection = "align"
+    labels: Labels = "auto"
+    patience: int = 0
     obs_norm: ObsNorm = "none"
     eval_episodes: int = 0
     eval_batch_size: int = 64
@@ -173,7 +199,7 @@ class TrainConfig:
 
         for name in ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size"):
             need(is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
-        for name in ("seed", "threads", "eval_episodes"):
+        for name in ("seed", "threads", "eval_episodes", "patience"):
             need(is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
         need(
             self.split_seed is None or (is_int(self.split_seed) and self.split_seed >= 0),
@@ -222,6 +248,7 @@ class TrainConfig:
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
         need(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"must be one of {LR_SCHEDULES}")
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
+        need(self.labels in LABEL_MODES, "labels", f"must be one of {LABEL_MODES}")
         need(self.obs_norm in OBS_NORMS, "obs_norm", f"must be one of {OBS_NORMS}")
         need(
             self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
@@ -253,6 +280,9 @@ class TrainResult:
     out_dir: str | None = None
     train_seconds: float = 0.0
     frames: int = 0
+    stopped_early: bool = False
+    selection: str = ""
+    detectors: dict[str, DetectorSettings] = field(default_factory=dict)
 
 
 def learning_rate(cfg: TrainConfig, iteration: int) -> float:
@@ -267,6 +297,19 @@ def dropout_inputs(obs: torch.Tensor, p: float, key: tuple[int, int, int]) -> to
     generator = torch.Generator().manual_seed(int(np.random.SeedSequence(key).generate_state(1)[0]))
     keep = torch.rand(obs.shape, generator=generator) >= p
     return torch.where(keep, obs / (1.0 - p), 0.0)
+
+
+def effective_selection(cfg: TrainConfig, labelled: bool) -> str:
+    """The criterion a run selects by: ``cfg.selection``, or ``'agreement'`` when it needs labels
+    that the validation split does not have (or that ``cfg.labels = 'none'`` hides)."""
+    if cfg.selection in LABELLED_SELECTIONS and not (labelled and cfg.labels == "auto"):
+        return "agreement"
+    return cfg.selection
+
+
+def evaluations_since_best(history: Sequence[dict[str, float]], best_iteration: int) -> int:
+    """Evaluations after the best one (what ``patience`` is compared with)."""
+    return sum(1 for record in history if record["iteration"] > best_iteration)
 
 
 def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, float]:
@@ -351,6 +394,49 @@ class _Sinks:
             self.writer.close()
 
 
+def _patience_exhausted(cfg: TrainConfig, history: Sequence[dict[str, float]], best_iteration: int) -> bool:
+    if not cfg.patience or not history:
+        return False
+    return evaluations_since_best(history, best_iteration) >= cfg.patience
+
+
+def validation_metrics(
+    policy: PolicyModule, val_eps: Sequence[Episode], cfg: TrainConfig
+) -> dict[str, float]:
+    """The scalars of :func:`evaluate` on the validation split plus the label-free ``agreement``
+    (:func:`ompn_ros.detect.calibrate.agreement`), logged at every evaluation whatever selects."""
+    result = evaluate(
+        cast(OMPNPolicy, policy),  # evaluate() only uses forward_sequence and config
+        val_eps,
+        bptt=cfg.bptt,
+        batch_size=cfg.eval_batch_size,
+        no_done_loss=cfg.no_done_loss,
+        keep_p_hat=True,
+    )
+    metrics = _scalars(result)
+    metrics["agreement"] = agreement(result["p_hat"])
+    return metrics
+
+
+def bundle_detectors(
+    out_dir: Path, val_eps: Sequence[Episode], cfg: TrainConfig
+) -> dict[str, DetectorSettings]:
+    """Write ``detector.json`` into ``best/`` and ``last/`` (see :mod:`ompn_ros.train.detector`)."""
+    written: dict[str, DetectorSettings] = {}
+    for name in ("best", "last"):
+        directory = out_dir / name
+        if not (directory / "config.json").is_file():
+            continue
+        policy, _ = load_checkpoint(directory)
+        p_hats, _ = teacher_forced_p_hat(
+            cast(OMPNPolicy, policy), val_eps, bptt=cfg.bptt, batch_size=cfg.eval_batch_size
+        )
+        written[name] = bundle_detector(
+            directory, p_hats, val_eps, action_type=policy.config.action_type, use_labels=cfg.labels == "auto"
+        )
+    return written
+
+
 def train(
     episodes: Sequence[Episode],
     model_config: OMPNConfig,
@@ -382,6 +468,11 @@ def train(
     train_eps, val_eps, n_val = train_val_episodes(episodes, cfg)
     if not n_val:
         LOG.warning("val_ratio=0: validation metrics are computed on the training split")
+    selection = effective_selection(cfg, all(ep.subtask is not None for ep in val_eps))
+    if selection != cfg.selection and ctx.is_main:
+        LOG.warning("selection '%s' needs validation labels (%s): selecting by label-free '%s' instead",
+                    cfg.selection, "hidden by labels=none" if cfg.labels == "none" else "the data has none",
+                    selection)
     norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
 
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
@@ -437,7 +528,7 @@ def train(
             last_metrics = doc.get("last_metrics", {})
             history = doc.get("history", [])
             if best_metrics:
-                best_key = selection_key(best_metrics, cfg.selection)
+                best_key = selection_key(best_metrics, selection)
             if ctx.is_main:
                 LOG.info("resumed from %s at iteration %d", state_dir, start_iteration)
 
@@ -477,8 +568,9 @@ def train(
 
     started = time.perf_counter()
     iteration = start_iteration
+    stopped_early = _patience_exhausted(cfg, history, best_iteration)
     try:
-        while iteration < cfg.iterations:
+        while iteration < cfg.iterations and not stopped_early:
             iteration += 1
             epoch, index = divmod(iteration - 1, per_epoch)
             global_idx = epoch_batches(n_train, cfg.batch_size, cfg.seed, epoch)[index]
@@ -498,42 +590,45 @@ def train(
                 callback(iteration, stats)
             if iteration % cfg.eval_every == 0 or iteration == cfg.iterations:
                 if ctx.is_main:
-                    metrics = _scalars(
-                        evaluate(
-                            cast(OMPNPolicy, evaluated),  # evaluate() only uses forward_sequence and config
-                            val_eps,
-                            bptt=cfg.bptt,
-                            batch_size=cfg.eval_batch_size,
-                            no_done_loss=cfg.no_done_loss,
-                            keep_p_hat=False,
-                        )
-                    )
+                    metrics = validation_metrics(evaluated, val_eps, cfg)
                     metrics["train_loss"] = stats["loss"]
-                    key = selection_key(metrics, cfg.selection)
+                    key = selection_key(metrics, selection)
                     is_best = key > best_key
                     if is_best:
                         best_key, best_iteration, best_metrics = key, iteration, metrics
                     last_metrics = metrics
                     history.append({"iteration": float(iteration), **metrics})
                     LOG.info(
-                        "it %d  train_loss %.4f  val_loss %.4f  align %.3f  f1_tol1 %.3f%s",
+                        "it %d  train_loss %.4f  val_loss %.4f  align %.3f  f1_tol1 %.3f  agreement %.3f%s",
                         iteration,
                         stats["loss"],
                         metrics["loss"],
                         metrics.get("align", float("nan")),
                         metrics.get("f1_tol1", float("nan")),
+                        metrics["agreement"],
                         "  *best*" if is_best else "",
                     )
                     assert sinks is not None
                     sinks.write(iteration, frames, metrics)
                     save_all(iteration, metrics, is_best)
+                    stopped_early = _patience_exhausted(cfg, history, best_iteration)
+                stopped_early = bool(all_reduce_sum(float(stopped_early), ctx))
+                if stopped_early and ctx.is_main:
+                    LOG.info("early stop at iteration %d: %s has not improved for %d evaluations "
+                             "(best at iteration %d)", iteration, selection, cfg.patience, best_iteration)
     finally:
         if progress is not None:
             progress.close()
         if sinks is not None:
             sinks.close()
+    detectors: dict[str, DetectorSettings] = {}
+    if out_dir is not None and ctx.is_main:
+        detectors = bundle_detectors(out_dir, val_eps, cfg)
     return TrainResult(
         policy=evaluated,
+        stopped_early=stopped_early,
+        selection=selection,
+        detectors=detectors,
         iterations=iteration,
         best_iteration=best_iteration,
         best_metrics=best_metrics,

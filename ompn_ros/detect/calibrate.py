@@ -1,0 +1,374 @@
+"""Choosing the online detector of a checkpoint: tuned on labels, or calibrated without them.
+
+Both variants run the same grid search (:func:`default_grid`, the grid of ``ompn_segment --tune``)
+with the same objective (:func:`objective_key`: the objective metric, then the other one, then the
+shorter detection delay) over per-episode score sequences of validation episodes.  They differ only
+in the boundaries the online detections are scored against:
+
+* :func:`tune_on_labels`: the episodes' true subtask boundaries;
+* :func:`calibrate_label_free`: a whole-episode *reference* computed from the same model's
+  expansion distributions, no labels (:func:`reference_boundaries`): the paper's automatic
+  threshold (Lu et al., ICLR 2021, Algorithm 2) with the boundary at the onset of each run above
+  it (``'auto_threshold_onset'``, the default) or at its last step as in Algorithm 1
+  (``'auto_threshold'``), or the constrained Top-K with K = the automatic threshold's count of
+  runs.  The causal detector is made to agree as well as possible with what the model itself says
+  when it sees the whole episode.  The onset is the default because it matched the label-tuned
+  detector in both domains: on Craft the runs above the threshold last one or two steps and the
+  three references gave the same detector, on Dial the expansion stays high over a plateau that
+  starts at the true boundary, and only the onset reference reached the label-tuned alignment.
+
+The grid is evaluated for all settings and episodes at once (:func:`evaluate_grid`, one vectorised
+pass over time; ``O(G·E·T)`` numpy work for G settings, E episodes, T steps), with exactly the
+semantics of :class:`~ompn_ros.detect.online.OnlineDetector` closed by ``end_episode``.
+
+:func:`agreement` is the label-free checkpoint-selection criterion built on the same pieces.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+import numpy as np
+
+from ompn_ros.detect.offline import (
+    auto_threshold,
+    constrained_top_k_boundaries,
+    depth_scores,
+    standardise,
+)
+from ompn_ros.detect.online import MODES, DetectorConfig, expansion_scores
+
+Objective = Literal["f1", "align"]
+Reference = Literal["auto_threshold_onset", "auto_threshold", "constrained_top_k"]
+OBJECTIVES: tuple[Objective, ...] = get_args(Objective)
+REFERENCES: tuple[Reference, ...] = get_args(Reference)
+MATCH_TOLERANCE = 2
+"""A detection within this many steps of a target boundary counts for the delay (as ``ompn_segment``)."""
+LAG = {"falling_edge": 1, "peak": 1, "rising_edge": 0}
+"""Steps between a boundary and its emission, per mode (see :mod:`ompn_ros.detect.online`)."""
+
+
+class CalibrationError(ValueError):
+    """Input that cannot be calibrated on (names the argument at fault)."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Result of a grid search: the chosen setting, its metrics, and how it was chosen."""
+
+    config: DetectorConfig
+    metrics: dict[str, float]
+    objective: Objective
+    target: str  # 'labels' or the label-free reference's name
+    n_episodes: int
+
+
+def default_grid() -> list[DetectorConfig]:
+    """The settings searched (as ``ompn_segment --tune``): high 0.05..0.90, hysteresis 0 / 0.1,
+    min_segment_length 1 / 3, every mode (216 settings)."""
+    highs = [round(float(h), 2) for h in np.arange(0.05, 0.91, 0.05)]
+    grid = []
+    for high, hyst, min_len, mode in itertools.product(highs, (0.0, 0.1), (1, 3), MODES):
+        low = max(0.0, round(high - hyst, 2)) if hyst else None
+        grid.append(DetectorConfig(high=high, low=low, min_segment_length=min_len, mode=mode))
+    return grid
+
+
+def objective_key(metrics: dict[str, float], objective: Objective = "f1") -> tuple[float, float, float]:
+    """Sort key (larger is better): the objective, then the other metric, then a short delay."""
+    if objective not in OBJECTIVES:
+        raise CalibrationError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+    delay = metrics["delay_mean"]
+    first, second = ("f1_tol1", "align_strict") if objective == "f1" else ("align_strict", "f1_tol1")
+    return (metrics[first], metrics[second], -(delay if np.isfinite(delay) else 1e9))
+
+
+def scores_from_p_hats(p_hats: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Per-step online detector scores (``expansion_scores``) of ``[T, n+1]`` p_hat sequences."""
+    return [expansion_scores(np.asarray(p, dtype=np.float64)) for p in p_hats]
+
+
+def _padded(scores: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    if not scores:
+        raise CalibrationError("scores: need at least one episode")
+    lengths = np.array([len(s) for s in scores], dtype=np.int64)
+    if lengths.min() < 1:
+        raise CalibrationError(f"scores: episode #{int(np.argmin(lengths))} has no steps")
+    out = np.zeros((len(scores), int(lengths.max())))
+    for i, s in enumerate(scores):
+        out[i, : len(s)] = s
+    return out, lengths
+
+
+def detect_grid(scores: Sequence[np.ndarray], grid: Sequence[DetectorConfig]) -> np.ndarray:
+    """Boundary masks ``[G, E, T_max]`` of every setting on every episode (episode end closed).
+
+    Equal to running :func:`~ompn_ros.detect.online.detect_sequence` per setting and episode.
+    """
+    padded, lengths = _padded(scores)
+    n_eps, t_max = padded.shape
+    high = np.array([c.high for c in grid])[:, None]
+    low = np.array([c.low_threshold for c in grid])[:, None]
+    min_len = np.array([c.min_segment_length for c in grid])[:, None]
+    mode = np.array([MODES.index(c.mode) for c in grid])[:, None]
+    force = np.array([c.force_first_step_low for c in grid])[:, None]
+    rising, peak = mode == MODES.index("rising_edge"), mode == MODES.index("peak")
+    shape = (len(grid), n_eps)
+    in_run = np.zeros(shape, bool)
+    committed = np.zeros(shape, bool)
+    prev = np.zeros(shape)
+    last = np.full(shape, -1, dtype=np.int64)
+    marks = np.zeros((len(grid), n_eps, t_max), bool)
+    for t in range(t_max):
+        active = (t < lengths)[None, :]
+        score = np.broadcast_to(padded[:, t][None, :], shape)
+        if t == 0:
+            score = np.where(force, 0.0, score)
+        starts = active & ~in_run & (score > high)
+        ends = active & in_run & (score <= low)
+        peaks = active & in_run & ~ends & peak & ~committed & (score < prev)
+        at_t = starts & rising
+        at_prev = (ends & ~committed) | peaks
+        emit_t = at_t & (t - last >= min_len)
+        emit_prev = at_prev & (t - 1 - last >= min_len)
+        if t > 0:
+            marks[:, :, t - 1] |= emit_prev
+        marks[:, :, t] |= emit_t
+        last = np.where(emit_t, t, np.where(emit_prev, t - 1, last))
+        committed = np.where(starts, rising, committed | peaks)
+        in_run = (in_run | starts) & ~ends
+        prev = np.where(active, score, prev)
+    marks[:, np.arange(n_eps), lengths - 1] = True  # end_episode closes the last segment at T - 1
+    return marks
+
+
+def _targets(boundaries: Sequence[np.ndarray], lengths: np.ndarray, t_max: int) -> np.ndarray:
+    out = np.zeros((len(boundaries), t_max), bool)
+    for i, b in enumerate(boundaries):
+        b = np.asarray(b, dtype=np.int64)
+        if b.size and (b.min() < 0 or b.max() >= lengths[i]):
+            raise CalibrationError(f"target boundaries of episode #{i} fall outside its {lengths[i]} steps")
+        out[i, b] = True
+    return out
+
+
+def _dilate(mask: np.ndarray, tol: int) -> np.ndarray:
+    out = mask.copy()
+    for d in range(1, tol + 1):
+        out[..., d:] |= mask[..., :-d]
+        out[..., :-d] |= mask[..., d:]
+    return out
+
+
+def _f1(pred: np.ndarray, gt: np.ndarray, tol: int) -> np.ndarray:
+    """Per-setting mean over episodes of the per-episode F1 (``ompn_ros.metrics.mean_f1``)."""
+    n_pred, n_gt = pred.sum(-1), gt.sum(-1)
+    hit_p = (pred & _dilate(gt, tol)[None]).sum(-1)
+    hit_g = (gt[None] & _dilate(pred, tol)).sum(-1)
+    precision = np.where(n_pred > 0, hit_p / np.maximum(n_pred, 1), 0.0)
+    recall = np.where(n_gt > 0, hit_g / np.maximum(n_gt, 1), 0.0)
+    total = precision + recall
+    f1 = np.where(total > 0, 2 * precision * recall / np.where(total > 0, total, 1.0), 0.0)
+    return f1.mean(-1)
+
+
+def _delay(pred: np.ndarray, gt: np.ndarray, lengths: np.ndarray, lag: np.ndarray) -> np.ndarray:
+    """Mean delay ``detected_at − g`` over the non-final targets matched within ``MATCH_TOLERANCE``."""
+    n_eps, t_max = gt.shape
+    inner_gt = gt.copy()
+    inner_gt[np.arange(n_eps), lengths - 1] = False
+    inner = pred.copy()
+    inner[:, np.arange(n_eps), lengths - 1] = False
+    best = np.full(pred.shape, np.inf)
+    for d in range(MATCH_TOLERANCE, -MATCH_TOLERANCE - 1, -1):  # the earliest detection wins
+        shifted = np.zeros_like(inner)
+        if d >= 0:
+            shifted[..., : t_max - d] = inner[..., d:]
+        else:
+            shifted[..., -d:] = inner[..., :d]
+        best = np.where(shifted, float(d), best)
+    best = np.where(inner_gt[None], best, np.inf)
+    found = np.isfinite(best)
+    count = found.sum((1, 2))
+    total = np.where(found, best, 0.0).sum((1, 2)) + lag * count
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def evaluate_grid(
+    scores: Sequence[np.ndarray],
+    grid: Sequence[DetectorConfig],
+    target_boundaries: Sequence[np.ndarray],
+    target_labels: Sequence[np.ndarray] | None = None,
+) -> list[dict[str, float]]:
+    """Metrics of every setting's online boundaries against target boundaries, one dict per setting.
+
+    Keys ``f1_tol0``, ``f1_tol1`` (mean over episodes), ``align`` and ``align_strict`` (steps over
+    all episodes; equal here because the online boundaries always end at ``T − 1``) and
+    ``delay_mean``.  ``target_labels`` (per-step subtask ordinals) default to the labels the
+    target boundaries decode to.
+    """
+    if len(target_boundaries) != len(scores):
+        raise CalibrationError(
+            f"got {len(target_boundaries)} target episodes for {len(scores)} score sequences"
+        )
+    marks = detect_grid(scores, grid)
+    _, lengths = _padded(scores)
+    t_max = marks.shape[-1]
+    gt = _targets(target_boundaries, lengths, t_max)
+    valid = np.arange(t_max)[None, :] < lengths[:, None]
+    if target_labels is None:
+        labels = np.cumsum(gt, -1) - gt
+    else:
+        labels = np.full((len(scores), t_max), -1, dtype=np.int64)
+        for i, lab in enumerate(target_labels):
+            if len(lab) != lengths[i]:
+                raise CalibrationError(
+                    f"target_labels of episode #{i}: {len(lab)} steps, scores have {lengths[i]}"
+                )
+            labels[i, : lengths[i]] = lab
+    decoded = np.cumsum(marks, -1) - marks
+    align = ((decoded == labels[None]) & valid[None]).sum((1, 2)) / lengths.sum()
+    lag = np.array([LAG[c.mode] for c in grid], dtype=np.float64)
+    f1_0, f1_1 = _f1(marks, gt, 0), _f1(marks, gt, 1)
+    delay = _delay(marks, gt, lengths, lag)
+    return [
+        {
+            "f1_tol0": float(f1_0[g]),
+            "f1_tol1": float(f1_1[g]),
+            "align": float(align[g]),
+            "align_strict": float(align[g]),
+            "delay_mean": float(delay[g]),
+        }
+        for g in range(len(grid))
+    ]
+
+
+def search(
+    scores: Sequence[np.ndarray],
+    target_boundaries: Sequence[np.ndarray],
+    target_labels: Sequence[np.ndarray] | None,
+    objective: Objective,
+    grid: Sequence[DetectorConfig] | None = None,
+    target: str = "labels",
+) -> Calibration:
+    """The grid setting with the largest :func:`objective_key` (the first one on ties)."""
+    grid = list(grid or default_grid())
+    if not grid:
+        raise CalibrationError("grid: need at least one detector setting")
+    rows = evaluate_grid(scores, grid, target_boundaries, target_labels)
+    keys = [objective_key(row, objective) for row in rows]
+    best = max(range(len(grid)), key=lambda g: (keys[g], -g))
+    return Calibration(grid[best], rows[best], objective, target, len(scores))
+
+
+def tune_on_labels(
+    scores: Sequence[np.ndarray],
+    labels: Sequence[np.ndarray],
+    objective: Objective = "f1",
+    grid: Sequence[DetectorConfig] | None = None,
+) -> Calibration:
+    """The online detector that best finds the labelled subtask boundaries (validation episodes)."""
+    labels = [np.asarray(lab, dtype=np.int64) for lab in labels]
+    bounds = [np.flatnonzero(np.diff(lab) != 0) if len(lab) else lab for lab in labels]
+    bounds = [np.append(b, len(lab) - 1) for b, lab in zip(bounds, labels, strict=True)]
+    return search(scores, bounds, labels, objective, grid, "labels")
+
+
+def estimated_count(p_hat: np.ndarray) -> int:
+    """Number of boundaries of the automatic threshold (Algorithm 2, then Algorithm 1 with every
+    falling edge plus the last step): the label-free estimate of K."""
+    std = standardise(depth_scores(p_hat))
+    threshold = auto_threshold(std).threshold
+    above = std > threshold
+    return int(np.count_nonzero(above[:-1] & ~above[1:])) + 1
+
+
+def reference_boundaries(
+    p_hat: np.ndarray, reference: Reference = "auto_threshold_onset", min_length: int = 2
+) -> np.ndarray:
+    """Whole-episode boundaries of one episode without labels (see the module docstring); the last
+    step is always one.  ``min_length`` is the constrained Top-K's."""
+    if reference not in REFERENCES:
+        raise CalibrationError(f"reference must be one of {REFERENCES}, got {reference!r}")
+    p = np.asarray(p_hat, dtype=np.float64)
+    std = standardise(depth_scores(p))
+    if reference != "constrained_top_k":
+        above = std > auto_threshold(std).threshold
+        if reference == "auto_threshold":
+            edges = np.flatnonzero(above[:-1] & ~above[1:])  # last step of each run
+        else:
+            edges = np.flatnonzero(~above[:-1] & above[1:]) + 1  # first step of each run
+        return np.unique(np.append(edges, len(std) - 1)).astype(np.int64)
+    return constrained_top_k_boundaries(p, estimated_count(p), min_length=min_length)
+
+
+def calibrate_label_free(
+    p_hats: Sequence[np.ndarray],
+    objective: Objective = "f1",
+    reference: Reference = "auto_threshold_onset",
+    *,
+    min_length: int = 2,
+    scores: Sequence[np.ndarray] | None = None,
+    grid: Sequence[DetectorConfig] | None = None,
+) -> Calibration:
+    """The online detector that best agrees with the label-free ``reference`` on ``p_hats``.
+
+    ``scores`` are the online scores of the same episodes (default: computed from ``p_hats``, which
+    equals a streaming replay's up to float rounding).
+    """
+    refs = [reference_boundaries(p, reference, min_length) for p in p_hats]
+    online = list(scores) if scores is not None else scores_from_p_hats(p_hats)
+    return search(online, refs, None, objective, grid, reference)
+
+
+SELECTION_GRID_HIGHS = tuple(round(float(h), 2) for h in np.arange(0.05, 0.91, 0.05))
+
+
+def agreement(
+    p_hats: Sequence[np.ndarray], reference: Reference = "auto_threshold_onset", min_length: int = 2
+) -> float:
+    """Label-free checkpoint-selection criterion in [0, 1]: how well the best causal detector of the
+    grid can reproduce the model's own whole-episode segmentation on these episodes.
+
+    ``(F1(tol 1) + alignment) / 2`` of the best setting against :func:`reference_boundaries`, with
+    the episode's last step removed from both boundary sets before the F1 (every detector gets it
+    for free) and an episode whose reference has no inner boundary counting 0: a model whose
+    expansion scores carry no subtask structure cannot score by agreeing on nothing.
+    """
+    refs = [reference_boundaries(p, reference, min_length) for p in p_hats]
+    scores = scores_from_p_hats(p_hats)
+    grid = [DetectorConfig(high=h) for h in SELECTION_GRID_HIGHS]
+    rows = evaluate_grid(scores, grid, refs)
+    marks = detect_grid(scores, grid)
+    _, lengths = _padded(scores)
+    gt = _targets(refs, lengths, marks.shape[-1])
+    ends = np.arange(len(scores)), lengths - 1
+    gt[ends] = False
+    marks[:, ends[0], ends[1]] = False
+    inner_f1 = _f1(marks, gt, 1)
+    values = [(float(inner_f1[g]) + rows[g]["align"]) / 2 for g in range(len(grid))]
+    return max(values)
+
+
+__all__ = [
+    "OBJECTIVES",
+    "REFERENCES",
+    "Calibration",
+    "CalibrationError",
+    "Objective",
+    "Reference",
+    "agreement",
+    "calibrate_label_free",
+    "default_grid",
+    "detect_grid",
+    "estimated_count",
+    "evaluate_grid",
+    "objective_key",
+    "reference_boundaries",
+    "scores_from_p_hats",
+    "search",
+    "tune_on_labels",
+]

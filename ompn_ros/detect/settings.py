@@ -1,0 +1,303 @@
+"""Detector settings that travel with a checkpoint: ``detector.json`` in its directory.
+
+A checkpoint directory (or an ensemble directory, next to ``ensemble.json``) may hold
+``detector.json``: the causal detector that ``ompn_node`` and ``ompn_segment`` run by default, the
+node's ``done_threshold``, the offline whole-episode detector and its ``min_length``, where the
+values came from (``source``) and what they measured.  Layout::
+
+    {"format": "ompn_ros.detector", "format_version": 1,
+     "online": {"high": 0.2, "low": null, "min_segment_length": 1, "mode": "falling_edge",
+                "force_first_step_low": true},
+     "done_threshold": 0.5,
+     "offline": {"detector": "constrained_top_k", "min_length": 2},
+     "source": "tuned_on_validation", "provenance": "...", "metrics": {"f1_tol1": 0.94}}
+
+Precedence for every consumer: an explicit parameter (or ``--detector-config``) beats the
+checkpoint's ``detector.json``, which beats the built-in defaults (``source = 'default'``).
+The online detector is the causal form of the paper's Algorithm 1 (Lu et al., ICLR 2021, §3.3);
+the offline detectors are Top-K, the automatic threshold (Algorithm 2) and the constrained Top-K.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, get_args
+
+from ompn_ros.detect.online import DetectorConfig, DetectorConfigError
+from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
+
+DETECTOR_FILE = "detector.json"
+FORMAT = "ompn_ros.detector"
+FORMAT_VERSION = 1
+OfflineDetector = Literal["top_k", "auto_threshold", "constrained_top_k"]
+SettingsSource = Literal["tuned_on_validation", "calibrated_label_free", "shipped", "default"]
+OFFLINE_DETECTORS: tuple[OfflineDetector, ...] = get_args(OfflineDetector)
+SOURCES: tuple[SettingsSource, ...] = get_args(SettingsSource)
+DEFAULT_DONE_THRESHOLD = 0.5
+DEFAULT_MIN_LENGTH = 2
+
+
+class DetectorSettingsError(ValueError):
+    """An invalid ``detector.json`` or settings value; the message names the file and the key."""
+
+
+def _where(origin: str, key: str) -> str:
+    return f"{origin}: key '{key}'" if origin else f"detector settings key '{key}'"
+
+
+@dataclass(frozen=True)
+class DetectorSettings:
+    """Online and offline detector choices of one checkpoint, validated on construction.
+
+    Attributes:
+        online: the causal detector (:class:`~ompn_ros.detect.online.DetectorConfig`).
+        done_threshold: ``ompn_node`` publishes the done action when π_end exceeds it (in [0, 1]).
+        offline_detector: whole-episode detector ('top_k', 'auto_threshold', 'constrained_top_k').
+        min_length: minimum subtask length of the constrained Top-K, in steps (>= 1).
+        source: 'tuned_on_validation' | 'calibrated_label_free' | 'shipped' | 'default'.
+        provenance: one free-text line: how, on what and when the values were chosen.
+        metrics: what the settings measured when chosen (name -> number).
+    """
+
+    online: DetectorConfig = field(default_factory=DetectorConfig)
+    done_threshold: float = DEFAULT_DONE_THRESHOLD
+    offline_detector: OfflineDetector = "top_k"
+    min_length: int = DEFAULT_MIN_LENGTH
+    source: SettingsSource = "default"
+    provenance: str = "built-in defaults"
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._check()
+
+    def _check(self) -> None:
+        """Raise :class:`DetectorSettingsError` naming the key at fault."""
+        if not isinstance(self.online, DetectorConfig):
+            raise DetectorSettingsError(f"{_where('', 'online')} must be a DetectorConfig")
+        value = self.done_threshold
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+            raise DetectorSettingsError(f"{_where('', 'done_threshold')} must be in [0, 1], got {value!r}")
+        if self.offline_detector not in OFFLINE_DETECTORS:
+            raise DetectorSettingsError(
+                f"{_where('', 'offline.detector')} must be one of {OFFLINE_DETECTORS}, "
+                f"got {self.offline_detector!r}"
+            )
+        length = self.min_length
+        if isinstance(length, bool) or not isinstance(length, int) or length < 1:
+            raise DetectorSettingsError(
+                f"{_where('', 'offline.min_length')} must be an int >= 1, got {length!r}"
+            )
+        if self.source not in SOURCES:
+            raise DetectorSettingsError(
+                f"{_where('', 'source')} must be one of {SOURCES}, got {self.source!r}"
+            )
+        if not isinstance(self.provenance, str) or "\n" in self.provenance:
+            raise DetectorSettingsError(f"{_where('', 'provenance')} must be one line of text")
+        if not isinstance(self.metrics, dict) or not all(
+            isinstance(k, str) and isinstance(v, int | float) and not isinstance(v, bool)
+            for k, v in self.metrics.items()
+        ):
+            raise DetectorSettingsError(f"{_where('', 'metrics')} must map names to numbers")
+
+    def describe(self) -> str:
+        """One log line: the online detector, its source and provenance."""
+        c = self.online
+        return (
+            f"detector high={c.high} low={c.low_threshold} min_segment_length={c.min_segment_length} "
+            f"mode={c.mode} done_threshold={self.done_threshold} (source: {self.source}; {self.provenance})"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "online": self.online.to_dict(),
+            "done_threshold": float(self.done_threshold),
+            "offline": {"detector": self.offline_detector, "min_length": int(self.min_length)},
+            "source": self.source,
+            "provenance": self.provenance,
+            "metrics": {k: _finite_or_none(v) for k, v in self.metrics.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any, origin: str = "") -> DetectorSettings:
+        """Parse the :meth:`to_dict` layout; errors name ``origin`` and the key."""
+        if not isinstance(data, dict):
+            raise DetectorSettingsError(f"{origin or 'detector settings'}: expected a JSON object")
+        if data.get("format", FORMAT) != FORMAT:
+            raise DetectorSettingsError(
+                f"{_where(origin, 'format')} must be '{FORMAT}', got {data['format']!r}"
+            )
+        version = data.get("format_version", FORMAT_VERSION)
+        if version != FORMAT_VERSION:
+            raise DetectorSettingsError(
+                f"{_where(origin, 'format_version')} {version!r} is not supported (this version reads "
+                f"{FORMAT_VERSION})"
+            )
+        known = {
+            "format",
+            "format_version",
+            "online",
+            "done_threshold",
+            "offline",
+            "source",
+            "provenance",
+            "metrics",
+        }
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise DetectorSettingsError(
+                f"{_where(origin, unknown[0])} is unknown; known keys: {sorted(known)}"
+            )
+        try:
+            online = DetectorConfig.from_dict(dict(data.get("online", {})))
+        except (DetectorConfigError, TypeError, ValueError) as exc:
+            raise DetectorSettingsError(f"{_where(origin, 'online')}: {exc}") from exc
+        offline = data.get("offline", {})
+        if not isinstance(offline, dict) or set(offline) - {"detector", "min_length"}:
+            raise DetectorSettingsError(f"{_where(origin, 'offline')} must be {{'detector', 'min_length'}}")
+        metrics = data.get("metrics", {})
+        if isinstance(metrics, dict):
+            metrics = {k: math.nan if v is None else v for k, v in metrics.items()}
+        try:
+            return cls(
+                online=online,
+                done_threshold=data.get("done_threshold", DEFAULT_DONE_THRESHOLD),
+                offline_detector=offline.get("detector", "top_k"),
+                min_length=offline.get("min_length", DEFAULT_MIN_LENGTH),
+                source=data.get("source", "default"),
+                provenance=data.get("provenance", ""),
+                metrics=metrics,
+            )
+        except DetectorSettingsError as exc:
+            raise DetectorSettingsError(f"{origin}: {exc}" if origin else str(exc)) from None
+
+
+NODE_PARAMETERS = (
+    "detector_high",
+    "detector_hysteresis",
+    "detector_min_segment_length",
+    "detector_mode",
+    "detector_force_first_step_low",
+    "done_threshold",
+)
+"""The ``ompn_node`` parameters that :func:`node_parameters` fills from the settings."""
+
+
+def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
+    """``ompn_node`` parameter values (``NODE_PARAMETERS``) equal to ``settings``.
+
+    A node that declares these parameters with these values as defaults gets the precedence rule
+    for free: a ``-p`` or ``--params-file`` value overrides the checkpoint's.
+    """
+    online = settings.online
+    return {
+        "detector_high": float(online.high),
+        "detector_hysteresis": round(float(online.high) - online.low_threshold, 6),
+        "detector_min_segment_length": int(online.min_segment_length),
+        "detector_mode": str(online.mode),
+        "detector_force_first_step_low": bool(online.force_first_step_low),
+        "done_threshold": float(settings.done_threshold),
+    }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def detector_file(checkpoint_dir: str | Path) -> Path:
+    """``checkpoint_dir/detector.json`` (a checkpoint or an ensemble directory)."""
+    return Path(checkpoint_dir) / DETECTOR_FILE
+
+
+def save_detector_settings(checkpoint_dir: str | Path, settings: DetectorSettings) -> Path:
+    """Write ``detector.json`` into ``checkpoint_dir`` atomically (temporary sibling + ``os.replace``)."""
+    target = detector_file(checkpoint_dir)
+    if not target.parent.is_dir():
+        raise DetectorSettingsError(
+            f"{target.parent}: not a directory (no checkpoint to add {DETECTOR_FILE} to)"
+        )
+    text = json.dumps(settings.to_dict(), indent=1, allow_nan=False) + "\n"
+    remove_stale_temps(target.parent, DETECTOR_FILE)
+    handle = tempfile.NamedTemporaryFile(
+        "w", encoding="utf-8", dir=target.parent, prefix=temp_prefix(DETECTOR_FILE), delete=False
+    )
+    try:
+        with handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(handle.name, target)
+    except BaseException:
+        Path(handle.name).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def load_detector_settings(checkpoint_dir: str | Path) -> DetectorSettings:
+    """The settings stored with a checkpoint, or the defaults when it has none.
+
+    A missing file is not an error (older checkpoints have none): the defaults come back with
+    ``source='default'`` and a warning as their ``provenance``.  An unreadable or invalid file is a
+    :class:`DetectorSettingsError` naming the file and the key.
+    """
+    path = detector_file(checkpoint_dir)
+    if not path.is_file():
+        warning = (
+            f"WARNING: {path} not found, built-in defaults (high=0.5) may publish no boundaries for "
+            "this model; calibrate with ompn_train or ompn_segment --tune --write-config"
+        )
+        return DetectorSettings(source="default", provenance=warning)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DetectorSettingsError(f"{path}: cannot read: {exc}") from exc
+    return DetectorSettings.from_dict(data, origin=str(path))
+
+
+def resolve_detector(
+    checkpoint_dir: str | Path, explicit: DetectorConfig | None = None, explicit_origin: str = ""
+) -> tuple[DetectorSettings, str]:
+    """The settings a consumer runs with, and the log line saying which they are and where they came from.
+
+    Precedence: ``explicit`` (a parameter or ``--detector-config``; ``explicit_origin`` names it) >
+    ``checkpoint_dir/detector.json`` > built-in defaults.  With only the online detector given
+    explicitly, the stored ``done_threshold`` and offline choices are kept.
+    """
+    stored = load_detector_settings(checkpoint_dir)
+    if explicit is None:
+        where = f" from {detector_file(checkpoint_dir)}" if stored.source != "default" else ""
+        return stored, f"using {stored.describe()}{where}"
+    settings = DetectorSettings(
+        online=explicit,
+        done_threshold=stored.done_threshold,
+        offline_detector=stored.offline_detector,
+        min_length=stored.min_length,
+        source=stored.source,
+        provenance=f"online detector from {explicit_origin or 'an explicit parameter'}, "
+        f"overriding the checkpoint's ({stored.source})",
+        metrics={},
+    )
+    return settings, f"using {settings.describe()}"
+
+
+__all__ = [
+    "DETECTOR_FILE",
+    "NODE_PARAMETERS",
+    "OFFLINE_DETECTORS",
+    "SOURCES",
+    "DetectorSettings",
+    "DetectorSettingsError",
+    "OfflineDetector",
+    "SettingsSource",
+    "detector_file",
+    "load_detector_settings",
+    "node_parameters",
+    "resolve_detector",
+    "save_detector_settings",
+]

@@ -1,0 +1,128 @@
+"""The detector settings a trained checkpoint carries (``detector.json``), chosen on validation episodes.
+
+At the end of training :func:`choose_settings` picks, from the validation episodes' expansion
+distributions (teacher-forced; the streaming stepper gives the same ``p_hat`` to 1e-5):
+
+* with labels: the online detector tuned on them (:func:`~ompn_ros.detect.calibrate.tune_on_labels`,
+  the grid and objective of ``ompn_segment --tune``) and the offline detector with the best
+  validation alignment among Top-K, the automatic threshold (Lu et al., ICLR 2021, Algorithm 2) and
+  the constrained Top-K with its ``min_length`` tuned too;
+* without labels (or with ``train.labels: none``): the online detector calibrated to agree with
+  the model's own whole-episode segmentation
+  (:func:`~ompn_ros.detect.calibrate.calibrate_label_free`), and the automatic threshold offline,
+  the only offline detector that needs no number of subtasks.
+
+The objective follows the domain's headline metric: boundary F1 for discrete actions (Craft),
+alignment for continuous ones (Dial).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect.calibrate import (
+    Calibration,
+    Objective,
+    Reference,
+    calibrate_label_free,
+    scores_from_p_hats,
+    tune_on_labels,
+)
+from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
+from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
+
+LOG = logging.getLogger("ompn_ros.train")
+LABEL_FREE_REFERENCE: Reference = "auto_threshold_onset"
+"""The whole-episode detector the label-free calibration agrees with (see ``docs/experiments.md``)."""
+LABEL_FREE_MIN_LENGTH = 2
+"""``min_length`` stored with label-free settings (the constrained Top-K's default)."""
+
+
+def objective_for(action_type: str) -> Objective:
+    """Boundary F1 for discrete actions (Craft's headline metric), alignment for continuous (Dial)."""
+    return "f1" if action_type == "discrete" else "align"
+
+
+def _offline_choice(p_hats: Sequence[np.ndarray], episodes: Sequence[Episode]) -> tuple[OfflineDetector, int]:
+    min_length, _ = tune_min_length(p_hats, episodes)
+    metrics = decomposition_metrics(p_hats, episodes, min_length=min_length)
+    candidates: list[tuple[float, OfflineDetector]] = [
+        (metrics["topkc_align"], "constrained_top_k"),
+        (metrics["topk_align"], "top_k"),
+        (metrics["auto_align"], "auto_threshold"),
+    ]
+    best = max(candidates, key=lambda item: item[0])  # the first on ties
+    return best[1], int(min_length)
+
+
+def _metrics(calibration: Calibration) -> dict[str, float]:
+    return {f"val_{k}": float(v) for k, v in calibration.metrics.items()}
+
+
+def choose_settings(
+    p_hats: Sequence[np.ndarray],
+    episodes: Sequence[Episode],
+    *,
+    action_type: str,
+    use_labels: bool,
+    what: str,
+) -> DetectorSettings:
+    """Detector settings for the model whose validation ``p_hats`` are given (see module docstring).
+
+    ``what`` names the checkpoint in the provenance line.  Labels are used only when ``use_labels``
+    and every episode has them.
+    """
+    objective = objective_for(action_type)
+    labelled = use_labels and all(ep.subtask is not None for ep in episodes)
+    scores = scores_from_p_hats(p_hats)
+    if labelled:
+        tuned = tune_on_labels(scores, [np.asarray(ep.subtask) for ep in episodes], objective)
+        offline, min_length = _offline_choice(p_hats, episodes)
+        return DetectorSettings(
+            online=tuned.config,
+            offline_detector=offline,
+            min_length=min_length,
+            source="tuned_on_validation",
+            provenance=f"ompn_train: {what}, tuned on the labels of {len(episodes)} validation episodes "
+            f"(objective {objective})",
+            metrics=_metrics(tuned),
+        )
+    calibrated = calibrate_label_free(p_hats, objective, LABEL_FREE_REFERENCE, scores=scores)
+    return DetectorSettings(
+        online=calibrated.config,
+        offline_detector="auto_threshold",
+        min_length=LABEL_FREE_MIN_LENGTH,
+        source="calibrated_label_free",
+        provenance=f"ompn_train: {what}, calibrated without labels on {len(episodes)} validation episodes "
+        f"(agreement with the {LABEL_FREE_REFERENCE} reference, objective {objective})",
+        metrics={k.replace("val_", "agreement_"): v for k, v in _metrics(calibrated).items()},
+    )
+
+
+def bundle(
+    checkpoint_dir: Path,
+    p_hats: Sequence[np.ndarray],
+    episodes: Sequence[Episode],
+    *,
+    action_type: str,
+    use_labels: bool,
+) -> DetectorSettings:
+    """Choose the settings (:func:`choose_settings`) and write ``checkpoint_dir/detector.json``."""
+    settings = choose_settings(
+        p_hats,
+        episodes,
+        action_type=action_type,
+        use_labels=use_labels,
+        what=f"checkpoint {checkpoint_dir.name}/",
+    )
+    save_detector_settings(checkpoint_dir, settings)
+    LOG.info("%s: %s", checkpoint_dir / "detector.json", settings.describe())
+    return settings
+
+
+__all__ = ["LABEL_FREE_REFERENCE", "bundle", "choose_settings", "objective_for"]

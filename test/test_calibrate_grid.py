@@ -1,0 +1,126 @@
+"""Online detector calibration (ompn_ros.detect.calibrate): the vectorised grid equals the
+OnlineDetector, label tuning finds planted boundaries, the label-free path agrees with its reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ompn_ros.detect.calibrate import (
+    CalibrationError,
+    agreement,
+    calibrate_label_free,
+    default_grid,
+    detect_grid,
+    estimated_count,
+    evaluate_grid,
+    reference_boundaries,
+    scores_from_p_hats,
+    tune_on_labels,
+)
+from ompn_ros.detect.online import DetectorConfig, detect_sequence
+from ompn_ros.metrics import alignment_accuracy, mean_f1
+
+
+def _random_scores(seed: int, n: int = 25) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [rng.random(int(rng.integers(1, 30))) ** 2 for _ in range(n)]
+
+
+def test_grid_masks_equal_the_online_detector() -> None:
+    scores = _random_scores(1)
+    grid = default_grid()
+    marks = detect_grid(scores, grid)
+    for g in range(0, len(grid), 7):
+        for e, s in enumerate(scores):
+            steps = [ev.step for ev in detect_sequence(s, grid[g])]
+            assert np.flatnonzero(marks[g, e]).tolist() == steps, (grid[g], e)
+
+
+def test_grid_metrics_equal_the_metric_functions() -> None:
+    scores = _random_scores(2)
+    rng = np.random.default_rng(3)
+    labels = [np.unique(np.sort(rng.integers(0, 3, len(s))), return_inverse=True)[1] for s in scores]
+    gts = [np.append(np.flatnonzero(np.diff(lab)), len(lab) - 1) for lab in labels]
+    grid = [DetectorConfig(high=0.3), DetectorConfig(high=0.1, low=0.05, mode="peak", min_segment_length=3)]
+    rows = evaluate_grid(scores, grid, gts, labels)
+    for cfg, row in zip(grid, rows, strict=True):
+        preds = [np.array([e.step for e in detect_sequence(s, cfg)]) for s in scores]
+        assert row["f1_tol1"] == pytest.approx(mean_f1(preds, gts, 1).f1)
+        assert row["f1_tol0"] == pytest.approx(mean_f1(preds, gts, 0).f1)
+        assert row["align"] == pytest.approx(alignment_accuracy(preds, labels, "authors"))
+
+
+def _planted(
+    seed: int, n: int = 30, level: float = 0.3
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Episodes whose p_hat (n = 2 slots) expands from the top at the last step of each subtask."""
+    rng = np.random.default_rng(seed)
+    p_hats, labels, bounds = [], [], []
+    for _ in range(n):
+        lengths = rng.integers(4, 9, size=int(rng.integers(2, 5)))
+        lab = np.repeat(np.arange(len(lengths)), lengths)
+        b = np.cumsum(lengths) - 1
+        p = np.tile([0.0, 0.02, 0.98], (len(lab), 1))
+        p[:, 1:] += rng.random((len(lab), 2)) * 0.02
+        p[b, :] = [level, 1 - level, 0.0]  # high expansion score at the boundaries
+        p /= p.sum(1, keepdims=True)
+        p_hats.append(p)
+        labels.append(lab)
+        bounds.append(b)
+    return p_hats, labels, bounds
+
+
+def test_label_tuning_finds_the_planted_boundaries() -> None:
+    p_hats, labels, _ = _planted(4)
+    result = tune_on_labels(scores_from_p_hats(p_hats), labels, "f1")
+    assert result.metrics["f1_tol1"] == 1.0 and result.target == "labels"
+    assert result.config.high < 0.6  # the planted score is (0.3 * 2 + 0.7) / 2 = 0.65
+
+
+@pytest.mark.parametrize("reference", ["auto_threshold_onset", "auto_threshold", "constrained_top_k"])
+def test_label_free_calibration_recovers_planted_boundaries_without_labels(reference: str) -> None:
+    p_hats, labels, bounds = _planted(5)
+    for p, b in zip(p_hats, bounds, strict=True):
+        assert reference_boundaries(p, reference).tolist() == b.tolist()
+        assert estimated_count(p) == len(b)
+    result = calibrate_label_free(p_hats, "f1", reference)
+    assert result.metrics["f1_tol1"] == 1.0 and result.target == reference
+    # scored against the hidden labels, the label-free setting is as good as the tuned one
+    events = [[e.step for e in detect_sequence(s, result.config)] for s in scores_from_p_hats(p_hats)]
+    assert alignment_accuracy(events, labels) == 1.0
+
+
+def test_onset_reference_follows_plateaus_that_start_at_the_boundary() -> None:
+    """Dial-like: the expansion stays high (slowly fading) for 3 steps from the last step of each subtask."""
+    p_hats, labels, bounds = _planted(8)
+    for p, b in zip(p_hats, bounds, strict=True):
+        for step in b[:-1]:
+            for j in (1, 2):
+                p[step + j] = [0.3 - 0.02 * j, 0.7, 0.02 * j]
+    assert [reference_boundaries(p).tolist() for p in p_hats] == [b.tolist() for b in bounds]
+    ends = reference_boundaries(p_hats[0], "auto_threshold")
+    assert ends[:-1].tolist() == (bounds[0][:-1] + 2).tolist()  # Algorithm 1: the plateau's last step
+    result = calibrate_label_free(p_hats, "align")
+    assert result.config.mode == "rising_edge"
+    events = [[e.step for e in detect_sequence(s, result.config)] for s in scores_from_p_hats(p_hats)]
+    assert alignment_accuracy(events, labels) == 1.0
+
+
+def test_agreement_ranks_structure_above_noise() -> None:
+    p_hats, _, _ = _planted(6)
+    rng = np.random.default_rng(7)
+    flat = [np.tile([0.0, 0.0, 1.0], (len(p), 1)) for p in p_hats]  # never expands: no structure
+    noisy = [rng.dirichlet(np.ones(3), size=len(p)) for p in p_hats]
+    structured = agreement(p_hats)
+    assert structured > 0.95
+    assert agreement(flat) < 0.6 and agreement(noisy) < structured
+
+
+def test_bad_input_names_the_argument() -> None:
+    with pytest.raises(CalibrationError, match="scores"):
+        evaluate_grid([], default_grid(), [])
+    with pytest.raises(CalibrationError, match="target"):
+        evaluate_grid([np.zeros(3)], default_grid(), [np.array([5])])
+    with pytest.raises(CalibrationError, match="reference"):
+        reference_boundaries(np.tile([0.0, 0.5, 0.5], (4, 1)), "oracle")  # type: ignore[arg-type]

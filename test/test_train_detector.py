@@ -1,0 +1,105 @@
+"""The trainer bundles detector.json, selects without labels, and stops early (patience)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import torch
+
+from ompn_ros.detect.settings import load_detector_settings
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.synthetic import make_dataset, synthetic_spec
+from ompn_ros.train.trainer import (
+    TrainConfig,
+    TrainConfigError,
+    effective_selection,
+    evaluations_since_best,
+    train,
+)
+
+torch.set_num_threads(1)
+
+
+def _model_config() -> OMPNConfig:
+    obs_dim, action_type, action_dim, _ = synthetic_spec("discrete")
+    return OMPNConfig(
+        obs_dim=obs_dim, action_type=action_type, action_dim=action_dim, n_slots=2, slot_size=32
+    )
+
+
+def _cfg(tmp_path: Path, **overrides: object) -> TrainConfig:
+    base = {
+        "lr": 3e-3,
+        "batch_size": 32,
+        "iterations": 60,
+        "eval_every": 30,
+        "val_ratio": 0.25,
+        "progress": False,
+        "threads": 1,
+        "out_dir": str(tmp_path),
+    }
+    return TrainConfig(**{**base, **overrides})  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def episodes() -> list:
+    return make_dataset("discrete", 96, seed=0)
+
+
+def test_labelled_run_bundles_tuned_detectors(tmp_path: Path, episodes: list) -> None:
+    result = train(episodes, _model_config(), _cfg(tmp_path))
+    assert result.selection == "align" and set(result.detectors) == {"best", "last"}
+    for name in ("best", "last"):
+        stored = load_detector_settings(tmp_path / name)
+        assert stored.source == "tuned_on_validation" and stored == result.detectors[name]
+        assert "validation episodes" in stored.provenance
+    best = result.detectors["best"]
+    assert best.metrics["val_f1_tol1"] >= 0.8  # the learned boundaries are found online
+    assert best.online.high != 0.5 or best.online.mode != "falling_edge"  # not the generic default
+    log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
+    assert all(0.0 <= rec["agreement"] <= 1.0 for rec in log)
+
+
+def test_hidden_labels_select_and_calibrate_without_them(tmp_path: Path, episodes: list) -> None:
+    result = train(episodes, _model_config(), _cfg(tmp_path, labels="none"))
+    assert result.selection == "agreement"
+    stored = load_detector_settings(tmp_path / "best")
+    assert stored.source == "calibrated_label_free" and stored.offline_detector == "auto_threshold"
+    assert stored.metrics["agreement_f1_tol1"] > 0.5
+    assert "align" in result.best_metrics  # still scored and logged
+
+
+def test_unlabelled_data_selects_by_agreement(tmp_path: Path, episodes: list) -> None:
+    unlabelled = [replace(ep, subtask=None) for ep in episodes[:40]]
+    result = train(unlabelled, _model_config(), _cfg(tmp_path, iterations=2, eval_every=1))
+    assert result.selection == "agreement" and "align" not in result.best_metrics
+    assert load_detector_settings(tmp_path / "best").source == "calibrated_label_free"
+
+
+def test_patience_stops_when_the_criterion_stalls(tmp_path: Path, episodes: list) -> None:
+    # a learning rate too small to change anything: the first evaluation stays the best
+    stalled = _cfg(tmp_path / "a", lr=1e-12, iterations=40, eval_every=1, patience=3, selection="val_loss")
+    result = train(episodes[:24], _model_config(), stalled)
+    assert result.stopped_early and result.iterations == 4 and result.best_iteration == 1
+    full = train(
+        episodes[:24],
+        _model_config(),
+        replace(stalled, out_dir=str(tmp_path / "b"), iterations=6, patience=0),
+    )
+    assert not full.stopped_early and full.iterations == 6
+
+
+def test_selection_fallback_and_patience_bookkeeping() -> None:
+    assert effective_selection(TrainConfig(selection="align"), labelled=True) == "align"
+    assert effective_selection(TrainConfig(selection="f1_tol1"), labelled=False) == "agreement"
+    assert effective_selection(TrainConfig(selection="align", labels="none"), labelled=True) == "agreement"
+    assert effective_selection(TrainConfig(selection="val_loss", labels="none"), labelled=True) == "val_loss"
+    history = [{"iteration": float(i)} for i in (20, 40, 60, 80)]
+    assert evaluations_since_best(history, 40) == 2 and evaluations_since_best(history, 80) == 0
+    with pytest.raises(TrainConfigError, match="patience"):
+        TrainConfig(patience=-1)
+    with pytest.raises(TrainConfigError, match="labels"):
+        TrainConfig(labels="some")  # type: ignore[arg-type]
