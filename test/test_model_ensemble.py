@@ -154,6 +154,11 @@ def test_ompn_ensemble_cli_writes_a_loadable_ensemble(
     assert cli.main(["--out", str(tmp_path / "ens"), *map(str, members[:2])]) == 0
     assert "2 members" in capsys.readouterr().out
     assert isinstance(stepper_from_checkpoint(tmp_path / "ens"), EnsembleStepper)
+    # the ensemble directory carries detector settings (the first member's until tuned for it)
+    from ompn_ros.detect.settings import detector_file, load_detector_settings
+
+    assert detector_file(tmp_path / "ens").is_file()
+    assert load_detector_settings(tmp_path / "ens").online == load_detector_settings(members[0]).online
     other = _checkpoint(tmp_path / "sketchy", seed=9, sketch_mode="sum", sketch_vocab=4)
     assert cli.main(["--out", str(tmp_path / "bad"), str(members[0]), str(other)]) == 2
     assert "sketch_mode='sum'" in capsys.readouterr().err and not (tmp_path / "bad").exists()

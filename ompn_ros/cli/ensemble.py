@@ -5,18 +5,21 @@
 The directory holds only ensemble.json (member paths relative to it); ompn_node's checkpoint
 parameter and ompn_segment --checkpoint accept it like a single checkpoint (see
 ompn_ros.model.ensemble).  The members must share obs_dim, n_slots, action type and size and
-sketch mode.  An ensemble wants its own online-detector settings: ompn_segment --tune
---checkpoint <the directory> on labelled episodes none of the members was trained on.
+sketch mode.  The directory starts with the first member's detector settings (detector.json);
+an ensemble wants its own: ompn_segment --tune --write-config FILE --checkpoint <the directory>
+on labelled episodes none of the members was trained on stores them there.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
 from ompn_ros.model.checkpoint import load_config
 from ompn_ros.model.ensemble import write_ensemble
 
@@ -31,6 +34,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
     def body(args: argparse.Namespace) -> int:
         target = write_ensemble(args.out, args.members, {"command": command_line("ompn_ensemble", argv)})
+        first = load_detector_settings(args.members[0])
+        save_detector_settings(args.out, dataclasses.replace(
+            first, provenance=f"first member's settings ({args.members[0]}); tune the ensemble with "
+            "ompn_segment --tune --write-config"))
         config = load_config(args.members[0])
         print(
             f"wrote {target}: {len(args.members)} members, obs_dim={config.obs_dim} n_slots={config.n_slots} "

@@ -21,7 +21,9 @@ the other one, then the lower mean detection delay.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +32,12 @@ import torch
 
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.settings import (
+    detector_file,
+    load_detector_settings,
+    resolve_detector,
+    save_detector_settings,
+)
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
     OBJECTIVES,
@@ -80,7 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--detector-config",
-        help="YAML with detector_* keys, e.g. config/ompn_node_craft.yaml (none: the detector defaults)",
+        help="YAML with detector_* keys, e.g. config/ompn_node_craft.yaml (none: the checkpoint's own "
+        "detector.json, else the detector defaults)",
     )
     p.add_argument("--out", default="segment_out", help="output directory (replay mode)")
     p.add_argument(
@@ -97,7 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=10_000, help="first seed of --generate")
     p.add_argument(
         "--write-config",
-        help="with --tune: write the chosen settings as an ompn_node params file (none: print only)",
+        help="with --tune: write the chosen settings as an ompn_node params file and into the "
+        "checkpoint's detector.json (none: print only)",
     )
     p.add_argument(
         "--objective",
@@ -128,13 +137,14 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
     print(json.dumps(replay.json_safe(doc), indent=1))
     if args.write_config:
         source = args.bag or f"{args.generate} generated {args.domain} episodes (seeds from {args.seed})"
-        write_node_config(
-            args.write_config,
-            args.domain or "",
-            best,
-            comparison,
-            f"{source}, checkpoint {args.checkpoint}, objective {objective}",
-        )
+        provenance = f"ompn_segment --tune on {source}, objective {objective}"
+        write_node_config(args.write_config, args.domain or "", best, comparison,
+                          f"{provenance}, checkpoint {args.checkpoint}")
+        stored = load_detector_settings(args.checkpoint)
+        measured = {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))}
+        save_detector_settings(args.checkpoint, dataclasses.replace(
+            stored, online=best, source="tuned_on_validation", provenance=provenance, metrics=measured))
+        print(f"ompn_segment: wrote {args.write_config}, {detector_file(args.checkpoint)}", file=sys.stderr)
     return 0
 
 
@@ -151,10 +161,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ReplayError(f"no episodes found in {args.bag}")
     if args.tune:
         return _tune(args, policy, episodes)
-    config = load_detector_yaml(args.detector_config) if args.detector_config else DetectorConfig()
+    explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
+    settings, line = resolve_detector(args.checkpoint, explicit, f"--detector-config {args.detector_config}")
+    config = settings.online
     replays = replay_all(policy, episodes, config)
     summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes, replays=replays)
     print(json.dumps(replay.json_safe(summary), indent=1))
+    print(f"ompn_segment: {line}", file=sys.stderr)
     if args.annotate:
         spec = replay.reader_spec(args.reader_config, args.domain)
         done = replay.annotate(args.bag, Path(args.annotate), episodes, replays, spec)

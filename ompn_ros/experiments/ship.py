@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
 
 from ompn_ros.checkpoints import HERE, SHIPPED
+from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
 
 
@@ -14,6 +16,9 @@ def ship(domain: str, checkpoint: Path, provenance: dict[str, Any]) -> Path:
     """Copy ``checkpoint`` into the package as the shipped one, weights stored in float16 (half the size)."""
     target = HERE / SHIPPED[domain]
     policy, _ = load_checkpoint(checkpoint)
+    detector = load_detector_settings(checkpoint)  # read before save_checkpoint replaces the directory
     save_checkpoint(target, policy, extra={"provenance": provenance}, weights_dtype="float16")
     (target / "provenance.json").write_text(json.dumps(provenance, indent=1, sort_keys=True) + "\n")
+    save_detector_settings(target, dataclasses.replace(
+        detector, source="shipped", provenance=f"{detector.source} for {checkpoint}: {detector.provenance}"))
     return target

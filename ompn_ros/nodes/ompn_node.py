@@ -61,6 +61,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
@@ -78,6 +79,7 @@ from ompn_ros.data.messages import (
     parse_sketch_value,
 )
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
+from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
 from ompn_ros.nodes.ompn_node_params import (
     EXECUTORS,
@@ -148,6 +150,11 @@ class OMPNNode(LifecycleNode):
         detector_config(self.values)  # cross-checks the detector parameters as a whole
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        # detector parameters given on the command line, in a params file or set later: these win over
+        # the checkpoint's own detector.json (explicit > checkpoint > defaults)
+        overrides = getattr(self, "_parameter_overrides", {})
+        self._explicit: set[str] = {name for name in NODE_PARAMETERS if name in overrides}
+        self._from_checkpoint = False
 
         self.segmenter: StreamingSegmenter | None = None
         self.last_error = ""
@@ -189,6 +196,8 @@ class OMPNNode(LifecycleNode):
     def _apply_parameters(self, params: list[Any]) -> None:
         """Post-set: remember the values; live detector changes apply from the next step."""
         names = {p.name for p in params if p.name in self.params.specs}
+        if not self._from_checkpoint:
+            self._explicit |= names & set(NODE_PARAMETERS)
         self.values.update({p.name: p.value for p in params if p.name in self.params.specs})
         self._cache_stamp_limits()
         if names & LIVE_DETECTOR_KEYS and self.segmenter is not None:
@@ -249,6 +258,20 @@ class OMPNNode(LifecycleNode):
                 f"checkpoint sketch_mode='{config.sketch_mode}' does not match the expected '{sketch_mode}'"
             )
 
+    def _apply_checkpoint_detector(self, path: str) -> None:
+        """Fill the detector parameters nobody set explicitly from the checkpoint's ``detector.json``
+        (``ompn_ros.detect.settings``) and log which settings run and where they came from."""
+        settings, line = resolve_detector(path)
+        stored = node_parameters(settings)
+        take = [Parameter(n, value=stored[n]) for n in NODE_PARAMETERS if n not in self._explicit]
+        self._from_checkpoint = True
+        try:
+            self.set_parameters(take)  # the ROS parameters show what runs
+        finally:
+            self._from_checkpoint = False
+        explicit = sorted(self._explicit)
+        self.get_logger().info(f"{line}; overridden by parameters: {explicit}" if explicit else line)
+
     # --- lifecycle -----------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
@@ -266,6 +289,7 @@ class OMPNNode(LifecycleNode):
 
         torch.set_num_threads(int(self.values["torch_threads"]))
         path = self._resolve_checkpoint()
+        self._apply_checkpoint_detector(path)
         policy = load_policy(path)
         self._validate_model(policy.config)
         segmenter = StreamingSegmenter(policy, detector_config(self.values))
