@@ -26,7 +26,6 @@ semantics of :class:`~ompn_ros.detect.online.OnlineDetector` closed by ``end_epi
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, get_args
@@ -40,13 +39,10 @@ from ompn_ros.detect.offline import (
     standardise,
 )
 from ompn_ros.detect.online import MODES, DetectorConfig, expansion_scores
+from ompn_ros.detect.tune import MATCH_TOLERANCE, OBJECTIVES, Objective, default_grid, objective_key
 
-Objective = Literal["f1", "align"]
 Reference = Literal["auto_threshold_onset", "auto_threshold", "constrained_top_k"]
-OBJECTIVES: tuple[Objective, ...] = get_args(Objective)
 REFERENCES: tuple[Reference, ...] = get_args(Reference)
-MATCH_TOLERANCE = 2
-"""A detection within this many steps of a target boundary counts for the delay (as ``ompn_segment``)."""
 LAG = {"falling_edge": 1, "peak": 1, "rising_edge": 0}
 """Steps between a boundary and its emission, per mode (see :mod:`ompn_ros.detect.online`)."""
 
@@ -64,26 +60,6 @@ class Calibration:
     objective: Objective
     target: str  # 'labels' or the label-free reference's name
     n_episodes: int
-
-
-def default_grid() -> list[DetectorConfig]:
-    """The settings searched (as ``ompn_segment --tune``): high 0.05..0.90, hysteresis 0 / 0.1,
-    min_segment_length 1 / 3, every mode (216 settings)."""
-    highs = [round(float(h), 2) for h in np.arange(0.05, 0.91, 0.05)]
-    grid = []
-    for high, hyst, min_len, mode in itertools.product(highs, (0.0, 0.1), (1, 3), MODES):
-        low = max(0.0, round(high - hyst, 2)) if hyst else None
-        grid.append(DetectorConfig(high=high, low=low, min_segment_length=min_len, mode=mode))
-    return grid
-
-
-def objective_key(metrics: dict[str, float], objective: Objective = "f1") -> tuple[float, float, float]:
-    """Sort key (larger is better): the objective, then the other metric, then a short delay."""
-    if objective not in OBJECTIVES:
-        raise CalibrationError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-    delay = metrics["delay_mean"]
-    first, second = ("f1_tol1", "align_strict") if objective == "f1" else ("align_strict", "f1_tol1")
-    return (metrics[first], metrics[second], -(delay if np.isfinite(delay) else 1e9))
 
 
 def scores_from_p_hats(p_hats: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -255,6 +231,8 @@ def search(
     target: str = "labels",
 ) -> Calibration:
     """The grid setting with the largest :func:`objective_key` (the first one on ties)."""
+    if objective not in OBJECTIVES:
+        raise CalibrationError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
     grid = list(grid or default_grid())
     if not grid:
         raise CalibrationError("grid: need at least one detector setting")
