@@ -13,8 +13,10 @@ pytest.importorskip("ompn_ros.model.streaming")
 trainer = pytest.importorskip("ompn_ros.train.trainer")
 synthetic = pytest.importorskip("ompn_ros.train.synthetic")
 
-from ompn_ros.cli import segment as cli  # noqa: E402
+from ompn_ros.cli import segment as segment_cli  # noqa: E402
+from ompn_ros.detect import tune  # noqa: E402
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig  # noqa: E402
+from ompn_ros.experiments import replay as cli  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 
 torch.set_num_threads(1)
@@ -66,7 +68,7 @@ def test_delay_stats_by_hand() -> None:
             BoundaryEvent(11, 11, 3, 0.9, 3, 0, final=True),
         ]
     ]
-    stats = cli.delay_stats(events, gt)
+    stats = tune.delay_stats(events, gt)
     # 3 -> detected at 4 (delay 1); 7 -> step 9 or 5 within 2, first commit at 6 (delay -1)
     assert stats["delay_mean"] == pytest.approx(0.0) and stats["delay_max"] == 1
     assert stats["false_alarms_per_episode"] == 2  # 9 and 5 are > 1 step from any boundary
@@ -78,8 +80,8 @@ def test_choose_detector_and_write_config(ckpt: Path, episodes, tmp_path: Path) 
     best, metrics, comparison = cli.choose_detector(policy, episodes, grid)
     assert best in grid and best.high != 0.95  # nothing crosses 0.95: only the episode end is found
     assert metrics["align_strict"] == comparison["online"]["align_strict"]
-    path = cli.write_node_config(tmp_path / "node.yaml", "craft", best, comparison, "test")
-    assert cli.load_detector_yaml(path) == best
+    path = tune.write_node_config(tmp_path / "node.yaml", "craft", best, comparison, "test")
+    assert tune.load_detector_yaml(path) == best
     import yaml
 
     params = yaml.safe_load(path.read_text())["/**/ompn_node"]["ros__parameters"]
@@ -112,7 +114,7 @@ def test_ompn_segment_cli_on_a_bag(ckpt: Path, episodes, tmp_path: Path) -> None
     det = tmp_path / "det.yaml"
     det.write_text("/**:\n  ros__parameters:\n    detector_high: 0.4\n    detector_hysteresis: 0.1\n")
     assert (
-        cli.main(
+        segment_cli.main(
             [
                 "--bag",
                 str(bag),

@@ -21,9 +21,7 @@ the other one, then the lower mean detection delay.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,34 +30,12 @@ import torch
 
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.settings import (
-    detector_file,
-    load_detector_settings,
-    resolve_detector,
-    save_detector_settings,
-)
-from ompn_ros.detect.tune import (
-    DEFAULT_OBJECTIVE,
-    OBJECTIVES,
-    delay_stats,
-    load_detector_yaml,
-    write_node_config,
-)
+from ompn_ros.detect.settings import resolve_detector
+from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, OBJECTIVES, load_detector_yaml, write_node_config
 from ompn_ros.experiments import replay
-from ompn_ros.experiments.replay import ReplayError, choose_detector, compare_detectors, replay_all
+from ompn_ros.experiments.replay import ReplayError, choose_detector, replay_all
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.factory import stepper_from_checkpoint
-
-__all__ = [
-    "build_parser",
-    "choose_detector",
-    "compare_detectors",
-    "delay_stats",
-    "load_detector_yaml",
-    "main",
-    "replay_all",
-    "write_node_config",
-]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -140,11 +116,8 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
         provenance = f"ompn_segment --tune on {source}, objective {objective}"
         write_node_config(args.write_config, args.domain or "", best, comparison,
                           f"{provenance}, checkpoint {args.checkpoint}")
-        stored = load_detector_settings(args.checkpoint)
-        measured = {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))}
-        save_detector_settings(args.checkpoint, dataclasses.replace(
-            stored, online=best, source="tuned_on_validation", provenance=provenance, metrics=measured))
-        print(f"ompn_segment: wrote {args.write_config}, {detector_file(args.checkpoint)}", file=sys.stderr)
+        written = replay.store_tuned(args.checkpoint, best, metrics, provenance)
+        print(f"ompn_segment: wrote {args.write_config}, {written}", file=sys.stderr)
     return 0
 
 

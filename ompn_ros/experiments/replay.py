@@ -8,7 +8,9 @@ Cost: one model step per observation, O(Σ T) steps in all.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -21,6 +23,7 @@ from ompn_ros.data.bag_reader import OnError, ReaderSpec, ReadResult, read_episo
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
@@ -160,6 +163,15 @@ def annotate(bag: str, out: Path, episodes: Sequence[Episode], replays: Sequence
         raise ReplayError(f"--annotate writes a copy of one bag, but '{bag}' names {len(bags)} bags")
     stamps = observation_stamps(bags[0], episodes, topic=spec.observation.topic, namespace=spec.namespace)
     return annotate_bag(bags[0], out, list(zip(stamps, replays, strict=True)), overwrite=overwrite)
+
+
+def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, provenance: str) -> Path:
+    """Store a tuned online detector in the checkpoint's ``detector.json`` (keeping its offline
+    choices); returns the file."""
+    stored = load_detector_settings(checkpoint)
+    measured = {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))}
+    return save_detector_settings(checkpoint, dataclasses.replace(
+        stored, online=best, source="tuned_on_validation", provenance=provenance, metrics=measured))
 
 
 def run_replay(
