@@ -347,11 +347,14 @@ class OMPNNode(LifecycleNode):
         return super().on_activate(state)
 
     def _subscribe_spec(self, assembled: AssembledInput, qos: QoSProfile) -> None:
-        """One raw subscription per spec topic (step topic first), the graph's types checked ~1/s."""
+        """One raw subscription per spec topic, the publishers' types checked ~1/s.  Partners first: when
+        a partner and a step message are both ready, a wait-set executor serves them in creation order,
+        and the partner message, published first, is then fed first (as it arrived)."""
         spec = assembled.spec
-        for topic, type_name in spec.topics.items():
+        for topic in (*spec.partner_topics, spec.step_topic):
             callback = self._on_spec_step if topic == spec.step_topic else self._partner_callback(topic)
-            self._subscribe(MESSAGE_CLASSES[type_name], topic, callback, qos, "obs_qos", raw=True)
+            msg_class = MESSAGE_CLASSES[spec.type_of(topic)]
+            self._subscribe(msg_class, topic, callback, qos, "obs_qos", raw=True)
         self._graph_timer = self.create_timer(1.0, self._check_topic_types)
         self._check_topic_types()
 
@@ -794,8 +797,14 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
 
     Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
-    start-up parameter (one line naming it and the allowed values)."""
-    rclpy.init(args=args)
+    start-up parameter (one line naming it and the allowed values) or unparsable ROS arguments (rcl's
+    reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote
+    the mapping as a YAML string)."""
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # rcl rejects the command line (RCLError): one line, no traceback
+        print(f"{NODE_NAME}: invalid ROS arguments: {str(exc).split(', at ')[0]}", file=sys.stderr)
+        return 2
     node: OMPNNode | None = None
     executor = None
     try:

@@ -17,7 +17,9 @@ BEST_EFFORT); ``reliable`` matches RELIABLE publishers only; ``sensor_data`` is 
 Observation from several topics (``observation_spec``, :mod:`ompn_ros.nodes.ompn_node_obs`): inline
 YAML (``{step_topic: ..., fields: [...]}``) or a YAML file path, in the form of
 :mod:`ompn_ros.data.obs.spec`; relative topics resolve in the node's namespace.  When set, it replaces
-``obs_source``/``joint_fields``; every spec topic is subscribed with the ``obs_qos`` QoS.
+``obs_source``/``joint_fields``; every spec topic is subscribed with the ``obs_qos`` QoS.  On the command
+line rcl reads ``-p`` values as YAML, so give a file path, or quote the mapping as a YAML string:
+``-p 'observation_spec:="{step_topic: ..., fields: [...]}"'``; in a params file either form works.
 
 ``~/boundary`` durability (``boundary_replay``): ``last`` (default) = RELIABLE + TRANSIENT_LOCAL with
 depth 1, so a subscriber that joins late receives the last boundary event only; ``none`` = VOLATILE,
