@@ -449,7 +449,9 @@ def _multi_sustained(c: _Client, pid: int, ticks: list[list[tuple[Any, bytes]]],
             f"{name}_1khz_pi_out": (float(len(c.pi_times) - pi_before), "msgs"),
             f"{name}_1khz_lost_steps": (float(n - accepted), "steps"),
             f"{name}_1khz_dropped_steps": (float(dropped), "steps"),
-            f"{name}_1khz_node_cpu": (100.0 * cpu / wall, "% of one core")}  # fmt: skip
+            f"{name}_1khz_node_cpu": (100.0 * cpu / wall, "% of one core"),
+            **{f"{name}_1khz_dropped_{k.split('.')[-1]}": (float(int(v) - int(before.get(k, 0))), "steps")
+               for k, v in c.diag.items() if k.startswith("obs.dropped.")}}  # fmt: skip
 
 
 def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events",

@@ -19,8 +19,10 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
@@ -248,4 +250,23 @@ def test_empty_spec_keeps_the_single_topic_path(ctx, ckpt: Path) -> None:
     node = make_node(ctx, ckpt, spec="", obs_dim=OBS_DIM)
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
     assert node.assembled is None and not any(k.startswith("obs.") for k in node.counters())
+    node.destroy_node()
+
+
+def test_qos_mismatch_on_a_spec_topic_is_one_line_and_a_counter(ctx, ckpt: Path) -> None:
+    node = active_node(ctx, ckpt, obs_qos="reliable")
+    lines: list[str] = []
+    node.get_logger().error = lines.append  # type: ignore[method-assign]
+    peer = rclpy.create_node("best_effort_arm", context=ctx)
+    best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    peer.create_publisher(WrenchStamped, WRENCH, best_effort)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    deadline = time.monotonic() + 10
+    while not node.counters()["qos_incompatible"] and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    assert node.counters()["qos_incompatible"] >= 1 and node._active
+    assert WRENCH in lines[0] and "obs_qos" in lines[0] and "\n" not in lines[0], lines
+    executor.shutdown()
+    peer.destroy_node()
     node.destroy_node()
