@@ -138,6 +138,8 @@ def test_bad_spec_is_one_line_at_start_up(ctx, ckpt: Path) -> None:
         make_node(ctx, ckpt, spec=bad)
     text = str(err.value)
     assert "observation_spec" in text and "positon" in text and "\n" not in text
+    with pytest.raises(ParameterError, match="'/arm9/wr ench' is not a valid ROS topic name"):
+        make_node(ctx, ckpt, spec=SPEC_TEXT.replace("/arm9/wrench", "/arm9/wr ench"))
 
 
 def test_bad_spec_from_the_command_line_exits_2(ros_env: dict[str, str], tmp_path: Path) -> None:

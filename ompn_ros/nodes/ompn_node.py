@@ -12,8 +12,8 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       ``obs_qos``); each message of the step topic is one step, assembled by
                       :class:`ompn_ros.data.obs.ObservationAssembler` (the bag reader's rule: latest
                       partner at or before the step within ``tolerance_s``, else a dropped step, counted
-                      by reason as ``obs.dropped.<reason>``).  Advertised types are checked about once a
-                      second; a wrong type is one line and a counter (:mod:`ompn_ros.nodes.ompn_node_obs`).
+                      by reason as ``obs.dropped.<reason>``).  The publishers' types are checked about once
+                      a second; a wrong type is one line and a counter (:mod:`ompn_ros.nodes.ompn_node_obs`).
     ``episode``       DiagnosticArray episode marker: 'start' resets the memory (sketch from the
                       marker, else the latest ``sketch`` message, else the ``sketch`` parameter);
                       'end' closes the last segment at step ``steps - 1``.

@@ -16,6 +16,7 @@ from typing import Any, Final
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
 
@@ -50,7 +51,7 @@ def spec_rule(value: Any) -> str | None:
     if not text.strip():
         return None
     try:
-        ObservationSpec.from_param(text)
+        load_spec(text, "/")
     except ObservationSpecError as exc:
         return str(exc)
     return None
@@ -58,10 +59,17 @@ def spec_rule(value: Any) -> str | None:
 
 def load_spec(value: str, namespace: str) -> ObservationSpec | None:
     """The spec of the parameter value with relative topics resolved in ``namespace``; ``None`` for
-    ``''``.  Raises :class:`ObservationSpecError` (one line) on a bad spec."""
+    ``''``.  Raises :class:`ObservationSpecError` (one line) on a bad spec or an invalid topic name."""
     if not value.strip():
         return None
-    return ObservationSpec.from_param(value).with_namespace(namespace)
+    spec = ObservationSpec.from_param(value).with_namespace(namespace)
+    for topic in spec.topics:
+        try:
+            validate_full_topic_name(topic)
+        except Exception as exc:  # rclpy's InvalidTopicNameException: its text spans several lines
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ObservationSpecError(f"topic '{topic}' is not a valid ROS topic name: {reason}") from exc
+    return spec
 
 
 class AssembledInput:
