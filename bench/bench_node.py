@@ -12,6 +12,14 @@
    taken from the node's own ``/diagnostics`` counters and the node process's CPU use.
    Measured with the node's SingleThreadedExecutor (the EventsExecutor does not work with it, see
    the ompn_node docstring).
+3. Multi-topic (``ompn_node`` with ``observation_spec``, :mod:`ompn_ros.nodes.ompn_node_obs`): the Dial
+   observation split over three topics, ``/arm/joint_states`` (JointState, 9 joints, position +
+   velocity: the step topic), ``/arm/wrench`` (WrenchStamped, every step) and ``/arm/gripper``
+   (Float32MultiArray of 15, every 4th step), ``stamp: receive``, tolerance 50 ms.  In process: the
+   node's work per step (``ObservationAssembler.step`` + ``StreamingSegmenter.step``) p50/p99; over
+   DDS: step -> ``~/pi`` and step -> ``~/boundary`` latency at 100 Hz, then 1 kHz on the step topic for
+   ``duration`` s (60 s; 10 s with ``quick``): steps in (the node's ``obs.steps``), ``~/pi`` out, lost
+   (sent - accepted) and dropped by the assembler.
 
 Run: ``.venv/bin/python bench/bench_node.py [--quick]`` from the repository root.
 """
@@ -219,7 +227,12 @@ class _Client:
         """
         from ompn_ros.data.messages import encode_float32_array
 
-        msgs = [encode_float32_array(x, "obs") for x in observations]
+        return self.pace([[(self.pub, encode_float32_array(x, "obs"))] for x in observations], rate)
+
+    def pace(self, batches: list[list[tuple[Any, bytes]]], rate: float) -> list[int]:
+        """Publish one batch of ``(publisher, CDR)`` per tick at ``rate`` Hz while spinning; returns the
+        publish time of each batch's last message (the step message)."""
+        msgs = batches
         period = 1e9 / rate
         t_start = time.monotonic_ns() + 1_000_000
         sent = []
@@ -234,8 +247,10 @@ class _Client:
                     self.executor.spin_once(timeout_sec=(due - now - 300_000) / 1e9)
                 elif due - now > 150_000:
                     time.sleep((due - now - 100_000) / 1e9)
+            for pub, raw in m[:-1]:
+                pub.publish(raw)
             sent.append(time.monotonic_ns())
-            self.pub.publish(m)
+            m[-1][0].publish(m[-1][1])
         return sent
 
 
@@ -326,8 +341,175 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
     return out
 
 
+ARM_JOINTS = [f"j{i}" for i in range(9)]
+ARM_SPEC: dict[str, Any] = {
+    "step_topic": "/arm/joint_states",
+    "tolerance_s": 0.05,
+    "stamp": "receive",
+    "fields": [
+        {"topic": "/arm/joint_states", "type": "sensor_msgs/msg/JointState", "field": "position",
+         "names": ARM_JOINTS},
+        {"topic": "/arm/joint_states", "type": "sensor_msgs/msg/JointState", "field": "velocity",
+         "names": ARM_JOINTS},
+        {"topic": "/arm/gripper", "type": "std_msgs/msg/Float32MultiArray", "field": "data", "size": 15},
+        {"topic": "/arm/wrench", "type": "geometry_msgs/msg/WrenchStamped", "field": "wrench"},
+    ],
+}  # fmt: skip
+"""The Dial observation (39) over three topics: 9 + 9 joint values, 15 gripper/object values, 6 wrench."""
+
+
+def _arm_messages(obs: np.ndarray) -> list[list[tuple[str, bytes]]]:
+    """Per step, pre-encoded ``(topic, CDR)``: the wrench, every 4th step the gripper, then the step."""
+    from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float32MultiArray
+
+    out = []
+    for k, x in enumerate(obs.astype(float)):
+        js = JointState(name=ARM_JOINTS, position=list(x[0:9]), velocity=list(x[9:18]))
+        force, torque = Vector3(x=x[33], y=x[34], z=x[35]), Vector3(x=x[36], y=x[37], z=x[38])
+        batch = [("/arm/wrench", serialize_message(WrenchStamped(wrench=Wrench(force=force, torque=torque))))]
+        if k % 4 == 0:  # 25 Hz at 100 Hz steps: within the 50 ms tolerance
+            batch.append(("/arm/gripper", serialize_message(Float32MultiArray(data=list(x[18:33])))))
+        batch.append(("/arm/joint_states", serialize_message(js)))
+        out.append(batch)
+    return out
+
+
+def bench_multi_in_process(steps: int) -> Result:
+    """The node's work per assembled step: ``ObservationAssembler.step`` + ``StreamingSegmenter.step``
+    (shipped Dial checkpoint), partners offered untimed, receive stamps 1 ms apart."""
+    import torch
+
+    from ompn_ros.checkpoints import shipped_checkpoint
+    from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec
+    from ompn_ros.detect.online import DetectorConfig
+    from ompn_ros.model.factory import stepper_from_checkpoint
+    from ompn_ros.segmenter import StreamingSegmenter
+
+    torch.set_num_threads(1)
+    spec = ObservationSpec.from_dict(ARM_SPEC)
+    asm = ObservationAssembler(spec)
+    seg = StreamingSegmenter(stepper_from_checkpoint(shipped_checkpoint("dial")), DetectorConfig(high=0.1))
+    obs, _ = _observations("dial", steps)
+    batches = _arm_messages(obs)
+    times: list[float] = []
+    stamp = 0
+    for rep in range(3):
+        for batch in batches:
+            for topic, raw in batch[:-1]:
+                stamp += 100_000
+                asm.offer(topic, stamp, raw)
+            stamp += 1_000_000
+            t0 = time.perf_counter_ns()
+            x = asm.step(stamp, batch[-1][1])
+            if not isinstance(x, Drop):
+                seg.step(x, stamp)
+            if rep:
+                times.append((time.perf_counter_ns() - t0) / 1e3)
+    return {"dial_multi_node_step_p50": (_pct(times, 50), "us"),
+            "dial_multi_node_step_p99": (_pct(times, 99), "us")}
+
+
+def _counter_sum(diag: dict[str, str], prefix: str) -> int:
+    return sum(int(v) for k, v in diag.items() if k.startswith(prefix))
+
+
+def _multi_latency(c: _Client, ticks: list[list[tuple[Any, bytes]]], name: str) -> Result:
+    """Step -> ``~/pi`` and step -> ``~/boundary`` latency of ``ticks`` published at 100 Hz."""
+    base_pi, base_accepted = len(c.pi_times), int(c.diag["accepted"])
+    sent = c.pace(ticks, 100.0)
+    c.pump(lambda: len(c.pi_times) - base_pi >= len(ticks), 5)
+    lat = [(r - s) / 1e6 for s, r in zip(sent, c.pi_times[base_pi:], strict=False)]
+    # one episode, never reset: a boundary's detected_at is the accepted count at its step
+    blat = [(r - sent[d - base_accepted]) / 1e6 for d, r in c.boundaries
+            if 0 <= d - base_accepted < len(sent)]  # fmt: skip
+    return {f"{name}_pi_latency_100hz_p50": (_pct(lat, 50), "ms"),
+            f"{name}_pi_latency_100hz_p99": (_pct(lat, 99), "ms"),
+            f"{name}_boundary_latency_100hz_p50": (_pct(blat, 50), "ms"),
+            f"{name}_boundary_latency_100hz_p99": (_pct(blat, 99), "ms"),
+            f"{name}_boundary_events_100hz": (float(len(blat)), "events")}  # fmt: skip
+
+
+def _multi_sustained(c: _Client, pid: int, ticks: list[list[tuple[Any, bytes]]], name: str) -> Result:
+    """``ticks`` at 1 kHz: steps in (the node's ``obs.steps``), ``~/pi`` out, lost, dropped, node CPU."""
+    c.pump(lambda: False, 0.5)
+    before, pi_before, n = dict(c.diag), len(c.pi_times), len(ticks)
+    cpu0, wall0 = _cpu_seconds(pid), time.monotonic()
+    c.pace(ticks, 1000.0)
+    wall, cpu = time.monotonic() - wall0, _cpu_seconds(pid) - cpu0
+    c.pump(lambda: int(c.diag.get("obs.steps", 0)) - int(before["obs.steps"]) >= n, 5)
+    c.pump(lambda: False, 0.5)
+    accepted = int(c.diag["accepted"]) - int(before["accepted"])
+    dropped = _counter_sum(c.diag, "obs.dropped.") - _counter_sum(before, "obs.dropped.")
+    return {f"{name}_1khz_sent": (float(n), "steps"),
+            f"{name}_1khz_achieved_rate": (n / wall, "Hz"),
+            f"{name}_1khz_steps_in": (float(int(c.diag["obs.steps"]) - int(before["obs.steps"])), "steps"),
+            f"{name}_1khz_pi_out": (float(len(c.pi_times) - pi_before), "msgs"),
+            f"{name}_1khz_lost_steps": (float(n - accepted), "steps"),
+            f"{name}_1khz_dropped_steps": (float(dropped), "steps"),
+            f"{name}_1khz_node_cpu": (100.0 * cpu / wall, "% of one core"),
+            **{f"{name}_1khz_dropped_{k.split('.')[-1]}": (float(int(v) - int(before.get(k, 0))), "steps")
+               for k, v in c.diag.items() if k.startswith("obs.dropped.")}}  # fmt: skip
+
+
+def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events",
+                    client: str = "events") -> Result:
+    """``ompn_node`` (shipped Dial checkpoint and detector) with ``observation_spec`` = :data:`ARM_SPEC`
+    in its own process; this process publishes the three topics (module docstring, part 3)."""
+    import rclpy
+    import yaml
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float32MultiArray
+
+    from ompn_ros.paths import config_file
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_node_multi_"))
+    spec_file = tmp / "arm.yaml"
+    spec_file.write_text(yaml.safe_dump({"observation": ARM_SPEC}))
+    batches = _arm_messages(_observations("dial", 20 + latency_msgs + int(duration * 1000))[0])
+    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
+           "--params-file", str(config_file("ompn_node_dial.yaml")), "-p", f"executor:={executor}",
+           "-p", "diagnostics_period:=0.2", "-p", "qos_depth:=1000", "-p", f"observation_spec:={spec_file}"]
+    log_path = tmp / f"node_multi_{executor}.log"
+    log = open(log_path, "w")  # closed in the finally block
+    proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        c = _Client(ctx, client)
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        classes = {"/arm/joint_states": JointState, "/arm/gripper": Float32MultiArray,
+                   "/arm/wrench": WrenchStamped}
+        pubs = {t: c.node.create_publisher(cls, t, reliable) for t, cls in classes.items()}
+        ticks = [[(pubs[t], raw) for t, raw in b] for b in batches]
+        name = f"dial_multi_{executor}"
+        matched = [p.get_subscription_count for p in pubs.values()]
+        if not c.pump(lambda: bool(c.diag) and min(count() for count in matched) > 0, 30):
+            raise RuntimeError(f"ompn_node did not come up: {log_path.read_text()}")
+        c.pump(lambda: False, 0.5)
+        c.pace(ticks[:20], 100.0)  # warm-up (the first messages after matching may be lost)
+        c.pump(lambda: False, 0.5)
+        out = _multi_latency(c, ticks[20 : 20 + latency_msgs], name)
+        if duration > 0:
+            out.update(_multi_sustained(c, proc.pid, ticks[20 + latency_msgs :], name))
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        proc.send_signal(2)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+    return out
+
+
 def run(quick: bool = False, executor: str = "events", client: str = "events", parts: str = "all") -> Result:
-    """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz and fewer samples."""
+    """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz (multi-topic: 10 s) and fewer
+    samples."""
     results: Result = {}
     if parts in ("all", "step"):
         results.update(bench_in_process(1000 if quick else 5000))
@@ -336,6 +518,10 @@ def run(quick: bool = False, executor: str = "events", client: str = "events", p
                                  executor=executor, client=client))
         results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if quick else 2000,
                                  executor=executor, client=client))
+    if parts in ("all", "multi"):
+        results.update(bench_multi_in_process(1000 if quick else 5000))
+        results.update(bench_dds_multi(duration=10.0 if quick else 60.0, latency_msgs=300 if quick else 3000,
+                                       executor=executor, client=client))
     return results
 
 
@@ -346,7 +532,8 @@ def main() -> None:
                         help="ompn_node's executor parameter")
     parser.add_argument("--client-executor", choices=("events", "single"), default="events",
                         help="executor of the publishing/subscribing benchmark client")
-    parser.add_argument("--parts", choices=("all", "step", "dds"), default="all")
+    parser.add_argument("--parts", choices=("all", "step", "dds", "multi"), default="all",
+                        help="multi: the multi-topic observation_spec case alone")
     parser.add_argument("--ensemble", type=Path, default=None, metavar="DIR",
                         help="instead: a Craft ensemble checkpoint directory (ensemble.json, written by "
                              "ompn_reproduce --members), in process and in ompn_node at 100 Hz")

@@ -8,11 +8,18 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated).  QoS from
                       ``obs_qos`` (default ``best_effort``: receives from RELIABLE and BEST_EFFORT
                       publishers); an incompatible publisher is reported in one line naming ``obs_qos``.
+    spec topics       with ``observation_spec`` set instead: every topic of the spec (its type, QoS from
+                      ``obs_qos``); each message of the step topic is one step, assembled by
+                      :class:`ompn_ros.data.obs.ObservationAssembler` (the bag reader's rule: latest
+                      partner at or before the step within ``tolerance_s``, else a dropped step, counted
+                      by reason as ``obs.dropped.<reason>``).  The publishers' types are checked about once
+                      a second; a wrong type is one line and a counter (:mod:`ompn_ros.nodes.ompn_node_obs`).
     ``episode``       DiagnosticArray episode marker: 'start' resets the memory (sketch from the
                       marker, else the latest ``sketch`` message, else the ``sketch`` parameter);
                       'end' closes the last segment at step ``steps - 1``.
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
-Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state.
+Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
+assembler's partner history; episode markers keep it).
 
 Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
@@ -32,12 +39,14 @@ counted by reason (``rejected_<reason>``) and reported with a throttled warning;
 rejects the episode's start (logged once) until the next valid one.  (A 0-byte message is dropped by
 Fast DDS before it reaches any subscriber; delivered otherwise, it is counted as ``malformed``.)
 
-Stamps and time: JointState input uses ``header.stamp``; array input uses the DDS source timestamp
-(``executor='single'``, wall time) or, with the EventsExecutor (it cannot deliver message info in rclpy
-7.1.6) or ``use_sim_time``, the node's clock at reception.  Outputs carry the input's stamps, so under
-``use_sim_time`` everything is in sim time.  A stamp more than ``max_stamp_lead`` s ahead of the node's
-clock is rejected (``future_stamp``); one more than ``clock_jump_back`` s behind the last step is a clock
-restart (sim restart, looped bag): a new episode starts, counted (``clock_jumps``) with a warning.
+Stamps and time: spec input uses the assembler's stamp rule, with the node's clock at reception as the
+receive time (kept strictly increasing on the step topic); JointState input uses ``header.stamp``; array
+input uses the DDS source timestamp (``executor='single'``, wall time) or, with the EventsExecutor (it
+cannot deliver message info in rclpy 7.1.6) or ``use_sim_time``, the node's clock at reception.
+Outputs carry the input's stamps, so under ``use_sim_time`` everything is in sim time.  A stamp more
+than ``max_stamp_lead`` s ahead of the node's clock is rejected (``future_stamp``); one more than
+``clock_jump_back`` s behind the last step is a clock restart (sim restart, looped bag): a new episode
+starts, counted (``clock_jumps``) with a warning.
 
 Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured to cut the
 observation -> boundary latency by ~0.4-0.5 ms against ``'single'`` = ``SingleThreadedExecutor``
@@ -78,9 +87,11 @@ from ompn_ros.data.messages import (
     parse_float32_array,
     parse_sketch_value,
 )
+from ompn_ros.data.obs import Drop
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, drop_line, load_spec
 from ompn_ros.nodes.ompn_node_params import (
     EXECUTORS,
     OBS_SOURCES,
@@ -157,6 +168,7 @@ class OMPNNode(LifecycleNode):
         self._from_checkpoint = False
 
         self.segmenter: StreamingSegmenter | None = None
+        self.assembled: AssembledInput | None = None  # observation_spec input (None: single topic)
         self.last_error = ""
         self.events: Counter[str] = Counter()  # node-level counters (counters())
         self.qos_warnings: list[str] = []
@@ -166,6 +178,7 @@ class OMPNNode(LifecycleNode):
         self._subs: list[Any] = []
         self._service: Any = None
         self._timer: Any = None
+        self._graph_timer: Any = None
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
@@ -234,7 +247,7 @@ class OMPNNode(LifecycleNode):
         expected_action = str(self.values["action_type"])
         if domain:
             dom = layout.DOMAINS[domain]
-            if self.values["obs_source"] == "array":
+            if self.values["obs_source"] == "array" and not str(self.values["observation_spec"]).strip():
                 expected_dim = expected_dim or dom.obs_dim
             expected_action = expected_action or dom.action_type
             if config.action_dim != dom.action_dim:
@@ -280,6 +293,7 @@ class OMPNNode(LifecycleNode):
             self.last_error = f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"configure failed: {self.last_error}")
             self.segmenter = None
+            self.assembled = None
             return TransitionCallbackReturn.FAILURE
         self.last_error = ""
         return TransitionCallbackReturn.SUCCESS
@@ -288,10 +302,13 @@ class OMPNNode(LifecycleNode):
         import torch
 
         torch.set_num_threads(int(self.values["torch_threads"]))
+        spec = load_spec(str(self.values["observation_spec"]), self.get_namespace())
         path = self._resolve_checkpoint()
         self._apply_checkpoint_detector(path)
         policy = load_policy(path)
         self._validate_model(policy.config)
+        depth = int(self.values["qos_depth"])
+        self.assembled = None if spec is None else AssembledInput(spec, int(policy.config.obs_dim), depth)
         segmenter = StreamingSegmenter(policy, detector_config(self.values))
         default = self._default_sketch()
         if segmenter.needs_sketch and default is not None:
@@ -299,7 +316,6 @@ class OMPNNode(LifecycleNode):
             self._episode_sketch = default
         self.segmenter = segmenter
         self._n_slots = int(policy.config.n_slots)
-        depth = int(self.values["qos_depth"])
         per_step = QoSProfile(
             depth=depth, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
         )
@@ -323,6 +339,11 @@ class OMPNNode(LifecycleNode):
             f"action={policy.config.action_type} sketch_mode={policy.config.sketch_mode} "
             f"detector={segmenter.detector_config}"
         )
+        if spec is not None:
+            self.get_logger().info(
+                f"observation_spec: step topic {spec.step_topic}, topics {list(spec.topics)}, tolerance "
+                f"{spec.tolerance_s} s, stamp {spec.stamp}, size {spec.declared_dim() or 'from the data'}"
+            )
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self.segmenter is None:
@@ -336,7 +357,9 @@ class OMPNNode(LifecycleNode):
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
         self._subscribe(DiagnosticArray, layout.EPISODE, self._on_episode, markers, None)
         self._subscribe(Int32MultiArray, layout.SKETCH, self._on_sketch, markers, None)
-        if self.values["obs_source"] == "joint_state":
+        if self.assembled is not None:
+            self._subscribe_spec(self.assembled, inputs)
+        elif self.values["obs_source"] == "joint_state":
             self._subscribe(JointState, layout.JOINT_STATES, self._on_joint_state, inputs, "obs_qos")
         else:  # raw CDR: the float32 data is read in place, no message object is built
             callback = self._on_array_info if self.uses_message_info else self._on_array
@@ -346,6 +369,18 @@ class OMPNNode(LifecycleNode):
         self._active = True
         self.get_logger().info("activated")
         return super().on_activate(state)
+
+    def _subscribe_spec(self, assembled: AssembledInput, qos: QoSProfile) -> None:
+        """One raw subscription per spec topic, the publishers' types checked ~1/s.  Partners first: when
+        a partner and a step message are both ready, a wait-set executor serves them in creation order,
+        and the partner message, published first, is then fed first (as it arrived)."""
+        spec = assembled.spec
+        for topic in (*spec.partner_topics, spec.step_topic):
+            callback = self._on_spec_step if topic == spec.step_topic else self._partner_callback(topic)
+            msg_class = MESSAGE_CLASSES[spec.type_of(topic)]
+            self._subscribe(msg_class, topic, callback, qos, "obs_qos", raw=True)
+        self._graph_timer = self.create_timer(1.0, self._check_topic_types)
+        self._check_topic_types()
 
     def _subscribe(
         self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
@@ -382,6 +417,7 @@ class OMPNNode(LifecycleNode):
             self.destroy_lifecycle_publisher(pub)
         self._pubs = {}
         self.segmenter = None
+        self.assembled = None
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -399,6 +435,11 @@ class OMPNNode(LifecycleNode):
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
+        if self._graph_timer is not None:
+            self.destroy_timer(self._graph_timer)
+            self._graph_timer = None
+        if self.assembled is not None:
+            self.assembled.asm.reset()
 
     @property
     def uses_message_info(self) -> bool:
@@ -430,6 +471,64 @@ class OMPNNode(LifecycleNode):
             self._reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
             return
         self.process_observation(data, stamp_ns, now_ns)
+
+    def _on_spec_step(self, raw: bytes) -> None:
+        """A step-topic message: assemble (receive time = the node's clock, strictly increasing), then
+        step like any observation; a dropped step is counted by reason and warned (throttled)."""
+        assembled = self.assembled
+        if assembled is None or self.segmenter is None or not self._active:
+            return
+        now = self.get_clock().now().nanoseconds
+        last = self._last_receive_ns
+        receive = now if (now > last or last - now > self._jump_back_ns) else last + 1
+        self._last_receive_ns = receive
+        try:
+            result = assembled.asm.step(receive, raw)
+        except Exception as exc:  # the assembler counts what it knows; anything else is malformed input
+            self._reject(MalformedMessage(f"step message not assembled: {type(exc).__name__}: {exc}"))
+            return
+        if isinstance(result, Drop):
+            self._warn_throttled(drop_line(result, assembled.dropped_total), with_total=False)
+            return
+        problem = assembled.first_size_problem(result)
+        if problem is not None:
+            self.events["obs_size_mismatch"] += 1
+            self.get_logger().error(problem)
+        stamp = assembled.asm.last_stamp_ns
+        self.process_observation(result, receive if stamp is None else stamp, now)
+
+    def _partner_callback(self, topic: str) -> Any:
+        def on_partner(raw: bytes) -> None:
+            assembled = self.assembled
+            if assembled is None or not self._active:
+                return
+            try:
+                rejected = assembled.asm.offer(topic, self.get_clock().now().nanoseconds, raw)
+            except Exception as exc:  # never fatal: counted as a node event, warned
+                self.events["obs_partner_errors"] += 1
+                self._warn_throttled(f"message on '{topic}' not used: {type(exc).__name__}: {exc}")
+                return
+            if rejected is not None:
+                self._warn_throttled(f"message rejected: {rejected}", with_total=False)
+
+        return on_partner
+
+    def _check_topic_types(self) -> None:
+        """Compare the spec topics' advertised types with the spec (timer, ~1 s): one line per change."""
+        if self.assembled is None:
+            return
+        try:
+            graph = {t: [p.topic_type for p in self.get_publishers_info_by_topic(t)]
+                     for t in self.assembled.spec.topics}
+        except Exception as exc:  # the graph may be unavailable while the context shuts down
+            if "context" not in str(exc):
+                self._warn_throttled(f"ROS graph not readable: {exc}")
+            return
+        for line in self.assembled.check_graph(graph):
+            if "expects" in line:
+                self.get_logger().error(line)
+            else:
+                self.get_logger().info(line)
 
     def _on_joint_state(self, msg: JointState) -> None:
         try:
@@ -539,12 +638,12 @@ class OMPNNode(LifecycleNode):
             f"level={event.level} detected_at={event.detected_at}{' (episode end)' if event.final else ''}"
         )
 
-    def _warn_throttled(self, text: str) -> None:
+    def _warn_throttled(self, text: str, with_total: bool = True) -> None:
         now = time.monotonic()
         if now - self._last_warn >= float(self.values["warn_throttle"]):
             self._last_warn = now
             total = self.segmenter.rejected_total if self.segmenter else 0
-            self.get_logger().warning(f"{text} [{total} rejected so far]")
+            self.get_logger().warning(f"{text} [{total} rejected so far]" if with_total else text)
 
     # --- episodes ------------------------------------------------------------------------------
     def _start_episode(self, sketch: np.ndarray | None, count_bad: bool = True) -> bool:
@@ -634,6 +733,8 @@ class OMPNNode(LifecycleNode):
             self._start_episode(sketch)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self.assembled is not None:
+            self.assembled.asm.reset()
         response.success = self._start_episode(self._episode_sketch)
         self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
@@ -644,7 +745,10 @@ class OMPNNode(LifecycleNode):
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
         reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
         clock restarts), episodes_ended (end markers), messages_lost (reported by the middleware),
-        boundaries published, clock_jumps, bad_end_markers, qos_incompatible."""
+        boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
+        also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
+        messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
+        ``obs_size_mismatch``."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
@@ -662,6 +766,10 @@ class OMPNNode(LifecycleNode):
             out[key] = int(self.events[key])
         if seg is not None:
             out.update({f"rejected_{k}": int(v) for k, v in seg.rejected.items()})
+        if self.assembled is not None:
+            out.update(self.assembled.counters())
+            out["obs_type_reports"] = self.assembled.type_reports
+            out["obs_size_mismatch"] = int(self.events["obs_size_mismatch"])
         return out
 
     def publish_diagnostics(self) -> None:
@@ -670,7 +778,8 @@ class OMPNNode(LifecycleNode):
         if pub is None or not self.context.ok():
             return
         counters = self.counters()
-        rejected = counters["rejected"] > 0
+        dropped = self.assembled.dropped_total if self.assembled is not None else 0
+        rejected = counters["rejected"] > 0 or dropped > 0
         raw = encode_diagnostic_status(
             self.get_clock().now().nanoseconds, f"{self.get_fully_qualified_name()}: segmenter",
             "rejected input" if rejected else "ok", counters, LEVEL_WARN if rejected else LEVEL_OK,
@@ -712,12 +821,18 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
 
     Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
-    start-up parameter (one line naming it and the allowed values)."""
+    start-up parameter (one line naming it and the allowed values) or unparsable ROS arguments (rcl's
+    reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote
+    the mapping as a YAML string)."""
     if wants_help(args):
         print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
                         "publishes the action, ~/pi and ~/boundary events.", SPECS))
         return 0
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # rcl rejects the command line (RCLError): one line, no traceback
+        print(f"{NODE_NAME}: invalid ROS arguments: {str(exc).split(', at ')[0]}", file=sys.stderr)
+        return 2
     node: OMPNNode | None = None
     executor = None
     try:
@@ -731,7 +846,7 @@ def main(args: list[str] | None = None) -> int:
         executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)
         spin_until_shutdown(executor)
-    except (ParameterError, DetectorConfigError) as exc:
+    except (ParameterError, DetectorConfigError) as exc:  # observation_spec errors are ParameterErrors
         error = exc if isinstance(exc, ParameterError) else ParameterError("detector_*", str(exc))
         return exit_code_for(NODE_NAME, error)
     except (KeyboardInterrupt, ExternalShutdownException):

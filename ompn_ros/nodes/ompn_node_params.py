@@ -5,14 +5,21 @@ When a change applies (``ompn_ros.nodes.params``):
 * live, from the next step: ``detector_*``, ``done_threshold``, ``sketch`` (the default sketch),
   ``warn_throttle``, ``max_stamp_lead``, ``clock_jump_back``;
 * at the next ``configure`` (refused while active, with the way out): ``checkpoint``, ``domain``,
-  ``obs_source``, ``joint_fields``, ``obs_dim``, ``action_type``, ``sketch_mode``, ``qos_depth``,
-  ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``;
+  ``obs_source``, ``joint_fields``, ``observation_spec``, ``obs_dim``, ``action_type``, ``sketch_mode``,
+  ``qos_depth``, ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``;
 * at start-up only: ``auto_start``, ``executor``.
 
 QoS of the observation and joint-state subscriptions (``obs_qos``): ``best_effort`` (default) receives
 from RELIABLE and BEST_EFFORT publishers alike (``sensor_msgs/JointState`` is usually published
 BEST_EFFORT); ``reliable`` matches RELIABLE publishers only; ``sensor_data`` is rclpy's sensor profile
 (BEST_EFFORT, depth 5).
+
+Observation from several topics (``observation_spec``, :mod:`ompn_ros.nodes.ompn_node_obs`): inline
+YAML (``{step_topic: ..., fields: [...]}``) or a YAML file path, in the form of
+:mod:`ompn_ros.data.obs.spec`; relative topics resolve in the node's namespace.  When set, it replaces
+``obs_source``/``joint_fields``; every spec topic is subscribed with the ``obs_qos`` QoS.  On the command
+line rcl reads ``-p`` values as YAML, so give a file path, or quote the mapping as a YAML string:
+``-p 'observation_spec:="{step_topic: ..., fields: [...]}"'``; in a params file either form works.
 
 ``~/boundary`` durability (``boundary_replay``): ``last`` (default) = RELIABLE + TRANSIENT_LOCAL with
 depth 1, so a subscriber that joins late receives the last boundary event only; ``none`` = VOLATILE,
@@ -34,6 +41,7 @@ from rclpy.qos import (
 from ompn_ros import layout
 from ompn_ros.detect.online import MODES
 from ompn_ros.layout import JOINT_FIELDS
+from ompn_ros.nodes.ompn_node_obs import spec_rule
 from ompn_ros.nodes.params import ParamSpec
 
 OBS_SOURCES: Final = ("array", "joint_state")
@@ -65,6 +73,8 @@ SPECS: Final = (
               apply="configure"),
     ParamSpec("joint_fields", ["position"], "JointState arrays concatenated into the observation",
               choices=JOINT_FIELDS, apply="configure", check=_fields_rule),
+    ParamSpec("observation_spec", "", "observation assembled from several topics: inline YAML or a YAML "
+              "file ('' = obs_source alone; see ompn_ros.data.obs.spec)", apply="configure", check=spec_rule),
     ParamSpec("obs_dim", 0, "expected observation size (0 = from domain/checkpoint)",
               int_range=(0, 1_000_000), apply="configure"),
     ParamSpec("action_type", "", "expected action type", choices=("", "discrete", "continuous"),
@@ -104,7 +114,8 @@ SPECS: Final = (
 
 
 def input_qos(kind: str, depth: int) -> QoSProfile:
-    """QoS of the observation / joint-state subscription for ``obs_qos`` = ``kind``."""
+    """QoS of the observation / joint-state subscription (and of every ``observation_spec`` topic) for
+    ``obs_qos`` = ``kind``."""
     if kind == "sensor_data":
         return qos_profile_sensor_data
     reliability = ReliabilityPolicy.RELIABLE if kind == "reliable" else ReliabilityPolicy.BEST_EFFORT

@@ -28,8 +28,9 @@ _U32 = struct.Struct("<I")
 _STAMP = struct.Struct("<iI")
 _F32 = struct.Struct("<f")
 _F64 = struct.Struct("<d")
-MAX_PADDING = 7
-"""Trailing bytes accepted after the last field (rclpy/Fast CDR may pad the serialized size)."""
+MAX_PADDING = 31
+"""Trailing bytes accepted after the last field: rclpy/Fast CDR size the buffer with an 8-byte alignment
+for every float64 sequence, written or empty (a JointState with names only ends 12 bytes early)."""
 
 
 def _little_endian(raw: bytes | memoryview) -> bool:

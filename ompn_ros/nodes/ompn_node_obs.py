@@ -1,0 +1,146 @@
+"""The multi-topic observation of ``ompn_node`` (the ``observation_spec`` parameter).
+
+The node applies :class:`ompn_ros.data.obs.ObservationAssembler`, the rule the bag reader applies
+offline: every message of the spec's step topic is one step, assembled from its own fields and the
+latest message of each partner topic at or before it (within ``tolerance_s``), else dropped and
+counted by reason (:mod:`ompn_ros.data.obs.assembler`).  This module holds the node-side pieces that
+need no node: the parameter rule, the message classes of the supported types, the size check against
+the checkpoint and the type check against the ROS graph.  Topic names and the YAML form:
+:mod:`ompn_ros.data.obs.spec`; the parameter: ``docs/parameters.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, Final
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.validate_full_topic_name import validate_full_topic_name
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
+
+from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec, ObservationSpecError
+from ompn_ros.data.obs.spec import (
+    FLOAT32,
+    FLOAT32_ARRAY,
+    FLOAT64,
+    FLOAT64_ARRAY,
+    JOINT_STATE,
+    POSE_STAMPED,
+    WRENCH_STAMPED,
+)
+
+MESSAGE_CLASSES: Final[dict[str, Any]] = {
+    JOINT_STATE: JointState,
+    FLOAT32_ARRAY: Float32MultiArray,
+    FLOAT64_ARRAY: Float64MultiArray,
+    FLOAT32: Float32,
+    FLOAT64: Float64,
+    WRENCH_STAMPED: WrenchStamped,
+    POSE_STAMPED: PoseStamped,
+}
+"""The rclpy message class of every type an observation spec may name (its canonical spelling)."""
+
+COUNTER_PREFIX: Final = "obs."
+
+
+def spec_rule(value: Any) -> str | None:
+    """``ParamSpec`` check of ``observation_spec``: ``''`` (single-topic input) or a spec that parses."""
+    text = str(value)
+    if not text.strip():
+        return None
+    try:
+        load_spec(text, "/")
+    except ObservationSpecError as exc:
+        return str(exc)
+    return None
+
+
+def load_spec(value: str, namespace: str) -> ObservationSpec | None:
+    """The spec of the parameter value with relative topics resolved in ``namespace``; ``None`` for
+    ``''``.  Raises :class:`ObservationSpecError` (one line) on a bad spec or an invalid topic name."""
+    if not value.strip():
+        return None
+    spec = ObservationSpec.from_param(value).with_namespace(namespace)
+    for topic in spec.topics:
+        try:
+            validate_full_topic_name(topic)
+        except Exception as exc:  # rclpy's InvalidTopicNameException: its text spans several lines
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ObservationSpecError(f"topic '{topic}' is not a valid ROS topic name: {reason}") from exc
+    return spec
+
+
+class AssembledInput:
+    """The node's assembler with the checks around it (not thread-safe; one per configure).
+
+    Args:
+        spec: the spec, namespaces resolved.
+        obs_dim: the checkpoint's observation size.
+        history: partner messages kept per topic (the ``qos_depth`` parameter is a good value).
+
+    Raises:
+        ObservationSpecError: the spec declares a size other than ``obs_dim`` (one line).
+    """
+
+    def __init__(self, spec: ObservationSpec, obs_dim: int, history: int = 256) -> None:
+        declared = spec.declared_dim()
+        if declared is not None and declared != obs_dim:
+            raise ObservationSpecError(
+                f"observation_spec assembles {declared} values per step, the checkpoint takes "
+                f"obs_dim={obs_dim}"
+            )
+        self.spec = spec
+        self.obs_dim = int(obs_dim)
+        self.asm = ObservationAssembler(spec, history=max(1, history))
+        self.size_checked = declared is not None
+        self.topic_types: dict[str, str | None] = {}  # last problem line per topic (None = fine)
+        self.type_reports = 0
+
+    def first_size_problem(self, obs: np.ndarray) -> str | None:
+        """On the first kept step only: the one line when its size differs from ``obs_dim``."""
+        if self.size_checked:
+            return None
+        self.size_checked = True
+        if obs.size == self.obs_dim:
+            return None
+        return (
+            f"observation_spec assembled {obs.size} values per step but the checkpoint takes "
+            f"obs_dim={self.obs_dim}: every step is rejected (wrong_length)"
+        )
+
+    def check_graph(self, publisher_types: Mapping[str, Sequence[str]]) -> list[str]:
+        """Compare the types the publishers of the spec's topics use (``topic -> types``, our own
+        subscriptions excluded) with the spec; returns the lines to log: a new or changed problem, and
+        a problem that went away.  A topic without publishers is skipped.  O(publishers)."""
+        lines = []
+        for topic, want in self.spec.topics.items():
+            types = publisher_types.get(topic)
+            if not types:
+                continue
+            got = want if want in types else types[0]  # a matching publisher keeps the topic usable
+            problem = self.asm.check_type(topic, got)
+            before = self.topic_types.get(topic)
+            if problem != before:
+                self.topic_types[topic] = problem
+                if problem is not None:
+                    self.type_reports += 1
+                    lines.append(problem)
+                elif before is not None:
+                    lines.append(f"topic '{topic}' has the expected type {want} again")
+        return lines
+
+    def counters(self) -> dict[str, int]:
+        """The assembler's counters prefixed ``obs.`` (``obs.steps``, ``obs.kept``,
+        ``obs.dropped.<reason>``, ``obs.rejected.<topic>.<reason>``, ``obs.ignored``)."""
+        return {COUNTER_PREFIX + k: int(v) for k, v in self.asm.stats.as_dict().items()}
+
+    @property
+    def dropped_total(self) -> int:
+        return int(sum(self.asm.stats.dropped.values()))
+
+
+def drop_line(drop: Drop, dropped: int) -> str:
+    """The throttled warning of a dropped step (or a rejected partner message)."""
+    return f"step dropped: {drop} [{dropped} dropped so far]"
