@@ -86,6 +86,9 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         f"checkpoint:={ckpt}",
         "-p",
         f"detector_high:={HIGH}",
+        # the whole detector, so that the checkpoint's own detector.json does not apply
+        "-p", "detector_hysteresis:=0.0", "-p", "detector_min_segment_length:=1",
+        "-p", "detector_mode:=falling_edge", "-p", "detector_force_first_step_low:=true",
         "-p",
         "diagnostics_period:=0.1",
         "-p",
