@@ -170,6 +170,8 @@ def test_bad_field_and_both_keys_are_one_line() -> None:
         ReaderSpec.from_dict(data)
     with pytest.raises(ReaderSpecError, match="not both"):
         ReaderSpec.from_dict({**SPEC_DICT, "observation": "arm/joint_states"})
+    with pytest.raises(ReaderSpecError, match="stamp: log"):
+        ReaderSpec.from_dict({**SPEC_DICT, "stamp": "header"})
 
 
 def test_float64_action_wrong_length_is_named(tmp_path: Path) -> None:

@@ -72,9 +72,10 @@ class ReaderSpec:
             :func:`~ompn_ros.data.obs.assemble_stream` over the bag's messages in record order (the
             live rule: the latest message of each topic at or before the step message, within
             ``tolerance_s``).  Every message of its ``step_topic`` is a step: the step clock is their
-            log stamps, actions and labels attach to it, then the steps the rule dropped are removed
-            (counted by reason in ``BagReport.obs_dropped``).  ``Episode.extras['obs_names']`` names
-            the elements.  Relative topic names resolve like every other topic of the spec.
+            log stamps (so ``stamp`` must be ``log``), actions and labels attach to it, then the
+            steps the rule dropped are removed (counted by reason in ``BagReport.obs_dropped``).
+            ``Episode.extras['obs_names']`` names the elements.  Relative topic names resolve like
+            every other topic of the spec.
         subtask, sketch, episode, joint_states: optional topics (``None`` = not used; absent from
             a bag = not used).  ``joint_states`` fills ``Episode.extras['joint_*']``.
         namespace: resolves relative topic names; a relative name absent under it falls back to
@@ -150,8 +151,18 @@ class ReaderSpec:
                                   f"{self.tolerance})")
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
-        if self.assemble is not None and not isinstance(self.assemble, ObservationSpec):
+        if self.assemble is not None:
+            self._check_assemble()
+
+    def _check_assemble(self) -> None:
+        if not isinstance(self.assemble, ObservationSpec):
             raise ReaderSpecError(f"assemble must be an ObservationSpec, got {type(self.assemble).__name__}")
+        if self.observation != DEFAULT_OBSERVATION:
+            raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields of "
+                                  "several topics), not both")
+        if self.stamp != "log":
+            raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
+                                  "(assemble's own 'stamp' key chooses the stamps of its rule)")
 
     def _check_choices(self) -> None:
         if self.labels is not None and self.labels not in layout.LABEL_KINDS:
@@ -194,9 +205,6 @@ class ReaderSpec:
             if key in kwargs:
                 kwargs[key] = _vector_source(key, kwargs[key])
         if kwargs.get("assemble") is not None:
-            if kwargs.get("observation", DEFAULT_OBSERVATION) != DEFAULT_OBSERVATION:
-                raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields "
-                                      "of several topics), not both")
             kwargs["assemble"] = _observation_spec(kwargs["assemble"])
         try:
             return cls(**kwargs)
