@@ -13,7 +13,8 @@ against the sim's skill ids.  Figures:
 * ``own_robot_train_episodes``, ``own_robot_steps``: what the reader made of the training bag;
 * ``own_robot_<step>_s``: wall time of recording, reading, training and segmenting.
 
-Full size: 300 training episodes, 50 held-out, the config's 300 iterations (tens of minutes).
+Full size: 300 training episodes, 50 held-out, the config's 300 iterations with one torch thread
+(about 40 minutes on a busy 2-core machine).
 ``quick``: 20 + 5 episodes, 40 iterations (the figures then only show that the flow runs).
 Run: ``.venv/bin/python bench/bench_own_robot.py [--quick]`` or ``make bench-own-robot``.
 """
@@ -37,8 +38,9 @@ if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ[
     os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
 
 Result = dict[str, tuple[float, str]]
-FULL = {"episodes": 300, "heldout": 50, "iterations": None}
-QUICK = {"episodes": 20, "heldout": 5, "iterations": 40}
+# one torch thread: with other jobs on the CPU, two threads made training 7x slower (spin-waiting)
+FULL = {"episodes": 300, "heldout": 50, "iterations": None, "threads": 1}
+QUICK = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1}
 
 
 def _example() -> ModuleType:

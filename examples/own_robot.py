@@ -76,6 +76,7 @@ class Flow:
     iterations: int | None = None  # None: the training config's own
     seed: int = 0
     timeout_s: float = 3600.0
+    threads: int | None = None  # torch threads of ompn_train (None: the config's); 1 on a busy machine
 
 
 def ros_env() -> dict[str, str]:
@@ -155,6 +156,8 @@ def train(flow: Flow, bag: Path, env: dict[str, str]) -> Path:
     if flow.iterations is not None:
         every = max(1, min(20, flow.iterations))  # a short run is evaluated once, at its end
         argv += ["--set", f"train.iterations={flow.iterations}", "--set", f"train.eval_every={every}"]
+    if flow.threads is not None:
+        argv += ["--set", f"train.threads={flow.threads}"]
     _show("train", argv)
     _run(argv, env, flow.timeout_s, "train")
     if not (out / "best").is_dir():
@@ -251,12 +254,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--heldout", type=int, default=50, help="held-out episodes to record")
     parser.add_argument("--iterations", type=int, default=None, help="training iterations (default: config)")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the training episodes")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads of ompn_train (default: the config's; 1 on a busy machine)")
     args = parser.parse_args(argv)
     if args.episodes < 2 or args.heldout < 1:
         print("own_robot: --episodes must be >= 2 and --heldout >= 1", file=sys.stderr)
         return 2
     try:
-        summary = run(Flow(args.out, args.episodes, args.heldout, args.iterations, args.seed))
+        summary = run(Flow(args.out, args.episodes, args.heldout, args.iterations, args.seed,
+                           threads=args.threads))
     except (OwnRobotError, OSError, ValueError) as err:
         print(f"own_robot: {err}", file=sys.stderr)
         return 2

@@ -33,7 +33,8 @@ def test_own_robot_flow(tmp_path: Path, ros_env: dict[str, str]) -> None:
     from sim_nodes.dial import generate_episode
 
     own = _example()
-    summary = own.run(own.Flow(tmp_path, episodes=2, heldout=1, iterations=2, seed=5, timeout_s=300))
+    summary = own.run(own.Flow(tmp_path, episodes=2, heldout=1, iterations=2, seed=5, timeout_s=300,
+                                threads=1))
     assert (summary["train_episodes"], summary["heldout_episodes"]) == (2, 1)
     assert (summary["obs_dim"], summary["action_dim"]) == (18, 9)
     names = summary["obs_names"]
