@@ -3,15 +3,16 @@
 ``dial_sim profile:=robot`` publishes only ``jaco/joint_states``, ``jaco/effort_command`` and
 ``jaco/skill_id``; ``bag_recorder`` records them, the reader (``config/reader_dial_robot.yaml``) makes
 episodes of joint positions and velocities (18-d), effort commands (9-d) and skill-id labels,
-``ompn_train`` runs the shipped Dial training config and ``ompn_segment`` scores held-out episodes
-against the sim's skill ids.  Figures:
+``ompn_train`` runs the shipped Dial training config, ``ompn_segment --tune`` chooses the online
+detector settings on the training bag (objective: alignment) and ``ompn_segment`` scores held-out
+episodes against the sim's skill ids.  Figures:
 
 * ``own_robot_align``, ``own_robot_f1_tol1``: held-out alignment accuracy and boundary F1 at
-  tolerance 1 of the online detector (default settings) and of the offline automatic threshold
+  tolerance 1 of the online detector (tuned settings) and of the offline automatic threshold
   (``own_robot_offline_auto_*``; paper Alg. 1-2), from joint positions and velocities alone
   (target alignment >= 0.85);
 * ``own_robot_train_episodes``, ``own_robot_steps``: what the reader made of the training bag;
-* ``own_robot_<step>_s``: wall time of recording, reading, training and segmenting.
+* ``own_robot_<step>_s``: wall time of recording, reading, training, tuning and segmenting.
 
 Full size: 300 training episodes, 50 held-out, the config's 300 iterations with one torch thread
 (about 40 minutes on a busy 2-core machine).

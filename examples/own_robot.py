@@ -3,8 +3,8 @@
 ``dial_sim``'s robot profile stands in for another lab's arm: it publishes only ``jaco/joint_states``
 (``sensor_msgs/JointState``), ``jaco/effort_command`` (``std_msgs/Float64MultiArray``) and
 ``jaco/skill_id`` (``std_msgs/Int32``, the digit being pressed: an id), no episode markers and no
-sketch, with pauses of at least 1 s between episodes (see ``docs/dial.md``).  The commands, printed as
-they run::
+sketch, with pauses of at least 1 s between episodes (see ``sim_nodes/dial/node.py``).  The commands,
+printed as they run::
 
     # 1. record (twice: training episodes, then held-out episodes from other seeds)
     bag_recorder --ros-args -p output:=OUT/bags/train \\
@@ -18,9 +18,12 @@ they run::
     # 3. train
     ompn_train --bags OUT/bags/train --config config/train_dial.yaml --out OUT/model \\
         --set data.domain=null --set data.reader_spec=config/reader_dial_robot.yaml
-    # 4. segment the held-out episodes, against the sim's skill ids
-    ompn_segment --bag OUT/bags/heldout --checkpoint OUT/model/best \\
-        --reader-config config/reader_dial_robot.yaml --out OUT/segment
+    # 4. tune the online detector on the training bag, then segment the held-out episodes
+    #    against the sim's skill ids (prints F1 and alignment of the online and offline detectors)
+    ompn_segment --tune --objective align --bag OUT/bags/train --checkpoint OUT/model/best \\
+        --reader-config config/reader_dial_robot.yaml --write-config OUT/ompn_node_robot.yaml
+    ompn_segment --bag OUT/bags/heldout --checkpoint OUT/model/best --reader-config \\
+        config/reader_dial_robot.yaml --detector-config OUT/ompn_node_robot.yaml --out OUT/segment
     # 5. live: ompn_node on jaco/joint_states (see live_step below)
 
 ``rate:=0`` runs the sim as fast as it can; its JointState publisher is then made RELIABLE
@@ -165,11 +168,26 @@ def train(flow: Flow, bag: Path, env: dict[str, str]) -> Path:
     return out / "best"
 
 
-def segment(flow: Flow, bag: Path, checkpoint: Path, env: dict[str, str]) -> dict[str, Any]:
-    """Step 4: ``ompn_segment`` on the held-out bag; returns its metrics (online and offline detectors)."""
+def tune(flow: Flow, bag: Path, checkpoint: Path, env: dict[str, str]) -> Path:
+    """Step 4a: ``ompn_segment --tune`` on the training bag: online detector settings for this checkpoint
+    (objective: alignment, as for Dial), written as an ``ompn_node`` params file."""
+    out = flow.out / "ompn_node_robot.yaml"
+    argv = _command("ompn_ros.cli.segment", "--tune", "--objective", "align", "--bag", str(bag),
+                    "--checkpoint", str(checkpoint), "--reader-config", str(READER),
+                    "--write-config", str(out))
+    _show("tune", argv)
+    _run(argv, env, flow.timeout_s, "tune")
+    return out
+
+
+def segment(flow: Flow, bag: Path, checkpoint: Path, detector: Path | None,
+            env: dict[str, str]) -> dict[str, Any]:
+    """Step 4b: ``ompn_segment`` on the held-out bag; returns its metrics (online and offline detectors)."""
     out = flow.out / "segment"
     argv = _command("ompn_ros.cli.segment", "--bag", str(bag), "--checkpoint", str(checkpoint),
                     "--reader-config", str(READER), "--out", str(out), "--plot-episodes", "2")
+    if detector is not None:
+        argv += ["--detector-config", str(detector)]
     _show("segment", argv)
     _run(argv, env, flow.timeout_s, "segment")
     path = out / "metrics.json"
@@ -229,7 +247,9 @@ def run(flow: Flow) -> dict[str, Any]:
     lap("read")
     checkpoint = train(flow, train_bag, env)
     lap("train")
-    metrics = segment(flow, heldout_bag, checkpoint, env)
+    detector = tune(flow, train_bag, checkpoint, env)
+    lap("tune")
+    metrics = segment(flow, heldout_bag, checkpoint, detector, env)
     lap("segment")
     live_step(flow, checkpoint)
     first = train_read.episodes[0]

@@ -9,7 +9,8 @@
 #              action = effort command, labels = skill ids, episodes split at the pauses
 #   3. train   ompn_train --bags OUT/bags/train --config config/train_dial.yaml \
 #                --set data.domain=null --set data.reader_spec=config/reader_dial_robot.yaml
-#   4. segment ompn_segment --bag OUT/bags/heldout --checkpoint OUT/model/best \
+#   4. segment ompn_segment --tune on the training bag (online detector settings for this model),
+#              then ompn_segment --bag OUT/bags/heldout --checkpoint OUT/model/best \
 #                --reader-config config/reader_dial_robot.yaml   (prints F1@1 and alignment)
 #   5. live    ompn_node on jaco/joint_states: not wired yet (placeholder in own_robot.py)
 #
