@@ -56,6 +56,10 @@ colcon: setup
 bench: setup
 	$(PY) bench/run_all.py
 
+.PHONY: bench-own-robot
+bench-own-robot: setup
+	$(PY) bench/bench_own_robot.py
+
 doctor: setup
 	$(PY) -m ompn_ros.cli.demo --smoke
 

@@ -9,7 +9,10 @@ from .errors import (
     BagError,
     BagNotFoundError,
     CorruptBagError,
+    LabelError,
     MissingTopicError,
+    NoEpisodeError,
+    NonFiniteValueError,
     ReaderSpecError,
     TopicTypeError,
     UnknownTypeError,
@@ -18,7 +21,8 @@ from .errors import (
 
 __all__ = [
     "AlignmentError", "BagError", "BagNotFoundError", "BagReport", "CorruptBagError", "Episode",
-    "EpisodeArrays", "EpisodeBagWriter", "MissingTopicError", "ReadReport", "ReadResult",
+    "EpisodeArrays", "EpisodeBagWriter", "LabelError", "MissingTopicError", "NoEpisodeError",
+    "NonFiniteValueError", "ReadReport", "ReadResult",
     "ReaderSpec", "ReaderSpecError", "TopicTypeError", "UnknownTypeError", "VectorLengthError",
     "VectorSource", "load_arrays", "read_episodes", "write_episodes",
 ]

@@ -45,10 +45,15 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
     windows = _windows(ctx, topics, dec)
     used = sum(w.stop_obs - w.first_obs for w in windows)
     report._add(report.unattached, topics.obs, len(dec.obs_stamps) - used)
+    if dec.assembled is not None:
+        for key, n in dec.assembled.dropped.items():
+            report._add(report.obs_dropped, key, n)
+        for key, n in dec.assembled.rejected.items():
+            report._add(report.obs_rejected, key, n)
     episodes: list[Episode] = []
     prev_stop_stamp = -1
     for w in windows:
-        if not _trusted(ctx, dec, w):
+        if not _trusted(ctx, dec, w) or not _ends_kept(ctx, dec, w):
             continue
         steps = _steps(ctx, topics, dec, partners, w, len(episodes))
         if steps is None:
@@ -73,6 +78,20 @@ def _trusted(ctx: BagContext, dec: Decoded, w: Window) -> bool:
         if w.first_obs <= row < w.stop_obs:
             ctx.report.drop_episode("non-finite values", f"{err}; episode dropped")
             return False
+    return True
+
+
+def _ends_kept(ctx: BagContext, dec: Decoded, w: Window) -> bool:
+    """``ReaderSpec.assemble``: end the window at its last row the observation rule kept (row ``T``
+    must be a real observation); False (and the drop reported) when it kept none."""
+    if dec.assembled is None:
+        return True
+    kept = np.flatnonzero(dec.assembled.kept[w.first_obs:w.stop_obs])
+    if kept.size == 0:
+        ctx.report.drop_episode("no observation kept", f"the observation rule dropped every step of the "
+                                f"episode of observations #{w.first_obs}..#{w.stop_obs - 1}")
+        return False
+    w.stop_obs = w.first_obs + int(kept[-1]) + 1
     return True
 
 
@@ -122,6 +141,8 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
     steps = _final_observation(ctx, topics, dec, w, number) if act[b - 1] >= 0 else np.arange(a, b - 1)
     if steps is None:
         return None
+    if dec.assembled is not None:  # steps the observation rule dropped (counted in obs_dropped)
+        steps = steps[dec.assembled.kept[steps]]
     lacking = steps[act[steps] < 0]
     if lacking.size:
         report._add(report.missing, topics.act, lacking.size)
@@ -166,6 +187,8 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
     actions = dec.act[partners.act[steps]]
     sketch = _episode_sketch(dec.sketches, w, int(dec.obs_stamps[w.first_obs]), prev_stop_stamp)
     subtask, extras = _labels(ctx, topics, dec, partners, w, steps, sketch, number)
+    if dec.assembled is not None:
+        extras["obs_names"] = list(dec.assembled.names)
     if partners.joints is not None and dec.joints is not None:
         extras.update(_joint_extras(ctx, topics.joints or "", partners.joints, dec.joints, steps, final))
     task = w.start.get(layout.KEY_TASK, ctx.spec.task)

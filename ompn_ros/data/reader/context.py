@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -12,6 +12,7 @@ from ompn_ros import layout
 from .. import messages as m
 from ..bag_writer import resolve_topic
 from ..errors import MissingTopicError, TopicTypeError, UnknownTypeError
+from ..obs.spec import ObservationSpec, canonical_type
 from .raw import RawBag
 from .report import BagReport
 from .spec import ACTION_TYPES, VECTOR_TYPES, ReaderSpec
@@ -31,10 +32,12 @@ class Topics:
     joints: str | None = None
     split: str | None = None
     labels: str = layout.LABELS_NONE  # the effective label kind ('none' when there is no topic)
+    assemble: ObservationSpec | None = None  # ReaderSpec.assemble with the bag's topic names
 
     def used(self) -> list[str]:
         names = (self.obs, self.act, self.sub, self.sketch, self.episode, self.joints, self.split)
-        return sorted({t for t in names if t})
+        partners = self.assemble.partner_topics if self.assemble is not None else ()
+        return sorted({t for t in (*names, *partners) if t})
 
 
 class BagContext:
@@ -68,13 +71,15 @@ class BagContext:
     def resolve_all(self) -> Topics:
         """Resolve and type-check every topic of the spec (raises on a missing required one)."""
         spec = self.spec
-        obs = self.resolve(spec.observation.topic, True)
+        assemble = self._resolve_assemble()
+        obs = assemble.step_topic if assemble is not None else self.resolve(spec.observation.topic, True)
         act = self.resolve(spec.action.topic, True)
         assert obs is not None and act is not None  # required=True raised otherwise
         sub, labels = self._label_topic()
         topics = Topics(
-            obs=obs, act=act,
-            obs_type=self.check_type(obs, VECTOR_TYPES, spec.observation.type),
+            obs=obs, act=act, assemble=assemble,
+            obs_type=self.raw.types[obs] if assemble is not None else
+            self.check_type(obs, VECTOR_TYPES, spec.observation.type),
             act_type=self.check_type(act, ACTION_TYPES, spec.action.type),
             sub=sub, labels=labels,
             sketch=self.resolve(spec.sketch, False),
@@ -89,6 +94,26 @@ class BagContext:
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
             self.check_type(sub, (layout.INT32,), layout.INT32)
         return topics
+
+    def _resolve_assemble(self) -> ObservationSpec | None:
+        """``spec.assemble`` with bag topic names; each topic resolved (required) and type-checked."""
+        asm = self.spec.assemble
+        if asm is None:
+            return None
+        names: dict[str, str] = {}
+        for name, want in asm.topics.items():
+            topic = self.resolve(name, True)
+            assert topic is not None  # required=True raised otherwise
+            got = self.raw.types[topic]
+            if got not in m.typestore().types:
+                raise UnknownTypeError(f"message type '{got}' is not in the ROS 2 Jazzy typestore",
+                                       path=self.path, topic=topic, index=0)
+            if canonical_type(got) != want:
+                raise TopicTypeError(f"carries '{got}', the reader spec's assemble block expects '{want}'",
+                                     path=self.path, topic=topic, index=0)
+            names[name] = topic
+        fields = tuple(replace(f, topic=names[f.topic]) for f in asm.fields)
+        return replace(asm, step_topic=names[asm.step_topic], fields=fields)
 
     def _label_topic(self) -> tuple[str | None, str]:
         """The subtask topic and the effective label kind (``labels: None`` = ordinal if present)."""
@@ -110,6 +135,7 @@ class BagContext:
             order = np.argsort(stamps, kind="stable")
             stamps = stamps[order]
             tdata.raws = [tdata.raws[i] for i in order]
+            tdata.seqs = [tdata.seqs[i] for i in order]
             tdata.stamps = stamps.tolist()
         return stamps, tdata.raws
 

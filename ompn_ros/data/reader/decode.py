@@ -25,9 +25,12 @@ from ompn_ros import layout
 
 from .. import messages as m
 from ..errors import BagError, CorruptBagError, NonFiniteValueError
+from ..obs.spec import FLOAT64_ARRAY
 from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors
+from .observe import AssembledRows, assembled_rows
 from .spec import OnError, VectorSource
+from .vectors import stack_float64_arrays
 from .verify import nonfinite_rows
 
 T = TypeVar("T")
@@ -51,6 +54,7 @@ class Decoded:
     split_stamps: np.ndarray | None = None  # messages of the split topic
     obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
     nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
+    assembled: AssembledRows | None = None  # ReaderSpec.assemble: kept rows, names, drops by reason
 
 
 def decode_bag(ctx: BagContext, topics: Topics, on_error: OnError) -> Decoded:
@@ -102,9 +106,15 @@ def _guard(errors: list[BagError] | None, fn: Callable[[], T]) -> T | None:
 
 def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) -> Decoded:
     out = Decoded()
-    obs = _guard(errors, lambda: _observations(ctx, topics))
-    if obs is not None:
-        out.obs, out.obs_stamps, out.obs_order = obs[0], obs[1], obs[2]
+    if topics.assemble is not None:
+        out.assembled = rows = assembled_rows(ctx, topics.assemble)  # drops, never raises, on bad messages
+        out.obs, out.obs_stamps, out.obs_order = rows.values, rows.stamps, rows.order
+        # rows and ctx.data() are both the step messages stably sorted by log stamp: no reorder for actions
+        obs: ObsParts | None = (rows.values, rows.stamps, None, ctx.data(topics.obs)[0], None)
+    else:
+        obs = _guard(errors, lambda: _observations(ctx, topics))
+        if obs is not None:
+            out.obs, out.obs_stamps, out.obs_order = obs[0], obs[1], obs[2]
     act = _guard(errors, lambda: _actions(ctx, topics, obs))  # decoded even after a bad observation
     if act is not None:
         out.act, out.act_stamps = act
@@ -180,6 +190,8 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
     if msgtype == layout.FLOAT32_ARRAY:
         values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
         return values, stamps, None
+    if msgtype == FLOAT64_ARRAY:
+        return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps), stamps, None
     block = decode_joint_states(ctx.path, topic, stamps, raws)
     values = joint_vectors(ctx.path, topic, src, stamps, block)
     return values, (block.header if ctx.spec.stamp == "header" else stamps), block

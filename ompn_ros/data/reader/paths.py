@@ -89,6 +89,7 @@ def wanted_topics(spec: ReaderSpec, types: dict[str, str]) -> set[str]:
 
 def spec_topic_names(spec: ReaderSpec) -> list[str]:
     """Every topic name the spec refers to (as written in the spec)."""
-    names = [spec.observation.topic, spec.action.topic, spec.subtask, spec.sketch, spec.episode,
-             spec.joint_states, spec.split_topic]
+    observed = list(spec.assemble.topics) if spec.assemble is not None else [spec.observation.topic]
+    names = [*observed, spec.action.topic, spec.subtask, spec.sketch, spec.episode, spec.joint_states,
+             spec.split_topic]
     return [n for n in names if n is not None]

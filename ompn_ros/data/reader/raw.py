@@ -17,11 +17,13 @@ from .paths import storage_files
 
 @dataclass
 class TopicData:
-    """Stamps (ns, as read) and raw CDR messages of one topic."""
+    """Stamps (ns, as read), raw CDR messages and record positions (``seqs``: the message's index
+    in the bag's record order, across topics) of one topic."""
 
     msgtype: str
     stamps: list[int] = field(default_factory=list)
     raws: list[bytes] = field(default_factory=list)
+    seqs: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -33,9 +35,11 @@ class RawBag:
     topics: dict[str, TopicData]
     corrupt: CorruptBagError | None = None
     untrusted: str | None = None  # damage found that no scan could locate: no episode is trusted
+    count: int = 0  # messages read so far (wanted or not): the next record position
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""
+        self.count += 1
         if wanted is not None and topic not in wanted:
             return
         tdata = self.topics.get(topic)
@@ -43,6 +47,7 @@ class RawBag:
             tdata = self.topics[topic] = TopicData(msgtype)
         tdata.stamps.append(stamp)
         tdata.raws.append(data)
+        tdata.seqs.append(self.count - 1)
 
     def truncate(self, stamp: int) -> None:
         """Drop every message stamped at or after ``stamp`` (the corrupt tail)."""
@@ -51,6 +56,7 @@ class RawBag:
             if len(keep) != len(tdata.stamps):
                 tdata.stamps = [tdata.stamps[i] for i in keep]
                 tdata.raws = [tdata.raws[i] for i in keep]
+                tdata.seqs = [tdata.seqs[i] for i in keep]
 
 
 def collect_rosbags(bag: Path, wanted: set[str] | None) -> RawBag:
@@ -80,6 +86,7 @@ def collect_rosbags(bag: Path, wanted: set[str] | None) -> RawBag:
                 tdata = by_id[conn.id]
                 tdata.stamps.append(stamp)
                 tdata.raws.append(data)
+                tdata.seqs.append(read)
                 read += 1
     except Exception as err:  # any storage error ends the read; the caller decides what to keep
         raw.corrupt = CorruptBagError(f"read failed after {read} messages: {type(err).__name__} {err}",
@@ -89,4 +96,5 @@ def collect_rosbags(bag: Path, wanted: set[str] | None) -> RawBag:
             reader.close()
         except Exception:  # closing a broken storage must not hide the real error
             pass
+    raw.count = read
     return raw

@@ -104,7 +104,7 @@ def _no_episode_reason(report: BagReport, obs_topic: str) -> str:
     parts = [f"{report.messages.get(obs_topic, 0)} observation(s) on '{obs_topic}'"]
     if report.dropped:
         parts.append(f"dropped episodes {report.dropped}")
-    for name in ("unattached", "missing"):
+    for name in ("obs_dropped", "unattached", "missing"):
         table = getattr(report, name)
         if table:
             parts.append(f"{name} {table}")

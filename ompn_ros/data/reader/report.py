@@ -17,8 +17,11 @@ class BagReport:
     """What was read from one bag, and what was not used.
 
     ``dropped`` maps a reason to the number of episodes dropped for it (``dropped_episodes`` is
-    their sum); ``guessed`` lists what the reader inferred rather than read (a topic found by its
-    suffix, a final observation duplicated, ordinals derived from ids); ``adjusted`` maps a
+    their sum); ``obs_dropped`` maps a reason of the observation rule (``ReaderSpec.assemble``:
+    ``missing``, ``stale``, ``malformed``, ``wrong_size``, ``wrong_type``) to the steps it dropped, and
+    ``obs_rejected`` counts the partner messages it rejected (``'<topic>: <reason>'``); ``guessed``
+    lists what the reader inferred rather than read (a topic found by its suffix, a final observation
+    duplicated, ordinals derived from ids); ``adjusted`` maps a
     ``final_observation`` / label handling to the episodes (by index in this bag) it applied to.
     """
 
@@ -31,6 +34,8 @@ class BagReport:
     duplicates: dict[str, int] = field(default_factory=dict)  # extra partners for one step
     unattached: dict[str, int] = field(default_factory=dict)  # messages attached to no step
     dropped_steps: int = 0
+    obs_dropped: dict[str, int] = field(default_factory=dict)  # reason -> steps (ReaderSpec.assemble)
+    obs_rejected: dict[str, int] = field(default_factory=dict)  # '<topic>: <reason>' -> messages
     dropped_episodes: int = 0
     dropped: dict[str, int] = field(default_factory=dict)  # reason -> episodes
     final_duplicated: int = 0  # episodes whose row T duplicates the last observation
@@ -59,6 +64,8 @@ class BagReport:
                 text += f"; {name} {table}"
         if self.dropped_steps:
             text += f"; dropped steps {self.dropped_steps}"
+        if self.obs_dropped:
+            text += f"; observation rule dropped steps {self.obs_dropped}"
         if self.dropped_episodes:
             text += f"; dropped episodes {self.dropped_episodes} {self.dropped or ''}".rstrip()
         if self.final_duplicated:
@@ -84,7 +91,7 @@ class ReadReport:
 
     def total(self, name: str) -> dict[str, int]:
         """Sum the per-topic table ``name`` ('missing', 'duplicates', 'unattached', 'messages',
-        'dropped')."""
+        'dropped', 'obs_dropped', 'obs_rejected')."""
         out: dict[str, int] = {}
         for bag in self.bags:
             for topic, n in getattr(bag, name).items():
@@ -103,6 +110,10 @@ class ReadReport:
         if dropped or steps:
             reasons = ", ".join(f"{n} {reason}" for reason, n in dropped.items())
             lines.append(f"dropped: {sum(dropped.values())} episode(s) ({reasons or '-'}), {steps} step(s)")
+        obs_dropped = self.total("obs_dropped")
+        if obs_dropped:
+            reasons = ", ".join(f"{n} {reason}" for reason, n in obs_dropped.items())
+            lines.append(f"observation rule dropped {sum(obs_dropped.values())} step(s) ({reasons})")
         dup = self.total("duplicates")
         final = sum(b.final_duplicated for b in self.bags)
         if dup or final:
@@ -128,6 +139,7 @@ class ReadReport:
             "episodes": self.episodes,
             "steps": self.steps,
             "dropped": self.total("dropped"),
+            "obs_dropped": self.total("obs_dropped"),
             "errors": self.errors,
             "bags": [asdict(b) for b in self.bags],
         }

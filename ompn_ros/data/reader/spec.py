@@ -15,6 +15,7 @@ import yaml
 from ompn_ros import layout
 
 from ..errors import ReaderSpecError
+from ..obs.spec import FLOAT64_ARRAY, ObservationSpec, ObservationSpecError
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
@@ -22,8 +23,8 @@ FinalObservation = Literal["drop_last_step", "duplicate", "require"]
 Split = Literal["auto", "markers", "gaps", "topic"]
 FINAL_OBSERVATION = ("drop_last_step", "duplicate", "require")
 SPLITS = ("auto", "markers", "gaps", "topic")
-VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.JOINT_STATE)
-ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.JOINT_STATE)
+VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
+ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,8 @@ class VectorSource:
 
     Attributes:
         topic: topic name (relative names resolve in ``ReaderSpec.namespace``).
-        type: ``Float32MultiArray``, ``JointState`` or (actions) ``Int32``; ``None`` = as in the bag.
+        type: ``Float32MultiArray``, ``Float64MultiArray`` (read as float32), ``JointState`` or
+            (actions) ``Int32``; ``None`` = as in the bag.
         dim: expected vector size (checked), ``None`` = the size of the topic's first message.
         fields: JointState fields concatenated in this order (``position``/``velocity``/``effort``).
         joint_names: JointState joint order (by name); ``None`` = the message's own order.
@@ -54,6 +56,9 @@ class VectorSource:
                                   f"expected one of {ACTION_TYPES}")
 
 
+DEFAULT_OBSERVATION = VectorSource(layout.OBSERVATION)
+
+
 @dataclass(frozen=True)
 class ReaderSpec:
     """Which topics and types make up an episode, and how to align and split them.
@@ -61,6 +66,16 @@ class ReaderSpec:
     Attributes:
         observation, action: the per-step vectors (the action may come from the observation
             topic itself, e.g. ``JointState.velocity``: then every observation has its action).
+        assemble: an observation made of named fields of one or more topics (YAML key
+            ``assemble``: an :class:`~ompn_ros.data.obs.ObservationSpec` block, the form the live
+            assembler takes); it replaces ``observation``.  The observations are those of
+            :func:`~ompn_ros.data.obs.assemble_stream` over the bag's messages in record order (the
+            live rule: the latest message of each topic at or before the step message, within
+            ``tolerance_s``).  Every message of its ``step_topic`` is a step: the step clock is their
+            log stamps (so ``stamp`` must be ``log``), actions and labels attach to it, then the
+            steps the rule dropped are removed (counted by reason in ``BagReport.obs_dropped``).
+            ``Episode.extras['obs_names']`` names the elements.  Relative topic names resolve like
+            every other topic of the spec.
         subtask, sketch, episode, joint_states: optional topics (``None`` = not used; absent from
             a bag = not used).  ``joint_states`` fills ``Episode.extras['joint_*']``.
         namespace: resolves relative topic names; a relative name absent under it falls back to
@@ -108,7 +123,8 @@ class ReaderSpec:
         split_topic: the topic for ``split: topic`` (any message type; only stamps are used).
     """
 
-    observation: VectorSource = VectorSource(layout.OBSERVATION)
+    observation: VectorSource = DEFAULT_OBSERVATION
+    assemble: ObservationSpec | None = None
     action: VectorSource = VectorSource(layout.ACTION, type=None)
     subtask: str | None = layout.SUBTASK
     sketch: str | None = layout.SKETCH
@@ -135,6 +151,18 @@ class ReaderSpec:
                                   f"{self.tolerance})")
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
+        if self.assemble is not None:
+            self._check_assemble()
+
+    def _check_assemble(self) -> None:
+        if not isinstance(self.assemble, ObservationSpec):
+            raise ReaderSpecError(f"assemble must be an ObservationSpec, got {type(self.assemble).__name__}")
+        if self.observation != DEFAULT_OBSERVATION:
+            raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields of "
+                                  "several topics), not both")
+        if self.stamp != "log":
+            raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
+                                  "(assemble's own 'stamp' key chooses the stamps of its rule)")
 
     def _check_choices(self) -> None:
         if self.labels is not None and self.labels not in layout.LABEL_KINDS:
@@ -176,6 +204,8 @@ class ReaderSpec:
         for key in ("observation", "action"):
             if key in kwargs:
                 kwargs[key] = _vector_source(key, kwargs[key])
+        if kwargs.get("assemble") is not None:
+            kwargs["assemble"] = _observation_spec(kwargs["assemble"])
         try:
             return cls(**kwargs)
         except TypeError as err:
@@ -200,7 +230,17 @@ class ReaderSpec:
             src = out[key]
             src["fields"] = list(src["fields"])
             src["joint_names"] = None if src["joint_names"] is None else list(src["joint_names"])
+        out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
         return out
+
+
+def _observation_spec(value: Any) -> ObservationSpec:
+    if isinstance(value, ObservationSpec):
+        return value
+    try:
+        return ObservationSpec.from_dict(value)
+    except ObservationSpecError as err:
+        raise ReaderSpecError(f"assemble: {err}") from err
 
 
 def _vector_source(key: str, value: Any) -> VectorSource:

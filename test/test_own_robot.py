@@ -1,0 +1,56 @@
+"""examples/own_robot.py, steps 1-4 at test size: dial_sim profile:=robot recorded by bag_recorder, read
+with config/reader_dial_robot.yaml, ompn_train, ompn_segment on a held-out bag."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("sim_nodes.dial.node")
+
+from ompn_ros.data import ReaderSpec, read_episodes
+from sim_nodes import derive_seed
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _example() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("own_robot", ROOT / "examples" / "own_robot.py")
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["own_robot"] = module  # dataclasses resolve the module by name
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_own_robot_flow(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    from sim_nodes.dial import generate_episode
+
+    own = _example()
+    summary = own.run(own.Flow(tmp_path, episodes=2, heldout=1, iterations=2, seed=5, timeout_s=300,
+                                threads=1))
+    assert (summary["train_episodes"], summary["heldout_episodes"]) == (2, 1)
+    assert (summary["obs_dim"], summary["action_dim"]) == (18, 9)
+    names = summary["obs_names"]
+    assert len(names) == 18 and names[0].endswith("position/jaco_joint_1") and "velocity" in names[9]
+    # the recorded episodes are the sim's demonstrations: joints, efforts and skill ids, nothing lost
+    eps = read_episodes(tmp_path / "bags" / "train", spec=ReaderSpec.from_yaml(own.READER)).episodes
+    for i, ep in enumerate(eps):
+        demo = generate_episode(derive_seed(5, i))
+        assert ep.length == demo.length
+        assert np.allclose(ep.observations[:, :9], demo.extras["joint_position"], atol=1e-5)
+        assert np.allclose(ep.observations[:, 9:], demo.extras["joint_velocity"], atol=1e-4)
+        assert np.allclose(ep.actions, demo.extras["joint_effort"][1:], rtol=1e-5, atol=1e-4)
+        ids = ep.extras["subtask_id"]
+        assert [int(d) for k, d in enumerate(ids) if k == 0 or d != ids[k - 1]] == demo.sketch.tolist()
+        assert np.array_equal(ep.subtask, demo.subtask)
+    # held-out metrics of the online and offline detectors, all in [0, 1]
+    head = summary["headline"]
+    assert {"online.f1_tol1", "online.align"} <= set(head)
+    assert all(0.0 <= v <= 1.0 for v in head.values()), head
