@@ -1,4 +1,4 @@
-"""The memory-mapped cache entry: values round-trip, step arrays are read-only memmaps, stale entries rebuild."""
+"""The memory-mapped cache entry: values round-trip, step arrays are read-only memmaps, stale ones rebuild."""
 
 from __future__ import annotations
 

@@ -1,0 +1,232 @@
+"""Benchmark: memory while reading bags into the episode cache, and training from the memory-mapped cache.
+
+1. **Reading.**  A Craft bag of a given size is generated with
+   :func:`ompn_ros.experiments.collect.collect` (one part, expert episodes; quick ~50 MB, full
+   ~230 MB).  Child processes report their peak RSS (``VmHWM``) for: the bag reader alone
+   (``read_episodes``), the in-memory path (``load_arrays(use_cache=False)``: parse + concatenate),
+   building the cache (``load_arrays``: one bag at a time, appended to ``.npy`` files), and a
+   cache hit that touches every episode.  Figures: peak RSS in MB, as a ratio to the bag size, and
+   the part above the process's RSS after imports (``*_over_imports``).
+2. **Throughput.**  Frames/s of :func:`ompn_ros.train.trainer.train_step` (a small OMPN, batches of
+   whole episodes cycling through the dataset, 1 thread) on episodes that are views into the
+   memory-mapped cache vs on an in-memory copy of the same arrays; rounds alternate and the best
+   round of each counts.  The page cache is warm (the cache was just built).
+3. **Memory limit.**  A child builds the model, runs one warm-up step, then sets
+   ``RLIMIT_DATA`` (private writable memory: heap and anonymous maps; read-only file maps are not
+   counted) to what it uses plus half the cache size, trains over every episode of the mapped cache
+   (every page is read) and then tries to copy the cache into memory, which the limit must refuse.
+   ``RLIMIT_AS`` cannot show this: a file map counts towards the address space, so mapping a cache
+   bigger than the limit fails by design (the child tries and reports the error).  A cgroup
+   ``memory.max`` limit is used neither: it needs a writable cgroup v2 hierarchy of our own.
+
+    .venv/bin/python bench/bench_memory.py [--quick]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+MB = 1 << 20
+EPISODE_BYTES = 104_000  # a Craft expert episode in an mcap bag, about (to size the bags)
+TASKS = ["makebed", "makeaxe", "makeshears"]
+
+
+def _status(field: str) -> int:
+    """A ``/proc/self/status`` figure in bytes (``VmHWM``, ``VmRSS``, ``RssAnon``, ``VmData``, ...)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    raise KeyError(field)
+
+
+def _dir_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+# ----------------------------------------------------------------------------------------- children
+def _child_read(mode: str, bag: str, cache_dir: str) -> dict[str, Any]:
+    from ompn_ros.data import ReaderSpec, load_arrays, read_episodes
+
+    spec = ReaderSpec.for_domain("craft")
+    imports = _status("VmRSS")
+    if mode == "reader":
+        n = len(read_episodes(bag, spec=spec).episodes)
+    elif mode == "memory":
+        n = len(load_arrays(bag, spec=spec, use_cache=False))
+    else:  # "build" (miss) or "hit": both end by touching every episode's rows
+        arrays = load_arrays(bag, spec=spec, cache_dir=cache_dir)
+        assert arrays.cache_hit == (mode == "hit"), mode
+        touched = [float(e.observations.sum()) for e in arrays.episodes()]
+        n = len(touched)
+    return {"peak": _status("VmHWM"), "imports": imports, "episodes": n}
+
+
+def _train_setup(entry: str) -> tuple[Any, Any, Any, Any, Any]:
+    import torch
+
+    from ompn_ros import layout
+    from ompn_ros.data.cache import EpisodeArrays
+    from ompn_ros.model.config import OMPNConfig
+    from ompn_ros.model.policy import OMPNPolicy
+    from ompn_ros.train.trainer import TrainConfig
+
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    arrays = EpisodeArrays.load(Path(entry))
+    config = OMPNConfig(obs_dim=layout.CRAFT.obs_dim, action_type="discrete",
+                        action_dim=layout.CRAFT.action_dim, n_slots=3, slot_size=32)
+    cfg = TrainConfig(lr=1e-3, batch_size=32, progress=False, threads=1)
+    policy = OMPNPolicy(config)
+    optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
+    return arrays, config, cfg, policy, optimizer
+
+
+def _child_throughput(entry: str, iterations: int, rounds: int) -> dict[str, Any]:
+    from ompn_ros.data.cache import EpisodeArrays
+    from ompn_ros.train.trainer import train_step
+
+    arrays, config, cfg, policy, optimizer = _train_setup(entry)
+    mapped = arrays.episodes()
+    variants = {"mmap": mapped, "memory": EpisodeArrays.from_episodes(mapped).episodes()}
+    n = len(variants["mmap"])
+    batches = [(i * cfg.batch_size) % n for i in range(iterations)]
+    train_step(policy, optimizer, variants["memory"][: cfg.batch_size], config, cfg)  # warm-up
+    best = {k: 0.0 for k in variants}
+    for _ in range(rounds):
+        for name, episodes in variants.items():
+            frames, start = 0, time.perf_counter()
+            for b in batches:
+                stats = train_step(policy, optimizer, episodes[b: b + cfg.batch_size], config, cfg)
+                frames += int(stats["global_valid"])
+            best[name] = max(best[name], frames / (time.perf_counter() - start))
+    return best
+
+
+def _child_limit(entry: str) -> dict[str, Any]:
+    from ompn_ros.data.cache import EpisodeArrays
+    from ompn_ros.train.trainer import train_step
+
+    arrays, config, cfg, policy, optimizer = _train_setup(entry)
+    episodes = arrays.episodes()
+    cache = _dir_bytes(Path(entry))
+    train_step(policy, optimizer, episodes[: cfg.batch_size], config, cfg)  # allocator pools, threads
+    limit = _status("VmData") + cache // 2
+    resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
+    out: dict[str, Any] = {"cache": cache, "limit": limit, "limit_over_imports": cache // 2}  # headroom
+    frames = 0
+    anon_peak = 0
+    try:
+        for b in range(0, len(episodes), cfg.batch_size):
+            stats = train_step(policy, optimizer, episodes[b: b + cfg.batch_size], config, cfg)
+            frames += int(stats["global_valid"])
+            anon_peak = max(anon_peak, _status("RssAnon"))
+        out["trained_frames"] = frames
+    except (MemoryError, RuntimeError) as err:  # torch reports a refused allocation as RuntimeError
+        out["train_error"] = f"training under the limit failed: {type(err).__name__} {str(err)[:100]}"
+    out.update(rss_anon_peak=anon_peak, rss_file=_status("RssFile"), peak_rss=_status("VmHWM"))
+    try:
+        copy = EpisodeArrays.from_episodes(episodes)
+        out["copy"] = f"succeeded ({copy.observations.nbytes // MB} MB): the limit is not binding"
+    except MemoryError as err:
+        out["copy"] = f"refused: MemoryError ({str(err)[:80]})"
+    return out
+
+
+def _child_limit_as(entry: str) -> dict[str, Any]:
+    from ompn_ros.data.cache import EpisodeArrays
+
+    cache = _dir_bytes(Path(entry))
+    limit = _status("VmSize") + cache // 2
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    try:
+        arrays = EpisodeArrays.load(Path(entry))
+        return {"rlimit_as": f"mapped {len(arrays)} episodes under RLIMIT_AS"}
+    except (MemoryError, OSError, ValueError) as err:
+        return {"rlimit_as": f"{type(err).__name__}: {str(err)[:100]}"}
+
+
+_CHILDREN: dict[str, Callable[..., dict[str, Any]]] = {"read": _child_read, "throughput": _child_throughput, "limit": _child_limit,
+             "limit_as": _child_limit_as}
+
+
+def _run_child(name: str, *args: Any) -> dict[str, Any]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
+    proc = subprocess.run([sys.executable, __file__, "--child", json.dumps([name, *args])], env=env,
+                          capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"bench_memory child '{name}' failed:\n{proc.stderr[-2000:]}")
+    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result
+
+
+# ------------------------------------------------------------------------------------------- parent
+def _make_bag(out: Path, megabytes: int) -> Path:
+    from ompn_ros.experiments.collect import collect
+
+    collect(out, domain="craft", tasks=TASKS, episodes=max(10, megabytes * MB // EPISODE_BYTES), seed=0,
+            progress=False, command=["bench_memory"])
+    return out / "part_000"
+
+
+def run(quick: bool = False) -> dict[str, tuple[float, str]]:
+    """Measure and print; returns name -> (value, unit)."""
+    megabytes, iterations, rounds = (50, 8, 3) if quick else (230, 20, 3)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_memory_"))
+    results: dict[str, tuple[float, str]] = {}
+    try:
+        bag = _make_bag(tmp / "bags", megabytes)
+        size = _dir_bytes(bag)
+        results["bag_size"] = (size / MB, "MB")
+        cache_dir = tmp / "cache"
+        for mode in ("reader", "memory", "build", "hit"):
+            res = _run_child("read", mode, str(bag), str(cache_dir))
+            results[f"{mode}_peak_rss"] = (res["peak"] / MB, "MB")
+            results[f"{mode}_peak_over_bag"] = (res["peak"] / size, "x")
+            results[f"{mode}_over_imports_over_bag"] = ((res["peak"] - res["imports"]) / size, "x")
+        entry = next(cache_dir.glob("episodes_*"))
+        results["cache_size"] = (_dir_bytes(entry) / MB, "MB")
+        fps = _run_child("throughput", str(entry), iterations, rounds)
+        results["train_mmap_frames_per_s"] = (fps["mmap"], "frames/s")
+        results["train_memory_frames_per_s"] = (fps["memory"], "frames/s")
+        results["train_mmap_over_memory"] = (fps["mmap"] / fps["memory"], "x")
+        lim = _run_child("limit", str(entry))
+        results["limit_rlimit_data"] = (lim["limit"] / MB, "MB")
+        results["limit_rlimit_data_headroom"] = (lim["limit_over_imports"] / MB, "MB")
+        results["limit_trained_frames"] = (float(lim.get("trained_frames", 0)), "frames")
+        results["limit_rss_anon_peak"] = (lim["rss_anon_peak"] / MB, "MB")
+        results["limit_peak_rss"] = (lim["peak_rss"] / MB, "MB")
+        notes = [f"in-memory copy under the limit: {lim['copy']}", lim.get("train_error", ""),
+                 "RLIMIT_AS: " + _run_child("limit_as", str(entry))["rlimit_as"]]
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"{'metric':<38}{'value':>12}  unit")
+    for name, (value, unit) in results.items():
+        print(f"{name:<38}{value:>12.3f}  {unit}")
+    for note in notes:
+        if note:
+            print(note)
+    return results
+
+
+def main() -> int:
+    if len(sys.argv) > 2 and sys.argv[1] == "--child":
+        name, *args = json.loads(sys.argv[2])
+        print(json.dumps(_CHILDREN[name](*args)))
+        return 0
+    run(quick="--quick" in sys.argv[1:])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
