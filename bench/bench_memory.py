@@ -155,8 +155,9 @@ def _child_limit_as(entry: str) -> dict[str, Any]:
         return {"rlimit_as": f"{type(err).__name__}: {str(err)[:100]}"}
 
 
-_CHILDREN: dict[str, Callable[..., dict[str, Any]]] = {"read": _child_read, "throughput": _child_throughput, "limit": _child_limit,
-             "limit_as": _child_limit_as}
+_CHILDREN: dict[str, Callable[..., dict[str, Any]]] = {
+    "read": _child_read, "throughput": _child_throughput, "limit": _child_limit, "limit_as": _child_limit_as,
+}
 
 
 def _run_child(name: str, *args: Any) -> dict[str, Any]:
