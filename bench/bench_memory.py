@@ -1,23 +1,28 @@
 """Benchmark: memory while reading bags into the episode cache, and training from the memory-mapped cache.
 
-1. **Reading.**  A Craft bag of a given size is generated with
-   :func:`ompn_ros.experiments.collect.collect` (one part, expert episodes; quick ~50 MB, full
-   ~230 MB).  Child processes report their peak RSS (``VmHWM``) for: the bag reader alone
-   (``read_episodes``), the in-memory path (``load_arrays(use_cache=False)``: parse + concatenate),
-   building the cache (``load_arrays``: one bag at a time, appended to ``.npy`` files), and a
-   cache hit that touches every episode.  Figures: peak RSS in MB, as a ratio to the bag size, and
-   the part above the process's RSS after imports (``*_over_imports``).
+Data: three Craft bags of about the same size (quick ~50 MB each, full ~230 MB each), generated
+with :func:`ompn_ros.experiments.collect.collect` (expert episodes, one run split into parts).
+
+1. **Reading.**  Child processes report their peak RSS (``VmHWM``) on the first bag for: the bag
+   reader alone (``read_episodes``), the in-memory path (``load_arrays(use_cache=False)``: parse +
+   concatenate), building the cache (``load_arrays``: bags read one at a time, episodes appended to
+   ``.npy`` files) and a cache hit that touches every episode (its pages are file-backed:
+   ``hit_rss_anon`` is the process's own memory).  Figures: peak RSS in MB, as a ratio to the bag
+   size, and the part above the RSS after imports (``*_over_imports_over_bag``).  ``build_all_*``:
+   building one cache from all three bags, whose peak is bounded by the largest bag, not the dataset.
 2. **Throughput.**  Frames/s of :func:`ompn_ros.train.trainer.train_step` (a small OMPN, batches of
-   whole episodes cycling through the dataset, 1 thread) on episodes that are views into the
-   memory-mapped cache vs on an in-memory copy of the same arrays; rounds alternate and the best
-   round of each counts.  The page cache is warm (the cache was just built).
-3. **Memory limit.**  A child builds the model, runs one warm-up step, then sets
-   ``RLIMIT_DATA`` (private writable memory: heap and anonymous maps; read-only file maps are not
-   counted) to what it uses plus half the cache size, trains over every episode of the mapped cache
-   (every page is read) and then tries to copy the cache into memory, which the limit must refuse.
-   ``RLIMIT_AS`` cannot show this: a file map counts towards the address space, so mapping a cache
-   bigger than the limit fails by design (the child tries and reports the error).  A cgroup
-   ``memory.max`` limit is used neither: it needs a writable cgroup v2 hierarchy of our own.
+   32 whole episodes cycling through the dataset, 1 thread) on episodes that are views into the
+   memory-mapped cache of the first bag vs on an in-memory copy of the same arrays; rounds alternate
+   and the best round of each counts.  The page cache is warm (the cache was just built).
+3. **Memory limit.**  On the three-bag cache, a child builds the model, runs one warm-up step, then
+   sets ``RLIMIT_DATA`` (private writable memory: heap and anonymous maps; read-only file maps are
+   not counted) to its current ``VmData`` plus a quarter of the cache size, trains over every
+   episode of the mapped cache (every page is read) and then tries to copy the cache into memory,
+   which the limit must refuse.  In the full run the cache is larger than the whole limit
+   (``limit_cache_over_limit`` > 1).  ``RLIMIT_AS`` cannot show this: a file map counts towards the
+   address space, so mapping a cache bigger than the limit fails by design (the child tries and
+   prints the error).  A cgroup ``memory.max`` is not used: it needs a cgroup v2 hierarchy the
+   benchmark may write to.
 
     .venv/bin/python bench/bench_memory.py [--quick]
 """
@@ -63,12 +68,14 @@ def _child_read(mode: str, bag: str, cache_dir: str) -> dict[str, Any]:
         n = len(read_episodes(bag, spec=spec).episodes)
     elif mode == "memory":
         n = len(load_arrays(bag, spec=spec, use_cache=False))
-    else:  # "build" (miss) or "hit": both end by touching every episode's rows
+    else:  # "build" (a miss) or "hit" (which then reads every episode's rows)
         arrays = load_arrays(bag, spec=spec, cache_dir=cache_dir)
         assert arrays.cache_hit == (mode == "hit"), mode
-        touched = [float(e.observations.sum()) for e in arrays.episodes()]
-        n = len(touched)
-    return {"peak": _status("VmHWM"), "imports": imports, "episodes": n}
+        n = len(arrays)
+        if mode == "hit":  # every page of the observations is read (file-backed, reclaimable)
+            checksum = sum(float(e.observations.sum()) for e in arrays.episodes())
+            assert checksum > 0, "a cache of Craft observations holds ones"
+    return {"peak": _status("VmHWM"), "imports": imports, "anon": _status("RssAnon"), "episodes": n}
 
 
 def _train_setup(entry: str) -> tuple[Any, Any, Any, Any, Any]:
@@ -120,9 +127,10 @@ def _child_limit(entry: str) -> dict[str, Any]:
     episodes = arrays.episodes()
     cache = _dir_bytes(Path(entry))
     train_step(policy, optimizer, episodes[: cfg.batch_size], config, cfg)  # allocator pools, threads
-    limit = _status("VmData") + cache // 2
+    headroom = cache // 4
+    limit = _status("VmData") + headroom
     resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
-    out: dict[str, Any] = {"cache": cache, "limit": limit, "limit_over_imports": cache // 2}  # headroom
+    out: dict[str, Any] = {"cache": cache, "limit": limit, "headroom": headroom}
     frames = 0
     anon_peak = 0
     try:
@@ -172,43 +180,67 @@ def _run_child(name: str, *args: Any) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------------- parent
-def _make_bag(out: Path, megabytes: int) -> Path:
+def _make_bags(out: Path, megabytes: int, parts: int) -> list[Path]:
+    """``parts`` Craft bags of about ``megabytes`` each (one ``collect`` run split into parts)."""
     from ompn_ros.experiments.collect import collect
 
-    collect(out, domain="craft", tasks=TASKS, episodes=max(10, megabytes * MB // EPISODE_BYTES), seed=0,
+    per_part = max(10, megabytes * MB // EPISODE_BYTES)
+    collect(out, domain="craft", tasks=TASKS, episodes=parts * per_part, seed=0, split_every=per_part,
             progress=False, command=["bench_memory"])
-    return out / "part_000"
+    return sorted(out.glob("part_*"))
+
+
+def _reading(bags: list[Path], tmp: Path) -> dict[str, tuple[float, str]]:
+    """Peak RSS of the read paths on one bag, and of building a cache from all of them."""
+    size = _dir_bytes(bags[0])
+    largest = max(_dir_bytes(b) for b in bags)
+    results: dict[str, tuple[float, str]] = {"bag_size": (size / MB, "MB")}
+    for mode in ("reader", "memory", "build", "hit"):
+        res = _run_child("read", mode, str(bags[0]), str(tmp / "cache1"))
+        results[f"{mode}_peak_rss"] = (res["peak"] / MB, "MB")
+        results[f"{mode}_peak_over_bag"] = (res["peak"] / size, "x")
+        results[f"{mode}_over_imports_over_bag"] = ((res["peak"] - res["imports"]) / size, "x")
+    results["hit_rss_anon"] = (res["anon"] / MB, "MB")
+    res = _run_child("read", "build", str(bags[0].parent), str(tmp / "cache_all"))
+    results["build_all_bags"] = (float(len(bags)), "bags")
+    results["build_all_dataset_size"] = (sum(_dir_bytes(b) for b in bags) / MB, "MB")
+    results["build_all_peak_rss"] = (res["peak"] / MB, "MB")
+    results["build_all_peak_over_largest_bag"] = (res["peak"] / largest, "x")
+    return results
+
+
+def _limits(entry: Path) -> tuple[dict[str, tuple[float, str]], list[str]]:
+    lim = _run_child("limit", str(entry))
+    results = {
+        "limit_cache_size": (lim["cache"] / MB, "MB"),
+        "limit_rlimit_data": (lim["limit"] / MB, "MB"),
+        "limit_rlimit_data_headroom": (lim["headroom"] / MB, "MB"),
+        "limit_cache_over_limit": (lim["cache"] / lim["limit"], "x"),
+        "limit_trained_frames": (float(lim.get("trained_frames", 0)), "frames"),
+        "limit_rss_anon_peak": (lim["rss_anon_peak"] / MB, "MB"),
+        "limit_peak_rss": (lim["peak_rss"] / MB, "MB"),
+    }
+    notes = [f"in-memory copy of the cache under RLIMIT_DATA: {lim['copy']}", lim.get("train_error", ""),
+             "RLIMIT_AS = VmSize + half the cache, mapping the cache: "
+             + _run_child("limit_as", str(entry))["rlimit_as"]]
+    return results, notes
 
 
 def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     """Measure and print; returns name -> (value, unit)."""
     megabytes, iterations, rounds = (50, 8, 3) if quick else (230, 20, 3)
     tmp = Path(tempfile.mkdtemp(prefix="bench_memory_"))
-    results: dict[str, tuple[float, str]] = {}
     try:
-        bag = _make_bag(tmp / "bags", megabytes)
-        size = _dir_bytes(bag)
-        results["bag_size"] = (size / MB, "MB")
-        cache_dir = tmp / "cache"
-        for mode in ("reader", "memory", "build", "hit"):
-            res = _run_child("read", mode, str(bag), str(cache_dir))
-            results[f"{mode}_peak_rss"] = (res["peak"] / MB, "MB")
-            results[f"{mode}_peak_over_bag"] = (res["peak"] / size, "x")
-            results[f"{mode}_over_imports_over_bag"] = ((res["peak"] - res["imports"]) / size, "x")
-        entry = next(cache_dir.glob("episodes_*"))
+        bags = _make_bags(tmp / "bags", megabytes, parts=3)
+        results = _reading(bags, tmp)
+        entry = next((tmp / "cache1").glob("episodes_*"))
         results["cache_size"] = (_dir_bytes(entry) / MB, "MB")
         fps = _run_child("throughput", str(entry), iterations, rounds)
         results["train_mmap_frames_per_s"] = (fps["mmap"], "frames/s")
         results["train_memory_frames_per_s"] = (fps["memory"], "frames/s")
         results["train_mmap_over_memory"] = (fps["mmap"] / fps["memory"], "x")
-        lim = _run_child("limit", str(entry))
-        results["limit_rlimit_data"] = (lim["limit"] / MB, "MB")
-        results["limit_rlimit_data_headroom"] = (lim["limit_over_imports"] / MB, "MB")
-        results["limit_trained_frames"] = (float(lim.get("trained_frames", 0)), "frames")
-        results["limit_rss_anon_peak"] = (lim["rss_anon_peak"] / MB, "MB")
-        results["limit_peak_rss"] = (lim["peak_rss"] / MB, "MB")
-        notes = [f"in-memory copy under the limit: {lim['copy']}", lim.get("train_error", ""),
-                 "RLIMIT_AS: " + _run_child("limit_as", str(entry))["rlimit_as"]]
+        limit_results, notes = _limits(next((tmp / "cache_all").glob("episodes_*")))
+        results.update(limit_results)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(f"{'metric':<38}{'value':>12}  unit")
