@@ -68,7 +68,12 @@ def _finish(tmp: Path, path: Path, index: dict[str, dict[str, Any]], report: str
     (tmp / INDEX).write_text(text + "\n")
     if path.exists():
         shutil.rmtree(path) if path.is_dir() else path.unlink()
-    tmp.rename(path)
+    try:
+        tmp.rename(path)
+    except OSError:
+        if not (path / INDEX).is_file():
+            raise
+        shutil.rmtree(tmp, ignore_errors=True)  # another process published the entry meanwhile
 
 
 def open_entry(path: Path) -> tuple[dict[str, Any], str]:
