@@ -12,8 +12,8 @@ with :func:`ompn_ros.experiments.collect.collect` (expert episodes, one run spli
    building one cache from all three bags, whose peak is bounded by the largest bag, not the dataset.
 2. **Throughput.**  Frames/s of :func:`ompn_ros.train.trainer.train_step` (a small OMPN, batches of
    32 whole episodes cycling through the dataset, 1 thread) on episodes that are views into the
-   memory-mapped cache of the first bag vs on an in-memory copy of the same arrays; rounds alternate
-   and the best round of each counts.  The page cache is warm (the cache was just built).
+   memory-mapped cache of the first bag vs on an in-memory copy of the same arrays, the two
+   interleaved step by step on the same batches.  The page cache is warm (the cache was just built).
 3. **Memory limit.**  On the three-bag cache, a child builds the model, runs one warm-up step, then
    sets ``RLIMIT_DATA`` (private writable memory: heap and anonymous maps; read-only file maps are
    not counted) to its current ``VmData`` plus a quarter of the cache size, trains over every
@@ -98,25 +98,27 @@ def _train_setup(entry: str) -> tuple[Any, Any, Any, Any, Any]:
     return arrays, config, cfg, policy, optimizer
 
 
-def _child_throughput(entry: str, iterations: int, rounds: int) -> dict[str, Any]:
+def _child_throughput(entry: str, iterations: int) -> dict[str, Any]:
+    """Frames/s per variant, the variants interleaved step by step (alternating which goes first),
+    so a change in the machine's load hits both alike."""
     from ompn_ros.data.cache import EpisodeArrays
     from ompn_ros.train.trainer import train_step
 
     arrays, config, cfg, policy, optimizer = _train_setup(entry)
     mapped = arrays.episodes()
     variants = {"mmap": mapped, "memory": EpisodeArrays.from_episodes(mapped).episodes()}
-    n = len(variants["mmap"])
-    batches = [(i * cfg.batch_size) % n for i in range(iterations)]
+    n = len(mapped)
     train_step(policy, optimizer, variants["memory"][: cfg.batch_size], config, cfg)  # warm-up
-    best = {k: 0.0 for k in variants}
-    for _ in range(rounds):
-        for name, episodes in variants.items():
-            frames, start = 0, time.perf_counter()
-            for b in batches:
-                stats = train_step(policy, optimizer, episodes[b: b + cfg.batch_size], config, cfg)
-                frames += int(stats["global_valid"])
-            best[name] = max(best[name], frames / (time.perf_counter() - start))
-    return best
+    seconds = {k: 0.0 for k in variants}
+    frames = {k: 0 for k in variants}
+    for i in range(iterations):
+        b = (i * cfg.batch_size) % n
+        for name in (("mmap", "memory") if i % 2 == 0 else ("memory", "mmap")):
+            start = time.perf_counter()
+            stats = train_step(policy, optimizer, variants[name][b: b + cfg.batch_size], config, cfg)
+            seconds[name] += time.perf_counter() - start
+            frames[name] += int(stats["global_valid"])
+    return {k: frames[k] / seconds[k] for k in variants}
 
 
 def _child_limit(entry: str) -> dict[str, Any]:
@@ -228,14 +230,14 @@ def _limits(entry: Path) -> tuple[dict[str, tuple[float, str]], list[str]]:
 
 def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     """Measure and print; returns name -> (value, unit)."""
-    megabytes, iterations, rounds = (50, 8, 3) if quick else (230, 20, 3)
+    megabytes, iterations = (50, 24) if quick else (230, 80)
     tmp = Path(tempfile.mkdtemp(prefix="bench_memory_"))
     try:
         bags = _make_bags(tmp / "bags", megabytes, parts=3)
         results = _reading(bags, tmp)
         entry = next((tmp / "cache1").glob("episodes_*"))
         results["cache_size"] = (_dir_bytes(entry) / MB, "MB")
-        fps = _run_child("throughput", str(entry), iterations, rounds)
+        fps = _run_child("throughput", str(entry), iterations)
         results["train_mmap_frames_per_s"] = (fps["mmap"], "frames/s")
         results["train_memory_frames_per_s"] = (fps["memory"], "frames/s")
         results["train_mmap_over_memory"] = (fps["mmap"] / fps["memory"], "x")
