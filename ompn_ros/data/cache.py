@@ -1,19 +1,30 @@
-"""Fast path for training: bags -> contiguous numpy arrays, cached on disk as ``.npz``.
+"""Fast path for training: bags -> contiguous numpy arrays, cached on disk and memory-mapped.
 
-:func:`load_arrays` reads bags with :func:`~ompn_ros.data.bag_reader.read_episodes` once and stores
-the concatenated arrays (observations, actions, subtasks, sketches, per-episode offsets and
-metadata) under ``cache_dir`` (default ``$OMPN_CACHE_DIR`` or ``~/.cache/ompn_ros``).  The cache key
-is a BLAKE2b hash of the bag files' **bytes** (plus their relative names, the reader spec and the
-format version), so editing or re-recording a bag always misses, whatever its size or mtime.
-Files are written with ``np.savez`` (no object arrays) and read with ``allow_pickle=False``.
+:func:`load_arrays` reads the bags **one at a time** with
+:func:`~ompn_ros.data.bag_reader.read_episodes` and appends each bag's episodes to the cache entry
+on disk before reading the next bag (:class:`~ompn_ros.data.cache_store.EntryWriter`), so building
+the cache holds one bag's parse in memory, never the whole dataset: peak memory is the reader's
+peak on the largest bag plus O(episodes) bookkeeping.  An entry is a directory of uncompressed
+``.npy`` files (observations, actions, subtasks, sketches, per-episode offsets and metadata) and
+``index.json``, under ``cache_dir`` (default ``$OMPN_CACHE_DIR`` or ``~/.cache/ompn_ros``).  It is
+opened with ``np.load(mmap_mode='r')``: the :class:`Episode` objects handed to training are
+read-only views into the mapped files, so training reads from disk (the page cache) and a dataset
+larger than the process's memory can be trained on.
+
+The cache key is a BLAKE2b hash of the bag files' **bytes** (plus their relative names, the reader
+spec and the format version), so editing or re-recording a bag always misses, whatever its size or
+mtime.  Entries of another format version (``CACHE_FORMAT``) are never hit: a stale entry found
+under the key is deleted and rebuilt, and the single-file ``episodes_*.npz`` entries of format 2
+are deleted from ``cache_dir`` when a new entry is built there.  Nothing is pickled.
 """
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import json
 import os
-import tempfile
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,13 +32,32 @@ from typing import Any
 
 import numpy as np
 
-from .bag_reader import OnError, ReaderSpec, read_episodes, resolve_bag_paths, storage_files
+from .bag_reader import OnError, ReaderSpec, ReadReport, read_episodes, resolve_bag_paths, storage_files
+from .cache_store import (
+    CACHE_FORMAT,
+    JOINT_KEYS,
+    STEP_KEYS,
+    CacheFormatError,
+    EntryWriter,
+    NpyAppendError,
+    open_entry,
+    write_entry,
+)
 from .episode import Episode
 
-CACHE_FORMAT = 2  # 2: per-step extras (the user's subtask ids)
 _CHUNK = 1 << 20
-_JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")
-_STEP_KEYS = ("subtask_id",)  # per-step extras [T] (labels: id)
+
+
+def _load_libc() -> ctypes.CDLL | None:
+    try:
+        libc = ctypes.CDLL(None)
+        return libc if hasattr(libc, "malloc_trim") else None  # glibc only
+    except OSError:
+        return None
+
+
+_LIBC = _load_libc()
+_LEGACY_GLOB = "episodes_*.npz"  # format 2 entries
 
 
 def default_cache_dir() -> Path:
@@ -102,11 +132,11 @@ class EpisodeArrays:
         sk = [np.zeros(0, np.int64) if e.sketch is None else np.asarray(e.sketch, np.int64) for e in episodes]
         sketch_offsets = np.concatenate([[0], np.cumsum([len(s) for s in sk])]).astype(np.int64)
         extras: dict[str, np.ndarray] = {}
-        for key in _JOINT_KEYS:
+        for key in JOINT_KEYS:
             if all(key in e.extras and len(e.extras[key]) == len(e.observations) for e in episodes):
                 extras[key] = np.concatenate([np.asarray(e.extras[key]) for e in episodes])
         step_extras = {key: np.concatenate([np.asarray(e.extras[key]) for e in episodes])
-                       for key in _STEP_KEYS
+                       for key in STEP_KEYS
                        if all(key in e.extras and len(e.extras[key]) == e.length for e in episodes)}
         return cls(
             observations=np.concatenate([e.observations for e in episodes]).astype(np.float32, copy=False),
@@ -132,36 +162,23 @@ class EpisodeArrays:
         out = {n: getattr(self, n) for n in names}
         out.update({f"extras__{k}": v for k, v in self.extras.items()})
         out.update({f"step_extras__{k}": v for k, v in self.step_extras.items()})
-        out["format"] = np.asarray(CACHE_FORMAT)
-        out["report"] = np.asarray(self.report, dtype=str)
         return out
 
     def save(self, path: Path) -> None:
-        """Write atomically as an uncompressed ``.npz`` (no pickled objects)."""
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=".npz", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **self._arrays())  # type: ignore[arg-type]
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write as a cache entry: a directory of ``.npy`` files and ``index.json``, atomically."""
+        write_entry(path, self._arrays(), self.report)
 
     @classmethod
     def load(cls, path: Path) -> EpisodeArrays:
-        """Read a cache file written by :meth:`save` (``allow_pickle=False``)."""
-        with np.load(path, allow_pickle=False) as data:
-            if int(data["format"]) != CACHE_FORMAT:
-                raise ValueError(f"cache file {path} has format {int(data['format'])}, "
-                                 f"expected {CACHE_FORMAT}")
-            arrays = {k: data[k] for k in data.files}
+        """Open an entry written by :meth:`save` or :func:`load_arrays`, step arrays memory-mapped.
+
+        Raises :class:`~ompn_ros.data.cache_store.CacheFormatError` (a ``ValueError``) for an entry
+        of another format version and ``OSError`` when it is missing.
+        """
+        arrays, report = open_entry(path)
         extras = {k[len("extras__"):]: arrays.pop(k) for k in list(arrays) if k.startswith("extras__")}
         step = {k[len("step_extras__"):]: arrays.pop(k) for k in list(arrays)
                 if k.startswith("step_extras__")}
-        arrays.pop("format")
-        report = str(arrays.pop("report"))
         return cls(**arrays, extras=extras, step_extras=step, report=report, cache_path=path)
 
 
@@ -193,27 +210,88 @@ def load_arrays(
     """Episodes of ``paths`` as :class:`EpisodeArrays`, from the on-disk cache when possible.
 
     A hit needs the same bag bytes, reader spec and ``on_error``; otherwise the bags are parsed
-    and (if ``use_cache``) the result is stored for the next call.
+    one at a time into a new entry (if ``use_cache``).  Either way the result's step arrays are
+    memory-mapped from the entry.  ``use_cache=False`` reads everything into memory instead (no
+    file written; memory grows with the dataset).
     """
     spec = spec or ReaderSpec()
     bags = resolve_bag_paths(paths)
+    if not use_cache:
+        return _in_memory(bags, spec, on_error)
     key = content_key(bags, spec, on_error)
-    cache_path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    file = cache_path / f"episodes_{key}.npz"
-    if use_cache and file.is_file():
-        try:
-            arrays = EpisodeArrays.load(file)
-            arrays.key, arrays.cache_hit = key, True
-            return arrays
-        except (OSError, ValueError, KeyError):
-            pass  # unreadable cache entry: rebuild it
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    entry = root / f"episodes_{key}"
+    hit = _open_hit(entry)
+    if hit is None:
+        _prune_legacy(root)
+        _build(bags, spec, on_error, entry)
+        hit = EpisodeArrays.load(entry)
+    else:
+        hit.cache_hit = True
+    hit.key = key
+    return hit
+
+
+def _open_hit(entry: Path) -> EpisodeArrays | None:
+    """The entry if it is complete and of this format; a stale or broken one is deleted."""
+    if not entry.exists():
+        return None
+    try:
+        return EpisodeArrays.load(entry)
+    except (OSError, ValueError, KeyError, TypeError):  # another format or a damaged entry: rebuild it
+        shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+        return None
+
+
+def _prune_legacy(root: Path) -> None:
+    """Delete format-2 entries (single ``.npz`` files); they can never be hit again."""
+    if root.is_dir():
+        for old in root.glob(_LEGACY_GLOB):
+            old.unlink(missing_ok=True)
+
+
+def _build(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path) -> None:
+    """Parse ``bags`` one at a time into the entry at ``entry`` (memory: one bag's parse)."""
+    report = ReadReport()
+    writer = EntryWriter(entry)
+    try:
+        for bag in bags:
+            result = read_episodes([bag], spec=spec, on_error=on_error)
+            report.bags.extend(result.report.bags)
+            try:
+                writer.add(result.episodes)
+            except NpyAppendError as err:
+                raise ValueError(f"bag {bag} does not fit the bags before it: {err}") from err
+            del result  # release this bag's parse before reading the next one
+            _release_freed_memory()
+        if len(writer) == 0:
+            raise ValueError(f"no episodes could be read from {[str(b) for b in bags]}:\n{report.summary()}")
+        writer.finish(report.summary())
+    except BaseException:
+        writer.abort()
+        raise
+
+
+def _release_freed_memory() -> None:
+    """Hand the heap pages freed by a bag's parse back to the OS (glibc ``malloc_trim``).
+
+    A bag's raw messages are many small blocks; glibc keeps them after they are freed, and the next
+    bag's parse does not always fit into them, so without trimming the RSS of a many-bag build
+    grows by up to a bag per bag.  No-op where the C library has no ``malloc_trim``.
+    """
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
+def _in_memory(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError) -> EpisodeArrays:
     result = read_episodes(bags, spec=spec, on_error=on_error)
     if not result.episodes:
         raise ValueError(f"no episodes could be read from {[str(b) for b in bags]}:\n"
                          f"{result.report.summary()}")
     arrays = EpisodeArrays.from_episodes(result.episodes)
-    arrays.key, arrays.report = key, result.report.summary()
-    if use_cache:
-        arrays.save(file)
-        arrays.cache_path = file
+    arrays.report = result.report.summary()
     return arrays
+
+
+__all__ = ["CACHE_FORMAT", "CacheFormatError", "EpisodeArrays", "content_key", "default_cache_dir",
+           "load_arrays"]

@@ -1,0 +1,191 @@
+"""The episode cache's on-disk entry: a directory of uncompressed ``.npy`` files and ``index.json``.
+
+An entry holds one ``.npy`` file per array (see :class:`~ompn_ros.data.cache.EpisodeArrays`) and
+``index.json`` (format version, every array's file, dtype and shape, the reader's report).  It is
+opened with ``np.load(mmap_mode='r')``: the step arrays (observations, actions, labels, sketches,
+joint extras) stay on disk and pages are read when touched, so a dataset larger than memory can be
+trained on; the per-episode arrays (offsets, seeds, ...) are small and read into memory.
+
+:class:`EntryWriter` builds an entry while bags are read: every episode's rows are appended to the
+files at once, so memory holds one bag's episodes at a time, never the dataset.  Entries are
+written into a temporary directory and renamed into place, so a reader never sees half an entry.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from .episode import Episode
+from .npy_append import NpyAppender, NpyAppendError
+
+CACHE_FORMAT = 3  # 3: a directory of .npy files, memory-mapped (2: one .npz read into memory)
+INDEX = "index.json"
+JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")  # [T + 1] extras
+STEP_KEYS = ("subtask_id",)  # per-step extras [T] (labels: id)
+STEP_ARRAYS = ("observations", "actions", "subtask", "sketch")  # memory-mapped (with the extras)
+
+
+class CacheFormatError(ValueError):
+    """A cache entry that cannot be used (another format version, or missing/short files)."""
+
+
+def _mapped(name: str) -> bool:
+    return name in STEP_ARRAYS or name.startswith(("extras__", "step_extras__"))
+
+
+def write_entry(path: Path, arrays: dict[str, np.ndarray], report: str) -> None:
+    """Write ``arrays`` as an entry at ``path`` (replacing an old one), atomically."""
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp_", dir=_parent(path)))
+    try:
+        index = {name: _save(tmp, name, np.asarray(arr)) for name, arr in arrays.items()}
+        _finish(tmp, path, index, report)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _parent(path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path.parent
+
+
+def _save(directory: Path, name: str, arr: np.ndarray) -> dict[str, Any]:
+    if arr.dtype == object:
+        raise CacheFormatError(f"array '{name}' holds Python objects; the cache stores plain arrays only")
+    np.save(directory / f"{name}.npy", arr, allow_pickle=False)
+    return {"file": f"{name}.npy", "dtype": arr.dtype.str, "shape": list(arr.shape)}
+
+
+def _finish(tmp: Path, path: Path, index: dict[str, dict[str, Any]], report: str) -> None:
+    text = json.dumps({"format": CACHE_FORMAT, "arrays": index, "report": report}, indent=1)
+    (tmp / INDEX).write_text(text + "\n")
+    if path.exists():
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+    try:
+        tmp.rename(path)
+    except OSError:
+        if not (path / INDEX).is_file():
+            raise
+        shutil.rmtree(tmp, ignore_errors=True)  # another process published the entry meanwhile
+
+
+def open_entry(path: Path) -> tuple[dict[str, Any], str]:
+    """The arrays of the entry at ``path`` (step arrays memory-mapped read-only) and its report.
+
+    Raises :class:`CacheFormatError` for another format version or a file that does not match the
+    index, ``OSError`` when a file is missing.
+    """
+    index = json.loads((path / INDEX).read_text())
+    if index.get("format") != CACHE_FORMAT:
+        raise CacheFormatError(f"cache entry {path} has format {index.get('format')}, "
+                               f"expected {CACHE_FORMAT}")
+    arrays: dict[str, Any] = {}
+    for name, info in index["arrays"].items():
+        mode: Literal["r"] | None = "r" if _mapped(name) and int(np.prod(info["shape"])) > 0 else None
+        arr = np.load(path / info["file"], mmap_mode=mode, allow_pickle=False)
+        if list(arr.shape) != info["shape"] or arr.dtype.str != info["dtype"]:
+            raise CacheFormatError(f"{path / info['file']}: {arr.dtype.str}{list(arr.shape)} does not match "
+                                   f"the index ({info['dtype']}{info['shape']})")
+        arrays[name] = arr
+    return arrays, str(index.get("report", ""))
+
+
+class EntryWriter:
+    """Build an entry from batches of episodes (one bag at a time); :meth:`finish` publishes it.
+
+    Memory: the episodes handed to :meth:`add` plus O(episodes) per-episode values.  A joint or
+    per-step extra is kept only when every episode has it (as in ``EpisodeArrays.from_episodes``).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.tmp = Path(tempfile.mkdtemp(prefix=".tmp_", dir=_parent(path)))
+        self._cols: dict[str, NpyAppender] = {
+            "observations": NpyAppender(self.tmp / "observations.npy", np.float32),
+            "actions": NpyAppender(self.tmp / "actions.npy"),
+            "subtask": NpyAppender(self.tmp / "subtask.npy", np.int64, ()),
+            "sketch": NpyAppender(self.tmp / "sketch.npy", np.int64, ()),
+        }
+        self._extras: dict[str, NpyAppender] | None = None  # decided by the first episode
+        self._per: dict[str, list[Any]] = {k: [] for k in ("length", "sketch_len", "has_subtask",
+                                                          "has_sketch", "tasks", "seeds", "success")}
+
+    def __len__(self) -> int:
+        return len(self._per["length"])
+
+    def add(self, episodes: Iterable[Episode]) -> None:
+        """Append ``episodes`` to the files (raises :class:`NpyAppendError` on a shape/dtype clash)."""
+        for ep in episodes:
+            self._cols["observations"].append(ep.observations)
+            self._cols["actions"].append(np.asarray(ep.actions))
+            labels = np.full(ep.length, -1, np.int64) if ep.subtask is None else np.asarray(ep.subtask)
+            self._cols["subtask"].append(labels)
+            if ep.sketch is not None:
+                self._cols["sketch"].append(np.asarray(ep.sketch, np.int64))
+            self._add_extras(ep)
+            per = self._per
+            per["length"].append(ep.length)
+            per["sketch_len"].append(0 if ep.sketch is None else len(ep.sketch))
+            per["has_subtask"].append(ep.subtask is not None)
+            per["has_sketch"].append(ep.sketch is not None)
+            per["tasks"].append(ep.task)
+            per["seeds"].append(ep.seed)
+            per["success"].append(ep.success)
+
+    def _add_extras(self, ep: Episode) -> None:
+        wanted = {**{f"extras__{k}": len(ep.observations) for k in JOINT_KEYS},
+                  **{f"step_extras__{k}": ep.length for k in STEP_KEYS}}
+        if self._extras is None:
+            self._extras = {name: NpyAppender(self.tmp / f"{name}.npy") for name, rows in wanted.items()
+                            if _extra(ep, name) is not None and len(_extra(ep, name)) == rows}
+        for name in list(self._extras):
+            value = _extra(ep, name)
+            if value is None or len(value) != wanted[name]:
+                self._extras.pop(name).abort()  # not every episode has it: dropped, as from_episodes
+            else:
+                self._extras[name].append(np.asarray(value))
+
+    def finish(self, report: str) -> None:
+        """Close the files, write the per-episode arrays and the index, and rename into place."""
+        per = self._per
+        act_offsets = np.concatenate([[0], np.cumsum(np.asarray(per["length"], np.int64))]).astype(np.int64)
+        small = {
+            "obs_offsets": act_offsets + np.arange(len(self) + 1, dtype=np.int64),
+            "act_offsets": act_offsets,
+            "sketch_offsets": np.concatenate([[0], np.cumsum(per["sketch_len"])]).astype(np.int64),
+            "has_subtask": np.asarray(per["has_subtask"], bool),
+            "has_sketch": np.asarray(per["has_sketch"], bool),
+            "tasks": np.asarray(per["tasks"], dtype=str),
+            "seeds": np.asarray(per["seeds"], np.int64),
+            "success": np.asarray(per["success"], bool),
+        }
+        try:
+            index = {}
+            for name, col in {**self._cols, **(self._extras or {})}.items():
+                shape = col.close()
+                index[name] = {"file": col.path.name, "dtype": np.dtype(col.dtype).str, "shape": list(shape)}
+            index.update({name: _save(self.tmp, name, arr) for name, arr in small.items()})
+            _finish(self.tmp, self.path, index, report)
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        """Drop the unfinished entry."""
+        for col in [*self._cols.values(), *(self._extras or {}).values()]:
+            col.abort()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def _extra(ep: Episode, name: str) -> Any:
+    return ep.extras.get(name.split("__", 1)[1])
+
+
+__all__ = ["CACHE_FORMAT", "CacheFormatError", "EntryWriter", "NpyAppendError", "open_entry", "write_entry"]
