@@ -24,15 +24,15 @@ printed as they run::
         --reader-config config/reader_dial_robot.yaml --write-config OUT/ompn_node_robot.yaml
     ompn_segment --bag OUT/bags/heldout --checkpoint OUT/model/best --reader-config \\
         config/reader_dial_robot.yaml --detector-config OUT/ompn_node_robot.yaml --out OUT/segment
-    # 5. live: ompn_node on jaco/joint_states (see live_step below)
+    # 5. live: ompn_node on jaco/joint_states (printed by live_command)
 
 ``rate:=0`` runs the sim as fast as it can; its JointState publisher is then made RELIABLE
 (``joint_states_qos:=reliable``): the recorder subscribes RELIABLE, and a best-effort publisher in
 bursts would lose messages.  A real arm publishing at its own rate needs neither.
 
 Run: ``python examples/own_robot.py --out runs/own_robot [--episodes 300 --heldout 50]`` (or
-``examples/own_robot.sh``).  Every process runs with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, in a
-namespace of its own.  Exit code 2 with one line on a known failure.
+``examples/own_robot.sh``).  Every process runs DDS on loopback and shared memory only
+(``ompn_ros.containment``), in a namespace of its own.  Exit code 2 with one line on a known failure.
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -55,6 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from ompn_ros import containment  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
 
 READER = ROOT / "config" / "reader_dial_robot.yaml"
@@ -85,9 +85,7 @@ class Flow:
 def ros_env() -> dict[str, str]:
     """This environment (LD_LIBRARY_PATH included) with DDS kept on this machine, in domain 1..100."""
     env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    if not env.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(env["ROS_DOMAIN_ID"]) <= 100:
-        env["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+    containment.contain(env)  # loopback and shared memory only, a ROS_DOMAIN_ID in 1..100
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
     return env
 
@@ -197,15 +195,12 @@ def segment(flow: Flow, bag: Path, checkpoint: Path, detector: Path | None,
     return metrics
 
 
-def live_step(flow: Flow, checkpoint: Path) -> None:
-    """Step 5 (PLACEHOLDER, not wired yet): ``ompn_node`` on the live ``jaco/joint_states`` stream.
-
-    It will start ``dial_sim profile:=robot`` and ``ompn_node`` with ``checkpoint`` and the same
-    observation block as ``config/reader_dial_robot.yaml`` (``assemble:``), and compare its boundary
-    events with ``jaco/skill_id``.  Until the node takes that block it does nothing.
-    """
-    print(f"[own_robot] live: not wired yet (checkpoint {checkpoint} is ready for ompn_node)",
-          file=sys.stderr)
+def live_command(checkpoint: Path) -> str:
+    """Step 5, what to run on the live arm: ``ompn_node`` on the ``jaco/joint_states`` stream with the
+    trained checkpoint (its detector travels with it).  The script prints it; running it live
+    against the sim's skill ids is not automated here."""
+    return (f"ompn_node --ros-args -p checkpoint:={checkpoint} "
+            f"-p observation_spec:={READER}  # the reader's assemble: block, the same rule live")
 
 
 def _run(argv: list[str], env: dict[str, str], timeout: float, step: str) -> None:
@@ -251,7 +246,7 @@ def run(flow: Flow) -> dict[str, Any]:
     lap("tune")
     metrics = segment(flow, heldout_bag, checkpoint, detector, env)
     lap("segment")
-    live_step(flow, checkpoint)
+    print(f"[own_robot] 5. live: {live_command(checkpoint)}", file=sys.stderr)
     first = train_read.episodes[0]
     return {
         "train_episodes": len(train_read.episodes),

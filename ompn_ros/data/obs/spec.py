@@ -279,7 +279,7 @@ class ObservationSpec:
     @classmethod
     def from_yaml(cls, path: str | Path) -> ObservationSpec:
         """Load from a YAML file: the spec mapping itself, or a file with an ``observation:`` block
-        among other keys (a reader-spec or params file)."""
+        among other keys (a params file), or a reader spec with an ``assemble:`` block."""
         import yaml
 
         try:
@@ -316,8 +316,16 @@ class ObservationSpec:
 
 
 def _observation_block(data: Any) -> Any:
-    if isinstance(data, Mapping) and "observation" in data and isinstance(data["observation"], Mapping):
-        return data["observation"]
+    """The spec mapping inside ``data``: itself, its ``observation:`` block, or the ``assemble:`` block
+    of a reader spec (``reader:`` section or top level), so one YAML serves the reader and the node."""
+    if not isinstance(data, Mapping):
+        return data
+    for key in ("observation", "assemble"):
+        block = data.get(key)
+        if isinstance(block, Mapping) and "fields" in block:
+            return block
+    if isinstance(data.get("reader"), Mapping):
+        return _observation_block(data["reader"])
     return data
 
 
