@@ -47,7 +47,7 @@ test-slow: setup
 	$(PY) -m pytest test -m slow -q -p no:cacheprovider
 
 lint: setup
-	$(VENV)/bin/ruff check ompn_ros sim_nodes test bench
+	$(VENV)/bin/ruff check ompn_ros sim_nodes test bench examples
 	$(VENV)/bin/mypy
 
 colcon: setup
