@@ -42,10 +42,11 @@ def test_png_round_trip(tmp_path: Path) -> None:
         encode_png(np.zeros((4, 4)))
 
 
-def test_episode_without_joint_positions_is_rejected() -> None:
+def test_episode_without_joint_positions_is_rejected(tmp_path: Path) -> None:
     ep = Episode(observations=np.zeros((2, 39), np.float32), actions=np.zeros((1, 9), np.float32))
     with pytest.raises(RenderError, match="joint_position"):
-        save_episode(ep, "/tmp/never")
+        save_episode(ep, tmp_path / "never")
+    assert not (tmp_path / "never").exists()
 
 
 def test_render_scene_frame() -> None:

@@ -8,8 +8,8 @@ saved as numbered PNG frames.  PNGs are encoded here with ``zlib`` (no imaging d
 CLI (``render_cli.py``)::
 
     python -m sim_nodes.dial.render_cli --scene docs/dial_scene.png
-    python -m sim_nodes.dial.render_cli --episode 3 --out /tmp/dial_ep3   # frames (or .mp4)
-    python -m sim_nodes.dial.render_cli --episode 3 --out /tmp/dial_ep3 --strip docs/dial_presses.png
+    python -m sim_nodes.dial.render_cli --episode 3 --out out/dial_ep3   # frames (or .mp4)
+    python -m sim_nodes.dial.render_cli --episode 3 --out out/dial_ep3 --strip docs/dial_presses.png
 """
 
 from __future__ import annotations
