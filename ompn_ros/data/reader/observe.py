@@ -3,8 +3,9 @@
 The bag's messages of the spec's topics are fed, in record order with their log stamps, to the
 same :class:`~ompn_ros.data.obs.ObservationAssembler` the live node runs (as
 :func:`ompn_ros.data.obs.assemble_stream` does), so a bag recorded from the live callbacks gives the
-live observations.  Normally this happens while the bag is read (:class:`~ompn_ros.data.reader.columns.AssemblySink`,
-the raw bytes are not kept); a bag cut at a corrupt tail is assembled again from the storage.  Every
+live observations.  Normally this happens while the bag is read
+(:class:`~ompn_ros.data.reader.columns.AssemblySink`, the raw bytes are not kept); a bag cut at a
+corrupt tail is assembled again from the storage.  Every
 step-topic message is a row of the step clock (its log stamp); rows the rule dropped keep zeros and
 ``kept = False`` and are removed after actions and labels are attached (``reader.assemble``).
 
@@ -18,7 +19,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from rosbags.rosbag2 import Reader
 
 from ..obs import ObservationSpec
@@ -85,7 +85,8 @@ def assembled_rows(ctx: BagContext, spec: ObservationSpec) -> AssembledRows:
                             if spec.step_topic in ctx.raw.topics else 0)
         for topic, stamp, raw in messages:
             sink.add(topic, stamp, raw)
-    values, stamps, kept = sink.values, np.asarray(sink.step_stamps, dtype=np.int64), np.asarray(sink.kept, bool)
+    values, kept = sink.values, np.asarray(sink.kept, bool)
+    stamps = np.asarray(sink.step_stamps, dtype=np.int64)
     order = None
     if stamps.size > 1 and np.any(np.diff(stamps) < 0):
         order = np.argsort(stamps, kind="stable")

@@ -84,5 +84,6 @@ def nonfinite_rows(values: np.ndarray, block_bytes: int = 1 << 22) -> np.ndarray
         return np.zeros(0, dtype=np.int64)
     flat = values.reshape(len(values), -1)
     step = max(1, block_bytes // max(1, flat.shape[1] * flat.itemsize))
-    found = [np.flatnonzero(~np.isfinite(flat[a: a + step]).all(axis=1)) + a for a in range(0, len(flat), step)]
+    found = [np.flatnonzero(~np.isfinite(flat[a: a + step]).all(axis=1)) + a
+             for a in range(0, len(flat), step)]
     return np.concatenate(found).astype(np.int64)
