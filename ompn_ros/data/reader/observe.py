@@ -55,7 +55,8 @@ def record_order(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[tuple[str
     for topic in dict.fromkeys(topics):
         tdata = ctx.raw.topics.get(topic)
         if tdata is not None:
-            merged.extend(zip(tdata.seqs, [topic] * len(tdata.seqs), tdata.stamps, ctx.data(topic)[1]))
+            raws = ctx.data(topic)[1]  # first: it may reorder the topic's stamps and positions
+            merged.extend(zip(tdata.seqs, [topic] * len(tdata.seqs), tdata.stamps, raws))
     merged.sort(key=lambda item: item[0])
     for _, topic, stamp, raw in merged:
         yield topic, int(stamp), raw

@@ -8,6 +8,7 @@ memory O(bytes of the raw-kept topics) plus the step array (about the bytes of t
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,12 +44,13 @@ class StreamPlan:
 @dataclass
 class TopicData:
     """Stamps (ns, as read), raw CDR messages and record positions (``seqs``: the message's index
-    in the bag's record order, across topics) of one topic."""
+    in the bag's record order, across topics) of one topic.  Stamps and positions are packed int64
+    (8 bytes a message, not a Python int each)."""
 
     msgtype: str
-    stamps: list[int] = field(default_factory=list)
+    stamps: array[int] = field(default_factory=lambda: array("q"))
     raws: list[bytes] = field(default_factory=list)
-    seqs: list[int] = field(default_factory=list)
+    seqs: array[int] = field(default_factory=lambda: array("q"))
     column: Float32Column | None = None  # decoded as read: ``raws`` stays empty while it is set
     has_raws: bool = True  # False: a topic fed to an AssemblySink whose bytes were dropped
 
@@ -66,8 +68,8 @@ class TopicData:
 
     def keep(self, index: list[int]) -> None:
         """Keep messages ``index`` (in that order)."""
-        self.stamps = [self.stamps[i] for i in index]
-        self.seqs = [self.seqs[i] for i in index]
+        self.stamps = array("q", [self.stamps[i] for i in index])
+        self.seqs = array("q", [self.seqs[i] for i in index])
         if self.column is not None:
             self.column.take(np.asarray(index, dtype=np.int64))
         elif self.has_raws:
