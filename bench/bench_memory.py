@@ -8,8 +8,12 @@ with :func:`ompn_ros.experiments.collect.collect` (expert episodes, one run spli
    concatenate), building the cache (``load_arrays``: bags read one at a time, episodes appended to
    ``.npy`` files) and a cache hit that touches every episode (its pages are file-backed:
    ``hit_rss_anon`` is the process's own memory).  Figures: peak RSS in MB, as a ratio to the bag
-   size, and the part above the RSS after imports (``*_over_imports_over_bag``).  ``build_all_*``:
-   building one cache from all three bags, whose peak is bounded by the largest bag, not the dataset.
+   size, and the part above the RSS after imports (``*_over_imports_over_bag``; ``imports_rss`` is
+   that baseline: Python, NumPy, rosbags and the package).  ``build_all_*``: building one cache from
+   all three bags, whose peak is bounded by the largest bag, not the dataset.  ``reader_sqlite3_*``:
+   the reader alone on a Craft bag of the same size in sqlite3 storage; ``reader_multi_*``: on a bag
+   whose observation is assembled from several topics (``MULTI_SPEC``: joint states, gripper, wrist
+   wrench at 100 Hz, with command and skill-id topics).
 2. **Throughput.**  Frames/s of :func:`ompn_ros.train.trainer.train_step` (a small OMPN, batches of
    32 whole episodes cycling through the dataset, 1 thread) on episodes that are views into the
    memory-mapped cache of the first bag vs on an in-memory copy of the same arrays, the two
