@@ -23,6 +23,7 @@ from ompn_ros.data.bag_reader import iter_raw_messages
 from ompn_ros.data.bag_writer import EpisodeBagWriter, storage_plugin
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.obs import assemble_stream
+from ompn_ros.data.reader import observe
 from ompn_ros.data.reader import read as read_module
 from ompn_ros.data.reader.columns import Float32Column
 from ompn_ros.data.reader.read import read_raw
@@ -134,7 +135,9 @@ def test_assembled_while_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -
     assert raw.assembly is not None and raw.assembly.n == len(raw.topics["/lab/arm/joint_states"].stamps)
     fed = ("/lab/arm/joint_states", "/lab/arm/gripper", "/lab/arm/ft")
     assert not any(raw.topics[t].has_raws for t in fed)
-    result = read_episodes(tmp_path / "bag", spec=spec)
+    with monkeypatch.context() as patch:  # the rows built while reading are used: no second read
+        patch.setattr(observe, "reread", lambda *args: pytest.fail("the bag was read twice"))
+        result = read_episodes(tmp_path / "bag", spec=spec)
     stream = assemble_stream(iter_raw_messages(tmp_path / "bag"), spec.assemble.with_namespace("/lab"))  # type: ignore[union-attr]
     rows = np.concatenate([e.observations for e in result.episodes])
     assert rows.tobytes() == stream.observations.tobytes()
