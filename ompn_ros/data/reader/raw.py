@@ -133,7 +133,11 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
     for topic in {c.topic for c in conns}:
         raw.topics[topic] = TopicData(raw.types[topic])
-    sink = _apply_plan(raw, planner(raw.types) if planner else None, _counts(conns))
+    try:
+        sink = _apply_plan(raw, planner(raw.types) if planner else None, _counts(conns))
+    except BaseException:  # not a storage error: the reader is closed and the error goes up
+        reader.close()
+        raise
     try:
         if conns:
             by_id = {c.id: (c.topic, raw.topics[c.topic]) for c in conns}
