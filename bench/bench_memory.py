@@ -8,8 +8,12 @@ with :func:`ompn_ros.experiments.collect.collect` (expert episodes, one run spli
    concatenate), building the cache (``load_arrays``: bags read one at a time, episodes appended to
    ``.npy`` files) and a cache hit that touches every episode (its pages are file-backed:
    ``hit_rss_anon`` is the process's own memory).  Figures: peak RSS in MB, as a ratio to the bag
-   size, and the part above the RSS after imports (``*_over_imports_over_bag``).  ``build_all_*``:
-   building one cache from all three bags, whose peak is bounded by the largest bag, not the dataset.
+   size, and the part above the RSS after imports (``*_over_imports_over_bag``; ``imports_rss`` is
+   that baseline: Python, NumPy, rosbags and the package).  ``build_all_*``: building one cache from
+   all three bags, whose peak is bounded by the largest bag, not the dataset.  ``reader_sqlite3_*``:
+   the reader alone on a Craft bag of the same size in sqlite3 storage; ``reader_multi_*``: on a bag
+   whose observation is assembled from several topics (``MULTI_SPEC``: joint states, gripper, wrist
+   wrench at 100 Hz, with command and skill-id topics).
 2. **Throughput.**  Frames/s of :func:`ompn_ros.train.trainer.train_step` (a small OMPN, batches of
    32 whole episodes cycling through the dataset, 1 thread) on episodes that are views into the
    memory-mapped cache of the first bag vs on an in-memory copy of the same arrays, the two
@@ -59,10 +63,34 @@ def _dir_bytes(path: Path) -> int:
 
 
 # ----------------------------------------------------------------------------------------- children
-def _child_read(mode: str, bag: str, cache_dir: str) -> dict[str, Any]:
-    from ompn_ros.data import ReaderSpec, load_arrays, read_episodes
+MULTI_JOINTS = [f"joint_{i}" for i in range(7)]
+MULTI_SPEC: dict[str, Any] = {  # a lab's arm: joint states + gripper + wrist wrench, 100 Hz
+    "assemble": {
+        "step_topic": "/arm/joint_states", "tolerance_s": 0.03, "stamp": "receive",
+        "fields": [
+            {"topic": "/arm/joint_states", "type": "sensor_msgs/msg/JointState", "field": "position"},
+            {"topic": "/arm/joint_states", "type": "sensor_msgs/msg/JointState", "field": "velocity"},
+            {"topic": "/arm/joint_states", "type": "sensor_msgs/msg/JointState", "field": "effort"},
+            {"topic": "/arm/gripper", "type": "std_msgs/msg/Float32MultiArray", "field": "data", "size": 2},
+            {"topic": "/arm/ft", "type": "geometry_msgs/msg/WrenchStamped", "field": "wrench"},
+        ],
+    },
+    "action": {"topic": "/arm/command", "type": "std_msgs/msg/Float32MultiArray", "dim": 7},
+    "subtask": "/task/skill", "labels": "id", "sketch": None, "episode": None,
+    "split": "gaps", "time_gap": 0.5, "tolerance": 0.03, "task": "lab", "strict": False,
+}
 
-    spec = ReaderSpec.for_domain("craft")
+
+def _spec(kind: str) -> Any:
+    from ompn_ros.data import ReaderSpec
+
+    return ReaderSpec.from_dict(MULTI_SPEC) if kind == "multi" else ReaderSpec.for_domain("craft")
+
+
+def _child_read(mode: str, bag: str, cache_dir: str, kind: str = "craft") -> dict[str, Any]:
+    from ompn_ros.data import load_arrays, read_episodes
+
+    spec = _spec(kind)
     imports = _status("VmRSS")
     if mode == "reader":
         n = len(read_episodes(bag, spec=spec).episodes)
@@ -182,14 +210,62 @@ def _run_child(name: str, *args: Any) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------------- parent
-def _make_bags(out: Path, megabytes: int, parts: int) -> list[Path]:
+def _make_bags(out: Path, megabytes: int, parts: int, storage: str = "mcap") -> list[Path]:
     """``parts`` Craft bags of about ``megabytes`` each (one ``collect`` run split into parts)."""
     from ompn_ros.experiments.collect import collect
 
     per_part = max(10, megabytes * MB // EPISODE_BYTES)
     collect(out, domain="craft", tasks=TASKS, episodes=parts * per_part, seed=0, split_every=per_part,
-            progress=False, command=["bench_memory"])
+            progress=False, command=["bench_memory"], storage=storage)
     return sorted(out.glob("part_*"))
+
+
+def _make_multi_topic_bag(path: Path, megabytes: int) -> Path:
+    """A bag of about ``megabytes`` from several topics per 10 ms step (``MULTI_SPEC``): joint states
+    (7 joints), gripper, wrist wrench, command and skill id; episodes of 200 steps, 1 s apart."""
+    import numpy as np
+    from rosbags.rosbag2 import Writer
+
+    from ompn_ros.data import messages as m
+    from ompn_ros.data.bag_writer import storage_plugin
+
+    rng = np.random.default_rng(0)
+    v3 = m.msg_class("geometry_msgs/msg/Vector3")
+    types = {"/arm/gripper": "std_msgs/msg/Float32MultiArray", "/arm/ft": "geometry_msgs/msg/WrenchStamped",
+             "/arm/joint_states": "sensor_msgs/msg/JointState", "/task/skill": "std_msgs/msg/Int32",
+             "/arm/command": "std_msgs/msg/Float32MultiArray"}
+    steps = megabytes * MB // 610  # bytes of one step's five messages in an mcap file, about
+    with Writer(path, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conn = {t: w.add_connection(t, ty, typestore=m.typestore()) for t, ty in types.items()}
+        for k in range(steps):
+            ep, i = divmod(k, 200)
+            t = 10**9 + ep * (200 * 10**7 + 10**9) + i * 10**7
+            q = rng.standard_normal((4, 7))
+            w.write(conn["/arm/gripper"], t - 3_000_000, m.encode_float32_array(rng.random(2), "grip"))
+            wrench = m.msg_class("geometry_msgs/msg/Wrench")(force=v3(*q[3, :3]), torque=v3(*q[3, 3:6]))
+            stamped = m.msg_class("geometry_msgs/msg/WrenchStamped")(header=m.header(t - 2_000_000, "ft"),
+                                                                     wrench=wrench)
+            w.write(conn["/arm/ft"], t - 2_000_000, m.serialize(stamped))
+            w.write(conn["/arm/joint_states"], t, m.serialize(m.joint_state(t, MULTI_JOINTS, *q[:3])))
+            if i < 199:  # the last joint state of an episode is its final observation
+                w.write(conn["/task/skill"], t + 1_000_000, m.encode_int32(i // 50))
+                w.write(conn["/arm/command"], t + 2_000_000, m.encode_float32_array(q[0] * 0.1, "cmd"))
+    return path
+
+
+def _reader_kinds(tmp: Path, megabytes: int) -> dict[str, tuple[float, str]]:
+    """The reader's peak RSS on a Craft sqlite3 bag and on a bag of several observation topics."""
+    results: dict[str, tuple[float, str]] = {}
+    bags = {"sqlite3": (_make_bags(tmp / "bags_sqlite3", megabytes, 1, "sqlite3")[0], "craft"),
+            "multi": (_make_multi_topic_bag(tmp / "bag_multi", megabytes), "multi")}
+    for name, (bag, kind) in bags.items():
+        size = _dir_bytes(bag)
+        res = _run_child("read", "reader", str(bag), str(tmp / "unused"), kind)
+        results[f"reader_{name}_bag_size"] = (size / MB, "MB")
+        results[f"reader_{name}_episodes"] = (float(res["episodes"]), "episodes")
+        results[f"reader_{name}_peak_over_bag"] = (res["peak"] / size, "x")
+        results[f"reader_{name}_over_imports_over_bag"] = ((res["peak"] - res["imports"]) / size, "x")
+    return results
 
 
 def _reading(bags: list[Path], tmp: Path) -> dict[str, tuple[float, str]]:
@@ -197,8 +273,10 @@ def _reading(bags: list[Path], tmp: Path) -> dict[str, tuple[float, str]]:
     size = _dir_bytes(bags[0])
     largest = max(_dir_bytes(b) for b in bags)
     results: dict[str, tuple[float, str]] = {"bag_size": (size / MB, "MB")}
+    results["imports_rss"] = (0.0, "MB")
     for mode in ("reader", "memory", "build", "hit"):
         res = _run_child("read", mode, str(bags[0]), str(tmp / "cache1"))
+        results["imports_rss"] = (res["imports"] / MB, "MB")
         results[f"{mode}_peak_rss"] = (res["peak"] / MB, "MB")
         results[f"{mode}_peak_over_bag"] = (res["peak"] / size, "x")
         results[f"{mode}_over_imports_over_bag"] = ((res["peak"] - res["imports"]) / size, "x")
@@ -235,6 +313,7 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     try:
         bags = _make_bags(tmp / "bags", megabytes, parts=3)
         results = _reading(bags, tmp)
+        results.update(_reader_kinds(tmp, megabytes))
         entry = next((tmp / "cache1").glob("episodes_*"))
         results["cache_size"] = (_dir_bytes(entry) / MB, "MB")
         fps = _run_child("throughput", str(entry), iterations)

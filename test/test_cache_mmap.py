@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_data_common import assert_same_episode, make_episodes
 
-from ompn_ros.data import ReaderSpec, load_arrays, write_episodes
+from ompn_ros.data import ReaderSpec, load_arrays, read_episodes, write_episodes
 from ompn_ros.data import cache as cache_mod
 from ompn_ros.data.cache import EpisodeArrays
 from ompn_ros.data.cache_store import CACHE_FORMAT, INDEX, CacheFormatError, EntryWriter
@@ -119,3 +119,48 @@ def test_npy_appender_writes_a_standard_file(tmp_path: Path) -> None:
     assert not (tmp_path / "y.npy").exists()
     empty = NpyAppender(tmp_path / "z.npy", np.int64, ())
     assert empty.close() == (0,) and np.load(tmp_path / "z.npy").shape == (0,)
+
+
+def test_obs_names_survive_the_cache(tmp_path: Path) -> None:
+    from test_reader_assemble import SPEC_DICT, write_lab_bag
+
+    write_lab_bag(tmp_path / "bag")
+    spec = ReaderSpec.from_dict(SPEC_DICT)
+    names = read_episodes(tmp_path / "bag", spec=spec).episodes[0].extras["obs_names"]
+    assert len(names) == 14
+    for use_cache in (True, False):
+        arrays = load_arrays(tmp_path / "bag", spec=spec, cache_dir=tmp_path / "cache", use_cache=use_cache)
+        assert arrays.obs_names == tuple(names)
+        assert all(e.extras["obs_names"] == names for e in arrays.episodes())
+    hit = load_arrays(tmp_path / "bag", spec=spec, cache_dir=tmp_path / "cache")
+    assert hit.cache_hit and hit.obs_names == tuple(names)
+    assert "obs_names" not in load_arrays(_bags(tmp_path)[0], spec=ReaderSpec.for_domain("dial"),
+                                          cache_dir=tmp_path / "cache").episodes()[0].extras
+
+
+def test_obs_names_kept_only_when_every_episode_agrees(tmp_path: Path) -> None:
+    episodes = make_episodes("dial", 3, seed=2)
+    dim = episodes[0].observations.shape[1]
+    for ep in episodes:
+        ep.extras["obs_names"] = [f"x{i}" for i in range(dim)]
+    writer = EntryWriter(tmp_path / "same")
+    writer.add(episodes)
+    writer.finish("")
+    assert EpisodeArrays.load(tmp_path / "same").obs_names == tuple(f"x{i}" for i in range(dim))
+    episodes[2].extras["obs_names"] = [f"y{i}" for i in range(dim)]
+    writer = EntryWriter(tmp_path / "mixed")
+    writer.add(episodes)
+    writer.finish("")
+    assert EpisodeArrays.load(tmp_path / "mixed").obs_names == ()
+    assert EpisodeArrays.from_episodes(episodes).obs_names == ()
+
+
+def test_entries_of_another_format_are_pruned(tmp_path: Path) -> None:
+    bags, _ = _bags(tmp_path)
+    old = tmp_path / "cache" / "episodes_old"
+    old.mkdir(parents=True)
+    (old / INDEX).write_text(json.dumps({"format": CACHE_FORMAT - 1, "arrays": {}}))
+    foreign = tmp_path / "cache" / "episodes_unknown"
+    foreign.mkdir()  # no index: not an entry this cache judges
+    load_arrays(bags, spec=ReaderSpec.for_domain("dial"), cache_dir=tmp_path / "cache")
+    assert not old.exists() and foreign.exists()

@@ -85,6 +85,32 @@ def test_obs_normalization_modes() -> None:
         obs_normalization(eps, "std")  # type: ignore[arg-type]
 
 
+def test_obs_statistics_stream_over_episodes() -> None:
+    rng = np.random.default_rng(4)
+    eps = [Episode((rng.standard_normal((int(n) + 1, 40)) * 10 ** rng.uniform(-3, 3, 40)).astype(np.float32),
+                   np.zeros(int(n), np.int64)) for n in rng.integers(1, 300, 60)]
+    stacked = np.concatenate([e.observations for e in eps]).astype(np.float64)  # the reference
+    norm = obs_normalization(eps, "maxabs")
+    np.testing.assert_allclose(norm.mean, stacked.mean(axis=0).astype(np.float32), rtol=1e-6, atol=1e-9)
+    np.testing.assert_array_equal(norm.scale, np.abs(stacked).max(axis=0).astype(np.float32))
+    with pytest.raises(BatchError, match=r"episode #1 .*\(2, 3\).* 40 features"):
+        obs_normalization([eps[0], Episode(np.zeros((2, 3), np.float32), np.zeros(1, np.int64))], "maxabs")
+
+
+def test_obs_statistics_do_not_copy_the_dataset() -> None:
+    import tracemalloc
+
+    big = np.random.default_rng(1).standard_normal((40_000, 50)).astype(np.float32)  # 8 MB
+    eps = [Episode(big[a: a + 100], np.zeros(99, np.int64)) for a in range(0, len(big), 100)]
+    tracemalloc.start()
+    try:
+        obs_normalization(eps, "maxabs")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < big.nbytes // 8, f"{peak} bytes traced while reading {big.nbytes} bytes of observations"
+
+
 def test_split_and_epoch_batches_are_seeded() -> None:
     train_a, val_a = split_train_val(10, 0.2, seed=3)
     _, val_b = split_train_val(10, 0.2, seed=3)

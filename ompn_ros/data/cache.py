@@ -14,8 +14,9 @@ larger than the process's memory can be trained on.
 The cache key is a BLAKE2b hash of the bag files' **bytes** (plus their relative names, the reader
 spec and the format version), so editing or re-recording a bag always misses, whatever its size or
 mtime.  Entries of another format version (``CACHE_FORMAT``) are never hit: a stale entry found
-under the key is deleted and rebuilt, and the single-file ``episodes_*.npz`` entries of format 2
-are deleted from ``cache_dir`` when a new entry is built there.  Nothing is pickled.
+under the key is deleted and rebuilt, and entries of other formats (the single-file
+``episodes_*.npz`` of format 2, directories of format 3 without ``obs_names``) are deleted from
+``cache_dir`` when a new entry is built there.  Nothing is pickled.
 """
 
 from __future__ import annotations
@@ -35,11 +36,13 @@ import numpy as np
 from .bag_reader import OnError, ReaderSpec, ReadReport, read_episodes, resolve_bag_paths, storage_files
 from .cache_store import (
     CACHE_FORMAT,
+    INDEX,
     JOINT_KEYS,
     STEP_KEYS,
     CacheFormatError,
     EntryWriter,
     NpyAppendError,
+    common_obs_names,
     open_entry,
     write_entry,
 )
@@ -75,7 +78,9 @@ class EpisodeArrays:
     ``-1`` where an episode has no labels (``has_subtask[i]`` False); sketches are concatenated
     with ``sketch_offsets`` (``has_sketch[i]`` False = no sketch).  ``step_extras`` holds per-step
     arrays aligned with the actions (``subtask_id``), ``extras`` joint arrays aligned with the
-    observations, each when every episode has them.
+    observations, each when every episode has them.  ``obs_names`` names the observation's elements
+    (``Episode.extras['obs_names']``, e.g. from ``ReaderSpec.assemble``) when every episode has the
+    same names, else it is empty.
     """
 
     observations: np.ndarray
@@ -92,6 +97,7 @@ class EpisodeArrays:
     success: np.ndarray
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     step_extras: dict[str, np.ndarray] = field(default_factory=dict)
+    obs_names: tuple[str, ...] = ()
     report: str = ""  # ReadReport.summary() of the parse that built the arrays
     key: str = ""
     cache_hit: bool = False
@@ -107,6 +113,8 @@ class EpisodeArrays:
         s0, s1 = self.sketch_offsets[i], self.sketch_offsets[i + 1]
         extras: dict[str, Any] = {k: v[o0:o1] for k, v in self.extras.items()}
         extras.update({k: v[a0:a1] for k, v in self.step_extras.items()})
+        if self.obs_names:
+            extras["obs_names"] = list(self.obs_names)
         return Episode(
             observations=self.observations[o0:o1],
             actions=self.actions[a0:a1],
@@ -154,6 +162,7 @@ class EpisodeArrays:
             success=np.asarray([e.success for e in episodes]),
             extras=extras,
             step_extras=step_extras,
+            obs_names=common_obs_names(episodes),
         )
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -162,6 +171,7 @@ class EpisodeArrays:
         out = {n: getattr(self, n) for n in names}
         out.update({f"extras__{k}": v for k, v in self.extras.items()})
         out.update({f"step_extras__{k}": v for k, v in self.step_extras.items()})
+        out["obs_names"] = np.asarray(self.obs_names, dtype=str)
         return out
 
     def save(self, path: Path) -> None:
@@ -179,7 +189,8 @@ class EpisodeArrays:
         extras = {k[len("extras__"):]: arrays.pop(k) for k in list(arrays) if k.startswith("extras__")}
         step = {k[len("step_extras__"):]: arrays.pop(k) for k in list(arrays)
                 if k.startswith("step_extras__")}
-        return cls(**arrays, extras=extras, step_extras=step, report=report, cache_path=path)
+        names = tuple(str(n) for n in arrays.pop("obs_names"))
+        return cls(**arrays, extras=extras, step_extras=step, obs_names=names, report=report, cache_path=path)
 
 
 def content_key(bags: Sequence[Path], spec: ReaderSpec, on_error: str) -> str:
@@ -244,10 +255,19 @@ def _open_hit(entry: Path) -> EpisodeArrays | None:
 
 
 def _prune_legacy(root: Path) -> None:
-    """Delete format-2 entries (single ``.npz`` files); they can never be hit again."""
-    if root.is_dir():
-        for old in root.glob(_LEGACY_GLOB):
-            old.unlink(missing_ok=True)
+    """Delete entries of other formats (format-2 ``.npz`` files, directories whose ``index.json``
+    names another version); their keys can never be hit again."""
+    if not root.is_dir():
+        return
+    for old in root.glob(_LEGACY_GLOB):
+        old.unlink(missing_ok=True)
+    for entry in root.glob("episodes_*"):
+        try:
+            stale = entry.is_dir() and json.loads((entry / INDEX).read_text()).get("format") != CACHE_FORMAT
+        except (OSError, ValueError, AttributeError):  # no readable index: not ours to judge
+            stale = False
+        if stale:
+            shutil.rmtree(entry, ignore_errors=True)
 
 
 def _build(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path) -> None:

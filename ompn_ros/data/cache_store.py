@@ -1,7 +1,9 @@
 """The episode cache's on-disk entry: a directory of uncompressed ``.npy`` files and ``index.json``.
 
-An entry holds one ``.npy`` file per array (see :class:`~ompn_ros.data.cache.EpisodeArrays`) and
-``index.json`` (format version, every array's file, dtype and shape, the reader's report).  It is
+An entry holds one ``.npy`` file per array (see :class:`~ompn_ros.data.cache.EpisodeArrays`, with
+``obs_names``: the observation's element names, ``Episode.extras['obs_names']``, empty when the
+episodes do not name them alike) and ``index.json`` (format version, every array's file, dtype and
+shape, the reader's report).  It is
 opened with ``np.load(mmap_mode='r')``: the step arrays (observations, actions, labels, sketches,
 joint extras) stay on disk and pages are read when touched, so a dataset larger than memory can be
 trained on; the per-episode arrays (offsets, seeds, ...) are small and read into memory.
@@ -25,7 +27,7 @@ import numpy as np
 from .episode import Episode
 from .npy_append import NpyAppender, NpyAppendError
 
-CACHE_FORMAT = 3  # 3: a directory of .npy files, memory-mapped (2: one .npz read into memory)
+CACHE_FORMAT = 4  # 4: + obs_names; 3: a directory of .npy files, memory-mapped (2: one .npz in memory)
 INDEX = "index.json"
 JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")  # [T + 1] extras
 STEP_KEYS = ("subtask_id",)  # per-step extras [T] (labels: id)
@@ -114,6 +116,7 @@ class EntryWriter:
             "sketch": NpyAppender(self.tmp / "sketch.npy", np.int64, ()),
         }
         self._extras: dict[str, NpyAppender] | None = None  # decided by the first episode
+        self._names: tuple[str, ...] | None = None  # obs_names shared by every episode so far
         self._per: dict[str, list[Any]] = {k: [] for k in ("length", "sketch_len", "has_subtask",
                                                           "has_sketch", "tasks", "seeds", "success")}
 
@@ -130,6 +133,8 @@ class EntryWriter:
             if ep.sketch is not None:
                 self._cols["sketch"].append(np.asarray(ep.sketch, np.int64))
             self._add_extras(ep)
+            names = episode_obs_names(ep)
+            self._names = names if self._names is None or self._names == names else ()
             per = self._per
             per["length"].append(ep.length)
             per["sketch_len"].append(0 if ep.sketch is None else len(ep.sketch))
@@ -165,6 +170,7 @@ class EntryWriter:
             "tasks": np.asarray(per["tasks"], dtype=str),
             "seeds": np.asarray(per["seeds"], np.int64),
             "success": np.asarray(per["success"], bool),
+            "obs_names": np.asarray(self._names or (), dtype=str),
         }
         try:
             index = {}
@@ -184,8 +190,24 @@ class EntryWriter:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
 
+def episode_obs_names(ep: Episode) -> tuple[str, ...]:
+    """``ep.extras['obs_names']`` as a tuple (empty when the episode does not name its elements)."""
+    return tuple(str(n) for n in ep.extras.get("obs_names", ()))
+
+
+def common_obs_names(episodes: Iterable[Episode]) -> tuple[str, ...]:
+    """The observation names every episode has alike, else ``()``."""
+    names: tuple[str, ...] | None = None
+    for ep in episodes:
+        own = episode_obs_names(ep)
+        names = own if names is None or names == own else ()
+    return names or ()
+
+
 def _extra(ep: Episode, name: str) -> Any:
     return ep.extras.get(name.split("__", 1)[1])
 
 
-__all__ = ["CACHE_FORMAT", "CacheFormatError", "EntryWriter", "NpyAppendError", "open_entry", "write_entry"]
+__all__ = ["CACHE_FORMAT", "CacheFormatError", "EntryWriter", "NpyAppendError", "common_obs_names",
+           "open_entry",
+           "write_entry"]

@@ -42,6 +42,10 @@ def obs_normalization(episodes: Sequence[Episode], mode: ObsNormMode) -> ObsNorm
     ``'maxabs'`` (ompn_dial, docs/dial.md §4.1): mean over all observation rows and scale = the max
     absolute raw value per feature (the code calls it "std"); features that are always 0 get scale 1.
     ``'none'``: mean 0, scale 1 (Craft's one-hot features are used raw).
+
+    One pass over the episodes with float64 accumulators (per-feature sum, row count, max
+    absolute value): O(rows · D) time, O(D) memory, so episodes memory-mapped from the cache are
+    read page by page and never copied into one array.
     """
     if not episodes:
         raise BatchError("cannot compute observation statistics from an empty episode list")
@@ -50,11 +54,22 @@ def obs_normalization(episodes: Sequence[Episode], mode: ObsNormMode) -> ObsNorm
         return ObsNormalization(np.zeros(dim, np.float32), np.ones(dim, np.float32))
     if mode != "maxabs":
         raise BatchError(f"obs_norm must be 'none' or 'maxabs', got {mode!r}")
-    stacked = np.concatenate([e.observations for e in episodes], axis=0).astype(np.float64)
-    mean = stacked.mean(axis=0)
-    scale = np.abs(stacked).max(axis=0)
+    total = np.zeros(dim, np.float64)
+    scale = np.zeros(dim, np.float64)
+    rows = 0
+    for i, ep in enumerate(episodes):
+        obs = ep.observations
+        if obs.ndim != 2 or obs.shape[1] != dim:
+            raise BatchError(f"episode #{i} has observations of shape {obs.shape}, the first has {dim} "
+                             "features")
+        if len(obs):
+            total += obs.sum(axis=0, dtype=np.float64)
+            np.maximum(scale, np.abs(obs).max(axis=0), out=scale)
+            rows += len(obs)
+    if rows == 0:
+        raise BatchError("cannot compute observation statistics: the episodes hold no observation")
     scale[scale == 0] = 1.0
-    return ObsNormalization(mean.astype(np.float32), scale.astype(np.float32))
+    return ObsNormalization((total / rows).astype(np.float32), scale.astype(np.float32))
 
 
 @dataclass

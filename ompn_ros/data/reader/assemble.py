@@ -3,7 +3,8 @@
 Within an episode the last observation without an action becomes row ``T`` (the final observation
 of the step contract).  When every observation has an action (the observation after the last
 command was not recorded) ``ReaderSpec.final_observation`` decides.  Cost: O(N) over the bag's
-observations.
+observations; an episode's observations are a view of the bag's observation array when its rows
+are consecutive (the usual case), so the episodes add no copy of the observations.
 """
 
 from __future__ import annotations
@@ -201,10 +202,20 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
             raise AlignmentError(msg, path=ctx.path, topic=topics.episode, index=w.end_index)
         ctx.report.notes.append(msg)
     return Episode(
-        observations=dec.obs[rows],
+        observations=_rows(dec.obs, rows),
         actions=np.asarray(actions, dtype=np.int64 if topics.act_type == layout.INT32 else np.float32),
         subtask=subtask, sketch=sketch, task=task, seed=seed, success=success, extras=extras,
     )
+
+
+def _rows(values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``values[rows]``: a view when ``rows`` are consecutive (the usual episode), else a copy.
+
+    Views keep the bag's one observation array alive while any of its episodes is, instead of
+    holding it twice."""
+    if rows.size and int(rows[-1]) - int(rows[0]) == rows.size - 1 and np.all(np.diff(rows) == 1):
+        return values[int(rows[0]): int(rows[-1]) + 1]
+    return values[rows]
 
 
 def _labels(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window, steps: np.ndarray,

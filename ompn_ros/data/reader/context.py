@@ -125,19 +125,39 @@ class BagContext:
             return None, layout.LABELS_NONE
         return topic, kind or layout.LABELS_ORDINAL
 
-    def data(self, topic: str) -> tuple[np.ndarray, list[bytes]]:
-        """Stamps (int64, sorted) and raw messages of ``topic``."""
+    def stamps(self, topic: str) -> np.ndarray:
+        """Stamps (int64, sorted) of ``topic``; its messages are put in the same order (stable)."""
         tdata = self.raw.topics.get(topic)
         if tdata is None:
-            return np.zeros(0, dtype=np.int64), []
+            return np.zeros(0, dtype=np.int64)
         stamps = np.asarray(tdata.stamps, dtype=np.int64)
         if stamps.size > 1 and np.any(np.diff(stamps) < 0):
             order = np.argsort(stamps, kind="stable")
+            tdata.keep(order.tolist())
             stamps = stamps[order]
-            tdata.raws = [tdata.raws[i] for i in order]
-            tdata.seqs = [tdata.seqs[i] for i in order]
-            tdata.stamps = stamps.tolist()
+        return stamps
+
+    def data(self, topic: str) -> tuple[np.ndarray, list[bytes]]:
+        """Stamps (int64, sorted) and raw messages of ``topic`` (a column decoded while reading is
+        turned back into its exact bytes)."""
+        stamps = self.stamps(topic)
+        tdata = self.raw.topics.get(topic)
+        if tdata is None:
+            return stamps, []
+        if tdata.column is not None:
+            tdata.raws, tdata.column = tdata.column.to_raws(), None
+        if not tdata.has_raws:
+            raise RuntimeError(f"{self.path}: the bytes of topic '{topic}' were not kept while reading")
         return stamps, tdata.raws
+
+    def column(self, topic: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """Sorted stamps and float32 rows of ``topic`` when it was decoded while reading, else ``None``."""
+        tdata = self.raw.topics.get(topic)
+        if tdata is None or tdata.column is None:
+            return None
+        stamps = self.stamps(topic)
+        assert tdata.column is not None  # stamps() reorders the column, never drops it
+        return stamps, tdata.column.values
 
     def check_type(self, topic: str, allowed: Sequence[str], expected: str | None) -> str:
         """The topic's message type, after checking it is decodable and what the spec expects."""

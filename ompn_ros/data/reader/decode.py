@@ -110,7 +110,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         out.assembled = rows = assembled_rows(ctx, topics.assemble)  # drops, never raises, on bad messages
         out.obs, out.obs_stamps, out.obs_order = rows.values, rows.stamps, rows.order
         # rows and ctx.data() are both the step messages stably sorted by log stamp: no reorder for actions
-        obs: ObsParts | None = (rows.values, rows.stamps, None, ctx.data(topics.obs)[0], None)
+        obs: ObsParts | None = (rows.values, rows.stamps, None, ctx.stamps(topics.obs), None)
     else:
         obs = _guard(errors, lambda: _observations(ctx, topics))
         if obs is not None:
@@ -125,7 +125,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
             out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
     if topics.split:
-        out.split_stamps = ctx.data(topics.split)[0]
+        out.split_stamps = ctx.stamps(topics.split)
     if topics.joints:
         js = topics.joints
         stamps, raws = ctx.data(js)
@@ -145,8 +145,14 @@ ObsParts = tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, JointBlo
 
 def _observations(ctx: BagContext, topics: Topics) -> ObsParts:
     """Observations sorted by their clock, the reorder applied (if any), log stamps, JointBlock."""
-    log_stamps, raws = ctx.data(topics.obs)
-    values, stamps, block = _vectors(ctx, topics.obs, topics.obs_type, ctx.spec.observation, log_stamps, raws)
+    column = ctx.column(topics.obs) if topics.obs_type == layout.FLOAT32_ARRAY else None
+    if column is not None:  # decoded while reading (reader.columns): the same rows, no raw bytes
+        log_stamps, values = column
+        stamps, block = log_stamps, None
+    else:
+        log_stamps, raws = ctx.data(topics.obs)
+        values, stamps, block = _vectors(ctx, topics.obs, topics.obs_type, ctx.spec.observation, log_stamps,
+                                         raws)
     order = None  # header stamps may order the steps differently from the bag
     if stamps is not log_stamps and np.any(np.diff(stamps) < 0):
         order = np.argsort(stamps, kind="stable")

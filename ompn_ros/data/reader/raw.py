@@ -1,29 +1,79 @@
-"""Raw messages of the wanted topics, undecoded: the normal read through ``rosbags``.
+"""Messages of the wanted topics: the normal read through ``rosbags``.
 
-Cost: one pass over the bag's storage, O(bytes of the wanted topics) memory (raw CDR is kept,
-decoding happens per topic in bulk afterwards).
+Raw CDR is kept and decoded per topic in bulk afterwards, except for the step topic when a
+:class:`StreamPlan` says so: its messages are decoded into one array as they are read
+(:mod:`ompn_ros.data.reader.columns`) and their bytes dropped.  Cost: one pass over the bag's storage;
+memory O(bytes of the raw-kept topics) plus the step array (about the bytes of the step topic).
 """
 
 from __future__ import annotations
 
+from array import array
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader
 
 from ..errors import CorruptBagError
+from ..obs import ObservationSpec
+from .columns import AssemblySink, Float32Column
 from .paths import storage_files
+
+
+@dataclass(frozen=True)
+class StreamPlan:
+    """What to decode while reading (bag topic names).
+
+    Attributes:
+        column: a ``Float32MultiArray`` observation topic to decode into a :class:`Float32Column`.
+        dim: the spec's observation size for ``column`` (``None``: the first message's).
+        assemble: ``ReaderSpec.assemble`` with bag topic names, fed to an :class:`AssemblySink`.
+        keep_raw: topics whose raw bytes are still needed (e.g. a partner topic that is also the
+            action topic); every other topic of the plan keeps stamps and record positions only.
+    """
+
+    column: str | None = None
+    dim: int | None = None
+    assemble: ObservationSpec | None = None
+    keep_raw: frozenset[str] = frozenset()
 
 
 @dataclass
 class TopicData:
     """Stamps (ns, as read), raw CDR messages and record positions (``seqs``: the message's index
-    in the bag's record order, across topics) of one topic."""
+    in the bag's record order, across topics) of one topic.  Stamps and positions are packed int64
+    (8 bytes a message, not a Python int each)."""
 
     msgtype: str
-    stamps: list[int] = field(default_factory=list)
+    stamps: array[int] = field(default_factory=lambda: array("q"))
     raws: list[bytes] = field(default_factory=list)
-    seqs: list[int] = field(default_factory=list)
+    seqs: array[int] = field(default_factory=lambda: array("q"))
+    column: Float32Column | None = None  # decoded as read: ``raws`` stays empty while it is set
+    has_raws: bool = True  # False: a topic fed to an AssemblySink whose bytes were dropped
+
+    def add(self, stamp: int, data: bytes, seq: int) -> None:
+        """Append one message (decoded into the column when there is one and it fits)."""
+        self.stamps.append(stamp)
+        self.seqs.append(seq)
+        if self.column is not None:
+            if self.column.add(data):
+                return
+            self.raws = self.column.to_raws()  # the streaming ends: exact bytes of the rows so far
+            self.column = None
+        if self.has_raws:
+            self.raws.append(data)
+
+    def keep(self, index: list[int]) -> None:
+        """Keep messages ``index`` (in that order)."""
+        self.stamps = array("q", [self.stamps[i] for i in index])
+        self.seqs = array("q", [self.seqs[i] for i in index])
+        if self.column is not None:
+            self.column.take(np.asarray(index, dtype=np.int64))
+        elif self.has_raws:
+            self.raws = [self.raws[i] for i in index]
 
 
 @dataclass
@@ -36,6 +86,8 @@ class RawBag:
     corrupt: CorruptBagError | None = None
     untrusted: str | None = None  # damage found that no scan could locate: no episode is trusted
     count: int = 0  # messages read so far (wanted or not): the next record position
+    assembly: AssemblySink | None = None  # the assembler's rows when they were built while reading
+    cut: int | None = None  # truncate(): messages stamped at or after it are dropped
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""
@@ -45,25 +97,27 @@ class RawBag:
         tdata = self.topics.get(topic)
         if tdata is None:
             tdata = self.topics[topic] = TopicData(msgtype)
-        tdata.stamps.append(stamp)
-        tdata.raws.append(data)
-        tdata.seqs.append(self.count - 1)
+        tdata.add(stamp, data, self.count - 1)
 
     def truncate(self, stamp: int) -> None:
         """Drop every message stamped at or after ``stamp`` (the corrupt tail)."""
+        self.cut = stamp if self.cut is None else min(self.cut, stamp)
+        self.assembly = None  # built over the whole bag: rebuilt from the storage (reader.observe)
         for tdata in self.topics.values():
             keep = [i for i, s in enumerate(tdata.stamps) if s < stamp]
             if len(keep) != len(tdata.stamps):
-                tdata.stamps = [tdata.stamps[i] for i in keep]
-                tdata.raws = [tdata.raws[i] for i in keep]
-                tdata.seqs = [tdata.seqs[i] for i in keep]
+                tdata.keep(keep)
 
 
-def collect_rosbags(bag: Path, wanted: set[str] | None) -> RawBag:
+Planner = Callable[[dict[str, str]], "StreamPlan | None"]  # topic types -> what to decode while reading
+
+
+def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None = None) -> RawBag:
     """Read every message of the wanted topics with ``rosbags`` (the normal path).
 
     ``rosbags`` checks mcap chunk CRCs when the writer set them; a mismatch ends the read like
     any other storage error: the messages read before it are kept and ``corrupt`` names the file.
+    ``planner``: given the bag's topic types, the topics to decode while reading (:class:`StreamPlan`).
     Raises :class:`CorruptBagError` when the bag cannot even be opened.
     """
     raw = RawBag(bag, {}, {})
@@ -75,18 +129,25 @@ def collect_rosbags(bag: Path, wanted: set[str] | None) -> RawBag:
         files = storage_files(bag) if bag.is_dir() else [bag]
         where = files[0] if len(files) == 1 else bag
         raise CorruptBagError(f"cannot open bag: {err}", path=where) from err
+    raw.types = {c.topic: c.msgtype for c in reader.connections}
+    conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+    for topic in {c.topic for c in conns}:
+        raw.topics[topic] = TopicData(raw.types[topic])
     try:
-        raw.types = {c.topic: c.msgtype for c in reader.connections}
-        conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
-        for topic in {c.topic for c in conns}:
-            raw.topics[topic] = TopicData(raw.types[topic])
+        sink = _apply_plan(raw, planner(raw.types) if planner else None, _counts(conns))
+    except BaseException:  # not a storage error: the reader is closed and the error goes up
+        reader.close()
+        raise
+    try:
         if conns:
-            by_id = {c.id: raw.topics[c.topic] for c in conns}
+            by_id = {c.id: (c.topic, raw.topics[c.topic]) for c in conns}
+            fed = set(sink.spec.topics) if sink is not None else set()
             for conn, stamp, data in reader.messages(connections=conns):
-                tdata = by_id[conn.id]
-                tdata.stamps.append(stamp)
-                tdata.raws.append(data)
-                tdata.seqs.append(read)
+                topic, tdata = by_id[conn.id]
+                tdata.add(stamp, data, read)
+                if topic in fed:
+                    assert sink is not None
+                    sink.add(topic, stamp, data)
                 read += 1
     except Exception as err:  # any storage error ends the read; the caller decides what to keep
         raw.corrupt = CorruptBagError(f"read failed after {read} messages: {type(err).__name__} {err}",
@@ -98,3 +159,25 @@ def collect_rosbags(bag: Path, wanted: set[str] | None) -> RawBag:
             pass
     raw.count = read
     return raw
+
+
+def _counts(conns: list[Connection]) -> dict[str, int]:
+    """Messages per topic from the bag's index (0 when it does not say)."""
+    out: dict[str, int] = {}
+    for c in conns:
+        out[c.topic] = out.get(c.topic, 0) + int(c.msgcount or 0)
+    return out
+
+
+def _apply_plan(raw: RawBag, plan: StreamPlan | None, counts: dict[str, int]) -> AssemblySink | None:
+    """Set the column and the assembler sink of ``plan`` on the topics read (``None``: no sink)."""
+    if plan is None:
+        return None
+    if plan.column is not None and plan.column in raw.topics:
+        raw.topics[plan.column].column = Float32Column(plan.dim, counts.get(plan.column, 0))
+    if plan.assemble is None or not set(plan.assemble.topics) <= set(raw.topics):
+        return None
+    for topic in plan.assemble.topics:
+        raw.topics[topic].has_raws = topic in plan.keep_raw
+    raw.assembly = AssemblySink(plan.assemble, counts.get(plan.assemble.step_topic, 0))
+    return raw.assembly

@@ -13,6 +13,7 @@ from .assemble import bag_episodes
 from .context import BagContext
 from .decode import decode_bag
 from .paths import metadata_topic_types, resolve_bag_paths, storage_files, wanted_topics
+from .plan import stream_plan
 from .raw import RawBag, collect_rosbags
 from .report import BagReport, ReadReport, ReadResult
 from .salvage import salvage
@@ -38,7 +39,7 @@ def read_raw(bag: Path, spec: ReaderSpec, on_error: OnError) -> RawBag:
             raw.untrusted = str(damage)
         return raw
     try:
-        raw = collect_rosbags(bag, wanted)
+        raw = collect_rosbags(bag, wanted, lambda bag_types: stream_plan(bag, spec, bag_types))
     except CorruptBagError as err:
         if on_error == "raise":
             raise

@@ -1,0 +1,136 @@
+"""Decode while reading: the step topic's messages become rows of one preallocated array.
+
+Keeping every raw message and decoding afterwards holds the bag twice (raw CDR, then the decoded
+copy).  While the bag is read, each message of the step topic is decoded at once and its bytes
+dropped:
+
+* :class:`Float32Column`: a ``std_msgs/Float32MultiArray`` observation topic.  A message whose CDR
+  has the first message's length and layout prefix (always the case for one topic of a recorder) is
+  copied into the next row.  Any other message (another length or layout, undecodable CDR, a first
+  message of another size than the spec's) ends the streaming: the rows so far are turned back
+  into their exact raw bytes (the prefix followed by the row's bytes) and the topic is kept raw, so
+  the batch decoder reports the same error on the same message as without streaming.
+* :class:`AssemblySink`: ``ReaderSpec.assemble``; the messages of the spec's topics are fed to the
+  live :class:`~ompn_ros.data.obs.ObservationAssembler` in record order (the order
+  :func:`~ompn_ros.data.obs.assemble_stream` sees them in) and each step's row written in place.
+
+Memory: ``capacity · D`` float32 (the topic's message count from the bag's index, grown by half when
+the index undercounts), no raw bytes.  Time: O(bytes) per message, as the batch decoder.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from .. import messages as m
+from ..obs import Drop, ObservationAssembler, ObservationSpec
+
+
+def _grown(values: np.ndarray, rows: int) -> np.ndarray:
+    """``values`` with room for at least ``rows`` rows (by half again, at least 16 more)."""
+    if rows <= len(values):
+        return values
+    out = np.zeros((max(rows, len(values) * 3 // 2 + 16), *values.shape[1:]), dtype=values.dtype)
+    out[: len(values)] = values
+    return out
+
+
+class Float32Column:
+    """Rows of the ``Float32MultiArray`` messages of one topic, decoded as they are read."""
+
+    def __init__(self, expected_dim: int | None, capacity: int) -> None:
+        self.expected_dim = expected_dim
+        self.capacity = max(int(capacity), 1)
+        self.n = 0
+        self._prefix = b""
+        self._size = 0
+        self._values: np.ndarray | None = None
+
+    def add(self, raw: bytes | memoryview) -> bool:
+        """Decode ``raw`` into the next row; ``False``: it does not fit (the caller keeps raw bytes)."""
+        if self._values is None:
+            return self._first(raw)
+        if len(raw) != self._size or raw[: len(self._prefix)] != self._prefix:
+            return False
+        if self.n == len(self._values):
+            self._values = _grown(self._values, self.n + 1)
+        self._values[self.n] = np.frombuffer(raw, dtype="<f4", offset=len(self._prefix))
+        self.n += 1
+        return True
+
+    def _first(self, raw: bytes | memoryview) -> bool:
+        try:
+            start, dim = m._multiarray_data_start(raw)
+        except (ValueError, struct.error):
+            return False
+        if (self.expected_dim is not None and dim != self.expected_dim) or start % 4:
+            return False
+        self._prefix, self._size = bytes(raw[:start]), len(raw)
+        self._values = np.empty((self.capacity, dim), dtype=np.float32)
+        self._values[0] = np.frombuffer(raw, dtype="<f4", offset=start)
+        self.n = 1
+        return True
+
+    @property
+    def values(self) -> np.ndarray:
+        """float32 ``[n, D]``: a view of the rows read so far."""
+        if self._values is None:
+            return np.zeros((0, self.expected_dim or 0), dtype=np.float32)
+        return self._values[: self.n]
+
+    def take(self, index: np.ndarray) -> None:
+        """Keep rows ``index`` in that order (a reorder or a cut); a prefix keeps the buffer."""
+        index = np.asarray(index, dtype=np.int64)
+        if self._values is None:
+            return
+        if np.array_equal(index, np.arange(len(index))):
+            self.n = len(index)
+            return
+        self._values = self._values[: self.n][index]
+        self.n = len(index)
+
+    def to_raws(self) -> list[bytes]:
+        """The exact CDR bytes of every row read so far (the prefix, then the row's elements)."""
+        return [self._prefix + row.astype("<f4").tobytes() for row in self.values]
+
+
+class AssemblySink:
+    """The assembler's step rows of ``spec`` (bag topic names), written in place as steps arrive.
+
+    Rows the rule dropped stay zero with ``kept`` False, as in :func:`~ompn_ros.data.obs.assemble_stream`.
+    """
+
+    def __init__(self, spec: ObservationSpec, capacity: int) -> None:
+        self.spec = spec
+        self.asm = ObservationAssembler(spec)
+        self.capacity = max(int(capacity), 1)
+        self.n = 0
+        self.kept: list[bool] = []
+        self.step_stamps: list[int] = []
+        self._values: np.ndarray | None = None
+
+    def add(self, topic: str, stamp: int, raw: bytes | memoryview) -> None:
+        """Feed one message of a topic of the spec (record order)."""
+        if topic != self.spec.step_topic:
+            self.asm.offer(topic, stamp, raw)
+            return
+        result = self.asm.step(stamp, raw)
+        self.step_stamps.append(int(stamp))
+        self.kept.append(not isinstance(result, Drop))
+        if not isinstance(result, Drop):
+            if self._values is None:
+                self._values = np.zeros((max(self.capacity, self.n + 1), len(result)), dtype=np.float32)
+            self._values = _grown(self._values, self.n + 1)
+            self._values[self.n] = result
+        self.n += 1
+
+    @property
+    def values(self) -> np.ndarray:
+        """float32 ``[steps, D]`` (zeros on dropped steps): a view."""
+        if self._values is None:
+            return np.zeros((self.n, self.asm.dim or 0), dtype=np.float32)
+        if len(self._values) < self.n:  # steps dropped after the last kept one
+            self._values = _grown(self._values, self.n)
+        return self._values[: self.n]
