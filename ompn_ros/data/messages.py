@@ -354,7 +354,7 @@ def parse_sketch_value(text: str, vocab: int | None = None) -> np.ndarray:
     return parse_sketch_text(text, vocab)
 
 
-def _multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
+def multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
     """Offset of the first element and element count of a little-endian MultiArray CDR message."""
     if bytes(raw[:4]) != CDR_LE_HEADER:
         raise ValueError("not a little-endian CDR message")
@@ -379,7 +379,7 @@ def _multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
 def parse_float32_array(raw: bytes | memoryview) -> np.ndarray:
     """Data of one ``Float32MultiArray`` as a float32 vector."""
     try:
-        start, n = _multiarray_data_start(raw)
+        start, n = multiarray_data_start(raw)
     except (ValueError, struct.error):
         return np.asarray(deserialize(raw, layout.FLOAT32_ARRAY).data, dtype=np.float32)
     return np.frombuffer(raw, dtype="<f4", count=n, offset=start).astype(np.float32)
@@ -388,7 +388,7 @@ def parse_float32_array(raw: bytes | memoryview) -> np.ndarray:
 def parse_int32_array(raw: bytes | memoryview) -> np.ndarray:
     """Data of one ``Int32MultiArray`` as an int64 vector."""
     try:
-        start, n = _multiarray_data_start(raw)
+        start, n = multiarray_data_start(raw)
     except (ValueError, struct.error):
         return np.asarray(deserialize(raw, layout.INT32_ARRAY).data, dtype=np.int64)
     return np.frombuffer(raw, dtype="<i4", count=n, offset=start).astype(np.int64)
@@ -421,7 +421,7 @@ def stack_float32_arrays(
         return np.zeros((0, expected_dim or 0), dtype=np.float32)
     first = raws[0]
     try:
-        start, dim = _multiarray_data_start(first)
+        start, dim = multiarray_data_start(first)
     except (ValueError, struct.error):  # not our little-endian layout: decode message by message
         start, dim = -1, len(parse_float32_array_checked(first, path, topic, 0, stamps))
     if expected_dim is not None and dim != expected_dim:

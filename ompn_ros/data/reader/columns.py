@@ -62,7 +62,7 @@ class Float32Column:
 
     def _first(self, raw: bytes | memoryview) -> bool:
         try:
-            start, dim = m._multiarray_data_start(raw)
+            start, dim = m.multiarray_data_start(raw)
         except (ValueError, struct.error):
             return False
         if (self.expected_dim is not None and dim != self.expected_dim) or start % 4:
