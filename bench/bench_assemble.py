@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import subprocess
 import sys
 import textwrap
@@ -38,9 +37,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ["ROS_DOMAIN_ID"]) <= 100:
-    os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+from ompn_ros import containment  # noqa: E402 (after the path insert)
+
+containment.contain(os.environ)  # loopback + shared memory only, a per-run ROS_DOMAIN_ID
 
 Result = dict[str, tuple[float, str]]
 RATE_HZ = 1000
