@@ -62,9 +62,9 @@ def test_latest_at_or_before_and_names() -> None:
     for t in (10, 20, 30):
         assert asm.offer("/arm/grip", t * MS, grip(t, -t)) is None
         assert asm.offer("/arm/ft", 0, wrench(t * MS, force=(t, 0, 0))) is None  # header stamp rules
-    out = asm.step(0, js(25 * MS))
+    out = asm.step(25 * MS, js(25 * MS))
     np.testing.assert_array_equal(out, expected(g=(20, -20), f=(20, 0, 0)))
-    out = asm.step(0, js(30 * MS))  # equal stamps count as "at or before"
+    out = asm.step(30 * MS, js(30 * MS))  # equal stamps count as "at or before"
     np.testing.assert_array_equal(out, expected(g=(30, -30), f=(30, 0, 0)))
     assert asm.dim == 7 and asm.obs_names()[:3] == ("arm/js/position/j3", "arm/js/position/j1",
                                                      "arm/grip/data/0")
@@ -73,14 +73,14 @@ def test_latest_at_or_before_and_names() -> None:
 
 def test_tolerance_missing_and_stale_are_counted() -> None:
     asm = ObservationAssembler(SPEC)
-    drop = asm.step(0, js(5 * MS))
+    drop = asm.step(5 * MS, js(5 * MS))
     assert isinstance(drop, Drop) and drop.reason == "missing" and drop.topic == "/arm/grip"
     asm.offer("/arm/grip", 10 * MS, grip(1, 2))
     asm.offer("/arm/ft", 0, wrench(10 * MS))
-    assert not isinstance(asm.step(0, js(20 * MS)), Drop)  # exactly the tolerance: kept
-    drop = asm.step(0, js(20 * MS + 1))
+    assert not isinstance(asm.step(20 * MS, js(20 * MS)), Drop)  # exactly the tolerance: kept
+    drop = asm.step(20 * MS + 1, js(20 * MS + 1))
     assert isinstance(drop, Drop) and drop.reason == "stale" and "tolerance 10 ms" in drop.detail
-    drop = asm.step(0, js(9 * MS))  # partners only after the step: missing
+    drop = asm.step(9 * MS, js(9 * MS))  # partners only after the step: missing
     assert isinstance(drop, Drop) and drop.reason == "missing" and "at or before" in drop.detail
     assert asm.stats.dropped == {"missing": 2, "stale": 1}
     assert asm.stats.kept + sum(asm.stats.dropped.values()) == asm.stats.steps == 4
@@ -104,14 +104,14 @@ def test_malformed_and_wrong_size_partner_occupy_their_stamp() -> None:
     asm.offer("/arm/grip", 1 * MS, grip(1, 1))
     bad = asm.offer("/arm/grip", 2 * MS, b"\x00\x01\x00\x00\x05")
     assert isinstance(bad, Drop) and bad.reason == "malformed"
-    drop = asm.step(0, js(3 * MS))
+    drop = asm.step(3 * MS, js(3 * MS))
     assert isinstance(drop, Drop) and drop.reason == "malformed" and drop.topic == "/arm/grip"
     bad = asm.offer("/arm/grip", 4 * MS, grip(1, 2, 3))
     assert isinstance(bad, Drop) and bad.reason == "wrong_size" and "3 elements, expected 2" in bad.detail
-    drop = asm.step(0, js(5 * MS))
+    drop = asm.step(5 * MS, js(5 * MS))
     assert isinstance(drop, Drop) and drop.reason == "wrong_size"
     asm.offer("/arm/grip", 6 * MS, grip(6, 6))
-    np.testing.assert_array_equal(asm.step(0, js(7 * MS)), expected(g=(6, 6)))
+    np.testing.assert_array_equal(asm.step(7 * MS, js(7 * MS)), expected(g=(6, 6)))
     assert asm.stats.rejected == {("/arm/grip", "malformed"): 1, ("/arm/grip", "wrong_size"): 1}
     assert asm.stats.dropped == {"malformed": 1, "wrong_size": 1}
 
@@ -157,9 +157,15 @@ def test_stamp_rule_header_receive_and_zero_header() -> None:
         asm = ObservationAssembler(spec)
         asm.offer("/arm/grip", 50 * MS, grip(0, 0))
         asm.offer("/arm/ft", 100 * MS, wrench(50 * MS))  # header 50 ms, received at 100 ms
-        out = asm.step(0, js(55 * MS))  # header 55 ms, received at 0 (receive rule: before both)
+        out = asm.step(60 * MS, js(55 * MS))  # header 55 ms, received at 60 (receive rule: before ft)
         assert isinstance(out, np.ndarray) is kept
-        assert asm.last_stamp_ns == (55 * MS if kept else 0)
+        assert asm.last_stamp_ns == (55 * MS if kept else 60 * MS)
+    # each partner on its own clock: the gripper (no header) against the step's reception, so a
+    # backlog of the receiver that delays the step and the gripper alike does not age the gripper
+    asm = ObservationAssembler(SPEC)
+    asm.offer("/arm/ft", 300 * MS, wrench(50 * MS))
+    asm.offer("/arm/grip", 300 * MS, grip(7, 7))  # published with the step below, received 250 ms late
+    np.testing.assert_array_equal(asm.step(301 * MS, js(51 * MS)), expected(g=(7, 7)))
     asm = ObservationAssembler(SPEC)  # a zero header stamp (unset by the driver) falls back to receive
     asm.offer("/arm/grip", 10 * MS, grip(0, 0))
     asm.offer("/arm/ft", 10 * MS, wrench(0))
@@ -351,7 +357,7 @@ def test_partner_after_its_step_gives_the_in_order_observation() -> None:
 
 def test_a_partner_that_never_comes_releases_after_the_wait() -> None:
     asm = ObservationAssembler(SPEC)  # wait_s 0.1
-    asm.offer("/arm/grip", 0, grip(1, 2))
+    asm.offer("/arm/grip", 5 * MS, grip(1, 2))
     asm.offer("/arm/ft", 0, wrench(1 * MS))
     asm.hold(10 * MS, js(2 * MS))
     asm.hold(11 * MS, js(3 * MS))

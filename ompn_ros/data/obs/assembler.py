@@ -6,8 +6,10 @@ The rule (``ompn_node`` applies it live, the bag reader offline through
 * Every message of ``spec.step_topic`` is a **step**: it gives one observation or one counted
   :class:`Drop`.  The observation is ``spec.fields`` concatenated in order (float32).
 * Fields of the step topic come from the step message itself.  Fields of every other (*partner*)
-  topic come from **the latest message of that topic stamped at or before the step**, among the
-  messages offered before the step.  It must be at most ``spec.tolerance_s`` older than the step.
+  topic come from **the latest message of that topic stamped at or before the step**, on the
+  partner's clock: a partner stamped by its headers is compared with the step's stamp, a partner
+  stamped at reception with the step's reception (so a backlog of the caller, which delays every
+  reception alike, does not age it).  It must be at most ``spec.tolerance_s`` older than the step.
 * Otherwise the step is dropped, and counted by reason: ``missing`` (no partner message at or
   before the step), ``stale`` (older than the tolerance), ``malformed`` (undecodable bytes, or a
   JointState lacking a joint of the spec), ``wrong_size`` (a field with another element count than
@@ -181,7 +183,8 @@ class ObservationAssembler:
         self._names: tuple[str, ...] = ()
         self.stats = AssemblerStats()
         self.last_stamp_ns: int | None = None  # stamp (under the stamp rule) of the last step fed
-        waited = [t for t in spec.partner_topics if self._header and self._ex[t].has_header]
+        self._by_header = frozenset(t for t in spec.partner_topics if self._header and self._ex[t].has_header)
+        waited = [t for t in spec.partner_topics if t in self._by_header]
         self._frontier: dict[str, int | None] = dict.fromkeys(waited if spec.wait_s > 0 else ())
         self._wait_ns = round(spec.wait_s * 1e9)
         self._max_held = history if max_held is None else max_held
@@ -272,7 +275,7 @@ class ObservationAssembler:
             raise ValueError("step() while steps are held: release(flush=True) first, or use hold()")
         self.stats.steps += 1
         stamp, parsed = self._parse_step(int(stamp_ns), raw)
-        return self._decide(stamp, parsed)
+        return self._decide(int(stamp_ns), stamp, parsed)
 
     def hold(self, stamp_ns: int, raw: bytes | memoryview) -> None:
         """Feed a message of the step topic; it is decided by :meth:`release` (module docstring).
@@ -312,7 +315,7 @@ class ObservationAssembler:
                 late = True
                 self.stats.late += 1
             self._held.popleft()
-            out.append(Decided(receive, stamp, self._decide(stamp, parsed), late))
+            out.append(Decided(receive, stamp, self._decide(receive, stamp, parsed), late))
         return out
 
     def _settled(self, stamp: int) -> bool:
@@ -336,13 +339,14 @@ class ObservationAssembler:
             self.last_stamp_ns = stamp = header
         return stamp, vectors
 
-    def _decide(self, stamp: int, parsed: list[np.ndarray] | Drop) -> np.ndarray | Drop:
-        """The rule for one parsed step: the observation, or the counted drop."""
+    def _decide(self, receive: int, stamp: int, parsed: list[np.ndarray] | Drop) -> np.ndarray | Drop:
+        """The rule for one parsed step (``receive``: the caller's stamp, ``stamp``: under the stamp
+        rule): the observation, or the counted drop."""
         if isinstance(parsed, Drop):
             return self._drop(parsed.reason, parsed.topic, stamp, parsed.detail)
         values = {self.spec.step_topic: parsed}
         for partner, hist in self._hist.items():
-            found = self._partner(partner, hist, stamp)
+            found = self._partner(partner, hist, stamp if partner in self._by_header else receive)
             if isinstance(found, Drop):
                 return self._drop(found.reason, found.topic, stamp, found.detail)
             values[partner] = found
