@@ -94,6 +94,7 @@ from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, drop_line, load_spec
 from ompn_ros.nodes.ompn_node_params import (
     EXECUTORS,
@@ -187,6 +188,7 @@ class OMPNNode(LifecycleNode):
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
         self._status_name = f"{self.get_name()}/subtask_boundary"
+        self._boundary_cdr = BoundaryEncoder(self._status_name)
         self._n_slots = 0
         self._active = False
         self._jump_back_ns = self._max_lead_ns = 0
@@ -643,18 +645,10 @@ class OMPNNode(LifecycleNode):
 
     # --- outputs -------------------------------------------------------------------------------
     def publish_boundary(self, event: BoundaryEvent, log: bool = True) -> None:
-        """Publish ``event`` on ``~/boundary`` (CDR built by the codec) and, with ``log``, log it."""
+        """Publish ``event`` on ``~/boundary`` (:class:`BoundaryEncoder`: the codec's bytes, the constant
+        part encoded once) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
-        values = {
-            "step": event.step,
-            "subtask": event.subtask,
-            "score": f"{event.score:.6f}",
-            "level": event.level,
-            "detected_at": event.detected_at,
-            "stamp_ns": event.stamp_ns,
-            "final": event.final,
-        }
-        self._pubs["boundary"].publish(encode_diagnostic_status(stamp, self._status_name, "boundary", values))
+        self._pubs["boundary"].publish(self._boundary_cdr.encode(stamp, event))
         self.events["boundaries"] += 1
         if log:
             self.log_boundary(event)
