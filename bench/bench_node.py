@@ -458,12 +458,14 @@ def _multi_sustained(c: _Client, pid: int, ticks: list[list[tuple[Any, bytes]]],
     c.pump(lambda: False, 0.5)
     accepted = int(c.diag["accepted"]) - int(before["accepted"])
     dropped = _counter_sum(c.diag, "obs.dropped.") - _counter_sum(before, "obs.dropped.")
+    late = _counter_sum(c.diag, "obs.late") - _counter_sum(before, "obs.late")
     return {f"{name}_1khz_sent": (float(n), "steps"),
             f"{name}_1khz_achieved_rate": (n / wall, "Hz"),
             f"{name}_1khz_steps_in": (float(int(c.diag["obs.steps"]) - int(before["obs.steps"])), "steps"),
             f"{name}_1khz_pi_out": (float(len(c.pi_times) - pi_before), "msgs"),
             f"{name}_1khz_lost_steps": (float(n - accepted), "steps"),
             f"{name}_1khz_dropped_steps": (float(dropped), "steps"),
+            f"{name}_1khz_late_steps": (float(late), "steps"),
             f"{name}_1khz_node_cpu": (100.0 * cpu / wall, "% of one core"),
             **{f"{name}_1khz_dropped_{k.split('.')[-1]}": (float(int(v) - int(before.get(k, 0))), "steps")
                for k, v in c.diag.items() if k.startswith("obs.dropped.")}}  # fmt: skip
