@@ -3,17 +3,20 @@
 A publisher process plays an arm at 1 kHz: per tick a ``WrenchStamped`` and a gripper
 ``Float32MultiArray`` (the two extra topics), then the step topic ``JointState`` (7 joints, position
 and velocity), all RELIABLE with depth 1000.  This process subscribes (raw CDR, EventsExecutor driven
-by ``spin_once``) and feeds two :class:`ObservationAssembler`: the measured one with
-``stamp: receive`` (every stamp on this process's clock) and one with ``stamp: header`` (header
-stamps of the publisher where the type has one: drops there show how far the publisher's stamps and
-this process's receive times drift apart under load).  Figures, over ``duration`` s (60 s; 10 s with
-``quick``):
+by ``spin_once``) and feeds two :class:`ObservationAssembler` (``hold`` / ``release``, as
+``ompn_node``): the measured one with ``stamp: receive`` (every stamp on this process's clock; it
+never waits) and one with ``stamp: header`` (the publisher's header stamps for JointState and
+WrenchStamped, the gripper at reception; a step waits for the wrench stamped at or after it,
+``wait_s`` 0.1 s).  Figures, over ``duration`` s (60 s; 10 s with ``quick``):
 
 * ``steps_sent``, ``steps_received``, ``steps_assembled``, ``step_loss`` = 1 − assembled / sent
   (target 0), ``steps_per_s`` (assembled per second of publishing);
 * ``assemble_p50_us`` / ``assemble_p99_us``: ``ObservationAssembler.step`` wall time per step;
 * ``offer_p50_us``: ``offer`` wall time per partner message;
-* ``header_rule_kept_ratio``: kept / received of the ``stamp: header`` assembler;
+* ``receive_rule_dropped``, ``header_rule_dropped``: steps dropped by each rule (target 0);
+* ``header_rule_kept_ratio``: kept / received of the ``stamp: header`` assembler, ``header_rule_late``
+  its steps decided at the end of their wait, ``header_rule_wait_p50_ms`` / ``_p99_ms`` how long it
+  held its kept steps (from the step's reception to its release);
 * ``max_gap_<topic>_ms``: the longest time this process received nothing on a topic.  A partner
   topic whose delivery stalls longer than the tolerance (50 ms; e.g. a reliable-repair pause of DDS on
   a loaded machine) makes the steps of that stall ``stale``: counted drops, by the rule;
@@ -26,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import subprocess
 import sys
 import textwrap
@@ -38,9 +40,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ["ROS_DOMAIN_ID"]) <= 100:
-    os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+from ompn_ros import containment  # noqa: E402 (after the path insert)
+
+containment.contain(os.environ)  # loopback + shared memory only, a per-run ROS_DOMAIN_ID
+
+from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec  # noqa: E402
 
 Result = dict[str, tuple[float, str]]
 RATE_HZ = 1000
@@ -116,12 +120,12 @@ class _Subscriber:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float32MultiArray
 
-        from ompn_ros.data.obs import ObservationAssembler, ObservationSpec
 
         self.step_topic = SPEC["step_topic"]
         self.header_asm = ObservationAssembler(ObservationSpec.from_dict({**SPEC, "stamp": "header"}))
         self.asm = ObservationAssembler(ObservationSpec.from_dict({**SPEC, "stamp": "receive"}))
         self.step_ns: list[int] = []
+        self.header_wait_ns: list[int] = []  # how long the header rule held each kept step
         self.offer_ns: list[int] = []
         self.recorded: list[tuple[str, int, bytes]] = []
         self.last = 0
@@ -147,13 +151,18 @@ class _Subscriber:
             self.recorded.append((topic, now, raw))
             t0 = time.perf_counter_ns()
             if step:
-                self.asm.step(now, raw)
+                self.asm.hold(now, raw)
+                self.asm.release(now)
                 self.step_ns.append(time.perf_counter_ns() - t0)
-                self.header_asm.step(now, raw)
+                self.header_asm.hold(now, raw)
             else:
                 self.asm.offer(topic, now, raw)
+                self.asm.release(now)
                 self.offer_ns.append(time.perf_counter_ns() - t0)
                 self.header_asm.offer(topic, now, raw)
+            for d in self.header_asm.release(now):
+                if not isinstance(d.result, Drop):
+                    self.header_wait_ns.append(now - d.receive_ns)
 
         return on_message
 
@@ -174,6 +183,8 @@ def bench_dds(duration: float) -> Result:
             sub.ex.spin_once(timeout_sec=0.05)
         for _ in range(20):  # drain what is still queued
             sub.ex.spin_once(timeout_sec=0.05)
+        sub.asm.release(flush=True)  # the end of the stream
+        sub.header_asm.release(flush=True)
     finally:
         rclpy.try_shutdown(context=ctx)
         if proc.poll() is None:
@@ -195,7 +206,12 @@ def bench_dds(duration: float) -> Result:
         "assemble_p50_us": (_pct(sub.step_ns, 50), "us"),
         "assemble_p99_us": (_pct(sub.step_ns, 99), "us"),
         "offer_p50_us": (_pct(sub.offer_ns, 50), "us"),
+        "receive_rule_dropped": (float(sum(stats.dropped.values())), "steps"),
         "header_rule_kept_ratio": (hstats.kept / max(hstats.steps, 1), "fraction"),
+        "header_rule_dropped": (float(sum(hstats.dropped.values())), "steps"),
+        "header_rule_late": (float(hstats.late), "steps"),
+        "header_rule_wait_p50_ms": (_pct(sub.header_wait_ns, 50) / 1e3, "ms"),
+        "header_rule_wait_p99_ms": (_pct(sub.header_wait_ns, 99) / 1e3, "ms"),
     }
     for topic, gap in sorted(sub.max_gap_ns.items()):  # delivery stalls explain 'stale' drops
         result[f"max_gap_{topic.rsplit('/', 1)[-1]}_ms"] = (gap / 1e6, "ms")

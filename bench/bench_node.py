@@ -15,7 +15,9 @@
 3. Multi-topic (``ompn_node`` with ``observation_spec``, :mod:`ompn_ros.nodes.ompn_node_obs`): the Dial
    observation split over three topics, ``/arm/joint_states`` (JointState, 9 joints, position +
    velocity: the step topic), ``/arm/wrench`` (WrenchStamped, every step) and ``/arm/gripper``
-   (Float32MultiArray of 15, every 4th step), ``stamp: receive``, tolerance 50 ms.  In process: the
+   (Float32MultiArray of 15, every 4th step), ``stamp: header`` (JointState and WrenchStamped stamped
+   when published, the gripper at reception), tolerance 50 ms, ``wait_s`` 0.1 s (``--multi-wait``): a
+   step waits for the wrench of the next tick, published before the next step.  In process: the
    node's work per step (``ObservationAssembler.step`` + ``StreamingSegmenter.step``) p50/p99; over
    DDS: step -> ``~/pi`` and step -> ``~/boundary`` latency at 100 Hz, then 1 kHz on the step topic for
    ``duration`` s (60 s; 10 s with ``quick``): steps in (the node's ``obs.steps``), ``~/pi`` out, lost
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import struct
 import subprocess
 import sys
 import tempfile
@@ -248,9 +251,9 @@ class _Client:
                 elif due - now > 150_000:
                     time.sleep((due - now - 100_000) / 1e9)
             for pub, raw in m[:-1]:
-                pub.publish(raw)
+                _publish(pub, raw)
             sent.append(time.monotonic_ns())
-            m[-1][0].publish(m[-1][1])
+            _publish(*m[-1])
         return sent
 
 
@@ -345,7 +348,7 @@ ARM_JOINTS = [f"j{i}" for i in range(9)]
 ARM_SPEC: dict[str, Any] = {
     "step_topic": "/arm/joint_states",
     "tolerance_s": 0.05,
-    "stamp": "receive",
+    "stamp": "header",
     "fields": [
         {"topic": "/arm/joint_states", "type": "sensor_msgs/msg/JointState", "field": "position",
          "names": ARM_JOINTS},
@@ -355,7 +358,8 @@ ARM_SPEC: dict[str, Any] = {
         {"topic": "/arm/wrench", "type": "geometry_msgs/msg/WrenchStamped", "field": "wrench"},
     ],
 }  # fmt: skip
-"""The Dial observation (39) over three topics: 9 + 9 joint values, 15 gripper/object values, 6 wrench."""
+"""The Dial observation (39) over three topics: 9 + 9 joint values, 15 gripper/object values, 6 wrench.
+Header stamps (set when published): a step waits for the wrench stamped at or after it (``wait_s``)."""
 
 
 def _arm_messages(obs: np.ndarray) -> list[list[tuple[str, bytes]]]:
@@ -369,12 +373,22 @@ def _arm_messages(obs: np.ndarray) -> list[list[tuple[str, bytes]]]:
     for k, x in enumerate(obs.astype(float)):
         js = JointState(name=ARM_JOINTS, position=list(x[0:9]), velocity=list(x[9:18]))
         force, torque = Vector3(x=x[33], y=x[34], z=x[35]), Vector3(x=x[36], y=x[37], z=x[38])
-        batch = [("/arm/wrench", serialize_message(WrenchStamped(wrench=Wrench(force=force, torque=torque))))]
+        ft = WrenchStamped(wrench=Wrench(force=force, torque=torque))
+        batch = [("/arm/wrench", bytearray(serialize_message(ft)))]  # bytearray: stamped when published
         if k % 4 == 0:  # 25 Hz at 100 Hz steps: within the 50 ms tolerance
             batch.append(("/arm/gripper", serialize_message(Float32MultiArray(data=list(x[18:33])))))
-        batch.append(("/arm/joint_states", serialize_message(js)))
+        batch.append(("/arm/joint_states", bytearray(serialize_message(js))))
         out.append(batch)
     return out
+
+
+def _publish(pub: Any, raw: bytes | bytearray) -> None:
+    """Publish pre-encoded CDR; a ``bytearray`` gets ``header.stamp`` = now (system clock, the ROS
+    clock of every process here) written in place: its first field, right after the 4-byte CDR header."""
+    if isinstance(raw, bytearray):
+        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        struct.pack_into("<iI", raw, 4, sec, nsec)
+    pub.publish(bytes(raw) if isinstance(raw, bytearray) else raw)
 
 
 def bench_multi_in_process(steps: int) -> Result:
@@ -400,10 +414,11 @@ def bench_multi_in_process(steps: int) -> Result:
         for batch in batches:
             for topic, raw in batch[:-1]:
                 stamp += 100_000
-                asm.offer(topic, stamp, raw)
+                asm.offer(topic, stamp, bytes(raw))
             stamp += 1_000_000
+            step_raw = bytes(batch[-1][1])
             t0 = time.perf_counter_ns()
-            x = asm.step(stamp, batch[-1][1])
+            x = asm.step(stamp, step_raw)
             if not isinstance(x, Drop):
                 seg.step(x, stamp)
             if rep:
@@ -443,19 +458,21 @@ def _multi_sustained(c: _Client, pid: int, ticks: list[list[tuple[Any, bytes]]],
     c.pump(lambda: False, 0.5)
     accepted = int(c.diag["accepted"]) - int(before["accepted"])
     dropped = _counter_sum(c.diag, "obs.dropped.") - _counter_sum(before, "obs.dropped.")
+    late = _counter_sum(c.diag, "obs.late") - _counter_sum(before, "obs.late")
     return {f"{name}_1khz_sent": (float(n), "steps"),
             f"{name}_1khz_achieved_rate": (n / wall, "Hz"),
             f"{name}_1khz_steps_in": (float(int(c.diag["obs.steps"]) - int(before["obs.steps"])), "steps"),
             f"{name}_1khz_pi_out": (float(len(c.pi_times) - pi_before), "msgs"),
             f"{name}_1khz_lost_steps": (float(n - accepted), "steps"),
             f"{name}_1khz_dropped_steps": (float(dropped), "steps"),
+            f"{name}_1khz_late_steps": (float(late), "steps"),
             f"{name}_1khz_node_cpu": (100.0 * cpu / wall, "% of one core"),
             **{f"{name}_1khz_dropped_{k.split('.')[-1]}": (float(int(v) - int(before.get(k, 0))), "steps")
                for k, v in c.diag.items() if k.startswith("obs.dropped.")}}  # fmt: skip
 
 
 def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events",
-                    client: str = "events") -> Result:
+                    client: str = "events", wait_s: float | None = None) -> Result:
     """``ompn_node`` (shipped Dial checkpoint and detector) with ``observation_spec`` = :data:`ARM_SPEC`
     in its own process; this process publishes the three topics (module docstring, part 3)."""
     import rclpy
@@ -469,7 +486,8 @@ def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events"
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_node_multi_"))
     spec_file = tmp / "arm.yaml"
-    spec_file.write_text(yaml.safe_dump({"observation": ARM_SPEC}))
+    spec = ARM_SPEC if wait_s is None else {**ARM_SPEC, "wait_s": wait_s}
+    spec_file.write_text(yaml.safe_dump({"observation": spec}))
     batches = _arm_messages(_observations("dial", 20 + latency_msgs + int(duration * 1000))[0])
     cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
            "--params-file", str(config_file("ompn_node_dial.yaml")), "-p", f"executor:={executor}",
@@ -507,7 +525,8 @@ def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events"
     return out
 
 
-def run(quick: bool = False, executor: str = "events", client: str = "events", parts: str = "all") -> Result:
+def run(quick: bool = False, executor: str = "events", client: str = "events", parts: str = "all",
+        multi_wait: float | None = None) -> Result:
     """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz (multi-topic: 10 s) and fewer
     samples."""
     results: Result = {}
@@ -521,7 +540,7 @@ def run(quick: bool = False, executor: str = "events", client: str = "events", p
     if parts in ("all", "multi"):
         results.update(bench_multi_in_process(1000 if quick else 5000))
         results.update(bench_dds_multi(duration=10.0 if quick else 60.0, latency_msgs=300 if quick else 3000,
-                                       executor=executor, client=client))
+                                       executor=executor, client=client, wait_s=multi_wait))
     return results
 
 
@@ -534,6 +553,8 @@ def main() -> None:
                         help="executor of the publishing/subscribing benchmark client")
     parser.add_argument("--parts", choices=("all", "step", "dds", "multi"), default="all",
                         help="multi: the multi-topic observation_spec case alone")
+    parser.add_argument("--multi-wait", type=float, default=None, metavar="S",
+                        help="wait_s of the multi-topic spec (default: the spec's default; 0 = no wait)")
     parser.add_argument("--ensemble", type=Path, default=None, metavar="DIR",
                         help="instead: a Craft ensemble checkpoint directory (ensemble.json, written by "
                              "ompn_reproduce --members), in process and in ompn_node at 100 Hz")
@@ -547,7 +568,8 @@ def main() -> None:
                                  executor=args.executor, client=args.client_executor,
                                  checkpoint=args.ensemble.resolve(), label=f"_ensemble{members}"))
     else:
-        results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts)
+        results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts,
+                      multi_wait=args.multi_wait)
     width = max(len(k) for k in results)
     for name, (value, unit) in results.items():
         print(f"{name:<{width}}  {value:12.3f}  {unit}")

@@ -4,7 +4,9 @@ A publisher process plays an arm on the foreign namespace ``/arm1``: ``joint_sta
 BEST_EFFORT, the step topic), ``gripper`` (Float32MultiArray) and ``wrench`` (WrenchStamped).  This
 process subscribes (raw CDR), feeds an :class:`ObservationAssembler` live and, in the same callbacks,
 records every message into a rosbag2 with the receive time as log time.  Reading the bag back
-through :func:`assemble_stream` must give exactly the live observations, drops and counters.
+through :func:`assemble_stream` must give exactly the live observations, drops and counters.  Some
+wrenches are published after their step (stamped before it): the step waits for them, live and
+offline.
 """
 
 from __future__ import annotations
@@ -64,11 +66,11 @@ PUBLISHER = textwrap.dedent(f"""
         time.sleep(0.05)
     time.sleep(0.5)
     for k in range({STEPS}):
-        if k % 7 != 3:
-            w = WrenchStamped()
-            w.header.stamp = node.get_clock().now().to_msg()
-            w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = 0.5 * k, -1.0, 2.0
-            w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = 0.25, 0.125 * k, -3.0
+        w = WrenchStamped()
+        w.header.stamp = node.get_clock().now().to_msg()
+        w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = 0.5 * k, -1.0, 2.0
+        w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = 0.25, 0.125 * k, -3.0
+        if k % 7 != 3 and k % 5 != 2:
             ft.publish(w)
         if k % 11 != 5:
             grip.publish(Float32MultiArray(data=[0.01 * k, 1.0 - 0.01 * k]))
@@ -80,6 +82,9 @@ PUBLISHER = textwrap.dedent(f"""
         msg.position = [values[n] for n in msg.name]
         msg.velocity = [0.5 * values[n] for n in msg.name]
         js.publish(msg)
+        if k % 7 != 3 and k % 5 == 2:  # stamped before the step, delivered after it
+            time.sleep(0.001)
+            ft.publish(w)
         time.sleep(0.002)
     time.sleep(1.0)
     node.destroy_node()
@@ -105,9 +110,10 @@ def test_live_and_bag_give_identical_observations(tmp_path: Path, ros_env: dict[
             now = last[0] = max(time.time_ns(), last[0] + 1)  # strictly increasing log times
             writer.write(conns[topic], now, raw)
             if topic == SPEC.step_topic:
-                live_out.append(live.step(now, raw))
+                live.hold(now, raw)  # as ompn_node: held until the wrench caught up, then decided
             else:
                 live.offer(topic, now, raw)
+            live_out.extend(d.result for d in live.release(now))
         return on_message
 
     ctx = rclpy.context.Context()
@@ -129,6 +135,7 @@ def test_live_and_bag_give_identical_observations(tmp_path: Path, ros_env: dict[
         end = time.monotonic() + 0.5
         while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.01)
+        live_out.extend(d.result for d in live.release(flush=True))  # the end of the recording
     finally:
         rclpy.try_shutdown(context=ctx)
         writer.close()
@@ -157,3 +164,8 @@ def test_live_and_bag_give_identical_observations(tmp_path: Path, ros_env: dict[
     # the gripper and wrench of a step are the latest ones at or before it: never from a later k
     assert np.all(offline.observations[:, 3] <= 0.01 * k + 1e-6)
     assert np.all(offline.observations[:, 7] <= 0.5 * k)
+    # the step waits for the wrench stamped before it, even when it is delivered after it
+    has_wrench = k.astype(int) % 7 != 3
+    has_wrench[-1] = False  # the last step never sees a later wrench: flushed at the end, late
+    np.testing.assert_array_equal(offline.observations[has_wrench, 7], 0.5 * k[has_wrench])
+    assert (has_wrench & (k.astype(int) % 5 == 2)).sum() >= 0.1 * len(k)

@@ -62,9 +62,9 @@ def test_latest_at_or_before_and_names() -> None:
     for t in (10, 20, 30):
         assert asm.offer("/arm/grip", t * MS, grip(t, -t)) is None
         assert asm.offer("/arm/ft", 0, wrench(t * MS, force=(t, 0, 0))) is None  # header stamp rules
-    out = asm.step(0, js(25 * MS))
+    out = asm.step(25 * MS, js(25 * MS))
     np.testing.assert_array_equal(out, expected(g=(20, -20), f=(20, 0, 0)))
-    out = asm.step(0, js(30 * MS))  # equal stamps count as "at or before"
+    out = asm.step(30 * MS, js(30 * MS))  # equal stamps count as "at or before"
     np.testing.assert_array_equal(out, expected(g=(30, -30), f=(30, 0, 0)))
     assert asm.dim == 7 and asm.obs_names()[:3] == ("arm/js/position/j3", "arm/js/position/j1",
                                                      "arm/grip/data/0")
@@ -73,14 +73,14 @@ def test_latest_at_or_before_and_names() -> None:
 
 def test_tolerance_missing_and_stale_are_counted() -> None:
     asm = ObservationAssembler(SPEC)
-    drop = asm.step(0, js(5 * MS))
+    drop = asm.step(5 * MS, js(5 * MS))
     assert isinstance(drop, Drop) and drop.reason == "missing" and drop.topic == "/arm/grip"
     asm.offer("/arm/grip", 10 * MS, grip(1, 2))
     asm.offer("/arm/ft", 0, wrench(10 * MS))
-    assert not isinstance(asm.step(0, js(20 * MS)), Drop)  # exactly the tolerance: kept
-    drop = asm.step(0, js(20 * MS + 1))
+    assert not isinstance(asm.step(20 * MS, js(20 * MS)), Drop)  # exactly the tolerance: kept
+    drop = asm.step(20 * MS + 1, js(20 * MS + 1))
     assert isinstance(drop, Drop) and drop.reason == "stale" and "tolerance 10 ms" in drop.detail
-    drop = asm.step(0, js(9 * MS))  # partners only after the step: missing
+    drop = asm.step(9 * MS, js(9 * MS))  # partners only after the step: missing
     assert isinstance(drop, Drop) and drop.reason == "missing" and "at or before" in drop.detail
     assert asm.stats.dropped == {"missing": 2, "stale": 1}
     assert asm.stats.kept + sum(asm.stats.dropped.values()) == asm.stats.steps == 4
@@ -104,14 +104,14 @@ def test_malformed_and_wrong_size_partner_occupy_their_stamp() -> None:
     asm.offer("/arm/grip", 1 * MS, grip(1, 1))
     bad = asm.offer("/arm/grip", 2 * MS, b"\x00\x01\x00\x00\x05")
     assert isinstance(bad, Drop) and bad.reason == "malformed"
-    drop = asm.step(0, js(3 * MS))
+    drop = asm.step(3 * MS, js(3 * MS))
     assert isinstance(drop, Drop) and drop.reason == "malformed" and drop.topic == "/arm/grip"
     bad = asm.offer("/arm/grip", 4 * MS, grip(1, 2, 3))
     assert isinstance(bad, Drop) and bad.reason == "wrong_size" and "3 elements, expected 2" in bad.detail
-    drop = asm.step(0, js(5 * MS))
+    drop = asm.step(5 * MS, js(5 * MS))
     assert isinstance(drop, Drop) and drop.reason == "wrong_size"
     asm.offer("/arm/grip", 6 * MS, grip(6, 6))
-    np.testing.assert_array_equal(asm.step(0, js(7 * MS)), expected(g=(6, 6)))
+    np.testing.assert_array_equal(asm.step(7 * MS, js(7 * MS)), expected(g=(6, 6)))
     assert asm.stats.rejected == {("/arm/grip", "malformed"): 1, ("/arm/grip", "wrong_size"): 1}
     assert asm.stats.dropped == {"malformed": 1, "wrong_size": 1}
 
@@ -157,9 +157,15 @@ def test_stamp_rule_header_receive_and_zero_header() -> None:
         asm = ObservationAssembler(spec)
         asm.offer("/arm/grip", 50 * MS, grip(0, 0))
         asm.offer("/arm/ft", 100 * MS, wrench(50 * MS))  # header 50 ms, received at 100 ms
-        out = asm.step(0, js(55 * MS))  # header 55 ms, received at 0 (receive rule: before both)
+        out = asm.step(60 * MS, js(55 * MS))  # header 55 ms, received at 60 (receive rule: before ft)
         assert isinstance(out, np.ndarray) is kept
-        assert asm.last_stamp_ns == (55 * MS if kept else 0)
+        assert asm.last_stamp_ns == (55 * MS if kept else 60 * MS)
+    # each partner on its own clock: the gripper (no header) against the step's reception, so a
+    # backlog of the receiver that delays the step and the gripper alike does not age the gripper
+    asm = ObservationAssembler(SPEC)
+    asm.offer("/arm/ft", 300 * MS, wrench(50 * MS))
+    asm.offer("/arm/grip", 300 * MS, grip(7, 7))  # published with the step below, received 250 ms late
+    np.testing.assert_array_equal(asm.step(301 * MS, js(51 * MS)), expected(g=(7, 7)))
     asm = ObservationAssembler(SPEC)  # a zero header stamp (unset by the driver) falls back to receive
     asm.offer("/arm/grip", 10 * MS, grip(0, 0))
     asm.offer("/arm/ft", 10 * MS, wrench(0))
@@ -247,7 +253,10 @@ def test_assemble_stream_is_the_assembler_in_record_order() -> None:
     kept = [x for x in steps if isinstance(x, np.ndarray)]
     assert res.kept.tolist() == [isinstance(x, np.ndarray) for x in steps]
     np.testing.assert_array_equal(res.observations, np.stack(kept))
-    assert len(res.drops) == len(steps) - len(kept) > 0 and res.stats.as_dict() == asm.stats.as_dict()
+    assert len(res.drops) == len(steps) - len(kept) > 0
+    # every wrench is stamped after the step before it: held steps decide as at once, but the last
+    # step waits for a wrench that never comes and is flushed at the end, late
+    assert res.stats.as_dict() == {**asm.stats.as_dict(), "late": 1}
     assert res.stats.ignored == 200 and res.observations.shape[1] == 7 and len(res.names) == 7
     js_log = np.asarray([s for tp, s, _ in msgs if tp == "/arm/js"])[res.kept]
     np.testing.assert_array_equal(res.log_stamps, js_log)
@@ -258,9 +267,10 @@ def test_assemble_stream_is_the_assembler_in_record_order() -> None:
     assert wrong.type_problems and wrong.observations.shape == (0, 7)
     assert {d.reason for d in wrong.drops} == {"wrong_type"}
     half = ObservationAssembler(SPEC)  # continuing one assembler over two parts = one pass
-    first = assemble_stream(msgs[:300], SPEC, assembler=half)
+    first = assemble_stream(msgs[:300], SPEC, assembler=half, flush=False)
     rest = assemble_stream(msgs[300:], SPEC, assembler=half)
     np.testing.assert_array_equal(np.concatenate([first.observations, rest.observations]), res.observations)
+    assert half.stats.as_dict() == res.stats.as_dict() and half.held == 0
     with pytest.raises(ValueError, match="another observation spec"):
         assemble_stream(msgs, ObservationSpec.single_topic("/arm/js"), assembler=half)
 
@@ -306,3 +316,89 @@ def test_same_field_twice_with_other_joints() -> None:
     asm.offer("/g", 0, m.serialize(C("std_msgs/msg/Float64")(data=7.0)))
     np.testing.assert_array_equal(asm.step(0, js(1)), [1, 7, 3, 2])
     assert asm.obs_names() == ("js/position/j1", "g/data/data", "js/position/j3", "js/position/j2")
+
+
+def _hold_all(asm: ObservationAssembler, msgs: list[tuple[str, int, bytes]]) -> list:
+    """Feed ``(topic, receive_ns, raw)`` with the hold; released steps as ``(stamp, result, late)``."""
+    out = []
+    for topic, now, raw in msgs:
+        if topic == "/arm/js":
+            asm.hold(now, raw)
+        else:
+            asm.offer(topic, now, raw)
+        out += [(d.stamp_ns, d.result, d.late) for d in asm.release(now)]
+    return out
+
+
+def test_partner_after_its_step_gives_the_in_order_observation() -> None:
+    grips = [("/arm/grip", k * MS, grip(k, -k)) for k in range(6)]
+    in_order, late_ft = [], []
+    for k in range(6):  # wrench k stamped 0.5 ms before step k; delivered before it, or after it
+        ft = ("/arm/ft", k * MS + 600_000, wrench(k * MS, force=(k, 0, 0)))
+        step = ("/arm/js", 0, js(k * MS + MS // 2))
+        in_order += [grips[k], ft, step]
+        late_ft += [grips[k], step, ft]
+    for msgs in (in_order, late_ft):
+        msgs[:] = [(t, now if t != "/arm/js" else i * 1000 + 5 * MS, r) for i, (t, now, r) in enumerate(msgs)]
+    # (the gripper is stamped at reception, before its step's header stamp: it is not waited for)
+    a, b = ObservationAssembler(SPEC), ObservationAssembler(SPEC)
+    got_a, got_b = _hold_all(a, in_order), _hold_all(b, late_ft)
+    got_a += [(d.stamp_ns, d.result, d.late) for d in a.release(flush=True)]
+    got_b += [(d.stamp_ns, d.result, d.late) for d in b.release(flush=True)]
+    assert [s for s, _, _ in got_a] == [s for s, _, _ in got_b] == [k * MS + MS // 2 for k in range(6)]
+    for (_, x, _), (_, y, _) in zip(got_a, got_b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(got_b[3][1][4:], [3, 0, 0])  # wrench 3: fed after step 3, still used
+    assert [late for *_, late in got_b] == [False] * 5 + [True]  # the last one never saw a later wrench
+    # without waiting, the late wrench is not used: the previous one (2 ms old) serves step 3
+    now = ObservationAssembler(ObservationSpec.from_dict({**SPEC.to_dict(), "wait_s": 0}))
+    np.testing.assert_array_equal(_hold_all(now, late_ft)[3][1][4:], [2, 0, 0])
+
+
+def test_a_partner_that_never_comes_releases_after_the_wait() -> None:
+    asm = ObservationAssembler(SPEC)  # wait_s 0.1
+    asm.offer("/arm/grip", 5 * MS, grip(1, 2))
+    asm.offer("/arm/ft", 0, wrench(1 * MS))
+    asm.hold(10 * MS, js(2 * MS))
+    asm.hold(11 * MS, js(3 * MS))
+    assert asm.release(10 * MS + 99 * MS) == [] and asm.held == 2
+    first = asm.release(110 * MS)  # the first step's wait is over; the second waits on
+    assert [(d.stamp_ns, d.late) for d in first] == [(2 * MS, True)] and asm.held == 1
+    np.testing.assert_array_equal(first[0].result, expected(g=(1, 2)))
+    asm.offer("/arm/ft", 112 * MS, wrench(3 * MS))  # stamped at the second step: it settles it
+    (second,) = asm.release(112 * MS)
+    assert not second.late and second.receive_ns == 11 * MS
+    assert asm.stats.as_dict() == {"steps": 2, "kept": 2, "late": 1, "ignored": 0}
+
+
+def test_what_never_waits() -> None:
+    receive = ObservationSpec.from_dict({**SPEC.to_dict(), "stamp": "receive"})
+    single = ObservationSpec.single_topic("/arm/grip", size=2)
+    for spec in (receive, single):  # partners stamped at reception, or no partner at all
+        asm = ObservationAssembler(spec)
+        asm.hold(5, grip(1, 2) if spec is single else js(5))
+        (d,) = asm.release(5)
+        assert not d.late and asm.held == 0
+    bounded = ObservationAssembler(SPEC, max_held=2)  # the queue is bounded: the oldest goes late
+    for k in range(3):
+        bounded.hold(k, js(k))
+    assert [d.stamp_ns for d in bounded.release(3)] == [0] and bounded.held == 2
+    with pytest.raises(ValueError, match="held"):
+        bounded.step(4, js(4))
+    assert [d.late for d in bounded.reset()] == [True, True] and bounded.stats.late == 3
+    assert bounded.stats.dropped == {"missing": 3} and bounded.held == 0
+
+
+def test_a_rejected_or_wrong_type_partner_does_not_hold_forever() -> None:
+    asm = ObservationAssembler(SPEC)
+    asm.offer("/arm/grip", 0, grip(1, 2))
+    asm.hold(1, js(5 * MS))
+    asm.offer("/arm/ft", 2, b"\x00\x01\x00\x00junk")  # its receive stamp: before the step, still waits
+    assert asm.release(2) == []
+    asm.offer("/arm/ft", 6 * MS, b"\x00\x01\x00\x00junk")  # rejected, stamped after: settles, occupies
+    (d,) = asm.release(6 * MS)
+    assert isinstance(d.result, Drop) and d.result.reason == "malformed" and not d.late
+    asm.check_type("/arm/ft", "geometry_msgs/msg/PoseStamped")
+    asm.hold(7 * MS, js(7 * MS))
+    (d,) = asm.release(7 * MS)
+    assert isinstance(d.result, Drop) and d.result.reason == "wrong_type" and not d.late

@@ -63,6 +63,7 @@ def test_type_spellings(type_name: str) -> None:
         ({"fields": [{"topic": "/a", "type": JS}]}, r"fields\[0\]\.field is missing"),
         ({"tolerance": 1.0}, r"observation: unknown key \['tolerance'\]"),
         ({"tolerance_s": -1.0}, r"tolerance_s must be a finite number >= 0"),
+        ({"wait_s": float("inf")}, r"wait_s must be a finite number >= 0"),
         ({"stamp": "log"}, r"stamp must be 'header' or 'receive'"),
         ({"step_topic": "/nowhere"}, r"step_topic '/nowhere' gives no field"),
         ({"fields": []}, r"at least one field"),

@@ -248,6 +248,36 @@ def test_reset_forgets_partners_episode_markers_do_not(ctx, ckpt: Path) -> None:
     node.destroy_node()
 
 
+def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Path) -> None:
+    """Header stamps: a step is stepped once the wrench topic offered a message stamped at or after it,
+    with the wrench stamped before it even when delivered after it; the wait ends on the node's clock;
+    an episode marker or ~/reset first steps what is held."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    node = active_node(ctx, ckpt, spec=SPEC_TEXT)
+    seen: list[tuple[np.ndarray, int]] = []
+    node.process_observation = lambda data, stamp, now=None: seen.append((data, stamp))  # type: ignore
+    feed(node, [(GRIP, gripper(0)), (WRENCH, wrench(0, 1000)), (STEP, joint_state(1, 1002))])
+    feed(node, [(WRENCH, wrench(1, 1001))], start_ms=1003)  # stamped before the step, delivered after
+    assert seen == [] and node.assembled is not None and node.assembled.asm.held == 1
+    feed(node, [(WRENCH, wrench(2, 1003))], start_ms=1004)  # stamped after the step: it is decided
+    (obs, stamp), = seen
+    assert stamp == 1002 * MS and obs[5] == 0.25 and obs[10] == -0.5  # wrench 1, not 0 or 2
+    feed(node, [(STEP, joint_state(3, 1010))], start_ms=1010)  # no later wrench comes
+    node.get_clock().nanoseconds = 1109 * MS
+    node._release_held(None)  # the timer's call: wait_s (0.1 s) not over yet
+    assert len(seen) == 1
+    node.get_clock().nanoseconds = 1110 * MS
+    node._release_held(None)
+    assert len(seen) == 2 and node.counters()["obs.late"] == 1
+    feed(node, [(GRIP, gripper(4)), (WRENCH, wrench(4, 1199)), (STEP, joint_state(4, 1200))], start_ms=1198)
+    node._on_episode(DiagnosticArray())
+    feed(node, [(GRIP, gripper(5)), (WRENCH, wrench(5, 1299)), (STEP, joint_state(5, 1300))], start_ms=1298)
+    assert node._on_reset(Trigger.Request(), Trigger.Response()).success
+    assert [s // MS for _, s in seen] == [1002, 1010, 1200, 1300] and node.counters()["obs.late"] == 3
+    node.destroy_node()
+
+
 def test_empty_spec_keeps_the_single_topic_path(ctx, ckpt: Path) -> None:
     node = make_node(ctx, ckpt, spec="", obs_dim=OBS_DIM)
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS

@@ -12,8 +12,11 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       ``obs_qos``); each message of the step topic is one step, assembled by
                       :class:`ompn_ros.data.obs.ObservationAssembler` (the bag reader's rule: latest
                       partner at or before the step within ``tolerance_s``, else a dropped step, counted
-                      by reason as ``obs.dropped.<reason>``).  The publishers' types are checked about once
-                      a second; a wrong type is one line and a counter (:mod:`ompn_ros.nodes.ompn_node_obs`).
+                      by reason as ``obs.dropped.<reason>``).  A step waits up to ``wait_s`` for the
+                      header-stamped partners stamped at or after it (``obs.late`` counts the steps
+                      decided without them); episode markers and ``~/reset`` first step the held steps.
+                      The publishers' types are checked about once a second; a wrong type is one line
+                      and a counter (:mod:`ompn_ros.nodes.ompn_node_obs`).
     ``episode``       DiagnosticArray episode marker: 'start' resets the memory (sketch from the
                       marker, else the latest ``sketch`` message, else the ``sketch`` parameter);
                       'end' closes the last segment at step ``steps - 1``.
@@ -87,10 +90,11 @@ from ompn_ros.data.messages import (
     parse_float32_array,
     parse_sketch_value,
 )
-from ompn_ros.data.obs import Drop
+from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, drop_line, load_spec
 from ompn_ros.nodes.ompn_node_params import (
     EXECUTORS,
@@ -179,10 +183,12 @@ class OMPNNode(LifecycleNode):
         self._service: Any = None
         self._timer: Any = None
         self._graph_timer: Any = None
+        self._hold_timer: Any = None
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
         self._status_name = f"{self.get_name()}/subtask_boundary"
+        self._boundary_cdr = BoundaryEncoder(self._status_name)
         self._n_slots = 0
         self._active = False
         self._jump_back_ns = self._max_lead_ns = 0
@@ -381,6 +387,9 @@ class OMPNNode(LifecycleNode):
             self._subscribe(msg_class, topic, callback, qos, "obs_qos", raw=True)
         self._graph_timer = self.create_timer(1.0, self._check_topic_types)
         self._check_topic_types()
+        if assembled.asm.waited_topics:  # held steps are released on every message, and by this timer
+            period = max(0.005, spec.wait_s / 2)
+            self._hold_timer = self.create_timer(period, lambda: self._release_held(None))
 
     def _subscribe(
         self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
@@ -435,11 +444,12 @@ class OMPNNode(LifecycleNode):
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
-        if self._graph_timer is not None:
-            self.destroy_timer(self._graph_timer)
-            self._graph_timer = None
+        for timer in (self._graph_timer, self._hold_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self._graph_timer = self._hold_timer = None
         if self.assembled is not None:
-            self.assembled.asm.reset()
+            self.assembled.asm.reset()  # held steps are decided (counted) but not stepped: inactive
 
     @property
     def uses_message_info(self) -> bool:
@@ -473,8 +483,9 @@ class OMPNNode(LifecycleNode):
         self.process_observation(data, stamp_ns, now_ns)
 
     def _on_spec_step(self, raw: bytes) -> None:
-        """A step-topic message: assemble (receive time = the node's clock, strictly increasing), then
-        step like any observation; a dropped step is counted by reason and warned (throttled)."""
+        """A step-topic message: held by the assembler (receive time = the node's clock, strictly
+        increasing) until its partners caught up or ``wait_s`` passed, then stepped like any
+        observation; a dropped step is counted by reason and warned (throttled)."""
         assembled = self.assembled
         if assembled is None or self.segmenter is None or not self._active:
             return
@@ -483,33 +494,51 @@ class OMPNNode(LifecycleNode):
         receive = now if (now > last or last - now > self._jump_back_ns) else last + 1
         self._last_receive_ns = receive
         try:
-            result = assembled.asm.step(receive, raw)
+            assembled.asm.hold(receive, raw)
         except Exception as exc:  # the assembler counts what it knows; anything else is malformed input
             self._reject(MalformedMessage(f"step message not assembled: {type(exc).__name__}: {exc}"))
             return
-        if isinstance(result, Drop):
-            self._warn_throttled(drop_line(result, assembled.dropped_total), with_total=False)
+        self._release_held(now)
+
+    def _release_held(self, now_ns: int | None, flush: bool = False) -> None:
+        """Step the held steps the assembler can decide now (all of them with ``flush``), in order."""
+        assembled = self.assembled
+        if assembled is None or not assembled.asm.held:
             return
-        problem = assembled.first_size_problem(result)
-        if problem is not None:
-            self.events["obs_size_mismatch"] += 1
-            self.get_logger().error(problem)
-        stamp = assembled.asm.last_stamp_ns
-        self.process_observation(result, receive if stamp is None else stamp, now)
+        now = self.get_clock().now().nanoseconds if now_ns is None else now_ns
+        try:
+            decided = assembled.asm.release(now, flush)
+        except Exception as exc:  # never fatal: counted as malformed input, warned
+            self._reject(MalformedMessage(f"held steps not assembled: {type(exc).__name__}: {exc}"))
+            return
+        self._step_decided(assembled, decided, now)
+
+    def _step_decided(self, assembled: AssembledInput, decided: list[Decided], now: int) -> None:
+        for d in decided:
+            if isinstance(d.result, Drop):
+                self._warn_throttled(drop_line(d.result, assembled.dropped_total), with_total=False)
+                continue
+            problem = assembled.first_size_problem(d.result)
+            if problem is not None:
+                self.events["obs_size_mismatch"] += 1
+                self.get_logger().error(problem)
+            self.process_observation(d.result, d.stamp_ns, now)
 
     def _partner_callback(self, topic: str) -> Any:
         def on_partner(raw: bytes) -> None:
             assembled = self.assembled
             if assembled is None or not self._active:
                 return
+            now = self.get_clock().now().nanoseconds
             try:
-                rejected = assembled.asm.offer(topic, self.get_clock().now().nanoseconds, raw)
+                rejected = assembled.asm.offer(topic, now, raw)
             except Exception as exc:  # never fatal: counted as a node event, warned
                 self.events["obs_partner_errors"] += 1
                 self._warn_throttled(f"message on '{topic}' not used: {type(exc).__name__}: {exc}")
                 return
             if rejected is not None:
                 self._warn_throttled(f"message rejected: {rejected}", with_total=False)
+            self._release_held(now)
 
         return on_partner
 
@@ -616,18 +645,10 @@ class OMPNNode(LifecycleNode):
 
     # --- outputs -------------------------------------------------------------------------------
     def publish_boundary(self, event: BoundaryEvent, log: bool = True) -> None:
-        """Publish ``event`` on ``~/boundary`` (CDR built by the codec) and, with ``log``, log it."""
+        """Publish ``event`` on ``~/boundary`` (:class:`BoundaryEncoder`: the codec's bytes, the constant
+        part encoded once) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
-        values = {
-            "step": event.step,
-            "subtask": event.subtask,
-            "score": f"{event.score:.6f}",
-            "level": event.level,
-            "detected_at": event.detected_at,
-            "stamp_ns": event.stamp_ns,
-            "final": event.final,
-        }
-        self._pubs["boundary"].publish(encode_diagnostic_status(stamp, self._status_name, "boundary", values))
+        self._pubs["boundary"].publish(self._boundary_cdr.encode(stamp, event))
         self.events["boundaries"] += 1
         if log:
             self.log_boundary(event)
@@ -684,6 +705,7 @@ class OMPNNode(LifecycleNode):
             self.publish_boundary(final)
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
+        self._release_held(None, flush=True)  # held steps belong to the episode before the marker
         for status in msg.status:
             if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
@@ -733,8 +755,8 @@ class OMPNNode(LifecycleNode):
             self._start_episode(sketch)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if self.assembled is not None:
-            self.assembled.asm.reset()
+        if self.assembled is not None:  # held steps are stepped first: they came before the request
+            self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
         response.success = self._start_episode(self._episode_sketch)
         self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"

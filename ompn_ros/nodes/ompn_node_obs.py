@@ -3,7 +3,9 @@
 The node applies :class:`ompn_ros.data.obs.ObservationAssembler`, the rule the bag reader applies
 offline: every message of the spec's step topic is one step, assembled from its own fields and the
 latest message of each partner topic at or before it (within ``tolerance_s``), else dropped and
-counted by reason (:mod:`ompn_ros.data.obs.assembler`).  This module holds the node-side pieces that
+counted by reason; a step waits (``wait_s``) for the partners stamped by their headers to offer a
+message stamped at or after it, so a late delivery does not change the observation
+(:mod:`ompn_ros.data.obs.assembler`).  This module holds the node-side pieces that
 need no node: the parameter rule, the message classes of the supported types, the size check against
 the checkpoint and the type check against the ROS graph.  Topic names and the YAML form:
 :mod:`ompn_ros.data.obs.spec`; the parameter: ``docs/parameters.md``.

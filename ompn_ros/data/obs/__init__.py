@@ -8,13 +8,13 @@
 * :mod:`.stream`: :func:`assemble_stream`, the same assembler over recorded messages.
 """
 
-from .assembler import DROP_REASONS, AssemblerStats, Drop, DropReason, ObservationAssembler
+from .assembler import DROP_REASONS, AssemblerStats, Decided, Drop, DropReason, ObservationAssembler
 from .extract import ExtractError, TopicExtractor, observation_layout
 from .spec import FIELDS, FieldSpec, ObservationSpec, ObservationSpecError, StampSource
 from .stream import AssembledStream, assemble_stream
 
 __all__ = [
-    "DROP_REASONS", "FIELDS", "AssembledStream", "AssemblerStats", "Drop", "DropReason", "ExtractError",
-    "FieldSpec", "ObservationAssembler", "ObservationSpec", "ObservationSpecError", "StampSource",
-    "TopicExtractor", "assemble_stream", "observation_layout",
+    "DROP_REASONS", "FIELDS", "AssembledStream", "AssemblerStats", "Decided", "Drop", "DropReason",
+    "ExtractError", "FieldSpec", "ObservationAssembler", "ObservationSpec", "ObservationSpecError",
+    "StampSource", "TopicExtractor", "assemble_stream", "observation_layout",
 ]

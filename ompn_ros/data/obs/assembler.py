@@ -6,8 +6,10 @@ The rule (``ompn_node`` applies it live, the bag reader offline through
 * Every message of ``spec.step_topic`` is a **step**: it gives one observation or one counted
   :class:`Drop`.  The observation is ``spec.fields`` concatenated in order (float32).
 * Fields of the step topic come from the step message itself.  Fields of every other (*partner*)
-  topic come from **the latest message of that topic stamped at or before the step**, among the
-  messages offered before the step.  It must be at most ``spec.tolerance_s`` older than the step.
+  topic come from **the latest message of that topic stamped at or before the step**, on the
+  partner's clock: a partner stamped by its headers is compared with the step's stamp, a partner
+  stamped at reception with the step's reception (so a backlog of the caller, which delays every
+  reception alike, does not age it).  It must be at most ``spec.tolerance_s`` older than the step.
 * Otherwise the step is dropped, and counted by reason: ``missing`` (no partner message at or
   before the step), ``stale`` (older than the tolerance), ``malformed`` (undecodable bytes, or a
   JointState lacking a joint of the spec), ``wrong_size`` (a field with another element count than
@@ -20,17 +22,28 @@ The rule (``ompn_node`` applies it live, the bag reader offline through
   has a header (JointState, WrenchStamped, PoseStamped) and the stamp is not zero; otherwise, and
   always with ``'receive'``, it is the ``stamp_ns`` given by the caller: the receive time live (the
   subscription callback's clock), the log (record) time offline.
-* Nothing waits: a partner message fed after its step is not used for that step (it serves later
-  steps).  So the result depends only on the feeding order and the stamps, and a bag recorded from
-  the same callbacks, with the receive time as log time, gives back exactly the live observations.
+* **Waiting** (``spec.wait_s``): a step is decided once every partner topic whose stamps come from
+  its headers (``stamp: header`` and a type with a header) has offered a message stamped at or after
+  the step, so a partner message that arrives after its step, but is stamped before it, is still
+  used.  Until then the step is *held* (:meth:`ObservationAssembler.hold`) and held steps are
+  released in step order (:meth:`ObservationAssembler.release`).  The decision is then the stamp
+  rule above, whatever the arrival order, which is what the bag reader computes from the same
+  messages.  Partners stamped at reception are never waited for (a later message is stamped later)
+  and a single-topic spec never holds.  A step still waiting ``wait_s`` after it arrived (on the
+  caller's clock: the receive time live, the log time offline), or pushed out of the bounded queue,
+  or flushed (episode marker, reset, end of the recording) is decided with what has arrived and
+  counted ``late`` (``stats.late``; it may still be kept).  ``wait_s: 0`` decides every step on
+  arrival; :meth:`ObservationAssembler.step` does the same for one step.
 
 Complexity: a step costs O(D + Σ log h) (``h`` = kept history per partner topic, at most
-``2 * history``); an offered partner message O(its size + log h) amortised.
+``2 * history``); an offered partner message O(its size + log h) amortised; a release check O(P)
+for P waited-for partner topics.
 """
 
 from __future__ import annotations
 
 from bisect import bisect_right, insort
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -63,13 +76,31 @@ class Drop:
         return f"{self.reason} on '{self.topic}' at {self.stamp_ns} ns: {self.detail}"
 
 
+@dataclass(frozen=True)
+class Decided:
+    """One step decided by the assembler, released in step order.
+
+    Attributes:
+        receive_ns: the caller's stamp of the step message (receive time live, log time offline).
+        stamp_ns: the step's stamp under the stamp rule.
+        result: the observation (float32 ``[dim]``) or the counted :class:`Drop`.
+        late: decided before every waited-for partner had caught up (wait over, queue full or flush).
+    """
+
+    receive_ns: int
+    stamp_ns: int
+    result: np.ndarray | Drop
+    late: bool = False
+
+
 @dataclass
 class AssemblerStats:
     """Counters of an assembler (cumulative until ``reset(clear_stats=True)``).
 
     Attributes:
-        steps: step messages fed; ``kept + sum(dropped.values()) == steps``.
+        steps: step messages fed; ``kept + sum(dropped.values()) + held == steps``.
         kept: steps that gave an observation.
+        late: steps decided before every waited-for partner had caught up (kept or dropped).
         dropped: dropped steps by reason.
         rejected: rejected partner messages (and wrong-type reports) by ``(topic, reason)``.
         ignored: messages offered on topics the spec does not use.
@@ -77,14 +108,15 @@ class AssemblerStats:
 
     steps: int = 0
     kept: int = 0
+    late: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     rejected: dict[tuple[str, str], int] = field(default_factory=dict)
     ignored: int = 0
 
     def as_dict(self) -> dict[str, int]:
-        """Flat counters for diagnostics: ``steps``, ``kept``, ``dropped.<reason>``,
+        """Flat counters for diagnostics: ``steps``, ``kept``, ``late``, ``dropped.<reason>``,
         ``rejected.<topic>.<reason>``, ``ignored``."""
-        out = {"steps": self.steps, "kept": self.kept, "ignored": self.ignored}
+        out = {"steps": self.steps, "kept": self.kept, "late": self.late, "ignored": self.ignored}
         out.update({f"dropped.{r}": n for r, n in sorted(self.dropped.items())})
         out.update({f"rejected.{t}.{r}": n for (t, r), n in sorted(self.rejected.items())})
         return out
@@ -124,16 +156,21 @@ class ObservationAssembler:
 
         asm = ObservationAssembler(spec)
         asm.offer('/arm1/gripper', receive_ns, raw)         # partner topics
-        obs = asm.step(receive_ns, raw)                      # step topic: np.ndarray or Drop
+        asm.hold(receive_ns, raw)                            # step topic
+        for d in asm.release(now_ns):                        # call on every message and now and then
+            use(d.stamp_ns, d.result)                        # np.ndarray or Drop, in step order
 
     Args:
         spec: the observation spec (topic names as they will be fed: resolve namespaces first).
         history: partner messages kept per topic (at least this many, at most twice).
+        max_held: steps held at most (default ``history``); one more releases the oldest as ``late``.
     """
 
-    def __init__(self, spec: ObservationSpec, history: int = 256) -> None:
+    def __init__(self, spec: ObservationSpec, history: int = 256, max_held: int | None = None) -> None:
         if history < 1:
             raise ValueError(f"history must be >= 1, got {history}")
+        if max_held is not None and max_held < 1:
+            raise ValueError(f"max_held must be >= 1, got {max_held}")
         self.spec = spec
         self._ex: dict[str, TopicExtractor] = extractors(spec)
         self._step_ex = self._ex[spec.step_topic]
@@ -146,6 +183,12 @@ class ObservationAssembler:
         self._names: tuple[str, ...] = ()
         self.stats = AssemblerStats()
         self.last_stamp_ns: int | None = None  # stamp (under the stamp rule) of the last step fed
+        self._by_header = frozenset(t for t in spec.partner_topics if self._header and self._ex[t].has_header)
+        waited = [t for t in spec.partner_topics if t in self._by_header]
+        self._frontier: dict[str, int | None] = dict.fromkeys(waited if spec.wait_s > 0 else ())
+        self._wait_ns = round(spec.wait_s * 1e9)
+        self._max_held = history if max_held is None else max_held
+        self._held: deque[tuple[int, int, list[np.ndarray] | Drop]] = deque()
 
     # --- layout -----------------------------------------------------------------------------------
     @property
@@ -212,29 +255,98 @@ class ObservationAssembler:
             header, vectors = self._ex[topic].extract(raw)
         except ExtractError as err:
             rejection = Drop(err.reason, topic, int(stamp_ns), err.detail)
-            hist.add(int(stamp_ns), rejection)
+            self._add(topic, hist, int(stamp_ns), rejection)
             self._count_rejected(topic, err.reason)
             return rejection
-        hist.add(header if header is not None and self._header else int(stamp_ns), vectors)
+        self._add(topic, hist, header if header is not None and self._header else int(stamp_ns), vectors)
         return None
 
+    def _add(self, topic: str, hist: _History, stamp: int, entry: list[np.ndarray] | Drop) -> None:
+        hist.add(stamp, entry)
+        if topic in self._frontier:
+            last = self._frontier[topic]
+            self._frontier[topic] = stamp if last is None or stamp > last else last
+
     def step(self, stamp_ns: int, raw: bytes | memoryview) -> np.ndarray | Drop:
-        """Feed a message of the step topic: its observation (float32 ``[dim]``, a new array) or the
-        counted :class:`Drop`.  ``stamp_ns`` as in :meth:`offer`."""
+        """Feed a message of the step topic and decide it at once, without waiting: its observation
+        (float32 ``[dim]``, a new array) or the counted :class:`Drop`.  ``stamp_ns`` as in
+        :meth:`offer`.  Not to be mixed with :meth:`hold` while steps are held."""
+        if self._held:
+            raise ValueError("step() while steps are held: release(flush=True) first, or use hold()")
         self.stats.steps += 1
+        stamp, parsed = self._parse_step(int(stamp_ns), raw)
+        return self._decide(int(stamp_ns), stamp, parsed)
+
+    def hold(self, stamp_ns: int, raw: bytes | memoryview) -> None:
+        """Feed a message of the step topic; it is decided by :meth:`release` (module docstring).
+        ``stamp_ns`` as in :meth:`offer`, and the start of the step's wait."""
+        self.stats.steps += 1
+        if not isinstance(raw, bytes):  # the held vectors may view the bytes: never a reusable buffer
+            raw = bytes(raw)
+        stamp, parsed = self._parse_step(int(stamp_ns), raw)
+        self._held.append((int(stamp_ns), stamp, parsed))
+
+    @property
+    def waited_topics(self) -> tuple[str, ...]:
+        """The partner topics a held step waits for (stamped by their headers; none if ``wait_s`` is 0)."""
+        return tuple(self._frontier)
+
+    @property
+    def held(self) -> int:
+        """Steps fed to :meth:`hold` and not yet released."""
+        return len(self._held)
+
+    def release(self, now_ns: int | None = None, flush: bool = False) -> list[Decided]:
+        """Decide the held steps that can be decided, oldest first, and return them in step order.
+
+        A step is decided when every waited-for partner has offered a message stamped at or after it;
+        else when ``now_ns`` (the caller's clock, as the stamps given to :meth:`hold`) is ``wait_s``
+        past its arrival, when more than ``max_held`` steps are held, or with ``flush``: then it is
+        decided with what has arrived and counted ``late``.  A later step never overtakes an earlier one.
+        """
+        out: list[Decided] = []
+        while self._held:
+            receive, stamp, parsed = self._held[0]
+            late = False
+            if not isinstance(parsed, Drop) and not self._settled(stamp):
+                due = now_ns is not None and now_ns - receive >= self._wait_ns
+                if not (flush or due or len(self._held) > self._max_held):
+                    break
+                late = True
+                self.stats.late += 1
+            self._held.popleft()
+            out.append(Decided(receive, stamp, self._decide(receive, stamp, parsed), late))
+        return out
+
+    def _settled(self, stamp: int) -> bool:
+        """Every waited-for partner has offered a message stamped at or after ``stamp``."""
+        for topic, last in self._frontier.items():
+            if (last is None or last < stamp) and topic not in self._wrong_type:
+                return False
+        return True
+
+    def _parse_step(self, stamp: int, raw: bytes | memoryview) -> tuple[int, list[np.ndarray] | Drop]:
+        """``(stamp under the stamp rule, the step's vectors or its Drop)``; sets ``last_stamp_ns``."""
         topic = self.spec.step_topic
-        self.last_stamp_ns = stamp = int(stamp_ns)
+        self.last_stamp_ns = stamp
         if topic in self._wrong_type:
-            return self._drop("wrong_type", topic, stamp, self._wrong_type[topic])
+            return stamp, Drop("wrong_type", topic, stamp, self._wrong_type[topic])
         try:
             header, vectors = self._step_ex.extract(raw)
         except ExtractError as err:
-            return self._drop(err.reason, topic, stamp, err.detail)
+            return stamp, Drop(err.reason, topic, stamp, err.detail)
         if header is not None and self._header:
             self.last_stamp_ns = stamp = header
-        values = {topic: vectors}
+        return stamp, vectors
+
+    def _decide(self, receive: int, stamp: int, parsed: list[np.ndarray] | Drop) -> np.ndarray | Drop:
+        """The rule for one parsed step (``receive``: the caller's stamp, ``stamp``: under the stamp
+        rule): the observation, or the counted drop."""
+        if isinstance(parsed, Drop):
+            return self._drop(parsed.reason, parsed.topic, stamp, parsed.detail)
+        values = {self.spec.step_topic: parsed}
         for partner, hist in self._hist.items():
-            found = self._partner(partner, hist, stamp)
+            found = self._partner(partner, hist, stamp if partner in self._by_header else receive)
             if isinstance(found, Drop):
                 return self._drop(found.reason, found.topic, stamp, found.detail)
             values[partner] = found
@@ -272,11 +384,15 @@ class ObservationAssembler:
         key = (topic, reason)
         self.stats.rejected[key] = self.stats.rejected.get(key, 0) + 1
 
-    def reset(self, clear_stats: bool = False) -> None:
-        """Forget the partner messages (and with ``clear_stats`` the counters).  The layout pinned by
-        first messages and the wrong-type reports are kept."""
+    def reset(self, clear_stats: bool = False) -> list[Decided]:
+        """Decide the held steps (``release(flush=True)``, returned), then forget the partner messages
+        (and with ``clear_stats`` the counters).  The layout pinned by first messages and the
+        wrong-type reports are kept."""
+        flushed = self.release(flush=True)
         for hist in self._hist.values():
             hist.clear()
+        self._frontier = dict.fromkeys(self._frontier)
         self.last_stamp_ns = None
         if clear_stats:
             self.stats = AssemblerStats()
+        return flushed

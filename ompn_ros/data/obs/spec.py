@@ -5,6 +5,7 @@ The same block configures the bag reader (reader-spec YAML) and ``ompn_node`` (p
     observation:
       step_topic: /arm1/joint_states        # its messages are the steps (the observation clock)
       tolerance_s: 0.05                     # a partner may be this much older than the step
+      wait_s: 0.1                           # how long a step may wait for a header-stamped partner
       stamp: header                         # header | receive (see ompn_ros.data.obs.assembler)
       fields:                               # concatenated in this order
         - {topic: /arm1/joint_states, type: sensor_msgs/msg/JointState, field: position,
@@ -171,6 +172,10 @@ class ObservationSpec:
         step_topic: the step clock; every message on it is one step (one observation or one drop).
         fields: the parts of the observation, in order (fields of the step topic included).
         tolerance_s: how much older (seconds) than the step a partner message may be.
+        wait_s: how long (seconds, on the caller's receive clock) a step is held while a partner
+            topic stamped by its headers has not yet offered a message stamped at or after the step
+            (:meth:`ObservationAssembler.hold`); ``0`` decides every step on arrival.  Partners stamped
+            at reception are never waited for: their later messages are stamped later anyway.
         stamp: ``'header'``: a message's stamp is its ``header.stamp`` when its type has one and it is
             not zero, else the receive/record time; ``'receive'``: always the receive/record time
             (use it when the topics' header stamps are not on one clock).
@@ -179,6 +184,7 @@ class ObservationSpec:
     step_topic: str
     fields: tuple[FieldSpec, ...]
     tolerance_s: float = 0.05
+    wait_s: float = 0.1
     stamp: StampSource = "header"
 
     def __post_init__(self) -> None:
@@ -190,6 +196,9 @@ class ObservationSpec:
         tol = self.tolerance_s
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 <= tol < float("inf"):
             raise ObservationSpecError(f"tolerance_s must be a finite number >= 0, got {tol!r}")
+        wait = self.wait_s
+        if isinstance(wait, bool) or not isinstance(wait, (int, float)) or not 0 <= wait < float("inf"):
+            raise ObservationSpecError(f"wait_s must be a finite number >= 0, got {wait!r}")
         if self.stamp not in ("header", "receive"):
             raise ObservationSpecError(f"stamp must be 'header' or 'receive', got {self.stamp!r}")
         types: dict[str, tuple[str, str]] = {}
@@ -311,7 +320,8 @@ class ObservationSpec:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain mapping; ``from_dict(to_dict())`` round-trips."""
-        return {"step_topic": self.step_topic, "tolerance_s": float(self.tolerance_s), "stamp": self.stamp,
+        return {"step_topic": self.step_topic, "tolerance_s": float(self.tolerance_s),
+                "wait_s": float(self.wait_s), "stamp": self.stamp,
                 "fields": [f.to_dict() for f in self.fields]}
 
 

@@ -1,18 +1,20 @@
 """The offline path: drive one :class:`ObservationAssembler` over recorded messages in record order.
 
 Because this is the live assembler fed in the order the messages were recorded (with the log time
-as the caller's stamp), a bag recorded from the live callbacks gives the live observations exactly.
+as the caller's stamp and as the clock of the wait), a bag recorded from the live callbacks gives
+the live observations exactly; and steps whose partners came late are decided by the stamp rule
+(``wait_s``, :mod:`.assembler`), whatever the record order.
 Complexity: O(messages + steps * D).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .assembler import AssemblerStats, Drop, ObservationAssembler
+from .assembler import AssemblerStats, Decided, Drop, ObservationAssembler
 from .spec import ObservationSpec
 
 
@@ -51,6 +53,7 @@ def assemble_stream(
     *,
     types: Mapping[str, str] | None = None,
     assembler: ObservationAssembler | None = None,
+    flush: bool = True,
 ) -> AssembledStream:
     """Assemble ``(topic, log_stamp_ns, raw)`` messages (in record order) into observations.
 
@@ -62,41 +65,56 @@ def assemble_stream(
             differs from the spec are reported in ``type_problems`` and their messages rejected.
         assembler: continue with this assembler (its partner history and counters) instead of a
             fresh one, e.g. across the files of one recording.
+        flush: decide the steps still held at the end (counted ``late`` when a partner had not caught
+            up); ``False`` leaves them held in ``assembler`` for the next call (the next file).
     """
     if assembler is not None and assembler.spec != spec:
         raise ValueError("assemble_stream: the given assembler was built for another observation spec")
     asm = assembler if assembler is not None else ObservationAssembler(spec)
     problems = [p for t, name in (types or {}).items() if (p := asm.check_type(t, name)) is not None]
     step_topic = spec.step_topic
-    rows: list[np.ndarray] = []
-    stamps: list[int] = []
-    log_stamps: list[int] = []
-    kept: list[bool] = []
-    step_log_stamps: list[int] = []
-    drops: list[Drop] = []
+    out = _Collected()
     for topic, stamp, raw in messages:
         if topic != step_topic:
             asm.offer(topic, stamp, raw)
-            continue
-        result = asm.step(stamp, raw)
-        step_log_stamps.append(int(stamp))
-        kept.append(not isinstance(result, Drop))
-        if isinstance(result, Drop):
-            drops.append(result)
-            continue
-        rows.append(result)
-        stamps.append(asm.last_stamp_ns if asm.last_stamp_ns is not None else int(stamp))
-        log_stamps.append(int(stamp))
+        else:
+            asm.hold(stamp, raw)
+        out.add(asm.release(int(stamp)))
+    if flush:
+        out.add(asm.release(flush=True))
     dim = asm.dim
-    obs = np.stack(rows) if rows else np.zeros((0, dim or 0), dtype=np.float32)
+    obs = np.stack(out.rows) if out.rows else np.zeros((0, dim or 0), dtype=np.float32)
     return AssembledStream(
         observations=obs,
-        stamps=np.asarray(stamps, dtype=np.int64),
-        log_stamps=np.asarray(log_stamps, dtype=np.int64),
-        kept=np.asarray(kept, dtype=bool),
-        step_log_stamps=np.asarray(step_log_stamps, dtype=np.int64),
-        drops=tuple(drops),
+        stamps=np.asarray(out.stamps, dtype=np.int64),
+        log_stamps=np.asarray(out.log_stamps, dtype=np.int64),
+        kept=np.asarray(out.kept, dtype=bool),
+        step_log_stamps=np.asarray(out.step_log_stamps, dtype=np.int64),
+        drops=tuple(out.drops),
         stats=asm.stats,
         names=asm.obs_names() if dim is not None else (),
         type_problems=tuple(problems),
     )
+
+
+@dataclass
+class _Collected:
+    """The decided steps of a stream, in step order."""
+
+    rows: list[np.ndarray] = field(default_factory=list)
+    stamps: list[int] = field(default_factory=list)
+    log_stamps: list[int] = field(default_factory=list)
+    kept: list[bool] = field(default_factory=list)
+    step_log_stamps: list[int] = field(default_factory=list)
+    drops: list[Drop] = field(default_factory=list)
+
+    def add(self, decided: list[Decided]) -> None:
+        for d in decided:
+            self.step_log_stamps.append(d.receive_ns)
+            self.kept.append(not isinstance(d.result, Drop))
+            if isinstance(d.result, Drop):
+                self.drops.append(d.result)
+                continue
+            self.rows.append(d.result)
+            self.stamps.append(d.stamp_ns)
+            self.log_stamps.append(d.receive_ns)
