@@ -258,7 +258,8 @@ class _Client:
 
 
 def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "events",
-              client: str = "events", checkpoint: Path | None = None, label: str = "") -> Result:
+              client: str = "events", checkpoint: Path | None = None, label: str = "",
+              obs_qos: str = "best_effort") -> Result:
     """``ompn_node`` (shipped checkpoint, or ``checkpoint``, and the shipped detector of ``domain``)
     in its own process, fed with real expert observations of one long stream (no resets: step index
     = accepted count); 1 kHz run only when ``duration`` > 0.  ``label`` prefixes the figure names."""
@@ -282,6 +283,8 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
         "diagnostics_period:=0.2",
         "-p",
         "qos_depth:=1000",
+        "-p",
+        f"obs_qos:={obs_qos}",
     ]
     if checkpoint is not None:
         cmd += ["-p", f"checkpoint:={checkpoint}"]
@@ -472,7 +475,8 @@ def _multi_sustained(c: _Client, pid: int, ticks: list[list[tuple[Any, bytes]]],
 
 
 def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events",
-                    client: str = "events", wait_s: float | None = None) -> Result:
+                    client: str = "events", wait_s: float | None = None,
+                    obs_qos: str = "best_effort") -> Result:
     """``ompn_node`` (shipped Dial checkpoint and detector) with ``observation_spec`` = :data:`ARM_SPEC`
     in its own process; this process publishes the three topics (module docstring, part 3)."""
     import rclpy
@@ -491,7 +495,8 @@ def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events"
     batches = _arm_messages(_observations("dial", 20 + latency_msgs + int(duration * 1000))[0])
     cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
            "--params-file", str(config_file("ompn_node_dial.yaml")), "-p", f"executor:={executor}",
-           "-p", "diagnostics_period:=0.2", "-p", "qos_depth:=1000", "-p", f"observation_spec:={spec_file}"]
+           "-p", "diagnostics_period:=0.2", "-p", "qos_depth:=1000", "-p", f"observation_spec:={spec_file}",
+           "-p", f"obs_qos:={obs_qos}"]
     log_path = tmp / f"node_multi_{executor}.log"
     log = open(log_path, "w")  # closed in the finally block
     proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)
@@ -526,21 +531,22 @@ def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events"
 
 
 def run(quick: bool = False, executor: str = "events", client: str = "events", parts: str = "all",
-        multi_wait: float | None = None) -> Result:
+        multi_wait: float | None = None, obs_qos: str = "best_effort") -> Result:
     """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz (multi-topic: 10 s) and fewer
-    samples."""
+    samples; ``obs_qos`` = the node's ``obs_qos`` parameter (``reliable``: the publisher's queue absorbs
+    the node's stalls, the zero-loss configuration on a busy CPU)."""
     results: Result = {}
     if parts in ("all", "step"):
         results.update(bench_in_process(1000 if quick else 5000))
     if parts in ("all", "dds"):
         results.update(bench_dds("dial", duration=5.0 if quick else 60.0, latency_msgs=300 if quick else 3000,
-                                 executor=executor, client=client))
+                                 executor=executor, client=client, obs_qos=obs_qos))
         results.update(bench_dds("craft", duration=0.0, latency_msgs=300 if quick else 2000,
-                                 executor=executor, client=client))
+                                 executor=executor, client=client, obs_qos=obs_qos))
     if parts in ("all", "multi"):
         results.update(bench_multi_in_process(1000 if quick else 5000))
         results.update(bench_dds_multi(duration=10.0 if quick else 60.0, latency_msgs=300 if quick else 3000,
-                                       executor=executor, client=client, wait_s=multi_wait))
+                                       executor=executor, client=client, wait_s=multi_wait, obs_qos=obs_qos))
     return results
 
 
@@ -555,6 +561,8 @@ def main() -> None:
                         help="multi: the multi-topic observation_spec case alone")
     parser.add_argument("--multi-wait", type=float, default=None, metavar="S",
                         help="wait_s of the multi-topic spec (default: the spec's default; 0 = no wait)")
+    parser.add_argument("--obs-qos", choices=("best_effort", "reliable"), default="best_effort",
+                        help="ompn_node's obs_qos parameter (default: the shipped best_effort)")
     parser.add_argument("--ensemble", type=Path, default=None, metavar="DIR",
                         help="instead: a Craft ensemble checkpoint directory (ensemble.json, written by "
                              "ompn_reproduce --members), in process and in ompn_node at 100 Hz")
@@ -569,7 +577,7 @@ def main() -> None:
                                  checkpoint=args.ensemble.resolve(), label=f"_ensemble{members}"))
     else:
         results = run(quick=args.quick, executor=args.executor, client=args.client_executor, parts=args.parts,
-                      multi_wait=args.multi_wait)
+                      multi_wait=args.multi_wait, obs_qos=args.obs_qos)
     width = max(len(k) for k in results)
     for name, (value, unit) in results.items():
         print(f"{name:<{width}}  {value:12.3f}  {unit}")
