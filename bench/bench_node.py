@@ -439,7 +439,9 @@ def _multi_latency(c: _Client, ticks: list[list[tuple[Any, bytes]]], name: str) 
     base_pi, base_accepted = len(c.pi_times), int(c.diag["accepted"])
     sent = c.pace(ticks, 100.0)
     c.pump(lambda: len(c.pi_times) - base_pi >= len(ticks), 5)
-    lat = [(r - s) / 1e6 for s, r in zip(sent, c.pi_times[base_pi:], strict=False)]
+    received = c.pi_times[base_pi:]
+    # ~/pi carries no stamp: pairs are made in order, so they are only trusted when every step gave one
+    lat = [(r - s) / 1e6 for s, r in zip(sent, received, strict=True)] if len(received) == len(sent) else []
     # one episode, never reset: a boundary's detected_at is the accepted count at its step
     blat = [(r - sent[d - base_accepted]) / 1e6 for d, r in c.boundaries
             if 0 <= d - base_accepted < len(sent)]  # fmt: skip
@@ -447,7 +449,8 @@ def _multi_latency(c: _Client, ticks: list[list[tuple[Any, bytes]]], name: str) 
             f"{name}_pi_latency_100hz_p99": (_pct(lat, 99), "ms"),
             f"{name}_boundary_latency_100hz_p50": (_pct(blat, 50), "ms"),
             f"{name}_boundary_latency_100hz_p99": (_pct(blat, 99), "ms"),
-            f"{name}_boundary_events_100hz": (float(len(blat)), "events")}  # fmt: skip
+            f"{name}_boundary_events_100hz": (float(len(blat)), "events"),
+            f"{name}_pi_missing_100hz": (float(len(sent) - len(received)), "steps")}  # fmt: skip
 
 
 def _multi_sustained(c: _Client, pid: int, ticks: list[list[tuple[Any, bytes]]], name: str) -> Result:
