@@ -33,8 +33,10 @@ import os
 import random
 import sys
 import tempfile
+import time
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -44,8 +46,11 @@ if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ[
 
 Result = dict[str, tuple[float, str]]
 # one torch thread: with other jobs on the CPU, two threads made training 7x slower (spin-waiting)
-FULL = {"episodes": 300, "heldout": 50, "iterations": None, "threads": 1}
-QUICK = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1}
+FULL: dict[str, Any] = {"episodes": 300, "heldout": 50, "iterations": None, "threads": 1,
+                        "action_norm": "standard", "live_rate": 25.0}
+QUICK: dict[str, Any] = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1,
+                         "action_norm": "standard", "live_rate": 25.0}
+REFERENCE = ROOT / "results" / "dial.json"  # the 39-d observation, shipped-data reproduction
 
 
 def _example() -> ModuleType:
@@ -57,13 +62,18 @@ def _example() -> ModuleType:
     return module
 
 
-def run(quick: bool = False, out: Path | None = None) -> Result:
-    """Run the flow (``quick``: small) and return its figures."""
+def run(quick: bool = False, out: Path | None = None, results: Path | None = None) -> Result:
+    """Run the flow (``quick``: small) and return its figures; ``results``: also write the rows of
+    ``results/own_robot.json`` there."""
     own = _example()
     size = QUICK if quick else FULL
     with tempfile.TemporaryDirectory(prefix="own_robot_") as tmp:
         flow = own.Flow(out or Path(tmp), timeout_s=4 * 3600.0, **size)
         summary = own.run(flow)
+        val = json.loads((Path(summary["checkpoint"]).parent / "summary.json").read_text())["best"]
+    if results is not None:
+        doc = results_doc(summary, size, val, " ".join(["bench/bench_own_robot.py", *sys.argv[1:]]))
+        results.write_text(json.dumps(doc, indent=1) + "\n")
     head = summary["headline"]
     figures: Result = {
         "own_robot_align": (head.get("online.align", float("nan")), "fraction"),
@@ -73,17 +83,67 @@ def run(quick: bool = False, out: Path | None = None) -> Result:
         "own_robot_train_episodes": (float(summary["train_episodes"]), "episodes"),
         "own_robot_steps": (float(summary["train_report"]["steps"]), "steps"),
     }
+    figures["own_robot_val_align"] = (float(val["align"]), "fraction")  # validation split, auto threshold
+    figures["own_robot_val_f1_tol1"] = (float(val["f1_tol1"]), "fraction")
+    live = summary["live"]
+    if live is not None:
+        figures["own_robot_live_align"] = (float(live["metrics"]["align"]), "fraction")
+        figures["own_robot_live_f1_tol1"] = (float(live["metrics"]["f1_tol1"]), "fraction")
+        figures["own_robot_live_agree_with_replay"] = (float(live["agree_with_replay"]), "fraction")
     for step, seconds in summary["seconds"].items():
         figures[f"own_robot_{step}_s"] = (float(seconds), "s")
     return figures
+
+
+def _cpu() -> str:
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return "unknown"
+    names = [ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")]
+    return f"{names[0] if names else 'unknown'} x{len(names)}"
+
+
+def results_doc(summary: dict[str, Any], size: dict[str, Any], val: dict[str, Any],
+                command: str) -> dict[str, Any]:
+    """``results/own_robot.json``: this run's row (18-d joint positions and velocities) and, from
+    ``results/dial.json``, the 39-d reference row (shipped data, NoSketch, mean over its seeds)."""
+    head, live = summary["headline"], summary["live"]
+    rows: list[dict[str, Any]] = [{
+        "observation": "joint positions + velocities (JointState, robot profile)",
+        "obs_dim": summary["obs_dim"], "train_episodes": summary["train_episodes"],
+        "test_episodes": summary["heldout_episodes"], "action_norm": size["action_norm"],
+        "online_f1_1": head.get("online.f1_tol1"), "online_align": head.get("online.align"),
+        "offline_f1_1": head.get("offline_auto.f1_tol1"), "offline_align": head.get("offline_auto.align"),
+        "live_f1_1": None if live is None else live["metrics"]["f1_tol1"],
+        "live_align": None if live is None else live["metrics"]["align"],
+        "val_f1_1": val.get("f1_tol1"), "val_align": val.get("align"),
+    }]
+    if REFERENCE.is_file():
+        ref = json.loads(REFERENCE.read_text())["nosketch"]
+        rows.append({
+            "observation": "39-d Dial observation (shipped-data reproduction, NoSketch; results/dial.json, "
+                           f"mean of {ref['online_align']['n']} seeds)",
+            "obs_dim": 39, "train_episodes": None, "test_episodes": None, "action_norm": "none",
+            "online_f1_1": ref["online_f1_tol1"]["mean"], "online_align": ref["online_align"]["mean"],
+            "offline_f1_1": ref["f1_tol1"]["mean"], "offline_align": ref["align"]["mean"],
+            "live_f1_1": None, "live_align": None,
+        })
+    meta = {"command": command, "date": time.strftime("%Y-%m-%d", time.gmtime()), "cpu": _cpu(),
+            "torch_threads": size["threads"], "live_rate_hz": size["live_rate"],
+            "seeds": {"train": 0, "heldout": 1_000_000}, "seconds": summary["seconds"],
+            "live_agree_with_replay": None if live is None else live["agree_with_replay"]}
+    return {"meta": meta, "rows": rows}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="20 + 5 episodes, 40 iterations")
     parser.add_argument("--out", type=Path, default=None, help="keep bags, model and plots here")
+    parser.add_argument("--results", type=Path, default=None,
+                        help="also write the rows of results/own_robot.json here")
     args = parser.parse_args(argv)
-    figures = run(args.quick, args.out)
+    figures = run(args.quick, args.out, args.results)
     print(json.dumps({k: {"value": v, "unit": u} for k, (v, u) in figures.items()}, indent=1))
     return 0
 
