@@ -62,6 +62,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
@@ -326,7 +328,8 @@ def score_live(bag: Path, replay_dir: Path) -> dict[str, Any]:
     replayed = json.loads((replay_dir / "boundaries.json").read_text())["episodes"]
     same = sum(p == sorted({int(b["step"]) for b in r["boundaries"]})
                for p, r in zip(preds, replayed, strict=True))
-    return {"episodes": len(episodes), "metrics": score_predictions(preds, episodes),
+    scored = score_predictions([np.asarray(p, dtype=np.int64) for p in preds], episodes)
+    return {"episodes": len(episodes), "metrics": scored,
             "agree_with_replay": same / len(episodes), "boundaries": events}
 
 
