@@ -47,9 +47,9 @@ if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ[
 Result = dict[str, tuple[float, str]]
 # one torch thread: with other jobs on the CPU, two threads made training 7x slower (spin-waiting)
 FULL: dict[str, Any] = {"episodes": 300, "heldout": 50, "iterations": None, "threads": 1,
-                        "action_norm": "standard", "live_rate": 25.0}
+                        "action_norm": "none", "live_rate": 25.0}
 QUICK: dict[str, Any] = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1,
-                         "action_norm": "standard", "live_rate": 25.0}
+                         "action_norm": "none", "live_rate": 25.0}
 REFERENCE = ROOT / "results" / "dial.json"  # the 39-d observation, shipped-data reproduction
 
 
@@ -62,17 +62,22 @@ def _example() -> ModuleType:
     return module
 
 
-def run(quick: bool = False, out: Path | None = None, results: Path | None = None) -> Result:
+def run(quick: bool = False, out: Path | None = None, results: Path | None = None,
+        action_norm: str = "none") -> Result:
     """Run the flow (``quick``: small) and return its figures; ``results``: also write the rows of
     ``results/own_robot.json`` there."""
     own = _example()
-    size = QUICK if quick else FULL
+    size = {**(QUICK if quick else FULL), "action_norm": action_norm}
     with tempfile.TemporaryDirectory(prefix="own_robot_") as tmp:
         flow = own.Flow(out or Path(tmp), timeout_s=4 * 3600.0, **size)
         summary = own.run(flow)
         val = json.loads((Path(summary["checkpoint"]).parent / "summary.json").read_text())["best"]
     if results is not None:
         doc = results_doc(summary, size, val, " ".join(["bench/bench_own_robot.py", *sys.argv[1:]]))
+        if results.is_file():  # keep the other action_norm's 18-d row of an earlier run
+            old = json.loads(results.read_text()).get("rows", [])
+            doc["rows"][1:1] = [r for r in old if r.get("obs_dim") == summary["obs_dim"]
+                                and r.get("action_norm") != size["action_norm"]]
         results.write_text(json.dumps(doc, indent=1) + "\n")
     head = summary["headline"]
     figures: Result = {
@@ -117,7 +122,7 @@ def results_doc(summary: dict[str, Any], size: dict[str, Any], val: dict[str, An
         "offline_f1_1": head.get("offline_auto.f1_tol1"), "offline_align": head.get("offline_auto.align"),
         "live_f1_1": None if live is None else live["metrics"]["f1_tol1"],
         "live_align": None if live is None else live["metrics"]["align"],
-        "val_f1_1": val.get("f1_tol1"), "val_align": val.get("align"),
+        "val_f1_1": val.get("f1_tol1"), "val_align": val.get("align"), "command": command,
     }]
     if REFERENCE.is_file():
         ref = json.loads(REFERENCE.read_text())["nosketch"]
@@ -142,8 +147,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="keep bags, model and plots here")
     parser.add_argument("--results", type=Path, default=None,
                         help="also write the rows of results/own_robot.json here")
+    parser.add_argument("--action-norm", choices=("none", "standard"), default="none",
+                        help="train.action_norm (none: chosen on the validation split, "
+                        "docs/experiments.md §25)")
     args = parser.parse_args(argv)
-    figures = run(args.quick, args.out, args.results)
+    figures = run(args.quick, args.out, args.results, args.action_norm)
     print(json.dumps({k: {"value": v, "unit": u} for k, (v, u) in figures.items()}, indent=1))
     return 0
 
