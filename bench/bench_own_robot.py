@@ -1,25 +1,30 @@
-"""Benchmark "your robot in five commands" (``examples/own_robot.py``) at full size.
+"""Benchmark "your robot in five commands" (``examples/own_robot.py``) at full size, step 5 live included.
 
 ``dial_sim profile:=robot`` publishes only ``jaco/joint_states``, ``jaco/effort_command`` and
 ``jaco/skill_id``; ``bag_recorder`` records them, the reader (``config/reader_dial_robot.yaml``) makes
 episodes of joint positions and velocities (18-d), effort commands (9-d) and skill-id labels,
 ``ompn_train`` runs the shipped Dial training config, ``ompn_segment --tune`` chooses the online
 detector settings on the training bag (objective: alignment) and ``ompn_segment`` scores held-out
-episodes against the sim's skill ids.  Figures:
+episodes against the sim's skill ids.  Step 5 runs the sim again on the held-out seeds at 25 Hz with
+``ompn_node`` on its JointState stream (``episode_gap`` splits the episodes at the pauses) and scores
+the recorded ``~/boundary`` events.  Figures:
 
 * ``own_robot_align``, ``own_robot_f1_tol1``: held-out alignment accuracy and boundary F1 at
   tolerance 1 of the online detector (tuned settings) and of the offline automatic threshold
   (``own_robot_offline_auto_*``; paper Alg. 1-2), from joint positions and velocities alone
-  (target alignment >= 0.85);
+  (target alignment >= 0.85); ``own_robot_val_*``: the same on the validation split (best checkpoint);
+* ``own_robot_live_align``, ``own_robot_live_f1_tol1``: the live node's boundaries, and
+  ``own_robot_live_agree_with_replay``: the fraction of live episodes whose boundaries equal the
+  replay of the same recording;
 * ``own_robot_train_episodes``, ``own_robot_steps``: what the reader made of the training bag;
-* ``own_robot_<step>_s``: wall time of recording, reading, training, tuning and segmenting.
+* ``own_robot_<step>_s``: wall time of recording, reading, training, tuning, segmenting and step 5.
 
-Full size: 300 training episodes, 50 held-out, the config's 300 iterations with one torch thread
-(about 40 minutes on a busy 2-core machine).  Measured once (seeds 0 and 1000000, best checkpoint at
-iteration 280): held-out alignment 0.927 online (tuned: falling edge, high 0.15, low 0.05) and 0.831
-offline (automatic threshold); F1@1 0.25 online (3 false alarms per episode) and 0.43 offline.  The
-actions are raw torques (N·m, up to ±30) that the trainer does not normalise, and joint positions and
-velocities say nothing about which key comes next, which limits both.
+Full size: 300 training episodes, 50 held-out, the config's 300 iterations with one torch thread.
+Measured (seeds 0 and 1000000, docs/experiments.md §25): alignment 0.927 online (live: the same,
+every live episode equal to the replay) and 0.831 offline; F1@1 0.25 online, 0.43 offline: the
+online boundaries lie a steady 4 steps after the skill-id change.  ``--action-norm standard``
+(torques standardised per joint) gave 0.637 / 0.22 and lost on the validation split too.
+A full run writes the table rows to ``results/own_robot.json`` (keeping the other variant's row).
 ``quick``: 20 + 5 episodes, 40 iterations (the figures then only show that the flow runs).
 Run: ``.venv/bin/python bench/bench_own_robot.py [--quick]`` or ``make bench-own-robot``.
 """
@@ -51,6 +56,7 @@ FULL: dict[str, Any] = {"episodes": 300, "heldout": 50, "iterations": None, "thr
 QUICK: dict[str, Any] = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1,
                          "action_norm": "none", "live_rate": 25.0}
 REFERENCE = ROOT / "results" / "dial.json"  # the 39-d observation, shipped-data reproduction
+RESULTS = ROOT / "results" / "own_robot.json"
 
 
 def _example() -> ModuleType:
@@ -145,13 +151,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="20 + 5 episodes, 40 iterations")
     parser.add_argument("--out", type=Path, default=None, help="keep bags, model and plots here")
-    parser.add_argument("--results", type=Path, default=None,
-                        help="also write the rows of results/own_robot.json here")
+    parser.add_argument("--results", default=None,
+                        help="write the table rows here (default: results/own_robot.json at full size, "
+                        "nothing with --quick; '' = nothing)")
     parser.add_argument("--action-norm", choices=("none", "standard"), default="none",
                         help="train.action_norm (none: chosen on the validation split, "
                         "docs/experiments.md §25)")
     args = parser.parse_args(argv)
-    figures = run(args.quick, args.out, args.results, args.action_norm)
+    results = args.results if args.results is not None else ("" if args.quick else str(RESULTS))
+    figures = run(args.quick, args.out, Path(results) if results else None, args.action_norm)
     print(json.dumps({k: {"value": v, "unit": u} for k, (v, u) in figures.items()}, indent=1))
     return 0
 
