@@ -34,8 +34,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import os
-import random
 import sys
 import tempfile
 import time
@@ -45,9 +43,11 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-if not os.environ.get("ROS_DOMAIN_ID", "").isdigit() or not 1 <= int(os.environ["ROS_DOMAIN_ID"]) <= 100:
-    os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+
+from ompn_ros.experiments.spec import DEFAULT_EPISODES  # noqa: E402
+
+# DDS containment (loopback and shared memory, a domain in 1..100) is applied to every child
+# process by the example (ompn_ros.containment); this process itself starts no ROS node.
 
 Result = dict[str, tuple[float, str]]
 # one torch thread: with other jobs on the CPU, two threads made training 7x slower (spin-waiting)
@@ -56,6 +56,7 @@ FULL: dict[str, Any] = {"episodes": 300, "heldout": 50, "iterations": None, "thr
 QUICK: dict[str, Any] = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1,
                          "action_norm": "none", "live_rate": 25.0}
 REFERENCE = ROOT / "results" / "dial.json"  # the 39-d observation, shipped-data reproduction
+REFERENCE_EXTRAS = ROOT / "results" / "dial_extras.json"
 RESULTS = ROOT / "results" / "own_robot.json"
 
 
@@ -115,6 +116,24 @@ def _cpu() -> str:
     return f"{names[0] if names else 'unknown'} x{len(names)}"
 
 
+def reference_row() -> dict[str, Any] | None:
+    """The 39-d row from ``results/dial.json`` (NoSketch, mean over its seeds) and the test-set size
+    from ``results/dial_extras.json`` (of ``DEFAULT_EPISODES['dial']`` episodes); None without them."""
+    if not (REFERENCE.is_file() and REFERENCE_EXTRAS.is_file()):
+        return None
+    ref = json.loads(REFERENCE.read_text())["nosketch"]
+    n_test = int(json.loads(REFERENCE_EXTRAS.read_text())["meta"]["n_test"]["full"])
+    return {
+        "observation": "39-d Dial observation (shipped-data reproduction, NoSketch; results/dial.json, "
+                       f"mean of {ref['online_align']['n']} seeds)",
+        "obs_dim": 39, "train_episodes": DEFAULT_EPISODES["dial"] - n_test, "test_episodes": n_test,
+        "action_norm": "none",
+        "online_f1_1": ref["online_f1_tol1"]["mean"], "online_align": ref["online_align"]["mean"],
+        "offline_f1_1": ref["f1_tol1"]["mean"], "offline_align": ref["align"]["mean"],
+        "live_f1_1": None, "live_align": None,
+    }
+
+
 def results_doc(summary: dict[str, Any], size: dict[str, Any], val: dict[str, Any],
                 command: str) -> dict[str, Any]:
     """``results/own_robot.json``: this run's row (18-d joint positions and velocities) and, from
@@ -130,16 +149,9 @@ def results_doc(summary: dict[str, Any], size: dict[str, Any], val: dict[str, An
         "live_align": None if live is None else live["metrics"]["align"],
         "val_f1_1": val.get("f1_tol1"), "val_align": val.get("align"), "command": command,
     }]
-    if REFERENCE.is_file():
-        ref = json.loads(REFERENCE.read_text())["nosketch"]
-        rows.append({
-            "observation": "39-d Dial observation (shipped-data reproduction, NoSketch; results/dial.json, "
-                           f"mean of {ref['online_align']['n']} seeds)",
-            "obs_dim": 39, "train_episodes": None, "test_episodes": None, "action_norm": "none",
-            "online_f1_1": ref["online_f1_tol1"]["mean"], "online_align": ref["online_align"]["mean"],
-            "offline_f1_1": ref["f1_tol1"]["mean"], "offline_align": ref["align"]["mean"],
-            "live_f1_1": None, "live_align": None,
-        })
+    reference = reference_row()
+    if reference is not None:
+        rows.append(reference)
     meta = {"command": command, "date": time.strftime("%Y-%m-%d", time.gmtime()), "cpu": _cpu(),
             "torch_threads": size["threads"], "live_rate_hz": size["live_rate"],
             "seeds": {"train": 0, "heldout": 1_000_000}, "seconds": summary["seconds"],
