@@ -140,7 +140,8 @@ def results_doc(summary: dict[str, Any], size: dict[str, Any], val: dict[str, An
     ``results/dial.json``, the 39-d reference row (shipped data, NoSketch, mean over its seeds)."""
     head, live = summary["headline"], summary["live"]
     rows: list[dict[str, Any]] = [{
-        "observation": "joint positions + velocities (JointState, robot profile)",
+        "observation": f"joint positions + velocities (JointState, robot profile; action_norm "
+                       f"{size['action_norm']})",
         "obs_dim": summary["obs_dim"], "train_episodes": summary["train_episodes"],
         "test_episodes": summary["heldout_episodes"], "action_norm": size["action_norm"],
         "online_f1_1": head.get("online.f1_tol1"), "online_align": head.get("online.align"),
