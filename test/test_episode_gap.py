@@ -187,3 +187,13 @@ def test_episode_gap_is_validated(ctx, ckpt: Path, bad: float) -> None:
     with pytest.raises(ParameterError, match="episode_gap"):
         OMPNNode(context=ctx, parameter_overrides=[Parameter("checkpoint", value=str(ckpt)),
                                                    Parameter("episode_gap", value=bad)])
+
+
+def test_the_node_splits_only_beyond_the_gap_like_the_reader(ctx, ckpt: Path) -> None:
+    node = active_node(ctx, ckpt, episode_gap=0.5)
+    stamps = [10 * S, 10 * S + S // 2, 11 * S + 1]  # exactly the gap: same episode; 1 ns more: a new one
+    for t, s in enumerate(stamps):
+        node._on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t, np.float32)), s)
+    cuts = [i for i in range(1, len(stamps)) if gap_ends_episode(stamps[i], stamps[i - 1], S // 2)]
+    assert cuts == [2] and node.counters()["episode_gaps"] == 1 and node.segmenter.step_index == 0
+    node.destroy_node()
