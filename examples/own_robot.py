@@ -24,11 +24,23 @@ printed as they run::
         --reader-config config/reader_dial_robot.yaml --write-config OUT/ompn_node_robot.yaml
     ompn_segment --bag OUT/bags/heldout --checkpoint OUT/model/best --reader-config \\
         config/reader_dial_robot.yaml --detector-config OUT/ompn_node_robot.yaml --out OUT/segment
-    # 5. live: ompn_node on jaco/joint_states (printed by live_command)
+    # 5. live: the sim on the held-out seeds again, ompn_node on jaco/joint_states with the reader's
+    #    assemble block and its time_gap as episode_gap (no markers: episodes end at the pauses);
+    #    bag_recorder keeps the node's ~/boundary with the sim's topics, scored against the skill ids
+    bag_recorder --ros-args -p output:=OUT/bags/live \
+        -p topics:="['jaco/joint_states','jaco/skill_id','jaco/effort_command','ompn_node/boundary']" &
+    ompn_node --ros-args -p checkpoint:=OUT/model/best -p observation_spec:=config/reader_dial_robot.yaml \
+        -p episode_gap:=0.5 -p obs_qos:=reliable -p boundary_replay:=none &  # detector: step 4's tuning
+    dial_sim --ros-args -p profile:=robot -p rate:=25.0 -p joint_states_qos:=reliable \
+        -p episodes:=N -p seed:=1000000 -p wait_for_subscribers:=2 -p "wait_topics:=['jaco/joint_states']"
 
 ``rate:=0`` runs the sim as fast as it can; its JointState publisher is then made RELIABLE
 (``joint_states_qos:=reliable``): the recorder subscribes RELIABLE, and a best-effort publisher in
-bursts would lose messages.  A real arm publishing at its own rate needs neither.
+bursts would lose messages.  A real arm publishing at its own rate needs neither.  Step 5 runs the
+sim at 25 Hz (real time, ``--live-rate``).  Live, the node cannot know that a JointState is an
+episode's last one: it closes the episode at the last step it saw (``T``, the final observation),
+which is scored as ``T - 1`` exactly as ``ompn_segment``'s replay closes it; the live boundaries are
+compared with ``ompn_segment`` on the same live recording (the offline replay of the same stream).
 
 Run: ``python examples/own_robot.py --out runs/own_robot [--episodes 300 --heldout 50]`` (or
 ``examples/own_robot.sh``).  Every process runs DDS on loopback and shared memory only
@@ -50,16 +62,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from ompn_ros import containment  # noqa: E402
+from ompn_ros import containment, layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
+from ompn_ros.data import messages as msgs  # noqa: E402
+from ompn_ros.data.episode import Episode  # noqa: E402
+from ompn_ros.detect.tune import score_predictions  # noqa: E402
 
 READER = ROOT / "config" / "reader_dial_robot.yaml"
 TRAIN_CONFIG = ROOT / "config" / "train_dial.yaml"
 TOPICS = ("jaco/joint_states", "jaco/skill_id", "jaco/effort_command")
+LIVE_BOUNDARY = f"ompn_node/{layout.BOUNDARY.removeprefix('~/')}"  # the node's ~/boundary, recorded live
 OBS_DIM = 18  # 9 joint positions + 9 joint velocities
 ACTION_DIM = 9  # 9 effort commands
 HELDOUT_SEED = 1_000_000  # held-out episodes come from seeds the training bag never used
@@ -80,6 +98,9 @@ class Flow:
     seed: int = 0
     timeout_s: float = 3600.0
     threads: int | None = None  # torch threads of ompn_train (None: the config's); 1 on a busy machine
+    live: bool = True  # step 5: run ompn_node live on the held-out seeds
+    live_rate: float = 25.0  # Hz of the sim in step 5 (25 = real time)
+    action_norm: str | None = None  # train.action_norm (None: the training config's)
 
 
 def ros_env() -> dict[str, str]:
@@ -159,6 +180,8 @@ def train(flow: Flow, bag: Path, env: dict[str, str]) -> Path:
         argv += ["--set", f"train.iterations={flow.iterations}", "--set", f"train.eval_every={every}"]
     if flow.threads is not None:
         argv += ["--set", f"train.threads={flow.threads}"]
+    if flow.action_norm is not None:
+        argv += ["--set", f"train.action_norm={flow.action_norm}"]
     _show("train", argv)
     _run(argv, env, flow.timeout_s, "train")
     if not (out / "best").is_dir():
@@ -179,9 +202,9 @@ def tune(flow: Flow, bag: Path, checkpoint: Path, env: dict[str, str]) -> Path:
 
 
 def segment(flow: Flow, bag: Path, checkpoint: Path, detector: Path | None,
-            env: dict[str, str]) -> dict[str, Any]:
+            env: dict[str, str], name: str = "segment") -> dict[str, Any]:
     """Step 4b: ``ompn_segment`` on the held-out bag; returns its metrics (online and offline detectors)."""
-    out = flow.out / "segment"
+    out = flow.out / name
     argv = _command("ompn_ros.cli.segment", "--bag", str(bag), "--checkpoint", str(checkpoint),
                     "--reader-config", str(READER), "--out", str(out), "--plot-episodes", "2")
     if detector is not None:
@@ -197,10 +220,117 @@ def segment(flow: Flow, bag: Path, checkpoint: Path, detector: Path | None,
 
 def live_command(checkpoint: Path) -> str:
     """Step 5, what to run on the live arm: ``ompn_node`` on the ``jaco/joint_states`` stream with the
-    trained checkpoint (its detector travels with it).  The script prints it; running it live
-    against the sim's skill ids is not automated here."""
-    return (f"ompn_node --ros-args -p checkpoint:={checkpoint} "
-            f"-p observation_spec:={READER}  # the reader's assemble: block, the same rule live")
+    trained checkpoint (the detector tuned in step 4 is in its ``detector.json``), the reader's
+    ``assemble:`` block (the same observation rule live) and its ``time_gap`` as ``episode_gap``
+    (episodes end at pauses)."""
+    return (f"ompn_node --ros-args -p checkpoint:={checkpoint} -p observation_spec:={READER} "
+            f"-p episode_gap:={ReaderSpec.from_yaml(READER).time_gap}")
+
+
+def live(flow: Flow, checkpoint: Path, env: dict[str, str]) -> Path:
+    """Step 5: ``dial_sim`` on the held-out seeds at ``live_rate``, ``ompn_node`` on its
+    ``jaco/joint_states`` (detector: the checkpoint's ``detector.json``, tuned in step 4) and
+    ``bag_recorder`` keeping the node's ``~/boundary`` with the sim's topics; returns the live bag."""
+    bag = flow.out / "bags" / "live"
+    ns = f"/own_robot_{uuid.uuid4().hex[:8]}"
+    gap = ReaderSpec.from_yaml(READER).time_gap
+    topics = "[" + ",".join(f"'{t}'" for t in (*TOPICS, LIVE_BOUNDARY)) + "]"
+    rec_argv = _command("ompn_ros.nodes.bag_recorder", "--ros-args", "-r", f"__ns:={ns}",
+                        "-p", f"output:={bag}", "-p", f"topics:={topics}")
+    node_argv = _command("ompn_ros.nodes.ompn_node", "--ros-args", "-r", f"__ns:={ns}",
+                         "-p", f"checkpoint:={checkpoint}", "-p", f"observation_spec:={READER}",
+                         "-p", f"episode_gap:={gap}", "-p", "obs_qos:=reliable", "-p", "qos_depth:=1000",
+                         "-p", "boundary_replay:=none")
+    sim_argv = _command("sim_nodes.dial.node", "--ros-args", "-r", f"__ns:={ns}", "-p", "profile:=robot",
+                        "-p", f"rate:={flow.live_rate}", "-p", "joint_states_qos:=reliable",
+                        "-p", f"episodes:={flow.heldout}", "-p", f"seed:={flow.seed + HELDOUT_SEED}",
+                        "-p", "wait_for_subscribers:=2", "-p", "wait_topics:=['jaco/joint_states']")
+    logs = {name: flow.out / f"live_{name}.log" for name in ("recorder", "ompn_node", "dial_sim")}
+    procs: dict[str, subprocess.Popen[str]] = {}
+    try:
+        for name, step_argv in (("recorder", rec_argv), ("ompn_node", node_argv), ("dial_sim", sim_argv)):
+            _show("live", step_argv)
+            with logs[name].open("w") as log:  # a file, not a pipe: a chatty node never blocks on it
+                procs[name] = subprocess.Popen(step_argv, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                               text=True)
+        _wait_live(procs, logs, flow.timeout_s)
+        time.sleep(2 * gap + 1.0)  # the node's silence timer ends the last episode
+        for name in ("recorder", "ompn_node"):  # the recorder drains and closes the bag, then the node
+            procs[name].send_signal(signal.SIGINT)
+            procs[name].wait(timeout=30)
+    except subprocess.TimeoutExpired as err:
+        raise OwnRobotError(f"live: {err}") from err
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    if procs["recorder"].returncode != 0 or not bag.exists():
+        raise OwnRobotError(f"live: bag_recorder exited with {procs['recorder'].returncode}: "
+                            f"{_tail(logs['recorder'])}")
+    return bag
+
+
+def _tail(path: Path) -> str:
+    lines = path.read_text(errors="replace").strip().splitlines() if path.is_file() else []
+    return lines[-1] if lines else ""
+
+
+def _wait_live(procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path], timeout_s: float) -> None:
+    """Until the sim has run its episodes; a recorder or node that exits first fails the step."""
+    deadline = time.monotonic() + timeout_s
+    while procs["dial_sim"].poll() is None:
+        for name in ("recorder", "ompn_node"):
+            if procs[name].poll() is not None:
+                raise OwnRobotError(f"live: {name} exited with {procs[name].returncode} while the sim ran: "
+                                    f"{_tail(logs[name])}")
+        if time.monotonic() > deadline:
+            raise OwnRobotError(f"live: the sim did not finish within {timeout_s:.0f} s "
+                                f"(see {logs['dial_sim']})")
+        time.sleep(0.2)
+    if procs["dial_sim"].returncode != 0:
+        raise OwnRobotError(f"live: dial_sim exited with {procs['dial_sim'].returncode}: "
+                            f"{_tail(logs['dial_sim'])}")
+
+
+def live_boundaries(bag: Path) -> list[list[int]]:
+    """The node's ``~/boundary`` events in the live bag, one list of steps per episode (an episode
+    ends with its ``final`` event)."""
+    from rosbags.rosbag2 import Reader
+
+    episodes: list[list[int]] = [[]]
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic.endswith("/" + LIVE_BOUNDARY)]
+        for conn, _, raw in reader.messages(connections=conns):
+            for status in msgs.deserialize(raw, conn.msgtype).status:
+                values = {kv.key: kv.value for kv in status.values}
+                episodes[-1].append(int(values["step"]))
+                if values.get("final") == "true":
+                    episodes.append([])
+    return episodes[:-1] if not episodes[-1] else episodes
+
+
+def as_replayed(steps: Sequence[int], length: int) -> list[int]:
+    """Live boundary steps as the replay scores them: the node closes an episode at the last step it
+    saw (``T``, the final observation, since nothing marks it); the replay closes it at ``T - 1`` and
+    drops a boundary on the final observation."""
+    return sorted({s for s in steps if s <= length - 1} | {length - 1})
+
+
+def score_live(bag: Path, replay_dir: Path) -> dict[str, Any]:
+    """Live boundaries against the skill ids of the same recording (read with the reader spec), and
+    per-episode agreement with ``ompn_segment``'s replay of that recording (``replay_dir``)."""
+    episodes: list[Episode] = read(bag).episodes
+    events = live_boundaries(bag)
+    if len(events) != len(episodes):
+        raise OwnRobotError(f"live: the node ended {len(events)} episodes, the recording has {len(episodes)}")
+    preds = [as_replayed(e, ep.length) for e, ep in zip(events, episodes, strict=True)]
+    replayed = json.loads((replay_dir / "boundaries.json").read_text())["episodes"]
+    same = sum(p == sorted({int(b["step"]) for b in r["boundaries"]})
+               for p, r in zip(preds, replayed, strict=True))
+    scored = score_predictions([np.asarray(p, dtype=np.int64) for p in preds], episodes)
+    return {"episodes": len(episodes), "metrics": scored,
+            "agree_with_replay": same / len(episodes), "boundaries": events}
 
 
 def _run(argv: list[str], env: dict[str, str], timeout: float, step: str) -> None:
@@ -246,7 +376,15 @@ def run(flow: Flow) -> dict[str, Any]:
     lap("tune")
     metrics = segment(flow, heldout_bag, checkpoint, detector, env)
     lap("segment")
+    live_doc: dict[str, Any] | None = None
     print(f"[own_robot] 5. live: {live_command(checkpoint)}", file=sys.stderr)
+    if flow.live:
+        live_bag = live(flow, checkpoint, env)
+        replay = segment(flow, live_bag, checkpoint, None, env, name="segment_live")  # detector.json
+        live_doc = score_live(live_bag, flow.out / "segment_live")
+        live_doc["replay_metrics"] = replay
+        (flow.out / "live.json").write_text(json.dumps(live_doc, indent=1))
+        lap("live")
     first = train_read.episodes[0]
     return {
         "train_episodes": len(train_read.episodes),
@@ -258,6 +396,7 @@ def run(flow: Flow) -> dict[str, Any]:
         "checkpoint": str(checkpoint),
         "metrics": metrics,
         "headline": headline(metrics),
+        "live": live_doc,
         "seconds": seconds,
     }
 
@@ -271,18 +410,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="base seed of the training episodes")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch threads of ompn_train (default: the config's; 1 on a busy machine)")
+    parser.add_argument("--no-live", action="store_true", help="skip step 5 (ompn_node live)")
+    parser.add_argument("--live-rate", type=float, default=25.0, help="sim rate of step 5 in Hz (25)")
+    parser.add_argument("--action-norm", choices=("none", "standard"), default=None,
+                        help="train.action_norm (default: the training config's)")
     args = parser.parse_args(argv)
-    if args.episodes < 2 or args.heldout < 1:
-        print("own_robot: --episodes must be >= 2 and --heldout >= 1", file=sys.stderr)
+    if args.episodes < 2 or args.heldout < 1 or not args.live_rate > 0:
+        print("own_robot: --episodes must be >= 2, --heldout >= 1 and --live-rate > 0", file=sys.stderr)
         return 2
     try:
         summary = run(Flow(args.out, args.episodes, args.heldout, args.iterations, args.seed,
-                           threads=args.threads))
+                           threads=args.threads, live=not args.no_live, live_rate=args.live_rate,
+                           action_norm=args.action_norm))
     except (OwnRobotError, OSError, ValueError) as err:
         print(f"own_robot: {err}", file=sys.stderr)
         return 2
-    print(json.dumps({k: summary[k] for k in ("train_episodes", "heldout_episodes", "obs_dim", "action_dim",
-                                              "headline", "seconds")}, indent=1))
+    doc = {k: summary[k] for k in ("train_episodes", "heldout_episodes", "obs_dim", "action_dim", "headline",
+                                   "seconds")}
+    if summary["live"] is not None:
+        doc["live"] = {k: summary["live"][k] for k in ("episodes", "metrics", "agree_with_replay")}
+    print(json.dumps(doc, indent=1))
     return 0
 
 

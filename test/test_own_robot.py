@@ -1,5 +1,6 @@
-"""examples/own_robot.py, steps 1-4 at test size: dial_sim profile:=robot recorded by bag_recorder, read
-with config/reader_dial_robot.yaml, ompn_train, ompn_segment on a held-out bag."""
+"""examples/own_robot.py, all five steps at test size: dial_sim profile:=robot recorded by bag_recorder,
+read with config/reader_dial_robot.yaml, ompn_train, ompn_segment on a held-out bag, then ompn_node live
+on the sim's JointState stream (episodes split by pauses), scored against the sim's skill ids."""
 
 from __future__ import annotations
 
@@ -33,9 +34,9 @@ def test_own_robot_flow(tmp_path: Path, ros_env: dict[str, str]) -> None:
     from sim_nodes.dial import generate_episode
 
     own = _example()
-    summary = own.run(own.Flow(tmp_path, episodes=2, heldout=1, iterations=2, seed=5, timeout_s=300,
-                                threads=1))
-    assert (summary["train_episodes"], summary["heldout_episodes"]) == (2, 1)
+    summary = own.run(own.Flow(tmp_path, episodes=2, heldout=2, iterations=2, seed=5, timeout_s=300,
+                                threads=1, live_rate=50.0))
+    assert (summary["train_episodes"], summary["heldout_episodes"]) == (2, 2)
     assert (summary["obs_dim"], summary["action_dim"]) == (18, 9)
     names = summary["obs_names"]
     assert len(names) == 18 and names[0].endswith("position/jaco_joint_1") and "velocity" in names[9]
@@ -54,3 +55,15 @@ def test_own_robot_flow(tmp_path: Path, ros_env: dict[str, str]) -> None:
     head = summary["headline"]
     assert {"online.f1_tol1", "online.align"} <= set(head)
     assert all(0.0 <= v <= 1.0 for v in head.values()), head
+    # step 5: the node ended every live episode at its pause, and its boundaries are those of the offline
+    # replay of the same recording (same messages, same detector: deterministic)
+    live = summary["live"]
+    assert live["episodes"] == 2 and len(live["boundaries"]) == 2
+    live_eps = read_episodes(tmp_path / "bags" / "live", spec=ReaderSpec.from_yaml(own.READER)).episodes
+    for i, (ep, steps) in enumerate(zip(live_eps, live["boundaries"], strict=True)):
+        demo = generate_episode(derive_seed(5 + own.HELDOUT_SEED, i))
+        assert np.array_equal(ep.subtask, demo.subtask)  # the ground truth is the sim's
+        assert steps and steps[-1] >= ep.length - 1  # the final boundary closes the episode
+    assert live["agree_with_replay"] == 1.0
+    assert {"f1_tol1", "align"} <= set(live["metrics"])
+    assert all(0.0 <= live["metrics"][k] <= 1.0 for k in ("f1_tol1", "align"))

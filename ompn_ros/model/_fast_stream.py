@@ -110,11 +110,11 @@ class NumpyStepper:
         self.score_mc = _f32(s1[:, 2 * h :].T)  # [2H, H] on rows [m; c]
         self.score_w2 = _np(policy.score.fc2.weight)[0]
         self.score_b2 = float(_np(policy.score.fc2.bias)[0])
-        wa = _np(policy.head.weight)  # [A, 3H] on [O; e; x]
+        wa, ba = policy.head_params(policy.head)  # [A, 3H] on [O; e; x], action norm folded in
         self.head_o = _f32(wa[:, :h])
         x_rows.append(wa[:, 2 * h :])
         e_rows.append(wa[:, h : 2 * h])
-        biases.append(_np(policy.head.bias))
+        biases.append(ba)
         self.x_proj = _f32(np.concatenate(x_rows, axis=0))  # [R, H]
         self.e_proj = _f32(np.concatenate(e_rows, axis=0))
         self.bias = _f32(np.concatenate(biases))

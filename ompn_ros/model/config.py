@@ -13,6 +13,8 @@ ActionType = Literal["discrete", "continuous"]
 SketchMode = Literal["none", "sum"]
 MemoryUpdate = Literal["paper", "code"]
 Arch = Literal["ompn", "lstm"]
+ActionNorm = Literal["none", "standard"]
+ACTION_NORMS: tuple[ActionNorm, ...] = ("none", "standard")
 
 
 class ConfigError(ValueError):
@@ -44,6 +46,11 @@ class OMPNConfig:
         arch: ``'ompn'`` (the ordered memory policy) or ``'lstm'`` (the behaviour-cloning baseline of
             ``lstm.py``: ``n_slots`` LSTM layers of width ``slot_size``; the OMPN ablation flags must
             be off).  Absent in configs written before it existed, which therefore read as ``'ompn'``.
+        action_norm: continuous actions only: ``'none'`` (the head predicts raw actions) or
+            ``'standard'`` (the head predicts ``(a - mean) / std`` per dimension, with the training
+            split's statistics stored as the buffers ``action_mean`` / ``action_std``; the model
+            outputs ``head * std + mean``, i.e. actions in the data's own units, and the Gaussian loss
+            is taken on the standardised residual).  Absent in older configs: ``'none'``.
     """
 
     obs_dim: int
@@ -60,6 +67,7 @@ class OMPNConfig:
     action_variance: float = 0.6
     version: int = CONFIG_VERSION
     arch: Arch = "ompn"
+    action_norm: ActionNorm = "none"
 
     def __post_init__(self) -> None:
         def positive_int(name: str, value: Any) -> None:
@@ -109,6 +117,15 @@ class OMPNConfig:
                 raise ConfigError(
                     f"OMPNConfig.arch='lstm' has no ordered memory; unset the OMPN ablations {ablations}"
                 )
+        if self.action_norm not in ACTION_NORMS:
+            raise ConfigError(
+                f"OMPNConfig.action_norm must be one of {ACTION_NORMS}, got {self.action_norm!r}"
+            )
+        if self.action_norm != "none" and self.action_type != "continuous":
+            raise ConfigError(
+                f"OMPNConfig.action_norm={self.action_norm!r} needs continuous actions (discrete actions "
+                "are class indices)"
+            )
         if self.version != CONFIG_VERSION:
             raise ConfigError(
                 f"OMPNConfig.version {self.version!r} is not supported (this code reads version "

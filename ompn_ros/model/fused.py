@@ -54,6 +54,8 @@ class FusedModule(Protocol):
 
     def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor: ...
 
+    def denormalize_action(self, head_out: Tensor) -> Tensor: ...
+
 
 def _gated(z: Tensor, split: int, hidden: int, norm: torch.nn.LayerNorm) -> tuple[list[Tensor], Tensor]:
     gates = torch.sigmoid(F.layer_norm(z[:, :split], (split,), norm.weight, norm.bias, LN_EPS))
@@ -206,6 +208,7 @@ def _fused(
     action = _linear_fp32(torch.cat([torch.cat(out_o), x_all.float()], dim=1), head_w, head.bias)
     if head_e is not None:
         action = action + head_e
+    action = policy.denormalize_action(action)
     flat = (orig_d * steps + time_d).to(device)
 
     def unpack(packed: Tensor) -> Tensor:

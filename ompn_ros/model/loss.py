@@ -32,9 +32,16 @@ def done_log_probs(pi_end: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def step_log_probs(
-    out: SequenceOutput, actions: Tensor, done_mask: Tensor, config: OMPNConfig
+    out: SequenceOutput,
+    actions: Tensor,
+    done_mask: Tensor,
+    config: OMPNConfig,
+    action_scale: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
-    """Per-step ``log p'(a_t)`` ``[B, T]`` and the done indicator ``[B, T]`` (see module docstring)."""
+    """Per-step ``log p'(a_t)`` ``[B, T]`` and the done indicator ``[B, T]`` (see module docstring).
+
+    ``action_scale`` (continuous, ``action_norm='standard'``): the per-dimension std; the Gaussian is
+    then taken on the standardised residual ``(a - mu) / std`` (the model's own units)."""
     batch, steps = out.mask.shape
     if done_mask.shape != (batch, steps) or done_mask.dtype != torch.bool:
         raise LossInputError(
@@ -68,7 +75,10 @@ def step_log_probs(
                 f"got {tuple(actions.shape)} {actions.dtype}"
             )
         is_done = done_mask
-        log_env = log_not_end + gaussian_log_prob(actions, out.action_out, config.action_variance)
+        mean = out.action_out
+        if action_scale is not None:
+            actions, mean = actions / action_scale, mean / action_scale
+        log_env = log_not_end + gaussian_log_prob(actions, mean, config.action_variance)
     return torch.where(is_done, log_end, log_env), is_done
 
 
@@ -80,6 +90,7 @@ def bc_loss(
     config: OMPNConfig,
     *,
     no_done_loss: bool = False,
+    action_scale: Tensor | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
     """Mean ``-log p'(a_t)`` over valid steps, and scalar statistics.
 
@@ -92,6 +103,8 @@ def bc_loss(
             also a done step when its action equals ``action_dim``.
         no_done_loss: the "No Done" ablation: done steps leave the numerator but stay in the
             denominator (docs/craft.md §3.8, ``ignore_index``).
+        action_scale: continuous actions with ``action_norm='standard'``: the policy's
+            :meth:`~ompn_ros.model.policy.PolicyInputs.action_scale` (residuals are divided by it).
 
     Returns:
         ``(loss, stats)`` with stats ``loss``, ``nll_action`` (mean over real steps), ``nll_done``
@@ -102,7 +115,7 @@ def bc_loss(
         raise LossInputError(
             f"mask must be [B, T] bool like the outputs {tuple(out.mask.shape)}, got {tuple(mask.shape)}"
         )
-    log_p, is_done = step_log_probs(out, actions, done_mask, config)
+    log_p, is_done = step_log_probs(out, actions, done_mask, config, action_scale)
     nll = -log_p
     counted = mask & ~is_done if no_done_loss else mask
     n_valid = mask.sum()

@@ -61,6 +61,7 @@ class LSTMPolicy(PolicyInputs, nn.Module):
             self.sketch_embedding = nn.Embedding(config.sketch_vocab + 1, m, padding_idx=0)
         self.register_buffer("obs_mean", torch.zeros(config.obs_dim))
         self.register_buffer("obs_scale", torch.ones(config.obs_dim))
+        self.register_action_norm()
 
     # --- inputs (same contract as OMPNPolicy) ------------------------------------------------------
     def encode_obs(self, obs: Tensor) -> Tensor:
@@ -80,7 +81,7 @@ class LSTMPolicy(PolicyInputs, nn.Module):
         logits = self.head(feats)
         if self.done_head is None:
             return logits[..., :-1], torch.softmax(logits, dim=-1)[..., -1]
-        return logits, torch.sigmoid(self.done_head(feats)).squeeze(-1)
+        return self.denormalize_action(logits), torch.sigmoid(self.done_head(feats)).squeeze(-1)
 
     def hierarchy_outputs(self, pi_end: Tensor) -> tuple[Tensor, Tensor]:
         """``(p_hat [..., n+1], pi [..., n])``: ``[pi_end, 1 - pi_end, 0, ...]`` and one-hot(top slot)."""

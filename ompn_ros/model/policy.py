@@ -12,7 +12,9 @@ One step (paper §3.1, code branch "not initial", docs/craft.md §3.5):
 5. Memory update, ``memory_update='paper'`` (paper Eq. 2): ``M^t = M^{t-1}(1-cp) + C pi + M_hat(1-rcp)``;
    ``'code'`` (what the authors' code executes, docs/craft.md §3.5.4):
    ``M^t_i = rcp_i C_i + (1-rcp_i) M_hat_i``.
-6. Output ``O = M^t_1``; action head ``W_a [O; e; x] + b_a`` (logits, or the Gaussian mean).
+6. Output ``O = M^t_1``; action head ``W_a [O; e; x] + b_a`` (logits, or the Gaussian mean; with
+   ``action_norm='standard'`` the head predicts standardised actions and the output is
+   ``head * std + mean``, in the data's units).
 
 Places where we follow the authors' code rather than the paper's text (docs/craft.md §3.10):
 
@@ -115,6 +117,8 @@ class PolicyInputs:
     sketch_embedding: nn.Embedding | None
     obs_mean: Tensor
     obs_scale: Tensor
+    action_mean: Tensor
+    action_std: Tensor
 
     def set_obs_normalization(self, mean: np.ndarray, scale: np.ndarray) -> None:
         """Store the observation normalisation applied inside the model: ``(obs - mean) / scale``."""
@@ -131,6 +135,52 @@ class PolicyInputs:
         with torch.no_grad():
             self.obs_mean.copy_(mean_t)
             self.obs_scale.copy_(scale_t)
+
+    def register_action_norm(self) -> None:
+        """With ``config.action_norm='standard'``: the buffers ``action_mean`` (zeros) and ``action_std``
+        (ones), size ``action_dim``; nothing otherwise, so older checkpoints keep their tensor set."""
+        if self.config.action_norm == "standard":
+            cast(nn.Module, self).register_buffer("action_mean", torch.zeros(self.config.action_dim))
+            cast(nn.Module, self).register_buffer("action_std", torch.ones(self.config.action_dim))
+
+    def set_action_normalization(self, mean: np.ndarray, std: np.ndarray) -> None:
+        """Store the action standardisation of ``action_norm='standard'``: the head predicts
+        ``(a - mean) / std`` and the model outputs actions in the data's units."""
+        if self.config.action_norm != "standard":
+            raise ModelInputError(f"action normalisation needs action_norm='standard', the config has "
+                                  f"{self.config.action_norm!r}")
+        a = self.config.action_dim
+        mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32)).reshape(-1)
+        std_t = torch.as_tensor(np.asarray(std, dtype=np.float32)).reshape(-1)
+        if mean_t.numel() != a or std_t.numel() != a:
+            raise ModelInputError(f"action normalisation needs mean and std of size action_dim={a}, got "
+                                  f"{mean_t.numel()} and {std_t.numel()}")
+        if not (torch.isfinite(mean_t).all() and torch.isfinite(std_t).all() and (std_t > 0).all()):
+            raise ModelInputError("action normalisation: mean must be finite and std finite and > 0")
+        with torch.no_grad():
+            self.action_mean.copy_(mean_t)
+            self.action_std.copy_(std_t)
+
+    def action_scale(self) -> Tensor | None:
+        """``action_std`` with ``action_norm='standard'`` (the loss divides residuals by it), else None."""
+        return self.action_std if self.config.action_norm == "standard" else None
+
+    def denormalize_action(self, head_out: Tensor) -> Tensor:
+        """The Gaussian mean in the data's units: ``head_out * std + mean`` (identity without norm)."""
+        if self.config.action_norm == "standard":
+            return head_out * self.action_std + self.action_mean
+        return head_out
+
+    def head_params(self, head: nn.Linear) -> tuple[np.ndarray, np.ndarray]:
+        """Weight ``[A, F]`` and bias ``[A]`` of ``head`` with the action normalisation folded in
+        (float64), for kernels that apply the head themselves: ``W x + b`` is then in the data's units."""
+        weight = head.weight.detach().cpu().double().numpy()
+        bias = head.bias.detach().cpu().double().numpy()
+        if self.config.action_norm == "standard":
+            std = self.action_std.detach().cpu().double().numpy()
+            mean = self.action_mean.detach().cpu().double().numpy()
+            return weight * std[:, None], bias * std + mean
+        return weight, bias
 
     def embed_sketch(self, sketch: Tensor | None, batch_size: int) -> Tensor:
         """Task embedding e ``[B, m]``: zeros (no sketch) or the sum of subtask embeddings."""
@@ -191,6 +241,7 @@ class OMPNPolicy(PolicyInputs, nn.Module):
             self.sketch_embedding = nn.Embedding(config.sketch_vocab + 1, m, padding_idx=0)
         self.register_buffer("obs_mean", torch.zeros(config.obs_dim))
         self.register_buffer("obs_scale", torch.ones(config.obs_dim))
+        self.register_action_norm()
 
     @property
     def com_list(self) -> list[ComCell]:
@@ -273,7 +324,7 @@ class OMPNPolicy(PolicyInputs, nn.Module):
             else:
                 new_slots.append(r * cand[i] + (1 - r) * m_hat[i])
         memory = torch.stack(new_slots, dim=1)
-        action_out = self.head(torch.cat([new_slots[0], e, x], dim=-1))
+        action_out = self.denormalize_action(self.head(torch.cat([new_slots[0], e, x], dim=-1)))
         out = StepTensors(action_out=action_out, p_hat=to_p_hat(pi_hat, pi_end), pi=pi, pi_end=pi_end)
         new_state = MemoryState(memory=memory, first=torch.zeros_like(state.first), task_emb=state.task_emb)
         return out, new_state

@@ -20,6 +20,10 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
     ``episode``       DiagnosticArray episode marker: 'start' resets the memory (sketch from the
                       marker, else the latest ``sketch`` message, else the ``sketch`` parameter);
                       'end' closes the last segment at step ``steps - 1``.
+                      Without markers, ``episode_gap`` > 0 splits episodes at pauses: a step stamped
+                      more than ``episode_gap`` s after the previous one, or that long without a step
+                      (the node's clock), ends the episode like an end marker and starts the next
+                      (:mod:`ompn_ros.nodes.episode_gap`, the bag reader's ``split: gaps`` rule).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
 assembler's partner history; episode markers keep it).
@@ -94,6 +98,7 @@ from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, SilenceWatch
 from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, drop_line, load_spec
 from ompn_ros.nodes.ompn_node_params import (
@@ -184,6 +189,8 @@ class OMPNNode(LifecycleNode):
         self._timer: Any = None
         self._graph_timer: Any = None
         self._hold_timer: Any = None
+        self._gap_timer: Any = None
+        self._silence: SilenceWatch | None = None
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
@@ -191,13 +198,14 @@ class OMPNNode(LifecycleNode):
         self._boundary_cdr = BoundaryEncoder(self._status_name)
         self._n_slots = 0
         self._active = False
-        self._jump_back_ns = self._max_lead_ns = 0
+        self._jump_back_ns = self._max_lead_ns = self._gap_ns = 0
         self._cache_stamp_limits()
 
     def _cache_stamp_limits(self) -> None:
         """The stamp limits in ns, read once per change rather than once per step."""
         self._jump_back_ns = int(float(self.values["clock_jump_back"]) * 1e9)
         self._max_lead_ns = int(float(self.values["max_stamp_lead"]) * 1e9)
+        self._gap_ns = round(float(self.values["episode_gap"]) * 1e9)
 
     # --- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
@@ -372,6 +380,9 @@ class OMPNNode(LifecycleNode):
             self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
         self._service = self.create_service(Trigger, "~/reset", self._on_reset)
         self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics)
+        if self._gap_ns > 0:  # the node's clock: simulated time under use_sim_time
+            self._silence = SilenceWatch(self._gap_ns)
+            self._gap_timer = self.create_timer(self._gap_ns * GAP_TIMER_FRACTION / 1e9, self._check_silence)
         self._active = True
         self.get_logger().info("activated")
         return super().on_activate(state)
@@ -444,10 +455,11 @@ class OMPNNode(LifecycleNode):
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
-        for timer in (self._graph_timer, self._hold_timer):
+        for timer in (self._graph_timer, self._hold_timer, self._gap_timer):
             if timer is not None:
                 self.destroy_timer(timer)
-        self._graph_timer = self._hold_timer = None
+        self._graph_timer = self._hold_timer = self._gap_timer = None
+        self._silence = None
         if self.assembled is not None:
             self.assembled.asm.reset()  # held steps are decided (counted) but not stepped: inactive
 
@@ -641,6 +653,9 @@ class OMPNNode(LifecycleNode):
             started = self._start_episode(self._episode_sketch, count_bad=False)
             self.events["episode_starts"] += int(started)
             return started
+        # episode_gap: gap_ends_episode() inlined, so with the split off a step pays one test
+        if self._gap_ns and seg.last_stamp is not None and stamp_ns - seg.last_stamp > self._gap_ns:
+            return self._end_at_pause()
         return True
 
     # --- outputs -------------------------------------------------------------------------------
@@ -704,6 +719,26 @@ class OMPNNode(LifecycleNode):
         if final is not None:
             self.publish_boundary(final)
 
+    def _end_at_pause(self) -> bool:
+        """``episode_gap``: close the open episode as an end marker would and start the next one."""
+        seg = self.segmenter
+        assert seg is not None
+        if seg.detector.steps_seen > 0 and not seg.detector.closed:
+            self._close_episode(None)
+        self.events["episode_gaps"] += 1
+        if self._silence is not None:
+            self._silence.rearm()
+        return self._start_episode(self._episode_sketch, count_bad=False)
+
+    def _check_silence(self) -> None:
+        """Timer of ``episode_gap``: end an open episode that had no step for ``episode_gap`` s."""
+        seg, watch = self.segmenter, self._silence
+        if seg is None or watch is None or not self._active:
+            return
+        open_episode = seg.ready and seg.step_index >= 0 and not seg.detector.closed
+        if watch.quiet(self.get_clock().now().nanoseconds, seg.step_index, open_episode):
+            self._end_at_pause()
+
     def _on_episode(self, msg: DiagnosticArray) -> None:
         self._release_held(None, flush=True)  # held steps belong to the episode before the marker
         for status in msg.status:
@@ -766,7 +801,8 @@ class OMPNNode(LifecycleNode):
     def counters(self) -> dict[str, int]:
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
         reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
-        clock restarts), episodes_ended (end markers), messages_lost (reported by the middleware),
+        clock restarts), episodes_ended (end markers, pauses and clock restarts that closed an episode),
+        episode_gaps (pauses of ``episode_gap`` seen), messages_lost (reported by the middleware),
         boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
@@ -779,6 +815,7 @@ class OMPNNode(LifecycleNode):
             "episodes",
             "episode_starts",
             "episodes_ended",
+            "episode_gaps",
             "messages_lost",
             "boundaries",
             "clock_jumps",

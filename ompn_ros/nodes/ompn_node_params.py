@@ -6,7 +6,8 @@ When a change applies (``ompn_ros.nodes.params``):
   ``warn_throttle``, ``max_stamp_lead``, ``clock_jump_back``;
 * at the next ``configure`` (refused while active, with the way out): ``checkpoint``, ``domain``,
   ``obs_source``, ``joint_fields``, ``observation_spec``, ``obs_dim``, ``action_type``, ``sketch_mode``,
-  ``qos_depth``, ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``;
+  ``qos_depth``, ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``,
+  ``episode_gap``;
 * at start-up only: ``auto_start``, ``executor``.
 
 QoS of the observation and joint-state subscriptions (``obs_qos``): ``best_effort`` (default) receives
@@ -48,6 +49,7 @@ OBS_SOURCES: Final = ("array", "joint_state")
 EXECUTORS: Final = ("single", "events")
 OBS_QOS: Final = ("best_effort", "reliable", "sensor_data")
 BOUNDARY_REPLAY: Final = ("last", "none")
+MIN_EPISODE_GAP: Final = 0.01  # seconds; the silence timer polls every quarter of the gap
 BOUNDARY_QOS_DEPTH: Final = 100  # history of a VOLATILE ~/boundary writer (nothing is replayed)
 
 
@@ -58,6 +60,11 @@ def _sketch_rule(value: Any) -> str | None:
     if not ids or any(int(v) < 0 for v in ids):
         return f"{ids} is not [-1] (no default sketch) or a list of ids >= 0"
     return None
+
+
+def _gap_rule(value: Any) -> str | None:
+    gap = float(value)
+    return None if gap == 0.0 or gap >= MIN_EPISODE_GAP else f"must be 0 (off) or >= {MIN_EPISODE_GAP} s"
 
 
 def _fields_rule(value: Any) -> str | None:
@@ -108,6 +115,10 @@ SPECS: Final = (
               "(0 = no check)", float_range=(0.0, 1e9), apply="live"),
     ParamSpec("clock_jump_back", 1.0, "seconds back in time that count as a clock restart (a new "
               "episode) rather than an out-of-order message", float_range=(0.0, 1e9), apply="live"),
+    ParamSpec("episode_gap", 0.0, "seconds between two step stamps, or without a step, that end an "
+              "episode and start the next, for streams without episode markers (the reader's "
+              "split: gaps / time_gap; 0 = off)", float_range=(0.0, 1e6), apply="configure",
+              check=_gap_rule),
     ParamSpec("executor", "events", "callback executor", choices=EXECUTORS),
     ParamSpec("torch_threads", 1, "torch intra-op threads", int_range=(1, 64), apply="configure"),
 )  # fmt: skip

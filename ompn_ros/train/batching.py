@@ -72,6 +72,19 @@ def obs_normalization(episodes: Sequence[Episode], mode: ObsNormMode) -> ObsNorm
     return ObsNormalization((total / rows).astype(np.float32), scale.astype(np.float32))
 
 
+def action_normalization(episodes: Sequence[Episode]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-dimension mean and standard deviation of the continuous actions of ``episodes`` (the
+    training split), for ``action_norm='standard'``; a constant dimension gets std 1.  O(steps x A)."""
+    if not episodes:
+        raise BatchError("cannot compute action statistics from an empty episode list")
+    stacked = np.concatenate([np.asarray(e.actions, np.float64) for e in episodes], axis=0)
+    if stacked.ndim != 2:
+        raise BatchError(f"action_norm='standard' needs [T, A] continuous actions, got {stacked.shape[1:]}")
+    mean, std = stacked.mean(axis=0), stacked.std(axis=0)
+    std[~(std > 1e-8)] = 1.0
+    return mean.astype(np.float32), std.astype(np.float32)
+
+
 @dataclass
 class Batch:
     """A padded batch of ``B`` episodes, ``L = max(T) + 1`` rows.

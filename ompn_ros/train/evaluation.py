@@ -149,7 +149,8 @@ def teacher_forced_p_hat(
                 batch = collate(chunk, config.action_type, config.action_dim, use_sketch)
                 out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=bptt)
                 _, stats = bc_loss(
-                    out, batch.actions, batch.mask, batch.done_mask, config, no_done_loss=no_done_loss
+                    out, batch.actions, batch.mask, batch.done_mask, config, no_done_loss=no_done_loss,
+                    action_scale=policy.action_scale(),
                 )
                 n_valid = float(batch.valid_steps)
                 total_loss += stats["loss"] * n_valid

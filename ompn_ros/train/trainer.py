@@ -49,13 +49,14 @@ from ompn_ros.detect.calibrate import agreement
 from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
-from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.config import ACTION_NORMS, ActionNorm, ConfigError, OMPNConfig
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.averaging import WeightAverage
 from ompn_ros.train.batching import (
     Batch,
     ObsNormalization,
+    action_normalization,
     collate,
     epoch_batches,
     obs_normalization,
@@ -158,6 +159,11 @@ class TrainConfig:
         obs_dropout_range: ``[start, stop)`` feature indices that ``obs_dropout`` applies to (empty =
             every feature).  ``[525, 1050]`` is Craft's max-pooled global map block
             (docs/craft.md §1.7): dropping only it keeps the local view, inventory and direction intact.
+        action_norm: continuous actions: ``'none'`` (the head fits raw actions, as every checkpoint
+            trained before the option) or ``'standard'`` (per-dimension mean and std of the training
+            split's actions; the head fits standardised actions, the loss is taken on the standardised
+            residual, and the model still outputs the data's units; ``OMPNConfig.action_norm``).
+            It is stored in the checkpoint's ``config.json``.
     """
 
     lr: float = 1e-3
@@ -188,6 +194,7 @@ class TrainConfig:
     obs_dropout: float = 0.0
     obs_dropout_range: list[int] = field(default_factory=list)
     force_bf16: bool = False
+    action_norm: ActionNorm = "none"
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -250,6 +257,7 @@ class TrainConfig:
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
         need(self.labels in LABEL_MODES, "labels", f"must be one of {LABEL_MODES}")
         need(self.obs_norm in OBS_NORMS, "obs_norm", f"must be one of {OBS_NORMS}")
+        need(self.action_norm in ACTION_NORMS, "action_norm", f"must be one of {ACTION_NORMS}")
         need(
             self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
         )
@@ -437,6 +445,16 @@ def bundle_detectors(
     return written
 
 
+def _with_action_norm(model_config: OMPNConfig, action_norm: ActionNorm) -> OMPNConfig:
+    """``model_config`` with ``train.action_norm`` applied (the option lives in the checkpoint's config)."""
+    if action_norm == model_config.action_norm:
+        return model_config
+    try:
+        return replace(model_config, action_norm=action_norm)
+    except ConfigError as exc:
+        raise TrainConfigError(f"TrainConfig.action_norm={action_norm!r}: {exc}") from exc
+
+
 def train(
     episodes: Sequence[Episode],
     model_config: OMPNConfig,
@@ -459,6 +477,7 @@ def train(
     if cfg.bf16 and not resolve_bf16(cfg.bf16, cfg.force_bf16):
         cfg = replace(cfg, bf16=False)  # what runs is what the checkpoints record
     ctx = dist_ctx or DistContext()
+    model_config = _with_action_norm(model_config, cfg.action_norm)
     _check_episodes(episodes, model_config)
     _check_dropout_range(cfg, model_config)
     if cfg.threads:
@@ -477,6 +496,9 @@ def train(
 
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
     policy.set_obs_normalization(norm.mean, norm.scale)
+    if model_config.action_norm == "standard":
+        mean, std = action_normalization(train_eps)
+        policy.set_action_normalization(mean, std)
     broadcast_module(policy, ctx)
     policy.train()
     average = WeightAverage(policy, cfg.ema_decay) if cfg.ema_decay else None
@@ -677,7 +699,8 @@ def train_step(
     if batch is not None:
         out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=cfg.bptt, bf16=cfg.bf16)
         loss, stats = bc_loss(
-            out, batch.actions, batch.mask, batch.done_mask, model_config, no_done_loss=cfg.no_done_loss
+            out, batch.actions, batch.mask, batch.done_mask, model_config, no_done_loss=cfg.no_done_loss,
+            action_scale=policy.action_scale(),
         )
         # scale so that the rank-average of gradients is the gradient of the global per-token mean
         (loss * (local_valid * ctx.world_size / global_valid)).backward()
