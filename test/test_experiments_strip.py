@@ -1,0 +1,63 @@
+"""Stripped copies of bags (no final observation) and what the reader makes of them."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_data_common import make_episodes
+
+from ompn_ros.data.bag_reader import ReaderSpec
+from ompn_ros.data.bag_writer import write_episodes
+from ompn_ros.data.cache import load_arrays
+from ompn_ros.experiments.strip import StripError, strip_bags, strip_final_observations
+
+
+def _read(bag: Path, domain: str, how: str) -> list:
+    spec = replace(ReaderSpec.for_domain(domain), final_observation=how, strict=False)
+    return load_arrays(bag, spec=spec, use_cache=False).episodes()
+
+
+@pytest.mark.parametrize("domain", ["craft", "dial"])
+def test_strip_removes_exactly_the_final_observation(tmp_path: Path, domain: str) -> None:
+    episodes = make_episodes(domain, 3, seed=4)
+    write_episodes(tmp_path / "src", episodes, domain)
+    stats = strip_final_observations(tmp_path / "src", tmp_path / "out")
+    joints = 1 if domain == "dial" else 0
+    assert stats.episodes == 3 and stats.removed == 3 * (1 + joints)
+
+    complete = _read(tmp_path / "src", domain, "drop_last_step")
+    dropped = _read(tmp_path / "out", domain, "drop_last_step")
+    duplicated = _read(tmp_path / "out", domain, "duplicate")
+    for ep, full, drop, dup in zip(episodes, complete, dropped, duplicated, strict=True):
+        T = ep.length
+        assert full.length == T
+        # drop_last_step: the last recorded observation becomes row T, its action is lost
+        assert drop.length == T - 1
+        np.testing.assert_array_equal(drop.observations, ep.observations[:T])
+        np.testing.assert_array_equal(drop.actions, ep.actions[: T - 1])
+        # duplicate: every action kept, row T repeats row T-1
+        assert dup.length == T
+        np.testing.assert_array_equal(dup.observations[:T], ep.observations[:T])
+        np.testing.assert_array_equal(dup.observations[T], ep.observations[T - 1])
+        np.testing.assert_array_equal(dup.actions, ep.actions)
+        assert (dup.task, dup.seed) == (ep.task, ep.seed)
+
+
+def test_strip_bags_keeps_the_layout_of_a_directory_of_bags(tmp_path: Path) -> None:
+    episodes = make_episodes("craft", 4, seed=1)
+    write_episodes(tmp_path / "src" / "part_000", episodes[:2], "craft")
+    write_episodes(tmp_path / "src" / "part_001", episodes[2:], "craft", first_episode_index=2)
+    stats = strip_bags(tmp_path / "src", tmp_path / "out")
+    assert stats.episodes == 4 and stats.removed == 4
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["part_000", "part_001"]
+    assert [ep.seed for ep in _read(tmp_path / "out", "craft", "duplicate")] == [ep.seed for ep in episodes]
+
+
+def test_strip_refuses_an_existing_output(tmp_path: Path) -> None:
+    write_episodes(tmp_path / "src", make_episodes("craft", 1), "craft")
+    (tmp_path / "out").mkdir()
+    with pytest.raises(StripError, match="output exists"):
+        strip_final_observations(tmp_path / "src", tmp_path / "out")
