@@ -78,6 +78,8 @@ class Arm:
     length: Length = "patience"
     bags: Bags = "complete"
     seed: int = 0
+    last_of: str = ""
+    """Not trained: the ``last/`` checkpoint of this other arm's run is scored (no selection)."""
 
     @property
     def data(self) -> str:
@@ -90,6 +92,7 @@ def _arms() -> dict[str, Arm]:
         Arm("labels_craft_full", "labels", "craft", labels="none"),
         Arm("labels_craft_partial", "labels", "craft", partial=True, labels="none"),
         Arm("labels_dial", "labels", "dial", labels="none"),
+        Arm("labels_dial_last", "labels", "dial", labels="none", last_of="labels_dial"),
         Arm("labels_craft_full_seed1", "labels", "craft", labels="none", seed=1),
         Arm("labels_dial_seed1", "labels", "dial", labels="none", seed=1),
     ]
@@ -250,20 +253,22 @@ def run_arm(
     pool, test = arm_data(arm, work)
     _, cfg = arm_configs(arm, work, threads)
     info: dict[str, Any]
+    if arm.last_of and checkpoint is None:
+        checkpoint = work / "runs" / arm.last_of / "last"
     if checkpoint is None:
         info = train_arm(arm, pool, work, threads, resume_from)
         checkpoint = work / "runs" / arm.name / "best"
     else:
-        extra = load_checkpoint(checkpoint)[1]
+        reached = int(load_checkpoint(checkpoint)[1].get("iteration", -1))
         info = {
-            "iterations": cfg.iterations,
-            "best_iteration": int(extra.get("iteration", -1)),
+            "iterations": cfg.iterations if cfg.patience == 0 else reached,
+            "best_iteration": reached,
             "stopped_early": False,
-            "selection": cfg.selection,
+            "selection": "none (last checkpoint)" if arm.last_of else cfg.selection,
             "train_seconds": None,
             "patience": cfg.patience,
             "iteration_cap": cfg.iterations,
-            "reused": str(checkpoint.name),
+            "checkpoint": checkpoint.name,
         }
     row: dict[str, Any] = {
         "arm": arm.name,

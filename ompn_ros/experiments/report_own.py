@@ -33,6 +33,8 @@ class OwnDataRow(TypedDict, total=False):
     iterations: int
     best_iteration: int
     stopped_early: bool
+    selection: str  # the criterion that picked the checkpoint
+    checkpoint: str  # "best" | "last" (a scored checkpoint of an existing run)
     train_seconds: float | None
     train_episodes: int
     val_episodes: int
@@ -86,7 +88,8 @@ def gap(a: float | None, b: float | None) -> str:
 def _setting(row: OwnDataRow) -> str:
     name = "Craft" if row["domain"] == "craft" else "Dial"
     obs = f" {row['observation']}" if row["domain"] == "craft" else ""
-    return f"{name}{obs}, seed {row['seed']}"
+    last = ", last checkpoint" if row.get("checkpoint") == "last" else ""
+    return f"{name}{obs}, seed {row['seed']}{last}"
 
 
 def _iterations(row: OwnDataRow) -> str:
