@@ -92,7 +92,8 @@ def test_collate_writes_the_results_and_reuses_the_fixed_run_as_the_complete_arm
     complete = doc["rows"][2]
     assert complete["study"] == "final_observation" and complete["online_f1_1"] == 0.70
     assert doc["meta"]["episodes"] == {"dial_full": {"train": 8, "val": 2, "test": 3}}
-    assert doc["meta"]["command"][-1] == "A note." and doc["meta"]["seeds"] == [0]
+    assert "A note." not in doc["meta"]["command"] and doc["meta"]["notes"] == ["A note."]
+    assert doc["meta"]["seeds"] == [0]
     text = (results / "README.md").read_text()
     assert text == report.render_readme(results)
     assert "| Dial, seed 0 | 400 (200) | 83.0 / 75.0 | 80.0 / 77.0 | -3.0 / +2.0 |" in text

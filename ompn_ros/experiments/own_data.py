@@ -394,12 +394,9 @@ def main(argv: list[str] | None = None) -> int:
                 )
             )
         else:
-            command = [
-                "python",
-                "-m",
-                "ompn_ros.experiments.own_data",
-                *(argv if argv is not None else sys.argv[1:]),
-            ]
+            given = list(argv if argv is not None else sys.argv[1:])
+            kept = [a for k, a in enumerate(given) if a != "--note" and (k == 0 or given[k - 1] != "--note")]
+            command = ["python", "-m", "ompn_ros.experiments.own_data", *kept]  # notes are stored apart
             print(collate(args.work, args.results, command, args.note))
     except (ReproduceError, BagError, OSError) as exc:
         print(f"own_data: error: {exc}", file=sys.stderr)

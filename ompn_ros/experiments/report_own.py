@@ -143,16 +143,14 @@ def _final_table(rows: list[OwnDataRow]) -> list[str]:
 
 def _length_table(rows: list[OwnDataRow]) -> list[str]:
     lines = [
-        "| setting | length | iterations reached | best iteration | train time (s) | online F1@1 / align "
+        "| setting | length | iterations reached | best iteration | online F1@1 / align "
         "| offline F1@1 / align |",
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|",
     ]
     for r in rows:
-        seconds = r.get("train_seconds")
         lines.append(
             f"| {_setting(r)} | {r['length']} | {r['iterations']} | {r['best_iteration']} | "
-            f"{'–' if seconds is None else f'{seconds:.0f}'} | {pair(r['online_f1_1'], r['online_align'])} | "
-            f"{pair(r['offline_f1_1'], r['offline_align'])} |"
+            f"{pair(r['online_f1_1'], r['online_align'])} | {pair(r['offline_f1_1'], r['offline_align'])} |"
         )
     return lines
 
