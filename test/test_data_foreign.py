@@ -128,6 +128,7 @@ def test_action_from_the_observation_topic_with_reordered_stamps(tmp_path: Path)
         "observation": {"topic": "js", "type": layout.JOINT_STATE, "fields": ["position"]},
         "action": {"topic": "js", "type": layout.JOINT_STATE, "fields": ["velocity"]},
         "subtask": None, "sketch": None, "episode": None, "stamp": "header", "time_gap": 1.0,
+        "final_observation": "drop_last_step",
     })
     result = read_episodes(tmp_path / "bag", spec=spec)
     assert [e.length for e in result.episodes] == [9, 9]  # final_observation: drop_last_step

@@ -49,7 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--data-seed", type=int, default=0, help="seed of the demonstration collection")
     p.add_argument(
-        "--iterations", type=int, default=None, help="override train.iterations (none: the config's)"
+        "--iterations", type=int, default=None,
+        help="override train.iterations (none: the reproduction's fixed 200 for Craft, 300 for Dial)",
     )
     p.add_argument(
         "--test-ratio",

@@ -35,8 +35,8 @@ seconds apart, or (``topic``) at every message of ``split_topic``.
 
 Within an episode the last observation without an action becomes row ``T`` (the final observation
 of the step contract).  If every observation has an action (the observation after the last command
-was not recorded), ``final_observation`` decides: drop the last action step (default), duplicate
-the last observation (``s_{T+1} = s_T``) or refuse; the report lists the episodes concerned.  The
+was not recorded), ``final_observation`` decides: duplicate the last observation (``s_{T+1} = s_T``,
+default), drop the last action step or refuse; the report lists the episodes concerned.  The
 sketch is the sketch message of the episode (between its start marker and first observation, or,
 without markers, the latest one before the first observation), else the start marker's ``sketch``
 key.

@@ -19,7 +19,7 @@ from ompn_ros.experiments import report
 from ompn_ros.experiments.data import collect_bags, held_out_split, read_bags
 from ompn_ros.experiments.ensembles import ensemble_scores, majority_min_length, member_ensemble_row
 from ompn_ros.experiments.figures import save_figures
-from ompn_ros.experiments.runs import BaseConfig, load_train_config, run_setting
+from ompn_ros.experiments.runs import BaseConfig, load_train_config, pin_fixed_length, run_setting
 from ompn_ros.experiments.scoring import TRAINING_CELLS, Evaluation, aggregate, evaluate_policy
 from ompn_ros.experiments.ship import ship
 from ompn_ros.experiments.spec import ABLATIONS, PRIMARY, SETTINGS, ReproduceError, ReproduceSpec, RunSpec
@@ -85,6 +85,7 @@ def _show(row: dict[str, Any]) -> None:
 def prepare(spec: ReproduceSpec) -> State:
     """Load the train config, set the torch threads, collect, read and split the bags."""
     base = load_train_config(spec.domain, spec.config)
+    pin_fixed_length(base, spec.domain, spec.config is None)
     if spec.threads is not None:
         base["train"]["threads"] = spec.threads
     torch.set_num_threads(int(base["train"].get("threads", 2)) or 2)

@@ -8,6 +8,8 @@ Files per domain (``craft``, ``dial``):
 * ``<domain>_extras.json``: :class:`ExtrasDoc`, ``{"extras": {table id: {"title", "rows"}}, "meta"}``
   with the table ids of :data:`EXTRA_IDS`.
 
+and, when present, ``own_data.json`` / ``own_robot.json`` (:mod:`ompn_ros.experiments.report_own`).
+
 ``results/README.md`` is generated from these files only::
 
     python -m ompn_ros.experiments.report [RESULTS_DIR]     # or: ompn_reproduce --report-only
@@ -22,6 +24,8 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 import numpy as np
+
+from ompn_ros.experiments.report_own import own_markdown
 
 DOMAINS = ("craft", "dial")
 EXTRA_IDS = ("k_sweep", "threshold_sweep", "ensembles_per_seed", "ensemble_of_seeds", "ablations")
@@ -242,6 +246,7 @@ def render_readme(results_dir: Path) -> str:
         loaded = load(results_dir, domain)
         if loaded is not None:
             parts.append(domain_markdown(domain, *loaded))
+    parts += own_markdown(results_dir)
     return "\n".join(parts).rstrip("\n") + "\n"
 
 

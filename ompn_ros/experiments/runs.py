@@ -14,7 +14,7 @@ from typing import Any
 from ompn_ros import layout
 from ompn_ros.data.episode import Episode
 from ompn_ros.experiments.scoring import Evaluation, evaluate_policy
-from ompn_ros.experiments.spec import ReproduceError, RunSpec
+from ompn_ros.experiments.spec import REPRODUCTION_ITERATIONS, ReproduceError, RunSpec
 from ompn_ros.experiments.training import load_config
 from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
 from ompn_ros.model.config import OMPNConfig
@@ -29,6 +29,15 @@ RUNTIME_FIELDS = ("out_dir", "resume", "tensorboard", "threads", "progress", "ev
 def load_train_config(domain: str, path: Path | None) -> BaseConfig:
     """The train YAML of the reproduction (default: the shipped ``config/train_<domain>.yaml``)."""
     return load_config(str(path or config_file(f"train_{domain}.yaml")))
+
+
+def pin_fixed_length(base: BaseConfig, domain: str, shipped: bool) -> None:
+    """The reproduction trains a fixed number of iterations, whatever ``ompn_train``'s default: early
+    stopping off (``patience: 0``) and, with the shipped config, :data:`REPRODUCTION_ITERATIONS`
+    instead of its early-stopping cap, so that the committed results stay reproducible."""
+    base["train"]["patience"] = 0
+    if shipped:
+        base["train"]["iterations"] = REPRODUCTION_ITERATIONS[domain]
 
 
 def build_configs(spec: RunSpec, base: BaseConfig, out_dir: Path) -> tuple[OMPNConfig, TrainConfig]:

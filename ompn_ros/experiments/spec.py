@@ -16,6 +16,10 @@ CRAFT_TASKS = ("makebed", "makeaxe", "makeshears")
 EXTRAS = ("ksweep", "thresholds", "ablations", "ensemble")
 DEFAULT_EPISODES = {"craft": 500, "dial": 1400}  # Craft: per task; Dial: in total
 DEFAULT_TEST_RATIO = 0.2
+REPRODUCTION_ITERATIONS = {"craft": 200, "dial": 300}
+"""The reproduction's fixed training length with the shipped configs (docs/experiments.md §5, §6).
+``ompn_train`` stops early by default (``train.patience`` in ``config/train_<domain>.yaml``); the
+reproduction pins these lengths and ``patience: 0`` so that the committed results stay reproducible."""
 MEMBER_SEED_STRIDE = 1000
 """Ensemble member ``j`` of seed ``s`` trains with seed ``s + MEMBER_SEED_STRIDE * j`` (member 0 is
 the seed's own run)."""

@@ -130,9 +130,11 @@ class TrainConfig:
             ``'none'`` = hide them from checkpoint selection, early stopping and the detector
             calibration (they are still scored and logged), to measure the label-free path.
         patience: stop when the selection criterion has not improved for this many evaluations
-            (``iterations`` is then the cap); 0 = off, train exactly ``iterations`` updates.  0 is
-            the default because every run recorded before this option trained without it (a stored
-            ``train_config`` without the key reads back as what it did); e.g. 10 for new data.
+            (``iterations`` is then the cap); 0 = off, train exactly ``iterations`` updates.  The
+            shipped configs (``config/train_<domain>.yaml``, what ``ompn_train`` runs) set 10 with a
+            cap of 1200; the reproduction pins 0 and its fixed lengths.  The dataclass default stays
+            0 because every run recorded before this option trained without it (a stored
+            ``train_config`` without the key reads back as what it did).
         obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.

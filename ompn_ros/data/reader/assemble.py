@@ -195,8 +195,10 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
     task = w.start.get(layout.KEY_TASK, ctx.spec.task)
     seed = _int_or(w.start.get(layout.KEY_SEED), -1)
     success = w.end.get(layout.KEY_SUCCESS, "true").lower() == "true"
-    if w.end and _int_or(w.end.get(layout.KEY_STEPS), len(steps)) != len(steps):
-        msg = (f"end marker says {w.end.get(layout.KEY_STEPS)} steps, the bag holds {len(steps)} "
+    # final_observation: drop_last_step removed one recorded step on purpose: the marker counts it
+    recorded = len(steps) + (number in ctx.report.adjusted.get(DROPPED_LAST, ()))
+    if w.end and _int_or(w.end.get(layout.KEY_STEPS), recorded) != recorded:
+        msg = (f"end marker says {w.end.get(layout.KEY_STEPS)} steps, the bag holds {recorded} "
                f"for episode '{task}' seed {seed}")
         if ctx.spec.strict:
             raise AlignmentError(msg, path=ctx.path, topic=topics.episode, index=w.end_index)

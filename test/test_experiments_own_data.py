@@ -1,0 +1,131 @@
+"""The own-data study driver (arms, configs, collation) and its README sections (fixtures only)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ompn_ros.experiments import own_data, report, report_own
+from ompn_ros.experiments.runs import load_train_config, pin_fixed_length
+from ompn_ros.experiments.spec import REPRODUCTION_ITERATIONS
+from ompn_ros.train.trainer import TrainConfig
+
+
+def _row(arm: str, **scores: float) -> dict[str, Any]:
+    a = own_data.ARMS[arm]
+    base = {
+        "arm": arm,
+        "study": a.study,
+        "domain": a.domain,
+        "observation": "partial" if a.partial else "full",
+        "labels": a.labels,
+        "length": a.length,
+        "bags": a.bags,
+        "seed": a.seed,
+        "iterations": 400,
+        "best_iteration": 200,
+        "stopped_early": True,
+        "train_seconds": 123.0,
+        "train_episodes": 8,
+        "val_episodes": 2,
+        "test_episodes": 3,
+        "offline_f1_1": 0.9,
+        "offline_align": 0.8,
+        "online_f1_1": 0.85,
+        "online_align": 0.75,
+        "label_free_online_f1_1": 0.82,
+        "label_free_online_align": 0.77,
+    }
+    base.update(scores)
+    return base
+
+
+@pytest.mark.parametrize("domain", ["craft", "dial"])
+def test_shipped_configs_stop_early_and_the_reproduction_pins_its_fixed_length(domain: str) -> None:
+    base = load_train_config(domain, None)
+    shipped = TrainConfig.from_dict(base["train"])
+    assert shipped.patience > 0 and shipped.iterations > REPRODUCTION_ITERATIONS[domain]
+    pin_fixed_length(base, domain, shipped=True)
+    pinned = TrainConfig.from_dict(base["train"])
+    assert (pinned.patience, pinned.iterations) == (0, REPRODUCTION_ITERATIONS[domain])
+    custom = load_train_config(domain, None)
+    custom["train"]["iterations"] = 7
+    pin_fixed_length(custom, domain, shipped=False)  # a user's config keeps its own length
+    assert (custom["train"]["patience"], custom["train"]["iterations"]) == (0, 7)
+
+
+def test_arm_configs_follow_the_arm(tmp_path: Path) -> None:
+    _, free = own_data.arm_configs(own_data.ARMS["labels_dial"], tmp_path, threads=1)
+    assert free.labels == "none" and free.patience > 0 and free.threads == 1
+    _, fixed = own_data.arm_configs(own_data.ARMS["final_craft_full_duplicate"], tmp_path, threads=1)
+    assert (fixed.labels, fixed.patience, fixed.iterations) == ("auto", 0, REPRODUCTION_ITERATIONS["craft"])
+    assert fixed.out_dir == str(tmp_path / "runs" / "final_craft_full_duplicate")
+    _, seed1 = own_data.arm_configs(own_data.ARMS["labels_craft_full_seed1"], tmp_path, threads=1)
+    assert seed1.seed == 1
+    with pytest.raises(own_data.ReproduceError, match="unknown arm"):
+        own_data.arm_by_name("labels_mars")
+
+
+def test_collate_writes_the_results_and_reuses_the_fixed_run_as_the_complete_arm(tmp_path: Path) -> None:
+    arms = tmp_path / "work" / "arms"
+    arms.mkdir(parents=True)
+    rows = {
+        "labels_dial": _row("labels_dial", label_free_online_f1_1=0.80, online_f1_1=0.83),
+        "length_dial_fixed": _row("length_dial_fixed", online_f1_1=0.70, online_align=0.60),
+        "final_dial_duplicate": _row("final_dial_duplicate", online_f1_1=0.50, online_align=0.40),
+    }
+    for name, row in rows.items():
+        (arms / f"{name}.json").write_text(json.dumps(row))
+    results = tmp_path / "results"
+    assert (
+        own_data.main(
+            ["--work", str(tmp_path / "work"), "collate", "--results", str(results), "--note", "A note."]
+        )
+        == 0
+    )
+    doc = json.loads((results / "own_data.json").read_text())
+    names = [r["arm"] for r in doc["rows"]]
+    assert names == ["labels_dial", "length_dial_fixed", "final_dial_complete", "final_dial_duplicate"]
+    complete = doc["rows"][2]
+    assert complete["study"] == "final_observation" and complete["online_f1_1"] == 0.70
+    assert doc["meta"]["episodes"] == {"dial_full": {"train": 8, "val": 2, "test": 3}}
+    assert "A note." not in doc["meta"]["command"] and doc["meta"]["notes"] == ["A note."]
+    assert doc["meta"]["seeds"] == [0]
+    text = (results / "README.md").read_text()
+    assert text == report.render_readme(results)
+    assert "| Dial, seed 0 | 400 (200) | 83.0 / 75.0 | 80.0 / 77.0 | -3.0 / +2.0 |" in text
+    assert "| Dial, seed 0 | duplicate | 50.0 / 40.0 | -20.0 / -20.0 |" in text
+    assert "A note." in text
+
+
+def test_collate_without_arms_is_an_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert own_data.main(["--work", str(tmp_path), "collate", "--results", str(tmp_path / "r")]) == 2
+    assert "no arm results" in capsys.readouterr().err
+
+
+def test_own_robot_table_is_rendered_when_its_file_exists(tmp_path: Path) -> None:
+    doc = {
+        "meta": {"command": ["python", "examples/own_robot.py"]},
+        "rows": [
+            {
+                "observation": "joint_state",
+                "obs_dim": 18,
+                "train_episodes": 250,
+                "test_episodes": 50,
+                "online_f1_1": 0.61,
+                "online_align": 0.72,
+                "offline_f1_1": 0.655,
+                "offline_align": 0.8,
+                "live_f1_1": None,
+                "live_align": None,
+            },
+        ],
+    }
+    assert report_own.own_markdown(tmp_path) == []
+    (tmp_path / report_own.OWN_ROBOT).write_text(json.dumps(doc))
+    text = report.render_readme(tmp_path)
+    assert "| joint_state | 18 | 250 / 50 | 61.0 / 72.0 | 65.5 / 80.0 | – / – |" in text
+    assert "`python examples/own_robot.py`" in text
