@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import tune
@@ -94,6 +95,14 @@ def test_node_config_round_trip(tmp_path: Path):
         tmp_path / "node.yaml", "craft", config, {"online": {"f1_tol1": 0.9}}, "a test"
     )
     assert "# ompn_node defaults for the craft domain" in path.read_text()
+    assert tune.load_detector_yaml(path) == config
+
+
+def test_node_config_of_a_users_own_data_sets_no_empty_domain(tmp_path: Path):
+    config = DetectorConfig(high=0.3)
+    path = tune.write_node_config(tmp_path / "node.yaml", "", config, {}, "my bag")
+    params = yaml.safe_load(path.read_text())["/**/ompn_node"]["ros__parameters"]
+    assert "domain" not in params and None not in params.values()
     assert tune.load_detector_yaml(path) == config
 
 

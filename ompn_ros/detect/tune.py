@@ -196,9 +196,11 @@ def choose_on_replays(
 def write_node_config(
     path: str | Path, domain: str, config: DetectorConfig, measured: dict[str, Metrics], source: str
 ) -> Path:
-    """Write an ``ompn_node`` ``--params-file`` with ``config``, the measurements as comments. O(1)."""
+    """Write an ``ompn_node`` ``--params-file`` with ``config``, the measurements as comments. O(1).
+    Without a ``domain`` (a user's own data) the file sets none: ROS refuses a key without a value."""
+    for_domain = f" for the {domain} domain" if domain else ""
     lines = [
-        f"# ompn_node defaults for the {domain} domain, chosen by `ompn_segment --tune` on {source}.",
+        f"# ompn_node defaults{for_domain}, chosen by `ompn_segment --tune` on {source}.",
         "# Measured on the tuning episodes (online = these settings;",
         "# offline = whole-episode detectors with K = the true number of boundaries):",
     ]
@@ -207,7 +209,7 @@ def write_node_config(
     lines += [
         "/**/ompn_node:",
         "  ros__parameters:",
-        f"    domain: {domain}",
+        *([f"    domain: {domain}"] if domain else []),
         f"    detector_high: {config.high}",
         f"    detector_hysteresis: {round(config.high - config.low_threshold, 4)}",
         f"    detector_min_segment_length: {config.min_segment_length}",
