@@ -24,6 +24,7 @@ from ompn_ros.train.trainer import (
     TrainConfigError,
     TrainDataError,
     dropout_inputs,
+    early_agreement_warning,
     evaluate,
     learning_rate,
     selection_key,
@@ -96,6 +97,32 @@ def test_evaluate_reports_losses_metrics_and_p_hat(trained: tuple[object, dict])
         assert 0.0 <= ev[key] <= 1.0
     assert ev["align"] == ev["topk_align"]  # discrete actions: Top-K is the primary detector
     assert {"loss", "align", "f1_tol1", "train_loss"} <= set(last)
+
+
+# validation (loss, agreement) every 20 iterations of the labels-hidden Dial and Craft runs of
+# docs/experiments.md §27 (first 11 evaluations)
+DIAL_LOG = [(6.339, 0.888), (6.303, 0.752), (6.270, 0.239), (6.247, 0.194), (6.231, 0.343), (6.222, 0.403),
+            (6.209, 0.399), (6.204, 0.393), (6.191, 0.415), (6.188, 0.391), (6.177, 0.429)]
+CRAFT_LOG = [(1.345, 0.285), (1.047, 0.551), (0.722, 0.694), (0.575, 0.837), (0.501, 0.952), (0.502, 0.962),
+             (0.493, 0.985), (0.518, 0.992), (0.552, 0.996), (0.585, 0.988), (0.635, 0.997)]
+
+
+def _history(log: list[tuple[float, float]]) -> list[dict[str, float]]:
+    return [{"iteration": 20.0 * (i + 1), "loss": loss, "agreement": a} for i, (loss, a) in enumerate(log)]
+
+
+def _best(history: list[dict[str, float]], selection: str) -> int:
+    return int(max(history, key=lambda r: selection_key(r, selection))["iteration"])
+
+
+def test_an_early_label_free_choice_is_flagged() -> None:
+    dial = _history(DIAL_LOG)
+    line = early_agreement_warning("agreement", dial, _best(dial, "agreement"))
+    assert line is not None and "iteration 20 of 220" in line and "last/" in line
+    craft = _history(CRAFT_LOG)
+    assert early_agreement_warning("agreement", craft, _best(craft, "agreement")) is None
+    assert early_agreement_warning("align", dial, 20) is None  # labels chose it
+    assert early_agreement_warning("agreement", dial[:4], 20) is None  # too few evaluations
 
 
 def test_selection_key_prefers_metric_then_lower_loss() -> None:

@@ -322,6 +322,27 @@ def evaluations_since_best(history: Sequence[dict[str, float]], best_iteration: 
     return sum(1 for record in history if record["iteration"] > best_iteration)
 
 
+def early_agreement_warning(
+    selection: str, history: Sequence[dict[str, float]], best_iteration: int
+) -> str | None:
+    """One line when the label-free ``agreement`` chose a checkpoint from the first fifth of a run
+    (at least 5 evaluations) whose validation loss was still falling afterwards: early models can
+    agree with themselves trivially (on Dial it chose iteration 20 of 220, validation alignment 0.27
+    against 0.91 for the last checkpoint; docs/experiments.md §27).  ``None`` otherwise."""
+    if selection != "agreement" or len(history) < 5:
+        return None
+    rank = next((i for i, record in enumerate(history) if record["iteration"] == best_iteration), None)
+    if rank is None or rank >= len(history) // 5:
+        return None
+    best_loss, last_loss = history[rank].get("loss", math.nan), history[-1].get("loss", math.nan)
+    if not last_loss < best_loss:
+        return None
+    return (f"best/ was chosen by the label-free agreement at iteration {best_iteration} of "
+            f"{int(history[-1]['iteration'])}, while the validation loss still fell ({best_loss:.4g} -> "
+            f"{last_loss:.4g}): early models can agree trivially; compare last/ before using best/ "
+            "(docs/experiments.md §27)")
+
+
 def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, float]:
     """Larger is better: ``(score, −val_loss)``; for ``'val_loss'`` the score is ``−loss``."""
     loss = float(metrics.get("loss", math.inf))
@@ -645,6 +666,9 @@ def train(
             progress.close()
         if sinks is not None:
             sinks.close()
+    warning = early_agreement_warning(selection, history, best_iteration) if ctx.is_main else None
+    if warning is not None:
+        LOG.warning(warning)
     detectors: dict[str, DetectorSettings] = {}
     if out_dir is not None and ctx.is_main:
         detectors = bundle_detectors(out_dir, val_eps, cfg)
