@@ -19,7 +19,7 @@ the recorded ``~/boundary`` events.  Figures:
 * ``own_robot_train_episodes``, ``own_robot_steps``: what the reader made of the training bag;
 * ``own_robot_<step>_s``: wall time of recording, reading, training, tuning, segmenting and step 5.
 
-Full size: 300 training episodes, 50 held-out, the config's 300 iterations with one torch thread.
+Full size: 300 training episodes, 50 held-out, a fixed 300 iterations with one torch thread.
 Measured (seeds 0 and 1000000, docs/experiments.md §25): alignment 0.927 online (live: the same,
 every live episode equal to the replay) and 0.831 offline; F1@1 0.25 online, 0.43 offline: the
 online boundaries lie a steady 4 steps after the skill-id change.  ``--action-norm standard``
@@ -51,7 +51,7 @@ from ompn_ros.experiments.spec import DEFAULT_EPISODES  # noqa: E402
 
 Result = dict[str, tuple[float, str]]
 # one torch thread: with other jobs on the CPU, two threads made training 7x slower (spin-waiting)
-FULL: dict[str, Any] = {"episodes": 300, "heldout": 50, "iterations": None, "threads": 1,
+FULL: dict[str, Any] = {"episodes": 300, "heldout": 50, "iterations": 300, "threads": 1,
                         "action_norm": "none", "live_rate": 25.0}
 QUICK: dict[str, Any] = {"episodes": 20, "heldout": 5, "iterations": 40, "threads": 1,
                          "action_norm": "none", "live_rate": 25.0}

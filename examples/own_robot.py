@@ -177,7 +177,8 @@ def train(flow: Flow, bag: Path, env: dict[str, str]) -> Path:
                     "--set", "data.domain=null", "--set", f"data.reader_spec={READER}")
     if flow.iterations is not None:
         every = max(1, min(20, flow.iterations))  # a short run is evaluated once, at its end
-        argv += ["--set", f"train.iterations={flow.iterations}", "--set", f"train.eval_every={every}"]
+        argv += ["--set", f"train.iterations={flow.iterations}", "--set", f"train.eval_every={every}",
+                 "--set", "train.patience=0"]  # a given length is a fixed length
     if flow.threads is not None:
         argv += ["--set", f"train.threads={flow.threads}"]
     if flow.action_norm is not None:
@@ -406,7 +407,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs/own_robot"), help="output directory")
     parser.add_argument("--episodes", type=int, default=300, help="training episodes to record")
     parser.add_argument("--heldout", type=int, default=50, help="held-out episodes to record")
-    parser.add_argument("--iterations", type=int, default=None, help="training iterations (default: config)")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="fixed training length (default: the config's early stopping)")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the training episodes")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch threads of ompn_train (default: the config's; 1 on a busy machine)")
