@@ -58,6 +58,16 @@ def _configs() -> dict[str, Any]:
     }
 
 
+def _stop(proc: subprocess.Popen[bytes], log: Any) -> None:
+    """Interrupt the node process as Ctrl-C would (killed after 10 s) and close its log."""
+    proc.send_signal(2)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+    log.close()
+
+
 def _pct(values: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(values), q)) if values else float("nan")
 
@@ -338,12 +348,7 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
         out[f"{executor}_1khz_node_cpu"] = (100.0 * cpu / wall, "% of one core")
     finally:
         rclpy.try_shutdown(context=ctx)
-        proc.send_signal(2)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        log.close()
+        _stop(proc, log)
     return out
 
 
@@ -524,12 +529,7 @@ def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events"
             out.update(_multi_sustained(c, proc.pid, ticks[20 + latency_msgs :], name))
     finally:
         rclpy.try_shutdown(context=ctx)
-        proc.send_signal(2)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        log.close()
+        _stop(proc, log)
     return out
 
 

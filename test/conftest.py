@@ -26,6 +26,17 @@ def _dds_stays_on_loopback():
         assert not found, f"rclpy is in use but DDS is not contained: {'; '.join(found)}"
 
 
+@pytest.fixture(scope="module")
+def ctx():
+    """An rclpy context per test module, for the node tests that run the node in process."""
+    import rclpy
+
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
 @pytest.fixture
 def ros_env() -> dict[str, str]:
     """Environment for child processes that start rclpy (keeps LD_LIBRARY_PATH and containment)."""

@@ -20,6 +20,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from test_node_poison import Recorder  # noqa: E402 (the publisher stand-in)
 
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
@@ -71,22 +72,6 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("gap") / "ckpt"
     save_checkpoint(path, OMPNPolicy(cfg))
     return path
-
-
-@pytest.fixture(scope="module")
-def ctx():
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.try_shutdown(context=context)
-
-
-class Recorder:
-    def __init__(self) -> None:
-        self.raws: list[bytes] = []
-
-    def publish(self, raw: bytes) -> None:
-        self.raws.append(raw)
 
 
 class FakeClock:

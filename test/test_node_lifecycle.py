@@ -44,14 +44,6 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-@pytest.fixture
-def ctx():
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.try_shutdown(context=context)
-
-
 class Harness:
     """A peer node that feeds the ompn_node and records its outputs, sharing one executor."""
 

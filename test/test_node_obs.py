@@ -72,14 +72,6 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-@pytest.fixture
-def ctx():
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    yield context
-    rclpy.try_shutdown(context=context)
-
-
 def make_node(ctx, ckpt: Path, spec: str = SPEC_TEXT, **params) -> OMPNNode:
     overrides = [Parameter("checkpoint", value=str(ckpt)), Parameter("observation_spec", value=spec)]
     overrides += [Parameter(k, value=v) for k, v in params.items()]
