@@ -172,6 +172,30 @@ def test_stamp_rule_header_receive_and_zero_header() -> None:
     assert isinstance(asm.step(12 * MS, js(0)), np.ndarray) and asm.last_stamp_ns == 12 * MS
 
 
+def test_a_stalled_receiver_does_not_age_reception_stamped_partners() -> None:
+    """Steps 1 ms apart, received 0.1 ms after their header stamp, a gripper every 4th step; then
+    the receiver stalls 200 ms and serves the next step before the grippers queued behind it."""
+    stalled = ObservationAssembler(SPEC)  # tolerance 10 ms
+    for k in range(8):
+        t = k * MS
+        if k % 4 == 0:
+            stalled.offer("/arm/grip", t + 50_000, grip(k, k))
+        stalled.offer("/arm/ft", t + 60_000, wrench(t))
+        assert isinstance(stalled.step(t + 100_000, js(t)), np.ndarray)
+    stalled.offer("/arm/ft", 208 * MS, wrench(8 * MS))
+    out = stalled.step(208 * MS, js(8 * MS))  # received 200 ms late, its gripper not served yet
+    np.testing.assert_array_equal(out, expected(g=(4, 4)))  # the gripper of step 4: 4 ms older
+    stalled.offer("/arm/grip", 208 * MS + 1, grip(8, 8))  # the backlog: stamped after the step
+    stalled.offer("/arm/ft", 208 * MS + 2, wrench(9 * MS))
+    np.testing.assert_array_equal(stalled.step(208 * MS + 3, js(9 * MS)), expected(g=(8, 8)))
+    # a gripper that really went silent is still stale: on-time steps more than 10 ms after it
+    for k in range(210, 222):
+        stalled.offer("/arm/ft", k * MS + 60_000, wrench(k * MS))
+        out = stalled.step(k * MS + 100_000, js(k * MS))
+    assert isinstance(out, Drop) and out.reason == "stale" and out.topic == "/arm/grip"
+    assert "13.100 ms older" in out.detail and stalled.stats.dropped == {"stale": 4}  # 218..221
+
+
 def test_reset_forgets_partners_and_keeps_counters() -> None:
     asm = ObservationAssembler(SPEC)
     asm.offer("/arm/grip", 0, grip(0, 0))

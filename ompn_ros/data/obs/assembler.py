@@ -9,7 +9,13 @@ The rule (``ompn_node`` applies it live, the bag reader offline through
   topic come from **the latest message of that topic stamped at or before the step**, on the
   partner's clock: a partner stamped by its headers is compared with the step's stamp, a partner
   stamped at reception with the step's reception (so a backlog of the caller, which delays every
-  reception alike, does not age it).  It must be at most ``spec.tolerance_s`` older than the step.
+  reception alike, does not age it).  It must be at most ``spec.tolerance_s`` older than the step;
+  for a partner stamped at reception, a header-stamped step's age is measured from its *on-time
+  reception* (its header stamp plus the smallest reception − header offset of the last
+  :data:`ON_TIME_WINDOW` header-stamped steps) when that is earlier than its reception.  So a step
+  that the caller served late (a stalled process, a queue served out of order) is not dropped
+  because its partner messages queued behind it: the partner it is given is the same, only its age
+  is not inflated by the stall.
 * Otherwise the step is dropped, and counted by reason: ``missing`` (no partner message at or
   before the step), ``stale`` (older than the tolerance), ``malformed`` (undecodable bytes, or a
   JointState lacking a joint of the spec), ``wrong_size`` (a field with another element count than
@@ -51,6 +57,9 @@ import numpy as np
 
 from .extract import ExtractError, TopicExtractor, extractors, layout_of
 from .spec import ObservationSpec, canonical_type
+
+ON_TIME_WINDOW = 256
+"""Header-stamped steps over which the smallest reception − header offset is taken (module docstring)."""
 
 DropReason = Literal["missing", "stale", "malformed", "wrong_size", "wrong_type"]
 DROP_REASONS: tuple[DropReason, ...] = ("missing", "stale", "malformed", "wrong_size", "wrong_type")
@@ -149,6 +158,32 @@ class _History:
         self.entries.clear()
 
 
+class _OnTimeReception:
+    """The smallest ``receive - stamp`` offset of the last ``window`` steps (a monotonic queue, O(1)
+    amortised per step): ``stamp + offset`` is when a step would have been received without backlog."""
+
+    __slots__ = ("_n", "_queue", "window")
+
+    def __init__(self, window: int = ON_TIME_WINDOW) -> None:
+        self.window = window
+        self._n = 0
+        self._queue: deque[tuple[int, int]] = deque()  # (step number, offset), offsets increasing
+
+    def of(self, receive: int, stamp: int) -> int:
+        """Add one header-stamped step and return its on-time reception (never after ``receive``)."""
+        self._n += 1
+        offset, queue = receive - stamp, self._queue
+        while queue and queue[-1][1] >= offset:
+            queue.pop()
+        queue.append((self._n, offset))
+        if queue[0][0] <= self._n - self.window:
+            queue.popleft()
+        return stamp + queue[0][1]
+
+    def clear(self) -> None:
+        self._queue.clear()
+
+
 class ObservationAssembler:
     """Incremental observation assembly under the rule of this module (not thread-safe).
 
@@ -188,7 +223,8 @@ class ObservationAssembler:
         self._frontier: dict[str, int | None] = dict.fromkeys(waited if spec.wait_s > 0 else ())
         self._wait_ns = round(spec.wait_s * 1e9)
         self._max_held = history if max_held is None else max_held
-        self._held: deque[tuple[int, int, list[np.ndarray] | Drop]] = deque()
+        self._held: deque[tuple[int, int, int, list[np.ndarray] | Drop]] = deque()
+        self._on_time = _OnTimeReception()
 
     # --- layout -----------------------------------------------------------------------------------
     @property
@@ -274,8 +310,8 @@ class ObservationAssembler:
         if self._held:
             raise ValueError("step() while steps are held: release(flush=True) first, or use hold()")
         self.stats.steps += 1
-        stamp, parsed = self._parse_step(int(stamp_ns), raw)
-        return self._decide(int(stamp_ns), stamp, parsed)
+        stamp, on_time, parsed = self._parse_step(int(stamp_ns), raw)
+        return self._decide(int(stamp_ns), stamp, on_time, parsed)
 
     def hold(self, stamp_ns: int, raw: bytes | memoryview) -> None:
         """Feed a message of the step topic; it is decided by :meth:`release` (module docstring).
@@ -283,8 +319,7 @@ class ObservationAssembler:
         self.stats.steps += 1
         if not isinstance(raw, bytes):  # the held vectors may view the bytes: never a reusable buffer
             raw = bytes(raw)
-        stamp, parsed = self._parse_step(int(stamp_ns), raw)
-        self._held.append((int(stamp_ns), stamp, parsed))
+        self._held.append((int(stamp_ns), *self._parse_step(int(stamp_ns), raw)))
 
     @property
     def waited_topics(self) -> tuple[str, ...]:
@@ -306,7 +341,7 @@ class ObservationAssembler:
         """
         out: list[Decided] = []
         while self._held:
-            receive, stamp, parsed = self._held[0]
+            receive, stamp, on_time, parsed = self._held[0]
             late = False
             if not isinstance(parsed, Drop) and not self._settled(stamp):
                 due = now_ns is not None and now_ns - receive >= self._wait_ns
@@ -315,7 +350,7 @@ class ObservationAssembler:
                 late = True
                 self.stats.late += 1
             self._held.popleft()
-            out.append(Decided(receive, stamp, self._decide(receive, stamp, parsed), late))
+            out.append(Decided(receive, stamp, self._decide(receive, stamp, on_time, parsed), late))
         return out
 
     def _settled(self, stamp: int) -> bool:
@@ -325,28 +360,35 @@ class ObservationAssembler:
                 return False
         return True
 
-    def _parse_step(self, stamp: int, raw: bytes | memoryview) -> tuple[int, list[np.ndarray] | Drop]:
-        """``(stamp under the stamp rule, the step's vectors or its Drop)``; sets ``last_stamp_ns``."""
+    def _parse_step(self, receive: int, raw: bytes | memoryview) -> tuple[int, int, list[np.ndarray] | Drop]:
+        """``(stamp under the stamp rule, on-time reception, the step's vectors or its Drop)``; sets
+        ``last_stamp_ns``.  The on-time reception is ``receive`` unless the stamp is the header's."""
         topic = self.spec.step_topic
-        self.last_stamp_ns = stamp
+        self.last_stamp_ns = receive
         if topic in self._wrong_type:
-            return stamp, Drop("wrong_type", topic, stamp, self._wrong_type[topic])
+            return receive, receive, Drop("wrong_type", topic, receive, self._wrong_type[topic])
         try:
             header, vectors = self._step_ex.extract(raw)
         except ExtractError as err:
-            return stamp, Drop(err.reason, topic, stamp, err.detail)
+            return receive, receive, Drop(err.reason, topic, receive, err.detail)
         if header is not None and self._header:
-            self.last_stamp_ns = stamp = header
-        return stamp, vectors
+            self.last_stamp_ns = header
+            return header, self._on_time.of(receive, header), vectors
+        return receive, receive, vectors
 
-    def _decide(self, receive: int, stamp: int, parsed: list[np.ndarray] | Drop) -> np.ndarray | Drop:
+    def _decide(
+        self, receive: int, stamp: int, on_time: int, parsed: list[np.ndarray] | Drop
+    ) -> np.ndarray | Drop:
         """The rule for one parsed step (``receive``: the caller's stamp, ``stamp``: under the stamp
-        rule): the observation, or the counted drop."""
+        rule, ``on_time``: its on-time reception): the observation, or the counted drop."""
         if isinstance(parsed, Drop):
             return self._drop(parsed.reason, parsed.topic, stamp, parsed.detail)
         values = {self.spec.step_topic: parsed}
         for partner, hist in self._hist.items():
-            found = self._partner(partner, hist, stamp if partner in self._by_header else receive)
+            if partner in self._by_header:
+                found = self._partner(partner, hist, stamp, stamp)
+            else:
+                found = self._partner(partner, hist, receive, on_time)
             if isinstance(found, Drop):
                 return self._drop(found.reason, found.topic, stamp, found.detail)
             values[partner] = found
@@ -359,20 +401,22 @@ class ObservationAssembler:
         self.stats.kept += 1
         return out
 
-    def _partner(self, topic: str, hist: _History, stamp: int) -> list[np.ndarray] | Drop:
+    def _partner(self, topic: str, hist: _History, at: int, aged_from: int) -> list[np.ndarray] | Drop:
+        """The latest message of ``topic`` stamped at or before ``at``, at most the tolerance older
+        than ``aged_from`` (``<= at``), or the Drop."""
         if topic in self._wrong_type:
-            return Drop("wrong_type", topic, stamp, self._wrong_type[topic])
-        i = bisect_right(hist.stamps, stamp) - 1
+            return Drop("wrong_type", topic, at, self._wrong_type[topic])
+        i = bisect_right(hist.stamps, at) - 1
         if i < 0:
             detail = ("no message yet" if not hist.stamps else "no message at or before the step "
-                      f"(the oldest kept is {hist.stamps[0] - stamp} ns later)")
-            return Drop("missing", topic, stamp, detail)
+                      f"(the oldest kept is {hist.stamps[0] - at} ns later)")
+            return Drop("missing", topic, at, detail)
         entry = hist.entries[i]
         if isinstance(entry, Drop):
-            return Drop(entry.reason, topic, stamp, f"its latest message was rejected: {entry.detail}")
-        age = stamp - hist.stamps[i]
+            return Drop(entry.reason, topic, at, f"its latest message was rejected: {entry.detail}")
+        age = aged_from - hist.stamps[i]
         if age > self._tol_ns:
-            return Drop("stale", topic, stamp, f"its latest message is {age / 1e6:.3f} ms older than the "
+            return Drop("stale", topic, at, f"its latest message is {age / 1e6:.3f} ms older than the "
                         f"step (tolerance {self.spec.tolerance_s * 1e3:g} ms)")
         return entry
 
@@ -392,6 +436,7 @@ class ObservationAssembler:
         for hist in self._hist.values():
             hist.clear()
         self._frontier = dict.fromkeys(self._frontier)
+        self._on_time.clear()
         self.last_stamp_ns = None
         if clear_stats:
             self.stats = AssemblerStats()
