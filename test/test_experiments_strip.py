@@ -31,7 +31,8 @@ def test_strip_removes_exactly_the_final_observation(tmp_path: Path, domain: str
     complete = _read(tmp_path / "src", domain, "drop_last_step")
     dropped = _read(tmp_path / "out", domain, "drop_last_step")
     duplicated = _read(tmp_path / "out", domain, "duplicate")
-    for ep, full, drop, dup in zip(episodes, complete, dropped, duplicated, strict=True):
+    blanked = _read(tmp_path / "out", domain, "blank")
+    for ep, full, drop, dup, blank in zip(episodes, complete, dropped, duplicated, blanked, strict=True):
         T = ep.length
         assert full.length == T
         # drop_last_step: the last recorded observation becomes row T, its action is lost
@@ -44,9 +45,13 @@ def test_strip_removes_exactly_the_final_observation(tmp_path: Path, domain: str
         np.testing.assert_array_equal(dup.observations[T], ep.observations[T - 1])
         np.testing.assert_array_equal(dup.actions, ep.actions)
         assert (dup.task, dup.seed) == (ep.task, ep.seed)
+        # blank: every action kept, row T all zeros (row T-1, the same recorded row, untouched)
+        np.testing.assert_array_equal(blank.observations[:T], ep.observations[:T])
+        assert blank.observations.shape == ep.observations.shape and not blank.observations[T].any()
+        np.testing.assert_array_equal(blank.actions, ep.actions)
 
 
-@pytest.mark.parametrize("how", ["drop_last_step", "duplicate"])
+@pytest.mark.parametrize("how", ["drop_last_step", "duplicate", "blank"])
 def test_stripped_bags_read_strictly(tmp_path: Path, how: str) -> None:
     """The end marker counts the recorded steps; a step dropped by ``drop_last_step`` is one of them."""
     episodes = make_episodes("craft", 2, seed=3)

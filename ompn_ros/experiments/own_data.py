@@ -60,7 +60,7 @@ from .report_own import OWN_DATA
 from .strip import strip_bags
 
 Study = Literal["labels", "final_observation", "length"]
-Bags = Literal["complete", "drop_last_step", "duplicate"]
+Bags = Literal["complete", "drop_last_step", "duplicate", "blank"]
 Length = Literal["patience", "fixed"]
 DATA_SEED = 0
 """Seed of the reproduction's held-out split (``ompn_reproduce --data-seed`` default)."""
@@ -110,6 +110,7 @@ def _arms() -> dict[str, Arm]:
                 bags="drop_last_step",
             ),
             Arm(f"final_{tag}_duplicate", "final_observation", domain, length="fixed", bags="duplicate"),
+            Arm(f"final_{tag}_blank", "final_observation", domain, length="fixed", bags="blank"),
         ]
     return {a.name: a for a in arms}
 

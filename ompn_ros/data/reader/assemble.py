@@ -27,6 +27,7 @@ from .labels import LabelSite, ordinals_from_events, ordinals_from_ids, ordinals
 
 DROPPED_LAST = "last step dropped (no final observation)"
 DUPLICATED_LAST = "last observation duplicated as row T"
+BLANK_LAST = "row T left blank (zeros; no final observation)"
 
 
 @dataclass
@@ -169,11 +170,14 @@ def _final_observation(ctx: BagContext, topics: Topics, dec: Decoded, w: Window,
         report.final_duplicated += 1
         report.adjusted.setdefault(DUPLICATED_LAST, []).append(number)
         return np.arange(a, b)
+    if how == "blank":
+        report.adjusted.setdefault(BLANK_LAST, []).append(number)
+        return np.arange(a, b)
     if how == "drop_last_step":
         report.adjusted.setdefault(DROPPED_LAST, []).append(number)
         return np.arange(a, b - 1)
     msg = (f"episode #{number} (observations #{a}..#{b - 1}) has no observation after its last action; "
-           "set final_observation: drop_last_step or duplicate")
+           "set final_observation: duplicate, blank or drop_last_step")
     if ctx.spec.strict:
         raise AlignmentError(msg, path=ctx.path, topic=topics.obs, index=b - 1,
                              stamp=int(dec.obs_stamps[b - 1]))
@@ -203,8 +207,12 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
         if ctx.spec.strict:
             raise AlignmentError(msg, path=ctx.path, topic=topics.episode, index=w.end_index)
         ctx.report.notes.append(msg)
+    observations = _rows(dec.obs, rows)
+    if number in ctx.report.adjusted.get(BLANK_LAST, ()):
+        observations = observations.copy()
+        observations[-1] = 0.0
     return Episode(
-        observations=_rows(dec.obs, rows),
+        observations=observations,
         actions=np.asarray(actions, dtype=np.int64 if topics.act_type == layout.INT32 else np.float32),
         subtask=subtask, sketch=sketch, task=task, seed=seed, success=success, extras=extras,
     )

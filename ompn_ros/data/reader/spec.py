@@ -19,9 +19,9 @@ from ..obs.spec import FLOAT64_ARRAY, ObservationSpec, ObservationSpecError
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
-FinalObservation = Literal["drop_last_step", "duplicate", "require"]
+FinalObservation = Literal["drop_last_step", "duplicate", "blank", "require"]
 Split = Literal["auto", "markers", "gaps", "topic"]
-FINAL_OBSERVATION = ("drop_last_step", "duplicate", "require")
+FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "require")
 SPLITS = ("auto", "markers", "gaps", "topic")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
@@ -107,6 +107,9 @@ class ReaderSpec:
 
             * ``duplicate`` (default): the last observation is repeated as row ``T``
               (``s_{T+1} = s_T``); every recorded action is kept.
+            * ``blank``: row ``T`` is all zeros, an input no real observation gives, so the
+              'done' step (paper §3.2) is learned at an observation of its own; every recorded
+              action is kept.
             * ``drop_last_step``: the last observation becomes row ``T`` and its action step is
               dropped (one step per episode is lost; when that step completes the task, as Craft's
               final ``use`` does, the model learns to stop early).
