@@ -64,7 +64,8 @@ def _write_foreign_bag(path: Path, rng: np.random.Generator, storage: str) -> di
 
 @pytest.mark.parametrize(("storage", "stamp", "final"), [("mcap", "header", "duplicate"),
                                                          ("sqlite3", "log", "duplicate"),
-                                                         ("mcap", "log", "drop_last_step")])
+                                                         ("mcap", "log", "drop_last_step"),
+                                                         ("mcap", "header", "blank")])
 def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: str) -> None:
     """No observation after the last command: duplicated as row T, or the last step dropped."""
     truth = _write_foreign_bag(tmp_path / "bag", np.random.default_rng(3), storage)
@@ -80,12 +81,17 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: st
     duplicate = final == "duplicate"
     assert report.final_duplicated == (3 if duplicate else 0)
     assert any("s_{T+1} = s_T" in note for note in report.notes) == duplicate
-    assert report.adjusted == {("last observation duplicated as row T" if duplicate
-                                else "last step dropped (no final observation)"): [0, 1, 2]}
+    adjusted = {"duplicate": "last observation duplicated as row T",
+                "drop_last_step": "last step dropped (no final observation)",
+                "blank": "row T left blank (zeros; no final observation)"}[final]
+    assert report.adjusted == {adjusted: [0, 1, 2]}
+    assert ("row T = zeros (final_observation: blank)" in report.guessed) == (final == "blank")
     for want, got in zip(truth["episodes"], result.episodes):
         want_obs, want_act = want["observations"], want["actions"]
-        if not duplicate:  # the last recorded observation is row T, its action is dropped
+        if final == "drop_last_step":  # the last recorded observation is row T, its action is dropped
             want_obs, want_act = want_obs[:-1], want_act[:-1]
+        if final == "blank":  # every action kept, row T all zeros
+            want_obs = np.vstack([want_obs[:-1], np.zeros_like(want_obs[-1:])])
         np.testing.assert_allclose(got.observations, want_obs.astype(np.float32))
         np.testing.assert_allclose(got.actions, want_act.astype(np.float32))
         assert np.array_equal(got.observations[-1], got.observations[-2]) == duplicate  # s_{T+1} = s_T

@@ -67,6 +67,8 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
         report.notes.append(f"every observation had an action in {report.final_duplicated} episode(s): "
                             "the last observation was duplicated as row T (s_{T+1} = s_T)")
         report.guessed.append("row T = the last observation (final_observation: duplicate)")
+    if report.adjusted.get(BLANK_LAST):
+        report.guessed.append("row T = zeros (final_observation: blank)")
     report.episodes = len(episodes)
     return episodes
 
