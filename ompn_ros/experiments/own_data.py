@@ -112,6 +112,11 @@ def _arms() -> dict[str, Arm]:
             Arm(f"final_{tag}_duplicate", "final_observation", domain, length="fixed", bags="duplicate"),
             Arm(f"final_{tag}_blank", "final_observation", domain, length="fixed", bags="blank"),
         ]
+    arms += [  # a second seed for the Craft comparison of complete and blank
+        Arm("final_craft_full_complete_seed1", "final_observation", "craft", length="fixed", seed=1),
+        Arm("final_craft_full_blank_seed1", "final_observation", "craft", length="fixed", bags="blank",
+            seed=1),
+    ]
     return {a.name: a for a in arms}
 
 

@@ -22,6 +22,9 @@ LabelKind = Literal["ordinal", "id", "boundary", "none"]
 FinalObservation = Literal["drop_last_step", "duplicate", "blank", "require"]
 Split = Literal["auto", "markers", "gaps", "topic"]
 FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "require")
+PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "duplicate"}
+"""``final_observation`` of each domain's preset: the option that lost least against complete bags
+there (docs/experiments.md §28 and §31)."""
 SPLITS = ("auto", "markers", "gaps", "topic")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
@@ -109,17 +112,18 @@ class ReaderSpec:
               (``s_{T+1} = s_T``); every recorded action is kept.
             * ``blank``: row ``T`` is all zeros, an input no real observation gives, so the
               'done' step (paper §3.2) is learned at an observation of its own; every recorded
-              action is kept.
+              action is kept.  The Craft preset (:meth:`for_domain`) uses it.
             * ``drop_last_step``: the last observation becomes row ``T`` and its action step is
               dropped (one step per episode is lost; when that step completes the task, as Craft's
               final ``use`` does, the model learns to stop early).
             * ``require``: such an episode is an :class:`AlignmentError` (``strict``) or dropped.
 
-            Trained on our data with that observation removed (docs/experiments.md §28, held out,
-            seed 0), ``duplicate`` cost 2.7 / 15.5 points of online F1@1 / alignment on Craft and
-            ``drop_last_step`` 24.4 / 36.8; on Dial ``duplicate`` cost 3.2 points of online
-            alignment and ``drop_last_step`` 10.7.  Neither comes within a point of complete bags:
-            record the observation after the last command when you can.
+            Trained on our data with that observation removed (docs/experiments.md §28 and §31,
+            held out), on Craft ``blank`` cost 0.6 / 2.5 points of online F1@1 / alignment (mean
+            of two seeds), ``duplicate`` 2.7 / 15.5 and ``drop_last_step`` 24.4 / 36.8 (seed 0);
+            on Dial ``duplicate`` cost 3.2 points of online alignment, ``drop_last_step`` 10.7 and
+            ``blank`` 63.4 (offline 11.2).  None comes within a point of complete bags on
+            alignment: record the observation after the last command when you can.
 
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
@@ -188,7 +192,8 @@ class ReaderSpec:
 
     @classmethod
     def for_domain(cls, domain: str | layout.DomainLayout) -> ReaderSpec:
-        """The preset for our own sims' bags (same as ``config/reader_<domain>.yaml``)."""
+        """The preset for our own sims' bags (same as ``config/reader_<domain>.yaml``); its
+        ``final_observation`` is the option measured best on that domain (:data:`PRESET_FINAL`)."""
         dom = layout.DOMAINS[domain] if isinstance(domain, str) else domain
         return cls(
             observation=VectorSource(layout.OBSERVATION, layout.FLOAT32_ARRAY, dom.obs_dim),
@@ -196,6 +201,7 @@ class ReaderSpec:
                                 None if dom.action_type == "discrete" else dom.action_dim),
             joint_states=layout.JOINT_STATES if dom.has_joint_states else None,
             strict=True,
+            final_observation=PRESET_FINAL.get(dom.name, "duplicate"),
         )
 
     @classmethod
