@@ -66,11 +66,11 @@ def _state(sweep: hparams.SweepSpec) -> State:
     return state
 
 
-def _fake_run(calls: list[str]) -> Any:
+def _fake_run(calls: list[str], train_seconds: float = float("nan")) -> Any:
     def run_setting(spec: Any, pool: Any, test: Any, base: Any, work: Path) -> Evaluation:
         calls.append(spec.name)
         (work / "runs" / spec.name).mkdir(parents=True, exist_ok=True)
-        return Evaluation(row={"align_acc": 0.9, "f1_tol1": 0.95, "train_seconds": float("nan")}, p_hat=[])
+        return Evaluation(row={"align_acc": 0.9, "f1_tol1": 0.95, "train_seconds": train_seconds}, p_hat=[])
 
     return run_setting
 
@@ -105,6 +105,13 @@ def test_only_the_shipped_cell_adopts_reproduction_runs(tmp_path: Path, monkeypa
     assert (tmp_path / "work" / "runs" / "full_nosketch_n2_m128_seed0" / "best").is_dir()
     assert not hparams.run_cell(state, sweep, hparams.Cell(2, 64, 1))["adopted"]
     assert not hparams.run_cell(state, sweep, hparams.Cell(2, 128, 2))["adopted"]  # no such source run
+    # a copy whose stored configuration differs is trained again (it has a train time): not adopted
+    monkeypatch.setattr(hparams, "run_setting", _fake_run([], train_seconds=12.0))
+    row = hparams.run_cell(state, sweep, hparams.Cell(2, 128, 1))
+    assert not row["adopted"] and row["row"]["train_seconds"] == 12.0
+    assert (tmp_path / "work" / "runs" / "full_nosketch_n2_m128_seed1" / "adopted_from.txt").is_file()
+    built = report_hparams.build_doc([row, {**row, "adopted": True}], expected=2)
+    assert built["meta"]["adopted_runs"] == []
 
 
 def _row(n: int, m: int, seed: int, align: float, started: float = 0.0) -> dict[str, Any]:

@@ -179,7 +179,8 @@ def run_cell(state: State, sweep: SweepSpec, cell: Cell) -> dict[str, Any]:
         "slot_size": cell.slot_size,
         "seed": cell.seed,
         "iterations": iterations,
-        "adopted": adopted,
+        # a copy finished with another configuration was trained again: it is no adopted run
+        "adopted": adopted and row.get("train_seconds") is None,
         "n_test": len(test),
         "started": started,
         "finished": finished,

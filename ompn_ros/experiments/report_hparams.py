@@ -103,6 +103,11 @@ def _cell(rows: list[dict[str, Any]]) -> HparamsCell:
     }
 
 
+def was_adopted(row: dict[str, Any]) -> bool:
+    """True for a run copied from the reproduction and evaluated without training (no train time)."""
+    return bool(row.get("adopted")) and row["row"].get("train_seconds") is None
+
+
 def cpu_model() -> str:
     """The CPU model name of this machine (for the timing figures), or ``unknown``."""
     try:
@@ -128,7 +133,7 @@ def build_doc(rows: Sequence[dict[str, Any]], expected: int, command: Sequence[s
         "iterations": sorted({int(r["iterations"]) for r in rows}),
         "n_test": sorted({int(r["n_test"]) for r in rows}),
         "adopted_runs": sorted(
-            f"{cell_key(r['n_slots'], r['slot_size'])} seed {r['seed']}" for r in rows if r.get("adopted")
+            f"{cell_key(r['n_slots'], r['slot_size'])} seed {r['seed']}" for r in rows if was_adopted(r)
         ),
         "wall_seconds": max(float(r["finished"]) for r in rows) - min(float(r["started"]) for r in rows),
         "sum_stage_seconds": sum(float(r["stage_seconds"]) for r in rows),
