@@ -163,6 +163,18 @@ def test_readme_section_places_paper_numbers_in_brackets(tmp_path: Path):
     assert lines[start + 3] == "| 3 | 85.0 (5.0) [93 (1.7)] | – |"
 
 
+def test_detail_rows_are_sorted_by_n_then_m_as_numbers(tmp_path: Path):
+    rows = [_row(2, 128, 0, 0.9), _row(2, 32, 0, 0.7), _row(3, 64, 0, 0.8)]
+    report_hparams.write_doc(tmp_path, report_hparams.build_doc(rows, expected=27))
+    lines = report_hparams.hparams_markdown(tmp_path)
+    start = next(i for i, line in enumerate(lines) if line.startswith("| n | m |"))
+    assert [tuple(line.split(" | ")[:2]) for line in lines[start + 2 : start + 5]] == [
+        ("| 2", "32"),
+        ("| 2", "128"),
+        ("| 3", "64"),
+    ]
+
+
 def test_figure_is_written(tmp_path: Path):
     rows = [_row(n, m, s, 0.8 + 0.01 * s) for n in (2, 3) for m in (32, 64) for s in (0, 1)]
     path = save_hparams_figure(report_hparams.build_doc(rows, expected=8), tmp_path / "f" / "h.png")

@@ -175,6 +175,10 @@ def _grid_lines(doc: HparamsDoc) -> list[str]:
     return lines
 
 
+def _join(values: Sequence[int]) -> str:
+    return ", ".join(str(v) for v in values)
+
+
 def _num(cell: Stat) -> str:
     return "–" if cell["mean"] is None else f"{cell['mean']:.0f}"
 
@@ -185,7 +189,7 @@ def _detail_lines(doc: HparamsDoc) -> list[str]:
         "val align | best iteration | train s | paper align |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for cell in doc["cells"].values():
+    for cell in sorted(doc["cells"].values(), key=lambda c: (c["n_slots"], c["slot_size"])):
         met, paper = cell["metrics"], cell["paper_align"]
         paper_text = "–" if paper is None else f"{100 * paper['mean']:.0f}"
         lines.append(
@@ -214,9 +218,9 @@ def hparams_markdown(results_dir: Path) -> list[str]:
     return [
         "## craft: memory depth n × slot size m (full, no sketch)",
         "",
-        f"Held-out Top-K alignment accuracy, mean (std) over seeds {meta['seeds']} in %, "
-        f"{meta['iterations']} iterations, {meta['n_test']} test episodes ({state}); the paper's "
-        "value in brackets where its hyper-parameter table has the cell (Lu et al., ICLR 2021, "
+        f"Held-out Top-K alignment accuracy, mean (std) over seeds {_join(meta['seeds'])} in %, "
+        f"{_join(meta['iterations'])} iterations, {_join(meta['n_test'])} test episodes ({state}); "
+        "the paper's value in brackets where its hyper-parameter table has the cell (Lu et al., ICLR 2021, "
         f"Appendix). Figure: `figures/{FIGURE}`.",
         "",
         *_grid_lines(doc),
