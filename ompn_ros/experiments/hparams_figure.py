@@ -13,8 +13,10 @@ import matplotlib.pyplot as plt
 
 from ompn_ros.experiments.report_hparams import HparamsDoc
 
-PAPER_OFFSET = 1.06
-"""The paper's points are drawn at ``m · PAPER_OFFSET`` (log axis) so both error bars stay visible."""
+PAPER_OFFSET = 1.04
+PAPER_STEP = 0.03
+"""The paper's points of the ``i``-th ``n`` are drawn at ``m · (PAPER_OFFSET + i · PAPER_STEP)`` (log
+axis) so that ours and the paper's error bars, and cells of equal value, stay apart."""
 
 
 def save_hparams_figure(doc: HparamsDoc, path: Path) -> Path:
@@ -43,7 +45,7 @@ def save_hparams_figure(doc: HparamsDoc, path: Path) -> Path:
         paper = [(c["slot_size"], c["paper_align"]) for c in line if c["paper_align"] is not None]
         if paper:
             ax.errorbar(
-                [m * PAPER_OFFSET for m, _ in paper],
+                [m * (PAPER_OFFSET + i * PAPER_STEP) for m, _ in paper],
                 [100 * p["mean"] for _, p in paper],
                 yerr=[100 * p["std"] for _, p in paper],
                 color=color,
