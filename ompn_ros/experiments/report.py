@@ -8,7 +8,8 @@ Files per domain (``craft``, ``dial``):
 * ``<domain>_extras.json``: :class:`ExtrasDoc`, ``{"extras": {table id: {"title", "rows"}}, "meta"}``
   with the table ids of :data:`EXTRA_IDS`.
 
-and, when present, ``own_data.json`` / ``own_robot.json`` (:mod:`ompn_ros.experiments.report_own`).
+and, when present, ``craft_hparams.json`` (:mod:`ompn_ros.experiments.report_hparams`) and
+``own_data.json`` / ``own_robot.json`` (:mod:`ompn_ros.experiments.report_own`).
 
 ``results/README.md`` is generated from these files only::
 
@@ -25,6 +26,7 @@ from typing import Any, TypedDict
 
 import numpy as np
 
+from ompn_ros.experiments.report_hparams import hparams_markdown
 from ompn_ros.experiments.report_own import own_markdown
 
 DOMAINS = ("craft", "dial")
@@ -246,6 +248,7 @@ def render_readme(results_dir: Path) -> str:
         loaded = load(results_dir, domain)
         if loaded is not None:
             parts.append(domain_markdown(domain, *loaded))
+    parts += hparams_markdown(results_dir)
     parts += own_markdown(results_dir)
     return "\n".join(parts).rstrip("\n") + "\n"
 
