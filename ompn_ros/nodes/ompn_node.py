@@ -64,6 +64,7 @@ with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_n
 from __future__ import annotations
 
 import array
+import gc
 import sys
 import time
 from collections import Counter
@@ -310,6 +311,11 @@ class OMPNNode(LifecycleNode):
             self.assembled = None
             return TransitionCallbackReturn.FAILURE
         self.last_error = ""
+        # Everything alive now (torch, numba, the model) leaves the cyclic garbage collector's view: a
+        # full collection over these ~280 000 objects stalls the callbacks for ~150 ms, long enough
+        # to make partner messages look stale or to overflow a best-effort queue at 1 kHz.
+        gc.collect()
+        gc.freeze()
         return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
@@ -438,6 +444,7 @@ class OMPNNode(LifecycleNode):
         self._pubs = {}
         self.segmenter = None
         self.assembled = None
+        gc.unfreeze()  # the released model may be collected; the next configure freezes again
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
