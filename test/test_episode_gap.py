@@ -18,9 +18,8 @@ from ompn_ros.nodes.episode_gap import SilenceWatch, gap_ends_episode
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from test_node_poison import Recorder  # noqa: E402 (the publisher stand-in)
+from test_node_poison import active_node as poison_active_node  # noqa: E402 (publishers that record)
 
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
@@ -83,14 +82,9 @@ class FakeClock:
 
 
 def active_node(ctx, ckpt: Path, **params: Any) -> OMPNNode:
-    overrides = [Parameter("checkpoint", value=str(ckpt)), Parameter("detector_high", value=0.3),
-                 Parameter("max_stamp_lead", value=0.0)]
-    overrides += [Parameter(k, value=v) for k, v in params.items()]
-    node = OMPNNode(context=ctx, parameter_overrides=overrides)
-    ok = TransitionCallbackReturn.SUCCESS
-    assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
-    node._pubs = {k: Recorder() for k in node._pubs}
-    return node
+    """An active node whose publishers record (``test_node_poison``), stamps never checked against
+    its clock (``max_stamp_lead`` 0: the tests' stamps are not wall time)."""
+    return poison_active_node(ctx, ckpt, max_stamp_lead=0.0, **params)
 
 
 def events(node: OMPNNode) -> list[tuple[int, str, int, str]]:
