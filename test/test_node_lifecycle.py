@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gc
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -280,10 +279,8 @@ def test_cleanup_and_reconfigure_with_new_detector(ctx, ckpt: Path) -> None:
     node = make_node(ctx, ckpt)
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
     assert node.segmenter.detector_config.high == 0.5
-    # configure moves what it loaded out of the garbage collector's full collections; cleanup undoes it
-    assert gc.get_freeze_count() > 100_000
     assert node.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
-    assert node.segmenter is None and gc.get_freeze_count() == 0
+    assert node.segmenter is None
     assert node.set_parameters([Parameter("detector_high", value=0.2),
                                 Parameter("detector_hysteresis", value=0.05)])[0].successful
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS

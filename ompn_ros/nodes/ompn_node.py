@@ -64,7 +64,6 @@ with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_n
 from __future__ import annotations
 
 import array
-import gc
 import sys
 import time
 from collections import Counter
@@ -311,11 +310,6 @@ class OMPNNode(LifecycleNode):
             self.assembled = None
             return TransitionCallbackReturn.FAILURE
         self.last_error = ""
-        # Everything alive now (torch, numba, the model) leaves the cyclic garbage collector's view: a
-        # full collection over these ~280 000 objects stalls the callbacks for ~150 ms, long enough
-        # to make partner messages look stale or to overflow a best-effort queue at 1 kHz.
-        gc.collect()
-        gc.freeze()
         return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
@@ -444,7 +438,6 @@ class OMPNNode(LifecycleNode):
         self._pubs = {}
         self.segmenter = None
         self.assembled = None
-        gc.unfreeze()  # the released model may be collected; the next configure freezes again
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -853,7 +846,9 @@ class OMPNNode(LifecycleNode):
         try:
             pub.publish(raw)
         except Exception as exc:  # SIGINT tears the context down while the timer is due: not an error
-            if "context" not in str(exc):
+            # (checked again here: the context may have gone between the check above and the call,
+            # and then logging, which publishes to /rosout, would raise in its turn)
+            if self.context.ok() and "context" not in str(exc):
                 self._warn_throttled(f"/diagnostics not published: {exc}")
 
 
@@ -880,7 +875,14 @@ def spin_until_shutdown(executor: Any, context: Any = None, period: float = 0.1)
     serves no callback and ignores SIGINT, while its ``spin_once`` works (module docstring).
     """
     while rclpy.ok(context=context):
-        executor.spin_once(timeout_sec=period)
+        try:
+            executor.spin_once(timeout_sec=period)
+        except RuntimeError:
+            # The EventsExecutor can fail the call that is under way when SIGINT shuts the context
+            # down ("Unable to convert call argument ... to Python object"): that is the shutdown.
+            if rclpy.ok(context=context):
+                raise
+            return
 
 
 def main(args: list[str] | None = None) -> int:
