@@ -85,6 +85,11 @@ def gap(a: float | None, b: float | None) -> str:
     return "–" if a is None or b is None else f"{100 * (a - b):+.1f}"
 
 
+def gaps(a: tuple[float | None, float | None], b: tuple[float | None, float | None]) -> str:
+    """``"ΔF1 / Δalign"`` of the pair ``a`` against the pair ``b`` (F1@1, alignment)."""
+    return f"{gap(a[0], b[0])} / {gap(a[1], b[1])}"
+
+
 def _setting(row: OwnDataRow) -> str:
     name = "Craft" if row["domain"] == "craft" else "Dial"
     obs = f" {row['observation']}" if row["domain"] == "craft" else ""
@@ -109,7 +114,7 @@ def _labels_table(rows: list[OwnDataRow]) -> list[str]:
         )
         lines.append(
             f"| {_setting(r)} | {_iterations(r)} | {pair(*tuned)} | {pair(*free)} | "
-            f"{gap(free[0], tuned[0])} / {gap(free[1], tuned[1])} | "
+            f"{gaps(free, tuned)} | "
             f"{pair(r['offline_f1_1'], r['offline_align'])} |"
         )
     return lines
@@ -126,13 +131,9 @@ def _final_table(rows: list[OwnDataRow]) -> list[str]:
         ref = complete.get((r["domain"], r["seed"]))
         d_on = d_off = "–"
         if ref is not None and r is not ref:
-            d_on = (
-                f"{gap(r['online_f1_1'], ref['online_f1_1'])} / "
-                f"{gap(r['online_align'], ref['online_align'])}"
-            )
-            d_off = (
-                f"{gap(r['offline_f1_1'], ref['offline_f1_1'])} / "
-                f"{gap(r['offline_align'], ref['offline_align'])}"
+            d_on, d_off = (
+                gaps((r[f"{k}_f1_1"], r[f"{k}_align"]), (ref[f"{k}_f1_1"], ref[f"{k}_align"]))  # type: ignore[literal-required]
+                for k in ("online", "offline")
             )
         lines.append(
             f"| {_setting(r)} | {r['bags']} | {pair(r['online_f1_1'], r['online_align'])} | {d_on} | "
