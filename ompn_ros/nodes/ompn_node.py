@@ -64,7 +64,9 @@ with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_n
 from __future__ import annotations
 
 import array
+import signal
 import sys
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -79,6 +81,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
@@ -868,21 +871,26 @@ def make_executor(kind: str, context: Any = None) -> Any:
     return SingleThreadedExecutor(context=context)
 
 
-def spin_until_shutdown(executor: Any, context: Any = None, period: float = 0.1) -> None:
-    """Serve callbacks until the context shuts down (SIGINT/SIGTERM, ``rclpy.shutdown``).
+def spin_until_shutdown(executor: Any, context: Any = None, period: float = 0.1,
+                        stop: threading.Event | None = None) -> None:
+    """Serve callbacks until ``stop`` is set (SIGINT/SIGTERM in :func:`main`) or the context shuts
+    down (``rclpy.shutdown``).
 
     A ``spin_once`` loop rather than ``spin()``: the EventsExecutor's ``spin()`` in rclpy 7.1.6
     serves no callback and ignores SIGINT, while its ``spin_once`` works (module docstring).
     """
-    while rclpy.ok(context=context):
-        try:
-            executor.spin_once(timeout_sec=period)
-        except RuntimeError:
-            # The EventsExecutor can fail the call that is under way when SIGINT shuts the context
-            # down ("Unable to convert call argument ... to Python object"): that is the shutdown.
-            if rclpy.ok(context=context):
-                raise
-            return
+    while rclpy.ok(context=context) and not (stop is not None and stop.is_set()):
+        executor.spin_once(timeout_sec=period)
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event set by SIGINT and SIGTERM.  rclpy's own handlers would shut the context down while a
+    callback (e.g. the diagnostics timer) is under way, which then fails with a FATAL line; with
+    this one the spin loop ends first and the context is shut down after the executor."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
 
 
 def main(args: list[str] | None = None) -> int:
@@ -897,10 +905,11 @@ def main(args: list[str] | None = None) -> int:
                         "publishes the action, ~/pi and ~/boundary events.", SPECS))
         return 0
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # rcl rejects the command line (RCLError): one line, no traceback
         print(f"{NODE_NAME}: invalid ROS arguments: {str(exc).split(', at ')[0]}", file=sys.stderr)
         return 2
+    stop = _stop_on_signals()
     node: OMPNNode | None = None
     executor = None
     try:
@@ -913,7 +922,7 @@ def main(args: list[str] | None = None) -> int:
             node.trigger_activate()
         executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)
-        spin_until_shutdown(executor)
+        spin_until_shutdown(executor, stop=stop)
     except (ParameterError, DetectorConfigError) as exc:  # observation_spec errors are ParameterErrors
         error = exc if isinstance(exc, ParameterError) else ParameterError("detector_*", str(exc))
         return exit_code_for(NODE_NAME, error)
