@@ -15,7 +15,9 @@ from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
     TrainConfig,
     TrainConfigError,
+    _patience_exhausted,
     effective_selection,
+    eligible,
     evaluations_since_best,
     train,
 )
@@ -103,3 +105,28 @@ def test_selection_fallback_and_patience_bookkeeping() -> None:
         TrainConfig(patience=-1)
     with pytest.raises(TrainConfigError, match="labels"):
         TrainConfig(labels="some")  # type: ignore[arg-type]
+
+
+def test_agreement_warmup_keeps_early_evaluations_out_of_best(tmp_path: Path, episodes: list) -> None:
+    cfg = _cfg(tmp_path, labels="none", iterations=6, eval_every=1, agreement_warmup=4)
+    result = train(episodes[:24], _model_config(), cfg)
+    assert result.selection == "agreement" and result.best_iteration in (5, 6)
+    log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
+    assert [int(rec["iteration"]) for rec in log] == [1, 2, 3, 4, 5, 6]  # still evaluated and logged
+    stored = json.loads((tmp_path / "best" / "meta.json").read_text())
+    assert stored["extra"]["iteration"] == result.best_iteration
+
+
+def test_agreement_warmup_bookkeeping() -> None:
+    cfg = TrainConfig(iterations=300, patience=2, agreement_warmup=100)
+    assert not eligible(cfg, "agreement", 100) and eligible(cfg, "agreement", 120)
+    assert eligible(cfg, "align", 20)  # labelled selection: no warm-up
+    assert eligible(replace(cfg, iterations=60), "agreement", 60)  # a run's last evaluation always may
+    history = [{"iteration": float(i)} for i in (20, 40, 60, 80, 100)]
+    # nothing selected yet: evaluations inside the warm-up do not use up the patience
+    assert not _patience_exhausted(cfg, "agreement", history, 0)
+    assert _patience_exhausted(cfg, "align", history, 20)
+    later = [*history, {"iteration": 120.0}, {"iteration": 140.0}]
+    assert _patience_exhausted(cfg, "agreement", later, 0)
+    with pytest.raises(TrainConfigError, match="agreement_warmup"):
+        TrainConfig(agreement_warmup=-5)

@@ -229,6 +229,7 @@ def run_training(
         summary = {
             "iterations": result.iterations,
             "best_iteration": result.best_iteration,
+            "restarts": result.restarts,
             "best": result.best_metrics,
             "last": result.last_metrics,
             "frames": result.frames,

@@ -71,6 +71,15 @@ from ompn_ros.train.distributed import (
 )
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
 from ompn_ros.train.precision import resolve_bf16
+from ompn_ros.train.restart import (
+    ATTEMPT_FILE,
+    attempt_config,
+    collapsed,
+    read_attempt,
+    restart_reason,
+    rule_applies,
+    start_attempt,
+)
 from ompn_ros.train.state import (
     TrainStateError,
     clean_state_root,
@@ -135,6 +144,19 @@ class TrainConfig:
             cap of 1200; the reproduction pins 0 and its fixed lengths.  The dataclass default stays
             0 because every run recorded before this option trained without it (a stored
             ``train_config`` without the key reads back as what it did).
+        agreement_warmup: with the label-free ``'agreement'`` selection only: evaluations at or before
+            this iteration are logged but neither become ``best/`` nor count towards ``patience``
+            (the run's last evaluation always may).  A barely trained model can agree with itself on
+            a trivial segmentation: on Dial the agreement peaked at iteration 20 (validation
+            alignment 0.27) and early stopping then kept that checkpoint (docs/experiments.md §27,
+            §32).  0 = off (the dataclass default, for the same reason as ``patience``); the shipped
+            configs set 100.
+        restart_at: the restart rule (:mod:`ompn_ros.train.restart`): at the first evaluation at or
+            after this iteration, a run whose best validation criterion so far is below
+            ``restart_below`` starts again from a new initialisation on the same split, at most
+            ``restarts`` times.  Labelled selections only.  0 = off.
+        restart_below: the bound of the restart rule (the selection criterion, e.g. alignment).
+        restarts: the most restarts one run makes.
         obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.
@@ -185,6 +207,10 @@ class TrainConfig:
     selection: Selection = "align"
     labels: Labels = "auto"
     patience: int = 0
+    agreement_warmup: int = 0
+    restart_at: int = 0
+    restart_below: float = 0.0
+    restarts: int = 1
     obs_norm: ObsNorm = "none"
     eval_episodes: int = 0
     eval_batch_size: int = 64
@@ -208,7 +234,9 @@ class TrainConfig:
 
         for name in ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size"):
             need(is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
-        for name in ("seed", "threads", "eval_episodes", "patience"):
+        counts = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at",
+                  "restarts")
+        for name in counts:
             need(is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
         need(
             self.split_seed is None or (is_int(self.split_seed) and self.split_seed >= 0),
@@ -255,6 +283,13 @@ class TrainConfig:
         self.obs_dropout_range = [int(v) for v in span]
         for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16"):
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
+        need(
+            isinstance(self.restart_below, int | float) and not isinstance(self.restart_below, bool)
+            and 0.0 <= self.restart_below <= 1.0,
+            "restart_below",
+            "must be a number in [0, 1]",
+        )
+        self.restart_below = float(self.restart_below)
         need(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"must be one of {LR_SCHEDULES}")
         need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
         need(self.labels in LABEL_MODES, "labels", f"must be one of {LABEL_MODES}")
@@ -293,6 +328,10 @@ class TrainResult:
     stopped_early: bool = False
     selection: str = ""
     detectors: dict[str, DetectorSettings] = field(default_factory=dict)
+    restarts: int = 0
+    """How many times the restart rule started the run again (:mod:`ompn_ros.train.restart`)."""
+    collapsed: bool = False
+    """This attempt stopped at ``restart_at`` under the restart rule (internal to :func:`train`)."""
 
 
 def learning_rate(cfg: TrainConfig, iteration: int) -> float:
@@ -320,6 +359,17 @@ def effective_selection(cfg: TrainConfig, labelled: bool) -> str:
 def evaluations_since_best(history: Sequence[dict[str, float]], best_iteration: int) -> int:
     """Evaluations after the best one (what ``patience`` is compared with)."""
     return sum(1 for record in history if record["iteration"] > best_iteration)
+
+
+def selection_start(cfg: TrainConfig, selection: str) -> int:
+    """The last iteration whose evaluation cannot be selected: ``cfg.agreement_warmup`` under the
+    label-free ``'agreement'``, else 0 (every evaluation can)."""
+    return cfg.agreement_warmup if selection == "agreement" else 0
+
+
+def eligible(cfg: TrainConfig, selection: str, iteration: int) -> bool:
+    """Whether the evaluation at ``iteration`` may become ``best/`` (the run's last one always may)."""
+    return iteration > selection_start(cfg, selection) or iteration >= cfg.iterations
 
 
 def early_agreement_warning(
@@ -425,10 +475,13 @@ class _Sinks:
             self.writer.close()
 
 
-def _patience_exhausted(cfg: TrainConfig, history: Sequence[dict[str, float]], best_iteration: int) -> bool:
+def _patience_exhausted(
+    cfg: TrainConfig, selection: str, history: Sequence[dict[str, float]], best_iteration: int
+) -> bool:
     if not cfg.patience or not history:
         return False
-    return evaluations_since_best(history, best_iteration) >= cfg.patience
+    since = max(best_iteration, selection_start(cfg, selection))
+    return evaluations_since_best(history, since) >= cfg.patience
 
 
 def validation_metrics(
@@ -488,6 +541,9 @@ def train(
 ) -> TrainResult:
     """Train an :class:`~ompn_ros.model.policy.OMPNPolicy` by behaviour cloning (see module docstring).
 
+    With ``restart_at`` set, an attempt that collapsed starts again from a new initialisation on the
+    same split (:mod:`ompn_ros.train.restart`); ``resume`` continues the attempt ``out_dir`` records.
+
     Args:
         episodes: all demonstrations; split into train/validation by ``val_ratio`` and ``seed``.
         model_config: an :class:`~ompn_ros.model.config.OMPNConfig` matching the episodes.
@@ -496,10 +552,46 @@ def train(
         callback: called after every update as ``callback(iteration, stats)``; raising from it stops
             training (used to simulate a kill in tests).
     """
+    ctx = dist_ctx or DistContext()
+    out_dir = Path(train_config.out_dir) if train_config.out_dir is not None else None
+    attempt = read_attempt(out_dir) if train_config.resume else 0
+    if out_dir is not None and not train_config.resume and ctx.is_main:
+        (out_dir / ATTEMPT_FILE).unlink(missing_ok=True)
+    spent, frames = 0.0, 0  # the abandoned attempts' cost, included in the result
+    while True:
+        result = _train_attempt(
+            episodes, model_config, attempt_config(train_config, attempt), attempt,
+            ctx=ctx, callback=callback,
+        )
+        if not result.collapsed:
+            return replace(result, restarts=attempt, train_seconds=spent + result.train_seconds,
+                           frames=frames + result.frames)
+        spent, frames = spent + result.train_seconds, frames + result.frames
+        attempt += 1
+        reason = restart_reason(
+            train_config, result.selection, result.best_metrics.get(result.selection, -math.inf),
+            result.best_iteration,
+        )
+        if ctx.is_main:
+            LOG.warning("%s (attempt %d of at most %d)", reason, attempt + 1, train_config.restarts + 1)
+            start_attempt(out_dir, attempt, attempt_config(train_config, attempt).seed, reason)
+        train_config = replace(train_config, resume=False)
+
+
+def _train_attempt(
+    episodes: Sequence[Episode],
+    model_config: OMPNConfig,
+    train_config: TrainConfig,
+    attempt: int,
+    *,
+    ctx: DistContext,
+    callback: Callable[[int, dict[str, float]], None] | None,
+) -> TrainResult:
+    """One attempt of :func:`train` with ``train_config`` already that attempt's
+    (:func:`~ompn_ros.train.restart.attempt_config`)."""
     cfg = train_config
     if cfg.bf16 and not resolve_bf16(cfg.bf16, cfg.force_bf16):
         cfg = replace(cfg, bf16=False)  # what runs is what the checkpoints record
-    ctx = dist_ctx or DistContext()
     model_config = _with_action_norm(model_config, cfg.action_norm)
     _check_episodes(episodes, model_config)
     _check_dropout_range(cfg, model_config)
@@ -574,6 +666,12 @@ def train(
             history = doc.get("history", [])
             if best_metrics:
                 best_key = selection_key(best_metrics, selection)
+            if best_iteration and not eligible(cfg, selection, best_iteration):
+                raise TrainStateError(
+                    f"cannot resume from {state_dir}: its best/ is from iteration {best_iteration}, "
+                    f"inside agreement_warmup={cfg.agreement_warmup}; continue it with --set "
+                    "train.agreement_warmup=0"
+                )
             if ctx.is_main:
                 LOG.info("resumed from %s at iteration %d", state_dir, start_iteration)
 
@@ -613,7 +711,12 @@ def train(
 
     started = time.perf_counter()
     iteration = start_iteration
-    stopped_early = _patience_exhausted(cfg, history, best_iteration)
+    stopped_early = _patience_exhausted(cfg, selection, history, best_iteration)
+    check_rule, restart = rule_applies(cfg, selection, attempt), False
+    unlabelled = selection not in LABELLED_SELECTIONS
+    if cfg.restart_at and unlabelled and attempt == 0 and ctx.is_main:
+        LOG.warning("restart rule (restart_at=%d) off: it needs validation labels, and %s selects without "
+                    "them", cfg.restart_at, selection)
     try:
         while iteration < cfg.iterations and not stopped_early:
             iteration += 1
@@ -638,7 +741,7 @@ def train(
                     metrics = validation_metrics(evaluated, val_eps, cfg)
                     metrics["train_loss"] = stats["loss"]
                     key = selection_key(metrics, selection)
-                    is_best = key > best_key
+                    is_best = key > best_key and eligible(cfg, selection, iteration)
                     if is_best:
                         best_key, best_iteration, best_metrics = key, iteration, metrics
                     last_metrics = metrics
@@ -656,8 +759,12 @@ def train(
                     assert sinks is not None
                     sinks.write(iteration, frames, metrics)
                     save_all(iteration, metrics, is_best)
-                    stopped_early = _patience_exhausted(cfg, history, best_iteration)
+                    stopped_early = _patience_exhausted(cfg, selection, history, best_iteration)
+                    restart = check_rule and collapsed(cfg, iteration, best_key[0])
                 stopped_early = bool(all_reduce_sum(float(stopped_early), ctx))
+                restart = bool(all_reduce_sum(float(restart), ctx))  # every rank restarts, or none
+                if restart:
+                    break
                 if stopped_early and ctx.is_main:
                     LOG.info("early stop at iteration %d: %s has not improved for %d evaluations "
                              "(best at iteration %d)", iteration, selection, cfg.patience, best_iteration)
@@ -666,17 +773,10 @@ def train(
             progress.close()
         if sinks is not None:
             sinks.close()
-    warning = early_agreement_warning(selection, history, best_iteration) if ctx.is_main else None
-    if warning is not None:
-        LOG.warning(warning)
-    detectors: dict[str, DetectorSettings] = {}
-    if out_dir is not None and ctx.is_main:
-        detectors = bundle_detectors(out_dir, val_eps, cfg)
-    return TrainResult(
+    result = TrainResult(
         policy=evaluated,
         stopped_early=stopped_early,
         selection=selection,
-        detectors=detectors,
         iterations=iteration,
         best_iteration=best_iteration,
         best_metrics=best_metrics,
@@ -685,7 +785,17 @@ def train(
         out_dir=cfg.out_dir,
         train_seconds=time.perf_counter() - started,
         frames=frames,
+        collapsed=restart,
     )
+    if restart:
+        return result
+    warning = early_agreement_warning(selection, history, best_iteration) if ctx.is_main else None
+    if warning is not None:
+        LOG.warning(warning)
+    detectors: dict[str, DetectorSettings] = {}
+    if out_dir is not None and ctx.is_main:
+        detectors = bundle_detectors(out_dir, val_eps, cfg)
+    return replace(result, detectors=detectors, train_seconds=time.perf_counter() - started)
 
 
 def train_step(
