@@ -196,7 +196,7 @@ def run_case(tmp: Path, *, storage: str, topics: tuple[str, ...], rate: float, s
         publisher.send_signal(signal.SIGTERM)
         pub_out, _ = publisher.communicate(timeout=60)
         if publisher.returncode != 0:
-            raise RuntimeError(f"publisher failed: {pub_out}")
+            raise RuntimeError(f"publisher failed (exit code {publisher.returncode}): {pub_out}")
     finally:
         for proc in (recorder, publisher, *loads):
             if proc is not None and proc.poll() is None:

@@ -145,12 +145,12 @@ def test_node_assembles_three_topics(ckpt: Path, ros_env: dict[str, str], tmp_pa
         sub = rclpy.create_node("observer", context=ctx)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(sub)
-        last = [0]
-
         def record(topic: str):
-            def on_message(raw: bytes) -> None:
-                now = last[0] = max(time.time_ns(), last[0] + 1)
-                recorded.append((topic, now, raw))
+            # stamped with the DDS reception time, not the callback's: this executor serves ready
+            # subscriptions in creation order, so under load a gripper message that arrived after a
+            # joint state could otherwise be served, and stamped, before it
+            def on_message(raw: bytes, info: dict) -> None:
+                recorded.append((topic, int(info["received_timestamp"]), raw))
             return on_message
 
         # partners first, as the node does (a wait set serves ready subscriptions in creation order)
@@ -190,6 +190,7 @@ def test_node_assembles_three_topics(ckpt: Path, ros_env: dict[str, str], tmp_pa
     assert "Traceback" not in node_out and "FATAL" not in node_out
 
     counters = diags[-1]
+    recorded.sort(key=lambda item: item[1])  # reception order (stable for equal stamps)
     offline = assemble_stream(recorded, SPEC)
     assert offline.stats.steps >= 0.9 * STEPS, f"only {offline.stats.steps} of {STEPS} joint states arrived"
     assert int(counters["obs.steps"]) == offline.stats.steps, (counters, offline.stats)

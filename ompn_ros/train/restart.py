@@ -26,10 +26,22 @@ import math
 import shutil
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol, TypeVar
 
-if TYPE_CHECKING:
-    from ompn_ros.train.trainer import TrainConfig
+
+class RestartConfig(Protocol):
+    """The fields of :class:`~ompn_ros.train.trainer.TrainConfig` the rule reads (a Protocol, so that
+    this module does not import the trainer that imports it)."""
+
+    seed: int
+    split_seed: int | None
+    eval_every: int
+    restart_at: int
+    restart_below: float
+    restarts: int
+
+
+C = TypeVar("C", bound=RestartConfig)
 
 RESTART_SEED_STRIDE = 100_003
 """Attempt ``k`` of seed ``s`` initialises with seed ``s + RESTART_SEED_STRIDE · k`` (a prime above
@@ -39,20 +51,20 @@ RULE_SELECTIONS = ("align", "f1_tol1")
 """Selections the rule applies to: the labelled ones."""
 
 
-def attempt_config(cfg: TrainConfig, attempt: int) -> TrainConfig:
+def attempt_config(cfg: C, attempt: int) -> C:
     """The config of attempt ``attempt``: a new initialisation and batch order, the same split."""
     if attempt == 0:
         return cfg
     split = cfg.seed if cfg.split_seed is None else cfg.split_seed
-    return replace(cfg, seed=cfg.seed + RESTART_SEED_STRIDE * attempt, split_seed=split)
+    return replace(cfg, seed=cfg.seed + RESTART_SEED_STRIDE * attempt, split_seed=split)  # type: ignore[type-var]
 
 
-def rule_applies(cfg: TrainConfig, selection: str, attempt: int) -> bool:
+def rule_applies(cfg: RestartConfig, selection: str, attempt: int) -> bool:
     """Whether this attempt checks the rule at ``restart_at`` (on, labelled, restarts left)."""
     return bool(cfg.restart_at) and selection in RULE_SELECTIONS and attempt < cfg.restarts
 
 
-def collapsed(cfg: TrainConfig, iteration: int, best_score: float) -> bool:
+def collapsed(cfg: RestartConfig, iteration: int, best_score: float) -> bool:
     """Whether the run is to restart at this evaluation: the first one at or after ``restart_at``,
     with the best score so far below the bound."""
     first = iteration >= cfg.restart_at > iteration - cfg.eval_every
@@ -79,7 +91,7 @@ def start_attempt(out_dir: Path | None, attempt: int, seed: int, reason: str) ->
     (out_dir / ATTEMPT_FILE).write_text(json.dumps(doc, indent=1) + "\n")
 
 
-def restart_reason(cfg: TrainConfig, selection: str, best_score: float, best_iteration: int) -> str:
+def restart_reason(cfg: RestartConfig, selection: str, best_score: float, best_iteration: int) -> str:
     """The one log line of a restart."""
     score = "none" if math.isinf(best_score) else f"{best_score:.3f} (iteration {best_iteration})"
     return (f"restart rule: best validation {selection} by iteration {cfg.restart_at} is {score}, "
@@ -90,6 +102,7 @@ def restart_reason(cfg: TrainConfig, selection: str, best_score: float, best_ite
 __all__ = [
     "ATTEMPT_FILE",
     "RESTART_SEED_STRIDE",
+    "RestartConfig",
     "attempt_config",
     "collapsed",
     "read_attempt",
