@@ -70,12 +70,12 @@ def publish(ns: str, topics: tuple[str, ...], rate: float, seconds: float, out: 
     time.sleep(0.5)  # the recorder's other subscriptions settle
     n_max = int(rate * seconds) + 1
     stamps = np.zeros((len(topics), n_max), dtype=np.int64)
+    stop: list[int] = []
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))  # before the harness can send it
     print("publishing", flush=True)
     period = 1.0 / rate
     t0 = time.perf_counter()
     n = 0
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     try:
         while n < n_max and not stop:
             if clock_pub is not None:
@@ -99,6 +99,9 @@ def publish(ns: str, topics: tuple[str, ...], rate: float, seconds: float, out: 
     time.sleep(1.0)  # reliable delivery of the tail
     node.destroy_node()
     rclpy.try_shutdown()
+    # The harness's SIGTERM may arrive while the interpreter shuts down, when CPython has already put
+    # a Python-level handler back to the default action (exit code -15); an ignored signal stays ignored.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     return 0
 
 
