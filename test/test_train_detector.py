@@ -13,7 +13,8 @@ import torch
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.train.restart import RESTART_SEED_STRIDE, attempt_config, collapsed, rule_applies
+from ompn_ros.train.restart import RESTART_SEED_STRIDE, attempt_config, collapsed, read_attempt, rule_applies
+from ompn_ros.train.state import TrainStateError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
     TrainConfig,
@@ -188,10 +189,20 @@ def test_a_killed_restarted_run_resumes_its_attempt(tmp_path: Path, episodes: li
                                                   _weights(tmp_path / "w" / "last"), strict=True))
 
 
+def test_a_broken_restart_record_is_one_clear_error(tmp_path: Path) -> None:
+    assert read_attempt(tmp_path) == 0 and read_attempt(None) == 0
+    (tmp_path / "attempt.json").write_text("{not json")
+    with pytest.raises(TrainStateError, match=r"attempt\.json is not a restart record"):
+        read_attempt(tmp_path)
+    (tmp_path / "attempt.json").write_text('{"attempt": -1}')
+    with pytest.raises(TrainStateError, match="must be an int >= 0"):
+        read_attempt(tmp_path)
+
+
 def test_rule_bookkeeping_and_validation() -> None:
     cfg = TrainConfig(iterations=200, restart_at=120, restart_below=0.7, restarts=1)
-    assert rule_applies(cfg, "align", 0) and not rule_applies(cfg, "align", 1)
-    assert not rule_applies(cfg, "agreement", 0) and not rule_applies(replace(cfg, restart_at=0), "align", 0)
+    assert rule_applies(cfg, True, 0) and not rule_applies(cfg, True, 1)
+    assert not rule_applies(cfg, False, 0) and not rule_applies(replace(cfg, restart_at=0), True, 0)
     assert collapsed(cfg, 120, 0.61) and not collapsed(cfg, 120, 0.93) and not collapsed(cfg, 100, 0.1)
     assert not collapsed(cfg, 140, 0.1)  # checked once, at the first evaluation at or after restart_at
     odd = replace(cfg, eval_every=50)  # an eval_every that misses restart_at: checked at 150

@@ -28,6 +28,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Protocol, TypeVar
 
+from ompn_ros.train.state import TrainStateError
+
 
 class RestartConfig(Protocol):
     """The fields of :class:`~ompn_ros.train.trainer.TrainConfig` the rule reads (a Protocol, so that
@@ -47,8 +49,6 @@ RESTART_SEED_STRIDE = 100_003
 """Attempt ``k`` of seed ``s`` initialises with seed ``s + RESTART_SEED_STRIDE · k`` (a prime above
 the ensemble members' ``s + 1000 · j``, so the two never share an initialisation)."""
 ATTEMPT_FILE = "attempt.json"
-RULE_SELECTIONS = ("align", "f1_tol1")
-"""Selections the rule applies to: the labelled ones."""
 
 
 def attempt_config(cfg: C, attempt: int) -> C:
@@ -59,9 +59,10 @@ def attempt_config(cfg: C, attempt: int) -> C:
     return replace(cfg, seed=cfg.seed + RESTART_SEED_STRIDE * attempt, split_seed=split)  # type: ignore[type-var]
 
 
-def rule_applies(cfg: RestartConfig, selection: str, attempt: int) -> bool:
-    """Whether this attempt checks the rule at ``restart_at`` (on, labelled, restarts left)."""
-    return bool(cfg.restart_at) and selection in RULE_SELECTIONS and attempt < cfg.restarts
+def rule_applies(cfg: RestartConfig, labelled: bool, attempt: int) -> bool:
+    """Whether this attempt checks the rule at ``restart_at``: on, a ``labelled`` selection (the
+    label-free agreement does not flag a collapse), restarts left."""
+    return bool(cfg.restart_at) and labelled and attempt < cfg.restarts
 
 
 def collapsed(cfg: RestartConfig, iteration: int, best_score: float) -> bool:
@@ -73,9 +74,18 @@ def collapsed(cfg: RestartConfig, iteration: int, best_score: float) -> bool:
 
 def read_attempt(out_dir: Path | None) -> int:
     """The attempt a resumable run directory holds (0 without a record)."""
-    if out_dir is None or not (out_dir / ATTEMPT_FILE).is_file():
+    path = None if out_dir is None else out_dir / ATTEMPT_FILE
+    if path is None or not path.is_file():
         return 0
-    return int(json.loads((out_dir / ATTEMPT_FILE).read_text())["attempt"])
+    try:
+        attempt = json.loads(path.read_text())["attempt"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise TrainStateError(
+            f"{path} is not a restart record ({exc!r}); remove it to resume attempt 0"
+        ) from exc
+    if not isinstance(attempt, int) or isinstance(attempt, bool) or attempt < 0:
+        raise TrainStateError(f"{path}: 'attempt' must be an int >= 0, got {attempt!r}")
+    return attempt
 
 
 def start_attempt(out_dir: Path | None, attempt: int, seed: int, reason: str) -> None:

@@ -712,9 +712,9 @@ def _train_attempt(
     started = time.perf_counter()
     iteration = start_iteration
     stopped_early = _patience_exhausted(cfg, selection, history, best_iteration)
-    check_rule, restart = rule_applies(cfg, selection, attempt), False
-    unlabelled = selection not in LABELLED_SELECTIONS
-    if cfg.restart_at and unlabelled and attempt == 0 and ctx.is_main:
+    labelled = selection in LABELLED_SELECTIONS
+    check_rule, restart = rule_applies(cfg, labelled, attempt), False
+    if cfg.restart_at and not labelled and attempt == 0 and ctx.is_main:
         LOG.warning("restart rule (restart_at=%d) off: it needs validation labels, and %s selects without "
                     "them", cfg.restart_at, selection)
     try:
