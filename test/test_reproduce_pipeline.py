@@ -142,8 +142,9 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     assert _tiny_craft(tmp_path, "--reevaluate") == 0
     meta = json.loads(extras_file.read_text())["meta"]
     assert meta["trained"]["later_commands"] == later
-    assert "added later in the same work directory by: `ompn_reproduce craft --seeds 5 --skip-trained`" in (
-        tmp_path / "results" / "README.md").read_text()
+    quote = ("added or trained again later, on the same bags and split, by: "
+             "`ompn_reproduce craft --seeds 5 --skip-trained`")
+    assert quote in (tmp_path / "results" / "README.md").read_text()
 
 
 def test_reevaluate_without_checkpoints_names_the_missing_run(

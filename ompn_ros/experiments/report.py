@@ -205,7 +205,7 @@ def _stage_lines(meta: dict[str, Any]) -> list[str]:
         if later:
             lines += [
                 "",
-                "Runs added later in the same work directory by: "
+                "Runs added or trained again later, on the same bags and split, by: "
                 + "; ".join(f"`{' '.join(c)}`" for c in later),
             ]
         lines += ["", f"Re-evaluated without training (`{' '.join(meta['command'])}`):", ""]
