@@ -11,9 +11,12 @@ whose publish returned before the signal was sent.  The figures count those mess
 * ``<case>.complete_steps``: 1 if every topic ends at the same step (three-topic cases);
 * ``<case>.drain``: seconds the recorder drained after the signal (its own summary line);
 * ``sigkill_<storage>.lost_window``: seconds of stream before SIGKILL missing from the bag
-  (goal <= the 1 s commit period).
+  (goal <= the 1 s commit period); ``sigkill_<storage>.complete_steps`` as above (a killed sqlite3
+  bag is read as of its last commit, ``ompn_ros.data.reader.journal``);
+* with ``--kills N``: ``sigkill_<storage>.whole_steps``, how many of N killed bags (commit period
+  0.2 s) end with every topic at the same step.
 
-Run: ``python bench/bench_recorder.py [--quick]``; the test suite runs :func:`run_case` without
+Run: ``python bench/bench_recorder.py [--quick | --kills N]``; the test suite runs :func:`run_case` without
 busy loops (``test/test_recorder_drain.py``).  ``--publish`` is the publisher child process.
 """
 
@@ -39,6 +42,7 @@ if str(ROOT) not in sys.path:
 
 from ompn_ros import containment  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
+from ompn_ros.data.reader.journal import committed_view  # noqa: E402
 
 TOPICS_1 = ("observation",)
 TOPICS_3 = ("observation", "subtask", "action")
@@ -144,14 +148,15 @@ def bag_seqs(bag: Path, ns: str, topics: tuple[str, ...]) -> dict[str, set[int]]
         if t is not None:
             seqs[t].add(int(m.parse_float32_array(data)[0]) if t == "observation" else m.parse_int32(data))
 
-    for db in bag.glob("*.db3"):
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-        try:
-            tids = dict(con.execute("SELECT id, name FROM topics"))
-            for tid, data in con.execute("SELECT topic_id, data FROM messages"):
-                add(tids[tid], bytes(data))
-        finally:
-            con.close()
+    with committed_view(bag) as (view, _):  # a kill inside a transaction leaves a journal to roll back
+        for db in view.glob("*.db3"):
+            con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+            try:
+                tids = dict(con.execute("SELECT id, name FROM topics"))
+                for tid, data in con.execute("SELECT topic_id, data FROM messages"):
+                    add(tids[tid], bytes(data))
+            finally:
+                con.close()
     for mc in bag.glob("*.mcap"):
         from mcap.records import Channel, Message
         from mcap.stream_reader import StreamReader
@@ -249,6 +254,25 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
                          signal_after=after, busy=True)
             figures[f"sigkill_{storage}.lost_window"] = (r.lost_window_s, "s before SIGKILL")
             figures[f"sigkill_{storage}.kept"] = (r.kept_pct, "% of sent before SIGKILL")
+            figures[f"sigkill_{storage}.complete_steps"] = (float(r.complete_steps), "1 = same last step")
+    return figures
+
+
+def run_kills(repeats: int, commit_period: float = 0.2) -> dict[str, tuple[float, str]]:
+    """``repeats`` SIGKILLs per storage under load (1 kHz × 3 topics, two busy loops, 2 s in): how
+    many killed bags end with whole steps."""
+    import tempfile
+
+    figures: dict[str, tuple[float, str]] = {}
+    for storage in ("sqlite3", "mcap"):
+        whole = 0
+        for _ in range(repeats):
+            with tempfile.TemporaryDirectory(prefix="bench_recorder_") as tmp:
+                r = run_case(Path(tmp), storage=storage, topics=TOPICS_3, rate=1000.0, stop=signal.SIGKILL,
+                             signal_after=2.0, busy=True,
+                             recorder_args=("-p", f"commit_period:={commit_period}"))
+                whole += r.complete_steps
+        figures[f"sigkill_{storage}.whole_steps"] = (float(whole), f"of {repeats} killed bags")
     return figures
 
 
@@ -262,11 +286,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--out", type=Path, default=Path("pub_times.npy"))
     parser.add_argument("--clock", action="store_true", help="also publish /clock (sim time)")
+    parser.add_argument("--kills", type=int, default=0, metavar="N",
+                        help="instead: N SIGKILLs per storage (commit period 0.2 s), count whole-step bags")
     args = parser.parse_args(argv)
     if args.publish:
         topics = TOPICS_1 if args.topics == 1 else TOPICS_3
         return publish(args.ns, topics, args.rate, args.seconds, args.out, clock=args.clock)
-    for name, (value, unit) in run(quick=args.quick).items():
+    figures = run_kills(args.kills) if args.kills > 0 else run(quick=args.quick)
+    for name, (value, unit) in figures.items():
         print(f"{name:<42} {value:>12.4g}  {unit}")
     return 0
 

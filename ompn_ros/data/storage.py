@@ -11,7 +11,8 @@ process loses: the open sqlite3 transaction, or the pending 1 MiB mcap chunk in 
   and whenever the caller asks) commits the sqlite3 transaction, or closes the pending mcap chunk
   and flushes the file.  A process killed with SIGKILL therefore loses at most the last period:
   sqlite3 keeps every committed row, and the mcap data section up to the last chunk stays readable
-  record by record (the bag reader's salvage path).
+  record by record (the bag reader's salvage path).  The live recorder checkpoints itself
+  (``commit_period=None`` here) at the points :mod:`ompn_ros.data.step_commits` chooses.
 
 Used by the live recorder (``bag_recorder``) and by ``ompn_collect`` (``EpisodeBagWriter``).
 """
@@ -85,19 +86,11 @@ class DurableWriter(Writer):
         self.commit_period = commit_period
         self.checkpoints = 0
         self._last_checkpoint = time.monotonic()
-        self._dirty = False
 
     def write(self, connection: Any, timestamp: int, data: bytes | memoryview) -> None:
         """Write one message; checkpoints when ``commit_period`` has passed since the last one."""
         super().write(connection, timestamp, data)
-        self._dirty = True
         if self.commit_period is not None and time.monotonic() - self._last_checkpoint >= self.commit_period:
-            self.checkpoint()
-
-    def tick(self) -> None:
-        """Checkpoint if messages wait and ``commit_period`` has passed (call it from an idle loop)."""
-        if self._dirty and self.commit_period is not None \
-                and time.monotonic() - self._last_checkpoint >= self.commit_period:
             self.checkpoint()
 
     def since_checkpoint(self) -> float:
@@ -111,7 +104,6 @@ class DurableWriter(Writer):
             storage.checkpoint()
             self.checkpoints += 1
         self._last_checkpoint = time.monotonic()
-        self._dirty = False
 
 
 def _chunks(data: bytes, path: str | Path) -> list[tuple[int, int, int]]:

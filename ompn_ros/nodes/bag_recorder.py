@@ -22,9 +22,10 @@ Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the
         signal (a message at least every 0.5 s, the last within 1 s) has delivered a message from the
         cut on; a stalled stream is waited for (up to ``drain_timeout``) while its publisher lives.
     commit_period (double): seconds between storage commits (default 1.0): a SIGKILL loses at most
-        this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).  Commits are placed
-        right before a step's opening message once half the period has passed, so a killed
-        recording normally ends with whole steps.
+        this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).  Once half the period
+        has passed, the next step's opening message is held back with everything stamped after it
+        until every other streaming topic has delivered its messages stamped before it; then the
+        commit is made, so a killed recording ends with whole steps (``ompn_ros.data.step_commits``).
 
 Subscriptions are ``raw=True`` (CDR bytes go to the bag untouched), RELIABLE + VOLATILE (compatible
 with both volatile and transient-local publishers).  Topics are subscribed as they appear
@@ -72,6 +73,7 @@ from ompn_ros import layout
 from ompn_ros.data import messages as m
 from ompn_ros.data.bag_writer import STORAGES, storage_plugin
 from ompn_ros.data.sim_stamps import SimStamper
+from ompn_ros.data.step_commits import COMMIT, StepCommits
 from ompn_ros.data.stop_cut import StopCut
 from ompn_ros.data.storage import DurableWriter
 from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
@@ -191,13 +193,12 @@ class BagRecorder(Node):
         self.sim_stamps = SimStamper() if use_sim_time else None
         self._preclock: list[tuple[_Topic, int, bytes]] = []
         self.write_errors = 0
-        self._max_written = 0  # largest stamp written
         self.drain_seconds = 0.0
         self.drain_end = ""
         self.received_before_signal = 0
+        self.commits: StepCommits[tuple[_Topic, int, bytes]] = StepCommits(step, float(p["commit_period"]))
         self.writer: DurableWriter | None = DurableWriter(
-            self.output, version=9, storage_plugin=storage_plugin(storage),
-            commit_period=float(p["commit_period"]))
+            self.output, version=9, storage_plugin=storage_plugin(storage), commit_period=None)
         self.writer.open()
         self.topics: dict[str, _Topic] = {}
         self.qos = QoSProfile(
@@ -299,7 +300,25 @@ class BagRecorder(Node):
                 sim.open_step(src, self.get_clock().now().nanoseconds)
             stamp = sim.stamp(src)
         for item in self.cut.offer(topic.name, src, (topic, stamp, raw)):
-            self._write(*item)
+            self._apply(self.commits.offer(topic.name, stamp, item, self._since_commit()))
+
+    def _since_commit(self) -> float:
+        return self.writer.since_checkpoint() if self.writer is not None else 0.0
+
+    def _apply(self, actions: list[tuple[_Topic, int, bytes] | Any]) -> None:
+        """Write the messages and make the commits :class:`StepCommits` decided, in order."""
+        for action in actions:
+            if action is COMMIT:
+                if self.writer is not None:
+                    self.writer.checkpoint()
+            else:
+                self._write(*action)
+
+    def _finish_held(self) -> None:
+        """Write what the stop cut and the pending commit hold back (the recording ends)."""
+        for item in self.cut.finish():
+            self._apply(self.commits.offer(item[0].name, item[1], item, self._since_commit()))
+        self._apply(self.commits.flush())
 
     def _flush_preclock(self) -> None:
         """Messages taken before the first ``/clock``: sim stamps if it came, else system time."""
@@ -314,10 +333,6 @@ class BagRecorder(Node):
         writer = self.writer
         if writer is None:
             return
-        if topic.name == self.cut.step_topic and stamp > self._max_written and writer.commit_period \
-                and writer.since_checkpoint() >= writer.commit_period / 2:
-            writer.checkpoint()  # commit whole steps: everything before this step's opening message
-        self._max_written = max(self._max_written, stamp)
         try:
             writer.write(topic.conn, stamp, raw)
         except OSError as err:  # disk full, ...: count and keep the node alive
@@ -332,9 +347,13 @@ class BagRecorder(Node):
         stats.last_stamp = stamp
 
     def tick(self) -> None:
-        """Periodic storage commit while idle."""
-        if self.writer is not None:
-            self.writer.tick()
+        """Periodic: a pending commit a whole period old is made anyway; with none pending and a
+        period over (no step opened in half of one), the storage is committed."""
+        writer = self.writer
+        if writer is not None:
+            self._apply(self.commits.due(writer.since_checkpoint()))
+            if self.commits.idle_commit(writer.since_checkpoint()):
+                writer.checkpoint()
 
     # --- stop ---------------------------------------------------------------------------------------
     def drain(self, executor: Any, stop: StopRequest) -> None:
@@ -355,8 +374,7 @@ class BagRecorder(Node):
                 self.drain_end = end
                 break
         self._flush_preclock()
-        for item in self.cut.finish():
-            self._write(*item)
+        self._finish_held()
         self.drain_seconds = time.monotonic() - start
 
     def _drain_over(self, streams: dict[str, _Topic], idle: float, elapsed: float, signals: int) -> str:
@@ -379,8 +397,7 @@ class BagRecorder(Node):
         """Close the bag; returns the summary text."""
         if self.writer is not None:
             self._flush_preclock()
-            for item in self.cut.finish():
-                self._write(*item)
+            self._finish_held()
             self.writer.close()
             self.writer = None
         return self.summary()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -43,11 +44,11 @@ class Topics:
 class BagContext:
     """Resolved topics of one bag and helpers naming the file in errors."""
 
-    def __init__(self, raw: RawBag, spec: ReaderSpec, report: BagReport) -> None:
+    def __init__(self, raw: RawBag, spec: ReaderSpec, report: BagReport, name: Path | None = None) -> None:
         self.raw = raw
         self.spec = spec
         self.report = report
-        self.path = str(raw.path)
+        self.path = str(name if name is not None else raw.path)  # in errors: the user's bag
 
     def resolve(self, name: str | None, required: bool) -> str | None:
         """Bag topic of spec name ``name``; a unique ``/<name>`` suffix match is noted."""

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 from rosbags.rosbag2 import Reader
 
 from ..episode import Episode
-from ..errors import CorruptBagError, NoEpisodeError
+from ..errors import BagError, CorruptBagError, NoEpisodeError
 from .assemble import bag_episodes
 from .context import BagContext
 from .decode import decode_bag
+from .journal import committed_view
 from .paths import metadata_topic_types, resolve_bag_paths, storage_files, wanted_topics
 from .plan import stream_plan
 from .raw import RawBag, collect_rosbags
@@ -84,12 +86,37 @@ def _crc_note(bag: Path, report: BagReport) -> None:
 
 
 def read_bag(bag: Path, spec: ReaderSpec, on_error: OnError, report: BagReport) -> list[Episode]:
-    """Read one bag (see :func:`read_episodes`); ``report`` is filled in."""
-    raw = read_raw(bag, spec, on_error)
+    """Read one bag (see :func:`read_episodes`); ``report`` is filled in.  A sqlite3 bag with a
+    journal left by a killed recorder is read as of its last commit, from a recovered copy
+    (:func:`.journal.committed_view`); errors and notes still name ``bag``."""
+    with committed_view(bag) as (readable, notes):
+        report.notes.extend(notes)
+        try:
+            return _read_view(bag, readable, spec, on_error, report)
+        except BagError as err:
+            if readable == bag:
+                raise
+            raise _renamed(err, readable, bag) from None
+
+
+E = TypeVar("E", bound=BagError)
+
+
+def _renamed(err: E, copy: Path, bag: Path) -> E:
+    """``err`` naming the user's ``bag`` instead of its recovered ``copy``."""
+    path = None if err.path is None else err.path.replace(str(copy), str(bag))
+    return type(err)(err.reason, path=path, topic=err.topic, index=err.index, stamp=err.stamp)
+
+
+def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError,
+               report: BagReport) -> list[Episode]:
+    raw = read_raw(readable, spec, on_error)
     if raw.corrupt is not None:
+        if readable != bag:
+            raw.corrupt = _renamed(raw.corrupt, readable, bag)
         report.error = str(raw.corrupt)
-    _crc_note(bag, report)
-    ctx = BagContext(raw, spec, report)
+    _crc_note(readable, report)
+    ctx = BagContext(raw, spec, report, name=bag)
     topics = ctx.resolve_all()
     decoded = decode_bag(ctx, topics, on_error)
     for topic in topics.used():
