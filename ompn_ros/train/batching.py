@@ -19,6 +19,8 @@ import torch
 from ompn_ros.data.episode import Episode
 
 ObsNormMode = Literal["none", "maxabs"]
+TEACHER_P_HAT = "teacher_p_hat"
+"""``Episode.extras`` key of a distillation target ``[T, n+1]`` (:mod:`ompn_ros.train.distill`)."""
 
 
 class BatchError(ValueError):
@@ -96,6 +98,9 @@ class Batch:
         done_mask: bool ``[B, L]``, True only on row ``T`` (the appended done step).
         sketch: int64 ``[B, K]`` sketch ids (the episodes' ids; -1 = padding) or None.
         lengths: int64 ``[B]`` real steps ``T`` per episode (without the done step).
+        teacher_p_hat: float32 ``[B, L, n+1]`` distillation targets of the real steps (zeros on the
+            done step and padding) when every episode carries ``extras[TEACHER_P_HAT]``, else None
+            (:mod:`ompn_ros.train.distill`).
     """
 
     obs: torch.Tensor
@@ -104,6 +109,7 @@ class Batch:
     done_mask: torch.Tensor
     sketch: torch.Tensor | None
     lengths: torch.Tensor
+    teacher_p_hat: torch.Tensor | None = None
 
     @property
     def size(self) -> int:
@@ -194,7 +200,25 @@ def collate(
         done_mask=torch.from_numpy(done),
         sketch=sketch_t,
         lengths=torch.tensor([e.length for e in episodes], dtype=torch.int64),
+        teacher_p_hat=_teacher_targets(episodes, rows),
     )
+
+
+def _teacher_targets(episodes: Sequence[Episode], rows: int) -> torch.Tensor | None:
+    """The episodes' ``extras[TEACHER_P_HAT]`` ``[T, n+1]`` padded to ``[B, rows, n+1]``; None unless
+    every episode has one."""
+    targets = [ep.extras.get(TEACHER_P_HAT) for ep in episodes]
+    if any(t is None for t in targets):
+        return None
+    width = np.asarray(targets[0]).shape[-1]
+    out = np.zeros((len(episodes), rows, width), dtype=np.float32)
+    for i, (ep, target) in enumerate(zip(episodes, targets, strict=True)):
+        arr = np.asarray(target, dtype=np.float32)
+        if arr.shape != (ep.length, width):
+            raise BatchError(f"{_describe(ep, i)} has a {TEACHER_P_HAT} of shape {arr.shape}; expected "
+                             f"({ep.length}, {width})")
+        out[i, : ep.length] = arr
+    return torch.from_numpy(out)
 
 
 def split_train_val(n_episodes: int, val_ratio: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -63,6 +63,7 @@ from ompn_ros.train.batching import (
     split_train_val,
 )
 from ompn_ros.train.detector import bundle as bundle_detector
+from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
 from ompn_ros.train.distributed import (
     DistContext,
     all_reduce_gradients,
@@ -188,6 +189,10 @@ class TrainConfig:
             split's actions; the head fits standardised actions, the loss is taken on the standardised
             residual, and the model still outputs the data's units; ``OMPNConfig.action_norm``).
             It is stored in the checkpoint's ``config.json``.
+        distill_from: teacher checkpoint or ensemble directories (empty = no distillation): the
+            training loss adds ``distill_weight`` times the mean KL divergence from the teachers'
+            averaged ``p_hat`` to the student's over the real steps (:mod:`ompn_ros.train.distill`).
+        distill_weight: weight of that term (> 0 exactly when ``distill_from`` names teachers).
     """
 
     lr: float = 1e-3
@@ -223,6 +228,8 @@ class TrainConfig:
     obs_dropout_range: list[int] = field(default_factory=list)
     force_bf16: bool = False
     action_norm: ActionNorm = "none"
+    distill_from: list[str] = field(default_factory=list)
+    distill_weight: float = 0.0
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -299,6 +306,19 @@ class TrainConfig:
             self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
         )
         need(not (self.resume and self.out_dir is None), "resume", "needs out_dir")
+        self._check_distill(need)
+
+    def _check_distill(self, need: Callable[[bool, str, str], None]) -> None:
+        teachers = self.distill_from
+        need(isinstance(teachers, list | tuple) and all(isinstance(t, str) and t for t in teachers),
+             "distill_from", "must be a list of checkpoint or ensemble directories")
+        self.distill_from = [str(t) for t in teachers]
+        weight = self.distill_weight
+        need(isinstance(weight, int | float) and not isinstance(weight, bool) and weight >= 0,
+             "distill_weight", "must be a number >= 0")
+        self.distill_weight = float(weight)
+        need(bool(self.distill_from) == (self.distill_weight > 0), "distill_weight",
+             "must be > 0 exactly when distill_from names teachers")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -600,6 +620,9 @@ def _train_attempt(
     torch.manual_seed(cfg.seed)
 
     train_eps, val_eps, n_val = train_val_episodes(episodes, cfg)
+    if cfg.distill_from:
+        targets = teacher_p_hats(cfg.distill_from, train_eps, model_config, cfg.eval_batch_size)
+        train_eps = with_teacher_targets(train_eps, targets)
     if not n_val:
         LOG.warning("val_ratio=0: validation metrics are computed on the training split")
     selection = effective_selection(cfg, all(ep.subtask is not None for ep in val_eps))
@@ -838,6 +861,10 @@ def train_step(
             out, batch.actions, batch.mask, batch.done_mask, model_config, no_done_loss=cfg.no_done_loss,
             action_scale=policy.action_scale(),
         )
+        if batch.teacher_p_hat is not None and cfg.distill_weight:
+            kl = distill_loss(out.p_hat, batch.teacher_p_hat, batch.mask & ~batch.done_mask)
+            loss = loss + cfg.distill_weight * kl
+            stats["distill_kl"] = float(kl.detach())
         # scale so that the rank-average of gradients is the gradient of the global per-token mean
         (loss * (local_valid * ctx.world_size / global_valid)).backward()
         loss_value = float(loss.detach()) * local_valid
