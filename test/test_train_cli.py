@@ -93,6 +93,11 @@ def test_errors_exit_with_code_2(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "TrainConfig.lr" in capsys.readouterr().err
     assert main(["--synthetic", "discrete", "--out", str(tmp_path / "o"), "--set", "model.n_slots=0"]) == 2
     assert "n_slots" in capsys.readouterr().err
+    teacher = tmp_path / "no_teacher"
+    assert main(["--synthetic", "discrete", "--episodes", "8", "--out", str(tmp_path / "d"), *SMALL,
+                 "--set", f"train.distill_from=[{teacher}]", "--set", "train.distill_weight=1"]) == 2
+    err = capsys.readouterr().err
+    assert f"distill_from '{teacher}'" in err and "Traceback" not in err
 
 
 def test_train_from_a_bag(tmp_path: Path) -> None:
