@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -279,8 +280,11 @@ def test_cleanup_and_reconfigure_with_new_detector(ctx, ckpt: Path) -> None:
     node = make_node(ctx, ckpt)
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
     assert node.segmenter.detector_config.high == 0.5
+    assert gc.get_freeze_count() > 0 and gc.is_tracked(node.segmenter)  # configured: out of the collector
+    assert not any(node.segmenter is o for o in gc.get_objects())  # frozen objects are not listed
     assert node.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
     assert node.segmenter is None
+    assert gc.get_freeze_count() == 0  # the old model can be collected again
     assert node.set_parameters([Parameter("detector_high", value=0.2),
                                 Parameter("detector_hysteresis", value=0.05)])[0].successful
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS

@@ -64,6 +64,7 @@ with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_n
 from __future__ import annotations
 
 import array
+import gc
 import signal
 import sys
 import threading
@@ -313,6 +314,10 @@ class OMPNNode(LifecycleNode):
             self.assembled = None
             return TransitionCallbackReturn.FAILURE
         self.last_error = ""
+        # Everything alive now (torch, numba, the model: ~280 000 objects for Craft) leaves the cyclic
+        # collector, whose full passes over it took ~157 ms in the middle of the stream (BENCHMARKS.md).
+        gc.collect()
+        gc.freeze()
         return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
@@ -436,6 +441,7 @@ class OMPNNode(LifecycleNode):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._teardown_inputs()
+        gc.unfreeze()  # the model being dropped can be collected again
         for pub in self._pubs.values():
             self.destroy_lifecycle_publisher(pub)
         self._pubs = {}
