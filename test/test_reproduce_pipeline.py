@@ -284,3 +284,25 @@ def test_evaluate_names_a_directory_that_is_no_single_checkpoint(
     assert _tiny_craft(tmp_path, "--evaluate", str(ensemble)) == 2
     err = capsys.readouterr().err
     assert "--evaluate takes one checkpoint directory" in err and "config.json" in err
+
+
+def test_distill_extra_trains_a_student_on_each_seeds_members(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ompn_ros.model.checkpoint import load_checkpoint
+    from ompn_ros.train.trainer import TrainConfig
+
+    assert _tiny_craft(tmp_path, "--extras", "distill") == 0  # no members: nothing to distil from
+    assert "distill extra skipped" in capsys.readouterr().out
+    assert _tiny_craft(tmp_path, "--members", "2", "--extras", "distill", "--skip-trained") == 0
+    runs = tmp_path / "work" / "runs"
+    student = runs / f"full_nosketch_distill{spec.DISTILL_WEIGHT:g}_seed0"
+    cfg = TrainConfig.from_dict(load_checkpoint(student / "best")[1]["train_config"])
+    teachers = [str(runs / n / "best") for n in ("full_nosketch_seed0", "full_nosketch_seed0_m1")]
+    assert cfg.distill_from == teachers
+    assert cfg.distill_weight == spec.DISTILL_WEIGHT and cfg.seed == 0
+    extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]
+    assert extras["distilled"]["title"].startswith("Distilled: one OMPN per seed")
+    row = extras["distilled"]["rows"]["full_nosketch"]
+    assert row["align"]["n"] == 1 and 0.0 <= row["constrained_align"]["mean"] <= 1.0
+    assert "### Distilled" in (tmp_path / "results" / "README.md").read_text()

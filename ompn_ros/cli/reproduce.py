@@ -73,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--extras",
         default="all",
-        help=f"all | none | comma list of {','.join(EXTRAS)} (ensemble: the seeds' p_hat averaged, offline)",
+        help=f"all | none | comma list of {','.join(EXTRAS)} (ensemble: the seeds' p_hat averaged, offline; "
+        "distill: per seed, one OMPN that also learns its ensemble members' averaged p_hat, needs --members)",
     )
     return _add_modes(p)
 

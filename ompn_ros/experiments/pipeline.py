@@ -22,13 +22,23 @@ from ompn_ros.experiments.figures import save_figures
 from ompn_ros.experiments.runs import BaseConfig, load_train_config, pin_fixed_length, run_setting
 from ompn_ros.experiments.scoring import TRAINING_CELLS, Evaluation, aggregate, evaluate_policy
 from ompn_ros.experiments.ship import ship
-from ompn_ros.experiments.spec import ABLATIONS, PRIMARY, SETTINGS, ReproduceError, ReproduceSpec, RunSpec
+from ompn_ros.experiments.spec import (
+    ABLATIONS,
+    DISTILL_WEIGHT,
+    PRIMARY,
+    SETTINGS,
+    ReproduceError,
+    ReproduceSpec,
+    RunSpec,
+)
 from ompn_ros.experiments.sweeps import k_sweep, threshold_sweep
 from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
 
 T = TypeVar("T")
 Split = tuple[list[Episode], list[Episode]]
 ABLATION_CELLS = ("align_acc", "f1_tol1", "online_f1_tol1")
+DISTILLED_CELLS = ("align", "f1_tol1", "constrained_align", "constrained_f1_tol1", "online_align",
+                   "online_f1_tol1", "train_seconds")
 
 
 @dataclass
@@ -197,12 +207,32 @@ def _members(state: State, name: str, seed: int, run: Evaluation, count: int) ->
     return row
 
 
+def _distilled(state: State, name: str, seed: int, count: int) -> dict[str, float]:
+    """Train (or reload) one OMPN on ``seed``'s split that also learns the averaged ``p_hat`` of the
+    seed's ``count`` ensemble members (``train.distill_from``, :mod:`ompn_ros.train.distill`), and
+    score it like a single model."""
+    spec = state.spec
+    stage = "re-evaluate" if spec.reevaluate else "train+eval"
+    pool, test = state.split_of(name)
+    runs = spec.work / "runs"
+    teachers = [str(runs / state.run_spec(name, seed, member=j).name / "best") for j in range(count)]
+    overrides = {"_train.distill_from": teachers, "_train.distill_weight": DISTILL_WEIGHT}
+    student = state.run_spec(name, seed, tag=f"_distill{DISTILL_WEIGHT:g}", overrides=overrides)
+    run = state.timer.run(
+        f"{stage} {name} seed {seed} distilled", run_setting, student, pool, test, state.base, spec.work
+    )
+    row = {k: run.row[k] for k in DISTILLED_CELLS if k in run.row}
+    print("   distilled: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()))
+    return row
+
+
 @dataclass
 class SettingTables:
     """What the settings loop adds to the extra tables (setting -> row)."""
 
     per_seed: dict[str, Any] = field(default_factory=dict)
     of_seeds: dict[str, Any] = field(default_factory=dict)
+    distilled: dict[str, Any] = field(default_factory=dict)
 
 
 def train_setting(state: State, name: str, tables: SettingTables) -> None:
@@ -211,7 +241,7 @@ def train_setting(state: State, name: str, tables: SettingTables) -> None:
     stage = "re-evaluate" if spec.reevaluate else "train+eval"
     pool, test = state.split_of(name)
     want_ensemble = "ensemble" in spec.extras and spec.seeds >= 2
-    rows, member_rows, seed_p_hats = [], [], []
+    rows, member_rows, distilled_rows, seed_p_hats = [], [], [], []
     for seed in range(spec.seeds):
         run = state.timer.run(
             f"{stage} {name} seed {seed}",
@@ -229,9 +259,13 @@ def train_setting(state: State, name: str, tables: SettingTables) -> None:
             state.runs[name] = run
         if spec.members.get(name, 1) > 1:
             member_rows.append(_members(state, name, seed, run, spec.members[name]))
+            if "distill" in spec.extras:
+                distilled_rows.append(_distilled(state, name, seed, spec.members[name]))
     state.results[name] = aggregate(rows)
     if member_rows:
         tables.per_seed[name] = aggregate(member_rows)
+    if distilled_rows:
+        tables.distilled[name] = aggregate(distilled_rows)
     if want_ensemble:
         tables.of_seeds[name] = ensemble_scores(spec.domain, seed_p_hats, test, majority_min_length(rows))
     if spec.reevaluate:
@@ -268,6 +302,8 @@ def reproduce(spec: ReproduceSpec) -> int:
         return evaluate_only(state)
     if "ensemble" in spec.extras and spec.seeds < 2:
         print("   ensemble extra skipped: it averages several seeds and needs --seeds 2 or more")
+    if "distill" in spec.extras and not any(spec.members.get(n, 1) > 1 for n in spec.settings):
+        print("   distill extra skipped: its teachers are each seed's ensemble members (--members 2 or more)")
     tables = SettingTables()
     for name in spec.settings:
         train_setting(state, name, tables)
@@ -280,6 +316,10 @@ def reproduce(spec: ReproduceSpec) -> int:
     if tables.of_seeds:
         state.extras["ensemble_of_seeds"] = report.table(
             report.ensemble_of_seeds_title(spec.seeds), tables.of_seeds
+        )
+    if tables.distilled:
+        state.extras["distilled"] = report.table(
+            report.distilled_title(spec.seeds, DISTILL_WEIGHT), tables.distilled
         )
     if "ablations" in spec.extras:
         state.extras["ablations"] = report.table(report.ablations_title(primary), ablations(state, primary))

@@ -30,7 +30,9 @@ from ompn_ros.experiments.report_hparams import hparams_markdown
 from ompn_ros.experiments.report_own import own_markdown
 
 DOMAINS = ("craft", "dial")
-EXTRA_IDS = ("k_sweep", "threshold_sweep", "ensembles_per_seed", "ensemble_of_seeds", "ablations")
+EXTRA_IDS = (
+    "k_sweep", "threshold_sweep", "ensembles_per_seed", "ensemble_of_seeds", "distilled", "ablations"
+)
 """Stable ids of the extra tables, in the order they are written."""
 README = "README.md"
 
@@ -82,6 +84,13 @@ def ensemble_of_seeds_title(seeds: int) -> str:
     return (
         f"Ensemble of the {seeds} seeds (p_hat averaged offline; constrained Top-K with the "
         "min_length most seeds chose)"
+    )
+
+
+def distilled_title(seeds: int, weight: float) -> str:
+    return (
+        "Distilled: one OMPN per seed that also learns the averaged p_hat of the seed's ensemble "
+        f"(train.distill_weight {weight:g}; single-model cost; mean (std) over {seeds} seeds)"
     )
 
 

@@ -13,7 +13,10 @@ from typing import Any, Literal
 
 Domain = Literal["craft", "dial"]
 CRAFT_TASKS = ("makebed", "makeaxe", "makeshears")
-EXTRAS = ("ksweep", "thresholds", "ablations", "ensemble")
+EXTRAS = ("ksweep", "thresholds", "ablations", "ensemble", "distill")
+DISTILL_WEIGHT = 1.0
+"""``train.distill_weight`` of the ``distill`` extra's students: of 1 and 3, the weight with the higher
+validation alignment on seeds 0 and 1 of Craft full (docs/experiments.md §35)."""
 DEFAULT_EPISODES = {"craft": 500, "dial": 1400}  # Craft: per task; Dial: in total
 DEFAULT_TEST_RATIO = 0.2
 REPRODUCTION_ITERATIONS = {"craft": 200, "dial": 300}
