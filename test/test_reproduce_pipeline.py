@@ -306,3 +306,26 @@ def test_distill_extra_trains_a_student_on_each_seeds_members(
     row = extras["distilled"]["rows"]["full_nosketch"]
     assert row["align"]["n"] == 1 and 0.0 <= row["constrained_align"]["mean"] <= 1.0
     assert "### Distilled" in (tmp_path / "results" / "README.md").read_text()
+
+
+def test_extras_only_adds_tables_and_keeps_the_main_results(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert _tiny_craft(tmp_path, "--extras", "ksweep") == 0
+    results = tmp_path / "results"
+    main_before = (results / "craft.json").read_bytes()
+    figures_before = {p.name: p.read_bytes() for p in (results / "figures").iterdir()}
+    added = ("--members", "2", "--extras", "distill", "--extras-only", "--skip-trained")
+    assert _tiny_craft(tmp_path, *added) == 0
+    assert (results / "craft.json").read_bytes() == main_before
+    assert {p.name: p.read_bytes() for p in (results / "figures").iterdir()} == figures_before
+    doc = json.loads((results / "craft_extras.json").read_text())
+    assert list(doc["extras"]) == ["k_sweep", "ensembles_per_seed", "distilled"]  # kept, then added
+    later = doc["meta"].get("trained", doc["meta"])["later_commands"]
+    assert "--extras-only" in later[-1]
+    assert "Runs added or trained again later" in (results / "README.md").read_text()
+    empty = tmp_path / "empty"
+    code = reproduce.main(["craft", "--settings", "full_nosketch", "--seeds", "1", "--episodes", "8",
+                           "--iterations", "2", "--extras", "none", "--threads", "1", "--work",
+                           str(tmp_path / "work"), "--results", str(empty), *added[-2:]])
+    assert code == 2 and "--extras-only: no finished result files" in capsys.readouterr().err

@@ -116,6 +116,13 @@ def _add_modes(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         action="store_true",
         help="keep the other settings already in results/<domain>.json (runs split over calls)",
     )
+    p.add_argument(
+        "--extras-only",
+        action="store_true",
+        help="add extra tables to finished result files: results/<domain>.json and the figures stay as "
+        "they are, the tables computed now replace those of the same name, the command is listed "
+        "with the later ones",
+    )
     p.add_argument("--ablations", default=",".join(ABLATIONS), help="comma list for the ablation table")
     p.add_argument("--ship", action="store_true", help="copy the primary seed-0 checkpoint into the package")
     p.add_argument(
@@ -153,6 +160,7 @@ def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
             reevaluate=args.reevaluate,
             skip_trained=args.skip_trained,
             merge=args.merge,
+            extras_only=args.extras_only,
             ship=args.ship,
             command=tuple(command_line("ompn_reproduce", argv)),
         )

@@ -136,6 +136,8 @@ def write(state: State) -> dict[str, Any]:
         "figures": state.figures,
         "command": list(spec.command),
     }
+    if spec.extras_only:
+        return _add_extras(state)
     extras_file = spec.results / f"{spec.domain}_extras.json"
     if spec.reevaluate and extras_file.is_file():
         # the tables come from the trained run: keep its command and stage times beside the re-evaluation
@@ -144,6 +146,27 @@ def write(state: State) -> dict[str, Any]:
         keep = ("command", "parallel_commands", "later_commands", "stages", "total_seconds")
         meta["trained"] = {k: trained[k] for k in keep if k in trained}
     report.write_results(spec.results, spec.domain, state.results, state.extras, meta)
+    return meta
+
+
+def _add_extras(state: State) -> dict[str, Any]:
+    """``--extras-only``: the finished result files with this run's extra tables put in (same name:
+    replaced) and its command listed with the later ones; ``<domain>.json`` is written back as it was."""
+    spec = state.spec
+    loaded = report.load(spec.results, spec.domain)
+    if loaded is None:
+        raise ReproduceError(f"--extras-only: no finished result files for {spec.domain} in {spec.results}")
+    results, doc = loaded
+    merged = {**doc["extras"], **state.extras}
+    extras = {k: merged[k] for k in report.EXTRA_IDS if k in merged}
+    meta = dict(doc["meta"])
+    record = dict(meta.get("trained", meta))
+    record["later_commands"] = [*record.get("later_commands", []), list(spec.command)]
+    if "trained" in meta:
+        meta["trained"] = record
+    else:
+        meta = record
+    report.write_results(spec.results, spec.domain, results, extras, meta)
     return meta
 
 
@@ -271,7 +294,8 @@ def train_setting(state: State, name: str, tables: SettingTables) -> None:
     if spec.reevaluate:
         kept = state.old_results.get(name, {})
         state.results[name].update({k: kept[k] for k in TRAINING_CELLS if k in kept})
-    state.figures += save_figures(spec.domain, name, test, state.runs[name], spec.results / "figures")
+    if not spec.extras_only:
+        state.figures += save_figures(spec.domain, name, test, state.runs[name], spec.results / "figures")
     write(state)
 
 

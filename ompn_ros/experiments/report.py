@@ -210,17 +210,19 @@ def _stage_lines(meta: dict[str, Any]) -> list[str]:
         lines.append(f"- total: {trained.get('total_seconds', float('nan')):.1f}")
         trained_by = [trained.get("command", []), *trained.get("parallel_commands", [])]
         lines += ["", "Trained by: " + "; ".join(f"`{' '.join(c)}`" for c in trained_by if c)]
-        later = trained.get("later_commands", [])
-        if later:
-            lines += [
-                "",
-                "Runs added or trained again later, on the same bags and split, by: "
-                + "; ".join(f"`{' '.join(c)}`" for c in later),
-            ]
+        lines += _later_lines(trained)
         lines += ["", f"Re-evaluated without training (`{' '.join(meta['command'])}`):", ""]
     lines += [f"- {k}: {v:.1f}" for k, v in meta["stages"].items()]
     lines.append(f"- total: {meta['total_seconds']:.1f}")
-    return lines
+    return lines if trained else lines + _later_lines(meta)
+
+
+def _later_lines(record: dict[str, Any]) -> list[str]:
+    later = record.get("later_commands", [])
+    if not later:
+        return []
+    return ["", "Runs added or trained again later, on the same bags and split, by: "
+            + "; ".join(f"`{' '.join(c)}`" for c in later)]
 
 
 def domain_markdown(domain: str, results: DomainResults, doc: ExtrasDoc, level: int = 2) -> str:

@@ -166,6 +166,7 @@ class ReproduceSpec:
     reevaluate: bool = False
     skip_trained: bool = False
     merge: bool = False
+    extras_only: bool = False
     ablations: tuple[str, ...] = tuple(ABLATIONS)
     ship: bool = False
     command: tuple[str, ...] = ()
