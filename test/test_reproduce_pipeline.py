@@ -298,7 +298,7 @@ def test_distill_extra_trains_a_student_on_each_seeds_members(
     runs = tmp_path / "work" / "runs"
     student = runs / f"full_nosketch_distill{spec.DISTILL_WEIGHT:g}_seed0"
     cfg = TrainConfig.from_dict(load_checkpoint(student / "best")[1]["train_config"])
-    teachers = [str(runs / n / "best") for n in ("full_nosketch_seed0", "full_nosketch_seed0_m1")]
+    teachers = [str((runs / n / "best").resolve()) for n in ("full_nosketch_seed0", "full_nosketch_seed0_m1")]
     assert cfg.distill_from == teachers
     assert cfg.distill_weight == spec.DISTILL_WEIGHT and cfg.seed == 0
     extras = json.loads((tmp_path / "results" / "craft_extras.json").read_text())["extras"]

@@ -110,3 +110,5 @@ def test_bad_teachers_and_settings_are_one_clear_error(tmp_path: Path, episodes:
         TrainConfig(distill_weight=1.0)
     with pytest.raises(TrainConfigError, match="distill_from"):
         TrainConfig(distill_from="runs/x", distill_weight=1.0)  # type: ignore[arg-type]
+    relative = TrainConfig(distill_from=["runs/x/best"], distill_weight=1.0)
+    assert relative.distill_from == [str(Path("runs/x/best").resolve())]  # the checkpoint records where

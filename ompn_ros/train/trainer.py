@@ -189,9 +189,10 @@ class TrainConfig:
             split's actions; the head fits standardised actions, the loss is taken on the standardised
             residual, and the model still outputs the data's units; ``OMPNConfig.action_norm``).
             It is stored in the checkpoint's ``config.json``.
-        distill_from: teacher checkpoint or ensemble directories (empty = no distillation): the
-            training loss adds ``distill_weight`` times the mean KL divergence from the teachers'
-            averaged ``p_hat`` to the student's over the real steps (:mod:`ompn_ros.train.distill`).
+        distill_from: teacher checkpoint or ensemble directories (empty = no distillation; stored as
+            absolute paths): the training loss adds ``distill_weight`` times the mean KL divergence
+            from the teachers' averaged ``p_hat`` to the student's over the real steps
+            (:mod:`ompn_ros.train.distill`).
         distill_weight: weight of that term (> 0 exactly when ``distill_from`` names teachers).
     """
 
@@ -312,7 +313,7 @@ class TrainConfig:
         teachers = self.distill_from
         need(isinstance(teachers, list | tuple) and all(isinstance(t, str) and t for t in teachers),
              "distill_from", "must be a list of checkpoint or ensemble directories")
-        self.distill_from = [str(t) for t in teachers]
+        self.distill_from = [str(Path(t).resolve()) for t in teachers]  # recorded as the directories named
         weight = self.distill_weight
         need(isinstance(weight, int | float) and not isinstance(weight, bool) and weight >= 0,
              "distill_weight", "must be a number >= 0")
