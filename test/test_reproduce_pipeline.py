@@ -321,6 +321,11 @@ def test_extras_only_adds_tables_and_keeps_the_main_results(
     assert {p.name: p.read_bytes() for p in (results / "figures").iterdir()} == figures_before
     doc = json.loads((results / "craft_extras.json").read_text())
     assert list(doc["extras"]) == ["k_sweep", "ensembles_per_seed", "distilled"]  # kept, then added
+    doc["extras"]["distilled"]["rows"]["other_setting"] = doc["extras"]["distilled"]["rows"]["full_nosketch"]
+    (results / "craft_extras.json").write_text(json.dumps(doc))
+    assert _tiny_craft(tmp_path, *added) == 0  # again: its rows replaced, the other rows kept
+    doc = json.loads((results / "craft_extras.json").read_text())
+    assert sorted(doc["extras"]["distilled"]["rows"]) == ["full_nosketch", "other_setting"]
     later = doc["meta"].get("trained", doc["meta"])["later_commands"]
     assert "--extras-only" in later[-1]
     assert "Runs added or trained again later" in (results / "README.md").read_text()

@@ -150,14 +150,18 @@ def write(state: State) -> dict[str, Any]:
 
 
 def _add_extras(state: State) -> dict[str, Any]:
-    """``--extras-only``: the finished result files with this run's extra tables put in (same name:
-    replaced) and its command listed with the later ones; ``<domain>.json`` is written back as it was."""
+    """``--extras-only``: the finished result files with this run's extra tables put in (a table of
+    the same name keeps its other rows, the rows computed now replace theirs) and its command listed
+    with the later ones; ``<domain>.json`` is written back as it was."""
     spec = state.spec
     loaded = report.load(spec.results, spec.domain)
     if loaded is None:
         raise ReproduceError(f"--extras-only: no finished result files for {spec.domain} in {spec.results}")
     results, doc = loaded
-    merged = {**doc["extras"], **state.extras}
+    merged = dict(doc["extras"])
+    for key, table in state.extras.items():
+        old_rows = merged[key]["rows"] if key in merged else {}
+        merged[key] = report.table(table["title"], {**old_rows, **table["rows"]})
     extras = {k: merged[k] for k in report.EXTRA_IDS if k in merged}
     meta = dict(doc["meta"])
     record = dict(meta.get("trained", meta))
