@@ -38,7 +38,7 @@ T = TypeVar("T")
 Split = tuple[list[Episode], list[Episode]]
 ABLATION_CELLS = ("align_acc", "f1_tol1", "online_f1_tol1")
 DISTILLED_CELLS = ("align", "f1_tol1", "constrained_align", "constrained_f1_tol1", "online_align",
-                   "online_f1_tol1", "train_seconds")
+                   "online_f1_tol1")
 
 
 @dataclass
