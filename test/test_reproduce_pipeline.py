@@ -287,16 +287,22 @@ def test_evaluate_names_a_directory_that_is_no_single_checkpoint(
 
 
 def test_distill_extra_trains_a_student_on_each_seeds_members(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from ompn_ros.experiments import pipeline
     from ompn_ros.model.checkpoint import load_checkpoint
     from ompn_ros.train.trainer import TrainConfig
 
+    shipped: list[tuple[Path, dict]] = []
+    monkeypatch.setattr(pipeline, "ship", lambda domain, checkpoint, provenance: shipped.append(
+        (checkpoint, provenance)) or checkpoint)  # the package's own checkpoint stays as it is
     assert _tiny_craft(tmp_path, "--extras", "distill") == 0  # no members: nothing to distil from
     assert "distill extra skipped" in capsys.readouterr().out
-    assert _tiny_craft(tmp_path, "--members", "2", "--extras", "distill", "--skip-trained") == 0
+    assert _tiny_craft(tmp_path, "--members", "2", "--extras", "distill", "--skip-trained", "--ship") == 0
     runs = tmp_path / "work" / "runs"
     student = runs / f"full_nosketch_distill{spec.DISTILL_WEIGHT:g}_seed0"
+    assert [c for c, _ in shipped] == [student / "best"]  # --ship takes seed 0's student
+    assert shipped[0][1]["model"] == "distilled from the seed's 2 members"
     cfg = TrainConfig.from_dict(load_checkpoint(student / "best")[1]["train_config"])
     teachers = [str((runs / n / "best").resolve()) for n in ("full_nosketch_seed0", "full_nosketch_seed0_m1")]
     assert cfg.distill_from == teachers

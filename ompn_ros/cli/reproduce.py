@@ -124,7 +124,8 @@ def _add_modes(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         "with the later ones",
     )
     p.add_argument("--ablations", default=",".join(ABLATIONS), help="comma list for the ablation table")
-    p.add_argument("--ship", action="store_true", help="copy the primary seed-0 checkpoint into the package")
+    p.add_argument("--ship", action="store_true", help="copy the primary seed-0 checkpoint into the package "
+                   "(with the distill extra: seed 0's distilled student)")
     p.add_argument(
         "--report-only",
         action="store_true",
