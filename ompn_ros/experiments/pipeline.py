@@ -166,7 +166,9 @@ def _add_extras(state: State) -> dict[str, Any]:
     extras = {k: merged[k] for k in report.EXTRA_IDS if k in merged}
     meta = dict(doc["meta"])
     record = dict(meta.get("trained", meta))
-    record["later_commands"] = [*record.get("later_commands", []), list(spec.command)]
+    later = record.get("later_commands", [])
+    if not later or later[-1] != list(spec.command):  # written after every setting: listed once
+        record["later_commands"] = [*later, list(spec.command)]
     if "trained" in meta:
         meta["trained"] = record
     else:
