@@ -127,3 +127,19 @@ def test_node_parameters_round_trip_through_the_node_yaml_reader() -> None:
         force_first_step_low=params["detector_force_first_step_low"],
     )
     assert rebuilt == settings.online
+
+
+@pytest.mark.parametrize(
+    ("before", "after"), [("shipped", "shipped"), ("calibrated_label_free", "tuned_on_validation")]
+)
+def test_retuning_keeps_a_shipped_checkpoint_shipped(tmp_path: Path, before: str, after: str) -> None:
+    import dataclasses
+
+    from ompn_ros.experiments.replay import store_tuned
+
+    save_detector_settings(tmp_path, dataclasses.replace(_settings(), source=before))  # type: ignore[arg-type]
+    tuned = DetectorConfig(high=0.3, mode="falling_edge")
+    store_tuned(tmp_path, tuned, {"f1_tol1": 0.95}, "ompn_segment --tune on 3 bags, objective f1")
+    stored = load_detector_settings(tmp_path)
+    assert stored.source == after and stored.online == tuned and stored.min_length == 4  # offline kept
+    assert stored.provenance == "ompn_segment --tune on 3 bags, objective f1"

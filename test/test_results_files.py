@@ -101,6 +101,16 @@ def test_readme_summary_quotes_the_committed_results(domain: str) -> None:
         assert cells[-1] == PAPER[setting], label
 
 
+def test_readme_summary_quotes_the_distilled_models() -> None:
+    table = load("craft_extras.json")["extras"]["distilled"]["rows"]
+    readme = README.read_text(encoding="utf-8")
+    assert table, "no distilled models in results/craft_extras.json"
+    for setting, row in table.items():
+        cells = row_cells(readme, f"{SETTINGS['craft'][setting]}, distilled")
+        assert cells[1:-1] == [pct(row[metric]) for metric in SUMMARY_COLUMNS], setting
+        assert cells[-1] == PAPER[setting], setting
+
+
 def test_readme_quotes_the_per_seed_ensembles() -> None:
     extras = load("craft_extras.json")["extras"]
     table = extras_table(extras, "ensembles_per_seed", "Ensembles per seed")

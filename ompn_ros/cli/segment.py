@@ -115,7 +115,7 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
         source = args.bag or f"{args.generate} generated {args.domain} episodes (seeds from {args.seed})"
         provenance = f"ompn_segment --tune on {source}, objective {objective}"
         write_node_config(args.write_config, args.domain or "", best, comparison,
-                          f"{provenance}, checkpoint {args.checkpoint}")
+                          f"{source}, objective {objective}, checkpoint {args.checkpoint}")
         written = replay.store_tuned(args.checkpoint, best, metrics, provenance)
         print(f"ompn_segment: wrote {args.write_config}, {written}", file=sys.stderr)
     return 0

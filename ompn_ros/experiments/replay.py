@@ -23,7 +23,7 @@ from ompn_ros.data.bag_reader import OnError, ReaderSpec, ReadResult, read_episo
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.online import DetectorConfig
-from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
+from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
@@ -167,11 +167,12 @@ def annotate(bag: str, out: Path, episodes: Sequence[Episode], replays: Sequence
 
 def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, provenance: str) -> Path:
     """Store a tuned online detector in the checkpoint's ``detector.json`` (keeping its offline
-    choices); returns the file."""
+    choices; a shipped checkpoint's settings stay the ``'shipped'`` ones); returns the file."""
     stored = load_detector_settings(checkpoint)
     measured = {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))}
+    source: SettingsSource = "shipped" if stored.source == "shipped" else "tuned_on_validation"
     return save_detector_settings(checkpoint, dataclasses.replace(
-        stored, online=best, source="tuned_on_validation", provenance=provenance, metrics=measured))
+        stored, online=best, source=source, provenance=provenance, metrics=measured))
 
 
 def run_replay(
