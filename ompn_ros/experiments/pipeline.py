@@ -129,6 +129,8 @@ def prepare(spec: ReproduceSpec) -> State:
 def write(state: State) -> dict[str, Any]:
     """Write the result files (JSON and ``README.md``); returns the ``meta`` record."""
     spec = state.spec
+    if spec.extras_only:
+        return _add_extras(state)
     meta: dict[str, Any] = {
         "seeds": spec.seeds,
         "stages": dict(state.timer.stages),
@@ -137,8 +139,6 @@ def write(state: State) -> dict[str, Any]:
         "figures": state.figures,
         "command": list(spec.command),
     }
-    if spec.extras_only:
-        return _add_extras(state)
     extras_file = spec.results / f"{spec.domain}_extras.json"
     if spec.reevaluate and extras_file.is_file():
         # the tables come from the trained run: keep its command and stage times beside the re-evaluation
