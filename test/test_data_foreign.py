@@ -11,6 +11,7 @@ from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
 from ompn_ros.data.errors import NoEpisodeError
+from ompn_ros.data.reader.assemble import EXTRAPOLATED_LAST
 
 SPEC_FILE = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
 JOINTS = ["shoulder", "elbow", "wrist"]
@@ -65,9 +66,11 @@ def _write_foreign_bag(path: Path, rng: np.random.Generator, storage: str) -> di
 @pytest.mark.parametrize(("storage", "stamp", "final"), [("mcap", "header", "duplicate"),
                                                          ("sqlite3", "log", "duplicate"),
                                                          ("mcap", "log", "drop_last_step"),
-                                                         ("mcap", "header", "blank")])
+                                                         ("mcap", "header", "blank"),
+                                                         ("sqlite3", "header", "extrapolate")])
 def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: str) -> None:
-    """No observation after the last command: duplicated as row T, or the last step dropped."""
+    """No observation after the last command: row T duplicated, blank or extrapolated, or the last step
+    dropped."""
     truth = _write_foreign_bag(tmp_path / "bag", np.random.default_rng(3), storage)
     spec = ReaderSpec.from_dict({**ReaderSpec.from_yaml(SPEC_FILE).to_dict(), "stamp": stamp,
                                  "final_observation": final})
@@ -83,7 +86,8 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: st
     assert any("s_{T+1} = s_T" in note for note in report.notes) == duplicate
     adjusted = {"duplicate": "last observation duplicated as row T",
                 "drop_last_step": "last step dropped (no final observation)",
-                "blank": "row T left blank (zeros; no final observation)"}[final]
+                "blank": "row T left blank (zeros; no final observation)",
+                "extrapolate": EXTRAPOLATED_LAST}[final]
     assert report.adjusted == {adjusted: [0, 1, 2]}
     assert ("row T = zeros (final_observation: blank)" in report.guessed) == (final == "blank")
     for want, got in zip(truth["episodes"], result.episodes):
@@ -92,6 +96,9 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: st
             want_obs, want_act = want_obs[:-1], want_act[:-1]
         if final == "blank":  # every action kept, row T all zeros
             want_obs = np.vstack([want_obs[:-1], np.zeros_like(want_obs[-1:])])
+        if final == "extrapolate":  # every action kept, row T = 2 s_T - s_{T-1}
+            f32 = want_obs.astype(np.float32)  # the reader computes it in float32
+            want_obs = np.vstack([f32[:-1], 2 * f32[-2:-1] - f32[-3:-2]])
         np.testing.assert_allclose(got.observations, want_obs.astype(np.float32))
         np.testing.assert_allclose(got.actions, want_act.astype(np.float32))
         assert np.array_equal(got.observations[-1], got.observations[-2]) == duplicate  # s_{T+1} = s_T

@@ -32,7 +32,10 @@ def test_strip_removes_exactly_the_final_observation(tmp_path: Path, domain: str
     dropped = _read(tmp_path / "out", domain, "drop_last_step")
     duplicated = _read(tmp_path / "out", domain, "duplicate")
     blanked = _read(tmp_path / "out", domain, "blank")
-    for ep, full, drop, dup, blank in zip(episodes, complete, dropped, duplicated, blanked, strict=True):
+    guessed = _read(tmp_path / "out", domain, "extrapolate")
+    for ep, full, drop, dup, blank, guess in zip(
+        episodes, complete, dropped, duplicated, blanked, guessed, strict=True
+    ):
         T = ep.length
         assert full.length == T
         # drop_last_step: the last recorded observation becomes row T, its action is lost
@@ -49,9 +52,31 @@ def test_strip_removes_exactly_the_final_observation(tmp_path: Path, domain: str
         np.testing.assert_array_equal(blank.observations[:T], ep.observations[:T])
         assert blank.observations.shape == ep.observations.shape and not blank.observations[T].any()
         np.testing.assert_array_equal(blank.actions, ep.actions)
+        # extrapolate: every action kept, row T continues the last two recorded rows linearly
+        np.testing.assert_array_equal(guess.observations[:T], ep.observations[:T])
+        np.testing.assert_allclose(
+            guess.observations[T], 2 * ep.observations[T - 1] - ep.observations[T - 2], rtol=1e-6, atol=1e-6
+        )
+        np.testing.assert_array_equal(guess.actions, ep.actions)
 
 
-@pytest.mark.parametrize("how", ["drop_last_step", "duplicate", "blank"])
+def test_extrapolate_keeps_a_one_step_episode_a_duplicate(tmp_path: Path) -> None:
+    """With a single recorded observation there is nothing to extrapolate from: row T repeats it."""
+    episodes = make_episodes("dial", 2, seed=2)
+    short = [replace(ep, observations=ep.observations[:2], actions=ep.actions[:1],
+                     subtask=None if ep.subtask is None else ep.subtask[:1],
+                     extras={k: v[:2] if k.startswith("joint_") else v for k, v in ep.extras.items()})
+             for ep in episodes]
+    write_episodes(tmp_path / "src", short, "dial")
+    strip_final_observations(tmp_path / "src", tmp_path / "out")
+    result = load_arrays(tmp_path / "out", spec=replace(ReaderSpec.for_domain("dial"),
+                         final_observation="extrapolate", strict=False), use_cache=False)
+    for got, ep in zip(result.episodes(), short, strict=True):
+        np.testing.assert_array_equal(got.observations, ep.observations[[0, 0]])
+    assert "duplicated" in result.report and "final_observation: extrapolate" not in result.report
+
+
+@pytest.mark.parametrize("how", ["drop_last_step", "duplicate", "blank", "extrapolate"])
 def test_stripped_bags_read_strictly(tmp_path: Path, how: str) -> None:
     """The end marker counts the recorded steps; a step dropped by ``drop_last_step`` is one of them."""
     episodes = make_episodes("craft", 2, seed=3)

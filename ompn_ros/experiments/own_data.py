@@ -8,8 +8,8 @@ held-out test episodes of the reproduction's split, :func:`ompn_ros.experiments.
   (:func:`ompn_ros.detect.calibrate.calibrate_label_free`, the detector ``ompn_train`` bundles
   without labels).
 * ``final_observation``: every episode's final observation removed from the training bags
-  (:mod:`ompn_ros.experiments.strip`), read with ``final_observation: drop_last_step`` or
-  ``duplicate``, against the complete bags.  Test episodes stay complete.
+  (:mod:`ompn_ros.experiments.strip`), read with ``final_observation: drop_last_step``,
+  ``duplicate``, ``blank`` or ``extrapolate``, against the complete bags.  Test episodes stay complete.
 * ``length``: early stopping (``train.patience``) against the fixed length of the reproduction.
 
 Labels are only used for scoring, except by the label-tuned detector.  ``run`` trains and scores
@@ -60,7 +60,7 @@ from .report_own import OWN_DATA
 from .strip import strip_bags
 
 Study = Literal["labels", "final_observation", "length"]
-Bags = Literal["complete", "drop_last_step", "duplicate", "blank"]
+Bags = Literal["complete", "drop_last_step", "duplicate", "blank", "extrapolate"]
 Length = Literal["patience", "fixed"]
 DATA_SEED = 0
 """Seed of the reproduction's held-out split (``ompn_reproduce --data-seed`` default)."""
@@ -115,6 +115,12 @@ def _arms() -> dict[str, Arm]:
     arms += [  # a second seed for the Craft comparison of complete and blank
         Arm("final_craft_full_complete_seed1", "final_observation", "craft", length="fixed", seed=1),
         Arm("final_craft_full_blank_seed1", "final_observation", "craft", length="fixed", bags="blank",
+            seed=1),
+    ]
+    arms += [  # Dial's continuous state: the missing row guessed by extrapolation, two seeds
+        Arm("final_dial_extrapolate", "final_observation", "dial", length="fixed", bags="extrapolate"),
+        Arm("final_dial_complete_seed1", "final_observation", "dial", length="fixed", seed=1),
+        Arm("final_dial_extrapolate_seed1", "final_observation", "dial", length="fixed", bags="extrapolate",
             seed=1),
     ]
     return {a.name: a for a in arms}

@@ -28,7 +28,7 @@ class OwnDataRow(TypedDict, total=False):
     observation: str  # "full" | "partial"
     labels: str  # "auto" | "none" (hidden from training and calibration)
     length: str  # "patience" | "fixed"
-    bags: str  # "complete" | "drop_last_step" | "duplicate"
+    bags: str  # "complete" | "drop_last_step" | "duplicate" | "blank" | "extrapolate"
     seed: int
     iterations: int
     best_iteration: int

@@ -28,6 +28,7 @@ from .labels import LabelSite, ordinals_from_events, ordinals_from_ids, ordinals
 DROPPED_LAST = "last step dropped (no final observation)"
 DUPLICATED_LAST = "last observation duplicated as row T"
 BLANK_LAST = "row T left blank (zeros; no final observation)"
+EXTRAPOLATED_LAST = "row T extrapolated from the last two observations (no final observation)"
 
 
 @dataclass
@@ -69,6 +70,8 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
         report.guessed.append("row T = the last observation (final_observation: duplicate)")
     if report.adjusted.get(BLANK_LAST):
         report.guessed.append("row T = zeros (final_observation: blank)")
+    if report.adjusted.get(EXTRAPOLATED_LAST):
+        report.guessed.append("row T = 2 s_T - s_{T-1} (final_observation: extrapolate)")
     report.episodes = len(episodes)
     return episodes
 
@@ -168,18 +171,20 @@ def _final_observation(ctx: BagContext, topics: Topics, dec: Decoded, w: Window,
     """Steps of an episode whose last observation has an action (``ReaderSpec.final_observation``)."""
     a, b = w.first_obs, w.stop_obs
     report, how = ctx.report, ctx.spec.final_observation
+    if how == "extrapolate" and b - a < 2:
+        how = "duplicate"  # one recorded step: nothing to extrapolate from
     if how == "duplicate":
         report.final_duplicated += 1
         report.adjusted.setdefault(DUPLICATED_LAST, []).append(number)
         return np.arange(a, b)
-    if how == "blank":
-        report.adjusted.setdefault(BLANK_LAST, []).append(number)
+    if how in ("blank", "extrapolate"):
+        report.adjusted.setdefault(BLANK_LAST if how == "blank" else EXTRAPOLATED_LAST, []).append(number)
         return np.arange(a, b)
     if how == "drop_last_step":
         report.adjusted.setdefault(DROPPED_LAST, []).append(number)
         return np.arange(a, b - 1)
     msg = (f"episode #{number} (observations #{a}..#{b - 1}) has no observation after its last action; "
-           "set final_observation: duplicate, blank or drop_last_step")
+           "set final_observation: duplicate, blank, extrapolate or drop_last_step")
     if ctx.spec.strict:
         raise AlignmentError(msg, path=ctx.path, topic=topics.obs, index=b - 1,
                              stamp=int(dec.obs_stamps[b - 1]))
@@ -209,15 +214,25 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
         if ctx.spec.strict:
             raise AlignmentError(msg, path=ctx.path, topic=topics.episode, index=w.end_index)
         ctx.report.notes.append(msg)
-    observations = _rows(dec.obs, rows)
-    if number in ctx.report.adjusted.get(BLANK_LAST, ()):
-        observations = observations.copy()
-        observations[-1] = 0.0
+    observations = _final_row(_rows(dec.obs, rows), ctx.report.adjusted, number)
     return Episode(
         observations=observations,
         actions=np.asarray(actions, dtype=np.int64 if topics.act_type == layout.INT32 else np.float32),
         subtask=subtask, sketch=sketch, task=task, seed=seed, success=success, extras=extras,
     )
+
+
+def _final_row(observations: np.ndarray, adjusted: dict[str, list[int]], number: int) -> np.ndarray:
+    """Row ``T`` of an episode recorded without its final observation (a copy of the last one in
+    ``observations``): zeros for ``blank``, ``2 s_T - s_{T-1}`` for ``extrapolate`` (episodes of
+    two steps or more; see :func:`_final_observation`).  Other episodes are returned unchanged."""
+    blank = number in adjusted.get(BLANK_LAST, ())
+    extrapolate = number in adjusted.get(EXTRAPOLATED_LAST, ())
+    if not (blank or extrapolate):
+        return observations
+    out = observations.copy()
+    out[-1] = 0.0 if blank else 2.0 * out[-2] - out[-3]
+    return out
 
 
 def _rows(values: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -19,10 +19,10 @@ from ..obs.spec import FLOAT64_ARRAY, ObservationSpec, ObservationSpecError
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
-FinalObservation = Literal["drop_last_step", "duplicate", "blank", "require"]
+FinalObservation = Literal["drop_last_step", "duplicate", "blank", "extrapolate", "require"]
 Split = Literal["auto", "markers", "gaps", "topic"]
-FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "require")
-PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "duplicate"}
+FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require")
+PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
 there (docs/experiments.md §28 and §31)."""
 SPLITS = ("auto", "markers", "gaps", "topic")
@@ -113,6 +113,10 @@ class ReaderSpec:
             * ``blank``: row ``T`` is all zeros, an input no real observation gives, so the
               'done' step (paper §3.2) is learned at an observation of its own; every recorded
               action is kept.  The Craft preset (:meth:`for_domain`) uses it.
+            * ``extrapolate``: row ``T`` is ``2 s_T - s_{T-1}``, a linear guess of the missing
+              observation from the last two (an episode of one step gets a duplicate); every
+              recorded action is kept.  Meant for smooth continuous states (joint positions and
+              velocities), not one-hot features.  The Dial preset uses it.
             * ``drop_last_step``: the last observation becomes row ``T`` and its action step is
               dropped (one step per episode is lost; when that step completes the task, as Craft's
               final ``use`` does, the model learns to stop early).
@@ -121,9 +125,10 @@ class ReaderSpec:
             Trained on our data with that observation removed (docs/experiments.md §28 and §31,
             held out), on Craft ``blank`` cost 0.6 / 2.5 points of online F1@1 / alignment (mean
             of two seeds), ``duplicate`` 2.7 / 15.5 and ``drop_last_step`` 24.4 / 36.8 (seed 0);
-            on Dial ``duplicate`` cost 3.2 points of online alignment, ``drop_last_step`` 10.7 and
-            ``blank`` 63.4 (offline 11.2).  None comes within a point of complete bags on
-            alignment: record the observation after the last command when you can.
+            on Dial ``duplicate`` cost 3.2 points of online alignment, ``drop_last_step`` 10.7,
+            ``blank`` 63.4 (offline 11.2), and ``extrapolate`` none (+0.4, mean of two seeds; offline
+            1.8, §36).  Only Dial's online alignment comes within a point of complete bags: record
+            the observation after the last command when you can.
 
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
