@@ -3,7 +3,8 @@
 The shipped Craft checkpoint replays validation-sized sets of generated expert episodes through
 the streaming segmenter (as ``ompn_node`` would see them), then
 :func:`ompn_ros.detect.calibrate.calibrate_label_free` searches the 216-setting grid against the
-automatic-threshold reference (paper Algorithms 1-2), and :func:`tune_on_labels` does the same
+reference ``ompn_train`` uses (the constrained Top-K with K pooled per task from the automatic
+threshold, paper Algorithms 1-2), and :func:`tune_on_labels` does the same
 against the labels for comparison.  240 episodes = a Craft run's validation split (20 % of the
 1200-episode training pool).  Episode generation is not timed.
 
@@ -24,6 +25,7 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     from ompn_ros.detect.calibrate import calibrate_label_free, tune_on_labels
     from ompn_ros.model.factory import stepper_from_checkpoint
     from ompn_ros.segmenter import StreamingSegmenter, replay_episode
+    from ompn_ros.train.detector import LABEL_FREE_REFERENCE, LABEL_FREE_REFERENCE_MIN_LENGTH
     from sim_nodes.craft import PAPER_TASKS, generate_episode
 
     n = 60 if quick else 240
@@ -34,7 +36,9 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     segmenter = StreamingSegmenter(stepper)
     replays = [replay_episode(segmenter, ep, include_done_step=True) for ep in episodes]
     replayed = time.perf_counter()
-    calibrate_label_free([r.p_hat for r in replays], "f1", scores=[r.scores for r in replays])
+    calibrate_label_free([r.p_hat for r in replays], "f1", LABEL_FREE_REFERENCE,  # as ompn_train calibrates
+                         min_length=LABEL_FREE_REFERENCE_MIN_LENGTH, scores=[r.scores for r in replays],
+                         tasks=[ep.task for ep in episodes])
     calibrated = time.perf_counter()
     tune_on_labels([r.scores for r in replays], [np.asarray(ep.subtask) for ep in episodes], "f1")
     tuned = time.perf_counter()

@@ -14,6 +14,7 @@ from ompn_ros.detect.calibrate import (
     detect_grid,
     estimated_count,
     evaluate_grid,
+    pooled_counts,
     reference_boundaries,
     scores_from_p_hats,
     tune_on_labels,
@@ -124,3 +125,81 @@ def test_bad_input_names_the_argument() -> None:
         evaluate_grid([np.zeros(3)], default_grid(), [np.array([5])])
     with pytest.raises(CalibrationError, match="reference"):
         reference_boundaries(np.tile([0.0, 0.5, 0.5], (4, 1)), "oracle")  # type: ignore[arg-type]
+
+
+def _one_task(n: int, k: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """``n`` episodes of one task with ``k`` subtasks each; in every third episode a spurious run above
+    the threshold in the middle of a subtask makes that episode's own count k + 1."""
+    rng = np.random.default_rng(seed)
+    p_hats, labels, bounds = [], [], []
+    for i in range(n):
+        lengths = rng.integers(6, 10, size=k)
+        lab = np.repeat(np.arange(k), lengths)
+        b = np.cumsum(lengths) - 1
+        p = np.tile([0.0, 0.02, 0.98], (len(lab), 1))
+        p[:, 1:] += rng.random((len(lab), 2)) * 0.02
+        p[b, :] = [0.3, 0.7, 0.0]
+        if i % 3 == 0:
+            p[b[0] + 3, :] = [0.1, 0.9, 0.0]  # weaker than a true boundary, above the threshold
+        p /= p.sum(1, keepdims=True)
+        p_hats.append(p)
+        labels.append(lab)
+        bounds.append(b)
+    return p_hats, labels, bounds
+
+
+def test_pooled_counts_take_the_median_of_each_task() -> None:
+    p_hats, _, _ = _one_task(9, 3, seed=2)
+    own = [estimated_count(p) for p in p_hats]
+    assert own.count(4) == 3 and own.count(3) == 6  # the spurious runs fool the per-episode count
+    assert pooled_counts(p_hats) == [3] * 9
+    short, _, _ = _one_task(3, 2, seed=5)
+    tasks = ["a"] * 9 + ["b"] * 3
+    assert pooled_counts(p_hats + short, tasks) == [3] * 9 + [2] * 3  # pooled per task, not overall
+    with pytest.raises(CalibrationError, match="tasks"):
+        pooled_counts(p_hats, ["a"])
+
+
+def test_pooled_reference_keeps_the_true_boundaries_where_the_episode_count_fails() -> None:
+    """On the fooled episodes the per-episode constrained Top-K takes the spurious run; the pooled
+    count does not, and the calibrated online detector then ignores the weaker runs."""
+    p_hats, labels, bounds = _one_task(9, 3, seed=2)
+    counts = pooled_counts(p_hats)
+    fooled = [i for i, p in enumerate(p_hats) if estimated_count(p) != len(bounds[i])]
+    assert fooled
+    for i in fooled:
+        assert reference_boundaries(p_hats[i], "constrained_top_k").tolist() != bounds[i].tolist()
+        pooled = reference_boundaries(p_hats[i], "pooled_top_k", min_length=3, count=counts[i])
+        assert pooled.tolist() == bounds[i].tolist()
+    result = calibrate_label_free(p_hats, "f1", "pooled_top_k", min_length=3)
+    assert result.metrics["f1_tol1"] == 1.0 and result.config.high >= 0.55  # the spurious runs score 0.55
+    events = [[e.step for e in detect_sequence(s, result.config)] for s in scores_from_p_hats(p_hats)]
+    assert alignment_accuracy(events, labels) == 1.0
+    # control: agreeing with the per-episode counts, the detector also takes the spurious runs
+    own = calibrate_label_free(p_hats, "f1", "constrained_top_k", min_length=3)
+    events = [[e.step for e in detect_sequence(s, own.config)] for s in scores_from_p_hats(p_hats)]
+    assert alignment_accuracy(events, labels) < 1.0
+    with pytest.raises(CalibrationError, match="count"):
+        reference_boundaries(p_hats[0], "pooled_top_k")
+
+
+def test_combined_reference_maximises_the_mean_agreement_of_its_parts() -> None:
+    """'onset_and_pooled': every setting is scored by the mean of its metrics against the onset and
+    the pooled reference; the chosen one is the best by that mean, and its metrics are that mean."""
+    p_hats, _, _ = _one_task(9, 3, seed=2)
+    scores = scores_from_p_hats(p_hats)
+    grid = default_grid()
+    counts = pooled_counts(p_hats)
+    onset = evaluate_grid(scores, grid, [reference_boundaries(p) for p in p_hats])
+    refs = [reference_boundaries(p, "pooled_top_k", 3, k) for p, k in zip(p_hats, counts, strict=True)]
+    pooled = evaluate_grid(scores, grid, refs)
+    result = calibrate_label_free(p_hats, "align", "onset_and_pooled", min_length=3)
+    chosen = grid.index(result.config)
+    for key in ("f1_tol1", "align"):
+        assert result.metrics[key] == pytest.approx((onset[chosen][key] + pooled[chosen][key]) / 2)
+    means = [(onset[g]["align"] + pooled[g]["align"]) / 2 for g in range(len(grid))]
+    assert means[chosen] == pytest.approx(max(means))
+    # the two references disagree on the fooled episodes, so neither part's own best is perfect here
+    assert max(means) < 1.0 and result.target == "onset_and_pooled"
+    with pytest.raises(CalibrationError, match="combines"):
+        reference_boundaries(p_hats[0], "onset_and_pooled")

@@ -50,7 +50,7 @@ from ompn_ros.experiments.spec import (
 )
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.factory import build_stepper
-from ompn_ros.train.detector import LABEL_FREE_REFERENCE, objective_for
+from ompn_ros.train.detector import LABEL_FREE_REFERENCE, LABEL_FREE_REFERENCE_MIN_LENGTH, objective_for
 from ompn_ros.train.precision import cpu_model
 from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
 
@@ -239,7 +239,8 @@ def score_arm(
     run = evaluate_policy(arm.domain, policy, test, val)
     p_hats = run.val_p_hat  # teacher-forced, as ompn_train calibrates
     action_type = "discrete" if arm.domain == "craft" else "continuous"
-    free = calibrate_label_free(p_hats, objective_for(action_type), LABEL_FREE_REFERENCE)
+    free = calibrate_label_free(p_hats, objective_for(action_type), LABEL_FREE_REFERENCE,
+                                min_length=LABEL_FREE_REFERENCE_MIN_LENGTH, tasks=[ep.task for ep in val])
     scores = compare_detectors(build_stepper(policy), test, {"label_free": free.config}, replays=run.replays)
     tuned = run.tuning.config if run.tuning is not None else None
     return {

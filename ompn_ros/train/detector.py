@@ -37,8 +37,10 @@ from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_det
 from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
 
 LOG = logging.getLogger("ompn_ros.train")
-LABEL_FREE_REFERENCE: Reference = "auto_threshold_onset"
-"""The whole-episode detector the label-free calibration agrees with (see ``docs/experiments.md``)."""
+LABEL_FREE_REFERENCE: Reference = "onset_and_pooled"
+"""The whole-episode detector the label-free calibration agrees with (docs/experiments.md §37)."""
+LABEL_FREE_REFERENCE_MIN_LENGTH = 3
+"""``min_length`` of its pooled constrained Top-K (docs/experiments.md §37)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
 
@@ -92,7 +94,10 @@ def choose_settings(
             f"(objective {objective})",
             metrics=_metrics(tuned),
         )
-    calibrated = calibrate_label_free(p_hats, objective, LABEL_FREE_REFERENCE, scores=scores)
+    calibrated = calibrate_label_free(
+        p_hats, objective, LABEL_FREE_REFERENCE, min_length=LABEL_FREE_REFERENCE_MIN_LENGTH, scores=scores,
+        tasks=[ep.task for ep in episodes],
+    )
     return DetectorSettings(
         online=calibrated.config,
         offline_detector="auto_threshold",
@@ -125,4 +130,6 @@ def bundle(
     return settings
 
 
-__all__ = ["LABEL_FREE_REFERENCE", "bundle", "choose_settings", "objective_for"]
+__all__ = [
+    "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle", "choose_settings", "objective_for",
+]
