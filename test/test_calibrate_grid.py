@@ -57,19 +57,24 @@ def _planted(
 ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """Episodes whose p_hat (n = 2 slots) expands from the top at the last step of each subtask."""
     rng = np.random.default_rng(seed)
-    p_hats, labels, bounds = [], [], []
-    for _ in range(n):
-        lengths = rng.integers(4, 9, size=int(rng.integers(2, 5)))
-        lab = np.repeat(np.arange(len(lengths)), lengths)
-        b = np.cumsum(lengths) - 1
-        p = np.tile([0.0, 0.02, 0.98], (len(lab), 1))
-        p[:, 1:] += rng.random((len(lab), 2)) * 0.02
-        p[b, :] = [level, 1 - level, 0.0]  # high expansion score at the boundaries
-        p /= p.sum(1, keepdims=True)
-        p_hats.append(p)
-        labels.append(lab)
-        bounds.append(b)
-    return p_hats, labels, bounds
+    episodes = [_episode(rng, rng.integers(4, 9, size=int(rng.integers(2, 5))), level) for _ in range(n)]
+    return [e[0] for e in episodes], [e[1] for e in episodes], [e[2] for e in episodes]
+
+
+def _episode(
+    rng: np.random.Generator, lengths: np.ndarray, level: float = 0.3, spurious: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(p_hat, labels, boundaries) of one episode with subtasks of ``lengths`` steps; ``spurious``: a
+    weaker run above the threshold 3 steps after the first boundary."""
+    lab = np.repeat(np.arange(len(lengths)), lengths)
+    b = np.cumsum(lengths) - 1
+    p = np.tile([0.0, 0.02, 0.98], (len(lab), 1))
+    p[:, 1:] += rng.random((len(lab), 2)) * 0.02
+    p[b, :] = [level, 1 - level, 0.0]  # high expansion score at the boundaries
+    if spurious:
+        p[b[0] + 3, :] = [0.1, 0.9, 0.0]  # weaker than a true boundary, above the threshold
+    p /= p.sum(1, keepdims=True)
+    return p, lab, b
 
 
 def test_label_tuning_finds_the_planted_boundaries() -> None:
@@ -131,21 +136,8 @@ def _one_task(n: int, k: int, seed: int) -> tuple[list[np.ndarray], list[np.ndar
     """``n`` episodes of one task with ``k`` subtasks each; in every third episode a spurious run above
     the threshold in the middle of a subtask makes that episode's own count k + 1."""
     rng = np.random.default_rng(seed)
-    p_hats, labels, bounds = [], [], []
-    for i in range(n):
-        lengths = rng.integers(6, 10, size=k)
-        lab = np.repeat(np.arange(k), lengths)
-        b = np.cumsum(lengths) - 1
-        p = np.tile([0.0, 0.02, 0.98], (len(lab), 1))
-        p[:, 1:] += rng.random((len(lab), 2)) * 0.02
-        p[b, :] = [0.3, 0.7, 0.0]
-        if i % 3 == 0:
-            p[b[0] + 3, :] = [0.1, 0.9, 0.0]  # weaker than a true boundary, above the threshold
-        p /= p.sum(1, keepdims=True)
-        p_hats.append(p)
-        labels.append(lab)
-        bounds.append(b)
-    return p_hats, labels, bounds
+    episodes = [_episode(rng, rng.integers(6, 10, size=k), spurious=i % 3 == 0) for i in range(n)]
+    return [e[0] for e in episodes], [e[1] for e in episodes], [e[2] for e in episodes]
 
 
 def test_pooled_counts_take_the_median_of_each_task() -> None:
