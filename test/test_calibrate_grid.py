@@ -130,6 +130,10 @@ def test_bad_input_names_the_argument() -> None:
         evaluate_grid([np.zeros(3)], default_grid(), [np.array([5])])
     with pytest.raises(CalibrationError, match="reference"):
         reference_boundaries(np.tile([0.0, 0.5, 0.5], (4, 1)), "oracle")  # type: ignore[arg-type]
+    with pytest.raises(CalibrationError, match="reference"):
+        calibrate_label_free([np.tile([0.0, 0.5, 0.5], (4, 1))], "f1", "oracle")  # type: ignore[arg-type]
+    with pytest.raises(CalibrationError, match="objective"):
+        calibrate_label_free([np.tile([0.0, 0.5, 0.5], (4, 1))], "recall")  # type: ignore[arg-type]
 
 
 def _one_task(n: int, k: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:

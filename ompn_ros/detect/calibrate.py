@@ -239,14 +239,15 @@ def search(
     target: str = "labels",
 ) -> Calibration:
     """The grid setting with the largest :func:`objective_key` (the first one on ties)."""
-    if objective not in OBJECTIVES:
-        raise CalibrationError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-    grid = _checked_grid(grid)
+    grid = _checked_grid(grid, objective)
     rows = evaluate_grid(scores, grid, target_boundaries, target_labels)
     return _best(grid, rows, objective, target, len(scores))
 
 
-def _checked_grid(grid: Sequence[DetectorConfig] | None) -> list[DetectorConfig]:
+def _checked_grid(grid: Sequence[DetectorConfig] | None, objective: Objective) -> list[DetectorConfig]:
+    """``grid`` (default: :func:`default_grid`) as a list, after checking it and ``objective``."""
+    if objective not in OBJECTIVES:
+        raise CalibrationError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
     grid = list(grid or default_grid())
     if not grid:
         raise CalibrationError("grid: need at least one detector setting")
@@ -351,12 +352,8 @@ def calibrate_label_free(
     ``'pooled_top_k'`` pools its counts over.  A combined reference (:data:`COMBINED`) scores every
     setting by the mean of its metrics against the parts.  ``O(P·G·E·T)`` for P parts.
     """
-    if objective not in OBJECTIVES:
-        raise CalibrationError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-    if reference not in REFERENCES:
-        raise CalibrationError(f"reference must be one of {REFERENCES}, got {reference!r}")
     online = list(scores) if scores is not None else scores_from_p_hats(p_hats)
-    grid = _checked_grid(grid)
+    grid = _checked_grid(grid, objective)
     parts = [
         evaluate_grid(online, grid, _references(p_hats, part, min_length, tasks))
         for part in COMBINED.get(reference, (reference,))
