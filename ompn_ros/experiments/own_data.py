@@ -252,6 +252,7 @@ def score_arm(
         "label_free_online_align": float(scores["label_free"]["align"]),
         "label_tuned_detector": None if tuned is None else repr(tuned),
         "label_free_detector": repr(free.config),
+        "label_free_reference": f"{LABEL_FREE_REFERENCE} (min_length {LABEL_FREE_REFERENCE_MIN_LENGTH})",
         "train_episodes": len(pool) - len(val),
         "val_episodes": len(val),
         "test_episodes": len(test),
