@@ -22,10 +22,10 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     import numpy as np
 
     from ompn_ros.checkpoints import shipped_checkpoint
-    from ompn_ros.detect.calibrate import calibrate_label_free, tune_on_labels
+    from ompn_ros.detect.calibrate import tune_on_labels
     from ompn_ros.model.factory import stepper_from_checkpoint
     from ompn_ros.segmenter import StreamingSegmenter, replay_episode
-    from ompn_ros.train.detector import LABEL_FREE_REFERENCE, LABEL_FREE_REFERENCE_MIN_LENGTH
+    from ompn_ros.train.detector import calibrate_without_labels
     from sim_nodes.craft import PAPER_TASKS, generate_episode
 
     n = 60 if quick else 240
@@ -36,9 +36,7 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     segmenter = StreamingSegmenter(stepper)
     replays = [replay_episode(segmenter, ep, include_done_step=True) for ep in episodes]
     replayed = time.perf_counter()
-    calibrate_label_free([r.p_hat for r in replays], "f1", LABEL_FREE_REFERENCE,  # as ompn_train calibrates
-                         min_length=LABEL_FREE_REFERENCE_MIN_LENGTH, scores=[r.scores for r in replays],
-                         tasks=[ep.task for ep in episodes])
+    calibrate_without_labels([r.p_hat for r in replays], episodes, "discrete", [r.scores for r in replays])
     calibrated = time.perf_counter()
     tune_on_labels([r.scores for r in replays], [np.asarray(ep.subtask) for ep in episodes], "f1")
     tuned = time.perf_counter()

@@ -36,7 +36,6 @@ from ompn_ros.data.bag_reader import FinalObservation, ReaderSpec
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
-from ompn_ros.detect.calibrate import calibrate_label_free
 from ompn_ros.experiments.replay import compare_detectors
 from ompn_ros.experiments.runs import build_configs, load_train_config, pin_fixed_length
 from ompn_ros.experiments.scoring import evaluate_policy
@@ -50,7 +49,11 @@ from ompn_ros.experiments.spec import (
 )
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.factory import build_stepper
-from ompn_ros.train.detector import LABEL_FREE_REFERENCE, LABEL_FREE_REFERENCE_MIN_LENGTH, objective_for
+from ompn_ros.train.detector import (
+    LABEL_FREE_REFERENCE,
+    LABEL_FREE_REFERENCE_MIN_LENGTH,
+    calibrate_without_labels,
+)
 from ompn_ros.train.precision import cpu_model
 from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
 
@@ -239,8 +242,7 @@ def score_arm(
     run = evaluate_policy(arm.domain, policy, test, val)
     p_hats = run.val_p_hat  # teacher-forced, as ompn_train calibrates
     action_type = "discrete" if arm.domain == "craft" else "continuous"
-    free = calibrate_label_free(p_hats, objective_for(action_type), LABEL_FREE_REFERENCE,
-                                min_length=LABEL_FREE_REFERENCE_MIN_LENGTH, tasks=[ep.task for ep in val])
+    free = calibrate_without_labels(p_hats, val, action_type)
     scores = compare_detectors(build_stepper(policy), test, {"label_free": free.config}, replays=run.replays)
     tuned = run.tuning.config if run.tuning is not None else None
     return {

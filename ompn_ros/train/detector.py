@@ -66,6 +66,20 @@ def _metrics(calibration: Calibration) -> dict[str, float]:
     return {f"val_{k}": float(v) for k, v in calibration.metrics.items()}
 
 
+def calibrate_without_labels(
+    p_hats: Sequence[np.ndarray],
+    episodes: Sequence[Episode],
+    action_type: str,
+    scores: Sequence[np.ndarray] | None = None,
+) -> Calibration:
+    """The online detector ``ompn_train`` bundles without labels: calibrated on the validation
+    ``p_hats`` against :data:`LABEL_FREE_REFERENCE` (counts pooled over the episodes' task names)."""
+    return calibrate_label_free(
+        p_hats, objective_for(action_type), LABEL_FREE_REFERENCE, min_length=LABEL_FREE_REFERENCE_MIN_LENGTH,
+        scores=scores, tasks=[ep.task for ep in episodes],
+    )
+
+
 def choose_settings(
     p_hats: Sequence[np.ndarray],
     episodes: Sequence[Episode],
@@ -94,10 +108,7 @@ def choose_settings(
             f"(objective {objective})",
             metrics=_metrics(tuned),
         )
-    calibrated = calibrate_label_free(
-        p_hats, objective, LABEL_FREE_REFERENCE, min_length=LABEL_FREE_REFERENCE_MIN_LENGTH, scores=scores,
-        tasks=[ep.task for ep in episodes],
-    )
+    calibrated = calibrate_without_labels(p_hats, episodes, action_type, scores)
     return DetectorSettings(
         online=calibrated.config,
         offline_detector="auto_threshold",
@@ -131,5 +142,6 @@ def bundle(
 
 
 __all__ = [
-    "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle", "choose_settings", "objective_for",
+    "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle", "calibrate_without_labels",
+    "choose_settings", "objective_for",
 ]

@@ -24,7 +24,7 @@ Split = Literal["auto", "markers", "gaps", "topic"]
 FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require")
 PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
-there (docs/experiments.md §28 and §31)."""
+there (docs/experiments.md §28, §31 and §36)."""
 SPLITS = ("auto", "markers", "gaps", "topic")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
