@@ -104,6 +104,33 @@ OBS_NORMS: tuple[ObsNorm, ...] = get_args(ObsNorm)
 LR_SCHEDULES: tuple[LrSchedule, ...] = get_args(LrSchedule)
 
 
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+# TrainConfig's checks, by kind of field (__post_init__); the numbers are stored as floats
+_POSITIVE_INTS = ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size")
+_COUNTS = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts")
+_FLAGS = ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16")
+_NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
+    "lr": (lambda v: v > 0, "must be > 0"),
+    "clip_norm": (lambda v: v > 0, "must be > 0"),
+    "val_ratio": (lambda v: 0.0 <= v < 1.0, "must be in [0, 1)"),
+    "weight_decay": (lambda v: v >= 0, "must be a number >= 0"),
+    "ema_decay": (lambda v: 0.0 <= v < 1.0, "must be a number in [0, 1)"),
+    "obs_dropout": (lambda v: 0.0 <= v < 1.0, "must be a number in [0, 1)"),
+    "restart_below": (lambda v: 0.0 <= v <= 1.0, "must be a number in [0, 1]"),
+}
+_CHOICES: dict[str, tuple[str, ...]] = {
+    "lr_schedule": LR_SCHEDULES, "selection": SELECTIONS, "labels": LABEL_MODES, "obs_norm": OBS_NORMS,
+    "action_norm": ACTION_NORMS,
+}
+
+
 class TrainConfigError(ValueError):
     """An invalid :class:`TrainConfig` field."""
 
@@ -237,72 +264,32 @@ class TrainConfig:
             if not cond:
                 raise TrainConfigError(f"TrainConfig.{name} {what}, got {getattr(self, name)!r}")
 
-        def is_int(v: Any) -> bool:
-            return isinstance(v, int) and not isinstance(v, bool)
-
-        for name in ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size"):
-            need(is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
-        counts = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at",
-                  "restarts")
-        for name in counts:
-            need(is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
+        for name in _POSITIVE_INTS:
+            need(_is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
+        for name in _COUNTS:
+            need(_is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
         need(
-            self.split_seed is None or (is_int(self.split_seed) and self.split_seed >= 0),
+            self.split_seed is None or (_is_int(self.split_seed) and self.split_seed >= 0),
             "split_seed",
             "must be None (use seed) or an int >= 0",
         )
-        for name in ("lr", "clip_norm"):
+        for name, (within, what) in _NUMBERS.items():
             value = getattr(self, name)
-            need(
-                isinstance(value, int | float) and not isinstance(value, bool) and value > 0,
-                name,
-                "must be > 0",
-            )
-            setattr(self, name, float(value))
-        need(
-            isinstance(self.val_ratio, int | float) and 0.0 <= self.val_ratio < 1.0,
-            "val_ratio",
-            "must be in [0, 1)",
-        )
-        self.val_ratio = float(self.val_ratio)
-        need(
-            isinstance(self.weight_decay, int | float) and not isinstance(self.weight_decay, bool)
-            and self.weight_decay >= 0,
-            "weight_decay",
-            "must be a number >= 0",
-        )
-        self.weight_decay = float(self.weight_decay)
-        for name in ("ema_decay", "obs_dropout"):
-            value = getattr(self, name)
-            need(
-                isinstance(value, int | float) and not isinstance(value, bool) and 0.0 <= value < 1.0,
-                name,
-                "must be a number in [0, 1)",
-            )
+            need(_is_number(value) and within(value), name, what)
             setattr(self, name, float(value))
         span = self.obs_dropout_range
         listed = isinstance(span, list | tuple)
-        pair = listed and len(span) == 2 and all(is_int(v) for v in span) and 0 <= span[0] < span[1]
+        pair = listed and len(span) == 2 and all(_is_int(v) for v in span) and 0 <= span[0] < span[1]
         need(
             listed and (len(span) == 0 or pair),
             "obs_dropout_range",
             "must be [] or [start, stop] with 0 <= start < stop (feature indices, stop exclusive)",
         )
         self.obs_dropout_range = [int(v) for v in span]
-        for name in ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16"):
+        for name in _FLAGS:
             need(isinstance(getattr(self, name), bool), name, "must be a bool")
-        need(
-            isinstance(self.restart_below, int | float) and not isinstance(self.restart_below, bool)
-            and 0.0 <= self.restart_below <= 1.0,
-            "restart_below",
-            "must be a number in [0, 1]",
-        )
-        self.restart_below = float(self.restart_below)
-        need(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"must be one of {LR_SCHEDULES}")
-        need(self.selection in SELECTIONS, "selection", f"must be one of {SELECTIONS}")
-        need(self.labels in LABEL_MODES, "labels", f"must be one of {LABEL_MODES}")
-        need(self.obs_norm in OBS_NORMS, "obs_norm", f"must be one of {OBS_NORMS}")
-        need(self.action_norm in ACTION_NORMS, "action_norm", f"must be one of {ACTION_NORMS}")
+        for name, choices in _CHOICES.items():
+            need(getattr(self, name) in choices, name, f"must be one of {choices}")
         need(
             self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
         )
@@ -315,7 +302,7 @@ class TrainConfig:
              "distill_from", "must be a list of checkpoint or ensemble directories")
         self.distill_from = [str(Path(t).resolve()) for t in teachers]  # recorded as the directories named
         weight = self.distill_weight
-        need(isinstance(weight, int | float) and not isinstance(weight, bool) and weight >= 0,
+        need(_is_number(weight) and weight >= 0,
              "distill_weight", "must be a number >= 0")
         self.distill_weight = float(weight)
         need(bool(self.distill_from) == (self.distill_weight > 0), "distill_weight",
@@ -580,10 +567,9 @@ def train(
         (out_dir / ATTEMPT_FILE).unlink(missing_ok=True)
     spent, frames = 0.0, 0  # the abandoned attempts' cost, included in the result
     while True:
-        result = _train_attempt(
-            episodes, model_config, attempt_config(train_config, attempt), attempt,
-            ctx=ctx, callback=callback,
-        )
+        result = _Attempt(
+            episodes, model_config, attempt_config(train_config, attempt), attempt, ctx, callback
+        ).run()
         if not result.collapsed:
             return replace(result, restarts=attempt, train_seconds=spent + result.train_seconds,
                            frames=frames + result.frames)
@@ -599,27 +585,38 @@ def train(
         train_config = replace(train_config, resume=False)
 
 
-def _train_attempt(
-    episodes: Sequence[Episode],
-    model_config: OMPNConfig,
-    train_config: TrainConfig,
-    attempt: int,
-    *,
-    ctx: DistContext,
-    callback: Callable[[int, dict[str, float]], None] | None,
-) -> TrainResult:
-    """One attempt of :func:`train` with ``train_config`` already that attempt's
-    (:func:`~ompn_ros.train.restart.attempt_config`)."""
-    cfg = train_config
-    if cfg.bf16 and not resolve_bf16(cfg.bf16, cfg.force_bf16):
-        cfg = replace(cfg, bf16=False)  # what runs is what the checkpoints record
-    model_config = _with_action_norm(model_config, cfg.action_norm)
-    _check_episodes(episodes, model_config)
-    _check_dropout_range(cfg, model_config)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
+@dataclass
+class _Selected:
+    """What an attempt has trained and selected so far; a resume restores it (:func:`_resume`)."""
 
+    iteration: int = 0
+    frames: int = 0
+    best_key: tuple[float, float] = (-math.inf, -math.inf)
+    best_iteration: int = 0
+    best_metrics: dict[str, float] = field(default_factory=dict)
+    last_metrics: dict[str, float] = field(default_factory=dict)
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+@dataclass
+class _Models:
+    """The trained policy, its weight average (``ema_decay``) and the optimizer."""
+
+    policy: PolicyModule
+    average: WeightAverage | None
+    optimizer: torch.optim.Optimizer
+
+    @property
+    def evaluated(self) -> PolicyModule:
+        """The weights that are evaluated, selected and exported (the average when ``ema_decay`` is on)."""
+        return self.average.module if self.average is not None else self.policy  # type: ignore[return-value]
+
+
+def _split(
+    episodes: Sequence[Episode], model_config: OMPNConfig, cfg: TrainConfig, ctx: DistContext
+) -> tuple[list[Episode], list[Episode], int, str]:
+    """``(train, validation, n_val, selection)``: the split, the teachers' targets (``distill_from``) and
+    the selection criterion the validation labels allow (warned when it differs from the asked one)."""
     train_eps, val_eps, n_val = train_val_episodes(episodes, cfg)
     if cfg.distill_from:
         targets = teacher_p_hats(cfg.distill_from, train_eps, model_config, cfg.eval_batch_size)
@@ -631,8 +628,13 @@ def _train_attempt(
         LOG.warning("selection '%s' needs validation labels (%s): selecting by label-free '%s' instead",
                     cfg.selection, "hidden by labels=none" if cfg.labels == "none" else "the data has none",
                     selection)
-    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
+    return train_eps, val_eps, n_val, selection
 
+
+def _models(model_config: OMPNConfig, cfg: TrainConfig, train_eps: Sequence[Episode],
+            ctx: DistContext) -> _Models:
+    """A new policy with the training split's normalisations, its average and its optimizer."""
+    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
     policy.set_obs_normalization(norm.mean, norm.scale)
     if model_config.action_norm == "standard":
@@ -641,185 +643,209 @@ def _train_attempt(
     broadcast_module(policy, ctx)
     policy.train()
     average = WeightAverage(policy, cfg.ema_decay) if cfg.ema_decay else None
-    # the weights that are evaluated, selected and exported (the average when ema_decay is on)
-    evaluated: PolicyModule = average.module if average is not None else policy  # type: ignore[assignment]
     optimizer: torch.optim.Optimizer = (
         torch.optim.AdamW(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         if cfg.weight_decay
         else torch.optim.Adam(policy.parameters(), lr=cfg.lr)
     )
+    return _Models(policy, average, optimizer)
 
-    out_dir = Path(cfg.out_dir) if cfg.out_dir is not None else None
-    state_root = out_dir / "train_state" if out_dir is not None else None
-    if state_root is not None and ctx.is_main:
-        clean_state_root(state_root)  # temporaries of a killed earlier run
-    extra_base = {
-        "train_config": cfg.to_dict(),
-        "obs_norm": cfg.obs_norm,
-        "n_train": len(train_eps),
-        "n_val": n_val,
+
+def _resume(state_root: Path, models: _Models, model_config: OMPNConfig, cfg: TrainConfig,
+            selection: str, log: bool) -> _Selected:
+    """Load the newest saved state under ``state_root`` into ``models``; what it had selected (a fresh
+    :class:`_Selected` when nothing was saved).  Raises :class:`TrainStateError` on a state that
+    cannot continue this run."""
+    state_dir = latest_state_dir(state_root)
+    if state_dir is None:
+        return _Selected()
+    doc, opt_tensors = read_state(state_dir)
+    loaded, _ = load_checkpoint(state_dir / "model")
+    if loaded.config.to_dict() != model_config.to_dict():
+        raise TrainStateError(
+            f"cannot resume from {state_dir}: its model config differs from the requested one"
+        )
+    models.policy.load_state_dict(loaded.state_dict())
+    if models.average is not None:
+        if not (state_dir / "ema").is_dir():
+            raise TrainStateError(
+                f"cannot resume from {state_dir} with ema_decay={cfg.ema_decay}: the state has no "
+                "averaged weights (it was saved with ema_decay=0)"
+            )
+        models.average.module.load_state_dict(load_checkpoint(state_dir / "ema")[0].state_dict())
+    optimizer_from_files(models.optimizer, opt_tensors, doc["param_groups"])
+    done = _Selected(
+        iteration=int(doc["iteration"]), frames=int(doc.get("frames", 0)),
+        best_iteration=int(doc.get("best_iteration", 0)), best_metrics=doc.get("best_metrics", {}),
+        last_metrics=doc.get("last_metrics", {}), history=doc.get("history", []),
+    )
+    if done.best_metrics:
+        done.best_key = selection_key(done.best_metrics, selection)
+    if done.best_iteration and not eligible(cfg, selection, done.best_iteration):
+        raise TrainStateError(
+            f"cannot resume from {state_dir}: its best/ is from iteration {done.best_iteration}, "
+            f"inside agreement_warmup={cfg.agreement_warmup}; continue it with --set "
+            "train.agreement_warmup=0"
+        )
+    if log:
+        LOG.info("resumed from %s at iteration %d", state_dir, done.iteration)
+    return done
+
+
+def _save_all(out_dir: Path, models: _Models, done: _Selected, extra: dict[str, Any], is_best: bool) -> None:
+    """``best/`` (when ``is_best``), ``last/`` and the resumable state of ``done.iteration``."""
+    evaluated = models.evaluated
+    if is_best:
+        save_checkpoint(out_dir / "best", evaluated, extra=extra)
+    save_checkpoint(out_dir / "last", evaluated, extra=extra)
+    payload = {
+        "frames": done.frames,
+        "best_iteration": done.best_iteration,
+        "best_metrics": done.best_metrics,
+        "last_metrics": extra["metrics"],
+        "history": done.history,
     }
 
-    start_iteration, frames = 0, 0
-    best_key: tuple[float, float] = (-math.inf, -math.inf)
-    best_iteration, best_metrics, last_metrics = 0, {}, {}
-    history: list[dict[str, float]] = []
-    if cfg.resume and state_root is not None:
-        state_dir = latest_state_dir(state_root)
-        if state_dir is not None:
-            doc, opt_tensors = read_state(state_dir)
-            loaded, _ = load_checkpoint(state_dir / "model")
-            if loaded.config.to_dict() != model_config.to_dict():
-                raise TrainStateError(
-                    f"cannot resume from {state_dir}: its model config differs from the requested one"
-                )
-            policy.load_state_dict(loaded.state_dict())
-            if average is not None:
-                if not (state_dir / "ema").is_dir():
-                    raise TrainStateError(
-                        f"cannot resume from {state_dir} with ema_decay={cfg.ema_decay}: the state has no "
-                        "averaged weights (it was saved with ema_decay=0)"
-                    )
-                average.module.load_state_dict(load_checkpoint(state_dir / "ema")[0].state_dict())
-            optimizer_from_files(optimizer, opt_tensors, doc["param_groups"])
-            start_iteration = int(doc["iteration"])
-            frames = int(doc.get("frames", 0))
-            best_iteration = int(doc.get("best_iteration", 0))
-            best_metrics = doc.get("best_metrics", {})
-            last_metrics = doc.get("last_metrics", {})
-            history = doc.get("history", [])
-            if best_metrics:
-                best_key = selection_key(best_metrics, selection)
-            if best_iteration and not eligible(cfg, selection, best_iteration):
-                raise TrainStateError(
-                    f"cannot resume from {state_dir}: its best/ is from iteration {best_iteration}, "
-                    f"inside agreement_warmup={cfg.agreement_warmup}; continue it with --set "
-                    "train.agreement_warmup=0"
-                )
-            if ctx.is_main:
-                LOG.info("resumed from %s at iteration %d", state_dir, start_iteration)
+    def save_models(model_dir: Path) -> None:
+        save_checkpoint(model_dir, models.policy, extra=extra)
+        if models.average is not None:
+            save_checkpoint(model_dir.parent / "ema", evaluated, extra=extra)
 
-    if out_dir is not None and ctx.is_main:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    sinks = _Sinks(out_dir, cfg.tensorboard) if ctx.is_main else None
-    n_train = len(train_eps)
-    per_epoch = math.ceil(n_train / cfg.batch_size)
-    progress = None
-    if cfg.progress and ctx.is_main:
-        from tqdm import tqdm
+    save_state(out_dir / "train_state", done.iteration, save_models, models.optimizer, payload)
 
-        progress = tqdm(total=cfg.iterations, initial=start_iteration, desc="train", unit="it", leave=False)
 
-    def save_all(iteration: int, metrics: dict[str, float], is_best: bool) -> None:
-        if out_dir is None or not ctx.is_main:
-            return
-        extra = {**extra_base, "iteration": iteration, "metrics": metrics}
-        if is_best:
-            save_checkpoint(out_dir / "best", evaluated, extra=extra)
-        save_checkpoint(out_dir / "last", evaluated, extra=extra)
-        assert state_root is not None
-        payload = {
-            "frames": frames,
-            "best_iteration": best_iteration,
-            "best_metrics": best_metrics,
-            "last_metrics": metrics,
-            "history": history,
-        }
+class _Attempt:
+    """One attempt of :func:`train` with ``cfg`` already that attempt's
+    (:func:`~ompn_ros.train.restart.attempt_config`): set up, then :meth:`run`."""
 
-        def save_models(model_dir: Path) -> None:
-            save_checkpoint(model_dir, policy, extra=extra)
-            if average is not None:
-                save_checkpoint(model_dir.parent / "ema", evaluated, extra=extra)
+    def __init__(self, episodes: Sequence[Episode], model_config: OMPNConfig, cfg: TrainConfig, attempt: int,
+                 ctx: DistContext, callback: Callable[[int, dict[str, float]], None] | None) -> None:
+        if cfg.bf16 and not resolve_bf16(cfg.bf16, cfg.force_bf16):
+            cfg = replace(cfg, bf16=False)  # what runs is what the checkpoints record
+        model_config = _with_action_norm(model_config, cfg.action_norm)
+        _check_episodes(episodes, model_config)
+        _check_dropout_range(cfg, model_config)
+        if cfg.threads:
+            torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.cfg, self.model_config, self.attempt = cfg, model_config, attempt
+        self.ctx, self.callback = ctx, callback
+        self.train_eps, self.val_eps, n_val, self.selection = _split(episodes, model_config, cfg, ctx)
+        self.models = _models(model_config, cfg, self.train_eps, ctx)
+        self.out_dir = Path(cfg.out_dir) if cfg.out_dir is not None else None
+        if self.out_dir is not None and ctx.is_main:
+            clean_state_root(self.out_dir / "train_state")  # temporaries of a killed earlier run
+        self.extra_base = {"train_config": cfg.to_dict(), "obs_norm": cfg.obs_norm,
+                           "n_train": len(self.train_eps), "n_val": n_val}
+        self.done = _Selected()
+        if cfg.resume and self.out_dir is not None:
+            self.done = _resume(self.out_dir / "train_state", self.models, model_config, cfg, self.selection,
+                                log=ctx.is_main)
+        if self.out_dir is not None and ctx.is_main:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.sinks = _Sinks(self.out_dir, cfg.tensorboard) if ctx.is_main else None
 
-        save_state(state_root, iteration, save_models, optimizer, payload)
+    def _update(self, iteration: int, per_epoch: int) -> dict[str, float]:
+        """One optimizer update (this rank's shard of the epoch's batch) and its statistics."""
+        cfg, models = self.cfg, self.models
+        epoch, index = divmod(iteration - 1, per_epoch)
+        global_idx = epoch_batches(len(self.train_eps), cfg.batch_size, cfg.seed, epoch)[index]
+        shard = global_idx[self.ctx.rank :: self.ctx.world_size]
+        for group in models.optimizer.param_groups:
+            group["lr"] = learning_rate(cfg, iteration)
+        stats = train_step(models.policy, models.optimizer, [self.train_eps[i] for i in shard],
+                           self.model_config, cfg, self.ctx, iteration=iteration)
+        self.done.frames += int(stats["global_valid"])
+        if models.average is not None:
+            models.average.update(models.policy, iteration)
+        return stats
 
-    started = time.perf_counter()
-    iteration = start_iteration
-    stopped_early = _patience_exhausted(cfg, selection, history, best_iteration)
-    labelled = selection in LABELLED_SELECTIONS
-    check_rule, restart = rule_applies(cfg, labelled, attempt), False
-    if cfg.restart_at and not labelled and attempt == 0 and ctx.is_main:
-        LOG.warning("restart rule (restart_at=%d) off: it needs validation labels, and %s selects without "
-                    "them", cfg.restart_at, selection)
-    try:
-        while iteration < cfg.iterations and not stopped_early:
-            iteration += 1
-            epoch, index = divmod(iteration - 1, per_epoch)
-            global_idx = epoch_batches(n_train, cfg.batch_size, cfg.seed, epoch)[index]
-            shard = global_idx[ctx.rank :: ctx.world_size]
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate(cfg, iteration)
-            stats = train_step(
-                policy, optimizer, [train_eps[i] for i in shard], model_config, cfg, ctx, iteration=iteration
-            )
-            frames += int(stats["global_valid"])
-            if average is not None:
-                average.update(policy, iteration)
+    def _evaluate(self, iteration: int, stats: dict[str, float], check_rule: bool) -> tuple[bool, bool]:
+        """Rank 0: validate, keep the best, log and save.  Every rank: ``(stop early, restart)``."""
+        cfg, done = self.cfg, self.done
+        stopped_early = restart = False
+        if self.ctx.is_main:
+            metrics = validation_metrics(self.models.evaluated, self.val_eps, cfg)
+            metrics["train_loss"] = stats["loss"]
+            key = selection_key(metrics, self.selection)
+            is_best = key > done.best_key and eligible(cfg, self.selection, iteration)
+            if is_best:
+                done.best_key, done.best_iteration, done.best_metrics = key, iteration, metrics
+            done.last_metrics = metrics
+            done.history.append({"iteration": float(iteration), **metrics})
+            LOG.info("it %d  train_loss %.4f  val_loss %.4f  align %.3f  f1_tol1 %.3f  agreement %.3f%s",
+                     iteration, stats["loss"], metrics["loss"], metrics.get("align", float("nan")),
+                     metrics.get("f1_tol1", float("nan")), metrics["agreement"],
+                     "  *best*" if is_best else "")
+            assert self.sinks is not None
+            self.sinks.write(iteration, done.frames, metrics)
+            if self.out_dir is not None:
+                extra = {**self.extra_base, "iteration": iteration, "metrics": metrics}
+                _save_all(self.out_dir, self.models, done, extra, is_best)
+            stopped_early = _patience_exhausted(cfg, self.selection, done.history, done.best_iteration)
+            restart = check_rule and collapsed(cfg, iteration, done.best_key[0])
+        stopped_early = bool(all_reduce_sum(float(stopped_early), self.ctx))
+        restart = bool(all_reduce_sum(float(restart), self.ctx))  # every rank restarts, or none
+        if stopped_early and not restart and self.ctx.is_main:
+            LOG.info("early stop at iteration %d: %s has not improved for %d evaluations (best at iteration "
+                     "%d)", iteration, self.selection, cfg.patience, done.best_iteration)
+        return stopped_early, restart
+
+    def _loop(self, check_rule: bool) -> tuple[bool, bool]:
+        """Update until the last iteration, an early stop or a restart: ``(stopped early, restart)``."""
+        cfg, done = self.cfg, self.done
+        stopped_early = _patience_exhausted(cfg, self.selection, done.history, done.best_iteration)
+        restart = False
+        per_epoch = math.ceil(len(self.train_eps) / cfg.batch_size)
+        progress = None
+        if cfg.progress and self.ctx.is_main:
+            from tqdm import tqdm
+
+            progress = tqdm(total=cfg.iterations, initial=done.iteration, desc="train", unit="it",
+                            leave=False)
+        try:
+            while done.iteration < cfg.iterations and not stopped_early and not restart:
+                done.iteration += 1
+                stats = self._update(done.iteration, per_epoch)
+                if progress is not None:
+                    progress.update(1)
+                    progress.set_postfix(loss=f"{stats['loss']:.3f}")
+                if self.callback is not None:
+                    self.callback(done.iteration, stats)
+                if done.iteration % cfg.eval_every == 0 or done.iteration == cfg.iterations:
+                    stopped_early, restart = self._evaluate(done.iteration, stats, check_rule)
+        finally:
             if progress is not None:
-                progress.update(1)
-                progress.set_postfix(loss=f"{stats['loss']:.3f}")
-            if callback is not None:
-                callback(iteration, stats)
-            if iteration % cfg.eval_every == 0 or iteration == cfg.iterations:
-                if ctx.is_main:
-                    metrics = validation_metrics(evaluated, val_eps, cfg)
-                    metrics["train_loss"] = stats["loss"]
-                    key = selection_key(metrics, selection)
-                    is_best = key > best_key and eligible(cfg, selection, iteration)
-                    if is_best:
-                        best_key, best_iteration, best_metrics = key, iteration, metrics
-                    last_metrics = metrics
-                    history.append({"iteration": float(iteration), **metrics})
-                    LOG.info(
-                        "it %d  train_loss %.4f  val_loss %.4f  align %.3f  f1_tol1 %.3f  agreement %.3f%s",
-                        iteration,
-                        stats["loss"],
-                        metrics["loss"],
-                        metrics.get("align", float("nan")),
-                        metrics.get("f1_tol1", float("nan")),
-                        metrics["agreement"],
-                        "  *best*" if is_best else "",
-                    )
-                    assert sinks is not None
-                    sinks.write(iteration, frames, metrics)
-                    save_all(iteration, metrics, is_best)
-                    stopped_early = _patience_exhausted(cfg, selection, history, best_iteration)
-                    restart = check_rule and collapsed(cfg, iteration, best_key[0])
-                stopped_early = bool(all_reduce_sum(float(stopped_early), ctx))
-                restart = bool(all_reduce_sum(float(restart), ctx))  # every rank restarts, or none
-                if restart:
-                    break
-                if stopped_early and ctx.is_main:
-                    LOG.info("early stop at iteration %d: %s has not improved for %d evaluations "
-                             "(best at iteration %d)", iteration, selection, cfg.patience, best_iteration)
-    finally:
-        if progress is not None:
-            progress.close()
-        if sinks is not None:
-            sinks.close()
-    result = TrainResult(
-        policy=evaluated,
-        stopped_early=stopped_early,
-        selection=selection,
-        iterations=iteration,
-        best_iteration=best_iteration,
-        best_metrics=best_metrics,
-        last_metrics=last_metrics,
-        history=history,
-        out_dir=cfg.out_dir,
-        train_seconds=time.perf_counter() - started,
-        frames=frames,
-        collapsed=restart,
-    )
-    if restart:
-        return result
-    warning = early_agreement_warning(selection, history, best_iteration) if ctx.is_main else None
-    if warning is not None:
-        LOG.warning(warning)
-    detectors: dict[str, DetectorSettings] = {}
-    if out_dir is not None and ctx.is_main:
-        detectors = bundle_detectors(out_dir, val_eps, cfg)
-    return replace(result, detectors=detectors, train_seconds=time.perf_counter() - started)
+                progress.close()
+            if self.sinks is not None:
+                self.sinks.close()
+        return stopped_early, restart
+
+    def run(self) -> TrainResult:
+        """Train, then (unless the attempt collapsed) bundle the detectors with ``best/`` and ``last/``."""
+        cfg, done = self.cfg, self.done
+        started = time.perf_counter()
+        labelled = self.selection in LABELLED_SELECTIONS
+        if cfg.restart_at and not labelled and self.attempt == 0 and self.ctx.is_main:
+            LOG.warning("restart rule (restart_at=%d) off: it needs validation labels, and %s selects "
+                        "without them", cfg.restart_at, self.selection)
+        stopped_early, restart = self._loop(rule_applies(cfg, labelled, self.attempt))
+        result = TrainResult(
+            policy=self.models.evaluated, stopped_early=stopped_early, selection=self.selection,
+            iterations=done.iteration, best_iteration=done.best_iteration, best_metrics=done.best_metrics,
+            last_metrics=done.last_metrics, history=done.history, out_dir=cfg.out_dir,
+            train_seconds=time.perf_counter() - started, frames=done.frames, collapsed=restart,
+        )
+        if restart:
+            return result
+        warning = early_agreement_warning(self.selection, done.history, done.best_iteration) \
+            if self.ctx.is_main else None
+        if warning is not None:
+            LOG.warning(warning)
+        detectors: dict[str, DetectorSettings] = {}
+        if self.out_dir is not None and self.ctx.is_main:
+            detectors = bundle_detectors(self.out_dir, self.val_eps, cfg)
+        return replace(result, detectors=detectors, train_seconds=time.perf_counter() - started)
 
 
 def train_step(
