@@ -1,32 +1,40 @@
 """The launch files resolve in a colcon install space, checked without the ``launch`` package.
 
-Each installed ``share/ompn_ros/launch/*.launch.py`` is read as an AST and its launch-time values are
-evaluated statically (``DeclareLaunchArgument`` defaults, ``LaunchConfiguration``,
-``FindPackageShare`` + ``PathJoinSubstitution``).  A launch file passes when
+Each installed ``share/ompn_ros/launch/*.launch.py`` is run against stand-ins of the ``launch`` and
+``launch_ros`` classes that record what they were given (the sim launch files build their description
+with the installed ``ompn_ros.launch_sim``).  Its launch-time values are then resolved
+(``DeclareLaunchArgument`` defaults, ``LaunchConfiguration``, ``FindPackageShare`` +
+``PathJoinSubstitution``).  A launch file passes when
 
 * every ``LaunchConfiguration`` names a declared argument, and arguments are declared once;
 * every package-share path it joins exists in the install space;
 * every ``Node`` runs an ``ompn_ros`` console script found in ``lib/ompn_ros``;
 * every parameter key it passes (inline dicts and the node's section of every params file) is declared
-  by that node's source in the install space (``declare_parameter`` / ``ParamSpec``), or is
-  ``use_sim_time``, and reaches the node with the type of the declared default (``ParameterValue``
-  ``value_type``, a literal, or the YAML value; a bare substitution of '' would be YAML null);
+  by that node's source in the install space (``declare_parameter`` / ``ParamSpec``, read as an AST),
+  or is ``use_sim_time``, and reaches the node with the type of the declared default
+  (``ParameterValue`` ``value_type``, a literal, or the YAML value; a bare substitution of '' would be
+  YAML null);
 * every remapped name is a topic of ``ompn_ros/layout.py``;
 * ``ompn_node`` gets a checkpoint: a required argument, an installed checkpoint directory, or the
   shipped checkpoint of the ``domain`` its params file sets.
 
-The negative tests break one name at a time in a copy and expect the matching one-line error.
+The negative tests break one name at a time in a copy (of a launch file, or of the builder module)
+and expect the matching one-line error.
 """
 
 from __future__ import annotations
 
 import ast
 import configparser
+import importlib.util
 import os
+import runpy
 import subprocess
 import sys
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
+from unittest import mock
 
 import pytest
 import yaml
@@ -35,7 +43,6 @@ ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 PACKAGE = "ompn_ros"
 BUILTIN_PARAMETERS: dict[str, type | None] = {"use_sim_time": bool}  # declared by every rclpy node
-VALUE_TYPES = {"bool": bool, "int": int, "float": float, "str": str}
 LAUNCH_FILES = ("dial_sim.launch.py", "craft_sim.launch.py", "ompn_node.launch.py")
 
 
@@ -73,7 +80,7 @@ class Install:
 class LaunchSummary:
     """What a launch file starts, for assertions on top of the resolution checks."""
 
-    arguments: dict[str, ast.expr | None] = field(default_factory=dict)
+    arguments: dict[str, object] = field(default_factory=dict)  # name -> default (None: required)
     executables: list[str] = field(default_factory=list)
     inline_parameters: dict[str, set[str]] = field(default_factory=dict)
     share_paths: list[Path] = field(default_factory=list)
@@ -139,21 +146,33 @@ def layout_topics(install: Install) -> set[str]:
     return topics
 
 
-# --- static evaluation of the launch file ---------------------------------------------------------
-def _call_name(node: ast.AST) -> str:
-    if isinstance(node, ast.Call):
-        func = node.func
-        return func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
-    return ""
+# --- running the launch file against stand-ins of the launch packages -----------------------------
+STAND_INS = {
+    "launch": ("LaunchDescription",),
+    "launch.actions": ("DeclareLaunchArgument", "GroupAction", "IncludeLaunchDescription"),
+    "launch.conditions": ("IfCondition", "UnlessCondition"),
+    "launch.substitutions": ("LaunchConfiguration", "PathJoinSubstitution", "PythonExpression",
+                             "EnvironmentVariable", "TextSubstitution"),
+    "launch_ros": (),
+    "launch_ros.actions": ("Node",),
+    "launch_ros.parameter_descriptions": ("ParameterValue",),
+    "launch_ros.substitutions": ("FindPackageShare",),
+}
+BUILDER = "ompn_ros.launch_sim"  # the module the sim launch files build their description with
 
 
-def _keyword(call: ast.Call, name: str, position: int | None = None) -> ast.expr | None:
-    for kw in call.keywords:
-        if kw.arg == name:
-            return kw.value
-    if position is not None and len(call.args) > position:
-        return call.args[position]
-    return None
+@dataclass
+class Made:
+    """What a launch file made of one stand-in class: its name and the arguments it was given."""
+
+    kind: str
+    args: tuple[object, ...]
+    kwargs: dict[str, object]
+
+    def arg(self, name: str, position: int | None = None) -> object:
+        if name in self.kwargs:
+            return self.kwargs[name]
+        return self.args[position] if position is not None and len(self.args) > position else None
 
 
 @dataclass(frozen=True)
@@ -163,68 +182,81 @@ class Required:
     argument: str
 
 
-class _Evaluator:
-    """Launch-time values of expressions: str, number, list, :class:`Required`, or None when only known at
-    run time.  Calls of the file's own one-``return`` helper functions are evaluated inline."""
+def _stand_in_modules(made: list[Made]) -> dict[str, types.ModuleType]:
+    modules = {}
+    for module, kinds in STAND_INS.items():
+        stand_in = types.ModuleType(module)
+        for kind in kinds:
+            def make(*args: object, _kind: str = kind, **kwargs: object) -> Made:
+                made.append(Made(_kind, args, kwargs))
+                return made[-1]
 
-    def __init__(self, where: str, install: Install, tree: ast.Module, names: dict[str, ast.expr],
-                 arguments: dict[str, ast.expr | None]) -> None:
-        self.where, self.install, self.names, self.arguments = where, install, names, arguments
-        self.helpers = {f.name: f for f in tree.body if isinstance(f, ast.FunctionDef)
-                        and f.name != "generate_launch_description" and isinstance(f.body[-1], ast.Return)}
+            setattr(stand_in, kind, make)
+        modules[module] = stand_in
+    return modules
+
+
+def run_launch_file(path: Path, install: Install, builder: Path | None = None) -> tuple[Made, list[Made]]:
+    """``generate_launch_description()`` of ``path``, with the installed :data:`BUILDER` (or ``builder``)
+    and the launch packages' stand-ins: the description and everything the file made."""
+    made: list[Made] = []
+    builder = builder or _module_file(install, BUILDER)
+    if not builder.is_file():
+        raise LaunchCheckError(f"{path.name}: {BUILDER} is not installed ({builder})")
+    spec = importlib.util.spec_from_file_location(BUILDER, builder)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    with mock.patch.dict(sys.modules, {**_stand_in_modules(made), BUILDER: module}):
+        spec.loader.exec_module(module)
+        try:
+            description = runpy.run_path(str(path))["generate_launch_description"]()
+        except KeyError as exc:
+            raise LaunchCheckError(f"{path.name}: no generate_launch_description()") from exc
+    if not isinstance(description, Made) or description.kind != "LaunchDescription":
+        raise LaunchCheckError(f"{path.name}: generate_launch_description() returns no LaunchDescription")
+    return description, made
+
+
+class _Resolver:
+    """Launch-time values: str, number, list, :class:`Required`, or None when only known at run time."""
+
+    def __init__(self, where: str, install: Install, arguments: dict[str, object]) -> None:
+        self.where, self.install, self.arguments = where, install, arguments
         self.share_paths: list[Path] = []
 
     def fail(self, message: str) -> LaunchCheckError:
         return LaunchCheckError(f"{self.where}: {message}")
 
-    def value(self, node: ast.expr | None) -> object:
-        if node is None:
-            return None
-        if isinstance(node, ast.Constant):
-            return node.value
-        if isinstance(node, ast.Name):
-            return self.value(self.names.get(node.id))
-        if isinstance(node, ast.List | ast.Tuple):
-            return [self.value(e) for e in node.elts]
-        if not isinstance(node, ast.Call):
-            return None
-        name = _call_name(node)
-        if name == "LaunchConfiguration":
-            argument = self.argument(node)
-            default = self.arguments[argument]
-            return Required(argument) if default is None else self.value(default)
-        if name == "FindPackageShare":
-            package = self.value(node.args[0])
-            if package != PACKAGE:
-                raise self.fail(f"FindPackageShare({package!r}): only {PACKAGE}'s share can be checked")
+    def value(self, item: object) -> object:
+        if not isinstance(item, Made):
+            return [self.value(e) for e in item] if isinstance(item, list | tuple) else item
+        if item.kind == "LaunchConfiguration":
+            name = self.argument(item)
+            default = self.arguments[name]
+            return Required(name) if default is None else self.value(default)
+        if item.kind == "FindPackageShare":
+            if item.args[0] != PACKAGE:
+                raise self.fail(f"FindPackageShare({item.args[0]!r}): only {PACKAGE}'s share can be checked")
             return str(self.install.share)
-        if name == "PathJoinSubstitution":
-            return self._join(node)
-        if name == "ParameterValue":
-            return self.value(node.args[0])
-        if name in self.helpers:
-            return self._inline(self.helpers[name], node)
+        if item.kind == "PathJoinSubstitution":
+            return self._join(item)
+        if item.kind == "ParameterValue":
+            return self.value(item.args[0])
         return None  # PythonExpression, EnvironmentVariable, ...: run-time values
 
-    def _inline(self, func: ast.FunctionDef, call: ast.Call) -> object:
-        bound = dict(zip((a.arg for a in func.args.args), call.args))
-        saved, self.names = self.names, {**self.names, **bound}
-        try:
-            return self.value(func.body[-1].value)  # type: ignore[attr-defined]
-        finally:
-            self.names = saved
-
-    def argument(self, call: ast.Call) -> str:
-        name = self.value(call.args[0])
+    def argument(self, made: Made) -> str:
+        name = str(made.arg("variable_name", 0))
         if name not in self.arguments:
             raise self.fail(f"LaunchConfiguration({name!r}) has no DeclareLaunchArgument")
-        return str(name)
+        return name
 
-    def _join(self, call: ast.Call) -> str | None:
-        parts = self.value(call.args[0])
-        if not isinstance(parts, list) or any(not isinstance(p, str) for p in parts):
+    def _join(self, made: Made) -> str | None:
+        parts = [self.value(p) for p in made.args[0]]  # type: ignore[union-attr]
+        parts = ["".join(p) if isinstance(p, list) and all(isinstance(s, str) for s in p) else p
+                 for p in parts]  # a list in a substitution is concatenated
+        if any(not isinstance(p, str) for p in parts):
             return None
-        path = Path(*parts)
+        path = Path(*parts)  # type: ignore[arg-type]
         if path.is_relative_to(self.install.share):
             if not path.exists():
                 relative = path.relative_to(self.install.share)
@@ -233,101 +265,95 @@ class _Evaluator:
         return str(path)
 
 
-def _function(tree: ast.Module, where: str) -> ast.FunctionDef:
-    for node in tree.body:
-        if isinstance(node, ast.FunctionDef) and node.name == "generate_launch_description":
-            return node
-    raise LaunchCheckError(f"{where}: no generate_launch_description()")
+def _entities(description: Made) -> list[Made]:
+    return [e for e in description.args[0] if isinstance(e, Made)]  # type: ignore[union-attr]
 
 
-def _arguments(func: ast.FunctionDef, where: str) -> dict[str, ast.expr | None]:
-    arguments: dict[str, ast.expr | None] = {}
-    for node in ast.walk(func):
-        if _call_name(node) == "DeclareLaunchArgument":
-            name_node = _keyword(node, "name", 0)  # type: ignore[arg-type]
-            if not isinstance(name_node, ast.Constant):
+def _arguments(description: Made, where: str) -> dict[str, object]:
+    arguments: dict[str, object] = {}
+    for entity in _entities(description):
+        if entity.kind == "DeclareLaunchArgument":
+            name = entity.arg("name", 0)
+            if not isinstance(name, str):
                 raise LaunchCheckError(f"{where}: a DeclareLaunchArgument has no literal name")
-            if name_node.value in arguments:
-                raise LaunchCheckError(f"{where}: argument {name_node.value!r} is declared twice")
-            arguments[name_node.value] = _keyword(node, "default_value")  # type: ignore[arg-type]
+            if name in arguments:
+                raise LaunchCheckError(f"{where}: argument {name!r} is declared twice")
+            arguments[name] = entity.arg("default_value")
     return arguments
 
 
-def check_launch_file(path: Path, install: Install) -> LaunchSummary:
+def check_launch_file(path: Path, install: Install, builder: Path | None = None) -> LaunchSummary:
     """Resolve every name ``path`` gives against ``install``; raise :class:`LaunchCheckError` if one fails."""
-    where = path.name
-    tree = ast.parse(path.read_text(), filename=str(path))
-    func = _function(tree, where)
-    names = {t.id: n.value for n in ast.walk(func) if isinstance(n, ast.Assign)
-             for t in n.targets if isinstance(t, ast.Name)}
-    summary = LaunchSummary(arguments=_arguments(func, where))
-    ev = _Evaluator(where, install, tree, names, summary.arguments)
-    for node in ast.walk(func):  # every LaunchConfiguration and share path, wherever it is used
-        if _call_name(node) in ("LaunchConfiguration", "PathJoinSubstitution", *ev.helpers):
-            ev.value(node)  # type: ignore[arg-type]
+    description, made = run_launch_file(path, install, builder)
+    summary = LaunchSummary(arguments=_arguments(description, path.name))
+    res = _Resolver(path.name, install, summary.arguments)
+    for item in made:  # every LaunchConfiguration and share path, wherever it is used
+        if item.kind in ("LaunchConfiguration", "PathJoinSubstitution"):
+            res.value(item)
+    for default in summary.arguments.values():
+        res.value(default)
     scripts = _console_scripts(install)
-    for node in ast.walk(func):
-        if _call_name(node) == "Node":
-            executable, inline = _check_node(node, ev, scripts)  # type: ignore[arg-type]
+    for entity in _entities(description):
+        if entity.kind == "Node":
+            executable, inline = _check_node(entity, res, scripts)
             summary.executables.append(executable)
             summary.inline_parameters[executable] = inline
-    summary.share_paths = sorted(set(ev.share_paths))
+    summary.share_paths = sorted(set(res.share_paths))
     return summary
 
 
-def _check_node(call: ast.Call, ev: _Evaluator, scripts: dict[str, str]) -> tuple[str, set[str]]:
+def _check_node(node: Made, res: _Resolver, scripts: dict[str, str]) -> tuple[str, set[str]]:
     """Check one ``Node(...)``; return its executable and the keys of its inline parameters."""
-    package, executable = ev.value(_keyword(call, "package")), ev.value(_keyword(call, "executable"))
+    package, executable = res.value(node.arg("package")), res.value(node.arg("executable"))
     if package != PACKAGE:
-        raise ev.fail(f"Node package {package!r} is not {PACKAGE}")
-    script = ev.install.lib / str(executable)
+        raise res.fail(f"Node package {package!r} is not {PACKAGE}")
+    script = res.install.lib / str(executable)
     if executable not in scripts or not (script.is_file() and os.access(script, os.X_OK)):
-        raise ev.fail(f"executable {executable!r} is not a console script in {ev.install.lib}")
-    node_name = str(ev.value(_keyword(call, "name")) or executable)
+        raise res.fail(f"executable {executable!r} is not a console script in {res.install.lib}")
+    node_name = str(res.value(node.arg("name")) or executable)
     from_files: dict[str, object] = {}
-    inline: dict[str, ast.expr] = {}
-    params = _keyword(call, "parameters")
-    for element in params.elts if isinstance(params, ast.List) else []:
-        if isinstance(element, ast.Dict):
-            inline.update({str(ev.value(k)): v for k, v in zip(element.keys, element.values) if k})
+    inline: dict[str, object] = {}
+    for element in node.arg("parameters") or []:  # type: ignore[attr-defined]
+        if isinstance(element, dict):
+            inline.update(element)
             continue
-        entry = ev.value(element)
+        entry = res.value(element)
         if isinstance(entry, str):  # a params file (None: only known at run time)
-            from_files.update(_params_file_section(ev, Path(entry), node_name))
-    declared = declared_parameters(ev.install, scripts[str(executable)])
+            from_files.update(_params_file_section(res, Path(entry), node_name))
+    declared = declared_parameters(res.install, scripts[str(executable)])
     unknown = sorted(k for k in (*from_files, *inline) if k not in declared)
     if unknown:
-        raise ev.fail(f"parameter(s) {unknown} are not declared by {executable}")
+        raise res.fail(f"parameter(s) {unknown} are not declared by {executable}")
     for key, value in from_files.items():
         if declared[key] is not None and type(value) is not declared[key]:
-            raise ev.fail(f"params file value {key}: {value!r} is a {type(value).__name__}, but "
-                          f"{executable} declares it as {declared[key].__name__}")  # type: ignore[union-attr]
-    for key, expr in inline.items():
-        _check_type(ev, str(executable), key, expr, declared[key])
-    _check_remaps(call, ev)
+            raise res.fail(f"params file value {key}: {value!r} is a {type(value).__name__}, but "
+                           f"{executable} declares it as {declared[key].__name__}")  # type: ignore[union-attr]
+    for key, given in inline.items():
+        _check_type(res, str(executable), key, given, declared[key])
+    _check_remaps(node, res)
     if executable == "ompn_node":
-        _check_checkpoint(ev, from_files, inline)
+        _check_checkpoint(res, from_files, inline)
     return str(executable), set(inline)
 
 
-def _check_type(ev: _Evaluator, executable: str, key: str, expr: ast.expr, declared: type | None) -> None:
+def _check_type(res: _Resolver, executable: str, key: str, given: object, declared: type | None) -> None:
     """A parameter must reach the node with its declared type (rclpy rejects a changed type)."""
-    if _call_name(expr) == "LaunchConfiguration" and ev.value(expr) == "":
+    if isinstance(given, Made) and given.kind == "LaunchConfiguration" and res.value(given) == "":
         # launch_ros parses a bare substitution's text as YAML, and '' (null) is no parameter value
-        raise ev.fail(f"parameter {key!r} gets the bare default '' (YAML null): wrap it in "
-                      "ParameterValue(..., value_type=str)")
-    if _call_name(expr) == "ParameterValue":
-        given = VALUE_TYPES.get(getattr(_keyword(expr, "value_type"), "id", ""))  # type: ignore[arg-type]
+        raise res.fail(f"parameter {key!r} gets the bare default '' (YAML null): wrap it in "
+                       "ParameterValue(..., value_type=str)")
+    if isinstance(given, Made):
+        kind = given.arg("value_type") if given.kind == "ParameterValue" else None
     else:
-        given = _literal_type(expr)
-    if declared is not None and given is not None and given is not declared:
-        raise ev.fail(f"parameter {key!r} is passed as {given.__name__}, but {executable} declares it "
-                      f"as {declared.__name__}")
+        kind = type(given)
+    if declared is not None and isinstance(kind, type) and kind is not declared:
+        raise res.fail(f"parameter {key!r} is passed as {kind.__name__}, but {executable} declares it "
+                       f"as {declared.__name__}")
 
 
-def _params_file_section(ev: _Evaluator, path: Path, node_name: str) -> dict[str, object]:
+def _params_file_section(res: _Resolver, path: Path, node_name: str) -> dict[str, object]:
     if not path.is_file():
-        raise ev.fail(f"params file {path} does not exist")
+        raise res.fail(f"params file {path} does not exist")
     data = yaml.safe_load(path.read_text()) or {}
     section: dict[str, object] = {}
     for key, value in data.items():
@@ -336,28 +362,28 @@ def _params_file_section(ev: _Evaluator, path: Path, node_name: str) -> dict[str
     return section
 
 
-def _check_remaps(call: ast.Call, ev: _Evaluator) -> None:
-    topics = layout_topics(ev.install)
-    for pair in ev.value(_keyword(call, "remappings")) or []:  # type: ignore[union-attr]
-        source = pair[0] if isinstance(pair, list) else None
+def _check_remaps(node: Made, res: _Resolver) -> None:
+    topics = layout_topics(res.install)
+    for pair in node.arg("remappings") or []:  # type: ignore[attr-defined]
+        source = res.value(pair[0])
         if source not in topics:
-            raise ev.fail(f"remaps {source!r}, which is no topic of ompn_ros/layout.py")
+            raise res.fail(f"remaps {source!r}, which is no topic of ompn_ros/layout.py")
 
 
-def _check_checkpoint(ev: _Evaluator, from_files: dict[str, object], inline: dict[str, ast.expr]) -> None:
-    checkpoint = ev.value(inline["checkpoint"]) if "checkpoint" in inline else from_files.get("checkpoint")
+def _check_checkpoint(res: _Resolver, from_files: dict[str, object], inline: dict[str, object]) -> None:
+    checkpoint = res.value(inline["checkpoint"]) if "checkpoint" in inline else from_files.get("checkpoint")
     if isinstance(checkpoint, Required):
         return  # the user names the checkpoint
     if checkpoint:
         path = Path(str(checkpoint))
         if not ((path / "config.json").is_file() or (path / "ensemble.json").is_file()):
-            raise ev.fail(f"checkpoint {checkpoint!r} does not resolve to a checkpoint directory")
+            raise res.fail(f"checkpoint {checkpoint!r} does not resolve to a checkpoint directory")
         return
-    domain = ev.value(inline["domain"]) if "domain" in inline else from_files.get("domain")
-    shipped = ev.install.site / "ompn_ros" / "checkpoints" / str(domain or "")
+    domain = res.value(inline["domain"]) if "domain" in inline else from_files.get("domain")
+    shipped = res.install.site / "ompn_ros" / "checkpoints" / str(domain or "")
     if not domain or not (shipped / "config.json").is_file() or not (shipped / "model.safetensors").is_file():
-        raise ev.fail(f"ompn_node gets no checkpoint: checkpoint is '' and domain {domain!r} has no shipped "
-                      f"checkpoint in {shipped.parent}")
+        raise res.fail(f"ompn_node gets no checkpoint: checkpoint is '' and domain {domain!r} has no shipped "
+                       f"checkpoint in {shipped.parent}")
 
 
 # --- tests -----------------------------------------------------------------------------------------
@@ -397,6 +423,8 @@ def test_sim_launch_files_start_sim_node_and_recorder(install: Install):
         assert sorted(summary.executables) == sorted([f"{domain}_sim", "ompn_node", "bag_recorder"])
         assert {"record", "bag"} <= set(summary.arguments)
         assert install.share / "config" / f"ompn_node_{domain}.yaml" in summary.share_paths
+        assert ("task" in summary.arguments) == (domain == "craft")  # the sim's own argument
+        assert ("task" in summary.inline_parameters[f"{domain}_sim"]) == (domain == "craft")
 
 
 def test_node_launch_file_requires_the_checkpoint(install: Install):
@@ -407,38 +435,45 @@ def test_node_launch_file_requires_the_checkpoint(install: Install):
     assert {"obs_topic", "joint_states_topic"} <= set(summary.arguments)
 
 
+BUILT = "ompn_ros/launch_sim.py"  # the builder module the sim launch files call
+# (launch file, None = break the launch file itself or BUILT = break the builder, old, new, error)
 BROKEN = [
-    ("dial_sim.launch.py", 'executable="dial_sim"', 'executable="dial_simulator"',
-     "executable 'dial_simulator' is not a console script"),
-    ("dial_sim.launch.py", '"ompn_node_dial.yaml"', '"ompn_node_dail.yaml"',
+    ("dial_sim.launch.py", None, '"dial", rate=', '"dail", rate=',
      "config/ompn_node_dail.yaml does not exist"),
-    ("dial_sim.launch.py", '"wait_topics": ', '"wait_topic": ',
+    ("craft_sim.launch.py", None, '("task", "makebed"', '("tasks", "makebed"',
+     r"\['tasks'\] are not declared by craft_sim"),
+    ("dial_sim.launch.py", BUILT, 'executable=f"{domain}_sim"', 'executable=f"{domain}_simulator"',
+     "executable 'dial_simulator' is not a console script"),
+    ("dial_sim.launch.py", BUILT, '"wait_topics": ', '"wait_topic": ',
      r"\['wait_topic'\] are not declared by dial_sim"),
-    ("craft_sim.launch.py", '_text("bag")', '_text("bags")',
+    ("craft_sim.launch.py", BUILT, '_param("bag")', '_param("bags")',
      "LaunchConfiguration\\('bags'\\) has no DeclareLaunchArgument"),
-    ("craft_sim.launch.py", '"ompn_node_craft.yaml"', '"ompn_node.yaml"', "ompn_node gets no checkpoint"),
-    ("craft_sim.launch.py", '"checkpoint", default_value=""', '"checkpoint", default_value="/no/such/ckpt"',
+    ("craft_sim.launch.py", BUILT, 'f"ompn_node_{domain}.yaml"', '"ompn_node.yaml"',
+     "ompn_node gets no checkpoint"),
+    ("craft_sim.launch.py", BUILT, '("checkpoint", "",', '("checkpoint", "/no/such/ckpt",',
      "checkpoint '/no/such/ckpt' does not resolve"),
-    ("ompn_node.launch.py", '("observation", ', '("observations", ', "remaps 'observations'"),
-    ("ompn_node.launch.py", 'package="ompn_ros"', 'package="ompn_ros2"', "Node package 'ompn_ros2'"),
-    ("dial_sim.launch.py", '"output": _text("bag")', '"output": LaunchConfiguration("bag")',
+    ("ompn_node.launch.py", None, '("observation", ', '("observations", ', "remaps 'observations'"),
+    ("ompn_node.launch.py", None, 'package="ompn_ros"', 'package="ompn_ros2"', "Node package 'ompn_ros2'"),
+    ("dial_sim.launch.py", BUILT, '"output": _param("bag")', '"output": LaunchConfiguration("bag")',
      "parameter 'output' gets the bare default ''"),
-    ("dial_sim.launch.py", '("rate"), value_type=float', '("rate"), value_type=int',
+    ("dial_sim.launch.py", BUILT, '_param("rate", float)', '_param("rate", int)',
      "parameter 'rate' is passed as int, but dial_sim declares it as float"),
-    ("craft_sim.launch.py", '"wait_topics": ["observation"]', '"wait_topics": "observation"',
+    ("craft_sim.launch.py", BUILT, '"wait_topics": ["observation"]', '"wait_topics": "observation"',
      "parameter 'wait_topics' is passed as str, but craft_sim declares it as list"),
 ]
 
 
-@pytest.mark.parametrize(("name", "old", "new", "error"), BROKEN, ids=[b[3][:30] for b in BROKEN])
-def test_a_broken_name_fails_the_check(install: Install, tmp_path: Path, name: str, old: str, new: str,
-                                       error: str):
-    text = (install.share / "launch" / name).read_text()
-    assert old in text, f"{name} no longer contains {old!r}: update this test"
-    broken = tmp_path / name
+@pytest.mark.parametrize(("name", "built", "old", "new", "error"), BROKEN, ids=[b[4][:30] for b in BROKEN])
+def test_a_broken_name_fails_the_check(install: Install, tmp_path: Path, name: str, built: str | None,
+                                       old: str, new: str, error: str):
+    source = install.share / "launch" / name if built is None else install.site / built
+    text = source.read_text()
+    assert old in text, f"{source.name} no longer contains {old!r}: update this test"
+    broken = tmp_path / source.name
     broken.write_text(text.replace(old, new))
+    launch = broken if built is None else install.share / "launch" / name
     with pytest.raises(LaunchCheckError, match=error):
-        check_launch_file(broken, install)
+        check_launch_file(launch, install, builder=None if built is None else broken)
 
 
 @pytest.mark.parametrize(("old", "new", "error"), [
@@ -452,10 +487,10 @@ def test_a_broken_params_file_fails_the_check(install: Install, tmp_path: Path, 
     text = (install.share / "config" / "ompn_node_dial.yaml").read_text()
     assert old in text
     params.write_text(text.replace(old, new))
-    launch = (install.share / "launch" / "dial_sim.launch.py").read_text()
-    reference = 'PathJoinSubstitution([share, "config", "ompn_node_dial.yaml"])'
-    assert reference in launch
-    broken = tmp_path / "dial_sim.launch.py"
-    broken.write_text(launch.replace(reference, repr(str(params))))
+    built = (install.site / BUILT).read_text()
+    reference = 'PathJoinSubstitution([FindPackageShare("ompn_ros"), "config", f"ompn_node_{domain}.yaml"])'
+    assert reference in built
+    broken = tmp_path / "launch_sim.py"
+    broken.write_text(built.replace(reference, repr(str(params))))
     with pytest.raises(LaunchCheckError, match=error):
-        check_launch_file(broken, install)
+        check_launch_file(install.share / "launch" / "dial_sim.launch.py", install, builder=broken)
