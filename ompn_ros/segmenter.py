@@ -18,10 +18,11 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.detect.duration import Detector, DurationModel, make_detector
 from ompn_ros.detect.online import (
+    DURATION_MODE,
     BoundaryEvent,
     DetectorConfig,
-    OnlineDetector,
     expansion_level,
     expansion_score,
 )
@@ -147,10 +148,13 @@ class SegmenterOutput:
 class StreamingSegmenter:
     """Validate, step the policy's ordered memory, score the expansion and detect boundaries."""
 
-    def __init__(self, policy: StreamingPolicyLike, detector_config: DetectorConfig | None = None) -> None:
+    def __init__(self, policy: StreamingPolicyLike, detector_config: DetectorConfig | None = None,
+                 duration_model: DurationModel | None = None) -> None:
         self.policy = policy
+        self.duration_model = duration_model
         self.detector_config = detector_config or DetectorConfig()
-        self.detector = OnlineDetector(self.detector_config)
+        self.detector: Detector = make_detector(self.detector_config, duration_model)
+        self._detector_changed = False
         self.obs_dim = int(policy.config.obs_dim)
         # validate() already checked the observation: skip the policy's own check when it offers that
         self._step_policy = getattr(policy, "step_trusted", policy.step)
@@ -193,6 +197,9 @@ class StreamingSegmenter:
         """
         sketch_arr = self._validate_sketch(sketch)
         self.policy.reset(sketch_arr)
+        if self._detector_changed:
+            self.detector = make_detector(self.detector_config, self.duration_model)
+            self._detector_changed = False
         self.detector.reset()
         self._sketch = sketch_arr
         self._step_index = -1
@@ -245,13 +252,33 @@ class StreamingSegmenter:
         boundary = self.detector.update(score, level, 0 if stamp_ns is None else int(stamp_ns))
         return SegmenterOutput(out, boundary, self._step_index, score, level)
 
-    def end_episode(self, last_step: int | None = None) -> BoundaryEvent | None:
-        """Close the current episode's last segment (see ``OnlineDetector.end_episode``).
+    def end_episode(self, last_step: int | None = None) -> list[BoundaryEvent]:
+        """Close the current episode: the boundaries that close it, the final one last (see
+        ``OnlineDetector.end_episode``; the duration decoder also decides the steps still in its lag).
 
         ``last_step`` lets the caller exclude the final 'done' observation: with the layout's step
         contract an episode of ``T`` real steps publishes ``T + 1`` observations, so pass ``T - 1``.
         """
-        return self.detector.end_episode(last_step)
+        return self.detector.close(last_step)
+
+    def set_detector(self, config: DetectorConfig) -> str:
+        """Run ``config``: from the next step, or from the next episode when it changes the decoder
+        (mode 'hsmm' on or off, or its lag) in the middle of one.  Returns which; raises
+        :class:`~ompn_ros.detect.duration.DurationModelError` (nothing changed) for 'hsmm' without a
+        duration model."""
+        fresh = make_detector(config, self.duration_model)
+        old, self.detector_config = self.detector_config, config
+        same = (old.mode == DURATION_MODE) == (config.mode == DURATION_MODE) and (
+            config.mode != DURATION_MODE or old.lag == config.lag
+        )
+        if same:
+            self.detector.configure(config)
+            return "from the next step"
+        if self.detector.steps_seen == 0:
+            self.detector, self._detector_changed = fresh, False
+            return "from the next step"
+        self._detector_changed = True
+        return "from the next episode"
 
     def count_rejection(self, error: InvalidInput) -> None:
         """Count an input the caller rejected before :meth:`step` (e.g. an undecodable message)."""
@@ -323,9 +350,7 @@ def replay_episode(
             actions.append(so.action)
         if result.boundary is not None and result.boundary.step <= T - 1:
             boundaries.append(result.boundary)
-    final = segmenter.end_episode(T - 1)
-    if final is not None:
-        boundaries.append(final)
+    boundaries.extend(segmenter.end_episode(T - 1))
     return ReplayResult(
         p_hat=np.array(p_hats),
         pi=np.array(pis),

@@ -104,8 +104,7 @@ def replay(ckpt: Path, obs: np.ndarray, stamps: list[int]) -> list[tuple[int, st
         event = seg.step(x, s).boundary
         if event is not None:
             out.append(event)
-    final = seg.end_episode(len(obs) - 1)
-    out += [final] if final is not None else []
+    out += seg.end_episode(len(obs) - 1)
     return [(e.step, f"{e.score:.6f}", e.stamp_ns, str(e.final).lower()) for e in out]
 
 

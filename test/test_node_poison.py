@@ -118,8 +118,7 @@ def replay(ckpt: Path, sketch: list[int], obs: np.ndarray, stamps_ns: list[int])
         pis.append(np.concatenate([so.pi, [so.expected_position, so.pi_end]]).astype(np.float32))
         if out.boundary is not None:
             events.append(out.boundary)
-    final = seg.end_episode(len(obs) - 2)
-    events += [final] if final is not None else []
+    events += seg.end_episode(len(obs) - 2)
     return [(e.step, f"{e.score:.6f}", e.stamp_ns) for e in events], np.array(pis)
 
 

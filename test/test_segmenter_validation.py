@@ -169,7 +169,7 @@ def test_reset_restarts_step_index_and_detector() -> None:
     seg = make_segmenter()
     x = np.ones(4, dtype=np.float32)
     first = [seg.step(x).step_output.p_hat for _ in range(3)]
-    assert seg.end_episode() is not None
+    assert [e.final for e in seg.end_episode()] == [True]
     with pytest.raises(EpisodeClosed):
         seg.step(x)
     assert seg.rejected["episode_closed"] == 1

@@ -136,9 +136,10 @@ def _run(args: argparse.Namespace) -> int:
         return _tune(args, policy, episodes)
     explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
     settings, line = resolve_detector(args.checkpoint, explicit, f"--detector-config {args.detector_config}")
-    config = settings.online
-    replays = replay_all(policy, episodes, config)
-    summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes, replays=replays)
+    config, model = settings.online, settings.duration_model
+    replays = replay_all(policy, episodes, config, model)
+    summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes, replays=replays,
+                                duration_model=model)
     print(json.dumps(replay.json_safe(summary), indent=1))
     print(f"ompn_segment: {line}", file=sys.stderr)
     if args.annotate:

@@ -23,6 +23,10 @@ the threshold"), made causal:
 * a candidate that would make a segment shorter than ``min_segment_length`` steps is dropped;
 * ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``).
 
+``mode='hsmm'`` is a different decoder with the same step interface: the fixed-lag explicit-duration
+HSMM of :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there
+``high`` is the posterior probability a boundary needs and ``lag`` the steps it waits.
+
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
 hard-coded to "expand from the top", ``docs/craft.md`` §3.6).
 """
@@ -32,11 +36,17 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 MODES = ("falling_edge", "peak", "rising_edge")
+"""The threshold detectors' commit rules (the grids of ``ompn_segment --tune`` and the calibration)."""
+DURATION_MODE = "hsmm"
+"""The mode of :class:`~ompn_ros.detect.duration.DurationDetector` (needs a fitted duration model)."""
+ALL_MODES = (*MODES, DURATION_MODE)
+MAX_LAG = 10
+"""The longest lag of the duration decoder (its window likelihood is O(K · lag²) per step)."""
 
 
 class DetectorConfigError(ValueError):
@@ -53,8 +63,10 @@ class DetectorConfig:
             (no hysteresis, the paper's Algorithm 1). Must satisfy ``0 <= low <= high``.
         min_segment_length: minimum number of steps of a segment closed by a detected boundary
             (``>= 1``; 1 disables the check).
-        mode: 'falling_edge' | 'peak' | 'rising_edge' (see the module docstring).
+        mode: 'falling_edge' | 'peak' | 'rising_edge', or 'hsmm' (see the module docstring).
         force_first_step_low: treat step 0's score as 0 (the authors' evaluation does this).
+        lag: steps the 'hsmm' decoder waits before it publishes a boundary (0 … ``MAX_LAG``; the
+            threshold modes ignore it).
     """
 
     high: float = 0.5
@@ -62,6 +74,7 @@ class DetectorConfig:
     min_segment_length: int = 1
     mode: str = "falling_edge"
     force_first_step_low: bool = True
+    lag: int = 0
 
     def __post_init__(self) -> None:
         if not (isinstance(self.high, (int, float)) and 0.0 <= float(self.high) <= 1.0):
@@ -75,8 +88,15 @@ class DetectorConfig:
             raise DetectorConfigError(
                 f"detector 'min_segment_length' must be an integer >= 1, got {self.min_segment_length!r}"
             )
-        if self.mode not in MODES:
-            raise DetectorConfigError(f"detector 'mode' must be one of {MODES}, got {self.mode!r}")
+        if self.mode not in ALL_MODES:
+            raise DetectorConfigError(f"detector 'mode' must be one of {ALL_MODES}, got {self.mode!r}")
+        lag = self.lag
+        if isinstance(lag, bool) or not isinstance(lag, int | np.integer) or not 0 <= lag <= MAX_LAG:
+            raise DetectorConfigError(f"detector 'lag' must be an integer in [0, {MAX_LAG}], got {lag!r}")
+        if self.mode == DURATION_MODE and not 0.0 < float(self.high) < 1.0:
+            raise DetectorConfigError(
+                f"detector 'high' of mode '{DURATION_MODE}' is a probability in (0, 1), got {self.high!r}"
+            )
 
     @property
     def low_threshold(self) -> float:
@@ -228,6 +248,16 @@ class OnlineDetector:
         self._recent.append((t, current))
         return event
 
+    def configure(self, config: DetectorConfig) -> None:
+        """Run ``config`` from the next step on (the episode so far is kept)."""
+        self.config = config
+
+    def close(self, last_step: int | None = None) -> list[BoundaryEvent]:
+        """:meth:`end_episode` as the list every detector returns (the duration decoder may close with
+        several boundaries)."""
+        event = self.end_episode(last_step)
+        return [] if event is None else [event]
+
     def end_episode(self, last_step: int | None = None) -> BoundaryEvent | None:
         """Close the last segment at ``last_step`` (default: the last step seen).
 
@@ -271,15 +301,26 @@ class OnlineDetector:
         return event
 
 
-def detect_sequence(
+class StepDetector(Protocol):
+    """A causal detector: :class:`OnlineDetector`, or the duration decoder
+    (:mod:`ompn_ros.detect.duration`)."""
+
+    def reset(self) -> None: ...
+
+    def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None: ...
+
+    def close(self, last_step: int | None = None) -> list[BoundaryEvent]: ...
+
+
+def run_detector(
+    detector: StepDetector,
     scores: np.ndarray,
-    config: DetectorConfig | None = None,
     levels: np.ndarray | None = None,
     stamps_ns: np.ndarray | None = None,
     close_episode: bool = True,
 ) -> list[BoundaryEvent]:
-    """Run an :class:`OnlineDetector` over a whole score sequence (for tests and analysis)."""
-    detector = OnlineDetector(config or DetectorConfig())
+    """Every event ``detector`` publishes over one episode's score sequence (reset first). O(T) updates."""
+    detector.reset()
     events: list[BoundaryEvent] = []
     for t, score in enumerate(np.asarray(scores, dtype=np.float64)):
         level = int(levels[t]) if levels is not None else 0
@@ -288,7 +329,16 @@ def detect_sequence(
         if event is not None:
             events.append(event)
     if close_episode:
-        final = detector.end_episode()
-        if final is not None:
-            events.append(final)
+        events.extend(detector.close())
     return events
+
+
+def detect_sequence(
+    scores: np.ndarray,
+    config: DetectorConfig | None = None,
+    levels: np.ndarray | None = None,
+    stamps_ns: np.ndarray | None = None,
+    close_episode: bool = True,
+) -> list[BoundaryEvent]:
+    """Run an :class:`OnlineDetector` over a whole score sequence (for tests and analysis)."""
+    return run_detector(OnlineDetector(config or DetectorConfig()), scores, levels, stamps_ns, close_episode)

@@ -10,7 +10,11 @@ values came from (``source``) and what they measured.  Layout::
                 "force_first_step_low": true},
      "done_threshold": 0.5,
      "offline": {"detector": "constrained_top_k", "min_length": 2},
+     "duration_model": {"subtasks": 4, "hazard": [[...]], "f0": [...], "f1": [...], "episodes": 240},
      "source": "tuned_on_validation", "provenance": "...", "metrics": {"f1_tol1": 0.94}}
+
+``duration_model`` (optional) is what the online mode 'hsmm' decodes with
+(:mod:`ompn_ros.detect.duration`); an online detector of that mode needs it.
 
 Precedence for every consumer: an explicit parameter (or ``--detector-config``) beats the
 checkpoint's ``detector.json``, which beats the built-in defaults (``source = 'default'``).
@@ -28,7 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from ompn_ros.detect.online import DetectorConfig, DetectorConfigError
+from ompn_ros.detect.duration import DurationModel, DurationModelError
+from ompn_ros.detect.online import DURATION_MODE, DetectorConfig, DetectorConfigError
 from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
 
 DETECTOR_FILE = "detector.json"
@@ -62,6 +67,7 @@ class DetectorSettings:
         source: 'tuned_on_validation' | 'calibrated_label_free' | 'shipped' | 'default'.
         provenance: one free-text line: how, on what and when the values were chosen.
         metrics: what the settings measured when chosen (name -> number).
+        duration_model: the fitted model of the online mode 'hsmm' (None: that mode is unavailable).
     """
 
     online: DetectorConfig = field(default_factory=DetectorConfig)
@@ -71,6 +77,7 @@ class DetectorSettings:
     source: SettingsSource = "default"
     provenance: str = "built-in defaults"
     metrics: dict[str, float] = field(default_factory=dict)
+    duration_model: DurationModel | None = None
 
     def __post_init__(self) -> None:
         self._check()
@@ -103,17 +110,25 @@ class DetectorSettings:
             for k, v in self.metrics.items()
         ):
             raise DetectorSettingsError(f"{_where('', 'metrics')} must map names to numbers")
+        if self.online.mode == DURATION_MODE and self.duration_model is None:
+            raise DetectorSettingsError(
+                f"{_where('', 'online.mode')} '{DURATION_MODE}' needs a 'duration_model', and there is none"
+            )
 
     def describe(self) -> str:
         """One log line: the online detector, its source and provenance."""
         c = self.online
-        return (
-            f"detector high={c.high} low={c.low_threshold} min_segment_length={c.min_segment_length} "
-            f"mode={c.mode} done_threshold={self.done_threshold} (source: {self.source}; {self.provenance})"
-        )
+        if c.mode == DURATION_MODE and self.duration_model is not None:
+            model = self.duration_model
+            what = (f"detector mode={c.mode} lag={c.lag} threshold={c.high} (K={model.subtasks}, "
+                    f"fitted on {model.episodes} episodes)")
+        else:
+            what = (f"detector high={c.high} low={c.low_threshold} min_segment_length={c.min_segment_length} "
+                    f"mode={c.mode}")
+        return f"{what} done_threshold={self.done_threshold} (source: {self.source}; {self.provenance})"
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        data = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
             "online": self.online.to_dict(),
@@ -123,6 +138,9 @@ class DetectorSettings:
             "provenance": self.provenance,
             "metrics": {k: _finite_or_none(v) for k, v in self.metrics.items()},
         }
+        if self.duration_model is not None:
+            data["duration_model"] = self.duration_model.to_dict()
+        return data
 
     @classmethod
     def from_dict(cls, data: Any, origin: str = "") -> DetectorSettings:
@@ -148,6 +166,7 @@ class DetectorSettings:
             "source",
             "provenance",
             "metrics",
+            "duration_model",
         }
         unknown = sorted(set(data) - known)
         if unknown:
@@ -164,6 +183,12 @@ class DetectorSettings:
         metrics = data.get("metrics", {})
         if isinstance(metrics, dict):
             metrics = {k: math.nan if v is None else v for k, v in metrics.items()}
+        model = None
+        if data.get("duration_model") is not None:
+            try:
+                model = DurationModel.from_dict(data["duration_model"])
+            except DurationModelError as exc:
+                raise DetectorSettingsError(f"{_where(origin, 'duration_model')}: {exc}") from exc
         try:
             return cls(
                 online=online,
@@ -173,6 +198,7 @@ class DetectorSettings:
                 source=data.get("source", "default"),
                 provenance=data.get("provenance", ""),
                 metrics=metrics,
+                duration_model=model,
             )
         except DetectorSettingsError as exc:
             raise DetectorSettingsError(f"{origin}: {exc}" if origin else str(exc)) from None
@@ -184,6 +210,7 @@ NODE_PARAMETERS = (
     "detector_min_segment_length",
     "detector_mode",
     "detector_force_first_step_low",
+    "detector_lag",
     "done_threshold",
 )
 """The ``ompn_node`` parameters that :func:`node_parameters` fills from the settings."""
@@ -202,6 +229,7 @@ def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
         "detector_min_segment_length": int(online.min_segment_length),
         "detector_mode": str(online.mode),
         "detector_force_first_step_low": bool(online.force_first_step_low),
+        "detector_lag": int(online.lag),
         "done_threshold": float(settings.done_threshold),
     }
 
@@ -282,6 +310,7 @@ def resolve_detector(
         provenance=f"online detector from {explicit_origin or 'an explicit parameter'}, "
         f"overriding the checkpoint's ({stored.source})",
         metrics={},
+        duration_model=stored.duration_model,
     )
     return settings, f"using {settings.describe()}"
 

@@ -28,7 +28,8 @@ import yaml
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
-from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, detect_sequence
+from ompn_ros.detect.duration import DurationModel, make_detector
+from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, run_detector
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 Objective = Literal["f1", "align"]
@@ -110,9 +111,12 @@ def _check_labelled(replays: Sequence[Replayed], episodes: Sequence[Episode]) ->
         raise TuneError(f"replays: {len(replays)} replays for {len(episodes)} episodes")
 
 
-def score_online(replays: Sequence[Replayed], episodes: Sequence[Episode], config: DetectorConfig) -> Metrics:
-    """The causal detector ``config`` on the replayed scores: F1, alignment and delays (O(Σ T))."""
-    events = [detect_sequence(r.scores, config) for r in replays]
+def score_online(replays: Sequence[Replayed], episodes: Sequence[Episode], config: DetectorConfig,
+                 duration_model: DurationModel | None = None) -> Metrics:
+    """The causal detector ``config`` (with ``duration_model`` for mode 'hsmm') on the replayed scores:
+    F1, alignment and delays (O(Σ T))."""
+    detector = make_detector(config, duration_model)
+    events = [run_detector(detector, r.scores) for r in replays]
     preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
     return {**score_predictions(preds, episodes), **delay_stats(events, [ep.boundaries for ep in episodes])}
 
@@ -122,6 +126,7 @@ def compare_on_replays(
     episodes: Sequence[Episode],
     online_configs: dict[str, DetectorConfig],
     offline_thresholds: Iterable[float] = (0.5,),
+    duration_model: DurationModel | None = None,
 ) -> dict[str, Metrics]:
     """Online vs offline detectors on the same replays (paper Algorithms 1-2, K = true count).
 
@@ -130,7 +135,8 @@ def compare_on_replays(
     Returns ``{detector name: {metric: value}}``.
     """
     _check_labelled(replays, episodes)
-    results = {name: score_online(replays, episodes, cfg) for name, cfg in online_configs.items()}
+    results = {name: score_online(replays, episodes, cfg, duration_model)
+               for name, cfg in online_configs.items()}
     thresholds = list(offline_thresholds)
     preds: dict[str, list[np.ndarray]] = {"offline_topk": [], "offline_auto": []}
     preds.update({f"offline_thr{thr:g}": [] for thr in thresholds})

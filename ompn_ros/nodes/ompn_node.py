@@ -99,7 +99,8 @@ from ompn_ros.data.messages import (
     parse_sketch_value,
 )
 from ompn_ros.data.obs import Decided, Drop
-from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, DetectorConfigError
+from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, SilenceWatch
@@ -130,7 +131,7 @@ NODE_NAME = "ompn_node"
 LEVEL_OK, LEVEL_WARN = 0, 1
 LIVE_DETECTOR_KEYS = frozenset(
     {"detector_high", "detector_hysteresis", "detector_min_segment_length", "detector_mode",
-     "detector_force_first_step_low"}
+     "detector_force_first_step_low", "detector_lag"}
 )  # fmt: skip
 __all__ = ["EXECUTORS", "NODE_NAME", "OBS_SOURCES", "NodeConfigError", "OMPNNode", "main"]
 
@@ -161,6 +162,7 @@ def detector_config(values: dict[str, Any]) -> DetectorConfig:
         min_segment_length=int(values["detector_min_segment_length"]),
         mode=str(values["detector_mode"]),
         force_first_step_low=bool(values["detector_force_first_step_low"]),
+        lag=int(values["detector_lag"]),
     )
 
 
@@ -219,9 +221,15 @@ class OMPNNode(LifecycleNode):
         merged = dict(self.values)
         merged.update({p.name: p.value for p in params if p.name in self.params.specs})
         try:
-            detector_config(merged)
+            config = detector_config(merged)
         except DetectorConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
+        seg = self.segmenter
+        no_model = seg is not None and seg.duration_model is None and not self._from_checkpoint
+        if config.mode == DURATION_MODE and no_model:
+            return SetParametersResult(successful=False, reason=(
+                f"detector_mode '{DURATION_MODE}' needs a duration model, and this checkpoint's "
+                "detector.json has none (ompn_train writes one)"))
         return result
 
     def _apply_parameters(self, params: list[Any]) -> None:
@@ -233,9 +241,8 @@ class OMPNNode(LifecycleNode):
         self._cache_stamp_limits()
         if names & LIVE_DETECTOR_KEYS and self.segmenter is not None:
             config = detector_config(self.values)
-            self.segmenter.detector_config = config
-            self.segmenter.detector.config = config
-            self.get_logger().info(f"detector now {config} (from the next step)")
+            when = self.segmenter.set_detector(config)  # checked by _on_set_parameters
+            self.get_logger().info(f"detector now {config} ({when})")
 
     def _default_sketch(self) -> np.ndarray | None:
         values = [int(v) for v in self.values["sketch"]]
@@ -289,9 +296,10 @@ class OMPNNode(LifecycleNode):
                 f"checkpoint sketch_mode='{config.sketch_mode}' does not match the expected '{sketch_mode}'"
             )
 
-    def _apply_checkpoint_detector(self, path: str) -> None:
+    def _apply_checkpoint_detector(self, path: str) -> DurationModel | None:
         """Fill the detector parameters nobody set explicitly from the checkpoint's ``detector.json``
-        (``ompn_ros.detect.settings``) and log which settings run and where they came from."""
+        (``ompn_ros.detect.settings``) and log which settings run and where they came from; its duration
+        model (mode 'hsmm'), if any."""
         settings, line = resolve_detector(path)
         stored = node_parameters(settings)
         take = [Parameter(n, value=stored[n]) for n in NODE_PARAMETERS if n not in self._explicit]
@@ -302,6 +310,7 @@ class OMPNNode(LifecycleNode):
             self._from_checkpoint = False
         explicit = sorted(self._explicit)
         self.get_logger().info(f"{line}; overridden by parameters: {explicit}" if explicit else line)
+        return settings.duration_model
 
     # --- lifecycle -----------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -326,12 +335,12 @@ class OMPNNode(LifecycleNode):
         torch.set_num_threads(int(self.values["torch_threads"]))
         spec = load_spec(str(self.values["observation_spec"]), self.get_namespace())
         path = self._resolve_checkpoint()
-        self._apply_checkpoint_detector(path)
+        duration_model = self._apply_checkpoint_detector(path)
         policy = load_policy(path)
         self._validate_model(policy.config)
         depth = int(self.values["qos_depth"])
         self.assembled = None if spec is None else AssembledInput(spec, int(policy.config.obs_dim), depth)
-        segmenter = StreamingSegmenter(policy, detector_config(self.values))
+        segmenter = StreamingSegmenter(policy, detector_config(self.values), duration_model)
         default = self._default_sketch()
         if segmenter.needs_sketch and default is not None:
             segmenter.reset(default)
@@ -723,10 +732,10 @@ class OMPNNode(LifecycleNode):
                 f"end marker says steps={steps} after {last + 1} observations: closing at the last step seen"
             )
             steps = None
-        final = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
+        closing = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
         self.events["episodes_ended"] += 1
-        if final is not None:
-            self.publish_boundary(final)
+        for event in closing:
+            self.publish_boundary(event)
 
     def _end_at_pause(self) -> bool:
         """``episode_gap``: close the open episode as an end marker would and start the next one."""

@@ -40,7 +40,7 @@ from rclpy.qos import (
 )
 
 from ompn_ros import layout
-from ompn_ros.detect.online import MODES
+from ompn_ros.detect.online import ALL_MODES, MAX_LAG
 from ompn_ros.layout import JOINT_FIELDS
 from ompn_ros.nodes.ompn_node_obs import spec_rule
 from ompn_ros.nodes.params import ParamSpec
@@ -96,7 +96,11 @@ SPECS: Final = (
               float_range=(0.0, 1.0), apply="live"),
     ParamSpec("detector_min_segment_length", 1, "minimum steps per detected segment",
               int_range=(1, 100_000), apply="live"),
-    ParamSpec("detector_mode", "falling_edge", "boundary commit rule", choices=MODES, apply="live"),
+    ParamSpec("detector_mode", "falling_edge", "boundary commit rule; 'hsmm': the duration decoder of the "
+              "checkpoint's detector.json (detector_high = the posterior a boundary needs); switching to "
+              "or from 'hsmm' inside an episode applies from the next one", choices=ALL_MODES, apply="live"),
+    ParamSpec("detector_lag", 0, "hsmm: steps a boundary waits before it is published (changed inside an "
+              "episode: from the next one)", int_range=(0, MAX_LAG), apply="live"),
     ParamSpec("detector_force_first_step_low", True, "treat step 0's score as 0", apply="live"),
     ParamSpec("done_threshold", 0.5, "discrete: publish done (= action_dim) when pi_end exceeds this",
               float_range=(0.0, 1.0), apply="live"),
