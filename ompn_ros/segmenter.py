@@ -20,7 +20,6 @@ import numpy as np
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.duration import Detector, DurationModel, make_detector
 from ompn_ros.detect.online import (
-    DURATION_MODE,
     BoundaryEvent,
     DetectorConfig,
     expansion_level,
@@ -267,12 +266,10 @@ class StreamingSegmenter:
         :class:`~ompn_ros.detect.duration.DurationModelError` (nothing changed) for 'hsmm' without a
         duration model."""
         fresh = make_detector(config, self.duration_model)
-        old, self.detector_config = self.detector_config, config
-        same = (old.mode == DURATION_MODE) == (config.mode == DURATION_MODE) and (
-            config.mode != DURATION_MODE or old.lag == config.lag
-        )
-        if same:
-            self.detector.configure(config)
+        self.detector_config, running = config, self.detector
+        if type(running) is type(fresh) and getattr(running, "lag", 0) == getattr(fresh, "lag", 0):
+            running.configure(config)  # the same decoder: only its thresholds change
+            self._detector_changed = False
             return "from the next step"
         if self.detector.steps_seen == 0:
             self.detector, self._detector_changed = fresh, False

@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
@@ -13,7 +14,8 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 from ompn_ros.checkpoints import shipped_checkpoint
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.duration import DurationDetector, fit_duration_model
+from ompn_ros.detect.online import DetectorConfig, OnlineDetector
 from ompn_ros.detect.settings import DetectorSettings, save_detector_settings
 from ompn_ros.nodes.ompn_node import OMPNNode
 
@@ -69,5 +71,40 @@ def test_the_shipped_checkpoint_started_the_short_way_has_its_tuned_detector() -
     node, ctx = _configured([Parameter("domain", value="dial")])
     try:
         assert node.segmenter.detector_config.high != 0.5  # not the generic default
+    finally:
+        _close(node, ctx)
+
+
+def test_a_checkpoint_with_a_duration_model_runs_the_hsmm_decoder_and_takes_live_changes(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "dial_hsmm"
+    shutil.copytree(shipped_checkpoint("dial"), path)
+    rng = np.random.default_rng(0)
+    lengths = rng.integers(5, 8, size=(50, 4))
+    bounds = [np.cumsum(ls) - 1 for ls in lengths]
+    scores = [np.where(np.isin(np.arange(b[-1] + 1), b), 0.7, 0.1) for b in bounds]
+    model = fit_duration_model(scores, bounds)
+    save_detector_settings(path, DetectorSettings(online=DetectorConfig(mode="hsmm", high=0.6, lag=2),
+                                                  duration_model=model, provenance="a test"))
+    node, ctx = _configured([Parameter("checkpoint", value=str(path))])
+    try:
+        detector = node.segmenter.detector
+        assert isinstance(detector, DurationDetector) and (detector.lag, detector.threshold) == (2, 0.6)
+        assert node.get_parameter("detector_lag").value == 2
+        assert node.set_parameters([Parameter("detector_lag", value=3)])[0].successful
+        assert node.segmenter.detector.lag == 3  # no step yet: applies at once
+        assert node.set_parameters([Parameter("detector_mode", value="peak")])[0].successful
+        assert isinstance(node.segmenter.detector, OnlineDetector)
+    finally:
+        _close(node, ctx)
+
+
+def test_the_hsmm_mode_is_refused_for_a_checkpoint_without_a_duration_model(checkpoint: Path) -> None:
+    node, ctx = _configured([Parameter("checkpoint", value=str(checkpoint))])
+    try:
+        result = node.set_parameters([Parameter("detector_mode", value="hsmm")])[0]
+        assert not result.successful and "needs a duration model" in result.reason
+        assert node.segmenter.detector_config.mode == "peak"
     finally:
         _close(node, ctx)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.duration import DurationDetector, DurationModelError, fit_duration_model
+from ompn_ros.detect.online import DetectorConfig, OnlineDetector
 from ompn_ros.segmenter import (
     EmptyObservation,
     EpisodeClosed,
@@ -196,3 +197,25 @@ def test_replay_episode_excludes_done_step_and_closes_at_t_minus_1() -> None:
     assert all(b.step <= T - 1 for b in with_done.boundaries)
     assert with_done.scores[0] == pytest.approx(with_done.scores[0])
     assert np.all(np.diff(without.boundary_steps) > 0)
+
+
+def test_a_decoder_change_inside_an_episode_applies_from_the_next_one() -> None:
+    rng = np.random.default_rng(0)
+    bounds = [np.cumsum(rng.integers(4, 7, size=3)) - 1 for _ in range(40)]
+    model = fit_duration_model([np.where(np.isin(np.arange(b[-1] + 1), b), 0.8, 0.1) for b in bounds], bounds)
+    seg = StreamingSegmenter(FakePolicy(FakeConfig()), DetectorConfig(high=0.5), model)  # type: ignore[arg-type]
+    x = np.ones(4, dtype=np.float32)
+    seg.step(x)
+    assert seg.set_detector(DetectorConfig(high=0.4)) == "from the next step"  # same decoder
+    assert seg.detector.config.high == 0.4  # type: ignore[union-attr]
+    hsmm = DetectorConfig(mode="hsmm", high=0.5, lag=2)
+    assert seg.set_detector(hsmm) == "from the next episode"
+    assert isinstance(seg.detector, OnlineDetector)  # the episode keeps its decoder
+    assert seg.set_detector(DetectorConfig(mode="hsmm", high=0.7, lag=2)) == "from the next episode"
+    assert seg.detector.config.high == 0.4  # type: ignore[union-attr]  # not given the hsmm threshold
+    seg.end_episode()
+    seg.reset()
+    assert isinstance(seg.detector, DurationDetector)
+    assert (seg.detector.lag, seg.detector.threshold) == (2, 0.7)
+    with pytest.raises(DurationModelError, match="needs a duration model"):
+        StreamingSegmenter(FakePolicy(FakeConfig()), hsmm)  # type: ignore[arg-type]
