@@ -7,12 +7,17 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
+from ompn_ros.detect.calibrate import DurationCalibration
+from ompn_ros.detect.duration import fit_duration_model
+from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.detector import DURATION_GAIN, DURATION_LAG, _pick
 from ompn_ros.train.restart import RESTART_SEED_STRIDE, attempt_config, collapsed, read_attempt, rule_applies
 from ompn_ros.train.state import TrainStateError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
@@ -68,6 +73,14 @@ def test_labelled_run_bundles_tuned_detectors(tmp_path: Path, episodes: list) ->
     assert best.online.high != 0.5 or best.online.mode != "falling_edge"  # not the generic default
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
     assert all(0.0 <= rec["agreement"] <= 1.0 for rec in log)
+    # the duration decoder is fitted on the same labels, and chosen by the stated rule
+    counts = {len(ep.boundaries) for ep in episodes}
+    assert best.duration_model is not None and best.duration_model.subtasks in counts
+    m = best.metrics
+    gains = m["hsmm_val_align"] >= m["threshold_val_align"] + DURATION_GAIN
+    keeps = m["hsmm_val_f1_tol1"] >= m["threshold_val_f1_tol1"] - DURATION_GAIN
+    assert (best.online.mode == "hsmm") == (gains and keeps)
+    assert best.online.mode != "hsmm" or best.online.lag == DURATION_LAG
 
 
 def test_hidden_labels_select_and_calibrate_without_them(tmp_path: Path, episodes: list) -> None:
@@ -77,6 +90,25 @@ def test_hidden_labels_select_and_calibrate_without_them(tmp_path: Path, episode
     assert stored.source == "calibrated_label_free" and stored.offline_detector == "auto_threshold"
     assert stored.metrics["agreement_f1_tol1"] > 0.5
     assert "align" in result.best_metrics  # still scored and logged
+    assert stored.duration_model is not None  # fitted on the pooled reference
+    assert "hsmm_pooled_align" in stored.metrics
+
+
+def test_the_hsmm_detector_is_chosen_only_when_it_gains_alignment_and_keeps_f1() -> None:
+    threshold, base = DetectorConfig(high=0.3), {"align": 0.80, "f1_tol1": 0.90}
+    model = fit_duration_model([np.array([0.0, 0.1, 0.8, 0.1, 0.1])] * 3, [np.array([2, 4])] * 3)
+
+    def duration(align: float, f1: float) -> DurationCalibration:
+        return DurationCalibration(model, DetectorConfig(mode="hsmm", high=0.5, lag=3),
+                                   {"align": align, "f1_tol1": f1})
+
+    assert _pick(threshold, base, duration(0.85, 0.895))[0].mode == "hsmm"
+    assert _pick(threshold, base, duration(0.805, 0.95))[0] == threshold  # too little alignment gained
+    assert _pick(threshold, base, duration(0.95, 0.88))[0] == threshold  # F1 not kept
+    figures = {"threshold_val_align": 0.8, "threshold_val_f1_tol1": 0.9}
+    assert _pick(threshold, base, None) == (threshold, figures)
+    with pytest.raises(TrainConfigError, match="detector_lag must be an int in \\[0, 10\\]"):
+        TrainConfig(detector_lag=11)
 
 
 def test_unlabelled_data_selects_by_agreement(tmp_path: Path, episodes: list) -> None:

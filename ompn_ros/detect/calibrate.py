@@ -26,6 +26,8 @@ pass over time; ``O(G·E·T)`` numpy work for G settings, E episodes, T steps), 
 semantics of :class:`~ompn_ros.detect.online.OnlineDetector` closed by ``end_episode``.
 
 :func:`agreement` is the label-free checkpoint-selection criterion built on the same pieces.
+:func:`calibrate_duration` fits the duration decoder of mode 'hsmm' (:mod:`ompn_ros.detect.duration`)
+on target boundaries (labels or a reference) and chooses its threshold with the same objective.
 """
 
 from __future__ import annotations
@@ -36,14 +38,16 @@ from typing import Literal, get_args
 
 import numpy as np
 
+from ompn_ros.detect.duration import DurationDetector, DurationModel, fit_duration_model
 from ompn_ros.detect.offline import (
     auto_threshold,
     constrained_top_k_boundaries,
     depth_scores,
     standardise,
 )
-from ompn_ros.detect.online import MODES, DetectorConfig, expansion_scores
+from ompn_ros.detect.online import DURATION_MODE, MODES, DetectorConfig, expansion_scores, run_detector
 from ompn_ros.detect.tune import MATCH_TOLERANCE, OBJECTIVES, Objective, default_grid, objective_key
+from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 Reference = Literal[
     "auto_threshold_onset", "auto_threshold", "constrained_top_k", "pooled_top_k", "onset_and_pooled"
@@ -392,14 +396,60 @@ def agreement(
     return max(values)
 
 
+DURATION_THRESHOLDS = tuple(round(0.1 + 0.05 * i, 2) for i in range(17))
+"""The posterior thresholds :func:`calibrate_duration` chooses from (0.1 … 0.9)."""
+
+
+@dataclass(frozen=True)
+class DurationCalibration:
+    """The fitted duration model, the chosen 'hsmm' detector and its metrics against the targets."""
+
+    model: DurationModel
+    config: DetectorConfig
+    metrics: dict[str, float]
+
+
+def calibrate_duration(
+    scores: Sequence[np.ndarray],
+    target_boundaries: Sequence[np.ndarray],
+    lag: int,
+    objective: Objective = "align",
+    thresholds: Sequence[float] = DURATION_THRESHOLDS,
+) -> DurationCalibration:
+    """Fit the duration model on ``target_boundaries`` (each episode's segment ends, its last step
+    included) and choose the threshold of the 'hsmm' detector with ``lag`` by :func:`objective_key`
+    against the same targets.  O(len(thresholds) · Σ T · K · lag²)."""
+    if not thresholds:
+        raise CalibrationError("thresholds: need at least one")
+    model = fit_duration_model(scores, target_boundaries)
+    labels = [np.cumsum(np.isin(np.arange(len(s)), b)) - np.isin(np.arange(len(s)), b)
+              for s, b in zip(scores, target_boundaries, strict=True)]
+    rows = []
+    for threshold in thresholds:
+        detector = DurationDetector(model, lag, threshold)
+        events = [run_detector(detector, s) for s in scores]
+        preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
+        delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
+        align = alignment_accuracy(preds, labels, "strict")
+        rows.append({"f1_tol0": mean_f1(preds, target_boundaries, 0).f1,
+                     "f1_tol1": mean_f1(preds, target_boundaries, 1).f1, "align": align,
+                     "align_strict": align, "delay_mean": float(np.mean(delays)) if delays else float("nan")})
+    best = max(range(len(rows)), key=lambda i: (objective_key(rows[i], objective), -i))
+    config = DetectorConfig(mode=DURATION_MODE, high=float(thresholds[best]), lag=lag)
+    return DurationCalibration(model, config, rows[best])
+
+
 __all__ = [
+    "DURATION_THRESHOLDS",
     "OBJECTIVES",
     "REFERENCES",
     "Calibration",
     "CalibrationError",
+    "DurationCalibration",
     "Objective",
     "Reference",
     "agreement",
+    "calibrate_duration",
     "calibrate_label_free",
     "default_grid",
     "detect_grid",

@@ -57,7 +57,7 @@ class DurationModelError(ValueError):
     """An invalid duration model, or episodes a model cannot be fitted on; the message says which."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class DurationModel:
     """The fitted HSMM: ``K`` segments, their hazards and the score histograms.
 
@@ -104,6 +104,12 @@ class DurationModel:
             logs = (np.log(hazard), np.log1p(-hazard), np.log(f1), np.log(f0))
         object.__setattr__(self, "logs", logs)
 
+    def __eq__(self, other: object) -> bool:  # the arrays compared by value (rounded as stored)
+        return isinstance(other, DurationModel) and self.to_dict() == other.to_dict()
+
+    def __hash__(self) -> int:
+        return hash((self.subtasks, self.episodes, self.hazard.shape, self.f0.size))
+
     @property
     def bins(self) -> int:
         return int(self.f0.size)
@@ -123,7 +129,7 @@ class DurationModel:
 
     @classmethod
     def from_dict(cls, data: Any) -> DurationModel:
-        """Parse :meth:`to_dict`'s layout (probabilities renormalised after rounding)."""
+        """Parse :meth:`to_dict`'s layout."""
         if not isinstance(data, dict) or set(data) != {"subtasks", "episodes", "hazard", "f0", "f1"}:
             raise DurationModelError("duration model must be {'subtasks', 'episodes', 'hazard', 'f0', 'f1'}")
         try:
@@ -131,8 +137,7 @@ class DurationModel:
             hazard = np.asarray(data["hazard"], dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise DurationModelError(f"duration model arrays are not numeric: {exc}") from exc
-        return cls(subtasks=data["subtasks"], hazard=hazard, f0=f0 / f0.sum(), f1=f1 / f1.sum(),
-                   episodes=data["episodes"])
+        return cls(subtasks=data["subtasks"], hazard=hazard, f0=f0, f1=f1, episodes=data["episodes"])
 
 
 # --- fitting ---------------------------------------------------------------------------------------

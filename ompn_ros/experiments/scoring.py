@@ -5,7 +5,9 @@
 * Constrained Top-K: Top-K restricted to subtasks of at least ``min_length`` steps ending at the
   episode's last step, ``min_length`` tuned on the run's validation episodes.
 * Online: the causal detector of ``ompn_node`` replayed through the ``StreamingSegmenter``, with the
-  package's shipped settings and with settings tuned on the validation episodes.
+  package's shipped settings and with settings tuned on the validation episodes; and the duration
+  decoder (mode 'hsmm') fitted and tuned on the validation episodes at each lag of
+  :data:`DURATION_LAGS` (``online_hsmm<lag>_*``), scored on the same replays.
 
 Validation episodes tune; test episodes only score.  Cost: O(Σ T) model steps per checkpoint plus
 the detector grid search, O(|grid| · Σ T_val).
@@ -21,8 +23,15 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
 from ompn_ros.detect.online import DetectorConfig
-from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, Metrics, load_detector_yaml, write_node_config
+from ompn_ros.detect.tune import (
+    DEFAULT_OBJECTIVE,
+    Metrics,
+    load_detector_yaml,
+    score_online,
+    write_node_config,
+)
 from ompn_ros.experiments.replay import choose_detector, compare_detectors, replay_all
 from ompn_ros.model.factory import build_stepper
 from ompn_ros.paths import config_file
@@ -37,6 +46,8 @@ DEFAULT_MIN_LENGTH = 2
 """min_length of the constrained Top-K when a run has no validation episodes to tune it on."""
 TRAINING_CELLS = ("train_seconds", "frames_per_second")
 """Result cells that only training produces (kept from the previous results by --reevaluate)."""
+DURATION_LAGS = (0, 1, 2, 3, 4, 5, 6)
+"""Lags at which the duration decoder is scored (``online_hsmm<lag>_*``)."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +81,23 @@ class Evaluation:
 def tuned_min_length(val_p_hats: Sequence[np.ndarray], val: Sequence[Episode]) -> int:
     """The constrained Top-K's ``min_length`` chosen on validation episodes (never the test ones)."""
     return tune_min_length(val_p_hats, val)[0] if val else DEFAULT_MIN_LENGTH
+
+
+def duration_metrics(
+    replays: Sequence[ReplayResult], test: Sequence[Episode], val_p_hats: Sequence[np.ndarray],
+    val: Sequence[Episode], lags: Sequence[int] = DURATION_LAGS,
+) -> dict[str, float]:
+    """``online_hsmm<lag>_*`` on the test ``replays``: the duration decoder fitted on the validation
+    labels and its threshold tuned there for alignment (teacher-forced validation scores, equal to the
+    streamed ones to 1e-5).  O(len(lags) · thresholds · Σ T_val · K · lag²)."""
+    val_scores = scores_from_p_hats(val_p_hats)
+    row: dict[str, float] = {}
+    for lag in lags:
+        tuned = calibrate_duration(val_scores, [ep.boundaries for ep in val], lag, "align")
+        found = score_online(replays, test, tuned.config, tuned.model)
+        row.update({f"online_hsmm{lag}_{k}": v for k, v in found.items()})
+        row[f"online_hsmm{lag}_threshold"] = tuned.config.high
+    return row
 
 
 def online_metrics(
@@ -113,6 +141,8 @@ def evaluate_policy(
     if online:
         online_row, result.replays, result.tuning = online_metrics(test, domain, build_stepper(policy), val)
         row.update(online_row)
+        if val:
+            row.update(duration_metrics(result.replays, test, val_p_hats, val))
     return result
 
 

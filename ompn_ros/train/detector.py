@@ -14,6 +14,12 @@ distributions (teacher-forced; the streaming stepper gives the same ``p_hat`` to
 
 The objective follows the domain's headline metric: boundary F1 for discrete actions (Craft),
 alignment for continuous ones (Dial).
+
+Both ways also fit the duration decoder (mode 'hsmm', :mod:`ompn_ros.detect.duration`) on the same
+targets (the labels, or the pooled constrained Top-K without them) and tune its threshold for
+alignment at ``train.detector_lag``; the checkpoint keeps the model.  It becomes the online detector
+when its validation alignment beats the threshold detector's by :data:`DURATION_GAIN` with F1@1 at
+most :data:`DURATION_GAIN` lower (docs/experiments.md §38).
 """
 
 from __future__ import annotations
@@ -27,12 +33,19 @@ import numpy as np
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.calibrate import (
     Calibration,
+    DurationCalibration,
     Objective,
     Reference,
+    calibrate_duration,
     calibrate_label_free,
+    evaluate_grid,
+    pooled_counts,
+    reference_boundaries,
     scores_from_p_hats,
     tune_on_labels,
 )
+from ompn_ros.detect.duration import DurationModelError
+from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
 from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
 
@@ -43,6 +56,10 @@ LABEL_FREE_REFERENCE_MIN_LENGTH = 3
 """``min_length`` of its pooled constrained Top-K (docs/experiments.md §37)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
+DURATION_LAG = 3
+"""Default ``train.detector_lag``: the steps the 'hsmm' detector waits (docs/experiments.md §38)."""
+DURATION_GAIN = 0.01
+"""Validation alignment the 'hsmm' detector must gain, and F1@1 it may lose at most, to be chosen."""
 
 
 def objective_for(action_type: str) -> Objective:
@@ -80,6 +97,32 @@ def calibrate_without_labels(
     )
 
 
+def _duration(scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None
+              ) -> DurationCalibration | None:
+    """The 'hsmm' detector fitted and tuned on ``targets``; None without a lag or with fewer than two
+    segments per episode (nothing to decode)."""
+    if lag is None:
+        return None
+    try:
+        duration = calibrate_duration(scores, targets, lag, "align")
+    except DurationModelError as exc:
+        LOG.warning("no duration model: %s", exc)
+        return None
+    return duration if duration.model.subtasks >= 2 else None
+
+
+def _pick(threshold: DetectorConfig, threshold_metrics: dict[str, float], duration: DurationCalibration | None
+          ) -> tuple[DetectorConfig, dict[str, float]]:
+    """The online detector (see the module docstring) and the both detectors' validation figures."""
+    figures = {f"threshold_val_{k}": float(threshold_metrics[k]) for k in ("align", "f1_tol1")}
+    if duration is None:
+        return threshold, figures
+    figures.update({f"hsmm_val_{k}": float(duration.metrics[k]) for k in ("align", "f1_tol1")})
+    better = (duration.metrics["align"] >= threshold_metrics["align"] + DURATION_GAIN
+              and duration.metrics["f1_tol1"] >= threshold_metrics["f1_tol1"] - DURATION_GAIN)
+    return (duration.config if better else threshold), figures
+
+
 def choose_settings(
     p_hats: Sequence[np.ndarray],
     episodes: Sequence[Episode],
@@ -87,36 +130,49 @@ def choose_settings(
     action_type: str,
     use_labels: bool,
     what: str,
+    lag: int | None = DURATION_LAG,
 ) -> DetectorSettings:
     """Detector settings for the model whose validation ``p_hats`` are given (see module docstring).
 
     ``what`` names the checkpoint in the provenance line.  Labels are used only when ``use_labels``
-    and every episode has them.
+    and every episode has them.  ``lag``: of the 'hsmm' detector (None: fit none).
     """
     objective = objective_for(action_type)
     labelled = use_labels and all(ep.subtask is not None for ep in episodes)
     scores = scores_from_p_hats(p_hats)
     if labelled:
         tuned = tune_on_labels(scores, [np.asarray(ep.subtask) for ep in episodes], objective)
+        duration = _duration(scores, [ep.boundaries for ep in episodes], lag)
+        online, figures = _pick(tuned.config, tuned.metrics, duration)
         offline, min_length = _offline_choice(p_hats, episodes)
         return DetectorSettings(
-            online=tuned.config,
+            online=online,
             offline_detector=offline,
             min_length=min_length,
             source="tuned_on_validation",
             provenance=f"ompn_train: {what}, tuned on the labels of {len(episodes)} validation episodes "
-            f"(objective {objective})",
-            metrics=_metrics(tuned),
+            f"(objective {objective}; online mode {online.mode})",
+            metrics={**_metrics(tuned), **figures},
+            duration_model=None if duration is None else duration.model,
         )
     calibrated = calibrate_without_labels(p_hats, episodes, action_type, scores)
+    counts = pooled_counts(p_hats, [ep.task for ep in episodes])
+    pooled = [reference_boundaries(p, "pooled_top_k", LABEL_FREE_REFERENCE_MIN_LENGTH, k)
+              for p, k in zip(p_hats, counts, strict=True)]
+    duration = _duration(scores, pooled, lag)
+    against_pooled = evaluate_grid(scores, [calibrated.config], pooled)[0]
+    online, figures = _pick(calibrated.config, against_pooled, duration)
     return DetectorSettings(
-        online=calibrated.config,
+        online=online,
         offline_detector="auto_threshold",
         min_length=LABEL_FREE_MIN_LENGTH,
         source="calibrated_label_free",
         provenance=f"ompn_train: {what}, calibrated without labels on {len(episodes)} validation episodes "
-        f"(agreement with the {LABEL_FREE_REFERENCE} reference, objective {objective})",
-        metrics={k.replace("val_", "agreement_"): v for k, v in _metrics(calibrated).items()},
+        f"(agreement with the {LABEL_FREE_REFERENCE} reference, objective {objective}; online mode "
+        f"{online.mode})",
+        metrics={**{k.replace("val_", "agreement_"): v for k, v in _metrics(calibrated).items()},
+                 **{k.replace("_val_", "_pooled_"): v for k, v in figures.items()}},
+        duration_model=None if duration is None else duration.model,
     )
 
 
@@ -127,6 +183,7 @@ def bundle(
     *,
     action_type: str,
     use_labels: bool,
+    lag: int | None = DURATION_LAG,
 ) -> DetectorSettings:
     """Choose the settings (:func:`choose_settings`) and write ``checkpoint_dir/detector.json``."""
     settings = choose_settings(
@@ -135,6 +192,7 @@ def bundle(
         action_type=action_type,
         use_labels=use_labels,
         what=f"checkpoint {checkpoint_dir.name}/",
+        lag=lag,
     )
     save_detector_settings(checkpoint_dir, settings)
     LOG.info("%s: %s", checkpoint_dir / "detector.json", settings.describe())
@@ -142,6 +200,6 @@ def bundle(
 
 
 __all__ = [
-    "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle", "calibrate_without_labels",
-    "choose_settings", "objective_for",
+    "DURATION_GAIN", "DURATION_LAG", "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle",
+    "calibrate_without_labels", "choose_settings", "objective_for",
 ]

@@ -46,6 +46,7 @@ import torch
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.calibrate import agreement
+from ompn_ros.detect.online import MAX_LAG
 from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
@@ -62,6 +63,7 @@ from ompn_ros.train.batching import (
     obs_normalization,
     split_train_val,
 )
+from ompn_ros.train.detector import DURATION_LAG
 from ompn_ros.train.detector import bundle as bundle_detector
 from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
 from ompn_ros.train.distributed import (
@@ -185,6 +187,8 @@ class TrainConfig:
             ``restarts`` times.  Labelled selections only.  0 = off.
         restart_below: the bound of the restart rule (the selection criterion, e.g. alignment).
         restarts: the most restarts one run makes.
+        detector_lag: the lag of the 'hsmm' online detector fitted at the end of training (steps a
+            published boundary may wait for a better segmentation, 0 … 10; ``ompn_ros.train.detector``).
         obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.
@@ -244,6 +248,7 @@ class TrainConfig:
     restart_at: int = 0
     restart_below: float = 0.0
     restarts: int = 1
+    detector_lag: int = DURATION_LAG
     obs_norm: ObsNorm = "none"
     eval_episodes: int = 0
     eval_batch_size: int = 64
@@ -294,6 +299,8 @@ class TrainConfig:
             self.out_dir is None or isinstance(self.out_dir, str), "out_dir", "must be a path string or None"
         )
         need(not (self.resume and self.out_dir is None), "resume", "needs out_dir")
+        need(_is_int(self.detector_lag) and 0 <= self.detector_lag <= MAX_LAG, "detector_lag",
+             f"must be an int in [0, {MAX_LAG}]")
         self._check_distill(need)
 
     def _check_distill(self, need: Callable[[bool, str, str], None]) -> None:
@@ -524,7 +531,8 @@ def bundle_detectors(
             cast(OMPNPolicy, policy), val_eps, bptt=cfg.bptt, batch_size=cfg.eval_batch_size
         )
         written[name] = bundle_detector(
-            directory, p_hats, val_eps, action_type=policy.config.action_type, use_labels=cfg.labels == "auto"
+            directory, p_hats, val_eps, action_type=policy.config.action_type,
+            use_labels=cfg.labels == "auto", lag=cfg.detector_lag,
         )
     return written
 
