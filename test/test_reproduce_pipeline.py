@@ -67,7 +67,7 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
     results = tmp_path / "results"
     code = reproduce.main([
         "craft", "--settings", "full_nosketch", "--seeds", "2", "--episodes", "8", "--iterations", "2",
-        "--extras", "ksweep,ensemble", "--threads", "1", "--work", str(tmp_path / "work"),
+        "--extras", "ksweep,ensemble,online_lag", "--threads", "1", "--work", str(tmp_path / "work"),
         "--results", str(results),
     ])
     assert code == 0
@@ -78,8 +78,15 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
         cell = row[metric]
         assert set(cell) == {"mean", "std", "n"} and cell["n"] == 2
         assert 0.0 <= cell["mean"] <= 1.0
+    for lag in range(7):  # the duration decoder at every lag, fitted and tuned on validation
+        cell = row[f"online_hsmm{lag}_align_strict"]
+        assert cell["n"] == 2 and 0.0 <= cell["mean"] <= 1.0
+        assert 0.1 <= row[f"online_hsmm{lag}_threshold"]["mean"] <= 0.9
     extras = json.loads((results / "craft_extras.json").read_text())
-    assert list(extras["extras"]) == ["k_sweep", "ensemble_of_seeds"]
+    assert list(extras["extras"]) == ["k_sweep", "ensemble_of_seeds", "online_lag"]
+    lag_rows = extras["extras"]["online_lag"]["rows"]
+    assert lag_rows["full_nosketch: online, hsmm lag 3"]["align"] == row["online_hsmm3_align_strict"]
+    assert lag_rows["full_nosketch: offline, paper's detector"]["align"] == row["align"]
     assert extras["extras"]["k_sweep"]["title"] == "K sweep (full_nosketch, seed 0, tol=1)"
     sweep = extras["extras"]["k_sweep"]["rows"]
     assert list(sweep) == ["K=2", "K=3", "K=4", "K=5", "K=6"]

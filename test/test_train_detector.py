@@ -17,7 +17,7 @@ from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.train.detector import DURATION_GAIN, DURATION_LAG, _pick
+from ompn_ros.train.detector import DURATION_GAIN, DURATION_LAG, pick_online
 from ompn_ros.train.restart import RESTART_SEED_STRIDE, attempt_config, collapsed, read_attempt, rule_applies
 from ompn_ros.train.state import TrainStateError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
@@ -102,11 +102,11 @@ def test_the_hsmm_detector_is_chosen_only_when_it_gains_alignment_and_keeps_f1()
         return DurationCalibration(model, DetectorConfig(mode="hsmm", high=0.5, lag=3),
                                    {"align": align, "f1_tol1": f1})
 
-    assert _pick(threshold, base, duration(0.85, 0.895))[0].mode == "hsmm"
-    assert _pick(threshold, base, duration(0.805, 0.95))[0] == threshold  # too little alignment gained
-    assert _pick(threshold, base, duration(0.95, 0.88))[0] == threshold  # F1 not kept
+    assert pick_online(threshold, base, duration(0.85, 0.895))[0].mode == "hsmm"
+    assert pick_online(threshold, base, duration(0.805, 0.95))[0] == threshold  # too little alignment gained
+    assert pick_online(threshold, base, duration(0.95, 0.88))[0] == threshold  # F1 not kept
     figures = {"threshold_val_align": 0.8, "threshold_val_f1_tol1": 0.9}
-    assert _pick(threshold, base, None) == (threshold, figures)
+    assert pick_online(threshold, base, None) == (threshold, figures)
     with pytest.raises(TrainConfigError, match="detector_lag must be an int in \\[0, 10\\]"):
         TrainConfig(detector_lag=11)
 

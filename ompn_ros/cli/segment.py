@@ -30,12 +30,22 @@ import torch
 
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.data.episode import Episode
+from ompn_ros.detect.online import MAX_LAG
 from ompn_ros.detect.settings import resolve_detector
-from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, OBJECTIVES, load_detector_yaml, write_node_config
+from ompn_ros.detect.tune import (
+    DEFAULT_OBJECTIVE,
+    OBJECTIVES,
+    choose_on_replays,
+    default_grid,
+    load_detector_yaml,
+    score_online,
+    write_node_config,
+)
 from ompn_ros.experiments import replay
-from ompn_ros.experiments.replay import ReplayError, choose_detector, replay_all
+from ompn_ros.experiments.replay import ReplayError, replay_all
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.train.detector import DURATION_LAG, duration_detector, pick_online
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,6 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
         "checkpoint's detector.json (none: print only)",
     )
     p.add_argument(
+        "--lag", type=int, default=DURATION_LAG, choices=range(MAX_LAG + 1), metavar=f"0..{MAX_LAG}",
+        help="with --tune: the lag of the 'hsmm' detector fitted beside the threshold grid (it is chosen "
+        "when it gains 1 point of alignment and keeps F1@1 within 1 point)",
+    )
+    p.add_argument(
         "--objective",
         choices=OBJECTIVES,
         default=None,
@@ -108,15 +123,23 @@ def _episodes(args: argparse.Namespace) -> list[Episode]:
 
 def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> int:
     objective = args.objective or DEFAULT_OBJECTIVE.get(args.domain or "", "f1")
-    best, metrics, comparison = choose_detector(policy, episodes, objective=objective)
-    doc = {"best": best.to_dict(), "metrics": metrics, "comparison": comparison}
+    replays = replay_all(policy, episodes, default_grid()[0])
+    replay.check_finite(replays, episodes)
+    threshold, metrics, comparison = choose_on_replays(replays, episodes, objective=objective)
+    duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], args.lag)
+    model = None if duration is None else duration.model
+    best, figures = pick_online(threshold, metrics, duration)
+    if best is not threshold:
+        metrics = score_online(replays, episodes, best, model)
+        comparison["online_hsmm"] = metrics
+    doc = {"best": best.to_dict(), "metrics": metrics, "comparison": comparison, "choice": figures}
     print(json.dumps(replay.json_safe(doc), indent=1))
     if args.write_config:
         source = args.bag or f"{args.generate} generated {args.domain} episodes (seeds from {args.seed})"
-        provenance = f"ompn_segment --tune on {source}, objective {objective}"
+        provenance = f"ompn_segment --tune on {source}, objective {objective}, online mode {best.mode}"
         write_node_config(args.write_config, args.domain or "", best, comparison,
                           f"{source}, objective {objective}, checkpoint {args.checkpoint}")
-        written = replay.store_tuned(args.checkpoint, best, metrics, provenance)
+        written = replay.store_tuned(args.checkpoint, best, {**metrics, **figures}, provenance, model)
         print(f"ompn_segment: wrote {args.write_config}, {written}", file=sys.stderr)
     return 0
 

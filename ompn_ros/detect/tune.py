@@ -221,6 +221,7 @@ def write_node_config(
         f"    detector_min_segment_length: {config.min_segment_length}",
         f"    detector_mode: {config.mode}",
         f"    detector_force_first_step_low: {str(config.force_first_step_low).lower()}",
+        f"    detector_lag: {config.lag}",
         "",
     ]
     out = Path(path)

@@ -20,7 +20,7 @@ from ompn_ros.experiments.data import collect_bags, held_out_split, read_bags
 from ompn_ros.experiments.ensembles import ensemble_scores, majority_min_length, member_ensemble_row
 from ompn_ros.experiments.figures import save_figures
 from ompn_ros.experiments.runs import BaseConfig, load_train_config, pin_fixed_length, run_setting
-from ompn_ros.experiments.scoring import TRAINING_CELLS, Evaluation, aggregate, evaluate_policy
+from ompn_ros.experiments.scoring import DURATION_LAGS, TRAINING_CELLS, Evaluation, aggregate, evaluate_policy
 from ompn_ros.experiments.ship import ship
 from ompn_ros.experiments.spec import (
     ABLATIONS,
@@ -265,6 +265,28 @@ class SettingTables:
     per_seed: dict[str, Any] = field(default_factory=dict)
     of_seeds: dict[str, Any] = field(default_factory=dict)
     distilled: dict[str, Any] = field(default_factory=dict)
+    online_lag: dict[str, Any] = field(default_factory=dict)
+
+
+def online_lag_rows(name: str, cells: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The ``online_lag`` rows of one setting: offline, the tuned threshold detector and the duration
+    decoder at every scored lag (``online_hsmm<lag>_*``), each as align / F1@1 / delay."""
+    rows = {
+        f"{name}: offline, paper's detector": {"align": cells["align"], "f1_tol1": cells["f1_tol1"]},
+        f"{name}: offline, constrained Top-K": {"align": cells["constrained_align"],
+                                                "f1_tol1": cells["constrained_f1_tol1"]},
+        f"{name}: online, threshold": {
+            "align": cells["online_align_strict"], "f1_tol1": cells["online_f1_tol1"],
+            "delay_mean": cells["online_delay_mean"],
+        },
+    }
+    for lag in DURATION_LAGS:
+        if f"online_hsmm{lag}_align_strict" in cells:
+            rows[f"{name}: online, hsmm lag {lag}"] = {
+                k: cells[f"online_hsmm{lag}_{m}"] for k, m in
+                (("align", "align_strict"), ("f1_tol1", "f1_tol1"), ("delay_mean", "delay_mean"))
+            }
+    return rows
 
 
 def train_setting(state: State, name: str, tables: SettingTables) -> None:
@@ -298,6 +320,8 @@ def train_setting(state: State, name: str, tables: SettingTables) -> None:
         tables.per_seed[name] = aggregate(member_rows)
     if distilled_rows:
         tables.distilled[name] = aggregate(distilled_rows)
+    if "online_lag" in spec.extras:
+        tables.online_lag.update(online_lag_rows(name, state.results[name]))
     if want_ensemble:
         tables.of_seeds[name] = ensemble_scores(spec.domain, seed_p_hats, test, majority_min_length(rows))
     if spec.reevaluate:
@@ -354,6 +378,8 @@ def reproduce(spec: ReproduceSpec) -> int:
         state.extras["distilled"] = report.table(
             report.distilled_title(spec.seeds, DISTILL_WEIGHT), tables.distilled
         )
+    if tables.online_lag:
+        state.extras["online_lag"] = report.table(report.online_lag_title(spec.seeds), tables.online_lag)
     if "ablations" in spec.extras:
         state.extras["ablations"] = report.table(report.ablations_title(primary), ablations(state, primary))
     meta = write(state)

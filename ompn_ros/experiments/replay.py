@@ -168,14 +168,17 @@ def annotate(bag: str, out: Path, episodes: Sequence[Episode], replays: Sequence
     return annotate_bag(bags[0], out, list(zip(stamps, replays, strict=True)), overwrite=overwrite)
 
 
-def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, provenance: str) -> Path:
-    """Store a tuned online detector in the checkpoint's ``detector.json`` (keeping its offline
-    choices; a shipped checkpoint's settings stay the ``'shipped'`` ones); returns the file."""
+def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, provenance: str,
+                duration_model: DurationModel | None = None) -> Path:
+    """Store a tuned online detector (and the duration model fitted beside it) in the checkpoint's
+    ``detector.json``, keeping its offline choices; a shipped checkpoint's settings stay the
+    ``'shipped'`` ones.  Returns the file."""
     stored = load_detector_settings(checkpoint)
     measured = {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))}
     source: SettingsSource = "shipped" if stored.source == "shipped" else "tuned_on_validation"
     return save_detector_settings(checkpoint, dataclasses.replace(
-        stored, online=best, source=source, provenance=provenance, metrics=measured))
+        stored, online=best, source=source, provenance=provenance, metrics=measured,
+        duration_model=duration_model))
 
 
 def run_replay(

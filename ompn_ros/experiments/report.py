@@ -31,7 +31,8 @@ from ompn_ros.experiments.report_own import own_markdown
 
 DOMAINS = ("craft", "dial")
 EXTRA_IDS = (
-    "k_sweep", "threshold_sweep", "ensembles_per_seed", "ensemble_of_seeds", "distilled", "ablations"
+    "k_sweep", "threshold_sweep", "ensembles_per_seed", "ensemble_of_seeds", "distilled", "online_lag",
+    "ablations",
 )
 """Stable ids of the extra tables, in the order they are written."""
 README = "README.md"
@@ -92,6 +93,12 @@ def distilled_title(seeds: int, weight: float) -> str:
         "Distilled: one OMPN per seed that also learns the averaged p_hat of the seed's ensemble "
         f"(train.distill_weight {weight:g}; single-model cost; mean (std) over {seeds} seeds)"
     )
+
+
+def online_lag_title(seeds: int) -> str:
+    return (f"Online decoders against the lag ({seeds} seeds, held out, mean (std)): the threshold detector "
+            "tuned on validation; the duration decoder ('hsmm', docs/experiments.md §38) fitted and tuned on "
+            "validation at each lag; the offline detectors of the same checkpoints")
 
 
 def ablations_title(setting: str) -> str:

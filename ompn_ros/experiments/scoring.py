@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
+from ompn_ros.detect.calibrate import scores_from_p_hats
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
@@ -36,6 +36,7 @@ from ompn_ros.experiments.replay import choose_detector, compare_detectors, repl
 from ompn_ros.model.factory import build_stepper
 from ompn_ros.paths import config_file
 from ompn_ros.segmenter import ReplayResult
+from ompn_ros.train.detector import duration_detector
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat, tune_min_length
 
 METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", "recall_tol1")
@@ -93,7 +94,9 @@ def duration_metrics(
     val_scores = scores_from_p_hats(val_p_hats)
     row: dict[str, float] = {}
     for lag in lags:
-        tuned = calibrate_duration(val_scores, [ep.boundaries for ep in val], lag, "align")
+        tuned = duration_detector(val_scores, [ep.boundaries for ep in val], lag)
+        if tuned is None:  # no model (fewer than two subtasks per episode): no figures
+            return row
         found = score_online(replays, test, tuned.config, tuned.model)
         row.update({f"online_hsmm{lag}_{k}": v for k, v in found.items()})
         row[f"online_hsmm{lag}_threshold"] = tuned.config.high

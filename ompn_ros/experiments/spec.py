@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 Domain = Literal["craft", "dial"]
 CRAFT_TASKS = ("makebed", "makeaxe", "makeshears")
-EXTRAS = ("ksweep", "thresholds", "ablations", "ensemble", "distill")
+EXTRAS = ("ksweep", "thresholds", "ablations", "ensemble", "distill", "online_lag")
 DISTILL_WEIGHT = 1.0
 """``train.distill_weight`` of the ``distill`` extra's students: of 1 and 3, the weight with the higher
 validation alignment on seeds 0 and 1 of Craft full (docs/experiments.md §35)."""

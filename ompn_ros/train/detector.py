@@ -97,7 +97,7 @@ def calibrate_without_labels(
     )
 
 
-def _duration(scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None
+def duration_detector(scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None
               ) -> DurationCalibration | None:
     """The 'hsmm' detector fitted and tuned on ``targets``; None without a lag or with fewer than two
     segments per episode (nothing to decode)."""
@@ -111,8 +111,8 @@ def _duration(scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: 
     return duration if duration.model.subtasks >= 2 else None
 
 
-def _pick(threshold: DetectorConfig, threshold_metrics: dict[str, float], duration: DurationCalibration | None
-          ) -> tuple[DetectorConfig, dict[str, float]]:
+def pick_online(threshold: DetectorConfig, threshold_metrics: dict[str, float],
+                duration: DurationCalibration | None) -> tuple[DetectorConfig, dict[str, float]]:
     """The online detector (see the module docstring) and the both detectors' validation figures."""
     figures = {f"threshold_val_{k}": float(threshold_metrics[k]) for k in ("align", "f1_tol1")}
     if duration is None:
@@ -142,8 +142,8 @@ def choose_settings(
     scores = scores_from_p_hats(p_hats)
     if labelled:
         tuned = tune_on_labels(scores, [np.asarray(ep.subtask) for ep in episodes], objective)
-        duration = _duration(scores, [ep.boundaries for ep in episodes], lag)
-        online, figures = _pick(tuned.config, tuned.metrics, duration)
+        duration = duration_detector(scores, [ep.boundaries for ep in episodes], lag)
+        online, figures = pick_online(tuned.config, tuned.metrics, duration)
         offline, min_length = _offline_choice(p_hats, episodes)
         return DetectorSettings(
             online=online,
@@ -159,9 +159,9 @@ def choose_settings(
     counts = pooled_counts(p_hats, [ep.task for ep in episodes])
     pooled = [reference_boundaries(p, "pooled_top_k", LABEL_FREE_REFERENCE_MIN_LENGTH, k)
               for p, k in zip(p_hats, counts, strict=True)]
-    duration = _duration(scores, pooled, lag)
+    duration = duration_detector(scores, pooled, lag)
     against_pooled = evaluate_grid(scores, [calibrated.config], pooled)[0]
-    online, figures = _pick(calibrated.config, against_pooled, duration)
+    online, figures = pick_online(calibrated.config, against_pooled, duration)
     return DetectorSettings(
         online=online,
         offline_detector="auto_threshold",
@@ -201,5 +201,5 @@ def bundle(
 
 __all__ = [
     "DURATION_GAIN", "DURATION_LAG", "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle",
-    "calibrate_without_labels", "choose_settings", "objective_for",
+    "calibrate_without_labels", "choose_settings", "duration_detector", "objective_for", "pick_online",
 ]
