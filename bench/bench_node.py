@@ -1,7 +1,8 @@
 """Benchmark of the online product: segmenter step latency and ompn_node over DDS.
 
 1. In-process, batch 1: ``StreamingSegmenter.step`` p50/p99 (numpy StreamingPolicy + detector +
-   validation) vs a plain eager PyTorch ``OMPNPolicy.step`` under ``inference_mode``, for the
+   validation; also with the duration decoder, mode 'hsmm', at lags 3 and 6) vs a plain eager PyTorch
+   ``OMPNPolicy.step`` under ``inference_mode``, for the
    Craft (obs 1075, n=3, m=128, discrete) and Dial (obs 39, n=3, m=64, continuous) sizes.
    Random-init checkpoints (latency does not depend on the weights).
 2. Two processes on loopback: this process publishes Dial-sized observations and subscribes to the
@@ -124,6 +125,17 @@ def _torch_stepper(model: Any) -> tuple[Any, Any]:
     return reset, step
 
 
+def _cost_model() -> Any:
+    """A duration model of 4 subtasks of 4-8 steps (for timing the 'hsmm' decoder only)."""
+    from ompn_ros.detect.duration import fit_duration_model
+
+    rng = np.random.default_rng(0)
+    bounds = [np.cumsum(rng.integers(4, 9, size=4)) - 1 for _ in range(100)]
+    scores = [np.where(np.isin(np.arange(b[-1] + 1), b), 0.6, 0.1) + rng.normal(0, 0.05, b[-1] + 1)
+              for b in bounds]
+    return fit_duration_model(scores, bounds)
+
+
 def bench_in_process(steps: int) -> Result:
     """Segmenter step (every backend) vs eager torch step, batch 1, on the shipped checkpoints."""
     import torch
@@ -146,6 +158,12 @@ def bench_in_process(steps: int) -> Result:
             prefix = f"{name}_segmenter" if backend == "jit" else f"{name}_segmenter_{backend}"
             out[f"{prefix}_step_p50"] = (_pct(times, 50), "us")
             out[f"{prefix}_step_p99"] = (_pct(times, 99), "us")
+        for lag in (3, 6):  # the duration decoder (mode 'hsmm'); its cost does not depend on the fit
+            config = DetectorConfig(mode="hsmm", high=0.5, lag=lag)
+            seg = StreamingSegmenter(StreamingPolicy(model, backend="jit"), config, _cost_model())
+            times = _time_steps(seg.reset, seg.step, obs, starts)
+            out[f"{name}_segmenter_hsmm{lag}_step_p50"] = (_pct(times, 50), "us")
+            out[f"{name}_segmenter_hsmm{lag}_step_p99"] = (_pct(times, 99), "us")
         torch_reset, torch_step = _torch_stepper(model)
         times = _time_steps(torch_reset, torch_step, obs, starts, reps=1)
         out[f"{name}_torch_step_p50"] = (_pct(times, 50), "us")
