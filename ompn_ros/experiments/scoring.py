@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.calibrate import scores_from_p_hats
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
+from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
     Metrics,
@@ -111,17 +113,21 @@ def online_metrics(
     Two detector settings are scored on the same replays: the shipped one of ``domain``
     (``online_shipped_*``) and one tuned for this checkpoint on ``val`` by the grid search of
     :mod:`ompn_ros.detect.tune` with the domain's default objective (``online_*``).  Without
-    ``val`` the shipped setting is reported under both names.
+    ``val`` the shipped setting is reported under both names.  A shipped setting of mode 'hsmm' decodes
+    with the shipped checkpoint's duration model.
     """
     shipped = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
+    model = None
+    if shipped.mode == DURATION_MODE:
+        model = load_detector_settings(shipped_checkpoint(domain)).duration_model
     configs = {"shipped": shipped}
     tuning = None
     if val:
         tuned, _, on_val = choose_detector(stepper, list(val), objective=DEFAULT_OBJECTIVE[domain])
         configs["tuned"] = tuned
         tuning = DetectorTuning(tuned, on_val, len(val))
-    replays = replay_all(stepper, test, configs.get("tuned", shipped))
-    scores = compare_detectors(stepper, test, configs, replays=replays)
+    replays = replay_all(stepper, test, configs.get("tuned", shipped), model)
+    scores = compare_detectors(stepper, test, configs, replays=replays, duration_model=model)
     row = {f"online_shipped_{k}": v for k, v in scores["shipped"].items()}
     row.update({f"online_{k}": v for k, v in scores["tuned" if tuning else "shipped"].items()})
     return row, replays, tuning
