@@ -114,4 +114,8 @@ def add_live_demo_arguments(parser: argparse.ArgumentParser) -> argparse.Argumen
         "--out", type=Path, default=Path("out/demo"), help="directory of the summary and plot"
     )
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the episodes")
+    parser.add_argument(
+        "--params-file", type=Path, default=None,
+        help="ompn_node parameters file (none: config/ompn_node_<domain>.yaml)",
+    )
     return parser

@@ -55,7 +55,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.smoke:
         return run_smoke()
     checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
-    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout)
+    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout,
+                         params_file=args.params_file)
 
 
 def main(argv: list[str] | None = None) -> int:

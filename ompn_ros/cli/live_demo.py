@@ -28,7 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """The live demo for parsed arguments (see :func:`ompn_ros.cli._common.add_live_demo_arguments`)."""
     checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
-    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout)
+    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout,
+                         params_file=args.params_file)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

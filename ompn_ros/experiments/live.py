@@ -227,9 +227,11 @@ def summarise(episodes: list[LiveEpisode], out_dir: Path) -> dict[str, float]:
 
 
 def launch(
-    domain: str, checkpoint: Path, rate: float, seed: int, episodes: int, node_name: str
+    domain: str, checkpoint: Path, rate: float, seed: int, episodes: int, node_name: str,
+    params_file: Path | None = None,
 ) -> tuple[list[subprocess.Popen[bytes]], dict[str, str]]:
-    """Start ``ompn_node`` and the domain's sim (expert mode) as processes; returns them and their env."""
+    """Start ``ompn_node`` (``params_file``, default ``config/ompn_node_<domain>.yaml``) and the domain's
+    sim (expert mode) as processes; returns them and their env."""
     env = child_env()
     node = subprocess.Popen(
         [
@@ -238,7 +240,7 @@ def launch(
             "ompn_ros.nodes.ompn_node",
             "--ros-args",
             "--params-file",
-            str(config_file(f"ompn_node_{domain}.yaml")),
+            str(params_file or config_file(f"ompn_node_{domain}.yaml")),
             "-p",
             f"checkpoint:={checkpoint}",
             "-r",
@@ -295,10 +297,11 @@ def run_demo(
     out: Path,
     timeout: float,
     node_name: str = "ompn_node",
+    params_file: Path | None = None,
 ) -> int:
     """Launch, monitor and summarise a live run; returns 0, or 1 when no episode was observed."""
     start = time.perf_counter()
-    procs, env = launch(domain, checkpoint, rate, seed, episodes, node_name)
+    procs, env = launch(domain, checkpoint, rate, seed, episodes, node_name, params_file)
     try:
         print(
             f"{domain}_sim and ompn_node running (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}); "
