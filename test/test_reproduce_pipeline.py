@@ -11,6 +11,7 @@ import pytest
 from ompn_ros.cli import reproduce
 from ompn_ros.data.episode import Episode
 from ompn_ros.experiments import data, ensembles, spec
+from ompn_ros.experiments.scoring import DURATION_LAGS
 from ompn_ros.paths import config_file
 
 
@@ -78,7 +79,7 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
         cell = row[metric]
         assert set(cell) == {"mean", "std", "n"} and cell["n"] == 2
         assert 0.0 <= cell["mean"] <= 1.0
-    for lag in range(7):  # the duration decoder at every lag, fitted and tuned on validation
+    for lag in DURATION_LAGS:  # the duration decoder at every lag, fitted and tuned on validation
         cell = row[f"online_hsmm{lag}_align_strict"]
         assert cell["n"] == 2 and 0.0 <= cell["mean"] <= 1.0
         assert 0.1 <= row[f"online_hsmm{lag}_threshold"]["mean"] <= 0.9

@@ -49,7 +49,7 @@ DEFAULT_MIN_LENGTH = 2
 """min_length of the constrained Top-K when a run has no validation episodes to tune it on."""
 TRAINING_CELLS = ("train_seconds", "frames_per_second")
 """Result cells that only training produces (kept from the previous results by --reevaluate)."""
-DURATION_LAGS = (0, 1, 2, 3, 4, 5, 6)
+DURATION_LAGS = (0, 1, 2, 3, 4, 5, 6, 8, 10)
 """Lags at which the duration decoder is scored (``online_hsmm<lag>_*``)."""
 
 
