@@ -56,7 +56,7 @@ LABEL_FREE_REFERENCE_MIN_LENGTH = 3
 """``min_length`` of its pooled constrained Top-K (docs/experiments.md §37)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
-DURATION_LAG = 3
+DURATION_LAG = 6
 """Default ``train.detector_lag``: the steps the 'hsmm' detector waits (docs/experiments.md §38)."""
 DURATION_GAIN = 0.01
 """Validation alignment the 'hsmm' detector must gain, and F1@1 it may lose at most, to be chosen."""
