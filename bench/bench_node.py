@@ -318,6 +318,9 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
     ]
     if checkpoint is not None:
         cmd += ["-p", f"checkpoint:={checkpoint}"]
+    # one endless stream without episode markers, where the duration decoder (mode 'hsmm') would stop
+    # after K - 1 boundaries: the threshold detector runs here; the live demo measures the decoder
+    cmd += ["-p", "detector_mode:=peak", "-p", "detector_high:=0.2"] if domain == "craft" else []
     log_path = tmp / f"node_{domain}_{executor}.log"
     log = open(log_path, "w")  # closed in the finally block
     proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)

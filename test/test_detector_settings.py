@@ -112,6 +112,8 @@ def test_shipped_checkpoints_carry_the_shipped_node_settings(domain: str) -> Non
     assert stored.online.high == params["detector_high"] and stored.online.mode == params["detector_mode"]
     assert stored.online.min_segment_length == params["detector_min_segment_length"]
     assert stored.online.high - stored.online.low_threshold == pytest.approx(params["detector_hysteresis"])
+    assert stored.online.lag == params.get("detector_lag", 0)
+    assert (stored.duration_model is not None) == (stored.online.mode == "hsmm")  # a model where it runs
 
 
 def test_node_parameters_round_trip_through_the_node_yaml_reader() -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,7 +23,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32  # noqa: E402
 
+from ompn_ros.checkpoints import shipped_checkpoint  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.detect.settings import DetectorSettings, load_detector_settings, save_detector_settings  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.ensemble import write_ensemble  # noqa: E402
@@ -294,18 +297,24 @@ def test_cleanup_and_reconfigure_with_new_detector(ctx, ckpt: Path) -> None:
 
 
 @pytest.mark.parametrize("name", ["ompn_node.yaml", "ompn_node_craft.yaml", "ompn_node_dial.yaml"])
-def test_shipped_params_files_fit_the_node(ctx, ckpt: Path, name: str) -> None:
+def test_shipped_params_files_fit_the_node(ctx, ckpt: Path, name: str, tmp_path: Path) -> None:
     import yaml
 
     doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / name).read_text())
     params = doc["/**/ompn_node"]["ros__parameters"]
-    params.pop("domain", None)  # the test checkpoint is not a Craft/Dial model
+    domain = params.pop("domain", None)  # the test checkpoint is not a Craft/Dial model
     params.pop("checkpoint", None)
+    if params.get("detector_mode") == "hsmm":  # decodes with the duration model of the checkpoint it runs
+        ckpt = Path(shutil.copytree(ckpt, tmp_path / "ckpt"))
+        shipped = load_detector_settings(shipped_checkpoint(domain))
+        stored = DetectorSettings(online=shipped.online, duration_model=shipped.duration_model)
+        save_detector_settings(ckpt, stored)
     node = make_node(ctx, ckpt, **params)  # wrong names/types/ranges raise here
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS, node.last_error
     cfg = node.segmenter.detector_config
-    assert cfg.high == params["detector_high"]
+    assert cfg.high == params["detector_high"] and cfg.mode == params["detector_mode"]
     assert cfg.min_segment_length == params["detector_min_segment_length"]
+    assert getattr(node.segmenter.detector, "lag", 0) == params.get("detector_lag", 0)
     node.destroy_node()
 
 

@@ -129,9 +129,9 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
     duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], args.lag)
     model = None if duration is None else duration.model
     best, figures = pick_online(threshold, metrics, duration)
-    if best is not threshold:
+    if best is not threshold:  # 'online' names what runs: the duration decoder
         metrics = score_online(replays, episodes, best, model)
-        comparison["online_hsmm"] = metrics
+        comparison = {"online": metrics, "online_threshold": comparison.pop("online"), **comparison}
     doc = {"best": best.to_dict(), "metrics": metrics, "comparison": comparison, "choice": figures}
     print(json.dumps(replay.json_safe(doc), indent=1))
     if args.write_config:
