@@ -272,9 +272,10 @@ def online_lag_rows(name: str, cells: dict[str, Any]) -> dict[str, dict[str, Any
     """The ``online_lag`` rows of one setting: offline, the tuned threshold detector and the duration
     decoder at every scored lag (``online_hsmm<lag>_*``), each as align / F1@1 / delay."""
     rows = {
-        f"{name}: offline, paper's detector": {"align": cells["align"], "f1_tol1": cells["f1_tol1"]},
+        f"{name}: offline, paper's detector": {"align": cells["align"], "f1_tol1": cells["f1_tol1"],
+                                               "delay_mean": None},  # the episode's end
         f"{name}: offline, constrained Top-K": {"align": cells["constrained_align"],
-                                                "f1_tol1": cells["constrained_f1_tol1"]},
+                                                "f1_tol1": cells["constrained_f1_tol1"], "delay_mean": None},
         f"{name}: online, threshold": {
             "align": cells["online_align_strict"], "f1_tol1": cells["online_f1_tol1"],
             "delay_mean": cells["online_delay_mean"],

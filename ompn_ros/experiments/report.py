@@ -174,6 +174,8 @@ def fmt(cell: dict[str, float] | None, scale: float = 100.0, digits: int = 1) ->
 
 def extras_cell(column: str, value: Any) -> str:
     """An extras-table cell: fractions in %, counts and step delays (``UNSCALED_COLUMNS``) as they are."""
+    if value is None:
+        return "–"
     suffix = next((k for k in UNSCALED_COLUMNS if column.endswith(k)), None)
     scale, digits = (1.0, UNSCALED_COLUMNS[suffix]) if suffix else (100.0, 1)
     if isinstance(value, dict):
