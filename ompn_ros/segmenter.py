@@ -11,11 +11,13 @@ one had never arrived).  Rejections are counted by reason in :attr:`StreamingSeg
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
 import numpy as np
+from numba import njit
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.duration import Detector, DurationModel, make_detector
@@ -144,6 +146,16 @@ class SegmenterOutput:
     level: int
 
 
+@njit(cache=True)
+def _all_finite(a: np.ndarray) -> bool:  # pragma: no cover - compiled
+    """No NaN or infinity in the 1-D ``a``: the per-step check (numpy's ufunc path is slower with cold
+    caches, BENCHMARKS.md "Where the boundary latency goes")."""
+    for i in range(a.shape[0]):
+        if not math.isfinite(a[i]):
+            return False
+    return True
+
+
 class StreamingSegmenter:
     """Validate, step the policy's ordered memory, score the expansion and detect boundaries."""
 
@@ -154,6 +166,7 @@ class StreamingSegmenter:
         self.detector_config = detector_config or DetectorConfig()
         self.detector: Detector = make_detector(self.detector_config, duration_model)
         self._detector_changed = False
+        _all_finite(np.zeros(1, dtype=np.float32))  # compiled (or loaded from numba's cache) now
         self.obs_dim = int(policy.config.obs_dim)
         # validate() already checked the observation: skip the policy's own check when it offers that
         self._step_policy = getattr(policy, "step_trusted", policy.step)
@@ -226,7 +239,7 @@ class StreamingSegmenter:
             raise MissingSketch("no episode started: the model needs a sketch (reset(sketch)) first")
         if self.detector.closed:
             raise EpisodeClosed("the episode was ended (end_episode); reset() starts the next one")
-        arr = validate_observation(obs, self.obs_dim)
+        arr = validate_observation(obs, self.obs_dim, _all_finite)
         if stamp_ns is not None and self._last_stamp is not None and int(stamp_ns) <= self._last_stamp:
             raise OutOfOrderStamp(
                 f"observation stamp {int(stamp_ns)} ns is not after the previous step's {self._last_stamp} ns"

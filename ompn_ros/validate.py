@@ -11,7 +11,7 @@ conditions the policy); ids lie in ``0..vocab-1`` (``DomainLayout.sketch_vocab``
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -96,11 +96,19 @@ def parse_sketch_text(text: str, vocab: int | None = None) -> np.ndarray:
     return validate_sketch(values, vocab)
 
 
-def validate_observation(obs: Any, obs_dim: int) -> np.ndarray:
+def all_finite(arr: np.ndarray) -> bool:
+    """True when no value of ``arr`` is NaN or infinite (numpy; the segmenter passes a compiled one)."""
+    return bool(np.isfinite(arr).all())
+
+
+def validate_observation(
+    obs: Any, obs_dim: int, finite: Callable[[np.ndarray], bool] = all_finite
+) -> np.ndarray:
     """Return ``obs`` as contiguous float32 ``[obs_dim]`` or raise an :class:`InvalidInput` subclass.
 
-    Checks, in order: numeric, non-empty, length ``obs_dim``, all finite.  A flat contiguous float32
-    array (the node's parsed messages) skips every conversion: this runs once per step.  O(obs_dim).
+    Checks, in order: numeric, non-empty, length ``obs_dim``, all finite (``finite``).  A flat contiguous
+    float32 array (the node's parsed messages) skips every conversion: this runs once per step.
+    O(obs_dim).
     """
     if type(obs) is np.ndarray and obs.dtype == np.float32 and obs.ndim == 1 and obs.flags.c_contiguous:
         arr = obs
@@ -116,7 +124,7 @@ def validate_observation(obs: Any, obs_dim: int) -> np.ndarray:
         raise WrongObservationLength(
             f"observation has {arr.size} values, the model expects obs_dim={obs_dim}"
         )
-    if not np.isfinite(arr).all():
+    if not finite(arr):
         bad = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise NonFiniteObservation(f"observation has a NaN/Inf value (first at index {bad})")
     return arr
