@@ -29,7 +29,6 @@ comes ``lag`` steps after its step (``detected_at - step = lag``).
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,6 +41,7 @@ from ompn_ros.detect.online import (
     MAX_LAG,
     BoundaryEvent,
     DetectorConfig,
+    EpisodeLog,
     OnlineDetector,
     run_detector,
 )
@@ -257,15 +257,7 @@ def _window(log_h, log_c, log_f1, log_f0, bins, j, u, final):  # type: ignore[no
 
 
 # --- the decoder -----------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Step:
-    score: float
-    level: int
-    stamp_ns: int
-    bin: int
-
-
-class DurationDetector:
+class DurationDetector(EpisodeLog):
     """The fixed-lag HSMM decoder; the step interface of :class:`~ompn_ros.detect.online.OnlineDetector`.
 
     Args:
@@ -298,62 +290,29 @@ class DurationDetector:
 
     def reset(self) -> None:
         """Start a new episode."""
-        self._step = -1
-        self._recent: deque[tuple[int, _Step]] = deque(maxlen=self.lag + 4)
-        self._last_boundary = -1
-        self._n_boundaries = 0
-        self._closed = False
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
-    @property
-    def steps_seen(self) -> int:
-        return self._step + 1
-
-    @property
-    def boundaries_emitted(self) -> int:
-        return self._n_boundaries
-
-    @property
-    def last_boundary(self) -> int:
-        return self._last_boundary
+        self._start(keep=self.lag + 4)
 
     def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
         """Consume the next step's score; the boundary published at this step (``lag`` steps back), if any."""
-        if self._closed:
-            raise RuntimeError("DurationDetector.update after close(); call reset() first")
-        self._step += 1
-        t = self._step
-        if t == 0 and self.force_first_step_low:
-            score = 0.0
-        self._recent.append((t, _Step(float(score), int(level), int(stamp_ns), self.model.bin_of(score))))
-        return self._decide(t - self.lag, t, final=False)
+        record = self._next(score, level, stamp_ns, self.force_first_step_low)
+        self._recent.append((self._step, record))
+        return self._decide(self._step - self.lag, self._step, final=False)
 
     def close(self, last_step: int | None = None) -> list[BoundaryEvent]:
         """Close the episode at ``last_step`` (default: the last step seen): the candidates still in the
         lag window are decided knowing the episode ends there, then the final boundary (none when a
         boundary already ends at or after it).  Call :meth:`reset` afterwards."""
-        self._closed = True
-        if self._step < 0:
+        end = self._close_at(last_step)
+        if end is None:
             return []
-        end = self._step if last_step is None else min(int(last_step), self._step)
-        if end < 0:
-            return []
-        if all(step != end for step, _ in self._recent):  # too far back: close at the last step seen
-            end = self._recent[-1][0]
         events = []
         for c in range(max(1, self._step - self.lag + 1, self._last_boundary + 1), end):
             event = self._decide(c, end, final=True)
             if event is not None:
                 events.append(event)
         if self._last_boundary < end:
-            events.append(self._emit(end, self._step, final=True))
+            events.append(self._emit(end, self._step, self._record(end), final=True))
         return events
-
-    def _record(self, step: int) -> _Step:
-        return next(r for s, r in self._recent if s == step)
 
     def _decide(self, c: int, t: int, final: bool) -> BoundaryEvent | None:
         """Publish ``c`` as the end of the current segment when its posterior odds pass the threshold."""
@@ -361,22 +320,15 @@ class DurationDetector:
         if c < 1 or c <= b or j >= self.model.subtasks - 1:
             return None
         log_h, log_c, log_f1, log_f0 = self.model.logs
-        window = np.array([r.bin for s, r in self._recent if c < s <= t], dtype=np.int64)
+        logs = (log_h, log_c, log_f1, log_f0)
+        window = np.array([self.model.bin_of(r.score) for s, r in self._recent if c < s <= t], dtype=np.int64)
         u = min(c - b, log_h.shape[1] - 1)
-        here, logs = self._record(c).bin, (log_h, log_c, log_f1, log_f0)
+        here = self.model.bin_of(self._record(c).score)
         ends = log_h[j, u] + log_f1[here] + _window(*logs, window, j + 1, 1, final)
         stays = log_c[j, u] + log_f0[here] + _window(*logs, window, j, c - b + 1, final)
         if ends - stays <= self._log_odds:
             return None
-        return self._emit(c, t)
-
-    def _emit(self, step: int, detected_at: int, final: bool = False) -> BoundaryEvent:
-        record = self._record(step)
-        event = BoundaryEvent(step=step, detected_at=detected_at, subtask=self._n_boundaries,
-                              score=record.score, level=record.level, stamp_ns=record.stamp_ns, final=final)
-        self._last_boundary = step
-        self._n_boundaries += 1
-        return event
+        return self._emit(c, t, self._record(c))
 
 
 def decode_episode(model: DurationModel, scores: np.ndarray, lag: int, threshold: float) -> np.ndarray:

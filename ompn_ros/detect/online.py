@@ -178,29 +178,20 @@ class _StepRecord:
     stamp_ns: int
 
 
-@dataclass
-class OnlineDetector:
-    """Causal boundary detector; feed it with :meth:`update` once per step."""
+class EpisodeLog:
+    """What every causal detector keeps of the current episode: the step counter, the last steps seen
+    (to close at a marker's step), the boundaries published, and whether the episode is closed."""
 
-    config: DetectorConfig = field(default_factory=DetectorConfig)
-
-    def __post_init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        """Start a new episode."""
+    def _start(self, keep: int) -> None:
         self._step = -1
-        self._in_run = False
-        self._run_committed = False
-        self._prev: _StepRecord | None = None
-        self._recent: deque[tuple[int, _StepRecord]] = deque(maxlen=4)
+        self._recent: deque[tuple[int, _StepRecord]] = deque(maxlen=keep)
         self._last_boundary = -1
         self._n_boundaries = 0
         self._closed = False
 
     @property
     def closed(self) -> bool:
-        """True after :meth:`end_episode` until :meth:`reset`."""
+        """True after the episode was closed until :meth:`reset`."""
         return self._closed
 
     @property
@@ -216,16 +207,57 @@ class OnlineDetector:
         """Step index of the last emitted boundary (-1 before the first)."""
         return self._last_boundary
 
+    def _next(self, score: float, level: int, stamp_ns: int, force_first_step_low: bool) -> _StepRecord:
+        """Count the next step (its score 0 at step 0 when forced) and return its record (not kept yet)."""
+        if self._closed:
+            raise RuntimeError(f"{type(self).__name__}.update after the episode was closed; reset() first")
+        self._step += 1
+        low = self._step == 0 and force_first_step_low
+        return _StepRecord(0.0 if low else float(score), int(level), int(stamp_ns))
+
+    def _close_at(self, last_step: int | None) -> int | None:
+        """Close the episode; the step that ends it: ``last_step`` (default the last seen), or the last
+        step seen when ``last_step`` is too far back to be kept; None before any step."""
+        self._closed = True
+        if self._step < 0:
+            return None
+        end = self._step if last_step is None else min(int(last_step), self._step)
+        if end < 0:
+            return None
+        return end if any(step == end for step, _ in self._recent) else self._recent[-1][0]
+
+    def _record(self, step: int) -> _StepRecord:
+        return next(r for s, r in self._recent if s == step)
+
+    def _emit(self, step: int, detected_at: int, record: _StepRecord, final: bool = False) -> BoundaryEvent:
+        event = BoundaryEvent(step=step, detected_at=detected_at, subtask=self._n_boundaries,
+                              score=record.score, level=record.level, stamp_ns=record.stamp_ns, final=final)
+        self._last_boundary = step
+        self._n_boundaries += 1
+        return event
+
+
+@dataclass
+class OnlineDetector(EpisodeLog):
+    """Causal boundary detector; feed it with :meth:`update` once per step."""
+
+    config: DetectorConfig = field(default_factory=DetectorConfig)
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode."""
+        self._start(keep=4)
+        self._in_run = False
+        self._run_committed = False
+        self._prev: _StepRecord | None = None
+
     def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
         """Consume the score of the next step; return the boundary committed at this step, if any."""
-        if self._closed:
-            raise RuntimeError("OnlineDetector.update after end_episode(); call reset() first")
-        self._step += 1
-        t = self._step
         cfg = self.config
-        if t == 0 and cfg.force_first_step_low:
-            score = 0.0
-        current = _StepRecord(float(score), int(level), int(stamp_ns))
+        current = self._next(score, level, stamp_ns, cfg.force_first_step_low)
+        t = self._step
         event: BoundaryEvent | None = None
         if not self._in_run:
             if current.score > cfg.high:
@@ -266,39 +298,15 @@ class OnlineDetector:
         few steps kept (a marker that disagrees with the stream) closes at the last step seen, so
         the event always carries a real score and stamp. Call :meth:`reset` afterwards.
         """
-        self._closed = True
-        if self._step < 0:
+        end = self._close_at(last_step)
+        if end is None or self._last_boundary >= end:
             return None
-        end = self._step if last_step is None else min(int(last_step), self._step)
-        if end < 0:
-            return None
-        record = next((r for step, r in self._recent if step == end), None)
-        if record is None:  # a step too far back to be kept: close at the last step seen instead
-            end, record = self._recent[-1]
-        if self._last_boundary >= end:
-            return None
-        return self._emit(end, self._step, record.score, record.level, record.stamp_ns, final=True)
+        return self._emit(end, self._step, self._record(end), final=True)
 
     def _commit(self, step: int, record: _StepRecord, detected_at: int) -> BoundaryEvent | None:
         if step - self._last_boundary < self.config.min_segment_length:
             return None
-        return self._emit(step, detected_at, record.score, record.level, record.stamp_ns)
-
-    def _emit(
-        self, step: int, detected_at: int, score: float, level: int, stamp_ns: int, final: bool = False
-    ) -> BoundaryEvent:
-        event = BoundaryEvent(
-            step=step,
-            detected_at=detected_at,
-            subtask=self._n_boundaries,
-            score=score,
-            level=level,
-            stamp_ns=stamp_ns,
-            final=final,
-        )
-        self._last_boundary = step
-        self._n_boundaries += 1
-        return event
+        return self._emit(step, detected_at, record)
 
 
 class StepDetector(Protocol):
