@@ -97,8 +97,9 @@ def calibrate_without_labels(
     )
 
 
-def duration_detector(scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None
-              ) -> DurationCalibration | None:
+def duration_detector(
+    scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None
+) -> DurationCalibration | None:
     """The 'hsmm' detector fitted and tuned on ``targets``; None without a lag or with fewer than two
     segments per episode (nothing to decode)."""
     if lag is None:
