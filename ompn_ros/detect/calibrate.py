@@ -47,7 +47,7 @@ from ompn_ros.detect.offline import (
 )
 from ompn_ros.detect.online import DURATION_MODE, MODES, DetectorConfig, expansion_scores, run_detector
 from ompn_ros.detect.tune import MATCH_TOLERANCE, OBJECTIVES, Objective, default_grid, objective_key
-from ompn_ros.metrics import alignment_accuracy, mean_f1
+from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries, mean_f1
 
 Reference = Literal[
     "auto_threshold_onset", "auto_threshold", "constrained_top_k", "pooled_top_k", "onset_and_pooled"
@@ -422,8 +422,7 @@ def calibrate_duration(
     if not thresholds:
         raise CalibrationError("thresholds: need at least one")
     model = fit_duration_model(scores, target_boundaries)
-    labels = [np.cumsum(np.isin(np.arange(len(s)), b)) - np.isin(np.arange(len(s)), b)
-              for s, b in zip(scores, target_boundaries, strict=True)]
+    labels = [labels_from_boundaries(b, len(s)) for s, b in zip(scores, target_boundaries, strict=True)]
     rows = []
     for threshold in thresholds:
         detector = DurationDetector(model, lag, threshold)

@@ -323,12 +323,13 @@ class DurationDetector(EpisodeLog):
         logs = (log_h, log_c, log_f1, log_f0)
         window = np.array([self.model.bin_of(r.score) for s, r in self._recent if c < s <= t], dtype=np.int64)
         u = min(c - b, log_h.shape[1] - 1)
-        here = self.model.bin_of(self._record(c).score)
+        record = self._record(c)
+        here = self.model.bin_of(record.score)
         ends = log_h[j, u] + log_f1[here] + _window(*logs, window, j + 1, 1, final)
         stays = log_c[j, u] + log_f0[here] + _window(*logs, window, j, c - b + 1, final)
         if ends - stays <= self._log_odds:
             return None
-        return self._emit(c, t, self._record(c))
+        return self._emit(c, t, record)
 
 
 def decode_episode(model: DurationModel, scores: np.ndarray, lag: int, threshold: float) -> np.ndarray:
