@@ -38,6 +38,26 @@ def test_pytest_session_is_contained():
     assert Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).is_file()
 
 
+@pytest.mark.parametrize("domain", ["150", "", "abc", "42"])
+def test_child_env_gives_this_process_and_its_children_one_domain(monkeypatch: pytest.MonkeyPatch,
+                                                                   capsys: pytest.CaptureFixture[str],
+                                                                   domain: str):
+    from ompn_ros.ros_env import child_env
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", domain)
+    monkeypatch.setenv("ROS_LOCALHOST_ONLY", "1")
+    env = child_env()
+    assert env["ROS_DOMAIN_ID"] == os.environ["ROS_DOMAIN_ID"]
+    assert 1 <= int(env["ROS_DOMAIN_ID"]) <= 100
+    assert containment.problems(os.environ) == [] and containment.problems(env) == []
+    assert env.get("LD_LIBRARY_PATH") == os.environ.get("LD_LIBRARY_PATH")
+    note = capsys.readouterr().err
+    if domain == "42":
+        assert env["ROS_DOMAIN_ID"] == "42" and note == ""
+    elif domain:
+        assert f"ROS_DOMAIN_ID={domain} is outside 1..100" in note
+
+
 def _node_sockets(env: dict[str, str]) -> list[containment.BoundSocket]:
     proc = subprocess.Popen([sys.executable, "-c", NODE], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
