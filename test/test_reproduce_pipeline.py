@@ -11,7 +11,7 @@ import pytest
 from ompn_ros.cli import reproduce
 from ompn_ros.data.episode import Episode
 from ompn_ros.experiments import data, ensembles, spec
-from ompn_ros.experiments.scoring import DURATION_LAGS
+from ompn_ros.experiments.scoring import DURATION_DELAYS
 from ompn_ros.paths import config_file
 
 
@@ -79,14 +79,15 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
         cell = row[metric]
         assert set(cell) == {"mean", "std", "n"} and cell["n"] == 2
         assert 0.0 <= cell["mean"] <= 1.0
-    for lag in DURATION_LAGS:  # the duration decoder at every lag, fitted and tuned on validation
-        cell = row[f"online_hsmm{lag}_align_strict"]
+    for delay in DURATION_DELAYS:  # the duration decoder within every mean delay, tuned on validation
+        cell = row[f"online_hsmm_d{delay}_align_strict"]
         assert cell["n"] == 2 and 0.0 <= cell["mean"] <= 1.0
-        assert 0.1 <= row[f"online_hsmm{lag}_threshold"]["mean"] <= 0.9
+        assert 0.1 <= row[f"online_hsmm_d{delay}_threshold"]["mean"] <= 0.99
     extras = json.loads((results / "craft_extras.json").read_text())
     assert list(extras["extras"]) == ["k_sweep", "ensemble_of_seeds", "online_lag"]
     lag_rows = extras["extras"]["online_lag"]["rows"]
-    assert lag_rows["full_nosketch: online, hsmm lag 3"]["align"] == row["online_hsmm3_align_strict"]
+    assert (lag_rows["full_nosketch: online, hsmm, mean delay <= 4"]["align"]
+            == row["online_hsmm_d4_align_strict"])
     assert lag_rows["full_nosketch: offline, paper's detector"]["align"] == row["align"]
     assert extras["extras"]["k_sweep"]["title"] == "K sweep (full_nosketch, seed 0, tol=1)"
     sweep = extras["extras"]["k_sweep"]["rows"]

@@ -109,6 +109,8 @@ def test_the_hsmm_detector_is_chosen_only_when_it_gains_alignment_and_keeps_f1()
     assert pick_online(threshold, base, None) == (threshold, figures)
     with pytest.raises(TrainConfigError, match="detector_lag must be an int in \\[0, 10\\]"):
         TrainConfig(detector_lag=11)
+    with pytest.raises(TrainConfigError, match="detector_delay must be > 0"):
+        TrainConfig(detector_delay=0)
 
 
 def test_unlabelled_data_selects_by_agreement(tmp_path: Path, episodes: list) -> None:

@@ -45,7 +45,7 @@ from ompn_ros.experiments import replay
 from ompn_ros.experiments.replay import ReplayError, replay_all
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.factory import stepper_from_checkpoint
-from ompn_ros.train.detector import DURATION_LAG, duration_detector, pick_online
+from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG, duration_detector, pick_online
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,8 +96,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--lag", type=int, default=DURATION_LAG, choices=range(MAX_LAG + 1), metavar=f"0..{MAX_LAG}",
-        help="with --tune: the lag of the 'hsmm' detector fitted beside the threshold grid (it is chosen "
-        "when it gains 1 point of alignment and keeps F1@1 within 1 point)",
+        help="with --tune: the lag of the 'hsmm' detector (boundaries come >= lag + 1 steps late) fitted "
+        "beside the threshold grid (it is chosen when it gains 1 point of alignment and keeps F1@1 within "
+        "1 point)",
+    )
+    p.add_argument(
+        "--max-delay", type=float, default=DURATION_DELAY, metavar="STEPS",
+        help="with --tune: the mean delay in steps the 'hsmm' detector's threshold may cost",
     )
     p.add_argument(
         "--objective",
@@ -126,7 +131,8 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
     replays = replay_all(policy, episodes, default_grid()[0])
     replay.check_finite(replays, episodes)
     threshold, metrics, comparison = choose_on_replays(replays, episodes, objective=objective)
-    duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], args.lag)
+    duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], args.lag,
+                                  args.max_delay)
     model = None if duration is None else duration.model
     best, figures = pick_online(threshold, metrics, duration)
     if best is not threshold:  # 'online' names what runs: the duration decoder

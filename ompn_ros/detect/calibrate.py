@@ -396,8 +396,9 @@ def agreement(
     return max(values)
 
 
-DURATION_THRESHOLDS = tuple(round(0.1 + 0.05 * i, 2) for i in range(17))
-"""The posterior thresholds :func:`calibrate_duration` chooses from (0.1 … 0.9)."""
+DURATION_THRESHOLDS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.98, 0.99)
+"""The posterior thresholds :func:`calibrate_duration` chooses from: the higher, the later and surer
+the boundaries (docs/experiments.md §39)."""
 
 
 @dataclass(frozen=True)
@@ -415,27 +416,42 @@ def calibrate_duration(
     lag: int,
     objective: Objective = "align",
     thresholds: Sequence[float] = DURATION_THRESHOLDS,
+    max_delay: float | None = None,
 ) -> DurationCalibration:
     """Fit the duration model on ``target_boundaries`` (each episode's segment ends, its last step
     included) and choose the threshold of the 'hsmm' detector with ``lag`` by :func:`objective_key`
-    against the same targets.  O(len(thresholds) · Σ T · K · lag²)."""
+    against the same targets, among the thresholds whose mean delay (steps from an inner boundary to
+    its publication, those decided at the episode end included) is at most ``max_delay`` (None: any;
+    none within it: the threshold of the shortest delay).  O(len(thresholds) · Σ T · K · n²), ``n``
+    the steps between published boundaries."""
     if not thresholds:
         raise CalibrationError("thresholds: need at least one")
+    if max_delay is not None and not max_delay > 0:
+        raise CalibrationError(f"max_delay must be > 0 steps, got {max_delay!r}")
     model = fit_duration_model(scores, target_boundaries)
     labels = [labels_from_boundaries(b, len(s)) for s, b in zip(scores, target_boundaries, strict=True)]
-    rows = []
-    for threshold in thresholds:
-        detector = DurationDetector(model, lag, threshold)
-        events = [run_detector(detector, s) for s in scores]
-        preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
-        delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
-        align = alignment_accuracy(preds, labels, "strict")
-        rows.append({"f1_tol0": mean_f1(preds, target_boundaries, 0).f1,
-                     "f1_tol1": mean_f1(preds, target_boundaries, 1).f1, "align": align,
-                     "align_strict": align, "delay_mean": float(np.mean(delays)) if delays else float("nan")})
-    best = max(range(len(rows)), key=lambda i: (objective_key(rows[i], objective), -i))
+    rows = [_duration_row(model, lag, threshold, scores, target_boundaries, labels)
+            for threshold in thresholds]
+    allowed = [i for i, row in enumerate(rows) if max_delay is None or row["delay_mean"] <= max_delay]
+    if allowed:
+        best = max(allowed, key=lambda i: (objective_key(rows[i], objective), -i))
+    else:
+        best = min(range(len(rows)), key=lambda i: (rows[i]["delay_mean"], i))
     config = DetectorConfig(mode=DURATION_MODE, high=float(thresholds[best]), lag=lag)
     return DurationCalibration(model, config, rows[best])
+
+
+def _duration_row(model: DurationModel, lag: int, threshold: float, scores: Sequence[np.ndarray],
+                  targets: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> dict[str, float]:
+    """The 'hsmm' detector's F1, alignment and mean delay against ``targets``."""
+    detector = DurationDetector(model, lag, threshold)
+    events = [run_detector(detector, s) for s in scores]
+    preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
+    delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
+    align = alignment_accuracy(preds, labels, "strict")
+    return {"f1_tol0": mean_f1(preds, targets, 0).f1, "f1_tol1": mean_f1(preds, targets, 1).f1,
+            "align": align, "align_strict": align,
+            "delay_mean": float(np.mean(delays)) if delays else 0.0}
 
 
 __all__ = [

@@ -1,4 +1,4 @@
-"""A causal boundary decoder that knows how long subtasks last: an explicit-duration HSMM with a fixed lag.
+"""A causal boundary decoder that knows how long subtasks last: an explicit-duration HSMM.
 
 The threshold detectors of :mod:`ompn_ros.detect.online` look at one score at a time.  Their online
 alignment lags the offline detectors because one early false alarm shifts every later segment
@@ -10,20 +10,29 @@ alignment lags the offline detectors because one early false alarm shifts every 
   ``f0`` otherwise (histograms over score bins).
 
 That is an explicit-duration hidden semi-Markov model (Yu, "Hidden semi-Markov models", Artificial
-Intelligence 174, 2010).  The decoder commits to one segmentation as it goes: with ``j`` boundaries
-published, the last at ``b``, the candidate ``c = t - lag`` is published at step ``t`` when the
-posterior odds that ``c`` ends segment ``j``, given the scores up to ``t``, exceed ``θ / (1 - θ)``::
+Intelligence 174, 2010).  The decoder commits to one segmentation as it goes.  With ``j`` boundaries
+published, the last at ``b``, it computes at every step ``t`` the posterior, given the scores
+``s_{b+1..t}``, of where segment ``j`` ended (a step ``e`` in ``(b, t]``, or not yet)::
 
-    odds(c) = h_j(c - b) f1(s_c) W(j + 1, 1) / ((1 - h_j(c - b)) f0(s_c) W(j, c - b + 1))
+    P(end = e | s) ∝ P_j(e - b) · Π_{b<τ<e} f0(s_τ) · f1(s_e) · B_{j+1}(e + 1)
 
-where ``h_j(u) = P(L_j = u | L_j >= u)`` is the hazard and ``W(i, u)`` the likelihood of the lag
-window ``s_{c+1..t}`` starting in segment ``i`` at duration ``u``.  At most ``K - 1`` inner
-boundaries are published; the episode end closes the last segment and decides the candidates still
-inside the lag window, knowing the episode ended.
+where ``B_i(a)`` is the likelihood of ``s_{a..t}`` when segment ``i`` starts at ``a`` (a backward
+pass over the later segments, the last one still running at ``t``).  When the probability that
+segment ``j`` ended at or before ``t - lag`` exceeds ``θ``, the most probable such end is published.
+A step that was not published when it was ``lag`` steps old can still be published later, when later
+scores make it likely (docs/experiments.md §39); ``θ`` trades that delay for alignment.  At most one
+boundary is published per step and at most ``K - 1`` inner ones per episode.  The episode end
+closes the last segment: the remaining segments get their most probable ends (a Viterbi pass).
 
-Cost per step: one candidate, two window likelihoods of O(K · lag²) (a compiled kernel); memory:
-the last ``lag + 4`` steps and the ``K × (max_duration + 1)`` hazard table.  The published boundary
-comes ``lag`` steps after its step (``detected_at - step = lag``).
+The decoder takes step ``t`` in when step ``t + 1`` arrives (or the episode is closed), so a boundary
+is published at least ``lag + 1`` steps after its step.  An episode's last observation, the 'done'
+step after the last action (its score is high: the memory expands from the top), is then dropped by
+the episode end instead of being read as the end of a subtask, and the node publishes the
+boundaries a replay of the episode's steps gives (docs/experiments.md §40).
+
+Cost per step: O(K · n²) for the ``n`` steps since the last published boundary (at most
+:data:`MAX_SPAN`, a compiled kernel; a boundary is never placed further back); the episode end
+O(K · n²) once; memory: those ``n`` steps and the ``K × (MAX_SPAN + 2)`` length tables.
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ from ompn_ros.detect.online import (
     DetectorConfig,
     EpisodeLog,
     OnlineDetector,
+    _StepRecord,
     run_detector,
 )
 
@@ -50,6 +60,9 @@ SCORE_BINS = 100
 """Histogram bins of the score over [0, 1]."""
 MAX_DURATION = 60
 """Segment lengths above this share the hazard of this length."""
+MAX_SPAN = 64
+"""The most recent steps the decoder weighs (>= MAX_DURATION): a boundary is never placed further
+back, and the current segment's steps before them only count towards its length."""
 _NEG = -1.0e300
 
 
@@ -76,7 +89,9 @@ class DurationModel:
     f1: np.ndarray
     episodes: int = 0
     logs: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
-    """log hazard, log(1 - hazard), log f1, log f0 (what the decoder reads)."""
+    """log hazard, log(1 - hazard), log f1, log f0."""
+    lengths: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False, compare=False)
+    """``[K, MAX_SPAN + 2]`` log P(L_i = u) and log P(L_i >= u) (what the decoder reads)."""
 
     def __post_init__(self) -> None:
         hazard = np.asarray(self.hazard, dtype=np.float64)
@@ -103,6 +118,7 @@ class DurationModel:
         with np.errstate(divide="ignore"):  # column 0 (length 0) is unused
             logs = (np.log(hazard), np.log1p(-hazard), np.log(f1), np.log(f0))
         object.__setattr__(self, "logs", logs)
+        object.__setattr__(self, "lengths", _length_tables(logs[0], logs[1]))
 
     def __eq__(self, other: object) -> bool:  # the arrays compared by value (rounded as stored)
         return isinstance(other, DurationModel) and self.to_dict() == other.to_dict()
@@ -138,6 +154,17 @@ class DurationModel:
         except (TypeError, ValueError) as exc:
             raise DurationModelError(f"duration model arrays are not numeric: {exc}") from exc
         return cls(subtasks=data["subtasks"], hazard=hazard, f0=f0, f1=f1, episodes=data["episodes"])
+
+
+def _length_tables(log_h: np.ndarray, log_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """log P(L_i = u) and log P(L_i >= u) for u in 0 … MAX_SPAN + 1 from the hazards (u = 0: impossible)."""
+    top = log_h.shape[1] - 1
+    u = np.minimum(np.arange(MAX_SPAN + 2), top)
+    survive = np.zeros((log_h.shape[0], MAX_SPAN + 2))
+    survive[:, 2:] = np.cumsum(log_c[:, u[1:-1]], axis=1)  # u >= 2: the lengths 1 … u - 1 passed
+    exact = survive + log_h[:, u]
+    exact[:, 0] = survive[:, 0] = _NEG
+    return exact, survive
 
 
 # --- fitting ---------------------------------------------------------------------------------------
@@ -201,7 +228,7 @@ def fit_duration_model(
                          f1=_histogram(np.concatenate(ends), bins, alpha), episodes=len(scores))
 
 
-# --- the window likelihood (compiled) --------------------------------------------------------------
+# --- the span posterior and the closing path (compiled) -------------------------------------------
 @njit(cache=True, inline="always")
 def _add(a: float, b: float) -> float:  # pragma: no cover - compiled
     """log(exp(a) + exp(b)) without overflow."""
@@ -212,58 +239,93 @@ def _add(a: float, b: float) -> float:  # pragma: no cover - compiled
     return a + math.log1p(math.exp(b - a))
 
 
-@njit(cache=True)
-def _window(log_h, log_c, log_f1, log_f0, bins, j, u, final):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """log P(scores of ``bins`` | the first of them is step ``u`` of segment ``j``).
+@njit(cache=True, inline="always")
+def _log_length(log_p, log_s, i, u, running):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """log P(L_i = u), or log P(L_i >= u) when ``running``, beyond the tables too (a constant hazard
+    past MAX_DURATION)."""
+    top = log_p.shape[1] - 1
+    if u <= top:
+        return log_s[i, u] if running else log_p[i, u]
+    survive = log_s[i, top] + (u - top) * (log_s[i, top] - log_s[i, top - 1])
+    return survive if running else survive + log_p[i, top] - log_s[i, top]
 
-    Segment K - 1 never ends inside the window; with ``final`` the window's last step ends it."""
-    k, top = log_h.shape[0], log_h.shape[1] - 1
-    n = bins.shape[0]
-    if n == 0:
-        return 0.0
-    stay = 0.0  # in segment j at duration u + i
-    seg = np.full((k, n + 2), _NEG)  # seg[i, v]: in segment i > j at duration v
+
+@njit(cache=True)
+def _end_posterior(log_p, log_s, log_f1, log_f0, bins, j, u0, first, last):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """(P(segment ``j`` ended at a span index in [first, last] | the span's scores), its most probable
+    end there, -1 for none).
+
+    ``bins``: the score bins of the span; segment ``j`` had lasted ``u0`` steps before index 0;
+    ``log_p[i, u]`` / ``log_s[i, u]``: log P(L_i = u) / log P(L_i >= u).  Segment K - 1 never ends
+    inside the span."""
+    k, n = log_p.shape[0], bins.shape[0]
+    f = np.zeros(n + 1)  # f[a]: log f0 summed over indices < a
     for i in range(n):
-        b = bins[i]
-        nxt = np.full((k, n + 2), _NEG)
-        uu = min(u + i, top)
-        if final and i == n - 1:
-            total = stay + log_h[j, uu] + log_f1[b] if j == k - 1 else _NEG
-            for v in range(1, i + 1):
-                total = _add(total, seg[k - 1, v] + log_h[k - 1, min(v, top)] + log_f1[b])
-            return total
-        if j < k - 1:
-            nxt[j + 1, 1] = stay + log_h[j, uu] + log_f1[b]
-            stay = stay + log_c[j, uu] + log_f0[b]
-        else:
-            stay = stay + log_f0[b]
-        for seg_i in range(j + 1, k):
-            for v in range(1, i + 1):
-                a = seg[seg_i, v]
-                if a <= _NEG:
-                    continue
-                vv = min(v, top)
-                if seg_i < k - 1:
-                    nxt[seg_i + 1, 1] = _add(nxt[seg_i + 1, 1], a + log_h[seg_i, vv] + log_f1[b])
-                    nxt[seg_i, v + 1] = _add(nxt[seg_i, v + 1], a + log_c[seg_i, vv] + log_f0[b])
-                else:
-                    nxt[seg_i, v + 1] = _add(nxt[seg_i, v + 1], a + log_f0[b])
-        seg = nxt
-    total = stay
-    for seg_i in range(j + 1, k):
-        for v in range(1, n + 2):
-            total = _add(total, seg[seg_i, v])
-    return total
+        f[i + 1] = f[i] + log_f0[bins[i]]
+    back = np.full((k, n + 1), _NEG)  # back[i, a]: log P(scores a..n-1 | segment i starts at a)
+    for i in range(k):
+        back[i, n] = 0.0
+    for i in range(k - 1, j, -1):
+        for a in range(n - 1, 0, -1):
+            total = log_s[i, n - a + 1] + f[n] - f[a]
+            if i < k - 1:
+                for e in range(a, n):
+                    v = log_p[i, e - a + 1] + f[e] - f[a] + log_f1[bins[e]] + back[i + 1, e + 1]
+                    total = _add(total, v)
+            back[i, a] = total
+    total = _log_length(log_p, log_s, j, u0 + n + 1, True) + f[n]  # segment j still running
+    ended, best, best_v = _NEG, -1, _NEG
+    for e in range(first, n):
+        v = _log_length(log_p, log_s, j, u0 + e + 1, False) + f[e] + log_f1[bins[e]] + back[j + 1, e + 1]
+        total = _add(total, v)
+        if e <= last:
+            ended = _add(ended, v)
+            if v > best_v:
+                best, best_v = e, v
+    return math.exp(ended - total), best
+
+
+@njit(cache=True)
+def _closing_path(log_p, log_s, log_f1, log_f0, bins, j, u0, first):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """The most probable ends (span indices, the last = the span's last index) of segments j, j + 1, …
+    when the span's last step ends the episode: K - j segments, fewer when the span is too short
+    (segment ``j`` had lasted ``u0`` steps before index 0)."""
+    k, n = log_p.shape[0], bins.shape[0]
+    segs = min(k - j, n - first)
+    if segs <= 1:
+        return np.array([n - 1], dtype=np.int64)
+    f = np.zeros(n + 1)
+    for i in range(n):
+        f[i + 1] = f[i] + log_f0[bins[i]]
+    best = np.full((segs, n), _NEG)  # best[s, e]: segments j..j+s, segment j+s ends at index e
+    prev = np.zeros((segs, n), dtype=np.int64)
+    for e in range(first, n):
+        here = log_f1[bins[e]] if e < n - 1 else 0.0
+        best[0, e] = _log_length(log_p, log_s, j, u0 + e + 1, False) + f[e] + here
+    for s in range(1, segs):
+        for e in range(first + s, n):
+            here = log_f1[bins[e]] if e < n - 1 else 0.0
+            for q in range(first + s - 1, e):
+                v = best[s - 1, q] + log_p[j + s, e - q] + f[e] - f[q + 1] + here
+                if v > best[s, e]:
+                    best[s, e], prev[s, e] = v, q
+    path = np.empty(segs, dtype=np.int64)
+    e = n - 1
+    for s in range(segs - 1, -1, -1):
+        path[s] = e
+        e = prev[s, e]
+    return path
 
 
 # --- the decoder -----------------------------------------------------------------------------------
 class DurationDetector(EpisodeLog):
-    """The fixed-lag HSMM decoder; the step interface of :class:`~ompn_ros.detect.online.OnlineDetector`.
+    """The HSMM decoder; the step interface of :class:`~ompn_ros.detect.online.OnlineDetector`.
 
     Args:
         model: the fitted :class:`DurationModel`.
-        lag: steps a boundary waits before it is published (0 … :data:`MAX_LAG`).
-        threshold: posterior probability ``θ`` in (0, 1) a boundary needs.
+        lag: the fewest steps a boundary waits after its step is taken in (0 … :data:`MAX_LAG`); it is
+            published at least ``lag + 1`` steps after its step.
+        threshold: posterior probability ``θ`` in (0, 1) that the current segment has ended.
         force_first_step_low: treat step 0's score as 0, as the threshold detectors do.
     """
 
@@ -274,67 +336,82 @@ class DurationDetector(EpisodeLog):
         if not isinstance(threshold, int | float) or not 0.0 < threshold < 1.0:
             raise DurationModelError(f"threshold must be a probability in (0, 1), got {threshold!r}")
         self.model, self.lag = model, int(lag)
-        self.threshold, self.force_first_step_low, self._log_odds = 0.5, True, 0.0
-        self._set(threshold, force_first_step_low)
-        self.reset()
-
-    def _set(self, threshold: float, force_first_step_low: bool) -> None:
         self.threshold, self.force_first_step_low = float(threshold), bool(force_first_step_low)
-        self._log_odds = math.log(self.threshold / (1.0 - self.threshold))
+        self.reset()
 
     def configure(self, config: DetectorConfig) -> None:
         """Take ``config``'s threshold (``high``) from the next step; its lag must be this decoder's."""
         if config.mode != DURATION_MODE or config.lag != self.lag:
             raise DurationModelError(f"a running duration decoder (lag {self.lag}) cannot become {config}")
-        self._set(config.high, config.force_first_step_low)
+        self.threshold, self.force_first_step_low = float(config.high), bool(config.force_first_step_low)
 
     def reset(self) -> None:
         """Start a new episode."""
-        self._start(keep=self.lag + 4)
+        self._start(keep=MAX_SPAN + 2)
+        self._span: list[int] = []  # score bins of the decided steps since the last published boundary
+        self._held: tuple[int, _StepRecord] | None = None  # the newest step, decided when the next comes
 
     def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
-        """Consume the next step's score; the boundary published at this step (``lag`` steps back), if any."""
+        """Consume the next step's score and decide on the step before it; the boundary published at
+        this step (at least ``lag + 1`` steps back), if any.
+
+        The newest step is held until the next one arrives (or the episode is closed): an episode's
+        last observation, the 'done' step after the last action, then never enters the decoder, which
+        sees exactly the steps the episode's segments cover, live as in a replay."""
         record = self._next(score, level, stamp_ns, self.force_first_step_low)
         self._recent.append((self._step, record))
-        return self._decide(self._step - self.lag, self._step, final=False)
+        held, self._held = self._held, (self._step, record)
+        return None if held is None else self._decide(*held)
+
+    def _decide(self, step: int, record: _StepRecord) -> BoundaryEvent | None:
+        """Add ``step`` to the span and publish the most probable end of the current segment, at least
+        ``lag`` steps before ``step``, once its posterior exceeds the threshold."""
+        self._span.append(self.model.bin_of(record.score))
+        if len(self._span) > MAX_SPAN:
+            del self._span[0]
+        if self._n_boundaries >= self.model.subtasks - 1:
+            return None
+        start = step - len(self._span) + 1
+        first, last = (1 if start == 0 else 0), len(self._span) - 1 - self.lag
+        if last < first:
+            return None
+        log_p, log_s = self.model.lengths
+        prob, end = _end_posterior(log_p, log_s, self.model.logs[2], self.model.logs[3],
+                                   np.asarray(self._span, dtype=np.int64), self._n_boundaries,
+                                   start - self._last_boundary - 1, first, last)
+        if prob <= self.threshold or end < 0:
+            return None
+        del self._span[: end + 1]
+        return self._emit(start + end, self._step, self._record(start + end))
 
     def close(self, last_step: int | None = None) -> list[BoundaryEvent]:
-        """Close the episode at ``last_step`` (default: the last step seen): the candidates still in the
-        lag window are decided knowing the episode ends there, then the final boundary (none when a
+        """Close the episode at ``last_step`` (default: the last step seen): the held step is decided
+        when it lies within the episode (dropped when it is the 'done' step after ``last_step``), then
+        the segments still open get their most probable ends, the last at ``last_step`` (none when a
         boundary already ends at or after it).  Call :meth:`reset` afterwards."""
         end = self._close_at(last_step)
-        if end is None:
-            return []
+        held, self._held = self._held, None
         events = []
-        for c in range(max(1, self._step - self.lag + 1, self._last_boundary + 1), end):
-            event = self._decide(c, end, final=True)
-            if event is not None:
-                events.append(event)
-        if self._last_boundary < end:
-            events.append(self._emit(end, self._step, self._record(end), final=True))
+        if end is not None and held is not None and held[0] <= end:
+            event = self._decide(*held)
+            events += [] if event is None else [event]
+        if end is None or end <= self._last_boundary:
+            return events
+        decided = self._step if held is None or held[0] <= end else held[0] - 1
+        start = decided - len(self._span) + 1
+        if end >= start and self._n_boundaries < self.model.subtasks - 1:
+            path = _closing_path(*self.model.lengths, self.model.logs[2], self.model.logs[3],
+                                 np.asarray(self._span[: end - start + 1], dtype=np.int64),
+                                 self._n_boundaries, start - self._last_boundary - 1, 1 if start == 0 else 0)
+            events += [self._emit(start + int(i), end, self._record(start + int(i))) for i in path[:-1]]
+        events.append(self._emit(end, self._step, self._record(end), final=True))
         return events
-
-    def _decide(self, c: int, t: int, final: bool) -> BoundaryEvent | None:
-        """Publish ``c`` as the end of the current segment when its posterior odds pass the threshold."""
-        j, b = self._n_boundaries, self._last_boundary
-        if c < 1 or c <= b or j >= self.model.subtasks - 1:
-            return None
-        log_h, log_c, log_f1, log_f0 = self.model.logs
-        logs = (log_h, log_c, log_f1, log_f0)
-        window = np.array([self.model.bin_of(r.score) for s, r in self._recent if c < s <= t], dtype=np.int64)
-        u = min(c - b, log_h.shape[1] - 1)
-        record = self._record(c)
-        here = self.model.bin_of(record.score)
-        ends = log_h[j, u] + log_f1[here] + _window(*logs, window, j + 1, 1, final)
-        stays = log_c[j, u] + log_f0[here] + _window(*logs, window, j, c - b + 1, final)
-        if ends - stays <= self._log_odds:
-            return None
-        return self._emit(c, t, record)
 
 
 def decode_episode(model: DurationModel, scores: np.ndarray, lag: int, threshold: float) -> np.ndarray:
     """The boundaries :class:`DurationDetector` publishes over a whole score sequence (the last step
-    included), for calibration and tests.  O(T · K · lag²)."""
+    included), for calibration and tests.  O(T · K · n²), n <= MAX_SPAN the steps since the
+    last published boundary."""
     events = run_detector(DurationDetector(model, lag, threshold), scores)
     return np.asarray([e.step for e in events], dtype=np.int64)
 

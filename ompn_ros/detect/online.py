@@ -23,9 +23,10 @@ the threshold"), made causal:
 * a candidate that would make a segment shorter than ``min_segment_length`` steps is dropped;
 * ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``).
 
-``mode='hsmm'`` is a different decoder with the same step interface: the fixed-lag explicit-duration
-HSMM of :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there
-``high`` is the posterior probability a boundary needs and ``lag`` the steps it waits.
+``mode='hsmm'`` is a different decoder with the same step interface: the explicit-duration HSMM of
+:mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there ``high`` is
+the posterior probability a boundary needs and ``lag`` the fewest steps it waits (more when the
+evidence is weak).
 
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
 hard-coded to "expand from the top", ``docs/craft.md`` §3.6).

@@ -20,7 +20,13 @@ from ompn_ros.experiments.data import collect_bags, held_out_split, read_bags
 from ompn_ros.experiments.ensembles import ensemble_scores, majority_min_length, member_ensemble_row
 from ompn_ros.experiments.figures import save_figures
 from ompn_ros.experiments.runs import BaseConfig, load_train_config, pin_fixed_length, run_setting
-from ompn_ros.experiments.scoring import DURATION_LAGS, TRAINING_CELLS, Evaluation, aggregate, evaluate_policy
+from ompn_ros.experiments.scoring import (
+    DURATION_DELAYS,
+    TRAINING_CELLS,
+    Evaluation,
+    aggregate,
+    evaluate_policy,
+)
 from ompn_ros.experiments.ship import ship
 from ompn_ros.experiments.spec import (
     ABLATIONS,
@@ -270,7 +276,7 @@ class SettingTables:
 
 def online_lag_rows(name: str, cells: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """The ``online_lag`` rows of one setting: offline, the tuned threshold detector and the duration
-    decoder at every scored lag (``online_hsmm<lag>_*``), each as align / F1@1 / delay."""
+    decoder within every scored mean delay (``online_hsmm_d<delay>_*``), each as align / F1@1 / delay."""
     rows = {
         f"{name}: offline, paper's detector": {"align": cells["align"], "f1_tol1": cells["f1_tol1"],
                                                "delay_mean": None},  # the episode's end
@@ -281,10 +287,10 @@ def online_lag_rows(name: str, cells: dict[str, Any]) -> dict[str, dict[str, Any
             "delay_mean": cells["online_delay_mean"],
         },
     }
-    for lag in DURATION_LAGS:
-        if f"online_hsmm{lag}_align_strict" in cells:
-            rows[f"{name}: online, hsmm lag {lag}"] = {
-                k: cells[f"online_hsmm{lag}_{m}"] for k, m in
+    for delay in DURATION_DELAYS:
+        if f"online_hsmm_d{delay:g}_align_strict" in cells:
+            rows[f"{name}: online, hsmm, mean delay <= {delay:g}"] = {
+                k: cells[f"online_hsmm_d{delay:g}_{m}"] for k, m in
                 (("align", "align_strict"), ("f1_tol1", "f1_tol1"), ("delay_mean", "delay_mean"))
             }
     return rows

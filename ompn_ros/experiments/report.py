@@ -96,9 +96,10 @@ def distilled_title(seeds: int, weight: float) -> str:
 
 
 def online_lag_title(seeds: int) -> str:
-    return (f"Online decoders against the lag ({seeds} seeds, held out, mean (std)): the threshold detector "
-            "tuned on validation; the duration decoder ('hsmm', docs/experiments.md §38) fitted and tuned on "
-            "validation at each lag; the offline detectors of the same checkpoints")
+    return (f"Online decoders against the delay ({seeds} seeds, held out, mean (std)): the threshold "
+            "detector tuned on validation; the duration decoder ('hsmm', lag 1, docs/experiments.md §38, "
+            "§39) fitted on validation, its threshold tuned there within each mean delay (steps); the "
+            "offline detectors of the same checkpoints")
 
 
 def ablations_title(setting: str) -> str:

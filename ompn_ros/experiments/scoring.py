@@ -6,8 +6,8 @@
   episode's last step, ``min_length`` tuned on the run's validation episodes.
 * Online: the causal detector of ``ompn_node`` replayed through the ``StreamingSegmenter``, with the
   package's shipped settings and with settings tuned on the validation episodes; and the duration
-  decoder (mode 'hsmm') fitted and tuned on the validation episodes at each lag of
-  :data:`DURATION_LAGS` (``online_hsmm<lag>_*``), scored on the same replays.
+  decoder (mode 'hsmm', lag ``DURATION_LAG``) fitted and tuned on the validation episodes within each
+  mean delay of :data:`DURATION_DELAYS` (``online_hsmm_d<delay>_*``), scored on the same replays.
 
 Validation episodes tune; test episodes only score.  Cost: O(Σ T) model steps per checkpoint plus
 the detector grid search, O(|grid| · Σ T_val).
@@ -38,7 +38,7 @@ from ompn_ros.experiments.replay import choose_detector, compare_detectors, repl
 from ompn_ros.model.factory import build_stepper
 from ompn_ros.paths import config_file
 from ompn_ros.segmenter import ReplayResult
-from ompn_ros.train.detector import duration_detector
+from ompn_ros.train.detector import DURATION_LAG, duration_detector
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat, tune_min_length
 
 METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", "recall_tol1")
@@ -49,8 +49,8 @@ DEFAULT_MIN_LENGTH = 2
 """min_length of the constrained Top-K when a run has no validation episodes to tune it on."""
 TRAINING_CELLS = ("train_seconds", "frames_per_second")
 """Result cells that only training produces (kept from the previous results by --reevaluate)."""
-DURATION_LAGS = (0, 1, 2, 3, 4, 5, 6, 8, 10)
-"""Lags at which the duration decoder is scored (``online_hsmm<lag>_*``)."""
+DURATION_DELAYS = (2, 4, 6, 8, 10, 12, 15)
+"""Mean delays (steps) within which the duration decoder is tuned and scored (``online_hsmm_d<delay>_*``)."""
 
 
 @dataclass(frozen=True)
@@ -88,20 +88,21 @@ def tuned_min_length(val_p_hats: Sequence[np.ndarray], val: Sequence[Episode]) -
 
 def duration_metrics(
     replays: Sequence[ReplayResult], test: Sequence[Episode], val_p_hats: Sequence[np.ndarray],
-    val: Sequence[Episode], lags: Sequence[int] = DURATION_LAGS,
+    val: Sequence[Episode], delays: Sequence[float] = DURATION_DELAYS,
 ) -> dict[str, float]:
-    """``online_hsmm<lag>_*`` on the test ``replays``: the duration decoder fitted on the validation
-    labels and its threshold tuned there for alignment (teacher-forced validation scores, equal to the
-    streamed ones to 1e-5).  O(len(lags) · thresholds · Σ T_val · K · lag²)."""
+    """``online_hsmm_d<delay>_*`` on the test ``replays``: the duration decoder fitted on the validation
+    labels and its threshold tuned there for alignment within each mean ``delay`` (teacher-forced
+    validation scores, equal to the streamed ones to 1e-5).
+    O(len(delays) · thresholds · Σ T_val · K · n²)."""
     val_scores = scores_from_p_hats(val_p_hats)
     row: dict[str, float] = {}
-    for lag in lags:
-        tuned = duration_detector(val_scores, [ep.boundaries for ep in val], lag)
+    for delay in delays:
+        tuned = duration_detector(val_scores, [ep.boundaries for ep in val], DURATION_LAG, delay)
         if tuned is None:  # no model (fewer than two subtasks per episode): no figures
             return row
         found = score_online(replays, test, tuned.config, tuned.model)
-        row.update({f"online_hsmm{lag}_{k}": v for k, v in found.items()})
-        row[f"online_hsmm{lag}_threshold"] = tuned.config.high
+        row.update({f"online_hsmm_d{delay:g}_{k}": v for k, v in found.items()})
+        row[f"online_hsmm_d{delay:g}_threshold"] = tuned.config.high
     return row
 
 

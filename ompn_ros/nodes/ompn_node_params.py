@@ -97,10 +97,12 @@ SPECS: Final = (
     ParamSpec("detector_min_segment_length", 1, "minimum steps per detected segment",
               int_range=(1, 100_000), apply="live"),
     ParamSpec("detector_mode", "falling_edge", "boundary commit rule; 'hsmm': the duration decoder of the "
-              "checkpoint's detector.json (detector_high = the posterior a boundary needs); switching to "
+              "checkpoint's detector.json (detector_high = the posterior that the subtask has ended; higher: "
+              "later, surer boundaries); switching to "
               "or from 'hsmm' inside an episode applies from the next one", choices=ALL_MODES, apply="live"),
-    ParamSpec("detector_lag", 0, "hsmm: steps a boundary waits before it is published (changed inside an "
-              "episode: from the next one)", int_range=(0, MAX_LAG), apply="live"),
+    ParamSpec("detector_lag", 0, "hsmm: a boundary is published at least detector_lag + 1 steps after its "
+              "step (more when the evidence is weak; changed inside an episode: from the next one)",
+              int_range=(0, MAX_LAG), apply="live"),
     ParamSpec("detector_force_first_step_low", True, "treat step 0's score as 0", apply="live"),
     ParamSpec("done_threshold", 0.5, "discrete: publish done (= action_dim) when pi_end exceeds this",
               float_range=(0.0, 1.0), apply="live"),

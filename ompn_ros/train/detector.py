@@ -17,9 +17,10 @@ alignment for continuous ones (Dial).
 
 Both ways also fit the duration decoder (mode 'hsmm', :mod:`ompn_ros.detect.duration`) on the same
 targets (the labels, or the pooled constrained Top-K without them) and tune its threshold for
-alignment at ``train.detector_lag``; the checkpoint keeps the model.  It becomes the online detector
+alignment at ``train.detector_lag``, with a mean delay of at most ``train.detector_delay`` steps; the
+checkpoint keeps the model.  It becomes the online detector
 when its validation alignment beats the threshold detector's by :data:`DURATION_GAIN` with F1@1 at
-most :data:`DURATION_GAIN` lower (docs/experiments.md §38).
+most :data:`DURATION_GAIN` lower (docs/experiments.md §38, §39).
 """
 
 from __future__ import annotations
@@ -56,8 +57,11 @@ LABEL_FREE_REFERENCE_MIN_LENGTH = 3
 """``min_length`` of its pooled constrained Top-K (docs/experiments.md §37)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
-DURATION_LAG = 6
-"""Default ``train.detector_lag``: the steps the 'hsmm' detector waits (docs/experiments.md §38)."""
+DURATION_LAG = 1
+"""Default ``train.detector_lag``: the fewest steps the 'hsmm' detector waits (docs/experiments.md §39)."""
+DURATION_DELAY = 6.0
+"""Default ``train.detector_delay``: the mean delay in steps the 'hsmm' detector's threshold may cost
+(docs/experiments.md §39)."""
 DURATION_GAIN = 0.01
 """Validation alignment the 'hsmm' detector must gain, and F1@1 it may lose at most, to be chosen."""
 
@@ -98,14 +102,15 @@ def calibrate_without_labels(
 
 
 def duration_detector(
-    scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None
+    scores: Sequence[np.ndarray], targets: Sequence[np.ndarray], lag: int | None,
+    max_delay: float | None = DURATION_DELAY,
 ) -> DurationCalibration | None:
-    """The 'hsmm' detector fitted and tuned on ``targets``; None without a lag or with fewer than two
-    segments per episode (nothing to decode)."""
+    """The 'hsmm' detector fitted and tuned on ``targets`` within ``max_delay``; None without a lag or
+    with fewer than two segments per episode (nothing to decode)."""
     if lag is None:
         return None
     try:
-        duration = calibrate_duration(scores, targets, lag, "align")
+        duration = calibrate_duration(scores, targets, lag, "align", max_delay=max_delay)
     except DurationModelError as exc:
         LOG.warning("no duration model: %s", exc)
         return None
@@ -132,18 +137,20 @@ def choose_settings(
     use_labels: bool,
     what: str,
     lag: int | None = DURATION_LAG,
+    max_delay: float | None = DURATION_DELAY,
 ) -> DetectorSettings:
     """Detector settings for the model whose validation ``p_hats`` are given (see module docstring).
 
     ``what`` names the checkpoint in the provenance line.  Labels are used only when ``use_labels``
-    and every episode has them.  ``lag``: of the 'hsmm' detector (None: fit none).
+    and every episode has them.  ``lag``: of the 'hsmm' detector (None: fit none); ``max_delay``: the
+    mean delay its threshold may cost.
     """
     objective = objective_for(action_type)
     labelled = use_labels and all(ep.subtask is not None for ep in episodes)
     scores = scores_from_p_hats(p_hats)
     if labelled:
         tuned = tune_on_labels(scores, [np.asarray(ep.subtask) for ep in episodes], objective)
-        duration = duration_detector(scores, [ep.boundaries for ep in episodes], lag)
+        duration = duration_detector(scores, [ep.boundaries for ep in episodes], lag, max_delay)
         online, figures = pick_online(tuned.config, tuned.metrics, duration)
         offline, min_length = _offline_choice(p_hats, episodes)
         return DetectorSettings(
@@ -160,7 +167,7 @@ def choose_settings(
     counts = pooled_counts(p_hats, [ep.task for ep in episodes])
     pooled = [reference_boundaries(p, "pooled_top_k", LABEL_FREE_REFERENCE_MIN_LENGTH, k)
               for p, k in zip(p_hats, counts, strict=True)]
-    duration = duration_detector(scores, pooled, lag)
+    duration = duration_detector(scores, pooled, lag, max_delay)
     against_pooled = evaluate_grid(scores, [calibrated.config], pooled)[0]
     online, figures = pick_online(calibrated.config, against_pooled, duration)
     return DetectorSettings(
@@ -185,6 +192,7 @@ def bundle(
     action_type: str,
     use_labels: bool,
     lag: int | None = DURATION_LAG,
+    max_delay: float | None = DURATION_DELAY,
 ) -> DetectorSettings:
     """Choose the settings (:func:`choose_settings`) and write ``checkpoint_dir/detector.json``."""
     settings = choose_settings(
@@ -194,6 +202,7 @@ def bundle(
         use_labels=use_labels,
         what=f"checkpoint {checkpoint_dir.name}/",
         lag=lag,
+        max_delay=max_delay,
     )
     save_detector_settings(checkpoint_dir, settings)
     LOG.info("%s: %s", checkpoint_dir / "detector.json", settings.describe())
@@ -201,6 +210,7 @@ def bundle(
 
 
 __all__ = [
-    "DURATION_GAIN", "DURATION_LAG", "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle",
-    "calibrate_without_labels", "choose_settings", "duration_detector", "objective_for", "pick_online",
+    "DURATION_DELAY", "DURATION_GAIN", "DURATION_LAG", "LABEL_FREE_REFERENCE",
+    "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle", "calibrate_without_labels", "choose_settings",
+    "duration_detector", "objective_for", "pick_online",
 ]

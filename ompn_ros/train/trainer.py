@@ -63,7 +63,7 @@ from ompn_ros.train.batching import (
     obs_normalization,
     split_train_val,
 )
-from ompn_ros.train.detector import DURATION_LAG
+from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.detector import bundle as bundle_detector
 from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
 from ompn_ros.train.distributed import (
@@ -126,6 +126,7 @@ _NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
     "ema_decay": (lambda v: 0.0 <= v < 1.0, "must be a number in [0, 1)"),
     "obs_dropout": (lambda v: 0.0 <= v < 1.0, "must be a number in [0, 1)"),
     "restart_below": (lambda v: 0.0 <= v <= 1.0, "must be a number in [0, 1]"),
+    "detector_delay": (lambda v: v > 0, "must be > 0 (steps)"),
 }
 _CHOICES: dict[str, tuple[str, ...]] = {
     "lr_schedule": LR_SCHEDULES, "selection": SELECTIONS, "labels": LABEL_MODES, "obs_norm": OBS_NORMS,
@@ -187,8 +188,11 @@ class TrainConfig:
             ``restarts`` times.  Labelled selections only.  0 = off.
         restart_below: the bound of the restart rule (the selection criterion, e.g. alignment).
         restarts: the most restarts one run makes.
-        detector_lag: the lag of the 'hsmm' online detector fitted at the end of training (steps a
-            published boundary may wait for a better segmentation, 0 … 10; ``ompn_ros.train.detector``).
+        detector_lag: the lag of the 'hsmm' online detector fitted at the end of training (a
+            boundary is published at least lag + 1 steps after its step, 0 … 10;
+            ``ompn_ros.train.detector``).
+        detector_delay: the mean delay (steps from a boundary to its publication) the 'hsmm'
+            detector's threshold may cost on the validation episodes.
         obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.
@@ -249,6 +253,7 @@ class TrainConfig:
     restart_below: float = 0.0
     restarts: int = 1
     detector_lag: int = DURATION_LAG
+    detector_delay: float = DURATION_DELAY
     obs_norm: ObsNorm = "none"
     eval_episodes: int = 0
     eval_batch_size: int = 64
@@ -532,7 +537,7 @@ def bundle_detectors(
         )
         written[name] = bundle_detector(
             directory, p_hats, val_eps, action_type=policy.config.action_type,
-            use_labels=cfg.labels == "auto", lag=cfg.detector_lag,
+            use_labels=cfg.labels == "auto", lag=cfg.detector_lag, max_delay=cfg.detector_delay,
         )
     return written
 
