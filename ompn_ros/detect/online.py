@@ -25,8 +25,8 @@ the threshold"), made causal:
 
 ``mode='hsmm'`` is a different decoder with the same step interface: the explicit-duration HSMM of
 :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there ``high`` is
-the posterior probability a boundary needs and ``lag`` the fewest steps it waits (more when the
-evidence is weak).
+the posterior probability a boundary needs, and a boundary comes at least ``lag + 1`` steps after
+its step (more when the evidence is weak).
 
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
 hard-coded to "expand from the top", ``docs/craft.md`` §3.6).

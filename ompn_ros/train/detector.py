@@ -58,7 +58,8 @@ LABEL_FREE_REFERENCE_MIN_LENGTH = 3
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
 DURATION_LAG = 1
-"""Default ``train.detector_lag``: the fewest steps the 'hsmm' detector waits (docs/experiments.md §39)."""
+"""Default ``train.detector_lag``: the 'hsmm' detector publishes a boundary at least ``lag + 1`` steps
+after its step (docs/experiments.md §39, §40)."""
 DURATION_DELAY = 6.0
 """Default ``train.detector_delay``: the mean delay in steps the 'hsmm' detector's threshold may cost
 (docs/experiments.md §39)."""
