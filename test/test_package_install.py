@@ -8,12 +8,18 @@ import os
 import signal
 import subprocess
 import sys
+import uuid
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
+
+
+def _own_topic() -> str:
+    """A remap rule giving one test its own topic: a process left over from another test is never its peer."""
+    return f"-r smoke:=smoke_{uuid.uuid4().hex[:12]}"
 
 
 def _console_scripts() -> list[str]:
@@ -86,16 +92,17 @@ def test_installed_executables_talk_across_processes_and_stop_on_sigint(colcon_i
     """smoke_listener and smoke_talker from install/lib/ompn_ros exchange messages over DDS."""
     lib = colcon_install / "ompn_ros" / "lib" / "ompn_ros"
     params = colcon_install / "ompn_ros" / "share" / "ompn_ros" / "config" / "smoke.yaml"
+    remap = _own_topic()
     listener = subprocess.Popen(
         ["bash", "-c", f"source {colcon_install}/setup.bash && exec {lib}/smoke_listener "
-         f"--ros-args --params-file {params} -p count:=30 -p timeout:=15.0"],
+         f"--ros-args --params-file {params} {remap} -p count:=30 -p timeout:=15.0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PATH": f"{VENV_BIN}:{os.environ['PATH']}"},
     )
     try:
         talker = _in_setup_bash(
             colcon_install,
-            f"exec {lib}/smoke_talker --ros-args --params-file {params} "
+            f"exec {lib}/smoke_talker --ros-args --params-file {params} {remap} "
             "-p count:=30 -p wait_for_subscriber:=15.0",
             timeout=60,
         )
@@ -106,6 +113,9 @@ def test_installed_executables_talk_across_processes_and_stop_on_sigint(colcon_i
     assert listener.returncode == 0, f"listener failed:\n{out}\n{err}"
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["received"] == 30 and summary["lost"] == 0
+    sent = json.loads(talker.stdout.strip().splitlines()[-1])
+    assert sent["published"] == 30 and sent["matched"] >= 1 and sent["acked"] is True, sent
+    assert sent["topic"].startswith("/smoke_"), sent  # the remap reached the node
 
 
 def test_installed_talker_exits_cleanly_on_sigint(colcon_install: Path):
@@ -113,9 +123,11 @@ def test_installed_talker_exits_cleanly_on_sigint(colcon_install: Path):
     lib = colcon_install / "ompn_ros" / "lib" / "ompn_ros"
     params = colcon_install / "ompn_ros" / "share" / "ompn_ros" / "config" / "smoke.yaml"
     env = {**os.environ, "PATH": f"{VENV_BIN}:{os.environ['PATH']}"}
+    remap = _own_topic()
     proc = subprocess.Popen(
         ["bash", "-c", f"source {colcon_install}/setup.bash && exec {lib}/smoke_talker "
-         f"--ros-args --params-file {params} -p count:=1000000 -p rate:=100.0 -p wait_for_subscriber:=0.0"],
+         f"--ros-args --params-file {params} {remap} -p count:=1000000 -p rate:=100.0 "
+         "-p wait_for_subscriber:=0.0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )
     try:
@@ -123,7 +135,8 @@ def test_installed_talker_exits_cleanly_on_sigint(colcon_install: Path):
         # received 5 of its messages proves it is in its publishing loop, however loaded the machine is.
         listener = _in_setup_bash(
             colcon_install,
-            f"exec {lib}/smoke_listener --ros-args --params-file {params} -p count:=5 -p timeout:=60.0",
+            f"exec {lib}/smoke_listener --ros-args --params-file {params} {remap} "
+            "-p count:=5 -p timeout:=60.0",
             timeout=120,
         )
         assert listener.returncode == 0, f"no messages from the talker:\n{listener.stdout}\n{listener.stderr}"

@@ -1,6 +1,8 @@
 """DDS self-check: a talker and a listener that measure delivery and latency between two processes.
 
-``smoke_talker`` publishes ``count`` stamped messages on ``smoke`` at ``rate`` Hz, then exits.
+``smoke_talker`` publishes ``count`` stamped messages on ``smoke`` at ``rate`` Hz, waits until every
+matched subscriber has acknowledged them (``ack_timeout``), prints a one-line JSON summary (published,
+matched subscribers, acked) and exits.
 ``smoke_listener`` counts what it receives, prints a one-line JSON summary (received, lost,
 latency percentiles) and exits after ``count`` messages or ``timeout`` seconds of silence.
 Both run under ``ros2 run ompn_ros smoke_talker`` and accept ``--ros-args --params-file``; an invalid
@@ -14,6 +16,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -31,6 +34,8 @@ TALKER_PARAMS = ParamTable((
     *COMMON,
     ParamSpec("wait_for_subscriber", 5.0, "seconds to wait for a subscriber before publishing",
               float_range=(0.0, 3600.0)),
+    ParamSpec("ack_timeout", 10.0, "seconds to wait, after the last message, for every matched "
+              "subscriber to acknowledge all of them", float_range=(0.0, 3600.0)),
 ))  # fmt: skip
 LISTENER_PARAMS = ParamTable((
     *COMMON,
@@ -49,11 +54,14 @@ class SmokeTalker(Node):
         self.period = 1.0 / float(self.values["rate"])
         self.publisher = self.create_publisher(JointState, TOPIC, QOS)
         self.sent = 0
+        self.acked = False
+        self.matched = 0
 
     def run(self) -> None:
         deadline = time.monotonic() + float(self.values["wait_for_subscriber"])
         while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
             rclpy.spin_once(self, timeout_sec=0.05)
+        self.matched = self.publisher.get_subscription_count()
         next_due = time.monotonic()
         try:
             while self.sent < self.count and rclpy.ok():
@@ -65,10 +73,13 @@ class SmokeTalker(Node):
                 self.sent += 1
                 next_due += self.period
                 time.sleep(max(0.0, next_due - time.monotonic()))
-            # Give reliable delivery a moment before the process (and its writer) goes away.
-            time.sleep(0.3)
+            # A subscriber the talker has matched may not have matched the talker yet (discovery is
+            # not symmetric, and slow under load): the writer must outlive its samples' delivery.
+            ack_timeout = Duration(seconds=float(self.values["ack_timeout"]))
+            self.acked = self.publisher.wait_for_all_acked(ack_timeout)
         finally:
-            print(json.dumps({"published": self.sent, "topic": TOPIC}), flush=True)
+            summary = {"published": self.sent, "matched": self.matched, "acked": self.acked}
+            print(json.dumps({**summary, "topic": self.publisher.topic_name}), flush=True)
 
 
 class SmokeListener(Node):
