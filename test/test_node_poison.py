@@ -6,6 +6,7 @@ segmented exactly as an offline replay of that episode would be."""
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -173,6 +174,18 @@ def test_overflowing_joint_state_stamp_is_rejected_and_an_end_marker_is_harmless
     node._on_episode(marker("end", steps="1"))
     assert node.counters()["rejected_bad_stamp"] == 1
     assert_matches_replay(node, ckpt, seed=4, joint=True)
+    node.destroy_node()
+
+
+def test_a_joint_value_beyond_float32_is_rejected_without_a_warning(ctx, ckpt: Path) -> None:
+    node = active_node(ctx, ckpt, obs_source="joint_state")
+    node._on_episode(marker("start", sketch="1,2"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning from the float64 -> float32 cast
+        node._on_joint_state(joint_state(NOW_S, 0, np.array([1e39] + [0.0] * (OBS_DIM - 1))))
+    node._on_episode(marker("end", steps="0"))
+    assert node.counters()["rejected_non_finite"] == 1 and node.counters()["accepted"] == 0
+    assert_matches_replay(node, ckpt, seed=11, joint=True)
     node.destroy_node()
 
 

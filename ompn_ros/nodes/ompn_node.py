@@ -595,7 +595,8 @@ class OMPNNode(LifecycleNode):
         except StampRangeError as exc:
             self._reject(BadStamp(str(exc)))
             return
-        parts = [np.asarray(getattr(msg, f), dtype=np.float32) for f in self.values["joint_fields"]]
+        with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
+            parts = [np.asarray(getattr(msg, f), dtype=np.float32) for f in self.values["joint_fields"]]
         self.process_observation(np.concatenate(parts), stamp)
 
     def _reject(self, error: InvalidInput) -> None:
