@@ -97,6 +97,62 @@ def _tail(path: Path, limit: int = 2000) -> str:
         return ""
 
 
+def _sim_args(task: str | None, sim_params: dict[str, Any], sim_rate: float) -> list[str]:
+    """The ``--ros-args`` every episode's sim gets (its seed is added per episode)."""
+    args = [
+        "-p", "mode:=policy", "-p", f"rate:={float(sim_rate)}", "-p", "episodes:=1",
+        "-p", "wait_for_subscribers:=2", "-p", "wait_topics:=['observation', 'episode']",
+    ]  # fmt: skip
+    if task is not None:
+        args += ["-p", f"task:={task}"]
+    for key, value in sim_params.items():
+        args += ["-p", f"{key}:={value}"]
+    return args
+
+
+def _run_episodes(
+    sim_cmd: list[str], node: subprocess.Popen[bytes], monitor: subprocess.Popen[bytes],
+    episodes: int, seed: int, timeout: float, env: dict[str, str], stderr: Any,
+) -> str:
+    """One sim process per episode, each waited for up to ``timeout`` s; the first problem ('' for none)."""
+    for i in range(episodes):
+        sim = subprocess.Popen([*sim_cmd, "-p", f"seed:={seed + i}"], env=env,
+                               stdout=subprocess.DEVNULL, stderr=stderr)
+        deadline = time.monotonic() + timeout
+        while sim.poll() is None and time.monotonic() < deadline:
+            if node.poll() is not None or monitor.poll() not in (None, 0):
+                break  # e.g. ompn_node cannot load the checkpoint: fail now, not at the timeout
+            time.sleep(0.05)
+        problem = ""
+        if sim.poll() is None:
+            _stop(sim)
+            problem = f"episode {i} (sim seed:={seed + i}) did not finish within {timeout:.0f} s"
+        elif sim.returncode != 0:
+            problem = f"sim exited with code {sim.returncode} in episode {i}"
+        if node.poll() is not None:
+            problem = f"ompn_node exited with code {node.returncode}"
+        if problem:
+            return problem
+    try:
+        monitor.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        return "the episode monitor did not see every end marker"
+    return ""
+
+
+def _end_records(out_file: Path) -> list[dict[str, Any]]:
+    """The monitor's JSON lines of the end markers (other lines skipped)."""
+    records = []
+    for line in out_file.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if rec.get("event") == "end":
+            records.append(rec)
+    return records
+
+
 def _run_one(
     domain: str,
     checkpoint: Path,
@@ -124,53 +180,15 @@ def _run_one(
          "-p", f"domain:={domain}", "-p", "done_threshold:=1.0"],
         env=env, stdout=subprocess.DEVNULL, stderr=handles["ompn_node"],
     )  # fmt: skip
-    sim_args = [
-        "-p", "mode:=policy", "-p", f"rate:={float(sim_rate)}", "-p", "episodes:=1",
-        "-p", "wait_for_subscribers:=2", "-p", "wait_topics:=['observation', 'episode']",
-    ]  # fmt: skip
-    if task is not None:
-        sim_args += ["-p", f"task:={task}"]
-    for key, value in sim_params.items():
-        sim_args += ["-p", f"{key}:={value}"]
-    problem = ""
+    sim_cmd = [py, "-m", SIM_MODULES[domain], "--ros-args", *_sim_args(task, sim_params, sim_rate)]
     try:
-        for i in range(episodes):
-            sim = subprocess.Popen(
-                [py, "-m", SIM_MODULES[domain], "--ros-args", *sim_args, "-p", f"seed:={seed + i}"],
-                env=env, stdout=subprocess.DEVNULL, stderr=handles["sim"],
-            )  # fmt: skip
-            deadline = time.monotonic() + timeout
-            while sim.poll() is None and time.monotonic() < deadline:
-                if node.poll() is not None or monitor.poll() not in (None, 0):
-                    break  # e.g. ompn_node cannot load the checkpoint: fail now, not at the timeout
-                time.sleep(0.05)
-            if sim.poll() is None:
-                _stop(sim)
-                problem = f"episode {i} (sim seed:={seed + i}) did not finish within {timeout:.0f} s"
-            elif sim.returncode != 0:
-                problem = f"sim exited with code {sim.returncode} in episode {i}"
-            if node.poll() is not None:
-                problem = f"ompn_node exited with code {node.returncode}"
-            if problem:
-                break
-        if not problem:
-            try:
-                monitor.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                problem = "the episode monitor did not see every end marker"
+        problem = _run_episodes(sim_cmd, node, monitor, episodes, seed, timeout, env, handles["sim"])
     finally:
         _stop(node)
         _stop(monitor)
         for handle in handles.values():
             handle.close()
-    records = []
-    for line in out_file.read_text().splitlines():
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if rec.get("event") == "end":
-            records.append(rec)
+    records = _end_records(out_file)
     if problem or len(records) < episodes:
         detail = "\n".join(
             f"--- {name} stderr ---\n{_tail(logs / f'{name}.err')}"

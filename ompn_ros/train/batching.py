@@ -125,6 +125,42 @@ def _describe(ep: Episode, index: int) -> str:
     return f"episode #{index} (task '{ep.task}', seed {ep.seed})"
 
 
+def _checked_actions(ep: Episode, index: int, action_type: str, action_dim: int) -> np.ndarray:
+    """``ep``'s ``T`` actions as the batch stores them: int ids in ``[0, action_dim)`` (discrete) or
+    float32 ``[T, action_dim]`` (continuous); a :class:`BatchError` naming the episode otherwise."""
+    if action_type == "discrete":
+        acts = np.asarray(ep.actions)
+        if acts.ndim != 1 or not np.issubdtype(acts.dtype, np.integer):
+            raise BatchError(
+                f"{_describe(ep, index)} has actions of shape {acts.shape} / {acts.dtype}; expected int [T]"
+            )
+        if acts.size and (acts.min() < 0 or acts.max() >= action_dim):
+            raise BatchError(f"{_describe(ep, index)} has action ids outside [0, {action_dim})")
+        return acts
+    acts = np.asarray(ep.actions, dtype=np.float32)
+    if acts.shape != (ep.length, action_dim):
+        raise BatchError(
+            f"{_describe(ep, index)} has actions of shape {acts.shape}; expected ({ep.length}, {action_dim})"
+        )
+    return acts
+
+
+def _sketches(episodes: Sequence[Episode]) -> torch.Tensor:
+    """The episodes' sketch ids (the domain's ids, >= 0) padded with -1 to the longest: ``[B, S]``."""
+    sketches = []
+    for i, ep in enumerate(episodes):
+        if ep.sketch is None:
+            raise BatchError(f"{_describe(ep, i)} has no sketch but the model uses sketches")
+        sketch = np.asarray(ep.sketch, dtype=np.int64)
+        if sketch.size and sketch.min() < 0:
+            raise BatchError(f"{_describe(ep, i)} has negative sketch ids {sketch.tolist()}")
+        sketches.append(sketch)
+    padded = np.full((len(sketches), max(len(s) for s in sketches)), -1, dtype=np.int64)
+    for i, sketch in enumerate(sketches):
+        padded[i, : len(sketch)] = sketch
+    return torch.from_numpy(padded)
+
+
 def collate(
     episodes: Sequence[Episode],
     action_type: str,
@@ -150,7 +186,6 @@ def collate(
         actions = np.zeros((size, rows), dtype=np.int64)
     else:
         actions = np.zeros((size, rows, action_dim), dtype=np.float32)
-    sketches: list[np.ndarray] = []
     for i, ep in enumerate(episodes):
         t = ep.length
         if ep.observations.shape[1] != dim:
@@ -162,43 +197,15 @@ def collate(
         obs[i, : t + 1] = ep.observations
         mask[i, : t + 1] = True
         done[i, t] = True
+        actions[i, :t] = _checked_actions(ep, i, action_type, action_dim)
         if action_type == "discrete":
-            acts = np.asarray(ep.actions)
-            if acts.ndim != 1 or not np.issubdtype(acts.dtype, np.integer):
-                raise BatchError(
-                    f"{_describe(ep, i)} has actions of shape {acts.shape} / {acts.dtype}; expected int [T]"
-                )
-            if acts.size and (acts.min() < 0 or acts.max() >= action_dim):
-                raise BatchError(f"{_describe(ep, i)} has action ids outside [0, {action_dim})")
-            actions[i, :t] = acts
             actions[i, t] = action_dim
-        else:
-            acts = np.asarray(ep.actions, dtype=np.float32)
-            if acts.shape != (t, action_dim):
-                raise BatchError(
-                    f"{_describe(ep, i)} has actions of shape {acts.shape}; expected ({t}, {action_dim})"
-                )
-            actions[i, :t] = acts
-        if use_sketch:
-            if ep.sketch is None:
-                raise BatchError(f"{_describe(ep, i)} has no sketch but the model uses sketches")
-            sketches.append(np.asarray(ep.sketch, dtype=np.int64))
-    sketch_t = None
-    if use_sketch:
-        # Episode sketch ids are the domain's ids (>= 0); shorter sketches are padded with -1.
-        width = max(len(s) for s in sketches)
-        padded = np.full((size, width), -1, dtype=np.int64)
-        for i, s in enumerate(sketches):
-            if s.size and s.min() < 0:
-                raise BatchError(f"{_describe(episodes[i], i)} has negative sketch ids {s.tolist()}")
-            padded[i, : len(s)] = s
-        sketch_t = torch.from_numpy(padded)
     return Batch(
         obs=torch.from_numpy(obs),
         actions=torch.from_numpy(actions),
         mask=torch.from_numpy(mask),
         done_mask=torch.from_numpy(done),
-        sketch=sketch_t,
+        sketch=_sketches(episodes) if use_sketch else None,
         lengths=torch.tensor([e.length for e in episodes], dtype=torch.int64),
         teacher_p_hat=_teacher_targets(episodes, rows),
     )
