@@ -18,6 +18,7 @@ import time
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -58,28 +59,36 @@ class SmokeTalker(Node):
         self.matched = 0
 
     def run(self) -> None:
-        deadline = time.monotonic() + float(self.values["wait_for_subscriber"])
-        while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
-            rclpy.spin_once(self, timeout_sec=0.05)
-        self.matched = self.publisher.get_subscription_count()
-        next_due = time.monotonic()
+        """Wait for a subscriber, publish, wait for the acks; the summary line is printed however the
+        run ends (SIGINT shuts the context down at any point of it: rclpy's signal handler)."""
         try:
-            while self.sent < self.count and rclpy.ok():
-                msg = JointState()
-                msg.header.stamp = self.get_clock().now().to_msg()
-                msg.name = ["seq"]
-                msg.position = [float(self.sent)]
-                self.publisher.publish(msg)
-                self.sent += 1
-                next_due += self.period
-                time.sleep(max(0.0, next_due - time.monotonic()))
+            deadline = time.monotonic() + float(self.values["wait_for_subscriber"])
+            while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+                rclpy.spin_once(self, timeout_sec=0.05)
+            self.matched = self.publisher.get_subscription_count()
+            self._publish_all()
             # A subscriber the talker has matched may not have matched the talker yet (discovery is
             # not symmetric, and slow under load): the writer must outlive its samples' delivery.
             ack_timeout = Duration(seconds=float(self.values["ack_timeout"]))
-            self.acked = self.publisher.wait_for_all_acked(ack_timeout)
+            self.acked = rclpy.ok() and self.publisher.wait_for_all_acked(ack_timeout)
+        except _rclpy.RCLError:
+            if rclpy.ok():
+                raise
         finally:
             summary = {"published": self.sent, "matched": self.matched, "acked": self.acked}
             print(json.dumps({**summary, "topic": self.publisher.topic_name}), flush=True)
+
+    def _publish_all(self) -> None:
+        next_due = time.monotonic()
+        while self.sent < self.count and rclpy.ok():
+            msg = JointState()
+            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.name = ["seq"]
+            msg.position = [float(self.sent)]
+            self.publisher.publish(msg)
+            self.sent += 1
+            next_due += self.period
+            time.sleep(max(0.0, next_due - time.monotonic()))
 
 
 class SmokeListener(Node):
