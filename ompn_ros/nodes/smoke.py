@@ -79,6 +79,7 @@ class SmokeTalker(Node):
             print(json.dumps({**summary, "topic": self.publisher.topic_name}), flush=True)
 
     def _publish_all(self) -> None:
+        """Publish ``count`` messages at ``rate`` Hz, or until the context is shut down."""
         next_due = time.monotonic()
         while self.sent < self.count and rclpy.ok():
             msg = JointState()
