@@ -47,7 +47,8 @@ DURATION_MODE = "hsmm"
 """The mode of :class:`~ompn_ros.detect.duration.DurationDetector` (needs a fitted duration model)."""
 ALL_MODES = (*MODES, DURATION_MODE)
 MAX_LAG = 10
-"""The longest lag of the duration decoder (its window likelihood is O(K · lag²) per step)."""
+"""The longest lag of the duration decoder (the fewest steps a boundary waits; see
+:mod:`ompn_ros.detect.duration` for its cost per step)."""
 
 
 class DetectorConfigError(ValueError):
@@ -66,7 +67,8 @@ class DetectorConfig:
             (``>= 1``; 1 disables the check).
         mode: 'falling_edge' | 'peak' | 'rising_edge', or 'hsmm' (see the module docstring).
         force_first_step_low: treat step 0's score as 0 (the authors' evaluation does this).
-        lag: steps the 'hsmm' decoder waits before it publishes a boundary (0 … ``MAX_LAG``; the
+        lag: the fewest steps the 'hsmm' decoder waits after a step is taken in before it publishes
+            it as a boundary, so at least ``lag + 1`` steps after the step (0 … ``MAX_LAG``; the
             threshold modes ignore it).
     """
 
