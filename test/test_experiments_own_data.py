@@ -129,3 +129,23 @@ def test_own_robot_table_is_rendered_when_its_file_exists(tmp_path: Path) -> Non
     text = report.render_readme(tmp_path)
     assert "| joint_state | 18 | 250 / 50 | 61.0 / 72.0 | 65.5 / 80.0 | – / – |" in text
     assert "`python examples/own_robot.py`" in text
+
+
+def test_final_observation_means_pair_each_seed_with_its_complete_arm(tmp_path: Path) -> None:
+    rows = [
+        _row("final_craft_full_complete", online_f1_1=0.90, online_align=0.80),
+        _row("final_craft_full_blank", online_f1_1=0.88, online_align=0.70, offline_align=0.70),
+        _row("final_craft_full_complete_seed1", online_f1_1=0.92, online_align=0.76),
+        _row("final_craft_full_blank_seed1", online_f1_1=0.90, online_align=0.74, offline_align=0.80),
+        _row("final_craft_full_blank_seed2", online_f1_1=0.10, online_align=0.10),  # no complete twin
+        _row("final_dial_complete"),
+        _row("final_dial_duplicate", online_f1_1=0.50),  # one seed: no mean
+    ]
+    doc = {"meta": {"command": ["x"]}, "rows": rows}
+    (tmp_path / report_own.OWN_DATA).write_text(json.dumps(doc))
+    text = report.render_readme(tmp_path)
+    assert "| Craft full, blank, 2 seeds | 89.0 / 72.0 | -2.0 / -6.0 | 90.0 / 75.0 | +0.0 / -5.0 |" in text
+    assert "Dial, duplicate, 1 seeds" not in text and "Dial, duplicate, 2 seeds" not in text
+    doc["rows"] = [r for r in rows if r["arm"] != "final_craft_full_blank_seed1"]
+    (tmp_path / report_own.OWN_DATA).write_text(json.dumps(doc))
+    assert "Means over seeds" not in report.render_readme(tmp_path)

@@ -115,17 +115,23 @@ def _arms() -> dict[str, Arm]:
             Arm(f"final_{tag}_duplicate", "final_observation", domain, length="fixed", bags="duplicate"),
             Arm(f"final_{tag}_blank", "final_observation", domain, length="fixed", bags="blank"),
         ]
-    arms += [  # a second seed for the Craft comparison of complete and blank
-        Arm("final_craft_full_complete_seed1", "final_observation", "craft", length="fixed", seed=1),
-        Arm("final_craft_full_blank_seed1", "final_observation", "craft", length="fixed", bags="blank",
-            seed=1),
-    ]
-    arms += [  # Dial's continuous state: the missing row guessed by extrapolation, two seeds
-        Arm("final_dial_extrapolate", "final_observation", "dial", length="fixed", bags="extrapolate"),
-        Arm("final_dial_complete_seed1", "final_observation", "dial", length="fixed", seed=1),
-        Arm("final_dial_extrapolate_seed1", "final_observation", "dial", length="fixed", bags="extrapolate",
-            seed=1),
-    ]
+    for seed in range(1, 10):  # more seeds for the Craft comparison of complete and blank
+        arms += [
+            Arm(f"final_craft_full_complete_seed{seed}", "final_observation", "craft", length="fixed",
+                seed=seed),
+            Arm(f"final_craft_full_blank_seed{seed}", "final_observation", "craft", length="fixed",
+                bags="blank", seed=seed),
+        ]
+    # Dial's continuous state: the missing row guessed by extrapolation, against complete bags
+    arms.append(
+        Arm("final_dial_extrapolate", "final_observation", "dial", length="fixed", bags="extrapolate")
+    )
+    for seed in range(1, 5):
+        arms += [
+            Arm(f"final_dial_complete_seed{seed}", "final_observation", "dial", length="fixed", seed=seed),
+            Arm(f"final_dial_extrapolate_seed{seed}", "final_observation", "dial", length="fixed",
+                bags="extrapolate", seed=seed),
+        ]
     return {a.name: a for a in arms}
 
 

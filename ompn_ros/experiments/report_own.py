@@ -139,7 +139,43 @@ def _final_table(rows: list[OwnDataRow]) -> list[str]:
             f"| {_setting(r)} | {r['bags']} | {pair(r['online_f1_1'], r['online_align'])} | {d_on} | "
             f"{pair(r['offline_f1_1'], r['offline_align'])} | {d_off} |"
         )
-    return lines
+    return lines + _final_means(rows)
+
+
+def _mean_row(label: str, pairs: list[tuple[OwnDataRow, OwnDataRow]]) -> str:
+    """One line of :func:`_final_means`: the means of ``(handled, complete)`` pairs and of their gaps."""
+    def mean(rows: list[OwnDataRow], key: str) -> float:
+        values: list[float] = [float(r[key]) for r in rows]  # type: ignore[literal-required, misc]
+        return sum(values) / len(values)
+
+    cells = []
+    for kind in ("online", "offline"):
+        f1, align = f"{kind}_f1_1", f"{kind}_align"
+        handled = [h for h, _ in pairs]
+        complete = [c for _, c in pairs]
+        means = (mean(handled, f1), mean(handled, align))
+        cells += [pair(*means), gaps(means, (mean(complete, f1), mean(complete, align)))]
+    return f"| {label} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |"
+
+
+def _final_means(rows: list[OwnDataRow]) -> list[str]:
+    """Per domain and handling with two seeds or more: the mean over the seeds that have a complete-
+    bags arm too, and the mean gap (the same seeds' complete arms), in percentage points."""
+    complete = {(r["domain"], r["seed"]): r for r in rows if r["bags"] == "complete"}
+    groups: dict[tuple[str, str], list[tuple[OwnDataRow, OwnDataRow]]] = {}
+    for r in rows:
+        ref = complete.get((r["domain"], r["seed"]))
+        if r["bags"] != "complete" and ref is not None:
+            groups.setdefault((r["domain"], r["bags"]), []).append((r, ref))
+    means = [
+        _mean_row(f"{'Craft full' if domain == 'craft' else 'Dial'}, {bags}, {len(pairs)} seeds", pairs)
+        for (domain, bags), pairs in groups.items() if len(pairs) >= 2
+    ]
+    if not means:
+        return []
+    return ["", "Means over seeds (each against the complete arm of the same seed):", "",
+            "| setting | online F1@1 / align | Δ online vs complete | offline F1@1 / align "
+            "| Δ offline vs complete |", "|---|---|---|---|---|", *means]
 
 
 def _length_table(rows: list[OwnDataRow]) -> list[str]:

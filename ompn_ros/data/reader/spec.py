@@ -122,13 +122,14 @@ class ReaderSpec:
               final ``use`` does, the model learns to stop early).
             * ``require``: such an episode is an :class:`AlignmentError` (``strict``) or dropped.
 
-            Trained on our data with that observation removed (docs/experiments.md §28 and §31,
-            held out), on Craft ``blank`` cost 0.6 / 2.5 points of online F1@1 / alignment (mean
-            of two seeds), ``duplicate`` 2.7 / 15.5 and ``drop_last_step`` 24.4 / 36.8 (seed 0);
-            on Dial ``duplicate`` cost 3.2 points of online alignment, ``drop_last_step`` 10.7,
-            ``blank`` 63.4 (offline 11.2), and ``extrapolate`` none (+0.4, mean of two seeds; offline
-            1.8, §36).  Only Dial's online alignment comes within a point of complete bags: record
-            the observation after the last command when you can.
+            Trained on our data with that observation removed (docs/experiments.md §28, §31 and
+            §42, held out, against complete bags of the same seed): ``extrapolate`` on Dial is
+            within a point on online and offline F1@1 and alignment (5 seeds); ``blank`` on Craft
+            is within a point on F1@1 and online alignment, but loses 2.6 points of offline
+            alignment on average (median 0.1: some runs are weak, and their validation alignment
+            shows it; 10 seeds); ``duplicate`` lost 15.5 points of online alignment on Craft and
+            ``drop_last_step`` 36.8 (seed 0).  Record the observation after the last command when
+            you can.
 
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
