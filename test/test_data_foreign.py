@@ -10,6 +10,7 @@ import pytest
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
+from ompn_ros.data.bag_reader import final_row_guessed
 from ompn_ros.data.errors import NoEpisodeError
 from ompn_ros.data.reader.assemble import EXTRAPOLATED_LAST
 
@@ -104,6 +105,8 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: st
         assert np.array_equal(got.observations[-1], got.observations[-2]) == duplicate  # s_{T+1} = s_T
         assert got.subtask is None and got.sketch is None and got.task == "arm_demo"
     assert "missing" in result.report.summary()
+    # what ompn_train reads to train more candidates on such bags (train.candidates_no_final)
+    assert final_row_guessed(result.report.summary()) == (final != "drop_last_step")
 
 
 def test_tight_tolerance_reports_unattached(tmp_path: Path) -> None:

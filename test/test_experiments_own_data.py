@@ -38,6 +38,7 @@ def _row(arm: str, **scores: float) -> dict[str, Any]:
         "online_align": 0.75,
         "label_free_online_f1_1": 0.82,
         "label_free_online_align": 0.77,
+        **({"candidates_trained": a.candidates} if a.candidates > 1 else {}),
     }
     base.update(scores)
     return base
@@ -140,12 +141,26 @@ def test_final_observation_means_pair_each_seed_with_its_complete_arm(tmp_path: 
         _row("final_craft_full_blank_seed2", online_f1_1=0.10, online_align=0.10),  # no complete twin
         _row("final_dial_complete"),
         _row("final_dial_duplicate", online_f1_1=0.50),  # one seed: no mean
+        # best of two initialisations: paired with the complete arm trained the same way (not seed 10's
+        # single run, which scores differently)
+        _row("final_craft_full_complete_seed10", offline_align=0.10),
+        _row("final_craft_full_complete_best2_seed10", offline_align=0.90),
+        _row("final_craft_full_blank_best2_seed10", offline_align=0.92),
+        _row("final_craft_full_complete_best2_seed11", offline_align=0.88),
+        _row("final_craft_full_blank_best2_seed11", offline_align=0.88),
     ]
     doc = {"meta": {"command": ["x"]}, "rows": rows}
     (tmp_path / report_own.OWN_DATA).write_text(json.dumps(doc))
     text = report.render_readme(tmp_path)
-    assert "| Craft full, blank, 2 seeds | 89.0 / 72.0 | -2.0 / -6.0 | 90.0 / 75.0 | +0.0 / -5.0 |" in text
+    lines = text.splitlines()
+    assert "| Craft full, blank, 2 seeds (seeds 0–1) | 89.0 / 72.0 | -2.0 / -6.0 | 90.0 / 75.0 | " \
+        "+0.0 / -5.0 |" in lines
+    assert "| Craft full, blank, best of 2, 2 seeds (seeds 10–11) | 85.0 / 75.0 | +0.0 / +0.0 | " \
+        "90.0 / 90.0 | +0.0 / +1.0 |" in lines
+    assert "| Craft full, seed 10, best of 2 | blank | 85.0 / 75.0 | +0.0 / +0.0 | 90.0 / 92.0 | " \
+        "+0.0 / +2.0 |" in lines
     assert "Dial, duplicate, 1 seeds" not in text and "Dial, duplicate, 2 seeds" not in text
-    doc["rows"] = [r for r in rows if r["arm"] != "final_craft_full_blank_seed1"]
+    doc["rows"] = [r for r in rows if r["arm"] not in ("final_craft_full_blank_seed1",
+                                                       "final_craft_full_blank_best2_seed11")]
     (tmp_path / report_own.OWN_DATA).write_text(json.dumps(doc))
     assert "Means over seeds" not in report.render_readme(tmp_path)

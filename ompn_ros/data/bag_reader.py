@@ -73,7 +73,7 @@ from __future__ import annotations
 
 from .reader.paths import STORAGE_SUFFIXES, resolve_bag_paths, storage_files
 from .reader.read import iter_raw_messages, read_bag, read_episodes
-from .reader.report import BagReport, ReadReport, ReadResult
+from .reader.report import BagReport, ReadReport, ReadResult, final_row_guessed
 from .reader.spec import (
     ACTION_TYPES,
     VECTOR_TYPES,
@@ -98,6 +98,7 @@ __all__ = [
     "ReaderSpec",
     "Split",
     "VectorSource",
+    "final_row_guessed",
     "iter_raw_messages",
     "read_bag",
     "read_episodes",

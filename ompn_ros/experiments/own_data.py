@@ -81,6 +81,8 @@ class Arm:
     length: Length = "patience"
     bags: Bags = "complete"
     seed: int = 0
+    candidates: int = 1
+    """``train.candidates``: initialisations trained, the best by validation kept (experiments §43)."""
     last_of: str = ""
     """Not trained: the ``last/`` checkpoint of this other arm's run is scored (no selection)."""
 
@@ -116,8 +118,9 @@ def _arms() -> dict[str, Arm]:
             Arm(f"final_{tag}_blank", "final_observation", domain, length="fixed", bags="blank"),
         ]
     # Seeded pairs of the final-observation study (docs/experiments.md §42): Craft's blank and Dial's
-    # extrapolated row T against complete bags (seed 0's Craft pair is defined above)
-    for tag, domain, bags, seeds in (("craft_full", "craft", "blank", range(1, 10)),
+    # extrapolated row T against complete bags (seed 0's Craft pair is defined above); Craft seeds
+    # 10-19 are §43's held-out seeds
+    for tag, domain, bags, seeds in (("craft_full", "craft", "blank", range(1, 20)),
                                      ("dial", "dial", "extrapolate", range(5))):
         for seed in seeds:
             suffix = f"_seed{seed}" if seed else ""
@@ -126,6 +129,11 @@ def _arms() -> dict[str, Arm]:
                                 seed=seed))
             arms.append(Arm(f"final_{tag}_{bags}{suffix}", "final_observation", domain, length="fixed",
                             bags=bags, seed=seed))  # type: ignore[arg-type]
+    # §43: the better of two initialisations by validation alignment, on the held-out seeds
+    for seed in range(10, 20):
+        for bags in ("complete", "blank"):
+            arms.append(Arm(f"final_craft_full_{bags}_best2_seed{seed}", "final_observation", "craft",
+                            length="fixed", bags=bags, seed=seed, candidates=2))  # type: ignore[arg-type]
     return {a.name: a for a in arms}
 
 
@@ -186,21 +194,27 @@ def arm_configs(arm: Arm, work: Path, threads: int) -> tuple[Any, TrainConfig]:
     setting = SETTINGS[arm.domain][
         "partial_nosketch" if arm.partial else ("full_nosketch" if arm.domain == "craft" else "nosketch")
     ]
+    base["train"]["candidates"] = arm.candidates
     spec = RunSpec(domain=arm.domain, setting=setting, seed=arm.seed)
     return build_configs(spec, base, work / "runs" / arm.name)
 
 
 def train_arm(
-    arm: Arm, pool: list[Episode], work: Path, threads: int, resume_from: Path | None = None
+    arm: Arm, pool: list[Episode], work: Path, threads: int, resume_from: Path | None = None,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Train the arm (``<work>/runs/<arm>/``); the run's length, best iteration and wall time.
 
     ``resume_from``: a finished shorter run of the same data, model and seed (e.g. the fixed-length
     run) whose resumable state this run continues; training is deterministic, so this equals an
-    uninterrupted run whenever early stopping would not have stopped before that run's end."""
+    uninterrupted run whenever early stopping would not have stopped before that run's end.
+    ``resume``: continue what ``<work>/runs/<arm>/`` holds (e.g. a candidate copied in from the single
+    run of the same seed, which is candidate 0)."""
     model_cfg, train_cfg = arm_configs(arm, work, threads)
     out = work / "runs" / arm.name
     earlier = 0.0
+    if resume:
+        train_cfg = replace(train_cfg, resume=True)
     if resume_from is not None:
         if out.exists():
             raise ReproduceError(f"{out} exists; remove it to resume from {resume_from}")
@@ -219,6 +233,7 @@ def train_arm(
         "patience": train_cfg.patience,
         "iteration_cap": train_cfg.iterations,
         **({"resumed_from": resume_from.name} if resume_from is not None else {}),
+        **({"candidates": result.candidates} if result.candidates else {}),
     }
 
 
@@ -262,7 +277,8 @@ def score_arm(
 
 
 def run_arm(
-    arm: Arm, work: Path, threads: int = 1, checkpoint: Path | None = None, resume_from: Path | None = None
+    arm: Arm, work: Path, threads: int = 1, checkpoint: Path | None = None, resume_from: Path | None = None,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Train (or, with ``checkpoint``, reuse a run trained with the same config) and score one arm;
     writes ``<work>/arms/<arm>.json`` and returns its row."""
@@ -272,7 +288,7 @@ def run_arm(
     if arm.last_of and checkpoint is None:
         checkpoint = work / "runs" / arm.last_of / "last"
     if checkpoint is None:
-        info = train_arm(arm, pool, work, threads, resume_from)
+        info = train_arm(arm, pool, work, threads, resume_from, resume)
         checkpoint = work / "runs" / arm.name / "best"
     else:
         reached = int(load_checkpoint(checkpoint)[1].get("iteration", -1))
@@ -295,6 +311,7 @@ def run_arm(
         "length": arm.length,
         "bags": arm.bags,
         "seed": arm.seed,
+        **({"candidates_trained": arm.candidates} if arm.candidates > 1 else {}),
         **info,
     }
     row.update(score_arm(arm, checkpoint, pool, test, cfg))
@@ -386,6 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         "--checkpoint", type=Path, help="score this checkpoint (trained with the arm's config) instead"
     )
     p.add_argument("--resume-from", type=Path, help="continue this finished shorter run of the same config")
+    p.add_argument("--resume", action="store_true", help="continue what the arm's run directory holds")
     p = sub.add_parser("collate", help="write results/own_data.json and results/README.md")
     p.add_argument("--results", type=Path, default=Path("results"))
     p.add_argument("--note", action="append", default=[], help="a sentence printed under the tables")
@@ -404,7 +422,8 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 json.dumps(
                     run_arm(
-                        arm_by_name(args.arm), args.work, args.threads, args.checkpoint, args.resume_from
+                        arm_by_name(args.arm), args.work, args.threads, args.checkpoint, args.resume_from,
+                        args.resume,
                     ),
                     indent=1,
                 )

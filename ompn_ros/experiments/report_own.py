@@ -45,6 +45,7 @@ class OwnDataRow(TypedDict, total=False):
     online_align: float
     label_free_online_f1_1: float  # the detector calibrated without labels
     label_free_online_align: float
+    candidates_trained: int  # train.candidates when > 1: the best of that many initialisations
 
 
 class OwnDataDoc(TypedDict):
@@ -90,11 +91,25 @@ def gaps(a: tuple[float | None, float | None], b: tuple[float | None, float | No
     return f"{gap(a[0], b[0])} / {gap(a[1], b[1])}"
 
 
+def _candidates(row: OwnDataRow) -> int:
+    return int(row.get("candidates_trained", 1))
+
+
+def _best_of(row: OwnDataRow) -> str:
+    n = _candidates(row)
+    return f", best of {n}" if n > 1 else ""
+
+
 def _setting(row: OwnDataRow) -> str:
     name = "Craft" if row["domain"] == "craft" else "Dial"
     obs = f" {row['observation']}" if row["domain"] == "craft" else ""
     last = ", last checkpoint" if row.get("checkpoint") == "last" else ""
-    return f"{name}{obs}, seed {row['seed']}{last}"
+    return f"{name}{obs}, seed {row['seed']}{_best_of(row)}{last}"
+
+
+def _twin(row: OwnDataRow) -> tuple[str, int, int]:
+    """What pairs an arm with its complete-bags arm: domain, seed and the candidates trained."""
+    return (row["domain"], row["seed"], _candidates(row))
 
 
 def _iterations(row: OwnDataRow) -> str:
@@ -126,9 +141,9 @@ def _final_table(rows: list[OwnDataRow]) -> list[str]:
         "| Δ offline vs complete |",
         "|---|---|---|---|---|---|",
     ]
-    complete = {(r["domain"], r["seed"]): r for r in rows if r["bags"] == "complete"}
+    complete = {_twin(r): r for r in rows if r["bags"] == "complete"}
     for r in rows:
-        ref = complete.get((r["domain"], r["seed"]))
+        ref = complete.get(_twin(r))
         d_on = d_off = "–"
         if ref is not None and r is not ref:
             d_on, d_off = (
@@ -158,18 +173,25 @@ def _mean_row(label: str, pairs: list[tuple[OwnDataRow, OwnDataRow]]) -> str:
     return f"| {label} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |"
 
 
+def _seed_span(pairs: list[tuple[OwnDataRow, OwnDataRow]]) -> str:
+    seeds = sorted(h["seed"] for h, _ in pairs)
+    contiguous = seeds == list(range(seeds[0], seeds[-1] + 1))
+    return f"seeds {seeds[0]}–{seeds[-1]}" if contiguous else "seeds " + ", ".join(map(str, seeds))
+
+
 def _final_means(rows: list[OwnDataRow]) -> list[str]:
     """Per domain and handling with two seeds or more: the mean over the seeds that have a complete-
     bags arm too, and the mean gap (the same seeds' complete arms), in percentage points."""
-    complete = {(r["domain"], r["seed"]): r for r in rows if r["bags"] == "complete"}
-    groups: dict[tuple[str, str], list[tuple[OwnDataRow, OwnDataRow]]] = {}
+    complete = {_twin(r): r for r in rows if r["bags"] == "complete"}
+    groups: dict[tuple[str, str, str], list[tuple[OwnDataRow, OwnDataRow]]] = {}
     for r in rows:
-        ref = complete.get((r["domain"], r["seed"]))
+        ref = complete.get(_twin(r))
         if r["bags"] != "complete" and ref is not None:
-            groups.setdefault((r["domain"], r["bags"]), []).append((r, ref))
+            groups.setdefault((r["domain"], r["bags"], _best_of(r)), []).append((r, ref))
     means = [
-        _mean_row(f"{'Craft full' if domain == 'craft' else 'Dial'}, {bags}, {len(pairs)} seeds", pairs)
-        for (domain, bags), pairs in groups.items() if len(pairs) >= 2
+        _mean_row(f"{'Craft full' if domain == 'craft' else 'Dial'}, {bags}{best}, {len(pairs)} seeds "
+                  f"({_seed_span(pairs)})", pairs)
+        for (domain, bags, best), pairs in groups.items() if len(pairs) >= 2
     ]
     if not means:
         return []

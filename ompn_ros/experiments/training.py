@@ -18,10 +18,11 @@ from typing import Any
 
 import yaml
 
-from ompn_ros.data.bag_reader import ReaderSpec
+from ompn_ros.data.bag_reader import ReaderSpec, final_row_guessed
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.candidates import resolve_candidates
 from ompn_ros.train.distributed import init_distributed, shutdown
 from ompn_ros.train.synthetic import SyntheticKind, make_dataset, synthetic_spec
 from ompn_ros.train.trainer import TrainConfig, train
@@ -36,6 +37,8 @@ RUN_OUTPUTS = (
     "summary.json",
     "read_report.json",
     "read_report.txt",
+    "candidates",
+    "candidates.json",
 )
 """What ``ompn_train`` writes into its output directory (``--overwrite`` removes exactly these)."""
 
@@ -211,7 +214,10 @@ def build_configs(
     train_fields = {**config["train"], "out_dir": str(out), "resume": bool(resume)}
     if quiet:
         train_fields["progress"] = False
-    return OMPNConfig.from_dict(model_fields), TrainConfig.from_dict(train_fields)
+    train_config = TrainConfig.from_dict(train_fields)
+    guessed = final_row_guessed(str(data.report.get("summary", "")))
+    labelled = train_config.labels == "auto" and all(ep.subtask is not None for ep in data.episodes)
+    return OMPNConfig.from_dict(model_fields), resolve_candidates(train_config, guessed, labelled)
 
 
 def run_training(
@@ -230,6 +236,7 @@ def run_training(
             "iterations": result.iterations,
             "best_iteration": result.best_iteration,
             "restarts": result.restarts,
+            "candidates": result.candidates,
             "best": result.best_metrics,
             "last": result.last_metrics,
             "frames": result.frames,

@@ -63,6 +63,7 @@ from ompn_ros.train.batching import (
     obs_normalization,
     split_train_val,
 )
+from ompn_ros.train.candidates import best_of, candidate_rows
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.detector import bundle as bundle_detector
 from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
@@ -117,6 +118,7 @@ def _is_number(value: Any) -> bool:
 # TrainConfig's checks, by kind of field (__post_init__); the numbers are stored as floats
 _POSITIVE_INTS = ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size")
 _COUNTS = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts")
+_AT_LEAST_ONE = ("candidates", "candidates_no_final")
 _FLAGS = ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16")
 _NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
     "lr": (lambda v: v > 0, "must be > 0"),
@@ -188,6 +190,12 @@ class TrainConfig:
             ``restarts`` times.  Labelled selections only.  0 = off.
         restart_below: the bound of the restart rule (the selection criterion, e.g. alignment).
         restarts: the most restarts one run makes.
+        candidates: initialisations trained on the one split; the one with the best validation
+            criterion is kept (:mod:`ompn_ros.train.candidates`, ``OUT/candidates.json``).  1 = one run.
+        candidates_no_final: ``candidates`` for bags whose final observation the reader guessed (no
+            observation after the last action), with validation labels: ``ompn_train`` raises
+            ``candidates`` to this (:func:`~ompn_ros.train.candidates.resolve_candidates`).  The Craft
+            config sets 2 (docs/experiments.md §43).
         detector_lag: the lag of the 'hsmm' online detector fitted at the end of training (a
             boundary is published at least lag + 1 steps after its step, 0 … 10;
             ``ompn_ros.train.detector``).
@@ -252,6 +260,8 @@ class TrainConfig:
     restart_at: int = 0
     restart_below: float = 0.0
     restarts: int = 1
+    candidates: int = 1
+    candidates_no_final: int = 1
     detector_lag: int = DURATION_LAG
     detector_delay: float = DURATION_DELAY
     obs_norm: ObsNorm = "none"
@@ -278,6 +288,8 @@ class TrainConfig:
             need(_is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
         for name in _COUNTS:
             need(_is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
+        for name in _AT_LEAST_ONE:
+            need(_is_int(getattr(self, name)) and getattr(self, name) >= 1, name, "must be an int >= 1")
         need(
             self.split_seed is None or (_is_int(self.split_seed) and self.split_seed >= 0),
             "split_seed",
@@ -352,6 +364,8 @@ class TrainResult:
     """How many times the restart rule started the run again (:mod:`ompn_ros.train.restart`)."""
     collapsed: bool = False
     """This attempt stopped at ``restart_at`` under the restart rule (internal to :func:`train`)."""
+    candidates: list[dict[str, Any]] = field(default_factory=list)
+    """With ``candidates`` > 1: every candidate's seed, best iteration and score (the one returned won)."""
 
 
 def learning_rate(cfg: TrainConfig, iteration: int) -> float:
@@ -564,6 +578,8 @@ def train(
 
     With ``restart_at`` set, an attempt that collapsed starts again from a new initialisation on the
     same split (:mod:`ompn_ros.train.restart`); ``resume`` continues the attempt ``out_dir`` records.
+    With ``candidates`` > 1, that many initialisations train on the split and the best by validation is
+    kept (:mod:`ompn_ros.train.candidates`); the result's ``train_seconds`` and ``frames`` sum them.
 
     Args:
         episodes: all demonstrations; split into train/validation by ``val_ratio`` and ``seed``.
@@ -574,6 +590,8 @@ def train(
             training (used to simulate a kill in tests).
     """
     ctx = dist_ctx or DistContext()
+    if train_config.candidates > 1:
+        return _train_candidates(episodes, model_config, train_config, ctx, callback)
     out_dir = Path(train_config.out_dir) if train_config.out_dir is not None else None
     attempt = read_attempt(out_dir) if train_config.resume else 0
     if out_dir is not None and not train_config.resume and ctx.is_main:
@@ -596,6 +614,23 @@ def train(
             LOG.warning("%s (attempt %d of at most %d)", reason, attempt + 1, train_config.restarts + 1)
             start_attempt(out_dir, attempt, attempt_config(train_config, attempt).seed, reason)
         train_config = replace(train_config, resume=False)
+
+
+def _train_candidates(
+    episodes: Sequence[Episode], model_config: OMPNConfig, cfg: TrainConfig, ctx: DistContext,
+    callback: Callable[[int, dict[str, float]], None] | None,
+) -> TrainResult:
+    """:func:`train` with ``cfg.candidates`` > 1: the winner's result, with the cost of all of them."""
+    def one(sub: TrainConfig) -> TrainResult:
+        return train(episodes, model_config, sub, dist_ctx=ctx, callback=callback)
+
+    winner, everyone = best_of(cfg, one, is_main=ctx.is_main)
+    if ctx.is_main and winner.selection not in LABELLED_SELECTIONS:
+        LOG.warning("candidates compared by %s, which does not rank weak runs below good ones "
+                    "(docs/experiments.md §33)", winner.selection)
+    return replace(winner, out_dir=cfg.out_dir, candidates=candidate_rows(everyone),
+                   train_seconds=sum(c.result.train_seconds for c in everyone),
+                   frames=sum(c.result.frames for c in everyone))
 
 
 @dataclass

@@ -24,6 +24,7 @@ from .context import BagContext, Topics
 from .decode import Decoded
 from .joints import JointBlock
 from .labels import LabelSite, ordinals_from_events, ordinals_from_ids, ordinals_from_values
+from .report import FINAL_GUESS
 
 DROPPED_LAST = "last step dropped (no final observation)"
 DUPLICATED_LAST = "last observation duplicated as row T"
@@ -67,11 +68,11 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
     if report.final_duplicated:
         report.notes.append(f"every observation had an action in {report.final_duplicated} episode(s): "
                             "the last observation was duplicated as row T (s_{T+1} = s_T)")
-        report.guessed.append("row T = the last observation (final_observation: duplicate)")
+        report.guessed.append(FINAL_GUESS + "the last observation (final_observation: duplicate)")
     if report.adjusted.get(BLANK_LAST):
-        report.guessed.append("row T = zeros (final_observation: blank)")
+        report.guessed.append(FINAL_GUESS + "zeros (final_observation: blank)")
     if report.adjusted.get(EXTRAPOLATED_LAST):
-        report.guessed.append("row T = 2 s_T - s_{T-1} (final_observation: extrapolate)")
+        report.guessed.append(FINAL_GUESS + "2 s_T - s_{T-1} (final_observation: extrapolate)")
     report.episodes = len(episodes)
     return episodes
 

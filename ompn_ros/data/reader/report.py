@@ -8,6 +8,8 @@ from typing import Any
 from ..episode import Episode
 
 TABLES = ("missing", "duplicates", "unattached")
+FINAL_GUESS = "row T = "
+"""How every ``guessed`` entry about an episode's final observation begins (:func:`final_row_guessed`)."""
 MAX_BAG_LINES = 8  # summary(): bags listed one per line before "... and N more"
 MAX_NOTES = 4  # summary(): notes shown per bag
 
@@ -73,6 +75,12 @@ class BagReport:
         for handling, episodes in self.adjusted.items():
             text += f"; {handling} in {len(episodes)} episodes"
         return text
+
+
+def final_row_guessed(summary: str) -> bool:
+    """Whether a :meth:`ReadReport.summary` (the text a cache keeps) says the reader guessed row T of
+    some episode (``final_observation``: duplicate, blank or extrapolate).  O(len(summary))."""
+    return any(line.startswith("guessed: ") and FINAL_GUESS in line for line in summary.splitlines())
 
 
 @dataclass
