@@ -160,7 +160,12 @@ def test_final_observation_means_pair_each_seed_with_its_complete_arm(tmp_path: 
     assert "| Craft full, seed 10, best of 2 | blank | 85.0 / 75.0 | +0.0 / +0.0 | 90.0 / 92.0 | " \
         "+0.0 / +2.0 |" in lines
     assert "Dial, duplicate, 1 seeds" not in text and "Dial, duplicate, 2 seeds" not in text
+    assert "| Craft full, complete, best of 2, 2 seeds (seeds 10–11) | 85.0 / 75.0 | – | 90.0 / 89.0 | – |" \
+        in lines  # the complete arms' own means, no gap
     doc["rows"] = [r for r in rows if r["arm"] not in ("final_craft_full_blank_seed1",
-                                                       "final_craft_full_blank_best2_seed11")]
+                                                       "final_craft_full_complete_seed1",
+                                                       "final_craft_full_complete_seed10",
+                                                       "final_craft_full_blank_best2_seed11",
+                                                       "final_craft_full_complete_best2_seed11")]
     (tmp_path / report_own.OWN_DATA).write_text(json.dumps(doc))
     assert "Means over seeds" not in report.render_readme(tmp_path)

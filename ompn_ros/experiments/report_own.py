@@ -158,7 +158,8 @@ def _final_table(rows: list[OwnDataRow]) -> list[str]:
 
 
 def _mean_row(label: str, pairs: list[tuple[OwnDataRow, OwnDataRow]]) -> str:
-    """One line of :func:`_final_means`: the means of ``(handled, complete)`` pairs and of their gaps."""
+    """One line of :func:`_final_means`: the means of ``(handled, complete)`` pairs and of their gaps
+    (a dash for the complete arms themselves, paired with themselves)."""
     def mean(rows: list[OwnDataRow], key: str) -> float:
         values: list[float] = [float(r[key]) for r in rows]  # type: ignore[literal-required, misc]
         return sum(values) / len(values)
@@ -169,7 +170,8 @@ def _mean_row(label: str, pairs: list[tuple[OwnDataRow, OwnDataRow]]) -> str:
         handled = [h for h, _ in pairs]
         complete = [c for _, c in pairs]
         means = (mean(handled, f1), mean(handled, align))
-        cells += [pair(*means), gaps(means, (mean(complete, f1), mean(complete, align)))]
+        same = all(h is c for h, c in pairs)
+        cells += [pair(*means), "–" if same else gaps(means, (mean(complete, f1), mean(complete, align)))]
     return f"| {label} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |"
 
 
@@ -180,13 +182,14 @@ def _seed_span(pairs: list[tuple[OwnDataRow, OwnDataRow]]) -> str:
 
 
 def _final_means(rows: list[OwnDataRow]) -> list[str]:
-    """Per domain and handling with two seeds or more: the mean over the seeds that have a complete-
-    bags arm too, and the mean gap (the same seeds' complete arms), in percentage points."""
+    """Per domain, handling and candidates trained, with two seeds or more: the mean over the seeds
+    that have a complete-bags arm too, and the mean gap (the same seeds' complete arms), in percentage
+    points; the complete arms' own means come first."""
     complete = {_twin(r): r for r in rows if r["bags"] == "complete"}
     groups: dict[tuple[str, str, str], list[tuple[OwnDataRow, OwnDataRow]]] = {}
     for r in rows:
         ref = complete.get(_twin(r))
-        if r["bags"] != "complete" and ref is not None:
+        if ref is not None:  # complete arms pair with themselves: their means, no gap
             groups.setdefault((r["domain"], r["bags"], _best_of(r)), []).append((r, ref))
     means = [
         _mean_row(f"{'Craft full' if domain == 'craft' else 'Dial'}, {bags}{best}, {len(pairs)} seeds "

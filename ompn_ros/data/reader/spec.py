@@ -122,14 +122,15 @@ class ReaderSpec:
               final ``use`` does, the model learns to stop early).
             * ``require``: such an episode is an :class:`AlignmentError` (``strict``) or dropped.
 
-            Trained on our data with that observation removed (docs/experiments.md §28, §31 and
-            §42, held out, against complete bags of the same seed): ``extrapolate`` on Dial is
-            within a point on online and offline F1@1 and alignment (5 seeds); ``blank`` on Craft
-            is within a point on F1@1 and online alignment, but loses 2.6 points of offline
-            alignment on average (median 0.1: some runs are weak, and their validation alignment
-            shows it; 10 seeds); ``duplicate`` lost 15.5 points of online alignment on Craft and
-            ``drop_last_step`` 36.8 (seed 0).  Record the observation after the last command when
-            you can.
+            Trained on our data with that observation removed (docs/experiments.md §28, §31, §42
+            and §43, held out, against complete bags of the same seed): ``extrapolate`` on Dial is
+            within a point on online and offline F1@1 and alignment, or better (5 seeds);
+            ``blank`` on Craft is within a point or better on all four (20 seeds; offline
+            alignment +0.5), but gives more weak runs (4 of 20 below 85 alignment, against 1),
+            which is why ``ompn_train`` keeps the better of two runs on such bags
+            (``train.candidates_no_final``); ``duplicate`` lost 15.5 points of online alignment on
+            Craft and ``drop_last_step`` 36.8 (seed 0).  Record the observation after the last
+            command when you can.
 
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
