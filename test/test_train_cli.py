@@ -171,7 +171,9 @@ def test_the_read_report_is_printed_and_stored_with_the_run(
     assert (out / "read_report.txt").read_text().strip() == report["summary"]
 
 
-def test_bags_without_their_final_observation_train_two_candidates(tmp_path: Path) -> None:
+def test_bags_without_their_final_observation_train_two_candidates(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """The Craft config's candidates_no_final (2) applies exactly when the reader guessed row T."""
     from ompn_ros.data.bag_writer import write_episodes
     from ompn_ros.experiments.strip import strip_final_observations
@@ -181,11 +183,13 @@ def test_bags_without_their_final_observation_train_two_candidates(tmp_path: Pat
     strip_final_observations(tmp_path / "bag", tmp_path / "stripped")
     args = ["--config", str(ROOT / "config" / "train_craft.yaml"), *SMALL, "--set", "train.iterations=2"]
     assert main(["--bags", str(tmp_path / "stripped"), "--out", str(tmp_path / "a"), *args]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["candidates"] == 2
     doc = json.loads((tmp_path / "a" / "candidates.json").read_text())
     assert [c["candidate"] for c in doc["candidates"]] == [0, 1] and doc["selection"] == "align"
     assert (tmp_path / "a" / "candidates" / "1" / "best" / "detector.json").is_file()
     assert main(["--bags", str(tmp_path / "bag"), "--out", str(tmp_path / "b"), *args]) == 0
     assert not (tmp_path / "b" / "candidates.json").exists()  # complete bags: one run
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["candidates"] == 1
     hidden = [*args, "--set", "train.labels=none"]  # no labels to compare candidates by: one run
     assert main(["--bags", str(tmp_path / "stripped"), "--out", str(tmp_path / "c"), *hidden]) == 0
     assert not (tmp_path / "c" / "candidates.json").exists()

@@ -89,7 +89,9 @@ def _run(args: argparse.Namespace) -> int:
         training.write_read_report(args.out, data.report)
     summary = training.run_training(data, model_config, train_config, args.out)
     if summary is not None:
-        print(json.dumps({k: summary[k] for k in ("iterations", "best_iteration", "restarts", "frames")}))
+        shown = {k: summary[k] for k in ("iterations", "best_iteration", "restarts", "frames")}
+        shown["candidates"] = max(1, len(summary["candidates"]))  # initialisations trained (candidates.json)
+        print(json.dumps(shown))
     return 0
 
 
