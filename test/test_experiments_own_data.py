@@ -77,6 +77,9 @@ def test_collate_writes_the_results_and_reuses_the_fixed_run_as_the_complete_arm
         "labels_dial": _row("labels_dial", label_free_online_f1_1=0.80, online_f1_1=0.83),
         "length_dial_fixed": _row("length_dial_fixed", online_f1_1=0.70, online_align=0.60),
         "final_dial_duplicate": _row("final_dial_duplicate", online_f1_1=0.50, online_align=0.40),
+        # read from a larger collection of the same bag set: its split is listed apart
+        "final_dial_extrapolate_seed1": _row("final_dial_extrapolate_seed1", train_episodes=80,
+                                             val_episodes=10, test_episodes=20),
     }
     for name, row in rows.items():
         (arms / f"{name}.json").write_text(json.dumps(row))
@@ -89,12 +92,14 @@ def test_collate_writes_the_results_and_reuses_the_fixed_run_as_the_complete_arm
     )
     doc = json.loads((results / "own_data.json").read_text())
     names = [r["arm"] for r in doc["rows"]]
-    assert names == ["labels_dial", "length_dial_fixed", "final_dial_complete", "final_dial_duplicate"]
+    assert names == ["labels_dial", "length_dial_fixed", "final_dial_complete", "final_dial_duplicate",
+                     "final_dial_extrapolate_seed1"]
     complete = doc["rows"][2]
     assert complete["study"] == "final_observation" and complete["online_f1_1"] == 0.70
-    assert doc["meta"]["episodes"] == {"dial_full": {"train": 8, "val": 2, "test": 3}}
+    assert doc["meta"]["episodes"] == {"dial_full": {"train": 8, "val": 2, "test": 3},
+                                       "dial_full (110 episodes)": {"train": 80, "val": 10, "test": 20}}
     assert "A note." not in doc["meta"]["command"] and doc["meta"]["notes"] == ["A note."]
-    assert doc["meta"]["seeds"] == [0]
+    assert doc["meta"]["seeds"] == [0, 1]
     text = (results / "README.md").read_text()
     assert text == report.render_readme(results)
     assert "| Dial, seed 0 | 400 (200) | 83.0 / 75.0 | 80.0 / 77.0 | -3.0 / +2.0 |" in text

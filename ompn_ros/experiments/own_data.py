@@ -119,9 +119,9 @@ def _arms() -> dict[str, Arm]:
         ]
     # Seeded pairs of the final-observation study (docs/experiments.md §42): Craft's blank and Dial's
     # extrapolated row T against complete bags (seed 0's Craft pair is defined above); Craft seeds
-    # 10-19 are §43's held-out seeds
+    # 10-19 and Dial seeds 5-9 are §43's held-out seeds
     for tag, domain, bags, seeds in (("craft_full", "craft", "blank", range(1, 20)),
-                                     ("dial", "dial", "extrapolate", range(5))):
+                                     ("dial", "dial", "extrapolate", range(10))):
         for seed in seeds:
             suffix = f"_seed{seed}" if seed else ""
             if seed:
@@ -351,11 +351,12 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
     if not rows:
         raise ReproduceError(f"no arm results under {work / 'arms'}")
     episodes: dict[str, dict[str, int]] = {}
-    for row in rows:
+    for row in rows:  # one entry per bag set, and one more per other number of episodes read from it
         data = f"{row['domain']}_{row['observation']}"
-        episodes.setdefault(
-            data, {"train": row["train_episodes"], "val": row["val_episodes"], "test": row["test_episodes"]}
-        )
+        split = {"train": row["train_episodes"], "val": row["val_episodes"], "test": row["test_episodes"]}
+        first = episodes.setdefault(data, split)
+        if first != split:
+            episodes.setdefault(f"{data} ({sum(split.values())} episodes)", split)
     meta = {
         "command": command,
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
