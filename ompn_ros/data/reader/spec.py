@@ -124,7 +124,7 @@ class ReaderSpec:
 
             Trained on our data with that observation removed (docs/experiments.md §28, §31, §42
             and §43, held out, against complete bags of the same seed): ``extrapolate`` on Dial is
-            within a point on online and offline F1@1 and alignment, or better (5 seeds);
+            within a point on online and offline F1@1 and alignment, or better (10 seeds);
             ``blank`` on Craft is within a point or better on all four (20 seeds; offline
             alignment +0.5), but gives more weak runs (4 of 20 below 85 alignment, against 1),
             which is why ``ompn_train`` keeps the better of two runs on such bags
