@@ -80,6 +80,17 @@ def test_delays_count_late_detections_and_false_alarms():
     stats = tune.delay_stats([[0, 3, 7, 11]], [gt], detected_at=[[0, 4, 9, 11]])
     assert stats["delay_mean"] == pytest.approx(1.5)  # 3 found at 4, 7 found at 9
     assert stats["delay_max"] == 2.0 and stats["false_alarms_per_episode"] == 1.0  # step 0
+    assert stats["at_end_share"] == 0.0  # every inner detection came before the last step
+
+
+def test_the_share_published_at_the_episode_end_counts_inner_detections_only():
+    gt = np.array([3, 7, 11])  # 11 = T - 1 closes the episode and is never counted
+    late = tune.delay_stats([[3, 7, 11]], [gt], detected_at=[[5, 11, 11]])  # 7 decided by the end
+    assert late["at_end_share"] == 0.5 and late["delay_mean"] == pytest.approx(3.0)
+    offline = tune.delay_stats([[3, 7, 11], [2, 5]], [gt, np.array([2, 5])],
+                               detected_at=[[11, 11, 11], [5, 5]])
+    assert offline["at_end_share"] == 1.0  # a whole-episode detector decides everything at the end
+    assert tune.delay_stats([[11]], [gt], detected_at=[[11]])["at_end_share"] == 0.0  # no inner ones
 
 
 def test_objective_orders_by_the_chosen_metric_first():

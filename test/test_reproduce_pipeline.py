@@ -89,6 +89,10 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
     assert (lag_rows["full_nosketch: online, hsmm, mean delay <= 4"]["align"]
             == row["online_hsmm_d4_align_strict"])
     assert lag_rows["full_nosketch: offline, paper's detector"]["align"] == row["align"]
+    decoder = lag_rows["full_nosketch: online, hsmm, mean delay <= 15"]
+    assert decoder["at_end_share"] == row["online_hsmm_d15_at_end_share"]  # how many wait for the end
+    assert 0.0 <= decoder["at_end_share"]["mean"] <= 1.0
+    assert lag_rows["full_nosketch: offline, paper's detector"]["at_end_share"] is None
     assert extras["extras"]["k_sweep"]["title"] == "K sweep (full_nosketch, seed 0, tol=1)"
     sweep = extras["extras"]["k_sweep"]["rows"]
     assert list(sweep) == ["K=2", "K=3", "K=4", "K=5", "K=6"]
@@ -307,7 +311,8 @@ def test_distill_extra_trains_a_student_on_each_seeds_members(
         (checkpoint, provenance)) or checkpoint)  # the package's own checkpoint stays as it is
     assert _tiny_craft(tmp_path, "--extras", "distill") == 0  # no members: nothing to distil from
     assert "distill extra skipped" in capsys.readouterr().out
-    assert _tiny_craft(tmp_path, "--members", "2", "--extras", "distill", "--skip-trained", "--ship") == 0
+    added = ("--members", "2", "--extras", "distill,online_lag", "--skip-trained", "--ship")
+    assert _tiny_craft(tmp_path, *added) == 0
     runs = tmp_path / "work" / "runs"
     student = runs / f"full_nosketch_distill{spec.DISTILL_WEIGHT:g}_seed0"
     assert [c for c, _ in shipped] == [student / "best"]  # --ship takes seed 0's student
@@ -320,6 +325,12 @@ def test_distill_extra_trains_a_student_on_each_seeds_members(
     assert extras["distilled"]["title"].startswith("Distilled: one OMPN per seed")
     row = extras["distilled"]["rows"]["full_nosketch"]
     assert row["align"]["n"] == 1 and 0.0 <= row["constrained_align"]["mean"] <= 1.0
+    assert set(row) == set(pipeline.DISTILLED_CELLS)  # the decoder's cells go to the online_lag table
+    lag_rows = extras["online_lag"]["rows"]  # the students' decoder beside the single models'
+    student_row = lag_rows["full_nosketch, distilled: online, hsmm, mean delay <= 6"]
+    assert 0.0 <= student_row["align"]["mean"] <= 1.0 and student_row["align"]["n"] == 1
+    assert lag_rows["full_nosketch, distilled: offline, paper's detector"]["align"] == row["align"]
+    assert "full_nosketch: online, hsmm, mean delay <= 6" in lag_rows
     assert "### Distilled" in (tmp_path / "results" / "README.md").read_text()
 
 

@@ -8,6 +8,7 @@ traceback instead.  Anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -118,4 +119,24 @@ def add_live_demo_arguments(parser: argparse.ArgumentParser) -> argparse.Argumen
         "--params-file", type=Path, default=None,
         help="ompn_node parameters file (none: config/ompn_node_<domain>.yaml)",
     )
+    parser.add_argument(
+        "--sim-param", type=sim_param, action="append", default=[], metavar="NAME:=VALUE",
+        help="a parameter of the sim, repeatable (e.g. full_obs:=false, task:=makeaxe); "
+             f"{', '.join(LIVE_SIM_PARAMS)} are set by the other options",
+    )
     return parser
+
+
+LIVE_SIM_PARAMS = ("mode", "rate", "seed", "episodes", "wait_for_subscribers", "wait_topics")
+"""The sim parameters the live demo sets itself (``ompn_ros.experiments.live.launch``)."""
+_SIM_PARAM = re.compile(r"[A-Za-z_][A-Za-z0-9_]*:=\S.*")
+
+
+def sim_param(text: str) -> str:
+    """``NAME:=VALUE`` for the sim's ``--ros-args -p``; the sim validates the value when it starts."""
+    if not _SIM_PARAM.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME:=VALUE")
+    name = text.split(":=", 1)[0]
+    if name in LIVE_SIM_PARAMS:
+        raise argparse.ArgumentTypeError(f"{name} is set by the demo's own options, not by --sim-param")
+    return text

@@ -56,7 +56,7 @@ def _run(args: argparse.Namespace) -> int:
         return run_smoke()
     checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
     return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout,
-                         params_file=args.params_file)
+                         params_file=args.params_file, sim_params=args.sim_param)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     """The live demo for parsed arguments (see :func:`ompn_ros.cli._common.add_live_demo_arguments`)."""
     checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
     return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout,
-                         params_file=args.params_file)
+                         params_file=args.params_file, sim_params=args.sim_param)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -62,15 +62,18 @@ def delay_stats(
     gts: Sequence[np.ndarray],
     detected_at: Sequence[Sequence[int]] | None = None,
 ) -> Metrics:
-    """Detection delay (``detected_at - true boundary``) and false alarms per episode.
+    """Detection delay (``detected_at - true boundary``), false alarms per episode and the share of
+    inner detections published only at the episode end (``at_end_share``).
 
-    The final boundary (``T - 1``, closed by the episode end) is excluded from both.  A true
+    The final boundary (``T - 1``, closed by the episode end) is excluded from all three.  A true
     boundary is detected by the first non-final detection within ``MATCH_TOLERANCE`` steps; a
-    detection more than one step from every true boundary is a false alarm.  O(B²) per episode
-    for B boundaries.
+    detection more than one step from every true boundary is a false alarm.  A detection made at the
+    last step or later (the decoder's episode-end pass, docs/experiments.md §39; every offline
+    detection) counts as published at the end: its delay says when, this share says how often.
+    O(B²) per episode for B boundaries.
     """
     delays: list[int] = []
-    false_alarms = 0
+    false_alarms = at_end = n_inner = 0
     for i, (evs, gt) in enumerate(zip(events, gts, strict=True)):
         steps = [int(e.step) if isinstance(e, BoundaryEvent) else int(e) for e in evs]
         when = (
@@ -85,10 +88,13 @@ def delay_stats(
             if hits:
                 delays.append(min(hits) - int(g))
         false_alarms += sum(1 for s, _ in inner if np.min(np.abs(gt - s)) > 1)
+        at_end += sum(1 for _, w in inner if w >= last)
+        n_inner += len(inner)
     return {
         "delay_mean": float(np.mean(delays)) if delays else float("nan"),
         "delay_max": float(np.max(delays)) if delays else float("nan"),
         "false_alarms_per_episode": false_alarms / max(1, len(gts)),
+        "at_end_share": at_end / n_inner if n_inner else 0.0,
     }
 
 

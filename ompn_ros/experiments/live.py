@@ -12,6 +12,7 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -142,16 +143,19 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
     def on_pi(msg: Float32MultiArray) -> None:
         streams.pi_rows.append(list(msg.data))
 
+    node.create_subscription(Int32, layout.SUBTASK, on_subtask, reliable)
+    node.create_subscription(Float32MultiArray, f"/{node_name}/pi", on_pi, reliable)
+    node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", streams.on_boundary, events_qos)
+    deadline = time.monotonic() + timeout
+    # The sim starts once ompn_node and this monitor subscribe to observation: subscribe last, when
+    # the node's outputs are matched, so that no event of the first episode is missed under load.
+    wait_for_publishers(node, [f"/{node_name}/pi", f"/{node_name}/boundary"], deadline)
     node.create_subscription(
         Float32MultiArray,
         layout.OBSERVATION,
         lambda _m: streams.obs_times.append(time.monotonic_ns()),
         reliable,
     )
-    node.create_subscription(Int32, layout.SUBTASK, on_subtask, reliable)
-    node.create_subscription(Float32MultiArray, f"/{node_name}/pi", on_pi, reliable)
-    node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", streams.on_boundary, events_qos)
-    deadline = time.monotonic() + timeout
     try:
         while time.monotonic() < deadline and len(streams.ends) < episodes:
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -167,6 +171,21 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
     for ep in found:
         print_episode(ep)
     return found
+
+
+def wait_for_publishers(node: Any, topics: Sequence[str], deadline: float, settle_s: float = 0.2) -> bool:
+    """Spin ``node`` until every topic has a publisher (then ``settle_s`` more, for the endpoints to
+    match) or ``deadline`` (``time.monotonic()``) passes; True when all were found."""
+    import rclpy
+
+    while time.monotonic() < deadline:
+        if all(node.count_publishers(topic) > 0 for topic in topics):
+            settle = min(deadline, time.monotonic() + settle_s)
+            while time.monotonic() < settle:
+                rclpy.spin_once(node, timeout_sec=0.05)
+            return True
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return False
 
 
 def true_boundaries(subtask: list[int]) -> list[int]:
@@ -228,10 +247,10 @@ def summarise(episodes: list[LiveEpisode], out_dir: Path) -> dict[str, float]:
 
 def launch(
     domain: str, checkpoint: Path, rate: float, seed: int, episodes: int, node_name: str,
-    params_file: Path | None = None,
+    params_file: Path | None = None, sim_params: Sequence[str] = (),
 ) -> tuple[list[subprocess.Popen[bytes]], dict[str, str]]:
     """Start ``ompn_node`` (``params_file``, default ``config/ompn_node_<domain>.yaml``) and the domain's
-    sim (expert mode) as processes; returns them and their env."""
+    sim (expert mode, plus ``sim_params``, each ``NAME:=VALUE``) as processes; returns them and their env."""
     env = child_env()
     node = subprocess.Popen(
         [
@@ -268,6 +287,7 @@ def launch(
                 "wait_for_subscribers:=2",
                 "-p",
                 "wait_topics:=[observation]",
+                *(arg for param in sim_params for arg in ("-p", param)),
             ],
             env=env,
         )
@@ -298,10 +318,11 @@ def run_demo(
     timeout: float,
     node_name: str = "ompn_node",
     params_file: Path | None = None,
+    sim_params: Sequence[str] = (),
 ) -> int:
     """Launch, monitor and summarise a live run; returns 0, or 1 when no episode was observed."""
     start = time.perf_counter()
-    procs, env = launch(domain, checkpoint, rate, seed, episodes, node_name, params_file)
+    procs, env = launch(domain, checkpoint, rate, seed, episodes, node_name, params_file, sim_params)
     try:
         print(
             f"{domain}_sim and ompn_node running (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}); "

@@ -246,7 +246,7 @@ def _members(state: State, name: str, seed: int, run: Evaluation, count: int) ->
 def _distilled(state: State, name: str, seed: int, count: int) -> dict[str, float]:
     """Train (or reload) one OMPN on ``seed``'s split that also learns the averaged ``p_hat`` of the
     seed's ``count`` ensemble members (``train.distill_from``, :mod:`ompn_ros.train.distill`), and
-    score it like a single model."""
+    score it like a single model: the :data:`DISTILLED_CELLS` and every online cell."""
     spec = state.spec
     stage = "re-evaluate" if spec.reevaluate else "train+eval"
     pool, test = state.split_of(name)
@@ -261,7 +261,7 @@ def _distilled(state: State, name: str, seed: int, count: int) -> dict[str, floa
         state.students[name] = run
     row = {k: run.row[k] for k in DISTILLED_CELLS if k in run.row}
     print("   distilled: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()))
-    return row
+    return row | {k: v for k, v in run.row.items() if k.startswith("online_")}  # for the online_lag table
 
 
 @dataclass
@@ -276,23 +276,22 @@ class SettingTables:
 
 def online_lag_rows(name: str, cells: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """The ``online_lag`` rows of one setting: offline, the tuned threshold detector and the duration
-    decoder within every scored mean delay (``online_hsmm_d<delay>_*``), each as align / F1@1 / delay."""
+    decoder within every scored mean delay (``online_hsmm_d<delay>_*``), each as align / F1@1 / delay /
+    share of inner boundaries published at the episode's end (``at_end_share``)."""
+    offline = {"delay_mean": None, "at_end_share": None}  # every boundary at the episode's end
     rows = {
         f"{name}: offline, paper's detector": {"align": cells["align"], "f1_tol1": cells["f1_tol1"],
-                                               "delay_mean": None},  # the episode's end
+                                               **offline},
         f"{name}: offline, constrained Top-K": {"align": cells["constrained_align"],
-                                                "f1_tol1": cells["constrained_f1_tol1"], "delay_mean": None},
-        f"{name}: online, threshold": {
-            "align": cells["online_align_strict"], "f1_tol1": cells["online_f1_tol1"],
-            "delay_mean": cells["online_delay_mean"],
-        },
+                                                "f1_tol1": cells["constrained_f1_tol1"], **offline},
     }
-    for delay in DURATION_DELAYS:
-        if f"online_hsmm_d{delay:g}_align_strict" in cells:
-            rows[f"{name}: online, hsmm, mean delay <= {delay:g}"] = {
-                k: cells[f"online_hsmm_d{delay:g}_{m}"] for k, m in
-                (("align", "align_strict"), ("f1_tol1", "f1_tol1"), ("delay_mean", "delay_mean"))
-            }
+    online = {"online": "threshold"}
+    online.update({f"online_hsmm_d{d:g}": f"hsmm, mean delay <= {d:g}" for d in DURATION_DELAYS})
+    measures = (("align", "align_strict"), ("f1_tol1", "f1_tol1"), ("delay_mean", "delay_mean"),
+                ("at_end_share", "at_end_share"))
+    for prefix, label in online.items():
+        if f"{prefix}_align_strict" in cells:
+            rows[f"{name}: online, {label}"] = {k: cells.get(f"{prefix}_{m}") for k, m in measures}
     return rows
 
 
@@ -326,9 +325,12 @@ def train_setting(state: State, name: str, tables: SettingTables) -> None:
     if member_rows:
         tables.per_seed[name] = aggregate(member_rows)
     if distilled_rows:
-        tables.distilled[name] = aggregate(distilled_rows)
+        students = aggregate(distilled_rows)
+        tables.distilled[name] = {k: students[k] for k in DISTILLED_CELLS if k in students}
     if "online_lag" in spec.extras:
         tables.online_lag.update(online_lag_rows(name, state.results[name]))
+        if distilled_rows:
+            tables.online_lag.update(online_lag_rows(f"{name}, distilled", students))
     if want_ensemble:
         tables.of_seeds[name] = ensemble_scores(spec.domain, seed_p_hats, test, majority_min_length(rows))
     if spec.reevaluate:

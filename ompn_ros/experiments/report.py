@@ -99,7 +99,8 @@ def online_lag_title(seeds: int) -> str:
     return (f"Online decoders against the delay ({seeds} seeds, held out, mean (std)): the threshold "
             "detector tuned on validation; the duration decoder ('hsmm', lag 1, docs/experiments.md §38, "
             "§39) fitted on validation, its threshold tuned there within each mean delay (steps); the "
-            "offline detectors of the same checkpoints")
+            "offline detectors of the same checkpoints; at_end_share: the inner boundaries published only "
+            "at the episode's end (docs/experiments.md §44)")
 
 
 def ablations_title(setting: str) -> str:
