@@ -39,12 +39,13 @@ def score_run(state: State, setting: str, seed: int, distilled: bool, fresh: lis
     spec = state.run_spec(setting, seed, tag=f"_distill{DISTILL_WEIGHT:g}" if distilled else "")
     run_dir = state.spec.work / "runs" / spec.name
     _, train_cfg = build_configs(spec, state.base, run_dir)
-    _, val, _ = train_val_episodes(state.split_of(setting)[0], train_cfg)
+    _, val, n_val = train_val_episodes(state.split_of(setting)[0], train_cfg)
     try:
         policy = load_checkpoint(run_dir / "best")[0]
     except CheckpointError as exc:
         raise ReproduceError(f"run {spec.name}: {exc}") from exc
-    return evaluate_policy(state.spec.domain, policy, fresh, val).row
+    # without a validation split the trainer validated on training episodes: never tune on those
+    return evaluate_policy(state.spec.domain, policy, fresh, val if n_val else ()).row
 
 
 def fresh_rows(work: Path, setting: str, seeds: int, episodes: int, data_seed: int, distilled: bool,
