@@ -201,3 +201,44 @@ def test_cited_sections_exist(domain: str) -> None:
     assert cited, f"no citation of docs/{domain}.md found: is the citation pattern still right?"
     missing = sorted(cited - headings, key=lambda x: [int(p) for p in x.split(".")])
     assert not missing, f"docs/{domain}.md lacks the cited sections {missing}"
+
+
+def _goal_row(text: str, goal: str, setting: str) -> str:
+    rows = [x for x in text.splitlines() if x.startswith(f"| {goal} | {setting} |")]
+    assert len(rows) == 1, (goal, setting, rows)
+    return rows[0]
+
+
+def test_goals_quote_the_results_and_follow_from_them() -> None:
+    """docs/goals.md: each online and distilled figure equals results/*.json, each verdict its rule."""
+    text = (ROOT / "docs" / "goals.md").read_text(encoding="utf-8")
+    lag = load("craft_extras.json")["extras"]["online_lag"]["rows"]
+
+    def one(cell: dict[str, float]) -> str:
+        return f"{100 * cell['mean']:.1f}"
+
+    for key, setting in (("full_nosketch", "Craft full"), ("partial_nosketch", "Craft partial"),
+                         ("partial_nosketch, distilled", "Craft partial, distilled")):
+        online = lag[f"{key}: online, hsmm, mean delay <= 6"]
+        offline = lag[f"{key}: offline, paper's detector"]
+        threshold = lag[f"{key}: online, threshold"]
+        row = _goal_row(text, "online alignment", setting)
+        quote = (f"{one(online['align'])} against {one(offline['align'])} "
+                 f"({one(online['f1_tol1'])}, {one(threshold['f1_tol1'])})")
+        assert quote in row, (quote, row)
+        met = (offline["align"]["mean"] - online["align"]["mean"] <= 0.03
+               and online["f1_tol1"]["mean"] >= threshold["f1_tol1"]["mean"] - 0.01)
+        assert row.endswith("| met |" if met else "| missed |"), row
+    dial = load("dial.json")["nosketch"]["online_align_strict"]
+    row = _goal_row(text, "online alignment ≥ 95", "Dial")
+    assert one(dial) in row and row.endswith("| met |" if dial["mean"] >= 0.95 else "| missed |")
+    students = load("craft_extras.json")["extras"]["distilled"]["rows"]
+    targets = {"full_nosketch": ("Craft full, distilled", "≥ 95 / 97", 0.95, 0.97),
+               "partial_nosketch": ("Craft partial, distilled", "≥ 88 / 92", 0.88, 0.92)}
+    for key, (setting, goal, align, f1) in targets.items():
+        for detector, prefix in (("constrained Top-K", "constrained_"), ("the paper's Top-K", "")):
+            a, f = students[key][f"{prefix}align"], students[key][f"{prefix}f1_tol1"]
+            row = _goal_row(text, f"{goal}, {detector}", setting)
+            assert f"| {one(a)} / {one(f)} |" in row, row
+            met = a["mean"] >= align and f["mean"] >= f1
+            assert row.endswith("| met |" if met else "| missed |"), row
