@@ -147,16 +147,17 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
     node.create_subscription(Float32MultiArray, f"/{node_name}/pi", on_pi, reliable)
     node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", streams.on_boundary, events_qos)
     deadline = time.monotonic() + timeout
-    # The sim starts once ompn_node and this monitor subscribe to observation: subscribe last, when
-    # the node's outputs are matched, so that no event of the first episode is missed under load.
-    wait_for_publishers(node, [f"/{node_name}/pi", f"/{node_name}/boundary"], deadline)
-    node.create_subscription(
-        Float32MultiArray,
-        layout.OBSERVATION,
-        lambda _m: streams.obs_times.append(time.monotonic_ns()),
-        reliable,
-    )
     try:
+        # The sim starts once ompn_node and this monitor subscribe to observation: subscribe last,
+        # when the node's outputs are matched, so that no event of the first episode is missed.
+        if not wait_for_publishers(node, [f"/{node_name}/pi", f"/{node_name}/boundary"], deadline):
+            print(f"{node_name}'s ~/pi and ~/boundary did not appear within {timeout:g} s", file=sys.stderr)
+        node.create_subscription(
+            Float32MultiArray,
+            layout.OBSERVATION,
+            lambda _m: streams.obs_times.append(time.monotonic_ns()),
+            reliable,
+        )
         while time.monotonic() < deadline and len(streams.ends) < episodes:
             rclpy.spin_once(node, timeout_sec=0.05)
         settle = time.monotonic() + 1.0  # the last messages of other topics may still be in flight
