@@ -164,7 +164,19 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
         report.drop_episode("no action", f"episode of observations #{a}..#{b - 1} has no step with an "
                             "action; dropped")
         return None
+    if steps.size < 2 and number in report.adjusted.get(EXTRAPOLATED_LAST, ()):
+        _extrapolation_to_duplicate(ctx, number)  # one step left: nothing to extrapolate from
     return steps
+
+
+def _extrapolation_to_duplicate(ctx: BagContext, number: int) -> None:
+    """Episode ``number`` keeps one step only: row ``T`` duplicates it instead of extrapolating."""
+    report = ctx.report
+    report.adjusted[EXTRAPOLATED_LAST].remove(number)
+    if not report.adjusted[EXTRAPOLATED_LAST]:
+        del report.adjusted[EXTRAPOLATED_LAST]
+    report.final_duplicated += 1
+    report.adjusted.setdefault(DUPLICATED_LAST, []).append(number)
 
 
 def _final_observation(ctx: BagContext, topics: Topics, dec: Decoded, w: Window,

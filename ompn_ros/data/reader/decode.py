@@ -24,7 +24,7 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
-from ..errors import BagError, CorruptBagError, NonFiniteValueError
+from ..errors import AlignmentError, BagError, CorruptBagError, NonFiniteValueError
 from ..obs.spec import FLOAT64_ARRAY
 from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors
@@ -131,7 +131,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         stamps, raws = ctx.data(js)
         out.joints = _guard(errors, lambda: decode_joint_states(ctx.path, js, stamps, raws))
         if out.joints is not None:
-            out.joint_stamps = out.joints.header if ctx.spec.stamp == "header" else stamps
+            out.joint_stamps = _header_clock(ctx, js, out.joints) if ctx.spec.stamp == "header" else stamps
     if topics.sketch:
         stamps, raws = ctx.data(topics.sketch)
         out.sketches = [(int(s), m.parse_int32_array(r)) for s, r in zip(stamps, raws)]
@@ -192,7 +192,11 @@ def _same_topic_parts(ctx: BagContext, topics: Topics,
 
 def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamps: np.ndarray,
              raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, JointBlock | None]:
-    """Decode a vector topic: values ``[N, D]``, the stamps to align with, the JointBlock (if any)."""
+    """Decode a vector topic: values ``[N, D]``, the stamps to align with, the JointBlock (if any).
+    A topic without messages gives no rows (the episodes then lack it: :class:`NoEpisodeError`)."""
+    if not raws:
+        names = len(src.joint_names) * len(src.fields) if src.joint_names else 0
+        return np.zeros((0, src.dim or names), dtype=np.float32), stamps, None
     if msgtype == layout.FLOAT32_ARRAY:
         values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
         return values, stamps, None
@@ -200,7 +204,18 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
         return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps), stamps, None
     block = decode_joint_states(ctx.path, topic, stamps, raws)
     values = joint_vectors(ctx.path, topic, src, stamps, block)
-    return values, (block.header if ctx.spec.stamp == "header" else stamps), block
+    return values, (_header_clock(ctx, topic, block) if ctx.spec.stamp == "header" else stamps), block
+
+
+def _header_clock(ctx: BagContext, topic: str, block: JointBlock) -> np.ndarray:
+    """``header.stamp`` of every message of ``topic``; a stamp of 0 (a publisher that leaves the header
+    unset) raises :class:`AlignmentError`, whatever ``on_error``: no step order can be trusted."""
+    zero = np.flatnonzero(block.header == 0)
+    if zero.size:
+        raise AlignmentError(f"header.stamp is 0 in {zero.size} of {len(block.header)} messages (the "
+                             "publisher leaves it unset); read with stamp: log", path=ctx.path, topic=topic,
+                             index=int(zero[0]))
+    return block.header
 
 
 def _markers(ctx: BagContext, topic: str) -> list[Marker]:

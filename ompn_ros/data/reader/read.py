@@ -130,6 +130,9 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError,
 def _no_episode_reason(report: BagReport, obs_topic: str) -> str:
     """Why a bag gave no episode, in one line."""
     parts = [f"{report.messages.get(obs_topic, 0)} observation(s) on '{obs_topic}'"]
+    empty = sorted(topic for topic, n in report.messages.items() if n == 0)
+    if empty:
+        parts.append(f"no message at all on {empty}")
     if report.dropped:
         parts.append(f"dropped episodes {report.dropped}")
     for name in ("obs_dropped", "unattached", "missing"):

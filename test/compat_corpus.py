@@ -1,0 +1,97 @@
+"""Bags of another lab for the compatibility tests: written with ``rosbags`` (or the ``mcap`` package),
+never with this package's writer.
+
+The robot publishes a ``Float32MultiArray`` state on ``/lab/state`` at 25 Hz and a
+``Float32MultiArray`` command on ``/lab/cmd`` 2 ms after each state except the last of a
+demonstration (so the last state is the final observation); demonstrations are 2 s apart.
+:data:`SPEC` reads them; :func:`check_episodes` compares what was read with what was written.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ompn_ros import layout
+from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data import messages as m
+from ompn_ros.data.episode import Episode
+
+STATE, CMD = "/lab/state", "/lab/cmd"
+OBS_DIM, ACT_DIM = 4, 2
+STEP_NS, GAP_NS = 40_000_000, 2_000_000_000
+SPEC = ReaderSpec.from_dict({
+    "observation": {"topic": STATE, "type": layout.FLOAT32_ARRAY, "dim": OBS_DIM},
+    "action": {"topic": CMD, "type": layout.FLOAT32_ARRAY, "dim": ACT_DIM},
+    "subtask": None, "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5,
+})
+
+
+@dataclass
+class Demo:
+    """What was written: per demonstration, the states ``[T + 1, D]`` and commands ``[T, A]``."""
+
+    observations: list[np.ndarray] = field(default_factory=list)
+    actions: list[np.ndarray] = field(default_factory=list)
+    messages: list[tuple[int, str, bytes]] = field(default_factory=list)  # (log stamp, topic, CDR)
+
+
+def demos(lengths: list[int], seed: int = 0, t0: int = 10**9) -> Demo:
+    """Demonstrations of ``lengths`` steps, their messages in log-stamp order."""
+    rng = np.random.default_rng(seed)
+    out = Demo()
+    t = t0
+    for steps in lengths:
+        obs = rng.standard_normal((steps + 1, OBS_DIM)).astype(np.float32)
+        act = rng.standard_normal((steps, ACT_DIM)).astype(np.float32)
+        for k in range(steps + 1):
+            stamp = t + k * STEP_NS
+            out.messages.append((stamp, STATE, m.serialize(m.float32_array(obs[k], "state"))))
+            if k < steps:
+                out.messages.append((stamp + 2_000_000, CMD, m.serialize(m.float32_array(act[k], "cmd"))))
+        out.observations.append(obs)
+        out.actions.append(act)
+        t += steps * STEP_NS + GAP_NS
+    return out
+
+
+def write_rosbags(path: Path, demo: Demo, *, storage: str = "mcap", version: int = 9,
+                  compression: str | None = None, qos: str = "") -> Path:
+    """A rosbag2 bag of ``demo`` written by ``rosbags`` (``compression``: 'file' or 'message', zstd)."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    writer = Writer(path, version=version, storage_plugin=plugin)  # type: ignore[arg-type]
+    if compression is not None:
+        writer.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
+    with writer:
+        conns = {topic: writer.add_connection(topic, layout.FLOAT32_ARRAY, typestore=m.typestore(),
+                                              offered_qos_profiles=qos)  # type: ignore[call-arg]
+                 for topic in (STATE, CMD)}
+        for stamp, topic, raw in demo.messages:
+            writer.write(conns[topic], stamp, raw)
+    return path
+
+
+def storage_file(bag: Path) -> Path:
+    """The one storage file of ``bag``."""
+    (file,) = [p for p in bag.iterdir() if p.suffix in (".mcap", ".db3") or ".mcap." in p.name
+               or ".db3." in p.name]
+    return file
+
+
+def check_episodes(got: list[Episode], demo: Demo) -> None:
+    """Every demonstration read back value for value."""
+    assert len(got) == len(demo.observations), [e.length for e in got]
+    for ep, obs, act in zip(got, demo.observations, demo.actions):
+        np.testing.assert_array_equal(ep.observations, obs)
+        np.testing.assert_array_equal(ep.actions, act)
+
+
+def read_and_check(paths: object, demo: Demo, spec: ReaderSpec = SPEC, **kw: object) -> object:
+    """``read_episodes`` then :func:`check_episodes`; returns the read report."""
+    result = read_episodes(paths, spec=spec, **kw)  # type: ignore[arg-type]
+    check_episodes(result.episodes, demo)
+    return result.report

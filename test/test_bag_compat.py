@@ -1,0 +1,96 @@
+"""The compatibility corpus: bags as other ROS 2 tools and drivers write them, read value for value or
+refused in one line (docs/bags.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from compat_corpus import CMD, GAP_NS, SPEC, STATE, STEP_NS, demos, read_and_check, write_rosbags
+
+from ompn_ros import layout
+from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data import messages as m
+from ompn_ros.data.errors import AlignmentError, NoEpisodeError
+
+JOINTS = ["shoulder", "elbow", "wrist"]
+ARM_SPEC = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+@pytest.mark.parametrize("compression", [None, "file", "message"])
+def test_rosbags_bags_read_back(tmp_path: Path, storage: str, compression: str | None) -> None:
+    """Plain, file-compressed and message-compressed (zstd) bags of both storages."""
+    demo = demos([20, 25, 18], seed=1)
+    bag = write_rosbags(tmp_path / "bag", demo, storage=storage, compression=compression)
+    read_and_check(bag, demo)
+
+
+def _arm_bag(path: Path, *, commands: bool = True, header_zero: bool = False) -> Path:
+    """A driver's JointState bag: 20 states and (optionally) 20 commands 2 ms later."""
+    from rosbags.rosbag2 import Writer
+
+    with Writer(path, version=9) as w:
+        js = w.add_connection("/arm/joint_states", layout.JOINT_STATE, typestore=m.typestore())
+        cmd = w.add_connection("/arm/joint_command", layout.JOINT_STATE, typestore=m.typestore())
+        for k in range(20):
+            t = 10**9 + k * STEP_NS
+            state = m.joint_state(0 if header_zero else t, JOINTS, np.full(3, float(k)), np.ones(3))
+            w.write(js, t + 1000, m.serialize(state))
+            if commands:
+                command = m.joint_state(0 if header_zero else t + 2_000_000, JOINTS, (), np.ones(3))
+                w.write(cmd, t + 2_000_000, m.serialize(command))
+    return path
+
+
+def _arm_spec(**changes: object) -> ReaderSpec:
+    return ReaderSpec.from_dict({**ReaderSpec.from_yaml(ARM_SPEC).to_dict(), **changes})
+
+
+def test_header_stamp_zero_is_refused_in_one_line(tmp_path: Path) -> None:
+    """A driver that leaves ``header.stamp`` at 0, read with ``stamp: header`` (was: IndexError)."""
+    bag = _arm_bag(tmp_path / "bag", header_zero=True)
+    for on_error in ("raise", "skip_tail"):
+        with pytest.raises(AlignmentError) as info:
+            read_episodes(bag, spec=_arm_spec(), on_error=on_error)  # type: ignore[arg-type]
+        text = str(info.value)
+        assert "'/arm/joint_states'" in text and "header.stamp is 0 in 20 of 20" in text
+        assert "stamp: log" in text and str(bag) in text
+    result = read_episodes(bag, spec=_arm_spec(stamp="log"))  # the fix the line names
+    assert [e.length for e in result.episodes] == [20]  # final_observation: extrapolate
+
+
+@pytest.mark.parametrize("stamp", ["header", "log"])
+def test_topic_without_messages(tmp_path: Path, stamp: str) -> None:
+    """A spec topic whose connection is in the bag with 0 messages (was: IndexError)."""
+    bag = _arm_bag(tmp_path / "bag", commands=False)
+    with pytest.raises(NoEpisodeError) as info:
+        read_episodes(bag, spec=_arm_spec(stamp=stamp))
+    assert "no message at all on ['/arm/joint_command']" in str(info.value)
+    result = read_episodes(bag, spec=_arm_spec(stamp=stamp), on_error="skip_tail")
+    assert result.episodes == [] and result.report.bags[0].messages["/arm/joint_command"] == 0
+
+
+def test_extrapolate_with_one_commanded_step(tmp_path: Path) -> None:
+    """A two-observation demonstration whose first observation has no command, with
+    ``final_observation: extrapolate``: row T duplicates the one step (was: IndexError)."""
+    demo = demos([20], seed=2)
+    t = 10**9 + 20 * STEP_NS + GAP_NS
+    states = np.asarray([[1, 2, 3, 4], [2, 3, 5, 7]], dtype=np.float32)
+    demo.messages += [(t, STATE, m.serialize(m.float32_array(states[0]))),
+                      (t + STEP_NS, STATE, m.serialize(m.float32_array(states[1]))),
+                      (t + STEP_NS + 2_000_000, CMD, m.serialize(m.float32_array([0.5, -0.5])))]
+    bag = write_rosbags(tmp_path / "bag", demo)
+    spec = ReaderSpec.from_dict({**SPEC.to_dict(), "final_observation": "extrapolate"})
+    result = read_episodes(bag, spec=spec)
+    first, short = result.episodes
+    np.testing.assert_array_equal(first.observations, demo.observations[0])
+    np.testing.assert_array_equal(short.observations, states[[1, 1]])
+    np.testing.assert_array_equal(short.actions, [[0.5, -0.5]])
+    report = result.report.bags[0]
+    assert report.adjusted == {DUPLICATED: [1]}
+    assert report.final_duplicated == 1 and report.missing == {CMD: 1}
+
+
+DUPLICATED = "last observation duplicated as row T"
