@@ -9,10 +9,13 @@ demonstration (so the last state is the final observation); demonstrations are 2
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import yaml
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
@@ -95,3 +98,37 @@ def read_and_check(paths: object, demo: Demo, spec: ReaderSpec = SPEC, **kw: obj
     result = read_episodes(paths, spec=spec, **kw)  # type: ignore[arg-type]
     check_episodes(result.episodes, demo)
     return result.report
+
+
+JAZZY_RELIABLE_QOS = """- history: keep_last
+  depth: 10
+  reliability: reliable
+  durability: volatile
+  deadline:
+    sec: 9223372036
+    nsec: 854775807
+  lifespan:
+    sec: 9223372036
+    nsec: 854775807
+  liveliness: automatic
+  liveliness_lease_duration:
+    sec: 9223372036
+    nsec: 854775807
+  avoid_ros_namespace_conventions: false
+"""
+"""An ``offered_qos_profiles`` string as ``ros2 bag record`` (Jazzy, metadata version 9) writes it."""
+
+
+def edit_metadata(bag: Path, edit: Callable[[dict[str, Any]], None]) -> None:
+    """Apply ``edit`` to ``rosbag2_bagfile_information`` of ``bag``'s metadata.yaml."""
+    meta = bag / "metadata.yaml"
+    data = yaml.safe_load(meta.read_text(encoding="utf-8"))
+    edit(data["rosbag2_bagfile_information"])
+    meta.write_text(yaml.safe_dump(data), encoding="utf-8")
+
+
+def set_qos(info: dict[str, Any], topics: tuple[str, ...], qos: str = JAZZY_RELIABLE_QOS) -> None:
+    """metadata.yaml's QoS string of ``topics`` (the storage file keeps its own)."""
+    for entry in info["topics_with_message_count"]:
+        if entry["topic_metadata"]["name"] in topics:
+            entry["topic_metadata"]["offered_qos_profiles"] = qos

@@ -7,7 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from compat_corpus import CMD, GAP_NS, SPEC, STATE, STEP_NS, demos, read_and_check, write_rosbags
+from compat_corpus import (
+    CMD,
+    GAP_NS,
+    SPEC,
+    STATE,
+    STEP_NS,
+    demos,
+    edit_metadata,
+    read_and_check,
+    set_qos,
+    write_rosbags,
+)
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
@@ -94,3 +105,28 @@ def test_extrapolate_with_one_commanded_step(tmp_path: Path) -> None:
 
 
 DUPLICATED = "last observation duplicated as row T"
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+@pytest.mark.parametrize("topics", [(STATE, CMD), (CMD,)])
+def test_qos_string_differs_from_the_storage_file(tmp_path: Path, storage: str,
+                                                  topics: tuple[str, ...]) -> None:
+    """metadata.yaml's QoS string differs from the storage file's (rosbag2's own test bags, bags
+    rewritten by ``ros2 bag convert``): read anyway, with a note (was: 0 messages)."""
+    demo = demos([20, 25, 18], seed=3)
+    bag = write_rosbags(tmp_path / "bag", demo, storage=storage)
+    edit_metadata(bag, lambda info: set_qos(info, topics))
+    report = read_and_check(bag, demo).bags[0]  # type: ignore[attr-defined]
+    noted = sorted(t for t in (STATE, CMD)
+                   if any(f"topic '{t}': the QoS profiles" in note for note in report.notes))
+    assert noted == sorted(topics)
+
+
+def test_qos_string_differs_on_one_jointstate_topic(tmp_path: Path) -> None:
+    """The same on one JointState topic of a driver's bag (was: IndexError)."""
+    bag = _arm_bag(tmp_path / "bag")
+    edit_metadata(bag, lambda info: set_qos(info, ("/arm/joint_command",)))
+    result = read_episodes(bag, spec=_arm_spec())
+    (episode,) = result.episodes
+    np.testing.assert_array_equal(episode.observations[:20, :3], np.repeat(np.arange(20.0), 3).reshape(20, 3))
+    np.testing.assert_array_equal(episode.actions, np.ones((20, 3)))

@@ -88,6 +88,7 @@ class RawBag:
     count: int = 0  # messages read so far (wanted or not): the next record position
     assembly: AssemblySink | None = None  # the assembler's rows when they were built while reading
     cut: int | None = None  # truncate(): messages stamped at or after it are dropped
+    notes: list[str] = field(default_factory=list)  # for the bag's report (e.g. a QoS string mismatch)
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""
@@ -131,6 +132,10 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
         raise CorruptBagError(f"cannot open bag: {err}", path=where) from err
     raw.types = {c.topic: c.msgtype for c in reader.connections}
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+    unmatched = storage_connections(reader, conns)
+    for topic in sorted({c.topic for c in unmatched}):
+        raw.notes.append(f"topic '{topic}': the QoS profiles or type hash in metadata.yaml differ from the "
+                         "storage file's; its messages are read anyway (as ros2 bag play does)")
     for topic in {c.topic for c in conns}:
         raw.topics[topic] = TopicData(raw.types[topic])
     try:
@@ -140,10 +145,9 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
         raise
     try:
         if conns:
-            by_id = {c.id: (c.topic, raw.topics[c.topic]) for c in conns}
             fed = set(sink.spec.topics) if sink is not None else set()
-            for conn, stamp, data in reader.messages(connections=conns):
-                topic, tdata = by_id[conn.id]
+            for conn, stamp, data in reader.messages(connections=conns + unmatched):
+                topic, tdata = conn.topic, raw.topics[conn.topic]
                 tdata.add(stamp, data, read)
                 if topic in fed:
                     assert sink is not None
@@ -159,6 +163,27 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
             pass
     raw.count = read
     return raw
+
+
+def storage_connections(reader: Reader, conns: list[Connection]) -> list[Connection]:
+    """Connections of the storage files that none of ``conns`` (from metadata.yaml) matches although
+    they carry a topic and type of ``conns``: ``rosbags`` pairs them on every field, QoS string and type
+    hash included, and yields no message for them (rosbag2's own test bags, bags rewritten by
+    ``ros2 bag convert``).  Passing them as well reads those messages.  Cost: O(connections²)."""
+    storages = getattr(reader.storage, "storages", [])  # a bag directory: one reader per storage file
+    wanted = {(c.topic, c.msgtype) for c in conns}
+    out: list[Connection] = []
+    for storage in storages:
+        for sc in storage.connections:
+            if (sc.topic, sc.msgtype) in wanted and not any(_same(c, sc) for c in conns):
+                out.append(sc)
+    return out
+
+
+def _same(meta: Connection, stored: Connection) -> bool:
+    """Whether ``rosbags`` pairs a metadata.yaml connection with a storage file's."""
+    return (meta.topic == stored.topic and meta.msgtype == stored.msgtype and meta.ext == stored.ext
+            and (not meta.digest or not stored.digest or meta.digest == stored.digest))
 
 
 def _counts(conns: list[Connection]) -> dict[str, int]:

@@ -115,6 +115,7 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError,
         if readable != bag:
             raw.corrupt = _renamed(raw.corrupt, readable, bag)
         report.error = str(raw.corrupt)
+    report.notes.extend(raw.notes)
     _crc_note(readable, report)
     ctx = BagContext(raw, spec, report, name=bag)
     topics = ctx.resolve_all()
