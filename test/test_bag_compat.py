@@ -3,6 +3,7 @@ refused in one line (docs/bags.md)."""
 
 from __future__ import annotations
 
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from compat_corpus import (
     edit_metadata,
     read_and_check,
     set_qos,
+    storage_file,
     write_rosbags,
 )
 
@@ -130,3 +132,22 @@ def test_qos_string_differs_on_one_jointstate_topic(tmp_path: Path) -> None:
     (episode,) = result.episodes
     np.testing.assert_array_equal(episode.observations[:20, :3], np.repeat(np.arange(20.0), 3).reshape(20, 3))
     np.testing.assert_array_equal(episode.actions, np.ones((20, 3)))
+
+
+def _listing(folder: Path) -> dict[str, tuple[int, int]]:
+    return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in folder.iterdir()}
+
+
+@pytest.mark.parametrize("on_error", ["raise", "skip_tail"])
+def test_wal_mode_sqlite_is_read_without_writing_beside_it(tmp_path: Path, on_error: str) -> None:
+    """A WAL-mode ``.db3`` (older rosbag2, the ``resilient`` preset): read, and nothing is created or
+    changed in the bag's directory (was: ``-shm`` and ``-wal`` files left beside the bag)."""
+    demo = demos([20, 25], seed=4)
+    bag = write_rosbags(tmp_path / "bag", demo, storage="sqlite3")
+    con = sqlite3.connect(storage_file(bag))
+    assert con.execute("PRAGMA journal_mode=WAL").fetchone() == ("wal",)
+    con.close()
+    before = _listing(bag)
+    read_and_check(bag, demo, on_error=on_error)
+    read_and_check(storage_file(bag), demo, on_error=on_error)
+    assert _listing(bag) == before

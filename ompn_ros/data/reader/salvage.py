@@ -17,6 +17,7 @@ from mcap.stream_reader import StreamReader
 from ..errors import CorruptBagError
 from .paths import storage_files
 from .raw import RawBag
+from .verify import open_readonly
 
 
 def salvage(bag: Path, wanted: set[str] | None, first_error: CorruptBagError) -> RawBag:
@@ -58,7 +59,7 @@ def _salvage_mcap(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
 
 
 def _salvage_sqlite(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
-    con = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
+    con = open_readonly(file)
     n = 0
     try:
         topics = {tid: (name, typ) for tid, name, typ in con.execute("SELECT id, name, type FROM topics")}

@@ -1,6 +1,7 @@
 """Checks of what storage cannot vouch for: sqlite page structure, mcap chunk CRCs, finite values.
 
-* sqlite3: ``PRAGMA quick_check`` (b-tree and overflow-chain structure, O(pages)) on open.
+* sqlite3: ``PRAGMA quick_check`` (b-tree and overflow-chain structure, O(pages)) on open; the
+  database is opened read-only and immutable, so reading never writes beside the user's bag.
 * mcap: ``rosbags`` checks a chunk's CRC when the writer set it (non-zero); :func:`mcap_bad_chunks`
   locates the failing chunk for the error message, :func:`mcap_chunks_without_crc` counts the
   chunks whose bytes nothing can verify (the report notes them).
@@ -13,6 +14,7 @@ from __future__ import annotations
 import sqlite3
 import struct
 from pathlib import Path
+from urllib.request import pathname2url
 
 import numpy as np
 from mcap.exceptions import McapError
@@ -23,10 +25,17 @@ from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_
 _CHUNK_CRC_OFFSET = 9 + 24  # opcode + length, then start/end time and uncompressed size
 
 
+def open_readonly(file: Path) -> sqlite3.Connection:
+    """``file`` opened read-only and ``immutable`` (as ``rosbags`` opens it): SQLite creates no
+    ``-shm``/``-wal`` file beside a WAL-mode database and needs no write access to its directory.
+    A journal left with committed data is applied on a copy first (:mod:`.journal`)."""
+    return sqlite3.connect(f"file:{pathname2url(str(file.resolve()))}?mode=ro&immutable=1", uri=True)
+
+
 def sqlite_problem(file: Path) -> str | None:
     """The first problem ``PRAGMA quick_check`` reports for ``file``, ``None`` when it is sound."""
     try:
-        con = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
+        con = open_readonly(file)
     except sqlite3.Error as err:
         return f"cannot open: {err}"
     try:
