@@ -151,3 +151,43 @@ def test_wal_mode_sqlite_is_read_without_writing_beside_it(tmp_path: Path, on_er
     read_and_check(bag, demo, on_error=on_error)
     read_and_check(storage_file(bag), demo, on_error=on_error)
     assert _listing(bag) == before
+
+
+def _padded(typename: str, values: np.ndarray, pad: int, dims: int = 1) -> bytes:
+    """A MultiArray of ``values`` after ``pad`` padding elements (``layout.data_offset = pad``),
+    with a 2-D layout when ``dims`` is 2, written with the ``rosbags`` typestore (not this package's
+    encoder)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    dim_t = ts.types["std_msgs/msg/MultiArrayDimension"]
+    n = len(values)
+    shape = [dim_t(label="all", size=n, stride=n)] if dims == 1 else [
+        dim_t(label="rows", size=2, stride=n), dim_t(label="cols", size=n // 2, stride=n // 2)]
+    lay = ts.types["std_msgs/msg/MultiArrayLayout"](dim=shape, data_offset=pad)
+    dtype = np.float32 if typename == layout.FLOAT32_ARRAY else np.float64
+    data = np.concatenate([np.full(pad, 1e6), values]).astype(dtype)
+    return bytes(ts.serialize_cdr(ts.types[typename](layout=lay, data=data), typename))
+
+
+def test_multiarray_data_offset_padding_is_not_data(tmp_path: Path) -> None:
+    """``layout.data_offset`` padding at the front of ``data`` (Float32 and Float64 MultiArray, 1-D and
+    2-D layouts) is not read as values (was: the padding became the first elements)."""
+    from rosbags.rosbag2 import Writer
+
+    demo = demos([12, 9], seed=5)
+    f64 = "std_msgs/msg/Float64MultiArray"
+    with Writer(tmp_path / "bag", version=9) as w:
+        state = w.add_connection(STATE, layout.FLOAT32_ARRAY, typestore=m.typestore())
+        cmd = w.add_connection(CMD, f64, typestore=m.typestore())
+        obs_rows = iter(np.concatenate(demo.observations))
+        act_rows = iter(np.concatenate(demo.actions))
+        for k, (stamp, topic, _) in enumerate(demo.messages):
+            if topic == STATE:
+                w.write(state, stamp, _padded(layout.FLOAT32_ARRAY, next(obs_rows), 3, dims=1 + k % 2))
+            else:
+                w.write(cmd, stamp, _padded(f64, next(act_rows), 1 + k % 2))
+    spec = ReaderSpec.from_dict({**SPEC.to_dict(), "action": {"topic": CMD, "type": f64, "dim": 2}})
+    read_and_check(tmp_path / "bag", demo, spec=spec)
+    raw = _padded(layout.FLOAT32_ARRAY, np.arange(4.0), 2)
+    np.testing.assert_array_equal(m.parse_float32_array(raw), np.arange(4.0))  # the live node's parser

@@ -354,8 +354,17 @@ def parse_sketch_value(text: str, vocab: int | None = None) -> np.ndarray:
     return parse_sketch_text(text, vocab)
 
 
+def _after_padding(data: np.ndarray, data_offset: int) -> np.ndarray:
+    """``data`` without the ``layout.data_offset`` padding elements at its front."""
+    if data_offset > len(data):
+        raise ValueError(f"layout.data_offset {data_offset} exceeds the {len(data)} data elements")
+    return data[data_offset:]
+
+
 def multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
-    """Offset of the first element and element count of a little-endian MultiArray CDR message."""
+    """Offset of the first element and element count of a little-endian MultiArray CDR message
+    (4-byte elements).  ``layout.data_offset`` padding elements at the front of ``data`` are not
+    elements of the array (std_msgs/MultiArrayLayout): they are skipped."""
     if bytes(raw[:4]) != CDR_LE_HEADER:
         raise ValueError("not a little-endian CDR message")
     pos = 4
@@ -368,12 +377,28 @@ def multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
         pos += 4 + slen
         pos = (pos + 3) & ~3
         pos += 8  # size, stride
-    pos += 4  # data_offset
-    (n,) = _U32.unpack_from(raw, pos)
-    pos += 4
+    (offset, n) = struct.unpack_from("<II", raw, pos)
+    pos += 8
     if pos + 4 * n != len(raw):
         raise ValueError(f"CDR length {len(raw)} does not match {n} elements starting at byte {pos}")
-    return pos, n
+    if offset > n:
+        raise ValueError(f"layout.data_offset {offset} exceeds the {n} data elements")
+    return pos + 4 * offset, n - offset
+
+
+def multiarray_data_offset(raw: bytes | memoryview, typename: str) -> int:
+    """``layout.data_offset`` of a MultiArray message of type ``typename`` (any element type)."""
+    if bytes(raw[:4]) != CDR_LE_HEADER:
+        return int(deserialize(raw, typename).layout.data_offset)
+    pos = 4
+    (ndim,) = _U32.unpack_from(raw, pos)
+    if ndim > 64:
+        raise ValueError(f"implausible number of dimensions {ndim}")
+    pos += 4
+    for _ in range(ndim):
+        (slen,) = _U32.unpack_from(raw, pos)
+        pos = ((pos + 4 + slen + 3) & ~3) + 8
+    return int(_U32.unpack_from(raw, pos)[0])
 
 
 def parse_float32_array(raw: bytes | memoryview) -> np.ndarray:
@@ -381,7 +406,8 @@ def parse_float32_array(raw: bytes | memoryview) -> np.ndarray:
     try:
         start, n = multiarray_data_start(raw)
     except (ValueError, struct.error):
-        return np.asarray(deserialize(raw, layout.FLOAT32_ARRAY).data, dtype=np.float32)
+        msg = deserialize(raw, layout.FLOAT32_ARRAY)
+        return _after_padding(np.asarray(msg.data, dtype=np.float32), int(msg.layout.data_offset))
     return np.frombuffer(raw, dtype="<f4", count=n, offset=start).astype(np.float32)
 
 
@@ -390,7 +416,8 @@ def parse_int32_array(raw: bytes | memoryview) -> np.ndarray:
     try:
         start, n = multiarray_data_start(raw)
     except (ValueError, struct.error):
-        return np.asarray(deserialize(raw, layout.INT32_ARRAY).data, dtype=np.int64)
+        msg = deserialize(raw, layout.INT32_ARRAY)
+        return _after_padding(np.asarray(msg.data, dtype=np.int64), int(msg.layout.data_offset))
     return np.frombuffer(raw, dtype="<i4", count=n, offset=start).astype(np.int64)
 
 
