@@ -72,6 +72,11 @@ def test_use_sim_time_stamps_in_sim_time_and_keeps_publish_order(tmp_path: Path)
     assert 1000e9 <= min(stamps) and max(stamps) < 1100e9  # the publisher's /clock, not system time
     by_stamp = [(seq, kind) for _, seq, kind in sorted(rows)]
     assert by_stamp == sorted(by_stamp)  # step by step, topic by topic: the publish order
+    # what ros2 bag play reads: the distro and the QoS the publishers offered (reliable, volatile)
+    meta = (Path(r.bag) / "metadata.yaml").read_text()
+    assert "ros_distro: jazzy" in meta and meta.count("reliability: reliable") == len(bench.TOPICS_3)
+    assert meta.count("durability: volatile") == len(bench.TOPICS_3)
+    assert "sec: 9223372036" in meta  # an infinite deadline, as rosbag2 writes it
 
 
 def test_sigkill_loses_at_most_the_last_commit_period(tmp_path: Path) -> None:

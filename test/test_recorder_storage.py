@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Message
@@ -18,7 +19,7 @@ from ompn_ros.data import BagError, Episode, read_episodes, write_episodes
 from ompn_ros.data import messages as m
 from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.stop_cut import StopCut
-from ompn_ros.data.storage import DurableWriter, chunk_crcs, refresh_chunk_crcs
+from ompn_ros.data.storage import DurableWriter, chunk_crcs, offered_qos, refresh_chunk_crcs
 
 
 def _episodes(n: int = 3, steps: int = 40) -> list[Episode]:
@@ -181,3 +182,29 @@ def test_sim_stamps_keep_publish_order_whatever_the_delivery_order() -> None:
     ranked = sorted(stamped, key=stamped.get)
     assert ranked == sorted(stamped)  # (step, topic) order == stamp order
     assert len(set(stamped.values())) == len(stamped)
+
+
+@pytest.mark.parametrize("plugin", [StoragePlugin.MCAP, StoragePlugin.SQLITE3])
+def test_metadata_says_jazzy_and_the_offered_qos(tmp_path: Path, plugin: StoragePlugin) -> None:
+    """``ros_distro: jazzy`` in metadata.yaml and in the storage file, and the publishers' QoS per topic
+    (a best-effort sensor stays best effort when ``ros2 bag play`` replays it)."""
+    rclpy_qos = pytest.importorskip("rclpy.qos")
+    from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+    from rosbags.rosbag2 import Reader
+
+    sensor = rclpy_qos.qos_profile_sensor_data  # best effort, keep last 5
+    with DurableWriter(tmp_path / "bag", storage_plugin=plugin) as writer:
+        conn = writer.add_connection("/scan", layout.FLOAT32_ARRAY, typestore=m.typestore(),
+                                     offered_qos_profiles=offered_qos([sensor]))
+        writer.write(conn, 1, m.encode_float32_array([1.0]))
+    info = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "jazzy"
+    (offered,) = info["topics_with_message_count"][0]["topic_metadata"]["offered_qos_profiles"]
+    assert (offered["reliability"], offered["history"], offered["depth"]) == ("best_effort", "keep_last", 5)
+    with Reader(tmp_path / "bag") as reader:
+        (qos,) = reader.connections[0].ext.offered_qos_profiles  # type: ignore[union-attr]
+        assert reader.ros_distro == "jazzy"
+    assert (qos.reliability, qos.history, qos.durability) == (
+        QosReliability.BEST_EFFORT, QosHistory.KEEP_LAST, QosDurability.VOLATILE)
+    (file,) = [p for p in (tmp_path / "bag").iterdir() if p.suffix in (".mcap", ".db3")]
+    assert b"ros_distro: jazzy" in file.read_bytes() and b"ros_distro: rosbags" not in file.read_bytes()

@@ -14,6 +14,11 @@ process loses: the open sqlite3 transaction, or the pending 1 MiB mcap chunk in 
   record by record (the bag reader's salvage path).  The live recorder checkpoints itself
   (``commit_period=None`` here) at the points :mod:`ompn_ros.data.step_commits` chooses.
 
+Its metadata (``metadata.yaml`` and the copy inside the storage file) says ``ros_distro: jazzy``, as
+``ros2 bag record`` on Jazzy writes it, and each topic's ``offered_qos_profiles`` lists the QoS its
+publishers offered (:func:`offered_qos`; ``ros2 bag play`` replays a topic with them, so a best-effort
+sensor is not replayed as reliable).
+
 Used by the live recorder (``bag_recorder``) and by ``ompn_collect`` (``EpisodeBagWriter``).
 """
 
@@ -21,9 +26,11 @@ from __future__ import annotations
 
 import time
 import zlib
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Writer
@@ -31,6 +38,40 @@ from rosbags.rosbag2.storage_sqlite3 import Sqlite3Writer
 # Chunk record: opcode (1) + record length (8) + message_start_time, message_end_time,
 # uncompressed_size (3 x 8), then uncompressed_crc (4): MCAP specification, "Chunk (op=0x06)".
 _CHUNK_CRC_OFFSET = 1 + 8 + 3 * 8
+
+
+ROS_DISTRO = "jazzy"
+"""``ros_distro`` of the bags written here (``rosbags`` would write its own name)."""
+_DISTRO_LINE = ("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
+
+
+def _jazzy(metadata: str) -> str:
+    """rosbag2 metadata text with ``ros_distro: jazzy``."""
+    return metadata.replace(*_DISTRO_LINE)
+
+
+def _qos_time(duration: Any) -> QosTime:
+    ns = int(getattr(duration, "nanoseconds", 0))
+    return QosTime(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def offered_qos(profiles: Iterable[Any]) -> list[Qos]:
+    """The ``offered_qos_profiles`` of a topic from its publishers' QoS profiles (``rclpy`` QoSProfile
+    objects, as ``Node.get_publishers_info_by_topic`` gives them; their policies carry the rmw enum
+    values that rosbag2 metadata uses).  An unknown policy value becomes ``UNKNOWN``."""
+    def enum(kind: Any, value: Any) -> Any:
+        try:
+            return kind(int(value))
+        except (TypeError, ValueError):
+            return kind.UNKNOWN
+
+    return [Qos(history=enum(QosHistory, p.history), depth=int(p.depth),
+                reliability=enum(QosReliability, p.reliability), durability=enum(QosDurability, p.durability),
+                deadline=_qos_time(p.deadline), lifespan=_qos_time(p.lifespan),
+                liveliness=enum(QosLiveliness, p.liveliness),
+                liveliness_lease_duration=_qos_time(p.liveliness_lease_duration),
+                avoid_ros_namespace_conventions=bool(p.avoid_ros_namespace_conventions))
+            for p in profiles]
 
 
 class CrcMcapWriter(McapWriter):
@@ -52,6 +93,10 @@ class CrcMcapWriter(McapWriter):
             self.close_chunk()
         self.bio.flush()
 
+    def close(self, version: int, metadata: str) -> None:
+        """Close the file; its embedded rosbag2 metadata says ``ros_distro: jazzy``."""
+        super().close(version, _jazzy(metadata))
+
 
 class CommittingSqlite3Writer(Sqlite3Writer):
     """``rosbags`` sqlite3 storage writer whose open transaction can be committed on demand."""
@@ -59,6 +104,10 @@ class CommittingSqlite3Writer(Sqlite3Writer):
     def checkpoint(self) -> None:
         """Commit the rows inserted so far (one sqlite3 COMMIT)."""
         self.conn.commit()
+
+    def close(self, version: int, metadata: str) -> None:
+        """Close the database; its embedded rosbag2 metadata says ``ros_distro: jazzy``."""
+        super().close(version, _jazzy(metadata))
 
 
 class DurableWriter(Writer):
@@ -96,6 +145,15 @@ class DurableWriter(Writer):
     def since_checkpoint(self) -> float:
         """Seconds since the last checkpoint (or since the writer was created)."""
         return time.monotonic() - self._last_checkpoint
+
+    def close(self) -> None:
+        """Close the storage and write metadata.yaml (``ros_distro: jazzy``, replaced atomically)."""
+        super().close()
+        text = self.metapath.read_text(encoding="utf-8")
+        if _DISTRO_LINE[0] in text:
+            tmp = self.metapath.with_suffix(".yaml.tmp")
+            tmp.write_text(_jazzy(text), encoding="utf-8")
+            tmp.replace(self.metapath)
 
     def checkpoint(self) -> None:
         """Make everything written so far survive a killed process (sqlite3 COMMIT / mcap chunk flush)."""

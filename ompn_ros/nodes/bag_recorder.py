@@ -75,7 +75,7 @@ from ompn_ros.data.bag_writer import STORAGES, storage_plugin
 from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.step_commits import COMMIT, StepCommits
 from ompn_ros.data.stop_cut import StopCut
-from ompn_ros.data.storage import DurableWriter
+from ompn_ros.data.storage import DurableWriter, offered_qos
 from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
 
 DEFAULT_TOPICS = [
@@ -228,7 +228,9 @@ class BagRecorder(Node):
             if msgtype not in m.typestore().types:
                 self.get_logger().warning(f"topic {name}: type {msgtype} unknown to the Jazzy typestore")
                 continue
-            conn = self.writer.add_connection(name, msgtype, typestore=m.typestore())
+            offered = offered_qos(i.qos_profile for i in self.get_publishers_info_by_topic(name))
+            conn = self.writer.add_connection(name, msgtype, typestore=m.typestore(),
+                                              offered_qos_profiles=offered)
             topic = self.topics[name] = _Topic(name, conn, TopicStats(msgtype))
             topic.sub = self.create_subscription(message_class(msgtype), name,
                                                  self._callback(topic), self._qos_for(name), raw=True)
