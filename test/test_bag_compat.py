@@ -14,6 +14,7 @@ from compat_corpus import (
     SPEC,
     STATE,
     STEP_NS,
+    check_episodes,
     demos,
     edit_metadata,
     read_and_check,
@@ -191,3 +192,30 @@ def test_multiarray_data_offset_padding_is_not_data(tmp_path: Path) -> None:
     read_and_check(tmp_path / "bag", demo, spec=spec)
     raw = _padded(layout.FLOAT32_ARRAY, np.arange(4.0), 2)
     np.testing.assert_array_equal(m.parse_float32_array(raw), np.arange(4.0))  # the live node's parser
+
+
+def test_truncated_message_compressed_mcap_keeps_what_precedes_the_cut(tmp_path: Path) -> None:
+    """A message-compressed (zstd) mcap cut at 3/4, read with ``skip_tail``: the demonstrations before
+    the cut, value for value (was: no episode, the compressed frames taken for CDR)."""
+    demo = demos([300] * 50, seed=6)  # about 3 MB: several 1 MiB chunks
+    bag = write_rosbags(tmp_path / "bag", demo, compression="message")
+    file = storage_file(bag)
+    with open(file, "r+b") as fh:
+        fh.truncate(file.stat().st_size * 3 // 4)
+    result = read_episodes(bag, spec=SPEC, on_error="skip_tail")
+    assert 10 <= len(result.episodes) < 50 and result.report.bags[0].error
+    demo.observations, demo.actions = (demo.observations[:len(result.episodes)],
+                                       demo.actions[:len(result.episodes)])
+    check_episodes(result.episodes, demo)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_message_compressed_storage_file_without_metadata(tmp_path: Path, storage: str) -> None:
+    """The storage file of a message-compressed bag read on its own (no metadata.yaml says it is
+    compressed): read, with a note (was: 'cannot decode', called corrupt)."""
+    demo = demos([20, 25, 18], seed=7)
+    bag = write_rosbags(tmp_path / "bag", demo, storage=storage, compression="message")
+    (bag / "metadata.yaml").unlink()
+    for path in (storage_file(bag), bag):
+        report = read_and_check(path, demo).bags[0]  # type: ignore[attr-defined]
+        assert any("zstd-compressed (rosbag2 message compression)" in note for note in report.notes)

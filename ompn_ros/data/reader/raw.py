@@ -20,6 +20,8 @@ from rosbags.rosbag2 import Reader
 from ..errors import CorruptBagError
 from ..obs import ObservationSpec
 from .columns import AssemblySink, Float32Column
+from .compressed import NOTE as compressed_note
+from .compressed import decompress, is_compressed
 from .paths import storage_files
 
 
@@ -146,7 +148,14 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
     try:
         if conns:
             fed = set(sink.spec.topics) if sink is not None else set()
+            unzip: bool | None = None  # message compression that no metadata.yaml declared (.compressed)
             for conn, stamp, data in reader.messages(connections=conns + unmatched):
+                if unzip is None:
+                    unzip = is_compressed(data)
+                    if unzip:
+                        raw.notes.append(compressed_note)
+                if unzip:
+                    data = decompress(data)
                 topic, tdata = conn.topic, raw.topics[conn.topic]
                 tdata.add(stamp, data, read)
                 if topic in fed:

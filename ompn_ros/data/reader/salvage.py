@@ -1,7 +1,8 @@
 """Read what precedes a corruption, record by record, without the storage's index.
 
 Used with ``on_error='skip_tail'`` when ``rosbags`` cannot open a bag (a truncated mcap has no
-summary; a damaged sqlite header).  mcap chunks are checked against their CRC when it is set.
+summary; a damaged sqlite header).  mcap chunks are checked against their CRC when it is set;
+message-compressed messages are decompressed (:mod:`.compressed`).
 Cost: one sequential pass over each storage file.
 """
 
@@ -15,6 +16,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
 from ..errors import CorruptBagError
+from .compressed import decompress, is_compressed
 from .paths import storage_files
 from .raw import RawBag
 from .verify import open_readonly
@@ -49,7 +51,8 @@ def _salvage_mcap(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
                     raw.types.setdefault(rec.topic, schemas.get(rec.schema_id, ""))
                 elif isinstance(rec, Message):
                     topic, msgtype = channels[rec.channel_id]
-                    raw.append(wanted, topic, msgtype, rec.log_time, rec.data)
+                    data = decompress(rec.data) if is_compressed(rec.data) else rec.data
+                    raw.append(wanted, topic, msgtype, rec.log_time, data)
                     n += 1
         except Exception as err:  # the mcap stream reader raises many types on a broken stream
             text = f"mcap stream broken after {n} messages: {type(err).__name__} {err}".rstrip()
@@ -68,7 +71,8 @@ def _salvage_sqlite(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
         try:
             for tid, stamp, data in con.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY id"):
                 name, typ = topics[tid]
-                raw.append(wanted, name, typ, int(stamp), bytes(data))
+                data = decompress(data) if is_compressed(data) else bytes(data)
+                raw.append(wanted, name, typ, int(stamp), data)
                 n += 1
         except sqlite3.DatabaseError as err:
             text = f"sqlite scan broken after {n} messages: {type(err).__name__} {err}"
