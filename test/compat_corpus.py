@@ -132,3 +132,30 @@ def set_qos(info: dict[str, Any], topics: tuple[str, ...], qos: str = JAZZY_RELI
     for entry in info["topics_with_message_count"]:
         if entry["topic_metadata"]["name"] in topics:
             entry["topic_metadata"]["offered_qos_profiles"] = qos
+
+
+def write_split(path: Path, demo: Demo, cuts: list[int], *, storage: str = "mcap",
+                compression: str | None = None, metadata: bool = True) -> list[Path]:
+    """``demo`` as a split bag: rosbag2's ``<dir>_<n>.<ext>`` files, a new file at each stamp of ``cuts``;
+    with ``metadata``, the metadata.yaml rosbag2 writes when the recording ends (otherwise none, as a
+    recorder that crashed leaves it).  Returns the storage files in split order."""
+    path.mkdir()
+    bounds = [-1, *cuts, 2**62]
+    files, infos = [], []
+    for k in range(len(bounds) - 1):
+        part = Demo(messages=[x for x in demo.messages if bounds[k] <= x[0] < bounds[k + 1]])
+        bag = write_rosbags(path.parent / f".part{k}", part, storage=storage, compression=compression)
+        file = storage_file(bag)
+        files.append(file.rename(path / f"{path.name}_{k}{file.name[len(bag.name):]}"))
+        infos.append(yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"])
+    if metadata:
+        info = infos[0]
+        info["relative_file_paths"] = [f.name for f in files]
+        info["files"] = [dict(i["files"][0], path=f.name) for i, f in zip(infos, files)]
+        info["message_count"] = sum(i["message_count"] for i in infos)
+        end = max(i["starting_time"]["nanoseconds_since_epoch"] + i["duration"]["nanoseconds"] for i in infos)
+        info["duration"]["nanoseconds"] = end - info["starting_time"]["nanoseconds_since_epoch"]
+        for k, entry in enumerate(info["topics_with_message_count"]):
+            entry["message_count"] = sum(i["topics_with_message_count"][k]["message_count"] for i in infos)
+        (path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
+    return files

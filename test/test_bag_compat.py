@@ -14,6 +14,7 @@ from compat_corpus import (
     SPEC,
     STATE,
     STEP_NS,
+    Demo,
     check_episodes,
     demos,
     edit_metadata,
@@ -21,12 +22,13 @@ from compat_corpus import (
     set_qos,
     storage_file,
     write_rosbags,
+    write_split,
 )
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
-from ompn_ros.data.errors import AlignmentError, NoEpisodeError
+from ompn_ros.data.errors import AlignmentError, BagNotFoundError, CorruptBagError, NoEpisodeError
 
 JOINTS = ["shoulder", "elbow", "wrist"]
 ARM_SPEC = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
@@ -219,3 +221,42 @@ def test_message_compressed_storage_file_without_metadata(tmp_path: Path, storag
     for path in (storage_file(bag), bag):
         report = read_and_check(path, demo).bags[0]  # type: ignore[attr-defined]
         assert any("zstd-compressed (rosbag2 message compression)" in note for note in report.notes)
+
+
+CUT = 10**9 + 20 * STEP_NS + GAP_NS + 3 * STEP_NS + 1  # inside the second demonstration, after 3 steps
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+@pytest.mark.parametrize("metadata", [True, False])
+def test_split_bag_is_one_bag(tmp_path: Path, storage: str, metadata: bool) -> None:
+    """A split bag, with its metadata.yaml or without it (the recorder crashed), read as a directory, as
+    its storage files one by one and as a glob: the demonstration cut by the file boundary stays one
+    (was, without metadata.yaml or file by file: steps [20, 3, 21, 18] instead of [20, 25, 18])."""
+    demo = demos([20, 25, 18], seed=8)
+    files = write_split(tmp_path / "bag", demo, [CUT, CUT + 30 * STEP_NS], storage=storage, metadata=metadata)
+    for paths in (tmp_path / "bag", files, str(tmp_path / "bag" / "bag_*")):
+        report = read_and_check(paths, demo).bags  # type: ignore[attr-defined]
+        assert [b.path for b in report] == [str(tmp_path / "bag")]
+        reindexed = [n for n in report[0].notes if n.startswith("no metadata.yaml")]
+        assert bool(reindexed) != metadata and all("ros2 bag reindex" in n for n in reindexed)
+    assert sorted(p.name for p in (tmp_path / "bag").iterdir()) == sorted(
+        [f.name for f in files] + (["metadata.yaml"] if metadata else []))  # nothing written beside them
+    with pytest.raises(BagNotFoundError) as info:
+        read_episodes(files[:2], spec=SPEC)
+    assert "one of the 3 split files" in str(info.value) and "['bag_2." in str(info.value)
+
+
+def test_split_bag_without_metadata_message_compressed_and_truncated(tmp_path: Path) -> None:
+    """A recorder killed while writing the last split of a message-compressed mcap bag: no metadata.yaml
+    and a truncated last file; ``skip_tail`` keeps the demonstrations before the cut."""
+    demo = demos([20, 25, 18], seed=9)
+    files = write_split(tmp_path / "bag", demo, [CUT, CUT + 30 * STEP_NS], compression="message",
+                        metadata=False)
+    with open(files[-1], "r+b") as fh:
+        fh.truncate(files[-1].stat().st_size - 100)  # the summary and the footer are lost
+    with pytest.raises(CorruptBagError) as info:
+        read_episodes(tmp_path / "bag", spec=SPEC)
+    assert str(tmp_path / "bag") in str(info.value) and "ompn_reindex" not in str(info.value)
+    result = read_episodes(tmp_path / "bag", spec=SPEC, on_error="skip_tail")
+    assert result.report.bags[0].error and "ompn_reindex" not in result.report.bags[0].error
+    check_episodes(result.episodes, Demo(demo.observations[:2], demo.actions[:2]))  # the last one is cut

@@ -10,6 +10,7 @@ import yaml
 
 from ..bag_writer import resolve_topic
 from ..errors import BagNotFoundError
+from .reindex import needs_reindex, split_files
 from .spec import ReaderSpec
 
 STORAGE_SUFFIXES = (".mcap", ".db3")
@@ -32,6 +33,25 @@ def resolve_bag_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
             if not found:
                 raise BagNotFoundError("no rosbag2 bag (metadata.yaml, .mcap or .db3) found", path=text)
             out.extend(found)
+    return _whole_split_bags(list(dict.fromkeys(out)))
+
+
+def _whole_split_bags(bags: list[Path]) -> list[Path]:
+    """Storage files given one by one that are the split files of one bag directory become that bag
+    (read as one, in split order: :mod:`.reindex`); a part of the splits is refused in one line."""
+    out: list[Path] = []
+    for bag in bags:
+        series = split_files(bag.parent) if bag.is_file() else []
+        if len(series) < 2 or bag not in series:
+            out.append(bag)
+            continue
+        given = [f for f in series if f in bags]
+        if len(given) != len(series):
+            missing = [f.name for f in series if f not in given]
+            raise BagNotFoundError(f"is one of the {len(series)} split files of bag '{bag.parent}' and "
+                                   f"{missing} are not given; pass the bag directory to read it as one bag",
+                                   path=bag)
+        out.append(bag.parent)
     return list(dict.fromkeys(out))
 
 
@@ -44,8 +64,8 @@ def _expand(path: Path) -> list[Path]:
         if path.name == "metadata.yaml":
             return [path.parent]
         raise BagNotFoundError(f"not a bag storage file (expected {STORAGE_SUFFIXES})", path=path)
-    if (path / "metadata.yaml").is_file():
-        return [path]
+    if (path / "metadata.yaml").is_file() or needs_reindex(path):
+        return [path]  # a bag; a split bag without metadata.yaml is reindexed while read
     found: list[Path] = []
     for child in sorted(path.iterdir()):
         if child.name.startswith("."):

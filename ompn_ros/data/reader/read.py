@@ -17,6 +17,7 @@ from .journal import committed_view
 from .paths import metadata_topic_types, resolve_bag_paths, storage_files, wanted_topics
 from .plan import stream_plan
 from .raw import RawBag, collect_rosbags
+from .reindex import reindexed_view
 from .report import BagReport, ReadReport, ReadResult
 from .salvage import salvage
 from .spec import OnError, ReaderSpec
@@ -86,11 +87,12 @@ def _crc_note(bag: Path, report: BagReport) -> None:
 
 
 def read_bag(bag: Path, spec: ReaderSpec, on_error: OnError, report: BagReport) -> list[Episode]:
-    """Read one bag (see :func:`read_episodes`); ``report`` is filled in.  A sqlite3 bag with a
+    """Read one bag (see :func:`read_episodes`); ``report`` is filled in.  A split bag without its
+    metadata.yaml is read as one bag (:func:`.reindex.reindexed_view`); a sqlite3 bag with a
     journal left by a killed recorder is read as of its last commit, from a recovered copy
     (:func:`.journal.committed_view`); errors and notes still name ``bag``."""
-    with committed_view(bag) as (readable, notes):
-        report.notes.extend(notes)
+    with reindexed_view(bag) as (indexed, index_notes), committed_view(indexed) as (readable, notes):
+        report.notes.extend(index_notes + notes)
         try:
             return _read_view(bag, readable, spec, on_error, report)
         except BagError as err:
