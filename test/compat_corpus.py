@@ -9,6 +9,7 @@ demonstration (so the last state is the final observation); demonstrations are 2
 
 from __future__ import annotations
 
+import sqlite3
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,7 +62,7 @@ def demos(lengths: list[int], seed: int = 0, t0: int = 10**9) -> Demo:
 
 
 def write_rosbags(path: Path, demo: Demo, *, storage: str = "mcap", version: int = 9,
-                  compression: str | None = None, qos: str = "") -> Path:
+                  compression: str | None = None) -> Path:
     """A rosbag2 bag of ``demo`` written by ``rosbags`` (``compression``: 'file' or 'message', zstd)."""
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
@@ -70,8 +71,7 @@ def write_rosbags(path: Path, demo: Demo, *, storage: str = "mcap", version: int
     if compression is not None:
         writer.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
     with writer:
-        conns = {topic: writer.add_connection(topic, layout.FLOAT32_ARRAY, typestore=m.typestore(),
-                                              offered_qos_profiles=qos)  # type: ignore[call-arg]
+        conns = {topic: writer.add_connection(topic, layout.FLOAT32_ARRAY, typestore=m.typestore())
                  for topic in (STATE, CMD)}
         for stamp, topic, raw in demo.messages:
             writer.write(conns[topic], stamp, raw)
@@ -159,3 +159,50 @@ def write_split(path: Path, demo: Demo, cuts: list[int], *, storage: str = "mcap
             entry["message_count"] = sum(i["topics_with_message_count"][k]["message_count"] for i in infos)
         (path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
     return files
+
+
+V8_QOS = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n  deadline:\n    sec: 2147483647\n"
+          "    nsec: 4294967295\n  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n  liveliness: 1\n"
+          "  liveliness_lease_duration:\n    sec: 2147483647\n    nsec: 4294967295\n"
+          "  avoid_ros_namespace_conventions: false")
+"""``offered_qos_profiles`` as rosbag2 wrote it up to metadata version 8 (a YAML string, numeric enums)."""
+KEYS_SINCE = {"files": 5, "custom_data": 6, "ros_distro": 8}
+"""metadata.yaml keys and the version that added them (rosbag2's metadata version history)."""
+
+
+def old_metadata(info: dict[str, Any], version: int) -> None:
+    """metadata.yaml as rosbag2 wrote it at ``version`` (4 to 9): keys added later removed."""
+    info["version"] = version
+    for key, since in KEYS_SINCE.items():
+        if version < since:
+            info.pop(key, None)
+    for entry in info["topics_with_message_count"]:
+        if version < 7:
+            entry["topic_metadata"].pop("type_description_hash", None)
+        if version < 9:
+            entry["topic_metadata"]["offered_qos_profiles"] = V8_QOS
+
+
+def old_sqlite_schema(file: Path, schema: int) -> None:
+    """Rewrite a ``.db3`` in an older rosbag2 schema: 1 (topics without QoS), 2 (QoS column) or 3
+    (a ``schema`` table; no message definitions nor type hashes)."""
+    old = file.with_suffix(".new")
+    src = sqlite3.connect(file)
+    dst = sqlite3.connect(old)
+    qos = ", offered_qos_profiles TEXT NOT NULL" if schema >= 2 else ""
+    dst.execute(f"CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, "
+                f"serialization_format TEXT NOT NULL{qos})")
+    dst.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, "
+                "timestamp INTEGER NOT NULL, data BLOB NOT NULL)")
+    if schema >= 3:
+        dst.execute("CREATE TABLE schema(schema_version INTEGER PRIMARY KEY, ros_distro TEXT NOT NULL)")
+        dst.execute("INSERT INTO schema VALUES (3, 'humble')")
+    for row in src.execute("SELECT id, name, type, serialization_format FROM topics"):
+        dst.execute(f"INSERT INTO topics VALUES (?, ?, ?, ?{', ?' if schema >= 2 else ''})",
+                    (*row, V8_QOS) if schema >= 2 else row)
+    dst.executemany("INSERT INTO messages VALUES (?, ?, ?, ?)",
+                    src.execute("SELECT id, topic_id, timestamp, data FROM messages"))
+    dst.commit()
+    src.close()
+    dst.close()
+    old.replace(file)

@@ -18,6 +18,8 @@ from compat_corpus import (
     check_episodes,
     demos,
     edit_metadata,
+    old_metadata,
+    old_sqlite_schema,
     read_and_check,
     set_qos,
     storage_file,
@@ -260,3 +262,42 @@ def test_split_bag_without_metadata_message_compressed_and_truncated(tmp_path: P
     result = read_episodes(tmp_path / "bag", spec=SPEC, on_error="skip_tail")
     assert result.report.bags[0].error and "ompn_reindex" not in result.report.bags[0].error
     check_episodes(result.episodes, Demo(demo.observations[:2], demo.actions[:2]))  # the last one is cut
+
+
+@pytest.mark.parametrize(("storage", "version", "schema"), [
+    ("sqlite3", 4, 1), ("sqlite3", 5, 2), ("sqlite3", 6, 3), ("sqlite3", 7, 3), ("sqlite3", 8, None),
+    ("sqlite3", 9, None), ("mcap", 5, None), ("mcap", 6, None), ("mcap", 7, None), ("mcap", 8, None),
+])
+def test_metadata_versions_and_old_sqlite_schemas(tmp_path: Path, storage: str, version: int,
+                                                  schema: int | None) -> None:
+    """metadata.yaml versions 4 to 9 (Foxy to Jazzy) with the ``.db3`` schemas of their time; where the
+    storage holds no QoS string and metadata.yaml one (rosbag2's own test bags), a note says so."""
+    demo = demos([20, 25, 18], seed=10)
+    bag = write_rosbags(tmp_path / "bag", demo, storage=storage, version=8 if version < 9 else 9)
+    edit_metadata(bag, lambda info: old_metadata(info, version))
+    if schema is not None:
+        old_sqlite_schema(storage_file(bag), schema)
+    report = read_and_check(bag, demo).bags[0]  # type: ignore[attr-defined]
+    storage_has_qos = schema is not None and schema >= 2  # rosbags stores [] for the QoS
+    assert any("QoS profiles" in note for note in report.notes) == (version < 9 and not storage_has_qos)
+
+
+def test_foreign_mcap_writer(tmp_path: Path) -> None:
+    """A bare ``.mcap`` written with the ``mcap`` package's ROS 2 writer (Foxglove's), no metadata.yaml."""
+    from mcap_ros2.writer import Writer as McapRos2Writer
+
+    demo = demos([20, 25, 18], seed=11)
+    msgdef = "std_msgs/MultiArrayLayout layout\nfloat32[] data\n" + "=" * 80 + (
+        "\nMSG: std_msgs/MultiArrayLayout\nMultiArrayDimension[] dim\nuint32 data_offset\n" + "=" * 80
+        + "\nMSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride\n")
+    with open(tmp_path / "demo.mcap", "wb") as fh:
+        writer = McapRos2Writer(fh)
+        schema = writer.register_msgdef(layout.FLOAT32_ARRAY, msgdef)
+        for stamp, topic, raw in demo.messages:
+            values = m.parse_float32_array(raw)
+            message = {"layout": {"dim": [{"label": "v", "size": len(values), "stride": len(values)}],
+                                  "data_offset": 0}, "data": values.tolist()}
+            writer.write_message(topic, schema, message, log_time=stamp, publish_time=stamp)
+        writer.finish()
+    read_and_check(tmp_path / "demo.mcap", demo)
+    read_and_check(tmp_path, demo)  # a folder of bare mcap files
