@@ -3,7 +3,10 @@ refused in one line (docs/bags.md)."""
 
 from __future__ import annotations
 
+import os
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +36,8 @@ from ompn_ros.data import messages as m
 from ompn_ros.data.errors import AlignmentError, BagNotFoundError, CorruptBagError, NoEpisodeError
 
 JOINTS = ["shoulder", "elbow", "wrist"]
-ARM_SPEC = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
+ROOT = Path(__file__).resolve().parents[1]
+ARM_SPEC = ROOT / "config" / "reader_jointstate_example.yaml"
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
@@ -301,3 +305,30 @@ def test_foreign_mcap_writer(tmp_path: Path) -> None:
         writer.finish()
     read_and_check(tmp_path / "demo.mcap", demo)
     read_and_check(tmp_path, demo)  # a folder of bare mcap files
+
+
+def test_wal_mode_sqlite_in_a_read_only_directory(tmp_path: Path) -> None:
+    """The same bag on a read-only file system (a read-only bind mount in a private mount namespace;
+    skipped where the test may not create one): read (was: 'sqlite database is malformed (PRAGMA
+    quick_check: unable to open database file)')."""
+    demo = demos([20, 25], seed=4)
+    bag = write_rosbags(tmp_path / "ro" / "bag", demo, storage="sqlite3")
+    con = sqlite3.connect(storage_file(bag))
+    con.execute("PRAGMA journal_mode=WAL")
+    con.close()
+    code = ("import sys; from ompn_ros.data import read_episodes; from compat_corpus import SPEC;"
+            "r = read_episodes(sys.argv[1], spec=SPEC); print([e.length for e in r.episodes])")
+    folder = tmp_path / "ro"
+    script = (f"mount --bind {folder} {folder} && mount -o remount,ro,bind {folder} || exit 77; "
+              f"! touch {folder}/probe 2>/dev/null || exit 77; "
+              f'"{sys.executable}" -c "{code}" {bag}')
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "test")])}
+    try:
+        proc = subprocess.run(["unshare", "-m", "sh", "-c", script], env=env, capture_output=True, text=True,
+                              timeout=120)
+    except FileNotFoundError:
+        pytest.skip("no unshare")
+    if proc.returncode == 77 or "unshare:" in proc.stderr:
+        pytest.skip(f"cannot make a read-only mount here: {proc.stderr.strip()}")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[20, 25]"
