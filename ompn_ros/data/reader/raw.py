@@ -9,7 +9,7 @@ memory O(bytes of the raw-kept topics) plus the step array (about the bytes of t
 from __future__ import annotations
 
 from array import array
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -135,9 +135,9 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
     raw.types = {c.topic: c.msgtype for c in reader.connections}
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
     unmatched = storage_connections(reader, conns)
-    for topic in sorted({c.topic for c in unmatched}):
-        raw.notes.append(f"topic '{topic}': the QoS profiles or type hash in metadata.yaml differ from the "
-                         "storage file's; its messages are read anyway (as ros2 bag play does)")
+    raw.notes.extend(f"topic '{topic}': the QoS profiles or type hash in metadata.yaml differ from the "
+                     "storage file's; its messages are read anyway (as ros2 bag play does)"
+                     for topic in sorted({c.topic for c in unmatched}))
     for topic in {c.topic for c in conns}:
         raw.topics[topic] = TopicData(raw.types[topic])
     try:
@@ -148,14 +148,7 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
     try:
         if conns:
             fed = set(sink.spec.topics) if sink is not None else set()
-            unzip: bool | None = None  # message compression that no metadata.yaml declared (.compressed)
-            for conn, stamp, data in reader.messages(connections=conns + unmatched):
-                if unzip is None:
-                    unzip = is_compressed(data)
-                    if unzip:
-                        raw.notes.append(compressed_note)
-                if unzip:
-                    data = decompress(data)
+            for conn, stamp, data in _decompressed(reader.messages(connections=conns + unmatched), raw.notes):
                 topic, tdata = conn.topic, raw.topics[conn.topic]
                 tdata.add(stamp, data, read)
                 if topic in fed:
@@ -172,6 +165,19 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
             pass
     raw.count = read
     return raw
+
+
+def _decompressed(messages: Iterator[tuple[Connection, int, bytes]],
+                  notes: list[str]) -> Iterator[tuple[Connection, int, bytes]]:
+    """``messages``, decompressed when the first one is a zstd frame that no metadata.yaml declared
+    (:mod:`.compressed`; a note is added)."""
+    unzip: bool | None = None
+    for conn, stamp, data in messages:
+        if unzip is None:
+            unzip = is_compressed(data)
+            if unzip:
+                notes.append(compressed_note)
+        yield conn, stamp, (decompress(data) if unzip else data)
 
 
 def storage_connections(reader: Reader, conns: list[Connection]) -> list[Connection]:
