@@ -40,8 +40,11 @@ def _whole_split_bags(bags: list[Path]) -> list[Path]:
     """Storage files given one by one that are the split files of one bag directory become that bag
     (read as one, in split order: :mod:`.reindex`); a part of the splits is refused in one line."""
     out: list[Path] = []
+    splits: dict[Path, list[Path]] = {}  # one directory listing per parent
     for bag in bags:
-        series = split_files(bag.parent) if bag.is_file() else []
+        if bag.is_file() and bag.parent not in splits:
+            splits[bag.parent] = split_files(bag.parent)
+        series = splits[bag.parent] if bag.is_file() else []
         if len(series) < 2 or bag not in series:
             out.append(bag)
             continue
