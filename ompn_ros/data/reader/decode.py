@@ -52,6 +52,7 @@ class Decoded:
     sketches: list[tuple[int, np.ndarray]] = field(default_factory=list)
     markers: list[Marker] | None = None  # None: no episode topic
     split_stamps: np.ndarray | None = None  # messages of the split topic
+    split_switch: np.ndarray | None = None  # a recording on/off topic: per message, True = on
     obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
     nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
     assembled: AssembledRows | None = None  # ReaderSpec.assemble: kept rows, names, drops by reason
@@ -125,7 +126,10 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
             out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
     if topics.split:
-        out.split_stamps = ctx.stamps(topics.split)
+        split = topics.split
+        out.split_stamps = ctx.stamps(split)
+        if ctx.raw.types.get(split) in SWITCH_TYPES:
+            out.split_switch = _guard(errors, lambda: _switch(ctx, split))
     if topics.joints:
         js = topics.joints
         stamps, raws = ctx.data(js)
@@ -201,6 +205,27 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
     block = decode_joint_states(ctx.path, topic, stamps, raws)
     values = joint_vectors(ctx.path, topic, src, stamps, block)
     return values, (block.header if ctx.spec.stamp == "header" else stamps), block
+
+
+SWITCH_TYPES = frozenset({"std_msgs/msg/Bool", "std_msgs/msg/String"} | {
+    f"std_msgs/msg/{kind}{bits}" for kind in ("Int", "UInt") for bits in (8, 16, 32, 64)})
+"""Types of a recording on/off topic (``ReaderSpec.split_topic``)."""
+SWITCH_ON = frozenset({"start", "on", "true", "1", "record", "recording", "begin"})
+
+
+def _switch(ctx: BagContext, topic: str) -> np.ndarray:
+    """Per message of a recording on/off topic, whether it switches recording on."""
+    stamps, raws = ctx.data(topic)
+    msgtype = ctx.raw.types[topic]
+    out = np.zeros(len(raws), dtype=bool)
+    for i, data in enumerate(raws):
+        try:
+            value = m.deserialize(data, msgtype).data
+        except Exception as err:  # rosbags raises several types on bad CDR
+            raise CorruptBagError(f"cannot decode {msgtype}: {err}", path=ctx.path, topic=topic,
+                                  index=i, stamp=int(stamps[i])) from err
+        out[i] = value.strip().lower() in SWITCH_ON if isinstance(value, str) else bool(value)
+    return out
 
 
 def _markers(ctx: BagContext, topic: str) -> list[Marker]:

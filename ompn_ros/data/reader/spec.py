@@ -20,12 +20,12 @@ from ..obs.spec import FLOAT64_ARRAY, ObservationSpec, ObservationSpecError
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
 FinalObservation = Literal["drop_last_step", "duplicate", "blank", "extrapolate", "require"]
-Split = Literal["auto", "markers", "gaps", "topic"]
+Split = Literal["auto", "markers", "gaps", "topic", "idle", "bag"]
 FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require")
 PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
 there (docs/experiments.md §28, §31 and §36)."""
-SPLITS = ("auto", "markers", "gaps", "topic")
+SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 
@@ -136,9 +136,19 @@ class ReaderSpec:
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
             the ``episode`` topic, required), ``gaps`` (observations more than ``time_gap``
             seconds apart), ``topic`` (every message on ``split_topic`` starts an episode at the
-            next observation; observations before the first one are not used) or ``auto``
-            (default: markers when the bag has any, else gaps).
-        split_topic: the topic for ``split: topic`` (any message type; only stamps are used).
+            next observation; observations before the first one are not used), ``idle`` (the
+            robot is still for ``idle_s``: :mod:`ompn_ros.data.idle`, the rule ``ompn_node``'s
+            ``idle_s`` applies live), ``bag`` (one bag per demonstration: each bag of a folder is
+            one episode) or ``auto`` (default: markers when the bag has any, else gaps).
+        split_topic: the topic for ``split: topic``.  A recording switch (``std_msgs`` ``Bool``,
+            ``Int8/16/32/64``, ``UInt*`` or ``String``) marks on and off: true, non-zero or
+            ``start``/``on``/``true``/``1``/``record`` starts an episode, anything else ends it
+            (observations while it is off are not used).  Any other type: every message starts an
+            episode, only its stamp is used.
+        idle_s: ``split: idle``: seconds the robot must be still to end an episode (> 0).
+        idle_speed: ``split: idle``: a step is still when its observation changed by less than this
+            per second since the previous step (largest element; 0 = never by speed).  A step with
+            no command attached (an action topic other than the observation's) is still as well.
     """
 
     observation: VectorSource = DEFAULT_OBSERVATION
@@ -158,6 +168,8 @@ class ReaderSpec:
     final_observation: FinalObservation = "duplicate"
     split: Split = "auto"
     split_topic: str | None = None
+    idle_s: float = 1.0
+    idle_speed: float = 0.0
 
     def __post_init__(self) -> None:
         self._check_choices()
@@ -192,6 +204,9 @@ class ReaderSpec:
             raise ReaderSpecError(f"split must be one of {SPLITS}, got '{self.split}'")
         if self.split == "topic" and not self.split_topic:
             raise ReaderSpecError("split: topic needs split_topic (the topic whose messages start episodes)")
+        if self.idle_s <= 0 or self.idle_speed < 0:
+            raise ReaderSpecError(f"idle_s must be > 0 and idle_speed >= 0 (got {self.idle_s}, "
+                                  f"{self.idle_speed})")
         if self.split == "markers" and not self.episode:
             raise ReaderSpecError("split: markers needs the episode topic (key 'episode')")
         if self.labels in ("ordinal", "id", "boundary") and not self.subtask:
