@@ -41,6 +41,12 @@ class VectorSource:
         dim: expected vector size (checked), ``None`` = the size of the topic's first message.
         fields: JointState fields concatenated in this order (``position``/``velocity``/``effort``).
         joint_names: JointState joint order (by name); ``None`` = the message's own order.
+        merge_s: JointState messages of several publishers on this topic (arm and gripper drivers
+            on one ``/joint_states``): merged by joint name, each of ``joint_names`` taking its
+            latest value at or before the step if at most ``merge_s`` seconds older; the messages
+            naming the first of ``joint_names`` are the steps (:mod:`ompn_ros.data.joint_merge`).
+            Steps lacking a joint are dropped and counted (``BagReport.missing['<topic>[<joint>]']``).
+            ``None`` = one publisher.
     """
 
     topic: str
@@ -48,8 +54,12 @@ class VectorSource:
     dim: int | None = None
     fields: tuple[str, ...] = ("position",)
     joint_names: tuple[str, ...] | None = None
+    merge_s: float | None = None
 
     def __post_init__(self) -> None:
+        if self.merge_s is not None and (self.merge_s < 0 or not self.joint_names):
+            raise ReaderSpecError(f"topic '{self.topic}': merge_s needs joint_names (the first names the "
+                                  f"step joint) and a value >= 0, got {self.merge_s}")
         bad = [f for f in self.fields if f not in layout.JOINT_FIELDS]
         if bad or not self.fields:
             raise ReaderSpecError(f"topic '{self.topic}': JointState fields must be a non-empty subset "
@@ -140,11 +150,11 @@ class ReaderSpec:
             robot is still for ``idle_s``: :mod:`ompn_ros.data.idle`, the rule ``ompn_node``'s
             ``idle_s`` applies live), ``bag`` (one bag per demonstration: each bag of a folder is
             one episode) or ``auto`` (default: markers when the bag has any, else gaps).
-        split_topic: the topic for ``split: topic``.  A recording switch (``std_msgs`` ``Bool``,
-            ``Int8/16/32/64``, ``UInt*`` or ``String``) marks on and off: true, non-zero or
-            ``start``/``on``/``true``/``1``/``record`` starts an episode, anything else ends it
-            (observations while it is off are not used).  Any other type: every message starts an
-            episode, only its stamp is used.
+        split_topic: the topic for ``split: topic``.  A recording switch marks on and off: a
+            ``std_msgs`` ``Bool``, an integer (``Int*``/``UInt*``) holding only 0 and 1, or a
+            ``String`` holding only on/off words (``start on true 1 record begin`` /
+            ``stop off false 0 pause end``); on starts an episode, off ends it (observations while
+            off are not used).  Any other topic: every message starts an episode (stamps only).
         idle_s: ``split: idle``: seconds the robot must be still to end an episode (> 0).
         idle_speed: ``split: idle``: a step is still when its observation changed by less than this
             per second since the previous step (largest element; 0 = never by speed).  A step with
