@@ -29,6 +29,7 @@ from .align import (
     windows_from_markers,
     windows_from_topic,
 )
+from .clocks import check_clocks
 from .context import BagContext, Topics
 from .decode import Decoded
 from .joints import JointBlock
@@ -54,6 +55,8 @@ class Partners:
 def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]:
     """The episodes of one bag (see the module docstrings for the rules)."""
     report = ctx.report
+    clocked = [(topics.act, dec.act_stamps), (topics.sub, dec.sub_stamps), (topics.joints, dec.joint_stamps)]
+    check_clocks(ctx, topics.obs, dec.obs_stamps, [(t, st) for t, st in clocked if t and st is not None])
     partners = _attach_all(ctx, topics, dec)
     windows = _windows(ctx, topics, dec, partners)
     used = sum(w.stop_obs - w.first_obs for w in windows)

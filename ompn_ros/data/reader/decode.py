@@ -135,7 +135,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         stamps, raws = ctx.data(js)
         out.joints = _guard(errors, lambda: decode_joint_states(ctx.path, js, stamps, raws))
         if out.joints is not None:
-            out.joint_stamps = out.joints.header if ctx.spec.stamp == "header" else stamps
+            out.joint_stamps = out.joints.header if ctx.clock(js) == "header" else stamps
     if topics.sketch:
         stamps, raws = ctx.data(topics.sketch)
         out.sketches = [(int(s), m.parse_int32_array(r)) for s, r in zip(stamps, raws)]
@@ -203,15 +203,17 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
         return values, stamps, None, stamps
     if msgtype == FLOAT64_ARRAY:
         return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps), stamps, None, stamps
-    header = ctx.spec.stamp == "header"
+    header = ctx.clock(topic) == "header"
     if src.merge_s is not None:
         block, index, missing = merge_publishers(ctx.path, topic, src, stamps, raws, header)
         for joint, n in sorted(missing.items()):
             ctx.report._add(ctx.report.missing, f"{topic}[{joint}]", n)
         stamps = stamps[index]
-        return joint_vectors(ctx.path, topic, src, stamps, block), block.header, block, stamps
-    block = decode_joint_states(ctx.path, topic, stamps, raws)
+    else:
+        block = decode_joint_states(ctx.path, topic, stamps, raws)
     values = joint_vectors(ctx.path, topic, src, stamps, block)
+    if header:
+        ctx.header_lag[topic] = stamps - block.header
     return values, (block.header if header else stamps), block, stamps
 
 

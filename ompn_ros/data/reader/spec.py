@@ -98,6 +98,13 @@ class ReaderSpec:
         strict: raise :class:`AlignmentError` on missing/duplicate partners instead of counting.
         stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics;
             meant for foreign bags whose per-step topics are all JointState on one clock).
+        stamps: the time base per topic (YAML key ``stamps``, ``{topic: log | header}``), overriding
+            ``stamp`` for the topics it names; ``header`` needs a JointState topic.  Partners are
+            aligned on these stamps, so topics stamped on different clocks (the robot's header
+            stamps, a label node's receive time) must be brought to one: when most messages of a
+            partner attach to no observation while its stamps and the observations' are offset by a
+            constant, the read stops with one line naming both topics and the offset
+            (:mod:`ompn_ros.data.reader.clocks`).
         task: task name for episodes without a start marker.
         labels: what the ``subtask`` topic holds (YAML key ``labels``):
 
@@ -173,6 +180,7 @@ class ReaderSpec:
     tolerance: float = 5.0
     strict: bool = False
     stamp: Literal["log", "header"] = "log"
+    stamps: dict[str, Literal["log", "header"]] | None = None
     task: str = ""
     labels: LabelKind | None = None
     final_observation: FinalObservation = "duplicate"
@@ -191,6 +199,12 @@ class ReaderSpec:
                                   f"{self.tolerance})")
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
+        if self.stamps is not None:
+            if not isinstance(self.stamps, dict):
+                raise ReaderSpecError(f"stamps must map topics to 'log' or 'header', got {self.stamps!r}")
+            bad = {k: v for k, v in self.stamps.items() if v not in ("log", "header")}
+            if bad:
+                raise ReaderSpecError(f"stamps: each topic's time base must be 'log' or 'header', got {bad}")
         if self.assemble is not None:
             self._check_assemble()
 
@@ -200,9 +214,9 @@ class ReaderSpec:
         if self.observation != DEFAULT_OBSERVATION:
             raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields of "
                                   "several topics), not both")
-        if self.stamp != "log":
+        if self.stamp != "log" or self.stamps:
             raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
-                                  "(assemble's own 'stamp' key chooses the stamps of its rule)")
+                                  "and no stamps (assemble's own 'stamp' key chooses the stamps of its rule)")
 
     def _check_choices(self) -> None:
         if self.labels is not None and self.labels not in layout.LABEL_KINDS:
