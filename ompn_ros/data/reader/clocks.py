@@ -4,8 +4,8 @@ A robot's driver stamps its headers with the robot's clock; a label or command n
 bag's receive time.  Aligned on such stamps, partners land on no observation (or on the wrong one).
 The check runs once per bag before the partners are attached: when more than half of a partner topic's
 messages would attach to no observation, and the partner's stamps and the observations' are on two
-time bases (header and receive) offset by a constant larger than ``tolerance``, the read stops with :class:`~ompn_ros.data.errors.AlignmentError`
-naming both topics, their time bases and the offset.
+time bases (header and receive) offset by a constant larger than ``tolerance``, the read stops with
+:class:`~ompn_ros.data.errors.AlignmentError` naming both topics, their time bases and the offset.
 
 The offset is measured where both clocks are in the bag (a header-stamped topic also has receive
 stamps: the median of receive − header, a constant when its spread is within ``tolerance``), else
