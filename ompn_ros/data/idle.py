@@ -84,6 +84,16 @@ class IdleSplitter:
         out.append(Cut("step", row))
         return out
 
+    @property
+    def rows(self) -> int:
+        """Steps pushed so far."""
+        return self._row + 1
+
+    @property
+    def held_rows(self) -> set[int]:
+        """Rows of the still steps held, not yet decided."""
+        return {r for r, _ in self._held}
+
     def finish(self) -> list[Cut]:
         """End the open episode now (end of stream, or silence): at its first held still step, else at
         its last step.  Nothing when no episode is open."""

@@ -89,10 +89,13 @@ class JointMerger:
             self._has[f][:] = False
 
 
-def absent_field_line(topic: str, field: str, joints: Sequence[str]) -> str:
-    """The one line of a wanted field that some merged joints lack (their driver leaves it empty)."""
-    return (f"JointState.{field} on '{topic}' is empty for some of joints {list(joints)} (a driver that "
-            f"does not publish {field}): remove '{field}' from the fields")
+def field_width_line(field: str, width: int, joints: int) -> str:
+    """The one line of a JointState field whose length differs from its joint names (the reader's
+    and the node's): an empty one names the fix."""
+    if width == 0:
+        return (f"JointState.{field} is empty for {joints} joint names (the driver does not publish "
+                f"{field}): remove '{field}' from the fields")
+    return f"JointState.{field} has {width} values for {joints} joint names"
 
 
-__all__ = ["JOINT_FIELDS", "JointMerger", "MergedStep", "absent_field_line"]
+__all__ = ["JOINT_FIELDS", "JointMerger", "MergedStep", "field_width_line"]

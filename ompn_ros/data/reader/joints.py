@@ -14,7 +14,7 @@ from ompn_ros import layout
 
 from .. import messages as m
 from ..errors import CorruptBagError, VectorLengthError
-from ..joint_merge import JointMerger, MergedStep
+from ..joint_merge import JointMerger, MergedStep, field_width_line
 from .spec import VectorSource
 
 
@@ -120,20 +120,12 @@ def _field_as_is(path: str, topic: str, name: str, stamps: np.ndarray, block: Jo
     if bad.size:
         i = int(bad[0])
         if joints[i] > 0 and widths[i] != joints[i]:
-            raise VectorLengthError(_width_problem(name, int(widths[i]), int(joints[i])), path=path,
+            raise VectorLengthError(field_width_line(name, int(widths[i]), int(joints[i])), path=path,
                                     topic=topic, index=i, stamp=int(stamps[i]))
         raise VectorLengthError(f"JointState.{name} has {widths[i]} values, the topic's first "
                                 f"message {arr.shape[1]}", path=path, topic=topic, index=i,
                                 stamp=int(stamps[i]))
     return arr
-
-
-def _width_problem(name: str, width: int, joints: int) -> str:
-    """The one line of a JointState field whose length differs from its joint names."""
-    if width == 0:
-        return (f"JointState.{name} is empty for {joints} joint names (the driver does not publish "
-                f"{name}): remove '{name}' from the reader spec's fields")
-    return f"JointState.{name} has {width} values for {joints} joint names"
 
 
 def _field_by_name(path: str, topic: str, name: str, joint_names: tuple[str, ...], stamps: np.ndarray,
@@ -159,7 +151,7 @@ def _field_by_name(path: str, topic: str, name: str, joint_names: tuple[str, ...
         bad = sel[widths[sel] != len(key)]
         if bad.size:
             j = int(bad[0])
-            raise VectorLengthError(_width_problem(name, int(widths[j]), len(key)), path=path, topic=topic,
+            raise VectorLengthError(field_width_line(name, int(widths[j]), len(key)), path=path, topic=topic,
                                     index=j, stamp=int(stamps[j]))
         out[sel] = arr[sel][:, order]
     return out
