@@ -145,9 +145,13 @@ def test_recording_switch_topic_marks_episodes(tmp_path: Path, switch: str, same
     assert report.split == "topic" and report.missing == {} and report.dropped == {}
 
 
-def test_idle_spec_is_validated() -> None:
+def test_idle_spec_is_validated(tmp_path: Path) -> None:
     with pytest.raises(ReaderSpecError, match="idle_s"):
         _spec(split="idle", idle_s=0.0)
+    _demo_bag(tmp_path / "bag", np.random.default_rng(4))
+    action = {"topic": "joint_states", "type": JOINT_STATE, "fields": ["velocity"], "joint_names": JOINTS}
+    result = read_episodes(tmp_path / "bag", spec=_spec(split="idle", action=action))
+    assert len(result.episodes) == 1 and any("set idle_speed" in n for n in result.report.bags[0].notes)
 
 
 def test_splitter_holds_a_short_pause_and_trims_a_long_one() -> None:

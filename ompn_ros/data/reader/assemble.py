@@ -160,6 +160,10 @@ def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
     """``split: idle``: per observation, whether the robot is still (no command attached, or the
     observation changed by less than ``idle_speed`` per second; :mod:`ompn_ros.data.idle`)."""
     still = partners.act < 0 if dec.act_stamps is not None else np.zeros(len(dec.obs_stamps), dtype=bool)
+    if dec.act_stamps is None and ctx.spec.idle_speed <= 0:
+        ctx.report.notes.append("split: idle cannot see the robot still: every observation carries its "
+                                "action and idle_speed is 0; set idle_speed (the observation's change per "
+                                "second)")
     if ctx.spec.idle_speed > 0:
         still = still | still_by_speed(dec.obs_stamps, dec.obs, ctx.spec.idle_speed)
     return still
