@@ -16,7 +16,7 @@ JOINTS = ["a", "b"]
 ROBOT_BEHIND = 10 * S  # the robot's clock runs 10 s behind the recording machine's
 
 
-def _bag(path: Path) -> dict:
+def _bag(path: Path, behind: int = ROBOT_BEHIND) -> dict:
     """Joint states and commands with header stamps on the robot's clock, skill ids (Int32) stamped
     only by the recorder's receive time; 25 Hz, one episode of 60 steps."""
     rng = np.random.default_rng(0)
@@ -24,7 +24,7 @@ def _bag(path: Path) -> dict:
     pos, acts, ids = rng.normal(size=(61, 2)), rng.normal(size=(60, 2)), np.repeat([7, 3, 9], 20)
     for k in range(61):
         receive = 100 * S + k * 40 * MS
-        head = receive - ROBOT_BEHIND - int(rng.integers(1, 4)) * MS
+        head = receive - behind - int(rng.integers(1, 4)) * MS
         bag.add("/arm/joint_states", JOINT_STATE, receive, joint_state(head, JOINTS, pos[k]), BEST_EFFORT)
         if k < 60:
             bag.add("/arm/joint_command", JOINT_STATE, receive + 3 * MS,
@@ -50,6 +50,18 @@ def test_labels_on_another_clock_are_one_line_with_the_offset(tmp_path: Path) ->
     text = str(info.value)
     assert "'/arm/skill'" in text and "'/arm/joint_states'" in text and "+10.00" in text
     assert "60 of 60 messages" in text and "stamps" in text and "\n" not in text
+
+
+def test_labels_shifted_by_steps_are_one_line_too(tmp_path: Path) -> None:
+    """The robot's clock 0.4 s behind, within the tolerance: each label would silently land on the
+    observation 10 steps later."""
+    _bag(tmp_path / "bag", behind=400 * MS)
+    with pytest.raises(AlignmentError) as info:
+        read_episodes(tmp_path / "bag", spec=_spec(tolerance=5.0))
+    text = str(info.value)
+    assert "about 10 steps off" in text and "+0.40" in text and "'/arm/skill'" in text
+    (episode,) = read_episodes(tmp_path / "bag", spec=_spec(tolerance=5.0, stamp="log")).episodes
+    assert episode.subtask.tolist() == [0] * 20 + [1] * 20 + [2] * 20
 
 
 def test_time_base_per_topic_reads_it(tmp_path: Path) -> None:
