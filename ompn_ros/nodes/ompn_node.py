@@ -5,7 +5,9 @@ the ordered memory is stepped once per observation; boundaries follow Algorithm 
 
 Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the namespace):
     ``observation``   Float32MultiArray (``obs_source='array'``), or ``joint_states`` JointState
-                      (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated).  QoS from
+                      (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated, joints in
+                      ``joint_names`` order; ``joint_merge`` merges several publishers by joint name, the
+                      reader's ``merge_s``; an empty field is rejected in one line).  QoS from
                       ``obs_qos`` (default ``best_effort``: receives from RELIABLE and BEST_EFFORT
                       publishers); an incompatible publisher is reported in one line naming ``obs_qos``.
     spec topics       with ``observation_spec`` set instead: every topic of the spec (its type, QoS from
@@ -24,6 +26,10 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       more than ``episode_gap`` s after the previous one, or that long without a step
                       (the node's clock), ends the episode like an end marker and starts the next
                       (:mod:`ompn_ros.nodes.episode_gap`, the bag reader's ``split: gaps`` rule).
+                      A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
+                      episode once the observation changed by less than ``idle_speed`` per second for
+                      ``idle_s`` (the reader's ``split: idle``; still steps are held, then stepped or
+                      trimmed, counted ``idle_trimmed``).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
 assembler's partner history; episode markers keep it).
@@ -868,7 +874,8 @@ class OMPNNode(LifecycleNode):
         boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
-        ``obs_size_mismatch``."""
+        ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
+        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value)."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
