@@ -49,7 +49,7 @@ class BagContext:
         self.spec = spec
         self.report = report
         self.path = str(name if name is not None else raw.path)  # in errors: the user's bag
-        self._clocks = {resolve_topic(t, spec.namespace): c for t, c in (spec.stamps or {}).items()}
+        self._clocks: dict[str, str] = {}  # ReaderSpec.stamps by bag topic (resolve_all)
         self.header_lag: dict[str, np.ndarray] = {}  # header-stamped topic -> log - header stamps (ns)
 
     def clock(self, topic: str) -> str:
@@ -104,6 +104,10 @@ class BagContext:
                 self.check_type(topic, (kind,), kind)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
             self.check_type(sub, (layout.INT32,), layout.INT32)
+        for name, clock in self.spec.stamps or ():
+            topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
+            if topic is not None:
+                self._clocks[topic] = clock
         for topic, clock in self._clocks.items():
             if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
                 raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "

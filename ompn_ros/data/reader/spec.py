@@ -180,7 +180,7 @@ class ReaderSpec:
     tolerance: float = 5.0
     strict: bool = False
     stamp: Literal["log", "header"] = "log"
-    stamps: dict[str, Literal["log", "header"]] | None = None
+    stamps: tuple[tuple[str, Literal["log", "header"]], ...] | None = None  # a mapping is accepted
     task: str = ""
     labels: LabelKind | None = None
     final_observation: FinalObservation = "duplicate"
@@ -200,13 +200,21 @@ class ReaderSpec:
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
         if self.stamps is not None:
-            if not isinstance(self.stamps, dict):
-                raise ReaderSpecError(f"stamps must map topics to 'log' or 'header', got {self.stamps!r}")
-            bad = {k: v for k, v in self.stamps.items() if v not in ("log", "header")}
-            if bad:
-                raise ReaderSpecError(f"stamps: each topic's time base must be 'log' or 'header', got {bad}")
+            self._check_stamps()
         if self.assemble is not None:
             self._check_assemble()
+
+    def _check_stamps(self) -> None:
+        """``stamps`` as sorted ``(topic, base)`` pairs (the spec stays hashable); a mapping is accepted."""
+        value: Any = self.stamps
+        try:
+            pairs = tuple(sorted(dict(value).items()))
+        except (TypeError, ValueError):
+            raise ReaderSpecError(f"stamps must map topics to 'log' or 'header', got {value!r}") from None
+        bad = {k: v for k, v in pairs if v not in ("log", "header")}
+        if bad:
+            raise ReaderSpecError(f"stamps: each topic's time base must be 'log' or 'header', got {bad}")
+        object.__setattr__(self, "stamps", pairs)
 
     def _check_assemble(self) -> None:
         if not isinstance(self.assemble, ObservationSpec):
@@ -290,6 +298,7 @@ class ReaderSpec:
             src["fields"] = list(src["fields"])
             src["joint_names"] = None if src["joint_names"] is None else list(src["joint_names"])
         out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
+        out["stamps"] = None if self.stamps is None else dict(self.stamps)
         return out
 
 
