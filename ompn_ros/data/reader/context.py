@@ -104,12 +104,12 @@ class BagContext:
                 self.check_type(topic, (kind,), kind)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
             self.check_type(sub, (layout.INT32,), layout.INT32)
-        for name, clock in self.spec.stamps or ():
+        for name, base in self.spec.stamps or ():
             topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
             if topic is not None:
-                self._clocks[topic] = clock
-        for topic, clock in self._clocks.items():
-            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
+                self._clocks[topic] = base
+        for topic, base in self._clocks.items():
+            if base == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
                 raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "
                                      "its time base to log in the reader spec's stamps", path=self.path,
                                      topic=topic, index=0)
