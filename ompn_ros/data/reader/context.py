@@ -108,8 +108,8 @@ class BagContext:
             topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
             if topic is not None:
                 self._clocks[topic] = base
-        for topic, base in self._clocks.items():
-            if base == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
+        for topic, clock in self._clocks.items():
+            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
                 raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "
                                      "its time base to log in the reader spec's stamps", path=self.path,
                                      topic=topic, index=0)
