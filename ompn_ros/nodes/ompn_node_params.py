@@ -133,7 +133,8 @@ SPECS: Final = (
               check=_gap_rule),
     ParamSpec("idle_s", 0.0, "seconds the robot must be still to end an episode, for streams without "
               "episode markers whose driver keeps publishing between demonstrations (the reader's split: "
-              "idle; still steps are held, then stepped or trimmed; 0 = off)", float_range=(0.0, 1e6), apply="configure"),
+              "idle; still steps are held, then stepped or trimmed; 0 = off)", float_range=(0.0, 1e6),
+              apply="configure"),
     ParamSpec("idle_speed", 0.01, "idle_s: a step is still when its observation changed by less than this "
               "per second (largest element)", float_range=(0.0, 1e9), apply="configure"),
     ParamSpec("executor", "events", "callback executor", choices=EXECUTORS),
