@@ -1,4 +1,5 @@
-"""Episodes split by pauses, live: ``ompn_node``'s ``episode_gap`` (ROS-free, so it is unit-tested alone).
+"""Episodes split by pauses, live: ``ompn_node``'s ``episode_gap`` and ``idle_s`` (ROS-free, so it is
+unit-tested alone).
 
 A robot that publishes no episode markers still pauses between tasks.  The bag reader's ``split: gaps``
 (``time_gap``, :func:`ompn_ros.data.reader.align.windows_from_gaps`) starts an episode wherever two
@@ -10,9 +11,16 @@ whole pause, so :class:`SilenceWatch` also ends an open episode once no step has
 ``episode_gap`` seconds of the node's clock (polled by a timer; the clock is simulated time under
 ``use_sim_time``, so a paused simulation does not end episodes).  A timer of period ``p`` ends the
 episode between ``gap`` and ``gap + p`` after its last step.  Both are O(1) per call.
+
+A driver that keeps publishing while the robot waits never pauses: :class:`IdleGate` applies the
+reader's ``split: idle`` rule (:mod:`ompn_ros.data.idle`) instead.
 """
 
 from __future__ import annotations
+
+import numpy as np
+
+from ompn_ros.data.idle import IdleSplitter, step_still
 
 GAP_TIMER_FRACTION = 0.25
 """Period of the silence timer as a fraction of ``episode_gap`` (the end lags by at most this much)."""
@@ -52,4 +60,45 @@ class SilenceWatch:
         self._steps, self._since = -1, None
 
 
-__all__ = ["GAP_TIMER_FRACTION", "SilenceWatch", "gap_ends_episode"]
+
+
+class IdleGate:
+    """``idle_s``: the reader's ``split: idle`` rule (:class:`ompn_ros.data.idle.IdleSplitter`) over the
+    node's observations, still by :func:`ompn_ros.data.idle.step_still` (the node sees no commands, so
+    only ``idle_speed`` makes a step still).  Still observations are held until the rule decides them:
+    :meth:`push` returns ``(kind, observation, stamp)`` in order, ``kind`` ``start`` (reset, then step
+    it), ``step`` (step it) or ``end`` (step it when given, then close the episode; ``None``: the last
+    stepped observation is the final one).  O(1) per step, amortised."""
+
+    def __init__(self, idle_ns: int, idle_speed: float) -> None:
+        self.idle_speed = float(idle_speed)
+        self.splitter = IdleSplitter(idle_ns)
+        self._prev: tuple[np.ndarray, int] | None = None
+        self._pending: dict[int, tuple[np.ndarray, int]] = {}
+
+    def push(self, obs: np.ndarray, stamp_ns: int) -> list[tuple[str, np.ndarray | None, int]]:
+        prev_obs, prev_ns = self._prev if self._prev is not None else (None, None)
+        still = step_still(prev_obs, prev_ns, obs, stamp_ns, self.idle_speed)
+        self._prev = (obs, stamp_ns)
+        cuts = self.splitter.push(stamp_ns, still)
+        self._pending[self.splitter.rows - 1] = (obs, stamp_ns)
+        out: list[tuple[str, np.ndarray | None, int]] = []
+        for cut in cuts:
+            x, s = self._pending.get(cut.row, (None, stamp_ns))
+            out.append((cut.kind, x, s))
+        held = self.splitter.held_rows
+        self._pending = {r: v for r, v in self._pending.items() if r in held}
+        return out
+
+    @property
+    def trimmed(self) -> int:
+        return self.splitter.trimmed
+
+    def reset(self) -> None:
+        """Forget the held observations and the open episode (the episode was ended otherwise)."""
+        trimmed = self.splitter.trimmed + len(self._pending)
+        self.splitter = IdleSplitter(self.splitter.idle_ns, trimmed=trimmed)
+        self._prev, self._pending = None, {}
+
+
+__all__ = ["GAP_TIMER_FRACTION", "IdleGate", "SilenceWatch", "gap_ends_episode"]

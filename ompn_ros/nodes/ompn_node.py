@@ -5,7 +5,9 @@ the ordered memory is stepped once per observation; boundaries follow Algorithm 
 
 Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the namespace):
     ``observation``   Float32MultiArray (``obs_source='array'``), or ``joint_states`` JointState
-                      (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated).  QoS from
+                      (``obs_source='joint_state'``: the ``joint_fields`` arrays concatenated, joints in
+                      ``joint_names`` order; ``joint_merge`` merges several publishers by joint name, the
+                      reader's ``merge_s``; an empty field is rejected in one line).  QoS from
                       ``obs_qos`` (default ``best_effort``: receives from RELIABLE and BEST_EFFORT
                       publishers); an incompatible publisher is reported in one line naming ``obs_qos``.
     spec topics       with ``observation_spec`` set instead: every topic of the spec (its type, QoS from
@@ -24,6 +26,10 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       more than ``episode_gap`` s after the previous one, or that long without a step
                       (the node's clock), ends the episode like an end marker and starts the next
                       (:mod:`ompn_ros.nodes.episode_gap`, the bag reader's ``split: gaps`` rule).
+                      A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
+                      episode once the observation changed by less than ``idle_speed`` per second for
+                      ``idle_s`` (the reader's ``split: idle``; still steps are held, then stepped or
+                      trimmed, counted ``idle_trimmed``).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
 assembler's partner history; episode markers keep it).
@@ -103,9 +109,16 @@ from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
-from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, SilenceWatch
+from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, IdleGate, SilenceWatch
 from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
-from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, drop_line, load_spec
+from ompn_ros.nodes.ompn_node_obs import (
+    MESSAGE_CLASSES,
+    AssembledInput,
+    JointInput,
+    drop_line,
+    joint_input,
+    load_spec,
+)
 from ompn_ros.nodes.ompn_node_params import (
     EXECUTORS,
     OBS_SOURCES,
@@ -197,6 +210,8 @@ class OMPNNode(LifecycleNode):
         self._hold_timer: Any = None
         self._gap_timer: Any = None
         self._silence: SilenceWatch | None = None
+        self._idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
+        self._joints: JointInput | None = None  # obs_source 'joint_state'
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
@@ -340,6 +355,10 @@ class OMPNNode(LifecycleNode):
         self._validate_model(policy.config)
         depth = int(self.values["qos_depth"])
         self.assembled = None if spec is None else AssembledInput(spec, int(policy.config.obs_dim), depth)
+        try:
+            self._joints = joint_input(self.values)
+        except ValueError as exc:
+            raise NodeConfigError(str(exc)) from exc
         segmenter = StreamingSegmenter(policy, detector_config(self.values), duration_model)
         default = self._default_sketch()
         if segmenter.needs_sketch and default is not None:
@@ -400,6 +419,8 @@ class OMPNNode(LifecycleNode):
         if self._gap_ns > 0:  # the node's clock: simulated time under use_sim_time
             self._silence = SilenceWatch(self._gap_ns)
             self._gap_timer = self.create_timer(self._gap_ns * GAP_TIMER_FRACTION / 1e9, self._check_silence)
+        if float(self.values["idle_s"]) > 0:
+            self._idle = IdleGate(round(float(self.values["idle_s"]) * 1e9), float(self.values["idle_speed"]))
         self._active = True
         self.get_logger().info("activated")
         return super().on_activate(state)
@@ -477,7 +498,7 @@ class OMPNNode(LifecycleNode):
             if timer is not None:
                 self.destroy_timer(timer)
         self._graph_timer = self._hold_timer = self._gap_timer = None
-        self._silence = None
+        self._silence = self._idle = None
         if self.assembled is not None:
             self.assembled.asm.reset()  # held steps are decided (counted) but not stepped: inactive
 
@@ -595,9 +616,16 @@ class OMPNNode(LifecycleNode):
         except StampRangeError as exc:
             self._reject(BadStamp(str(exc)))
             return
+        joints = self._joints or JointInput(self.values["joint_fields"], None, None)
+        fields = {f: np.asarray(getattr(msg, f)) for f in layout.JOINT_FIELDS}
+        got = joints.observation(stamp, msg.name, fields)
+        if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
+            return
+        if isinstance(got, str):
+            self._reject(MalformedMessage(got))
+            return
         with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
-            parts = [np.asarray(getattr(msg, f), dtype=np.float32) for f in self.values["joint_fields"]]
-        self.process_observation(np.concatenate(parts), stamp)
+            self.process_observation(got.astype(np.float32), stamp)
 
     def _reject(self, error: InvalidInput) -> None:
         if self.segmenter is not None and self._active:
@@ -613,6 +641,25 @@ class OMPNNode(LifecycleNode):
             return
         if stamp_ns is not None and not self._stamp_usable(seg, stamp_ns, now_ns):
             return
+        if self._idle is not None and stamp_ns is not None:
+            self._idle_steps(self._idle, np.array(data, dtype=np.float32), stamp_ns)
+            return
+        self._step(seg, data, stamp_ns)
+
+    def _idle_steps(self, gate: IdleGate, obs: np.ndarray, stamp_ns: int) -> None:
+        """``idle_s``: step what the idle rule decided (held still observations included, in order)."""
+        for kind, x, stamp in gate.push(obs, stamp_ns):
+            seg = self.segmenter
+            if seg is None:
+                return
+            if kind == "start":
+                self._start_episode(self._episode_sketch, count_bad=False)
+            if x is not None:
+                self._step(seg, x, stamp)
+            if kind == "end" and seg.step_index >= 0 and not seg.detector.closed:
+                self._close_episode(seg.step_index)  # the final observation (row T) is the last stepped
+
+    def _step(self, seg: StreamingSegmenter, data: Any, stamp_ns: int | None) -> None:
         try:
             obs = (
                 np.frombuffer(data, dtype=np.float32)
@@ -747,6 +794,8 @@ class OMPNNode(LifecycleNode):
         self.events["episode_gaps"] += 1
         if self._silence is not None:
             self._silence.rearm()
+        if self._idle is not None:
+            self._idle.reset()
         return self._start_episode(self._episode_sketch, count_bad=False)
 
     def _check_silence(self) -> None:
@@ -825,7 +874,8 @@ class OMPNNode(LifecycleNode):
         boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
-        ``obs_size_mismatch``."""
+        ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
+        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value)."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
@@ -844,6 +894,10 @@ class OMPNNode(LifecycleNode):
             out[key] = int(self.events[key])
         if seg is not None:
             out.update({f"rejected_{k}": int(v) for k, v in seg.rejected.items()})
+        if self._idle is not None:
+            out["idle_trimmed"] = self._idle.trimmed
+        if self._joints is not None and self._joints.merger is not None:
+            out["joint_missing"] = self._joints.missing
         if self.assembled is not None:
             out.update(self.assembled.counters())
             out["obs_type_reports"] = self.assembled.type_reports

@@ -22,6 +22,7 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
 
+from ompn_ros.data.joint_merge import JointMerger, field_width_line
 from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec, ObservationSpecError
 from ompn_ros.data.obs.spec import (
     FLOAT32,
@@ -146,3 +147,66 @@ class AssembledInput:
 def drop_line(drop: Drop, dropped: int) -> str:
     """The throttled warning of a dropped step (or a rejected partner message)."""
     return f"step dropped: {drop} [{dropped} dropped so far]"
+
+
+class JointInput:
+    """``obs_source='joint_state'``: the ``joint_fields`` of each JointState as the observation, by the
+    reader's rules: joints in ``joint_names`` order (``None`` = the message's order), a field a driver
+    leaves empty refused in one line (:func:`ompn_ros.data.joint_merge.field_width_line`), and with
+    ``merge_ns`` the messages of several publishers merged by joint name
+    (:class:`ompn_ros.data.joint_merge.JointMerger`, the reader's ``merge_s``)."""
+
+    def __init__(self, fields: Sequence[str], names: Sequence[str] | None, merge_ns: int | None) -> None:
+        self.fields = tuple(fields)
+        self.names = tuple(names) if names else None
+        if merge_ns is not None and self.names is None:
+            raise ValueError("joint_merge needs joint_names (the first names the step joint)")
+        self.merger = JointMerger(self.names, merge_ns) if merge_ns is not None and self.names else None
+
+    def observation(self, stamp_ns: int, names: Sequence[str],
+                    values: Mapping[str, np.ndarray]) -> np.ndarray | str | None:
+        """The observation (float64), a one-line problem, or ``None``: no step (another publisher's
+        message, or a wanted joint missing: counted in :attr:`missing`)."""
+        if self.merger is not None:
+            step = self.merger.push(stamp_ns, names, values)
+            if step is None:
+                return None
+            absent = [f for f in self.fields if not step.present[f]]
+            if absent:
+                return field_width_line(absent[0], 0, len(self.merger.joints))
+            return np.concatenate([step.values[f] for f in self.fields])
+        parts = []
+        for f in self.fields:
+            arr = np.asarray(values[f], dtype=np.float64)
+            if names and arr.size != len(names):
+                return field_width_line(f, arr.size, len(names))
+            parts.append(arr)
+        if self.names is None:
+            return np.concatenate(parts)
+        index = {n: k for k, n in enumerate(names)}
+        lacking = [n for n in self.names if n not in index]
+        if lacking:
+            return f"JointState lacks joints {lacking} (several publishers? set joint_merge)"
+        order = [index[n] for n in self.names]
+        return np.concatenate([p[order] for p in parts])
+
+    @property
+    def missing(self) -> int:
+        """Steps dropped for a joint without a recent value (``joint_merge``)."""
+        return int(sum(self.merger.missing.values())) if self.merger is not None else 0
+
+
+def joint_input(values: Mapping[str, Any]) -> JointInput | None:
+    """The node's :class:`JointInput` from its parameters (``None`` unless ``obs_source`` is
+    ``joint_state``); ``ValueError`` (one line) when ``joint_merge`` lacks ``joint_names`` or ``idle_s``
+    has no way to see stillness."""
+    if float(values["idle_s"]) > 0 and float(values["idle_speed"]) <= 0:
+        raise ValueError("idle_s needs idle_speed > 0: the node sees no commands, only the observation's "
+                         "speed tells that the robot is still")
+    if values["obs_source"] != "joint_state":
+        return None
+    names = [str(n) for n in values["joint_names"] if str(n)]
+    merge = float(values["joint_merge"])
+    if merge > 0 and not names:
+        raise ValueError("joint_merge needs joint_names (the first names the step joint, e.g. the arm's)")
+    return JointInput(values["joint_fields"], names or None, round(merge * 1e9) if merge > 0 else None)

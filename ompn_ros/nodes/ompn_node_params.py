@@ -7,7 +7,7 @@ When a change applies (``ompn_ros.nodes.params``):
 * at the next ``configure`` (refused while active, with the way out): ``checkpoint``, ``domain``,
   ``obs_source``, ``joint_fields``, ``observation_spec``, ``obs_dim``, ``action_type``, ``sketch_mode``,
   ``qos_depth``, ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``,
-  ``episode_gap``;
+  ``episode_gap``, ``idle_s``, ``idle_speed``, ``joint_names``, ``joint_merge``;
 * at start-up only: ``auto_start``, ``executor``.
 
 QoS of the observation and joint-state subscriptions (``obs_qos``): ``best_effort`` (default) receives
@@ -80,6 +80,12 @@ SPECS: Final = (
               apply="configure"),
     ParamSpec("joint_fields", ["position"], "JointState arrays concatenated into the observation",
               choices=JOINT_FIELDS, apply="configure", check=_fields_rule),
+    ParamSpec("joint_names", [""], "obs_source 'joint_state': joints in observation order, by name ([''] = "
+              "the message's order)", apply="configure"),
+    ParamSpec("joint_merge", 0.0, "obs_source 'joint_state': merge the messages of several publishers on "
+              "joint_states by joint name; each joint's latest value may be this many seconds older than the "
+              "step, a message naming the first of joint_names is a step (the reader's merge_s; 0 = one "
+              "publisher)", float_range=(0.0, 1e6), apply="configure"),
     ParamSpec("observation_spec", "", "observation assembled from several topics: inline YAML or a YAML "
               "file ('' = obs_source alone; see ompn_ros.data.obs.spec)", apply="configure", check=spec_rule),
     ParamSpec("obs_dim", 0, "expected observation size (0 = from domain/checkpoint)",
@@ -125,6 +131,12 @@ SPECS: Final = (
               "episode and start the next, for streams without episode markers (the reader's "
               "split: gaps / time_gap; 0 = off)", float_range=(0.0, 1e6), apply="configure",
               check=_gap_rule),
+    ParamSpec("idle_s", 0.0, "seconds the robot must be still to end an episode, for streams without "
+              "episode markers whose driver keeps publishing between demonstrations (the reader's split: "
+              "idle; still steps are held, then stepped or trimmed; 0 = off)", float_range=(0.0, 1e6),
+              apply="configure"),
+    ParamSpec("idle_speed", 0.01, "idle_s: a step is still when its observation changed by less than this "
+              "per second (largest element)", float_range=(0.0, 1e9), apply="configure"),
     ParamSpec("executor", "events", "callback executor", choices=EXECUTORS),
     ParamSpec("torch_threads", 1, "torch intra-op threads", int_range=(1, 64), apply="configure"),
 )  # fmt: skip

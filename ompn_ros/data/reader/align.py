@@ -15,6 +15,7 @@ import numpy as np
 from ompn_ros import layout
 
 from ..errors import AlignmentError
+from ..idle import idle_windows
 from .context import BagContext
 from .decode import Marker
 
@@ -106,9 +107,31 @@ def windows_from_gaps(gap_s: float, obs_stamps: np.ndarray) -> list[Window]:
     return [Window(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
 
 
-def windows_from_topic(split_stamps: np.ndarray, obs_stamps: np.ndarray) -> list[Window]:
+def windows_from_topic(split_stamps: np.ndarray, obs_stamps: np.ndarray,
+                       switch: np.ndarray | None = None) -> list[Window]:
     """Every split-topic message starts an episode at the first observation stamped at or after it;
-    observations before the first message are not used."""
-    starts = np.unique(np.searchsorted(obs_stamps, np.sort(split_stamps), side="left"))
-    bounds = np.concatenate([starts, [obs_stamps.size]])
-    return [Window(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+    observations before the first message are not used.  With ``switch`` (a recording on/off topic:
+    per message, True = on) an 'on' starts an episode and an 'off' ends the open one at the last
+    observation stamped before it; observations while off are not used."""
+    if switch is None:
+        starts = np.unique(np.searchsorted(obs_stamps, np.sort(split_stamps), side="left"))
+        bounds = np.concatenate([starts, [obs_stamps.size]])
+        return [Window(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+    windows: list[Window] = []
+    first: int | None = None
+    for stamp, on in zip(split_stamps.tolist(), switch.tolist(), strict=True):
+        row = int(np.searchsorted(obs_stamps, stamp, side="left"))
+        if first is not None:  # an 'off' ends the episode, an 'on' while on starts the next
+            windows.append(Window(first, row))
+            first = None
+        if on:
+            first = row
+    if first is not None:
+        windows.append(Window(first, int(obs_stamps.size)))
+    return [w for w in windows if w.stop_obs > w.first_obs]
+
+
+def windows_from_idle(idle_s: float, obs_stamps: np.ndarray, still: np.ndarray) -> tuple[list[Window], int]:
+    """``split: idle`` (:func:`ompn_ros.data.idle.idle_windows`): windows and trimmed still steps."""
+    pairs, trimmed = idle_windows(obs_stamps, still, idle_s)
+    return [Window(a, b) for a, b in pairs], trimmed

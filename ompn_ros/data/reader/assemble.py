@@ -19,7 +19,17 @@ from ompn_ros import layout
 from .. import messages as m
 from ..episode import Episode
 from ..errors import AlignmentError
-from .align import Window, attach, attach_events, windows_from_gaps, windows_from_markers, windows_from_topic
+from ..idle import still_by_speed
+from .align import (
+    Window,
+    attach,
+    attach_events,
+    windows_from_gaps,
+    windows_from_idle,
+    windows_from_markers,
+    windows_from_topic,
+)
+from .clocks import check_clocks
 from .context import BagContext, Topics
 from .decode import Decoded
 from .joints import JointBlock
@@ -45,8 +55,10 @@ class Partners:
 def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]:
     """The episodes of one bag (see the module docstrings for the rules)."""
     report = ctx.report
+    clocked = [(topics.act, dec.act_stamps), (topics.sub, dec.sub_stamps), (topics.joints, dec.joint_stamps)]
+    check_clocks(ctx, topics.obs, dec.obs_stamps, [(t, st) for t, st in clocked if t and st is not None])
     partners = _attach_all(ctx, topics, dec)
-    windows = _windows(ctx, topics, dec)
+    windows = _windows(ctx, topics, dec, partners)
     used = sum(w.stop_obs - w.first_obs for w in windows)
     report._add(report.unattached, topics.obs, len(dec.obs_stamps) - used)
     if dec.assembled is not None:
@@ -119,11 +131,18 @@ def _attach_all(ctx: BagContext, topics: Topics, dec: Decoded) -> Partners:
     return out
 
 
-def _windows(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Window]:
+def _windows(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners) -> list[Window]:
     split = ctx.spec.split
     if split == "topic" and dec.split_stamps is not None:
         ctx.report.split = "topic"
-        windows = windows_from_topic(dec.split_stamps, dec.obs_stamps)
+        windows = windows_from_topic(dec.split_stamps, dec.obs_stamps, dec.split_switch)
+    elif split == "idle":
+        ctx.report.split = "idle"
+        windows, trimmed = windows_from_idle(ctx.spec.idle_s, dec.obs_stamps, _still(ctx, dec, partners))
+        ctx.report.idle_trimmed += trimmed
+    elif split == "bag":
+        ctx.report.split = "bag"
+        windows = [Window(0, int(dec.obs_stamps.size))] if dec.obs_stamps.size else []
     elif split == "markers" or (split == "auto" and dec.markers):
         ctx.report.split = "markers"
         return windows_from_markers(ctx, dec.markers or [], dec.obs_stamps)
@@ -135,6 +154,19 @@ def _windows(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Window]:
         ctx.report.drop_episode("precedes the corruption", f"last {ctx.report.split} episode dropped: it "
                                 "precedes the corruption")
     return windows
+
+
+def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
+    """``split: idle``: per observation, whether the robot is still (no command attached, or the
+    observation changed by less than ``idle_speed`` per second; :mod:`ompn_ros.data.idle`)."""
+    still = partners.act < 0 if dec.act_stamps is not None else np.zeros(len(dec.obs_stamps), dtype=bool)
+    if dec.act_stamps is None and ctx.spec.idle_speed <= 0:
+        ctx.report.notes.append("split: idle cannot see the robot still: every observation carries its "
+                                "action and idle_speed is 0; set idle_speed (the observation's change per "
+                                "second)")
+    if ctx.spec.idle_speed > 0:
+        still = still | still_by_speed(dec.obs_stamps, dec.obs, ctx.spec.idle_speed)
+    return still
 
 
 def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window,

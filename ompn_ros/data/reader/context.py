@@ -49,6 +49,16 @@ class BagContext:
         self.spec = spec
         self.report = report
         self.path = str(name if name is not None else raw.path)  # in errors: the user's bag
+        self._clocks: dict[str, str] = {}  # ReaderSpec.stamps by bag topic (resolve_all)
+        self.header_lag: dict[str, np.ndarray] = {}  # header-stamped topic -> log - header stamps (ns)
+
+    def clock(self, topic: str) -> str:
+        """The time base of ``topic``: ``ReaderSpec.stamps`` for it, else ``ReaderSpec.stamp``; topics
+        without a header the reader uses (all but JointState) are always on the bag's receive clock."""
+        if self.raw.types.get(topic) != layout.JOINT_STATE:
+            return "log"
+        return self._clocks.get(topic, self.spec.stamp)
+
 
     def resolve(self, name: str | None, required: bool) -> str | None:
         """Bag topic of spec name ``name``; a unique ``/<name>`` suffix match is noted."""
@@ -94,6 +104,15 @@ class BagContext:
                 self.check_type(topic, (kind,), kind)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
             self.check_type(sub, (layout.INT32,), layout.INT32)
+        for name, base in self.spec.stamps or ():
+            topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
+            if topic is not None:
+                self._clocks[topic] = base
+        for topic, clock in self._clocks.items():
+            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
+                raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "
+                                     "its time base to log in the reader spec's stamps", path=self.path,
+                                     topic=topic, index=0)
         return topics
 
     def _resolve_assemble(self) -> ObservationSpec | None:

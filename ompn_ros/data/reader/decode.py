@@ -27,7 +27,7 @@ from .. import messages as m
 from ..errors import AlignmentError, BagError, CorruptBagError, NonFiniteValueError
 from ..obs.spec import FLOAT64_ARRAY
 from .context import BagContext, Topics
-from .joints import JointBlock, decode_joint_states, joint_vectors
+from .joints import JointBlock, decode_joint_states, joint_vectors, merge_publishers
 from .observe import AssembledRows, assembled_rows
 from .spec import OnError, VectorSource
 from .vectors import stack_float64_arrays
@@ -52,6 +52,7 @@ class Decoded:
     sketches: list[tuple[int, np.ndarray]] = field(default_factory=list)
     markers: list[Marker] | None = None  # None: no episode topic
     split_stamps: np.ndarray | None = None  # messages of the split topic
+    split_switch: np.ndarray | None = None  # a recording on/off topic: per message, True = on
     obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
     nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
     assembled: AssembledRows | None = None  # ReaderSpec.assemble: kept rows, names, drops by reason
@@ -125,13 +126,16 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
             out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
     if topics.split:
-        out.split_stamps = ctx.stamps(topics.split)
+        split = topics.split
+        out.split_stamps = ctx.stamps(split)
+        if ctx.raw.types.get(split) in SWITCH_TYPES:
+            out.split_switch = _guard(errors, lambda: _switch(ctx, split))  # None: start events
     if topics.joints:
         js = topics.joints
         stamps, raws = ctx.data(js)
         out.joints = _guard(errors, lambda: decode_joint_states(ctx.path, js, stamps, raws))
         if out.joints is not None:
-            out.joint_stamps = _header_clock(ctx, js, out.joints) if ctx.spec.stamp == "header" else stamps
+            out.joint_stamps = _header_clock(ctx, js, out.joints) if ctx.clock(js) == "header" else stamps
     if topics.sketch:
         stamps, raws = ctx.data(topics.sketch)
         out.sketches = [(int(s), m.parse_int32_array(r)) for s, r in zip(stamps, raws)]
@@ -151,8 +155,8 @@ def _observations(ctx: BagContext, topics: Topics) -> ObsParts:
         stamps, block = log_stamps, None
     else:
         log_stamps, raws = ctx.data(topics.obs)
-        values, stamps, block = _vectors(ctx, topics.obs, topics.obs_type, ctx.spec.observation, log_stamps,
-                                         raws)
+        values, stamps, block, log_stamps = _vectors(ctx, topics.obs, topics.obs_type, ctx.spec.observation,
+                                                     log_stamps, raws)
     order = None  # header stamps may order the steps differently from the bag
     if stamps is not log_stamps and np.any(np.diff(stamps) < 0):
         order = np.argsort(stamps, kind="stable")
@@ -174,7 +178,7 @@ def _actions(ctx: BagContext, topics: Topics, obs: ObsParts | None) -> tuple[np.
     stamps, raws = ctx.data(topics.act)
     if topics.act_type == layout.INT32:
         return m.stack_int32(raws, path=ctx.path, topic=topics.act, stamps=stamps), stamps
-    values, act_stamps, _ = _vectors(ctx, topics.act, topics.act_type, spec.action, stamps, raws)
+    values, act_stamps, _, _ = _vectors(ctx, topics.act, topics.act_type, spec.action, stamps, raws)
     return values, act_stamps
 
 
@@ -191,20 +195,30 @@ def _same_topic_parts(ctx: BagContext, topics: Topics,
 
 
 def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamps: np.ndarray,
-             raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, JointBlock | None]:
-    """Decode a vector topic: values ``[N, D]``, the stamps to align with, the JointBlock (if any).
-    A topic without messages gives no rows (the episodes then lack it: :class:`NoEpisodeError`)."""
+             raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, JointBlock | None, np.ndarray]:
+    """Decode a vector topic: values ``[N, D]``, the stamps to align with, the JointBlock (if any) and
+    the log stamps of the rows (fewer than the messages when ``src.merge_s`` merges publishers). A topic
+    without messages gives no rows (the episodes then lack it: :class:`NoEpisodeError`)."""
     if not raws:
         names = len(src.joint_names) * len(src.fields) if src.joint_names else 0
-        return np.zeros((0, src.dim or names), dtype=np.float32), stamps, None
+        return np.zeros((0, src.dim or names), dtype=np.float32), stamps, None, stamps
     if msgtype == layout.FLOAT32_ARRAY:
         values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
-        return values, stamps, None
+        return values, stamps, None, stamps
     if msgtype == FLOAT64_ARRAY:
-        return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps), stamps, None
-    block = decode_joint_states(ctx.path, topic, stamps, raws)
+        return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps), stamps, None, stamps
+    header = ctx.clock(topic) == "header"
+    if src.merge_s is not None:
+        block, index, missing = merge_publishers(ctx.path, topic, src, stamps, raws, header)
+        for joint, n in sorted(missing.items()):
+            ctx.report._add(ctx.report.missing, f"{topic}[{joint}]", n)
+        stamps = stamps[index]
+    else:
+        block = decode_joint_states(ctx.path, topic, stamps, raws)
     values = joint_vectors(ctx.path, topic, src, stamps, block)
-    return values, (_header_clock(ctx, topic, block) if ctx.spec.stamp == "header" else stamps), block
+    if header:
+        ctx.header_lag[topic] = stamps - block.header
+    return values, (_header_clock(ctx, topic, block) if header else stamps), block, stamps
 
 
 def _header_clock(ctx: BagContext, topic: str, block: JointBlock) -> np.ndarray:
@@ -216,6 +230,36 @@ def _header_clock(ctx: BagContext, topic: str, block: JointBlock) -> np.ndarray:
                              "publisher leaves it unset); read with stamp: log", path=ctx.path, topic=topic,
                              index=int(zero[0]))
     return block.header
+
+
+SWITCH_TYPES = frozenset({"std_msgs/msg/Bool", "std_msgs/msg/String"} | {
+    f"std_msgs/msg/{kind}{bits}" for kind in ("Int", "UInt") for bits in (8, 16, 32, 64)})
+"""Types of a recording on/off topic (``ReaderSpec.split_topic``)."""
+SWITCH_ON = frozenset({"start", "on", "true", "1", "record", "recording", "begin"})
+SWITCH_OFF = frozenset({"stop", "off", "false", "0", "pause", "paused", "end"})
+
+
+def _switch(ctx: BagContext, topic: str) -> np.ndarray | None:
+    """Per message of a recording on/off topic, whether it switches recording on; ``None`` when the
+    values are no switch (a String other than the on/off words, an integer other than 0/1: then each
+    message is an episode start, as for any other type)."""
+    stamps, raws = ctx.data(topic)
+    msgtype = ctx.raw.types[topic]
+    values = []
+    for i, data in enumerate(raws):
+        try:
+            values.append(m.deserialize(data, msgtype).data)
+        except Exception as err:  # rosbags raises several types on bad CDR
+            raise CorruptBagError(f"cannot decode {msgtype}: {err}", path=ctx.path, topic=topic,
+                                  index=i, stamp=int(stamps[i])) from err
+    if msgtype.endswith("/String"):
+        words = [str(v).strip().lower() for v in values]
+        if not set(words) <= SWITCH_ON | SWITCH_OFF:
+            return None
+        return np.asarray([w in SWITCH_ON for w in words], dtype=bool)
+    if msgtype.endswith("/Bool") or {int(v) for v in values} <= {0, 1}:
+        return np.asarray([bool(v) for v in values], dtype=bool)
+    return None
 
 
 def _markers(ctx: BagContext, topic: str) -> list[Marker]:

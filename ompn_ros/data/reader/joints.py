@@ -5,6 +5,7 @@ Cost: O(N · J) per topic; the bulk path is one ``np.frombuffer`` over the joine
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,6 +14,7 @@ from ompn_ros import layout
 
 from .. import messages as m
 from ..errors import CorruptBagError, VectorLengthError
+from ..joint_merge import JointMerger, MergedStep, field_width_line
 from .spec import VectorSource
 
 
@@ -63,6 +65,37 @@ def decode_joint_states(path: str, topic: str, stamps: np.ndarray, raws: list[by
     return JointBlock(header, names_list, arrays, widths)
 
 
+def merge_publishers(path: str, topic: str, src: VectorSource, stamps: np.ndarray, raws: list[bytes],
+                     header: bool) -> tuple[JointBlock, np.ndarray, Counter[str]]:
+    """``VectorSource.merge_s``: the merged steps of a topic several publishers share, as a block of
+    the ``joint_names`` (a field some joints lack has width 0; ``header`` holds the step stamps: header
+    stamps with ``header``, else ``stamps``), the message index of each step, and the steps dropped per
+    missing joint.  Messages are taken in the order of the stamps used (stable)."""
+    assert src.joint_names is not None and src.merge_s is not None  # VectorSource checks it
+    parsed = []
+    for i, data in enumerate(raws):
+        try:
+            parsed.append(m.parse_joint_state(data))
+        except Exception as err:  # rosbags raises several types on bad CDR
+            raise CorruptBagError(f"cannot decode JointState: {err}", path=path, topic=topic,
+                                  index=i, stamp=int(stamps[i])) from err
+    clock = np.asarray([p[1] for p in parsed], dtype=np.int64) if header else np.asarray(stamps, np.int64)
+    merger = JointMerger(src.joint_names, round(src.merge_s * 1e9))
+    kept: list[int] = []
+    steps: list[MergedStep] = []
+    for i in np.argsort(clock, kind="stable").tolist():
+        step = merger.push(int(clock[i]), parsed[i][0], parsed[i][2])
+        if step is not None:
+            kept.append(i)
+            steps.append(step)
+    n, width = len(steps), len(src.joint_names)
+    arrays = {f: np.array([s.values[f] for s in steps]).reshape(n, width) for f in layout.JOINT_FIELDS}
+    widths = {f: np.array([width if s.present[f] else 0 for s in steps], dtype=np.int64).reshape(n)
+              for f in layout.JOINT_FIELDS}
+    index = np.asarray(kept, dtype=np.int64)
+    return JointBlock(clock[index], [src.joint_names] * n, arrays, widths), index, merger.missing
+
+
 def joint_vectors(path: str, topic: str, src: VectorSource, stamps: np.ndarray,
                   block: JointBlock) -> np.ndarray:
     """Vectors ``[N, D]`` from the JointState fields of ``src`` (reordered by joint name if asked)."""
@@ -82,9 +115,13 @@ def joint_vectors(path: str, topic: str, src: VectorSource, stamps: np.ndarray,
 
 def _field_as_is(path: str, topic: str, name: str, stamps: np.ndarray, block: JointBlock) -> np.ndarray:
     arr, widths = block.arrays[name], block.widths[name]
-    bad = np.flatnonzero(widths != arr.shape[1])
+    joints = np.fromiter((len(n) for n in block.names), dtype=np.int64, count=len(block.names))
+    bad = np.flatnonzero((widths != arr.shape[1]) | ((joints > 0) & (widths != joints)))
     if bad.size:
         i = int(bad[0])
+        if joints[i] > 0 and widths[i] != joints[i]:
+            raise VectorLengthError(field_width_line(name, int(widths[i]), int(joints[i])), path=path,
+                                    topic=topic, index=i, stamp=int(stamps[i]))
         raise VectorLengthError(f"JointState.{name} has {widths[i]} values, the topic's first "
                                 f"message {arr.shape[1]}", path=path, topic=topic, index=i,
                                 stamp=int(stamps[i]))
@@ -106,14 +143,15 @@ def _field_by_name(path: str, topic: str, name: str, joint_names: tuple[str, ...
             index = {nm: k for k, nm in enumerate(key)}
             absent = [nm for nm in joint_names if nm not in index]
             if absent:
-                raise VectorLengthError(f"JointState lacks joints {absent}", path=path,
+                raise VectorLengthError(f"JointState lacks joints {absent} (several publishers on one "
+                                        "topic? set merge_s on it to merge them by joint name)", path=path,
                                         topic=topic, index=i, stamp=int(stamps[i]))
             order = cache[key] = np.asarray([index[nm] for nm in joint_names])
         sel = np.asarray(rows)
         bad = sel[widths[sel] != len(key)]
         if bad.size:
             j = int(bad[0])
-            raise VectorLengthError(f"JointState.{name} has {widths[j]} values for {len(key)} joint "
-                                    "names", path=path, topic=topic, index=j, stamp=int(stamps[j]))
+            raise VectorLengthError(field_width_line(name, int(widths[j]), len(key)), path=path, topic=topic,
+                                    index=j, stamp=int(stamps[j]))
         out[sel] = arr[sel][:, order]
     return out

@@ -30,7 +30,8 @@ class BagReport:
     path: str
     episodes: int = 0
     steps: int = 0
-    split: str = ""  # 'markers' | 'time_gap' | 'topic'
+    split: str = ""  # 'markers' | 'time_gap' | 'topic' | 'idle' | 'bag'
+    idle_trimmed: int = 0  # split: idle: still observations that belong to no episode
     messages: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)  # steps lacking a partner, per topic
     duplicates: dict[str, int] = field(default_factory=dict)  # extra partners for one step

@@ -20,12 +20,12 @@ from ..obs.spec import FLOAT64_ARRAY, ObservationSpec, ObservationSpecError
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
 FinalObservation = Literal["drop_last_step", "duplicate", "blank", "extrapolate", "require"]
-Split = Literal["auto", "markers", "gaps", "topic"]
+Split = Literal["auto", "markers", "gaps", "topic", "idle", "bag"]
 FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require")
 PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
 there (docs/experiments.md §28, §31 and §36)."""
-SPLITS = ("auto", "markers", "gaps", "topic")
+SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 
@@ -41,6 +41,12 @@ class VectorSource:
         dim: expected vector size (checked), ``None`` = the size of the topic's first message.
         fields: JointState fields concatenated in this order (``position``/``velocity``/``effort``).
         joint_names: JointState joint order (by name); ``None`` = the message's own order.
+        merge_s: JointState messages of several publishers on this topic (arm and gripper drivers
+            on one ``/joint_states``): merged by joint name, each of ``joint_names`` taking its
+            latest value at or before the step if at most ``merge_s`` seconds older; the messages
+            naming the first of ``joint_names`` are the steps (:mod:`ompn_ros.data.joint_merge`).
+            Steps lacking a joint are dropped and counted (``BagReport.missing['<topic>[<joint>]']``).
+            ``None`` = one publisher.
     """
 
     topic: str
@@ -48,8 +54,12 @@ class VectorSource:
     dim: int | None = None
     fields: tuple[str, ...] = ("position",)
     joint_names: tuple[str, ...] | None = None
+    merge_s: float | None = None
 
     def __post_init__(self) -> None:
+        if self.merge_s is not None and (self.merge_s < 0 or not self.joint_names):
+            raise ReaderSpecError(f"topic '{self.topic}': merge_s needs joint_names (the first names the "
+                                  f"step joint) and a value >= 0, got {self.merge_s}")
         bad = [f for f in self.fields if f not in layout.JOINT_FIELDS]
         if bad or not self.fields:
             raise ReaderSpecError(f"topic '{self.topic}': JointState fields must be a non-empty subset "
@@ -88,6 +98,13 @@ class ReaderSpec:
         strict: raise :class:`AlignmentError` on missing/duplicate partners instead of counting.
         stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics;
             meant for foreign bags whose per-step topics are all JointState on one clock).
+        stamps: the time base per topic (YAML key ``stamps``, ``{topic: log | header}``), overriding
+            ``stamp`` for the topics it names; ``header`` needs a JointState topic.  Partners are
+            aligned on these stamps, so topics stamped on different clocks (the robot's header
+            stamps, a label node's receive time) must be brought to one: when most messages of a
+            partner attach to no observation while its stamps and the observations' are offset by a
+            constant, the read stops with one line naming both topics and the offset
+            (:mod:`ompn_ros.data.reader.clocks`).
         task: task name for episodes without a start marker.
         labels: what the ``subtask`` topic holds (YAML key ``labels``):
 
@@ -136,9 +153,19 @@ class ReaderSpec:
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
             the ``episode`` topic, required), ``gaps`` (observations more than ``time_gap``
             seconds apart), ``topic`` (every message on ``split_topic`` starts an episode at the
-            next observation; observations before the first one are not used) or ``auto``
-            (default: markers when the bag has any, else gaps).
-        split_topic: the topic for ``split: topic`` (any message type; only stamps are used).
+            next observation; observations before the first one are not used), ``idle`` (the
+            robot is still for ``idle_s``: :mod:`ompn_ros.data.idle`, the rule ``ompn_node``'s
+            ``idle_s`` applies live), ``bag`` (one bag per demonstration: each bag of a folder is
+            one episode) or ``auto`` (default: markers when the bag has any, else gaps).
+        split_topic: the topic for ``split: topic``.  A recording switch marks on and off: a
+            ``std_msgs`` ``Bool``, an integer (``Int*``/``UInt*``) holding only 0 and 1, or a
+            ``String`` holding only on/off words (``start on true 1 record begin`` /
+            ``stop off false 0 pause end``); on starts an episode, off ends it (observations while
+            off are not used).  Any other topic: every message starts an episode (stamps only).
+        idle_s: ``split: idle``: seconds the robot must be still to end an episode (> 0).
+        idle_speed: ``split: idle``: a step is still when its observation changed by less than this
+            per second since the previous step (largest element; 0 = never by speed).  A step with
+            no command attached (an action topic other than the observation's) is still as well.
     """
 
     observation: VectorSource = DEFAULT_OBSERVATION
@@ -153,11 +180,14 @@ class ReaderSpec:
     tolerance: float = 5.0
     strict: bool = False
     stamp: Literal["log", "header"] = "log"
+    stamps: tuple[tuple[str, Literal["log", "header"]], ...] | None = None  # a mapping is accepted
     task: str = ""
     labels: LabelKind | None = None
     final_observation: FinalObservation = "duplicate"
     split: Split = "auto"
     split_topic: str | None = None
+    idle_s: float = 1.0
+    idle_speed: float = 0.0
 
     def __post_init__(self) -> None:
         self._check_choices()
@@ -169,8 +199,22 @@ class ReaderSpec:
                                   f"{self.tolerance})")
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
+        if self.stamps is not None:
+            self._check_stamps()
         if self.assemble is not None:
             self._check_assemble()
+
+    def _check_stamps(self) -> None:
+        """``stamps`` as sorted ``(topic, base)`` pairs (the spec stays hashable); a mapping is accepted."""
+        value: Any = self.stamps
+        try:
+            pairs = tuple(sorted(dict(value).items()))
+        except (TypeError, ValueError):
+            raise ReaderSpecError(f"stamps must map topics to 'log' or 'header', got {value!r}") from None
+        bad = {k: v for k, v in pairs if v not in ("log", "header")}
+        if bad:
+            raise ReaderSpecError(f"stamps: each topic's time base must be 'log' or 'header', got {bad}")
+        object.__setattr__(self, "stamps", pairs)
 
     def _check_assemble(self) -> None:
         if not isinstance(self.assemble, ObservationSpec):
@@ -178,9 +222,9 @@ class ReaderSpec:
         if self.observation != DEFAULT_OBSERVATION:
             raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields of "
                                   "several topics), not both")
-        if self.stamp != "log":
+        if self.stamp != "log" or self.stamps:
             raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
-                                  "(assemble's own 'stamp' key chooses the stamps of its rule)")
+                                  "and no stamps (assemble's own 'stamp' key chooses the stamps of its rule)")
 
     def _check_choices(self) -> None:
         if self.labels is not None and self.labels not in layout.LABEL_KINDS:
@@ -192,6 +236,9 @@ class ReaderSpec:
             raise ReaderSpecError(f"split must be one of {SPLITS}, got '{self.split}'")
         if self.split == "topic" and not self.split_topic:
             raise ReaderSpecError("split: topic needs split_topic (the topic whose messages start episodes)")
+        if self.idle_s <= 0 or self.idle_speed < 0:
+            raise ReaderSpecError(f"idle_s must be > 0 and idle_speed >= 0 (got {self.idle_s}, "
+                                  f"{self.idle_speed})")
         if self.split == "markers" and not self.episode:
             raise ReaderSpecError("split: markers needs the episode topic (key 'episode')")
         if self.labels in ("ordinal", "id", "boundary") and not self.subtask:
@@ -251,6 +298,7 @@ class ReaderSpec:
             src["fields"] = list(src["fields"])
             src["joint_names"] = None if src["joint_names"] is None else list(src["joint_names"])
         out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
+        out["stamps"] = None if self.stamps is None else dict(self.stamps)
         return out
 
 
