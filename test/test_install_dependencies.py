@@ -18,6 +18,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 OWN = frozenset({"ompn_ros", "sim_nodes"})
+# Standard library from a later Python than this one (imported behind a version check).
+LATER_STDLIB = frozenset({"compression"})  # compression.zstd, Python 3.14
 
 # ROS 2 packages: from the ROS installation, declared in package.xml under their own name.
 ROS = frozenset({
@@ -37,6 +39,7 @@ PYTHON: dict[str, tuple[str | None, str]] = {
     "llvmlite": (None, "llvmlite"),
     "safetensors": (None, "safetensors"),
     "rosbags": (None, "rosbags"),
+    "backports": (None, "backports.zstd"),
     "mcap": (None, "mcap"),
     "mujoco": (None, "mujoco"),
     "dm_control": (None, "dm_control"),
@@ -68,7 +71,7 @@ def third_party_imports(*roots: Path) -> dict[str, str]:
                     continue
                 for name in names:
                     top = name.split(".")[0]
-                    if top not in sys.stdlib_module_names and top not in OWN:
+                    if top not in sys.stdlib_module_names and top not in OWN | LATER_STDLIB:
                         found.setdefault(top, str(path.relative_to(ROOT)))
     return found
 
