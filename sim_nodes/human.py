@@ -47,6 +47,10 @@ class HumanLikeError(ValueError):
     """A human-like demonstrator parameter is invalid; the message names it and what is allowed."""
 
 
+def _fail(name: str, allowed: str, value: object) -> None:
+    raise HumanLikeError(f"human-like parameter '{name}' must be {allowed}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class HumanLike:
     """The perturbations of the human-like demonstrator (module docstring); defaults per domain in
@@ -63,26 +67,19 @@ class HumanLike:
     duplicate_rate: float = 0.01
 
     def __post_init__(self) -> None:
-        for name in _RATES:
+        for name in (*_RATES, "sensor_noise"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
-                raise HumanLikeError(f"human-like parameter '{name}' must be in [0, 1], got {value!r}")
-        if self.drop_rate + self.duplicate_rate > 1.0:
-            raise HumanLikeError("human-like parameters 'drop_rate' + 'duplicate_rate' must be <= 1, got "
-                                 f"{self.drop_rate} + {self.duplicate_rate}")  # fmt: skip
-        if self.overshoot_rate + self.wrong_move_rate > 1.0:
-            raise HumanLikeError("human-like parameters 'overshoot_rate' + 'wrong_move_rate' must be <= 1, got "
-                                 f"{self.overshoot_rate} + {self.wrong_move_rate}")  # fmt: skip
+                _fail(name, "a number in [0, 1]", value)
+        for first, second in (("drop_rate", "duplicate_rate"), ("overshoot_rate", "wrong_move_rate")):
+            pair = (getattr(self, first), getattr(self, second))
+            if sum(pair) > 1.0:
+                _fail(f"{first}' + '{second}", "at most 1 together", pair)
         lo, hi = self.pause_steps
         if not (isinstance(lo, int) and isinstance(hi, int) and 1 <= lo <= hi <= 500):
-            raise HumanLikeError(f"human-like parameter 'pause_steps' must be two ints 1 <= min <= max <= 500, "
-                                 f"got {self.pause_steps!r}")  # fmt: skip
-        slo, shi = self.speed_range
-        if not (0.1 <= slo <= shi <= 10.0):
-            raise HumanLikeError(f"human-like parameter 'speed_range' must be 0.1 <= min <= max <= 10, "
-                                 f"got {self.speed_range!r}")  # fmt: skip
-        if not isinstance(self.sensor_noise, int | float) or not 0.0 <= self.sensor_noise <= 1.0:
-            raise HumanLikeError(f"human-like parameter 'sensor_noise' must be in [0, 1], got {self.sensor_noise!r}")
+            _fail("pause_steps", "MIN:MAX, ints with 1 <= MIN <= MAX <= 500", self.pause_steps)
+        if not 0.1 <= self.speed_range[0] <= self.speed_range[1] <= 10.0:
+            _fail("speed_range", "MIN:MAX with 0.1 <= MIN <= MAX <= 10", self.speed_range)
 
     def pause_length(self, rng: np.random.Generator) -> int:
         lo, hi = self.pause_steps
@@ -170,4 +167,3 @@ def record_faults(episode: Episode, human: HumanLike, seed: int) -> Episode:
     copies[inner & (draw >= human.drop_rate) & (draw < human.drop_rate + human.duplicate_rate)] = 2
     episode.extras[OBSERVATION_COPIES] = copies
     return episode
-

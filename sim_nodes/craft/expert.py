@@ -259,7 +259,9 @@ def expert_actor(world: CraftWorld, bot: ExpertBot, seed: int) -> Callable[[], i
     return lambda: bot.act(bot_observation(world, bot.full_obs))
 
 
-def rollout(seed: int, task: str | Task = "makebed", *, full_obs: bool = True, actor: Actor = expert_actor) -> Episode:
+def rollout(
+    seed: int, task: str | Task = "makebed", *, full_obs: bool = True, actor: Actor = expert_actor
+) -> Episode:
     """One episode from ``seed`` (may fail: ``success=False``; raises :class:`PlanningError`).
 
     ``actor`` chooses the actions (default: the expert; :mod:`sim_nodes.craft.human`: human-like).

@@ -84,9 +84,10 @@ class _HumanCraft:
             self.events["opportunities_hesitation"] += 1
             if self.rng.random() < h.hesitation_rate:
                 self._pause("hesitations")
-        self.events["opportunities_pause"] += 1
-        if not self.queue and self.rng.random() < h.pause_rate:
-            self._pause("pauses")
+        if not self.queue:
+            self.events["opportunities_pause"] += 1
+            if self.rng.random() < h.pause_rate:
+                self._pause("pauses")
         if not self.queue:
             self._detour(move)
         return move if not self.queue else self.queue.pop(0)
@@ -119,4 +120,3 @@ def generate_human_episode(
     episode.extras[EVENTS_KEY] = dict(actor.last.events)
     episode.extras["demonstrator"] = "human"
     return record_faults(episode, human, episode.seed)
-

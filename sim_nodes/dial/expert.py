@@ -203,7 +203,8 @@ class DemoRollout:
     """
 
     def __init__(self, env: DialEnv, *, noise: float = DEFAULT_NOISE, permute_labels: bool = False,
-                 gains: ExpertGains | None = None, make_expert: ExpertFactory = scripted_expert) -> None:  # fmt: skip
+                 gains: ExpertGains | None = None,
+                 make_expert: ExpertFactory = scripted_expert) -> None:  # fmt: skip
         if not noise >= 0:
             raise DialConfigError(f"noise must be >= 0, got {noise!r}")
         self.env = env
@@ -315,7 +316,9 @@ def generate_episode(
     sketch_arr = episode_sketch(seed) if sketch is None else validate_sketch(sketch, SKETCH_LENGTH)
     if env is None:
         env = DialEnv(press_tolerance=press_tolerance, max_steps_per_subtask=max_steps_per_subtask)
-    rollout = DemoRollout(env, noise=noise, permute_labels=permute_labels, gains=gains, make_expert=make_expert)
+    rollout = DemoRollout(
+        env, noise=noise, permute_labels=permute_labels, gains=gains, make_expert=make_expert
+    )
     episode = None
     for attempt in range(max_retries + 1):
         attempt_seed = seed if attempt == 0 else derive_seed(seed, attempt, stream=1)

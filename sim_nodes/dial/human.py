@@ -33,7 +33,9 @@ WRONG_KEY_CHOICES = 3
 class HumanDialExpert(DialExpert):
     """The Dial controller with the human-like perturbations of ``human`` (module docstring)."""
 
-    def __init__(self, env: DialEnv, gains: ExpertGains, joint_speed: float, human: HumanLike, seed: int) -> None:
+    def __init__(
+        self, env: DialEnv, gains: ExpertGains, joint_speed: float, human: HumanLike, seed: int
+    ) -> None:
         self.human = human
         self.rng = behaviour_rng(seed)
         self.base_speed = float(joint_speed)

@@ -91,6 +91,7 @@ from sim_nodes.dial.expert import (
     episode_sketch,
     generate_episode,
 )
+from sim_nodes.dial.human import HumanDialFactory, generate_human_episode
 from sim_nodes.dial.scene import FRAME_SKIP
 from sim_nodes.ros_common import SENSOR_QOS, SIM_QOS, EpisodeStart, SimNode, Streams, run_sim_node
 
@@ -217,9 +218,13 @@ class DialSim(SimNode):
         sketch = episode_sketch(seed) if self.sketch is None else self.sketch
         run_seed = seed
         if self.mode == "expert":  # find the attempt generate_episode keeps, then run it live
-            demo = generate_episode(
-                seed, sketch=sketch.tolist(), noise=self.noise, permute_labels=self.permute, env=self.env
-            )
+            options: dict[str, Any] = {"sketch": sketch.tolist(), "noise": self.noise,
+                                       "permute_labels": self.permute, "env": self.env}  # fmt: skip
+            if self.human is None:
+                demo = generate_episode(seed, **options)
+            else:  # published from its recorded (noisy) rows; the live run executes the same actions
+                demo = self.demo = generate_human_episode(seed, self.human, **options)
+                self.rollout.make_expert = HumanDialFactory(self.human)
             attempt = int(demo.extras["attempt"])
             run_seed = seed if attempt == 0 else derive_seed(seed, attempt, stream=1)
         self.rollout.start(run_seed, sketch)
@@ -245,9 +250,16 @@ class DialSim(SimNode):
 
     def publish_step_extras(self, final: bool) -> None:
         env = self.env
-        self.joint_pub.publish(encode_joint_state(
-            self.stamp_ns(), JOINT_STATE_NAMES, env.joint_position, env.joint_velocity, env.joint_effort
-        ))  # fmt: skip
+        position, velocity = env.joint_position, env.joint_velocity
+        copies = 1
+        if self.demo is not None:  # the human-like demonstrator's noisy joint states
+            position = self.demo.extras["joint_position"][self.step_index]
+            velocity = self.demo.extras["joint_velocity"][self.step_index]
+            copies = self.observation_copies() if self.profile == "robot" else 1  # its observation
+        for _ in range(copies):
+            self.joint_pub.publish(encode_joint_state(
+                self.stamp_ns(), JOINT_STATE_NAMES, position, velocity, env.joint_effort
+            ))  # fmt: skip
 
 
 def main(args: list[str] | None = None) -> int:
