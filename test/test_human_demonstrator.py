@@ -156,7 +156,7 @@ def test_dial_detours_in_every_subtask_keep_labels_exact(dial_env) -> None:
         labels = ep.subtask
         assert labels[0] == 0 and np.all(np.diff(labels) >= 0) and np.all(np.diff(labels) <= 1)
         distance = distance_after(ep)
-        for t in np.flatnonzero(np.diff(labels) == 1).tolist() + [ep.length - 1]:
+        for t in [*np.flatnonzero(np.diff(labels) == 1).tolist(), ep.length - 1]:
             start = int(np.searchsorted(labels, labels[t]))  # first step of that subtask
             assert np.all(distance[start:t] >= PRESS_TOLERANCE - 1e-5), (seed, t)
             assert distance[t] < 3 * PRESS_TOLERANCE, (seed, t)
