@@ -116,8 +116,10 @@ def test_craft_success_and_rates_match_the_parameters() -> None:
     assert 0.07 <= rate["wrong_moves"] <= 0.12  # a wrong move needs a free side cell
     assert totals["pause_steps"] / (totals["pauses"] + totals["hesitations"]) == pytest.approx(2.0, abs=0.25)
     inner = np.concatenate(copies)
-    print(f"first-attempt success human {successes / runs:.3f} expert {expert_successes / runs:.3f}; rates "
-          f"{rate}; drops {np.mean(inner == 0):.4f} duplicates {np.mean(inner == 2):.4f}")
+    print(
+        f"first-attempt success human {successes / runs:.3f} expert {expert_successes / runs:.3f}; rates "
+        f"{rate}; drops {np.mean(inner == 0):.4f} duplicates {np.mean(inner == 2):.4f}"
+    )
     assert np.mean(inner == 0) == pytest.approx(0.05, abs=0.015)
     assert np.mean(inner == 2) == pytest.approx(0.05, abs=0.015)
 
