@@ -2,7 +2,7 @@
 
 The two sims offer two demonstrators (``demonstrator: expert | human``).  ``human`` runs the same
 expert and perturbs it the way a teleoperated demonstration differs from a scripted one
-(docs/craft.md §2.5, docs/dial.md §3.9):
+(docs/craft.md §2.6, docs/dial.md §3.9):
 
 * **pauses** of random length at any step (``pause_rate`` per step) and **hesitations** when a
   subtask begins (``hesitation_rate`` per subtask), ``pause_steps`` = (shortest, longest) steps;

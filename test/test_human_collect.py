@@ -1,5 +1,5 @@
 """``ompn_collect --demonstrator human``: bags with the human-like demonstrator's dropped and duplicated
-observation messages, and what the reader makes of them (docs/craft.md §2.5)."""
+observation messages, and what the reader makes of them (docs/craft.md §2.6)."""
 
 from __future__ import annotations
 

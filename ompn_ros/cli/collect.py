@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME=VALUE",
         help="a human-like parameter, repeatable, e.g. pause_rate=0.05 or pause_steps=2:8 (without it: the "
-        "domain's defaults, docs/craft.md §2.5, docs/dial.md §3.9)",
+        "domain's defaults, docs/craft.md §2.6, docs/dial.md §3.9)",
     )
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="continue after the last complete part")

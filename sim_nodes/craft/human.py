@@ -1,4 +1,4 @@
-"""The human-like Craft demonstrator (docs/craft.md §2.5): the expert bot with pauses, hesitations,
+"""The human-like Craft demonstrator (docs/craft.md §2.6): the expert bot with pauses, hesitations,
 overshoots and wrong moves undone; then sensor noise and dropped or duplicated observation messages.
 
 Only a step on which the expert *moves* is ever replaced, so the bot's own bookkeeping (a workshop
