@@ -13,7 +13,10 @@ and handed to rclpy as an already serialized message.
 
 Modes:
 
-* ``expert``: the domain's expert chooses every action; one step per timer tick (``rate`` Hz).
+* ``expert``: the domain's expert chooses every action; one step per timer tick (``rate`` Hz).  With
+  ``demonstrator:=human`` the human-like demonstrator does (:mod:`sim_nodes.human`; ``human`` sets
+  its parameters as ``NAME=VALUE`` strings): the node publishes that episode's recorded observations,
+  each as often as its ``observation_copies`` say (0: dropped, 2: duplicated).
 * ``policy``: after publishing ``observation_t`` the node waits for one message on ``cmd_action`` and
   executes it.  A missing action produces a throttled warning every ``policy_timeout`` seconds and the
   node holds; it never crashes on bad or missing input (bad actions are logged and ignored).  A

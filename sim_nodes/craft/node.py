@@ -1,7 +1,7 @@
 """``craft_sim``: the Craft world as a ROS 2 node (topics and step contract from :mod:`ompn_ros.layout`).
 
 Parameters (besides the common ones of :mod:`sim_nodes.ros_common`: mode, rate, seed, episodes,
-policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause):
+policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause, demonstrator, human):
 
 * ``task`` (string, one of the 13 Craft tasks, default 'makebed');
 * ``full_obs`` (bool, default true).

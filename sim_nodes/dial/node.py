@@ -31,7 +31,7 @@ simulated time (25 Hz steps of 40 ms MuJoCo time, 1 s or ``episode_pause`` betwe
 on ``/clock``); with ``publish_clock:=false`` the node clock instead (see :mod:`sim_nodes.ros_common`).
 
 Parameters (besides the common ones of :mod:`sim_nodes.ros_common`: mode, seed, episodes,
-policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause):
+policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause, demonstrator, human):
 
 * ``rate`` (float, default 25.0 Hz = real time; 0 = as fast as possible);
 * ``profile`` (``ompn`` | ``robot``, default ``ompn``);
@@ -47,7 +47,9 @@ Expert mode runs exactly the demonstration ``generate_episode(derive_seed(seed, 
 (the same one ``generate_episodes(n, seed=seed)`` yields, including retries), so live recordings
 and ``ompn_collect`` bags agree.  ``action`` carries the expert's noise-free action (the training
 label, as in :class:`~ompn_ros.data.episode.Episode`); the env executes it plus DART noise, so set
-``noise:=0.0`` to make the published action exactly the executed one.  In policy mode the node
+``noise:=0.0`` to make the published action exactly the executed one.  With ``demonstrator:=human``
+it runs ``generate_human_episode`` live (docs/dial.md §3.9) and publishes that episode's recorded,
+noisy observations and joint states, each as often as its ``observation_copies`` say.  In policy mode the node
 executes each ``cmd_action`` (9 floats in [-1, 1]) and publishes it as ``action``; while no
 command arrives the simulation does not advance (the arm is held) and a throttled warning is
 logged every ``policy_timeout`` seconds.
