@@ -179,3 +179,22 @@ def test_dial_human_episode_is_reproducible_and_not_the_expert(dial_env) -> None
     assert a.length != expert.length
     np.testing.assert_array_equal(a.sketch, expert.sketch)
     assert a.extras[EVENTS_KEY]["pause_steps"] > 0
+
+
+def test_dial_rates_match_the_parameters(dial_env) -> None:
+    human = dataclasses.replace(human_defaults("dial"), pause_rate=0.05, pause_steps=(1, 1), drop_rate=0.05,
+                                duplicate_rate=0.05)  # fmt: skip
+    totals: dict[str, int] = {}
+    copies = []
+    for seed in range(4):
+        ep = dial_human.generate_human_episode(seed, human, max_retries=0, env=dial_env)
+        assert ep.success
+        for key, value in ep.extras[EVENTS_KEY].items():
+            totals[key] = totals.get(key, 0) + value
+        copies.append(observation_copies(ep)[1:-1])
+    assert totals["opportunities_pause"] > 700
+    assert totals["pauses"] / totals["opportunities_pause"] == pytest.approx(0.05, abs=0.02)
+    assert totals["opportunities_detour"] == 16 and totals["overshoots"] + totals["wrong_moves"] > 0
+    inner = np.concatenate(copies)
+    assert np.mean(inner == 0) == pytest.approx(0.05, abs=0.02)
+    assert np.mean(inner == 2) == pytest.approx(0.05, abs=0.02)

@@ -127,6 +127,11 @@ def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
             f"wrote {t['episodes']} episodes ({t['steps']} steps, {t['successes']} successful, "
             f"{t['messages']} messages) in {t['parts']} part(s) under {args.out}"
         )
+        if human is not None:
+            dropped = sum(p.get("dropped_observations", 0) for p in manifest["parts"])
+            doubled = sum(p.get("duplicated_observations", 0) for p in manifest["parts"])
+            print(f"human-like: {dropped} observation messages dropped, {doubled} duplicated; read the bags "
+                  "with 'strict: false' in the reader spec (docs/dial.md §3.9)")
         return 0
 
     return body
