@@ -17,9 +17,12 @@ from sim_nodes import SEED_MAX, derive_seed
 from sim_nodes.craft import PAPER_TASKS, CraftEnv
 from sim_nodes.craft import TASKS as CRAFT_TASKS
 from sim_nodes.craft import generate_episode as craft_episode
+from sim_nodes.craft.human import generate_human_episode as craft_human_episode
 from sim_nodes.dial import DialEnv
 from sim_nodes.dial import generate_episode as dial_episode
 from sim_nodes.dial.expert import episode_sketch as dial_episode_sketch
+from sim_nodes.dial.human import generate_human_episode as dial_human_episode
+from sim_nodes.human import DEMONSTRATORS, HumanLike, HumanLikeError, human_defaults, parse_human
 
 Domain = Literal["craft", "dial"]
 DOMAINS: tuple[Domain, ...] = get_args(Domain)
@@ -39,33 +42,43 @@ def default_tasks(domain: str) -> tuple[str, ...]:
     raise UnknownDomainError(f"unknown domain '{domain}', expected one of {list(DOMAINS)}")
 
 
-def expert_episode(domain: str, seed: int, *, task: str | None = None, partial: bool = False) -> Episode:
-    """One expert demonstration with ground truth (``generate_episode`` of the domain).
+def expert_episode(
+    domain: str, seed: int, *, task: str | None = None, partial: bool = False, human: HumanLike | None = None
+) -> Episode:
+    """One demonstration with ground truth (``generate_episode`` of the domain).
 
     ``task`` defaults to the domain's first task; ``partial`` selects Craft's partial observation
-    (Dial has one observation).
+    (Dial has one observation); ``human`` selects the human-like demonstrator with these parameters
+    (``sim_nodes/human.py``) instead of the scripted expert.
     """
     name = task if task is not None else default_tasks(domain)[0]
     if domain == "craft":
         if name not in CRAFT_TASKS:
             raise UnknownDomainError(f"unknown Craft task '{name}'; known: {sorted(CRAFT_TASKS)}")
+        if human is not None:
+            return craft_human_episode(seed, human, task=name, full_obs=not partial)
         return craft_episode(seed, task=name, full_obs=not partial)
     if name != DIAL_TASK:
         raise UnknownDomainError(f"unknown Dial task '{name}'; Dial has the one task '{DIAL_TASK}'")
-    return dial_episode(seed)
+    return dial_episode(seed) if human is None else dial_human_episode(seed, human)
 
 
 __all__ = [
     "CRAFT_TASKS",
+    "DEMONSTRATORS",
     "DIAL_TASK",
     "DOMAINS",
     "SEED_MAX",
     "CraftEnv",
     "DialEnv",
     "Domain",
+    "HumanLike",
+    "HumanLikeError",
     "UnknownDomainError",
     "default_tasks",
     "derive_seed",
     "dial_episode_sketch",
     "expert_episode",
+    "human_defaults",
+    "parse_human",
 ]

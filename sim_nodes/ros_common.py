@@ -13,7 +13,10 @@ and handed to rclpy as an already serialized message.
 
 Modes:
 
-* ``expert``: the domain's expert chooses every action; one step per timer tick (``rate`` Hz).
+* ``expert``: the domain's expert chooses every action; one step per timer tick (``rate`` Hz).  With
+  ``demonstrator:=human`` the human-like demonstrator does (:mod:`sim_nodes.human`; ``human`` sets
+  its parameters as ``NAME=VALUE`` strings): the node publishes that episode's recorded observations,
+  each as often as its ``observation_copies`` say (0: dropped, 2: duplicated).
 * ``policy``: after publishing ``observation_t`` the node waits for one message on ``cmd_action`` and
   executes it.  A missing action produces a throttled warning every ``policy_timeout`` seconds and the
   node holds; it never crashes on bad or missing input (bad actions are logged and ignored).  A
@@ -72,9 +75,11 @@ from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 
 from ompn_ros import layout
 from ompn_ros.data import messages
+from ompn_ros.data.episode import Episode, observation_copies
 from ompn_ros.layout import DomainLayout
 from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, help_text, wants_help
 from sim_nodes import SEED_MAX, derive_seed
+from sim_nodes.human import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 
 SIM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -132,7 +137,33 @@ COMMON_PARAMS: tuple[ParamSpec, ...] = (
         "episode_pause", 0.0, "wall-clock seconds the sim holds between two episodes",
         float_range=(0.0, 3600.0), apply="live",
     ),
+    ParamSpec(
+        "demonstrator", "expert",
+        "expert mode: 'expert' (scripted) or 'human' (human-like: pauses, tempo, overshoots, wrong moves"
+        " undone, sensor noise, dropped/duplicated observation messages)", choices=DEMONSTRATORS,
+    ),
+    ParamSpec(
+        "human", Parameter.Type.STRING_ARRAY,
+        "demonstrator 'human': parameters as NAME=VALUE (ranges MIN:MAX), e.g. [pause_rate=0.05];"
+        " unset = the domain's defaults (docs/craft.md, docs/dial.md)",
+    ),
 )  # fmt: skip
+
+
+def human_parameters(domain: str, params: dict[str, Any]) -> HumanLike | None:
+    """The human-like demonstrator's parameters of a sim node (``None``: the scripted expert);
+    raises :class:`ParameterError` naming ``human`` or ``demonstrator``."""
+    items = list(params["human"] or [])
+    if params["demonstrator"] != "human":
+        if items:
+            raise ParameterError("human", "sets the human-like demonstrator: add demonstrator:=human")
+        return None
+    if params["mode"] != "expert":
+        raise ParameterError("demonstrator", "'human' demonstrates in mode:=expert only")
+    try:
+        return parse_human(domain, items)
+    except HumanLikeError as exc:
+        raise ParameterError("human", str(exc)) from None
 
 
 # --- message builders: CDR bytes from the codec (one place for the layout's message shapes) -----------
@@ -254,6 +285,8 @@ class SimNode(Node):
         self.policy_timeout: float = float(self.params["policy_timeout"])
         self.episode_pause: float = max(float(self.params["episode_pause"]), self.min_episode_pause())
         self.publish_clock: bool = bool(self.params["publish_clock"])
+        self.human = human_parameters(domain.name, self.params)
+        self.demo: Episode | None = None  # the human-like episode being published (its recorded rows)
         self.step_ns: int = layout.STEP_NS
         self.sim_time_ns = 0  # simulated time, monotonic over the node's life
         self.streams = self.make_streams()
@@ -372,8 +405,15 @@ class SimNode(Node):
         resolved = {self.resolve_topic_name(t) for t in self._wait_topic_names}
         return [p for p in self.publishers if p.topic_name in resolved]
 
+    def observation_copies(self) -> int:
+        """How many times the current observation is published (the human-like demonstrator drops and
+        duplicates some); 1 otherwise."""
+        return 1 if self.demo is None else int(observation_copies(self.demo)[self.step_index])
+
     def _publish_observation(self, final: bool = False) -> None:
-        self.streams.observation(self.observation())
+        obs = self.observation() if self.demo is None else self.demo.observations[self.step_index]
+        for _ in range(self.observation_copies()):
+            self.streams.observation(obs)
         self.publish_step_extras(final)
         self._pending_action = None  # a command sent before this observation is stale
         self._awaiting_since = time.monotonic()

@@ -19,8 +19,11 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray, String  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
+from ompn_ros.data.episode import observation_copies  # noqa: E402
 from sim_nodes import derive_seed  # noqa: E402
 from sim_nodes.craft.expert import generate_episode, rollout  # noqa: E402
+from sim_nodes.craft.human import generate_human_episode  # noqa: E402
+from sim_nodes.human import parse_human  # noqa: E402
 from sim_nodes.ros_common import SIM_QOS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -200,3 +203,37 @@ def test_policy_mode_holds_then_steps_on_cmd_action(listener):
     assert np.array_equal(obs, demo.observations)
     phase, end = marker(listener.of(layout.EPISODE)[-1])
     assert phase == "end" and end["success"] == "true" and end["steps"] == str(demo.length)
+
+
+def test_human_demonstrator_publishes_its_episode_with_drops_and_duplicates(listener):
+    """demonstrator:=human: the episode of generate_human_episode, each observation as often as its
+    observation_copies say (a dropped one is never published, a duplicated one twice)."""
+    human = ["drop_rate=0.1", "duplicate_rate=0.1"]
+    proc = start_sim("task:=makeaxe", "seed:=6", "rate:=0.0", "episodes:=1", "wait_for_subscribers:=1",
+                     "demonstrator:=human", f"human:=[{','.join(human)}]")  # fmt: skip
+    try:
+        ok = listener.spin_until(lambda: len(listener.of(layout.EPISODE)) >= 2, timeout=18.0)
+        listener.spin_until(lambda: False, timeout=0.5)
+        code, out = finish(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert ok and code == 0, out
+    demo = generate_human_episode(derive_seed(6, 0), parse_human("craft", human), task="makeaxe")
+    copies = observation_copies(demo)
+    assert (copies == 0).any() and (copies == 2).any()
+    obs = np.array([m.data for m in listener.of(layout.OBSERVATION)], dtype=np.float32)
+    np.testing.assert_array_equal(obs, np.repeat(demo.observations, copies, axis=0))
+    assert [m.data for m in listener.of(layout.ACTION)] == demo.actions.tolist()
+    assert [m.data for m in listener.of(layout.SUBTASK)] == demo.subtask.tolist()
+
+
+@pytest.mark.parametrize(
+    ("params", "name"),
+    [(("demonstrator:=human", "human:=[pause_rate=3.0]"), "human"), (("human:=[pause_rate=0.1]",), "human"),
+     (("demonstrator:=human", "mode:=policy"), "demonstrator")],
+)  # fmt: skip
+def test_bad_human_parameter_exits_naming_it(params, name):
+    code, out = finish(start_sim(*params), timeout=15.0)
+    assert code not in (0, -999), out
+    assert f"invalid parameter '{name}'" in out

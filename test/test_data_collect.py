@@ -34,7 +34,7 @@ class FakeDial:
 @pytest.fixture
 def fake(monkeypatch: pytest.MonkeyPatch) -> FakeDial:
     gen = FakeDial()
-    monkeypatch.setattr(collect_mod, "default_generator", lambda domain: gen)
+    monkeypatch.setattr(collect_mod, "default_generator", lambda domain, human=None: gen)
     return gen
 
 
@@ -82,7 +82,7 @@ def test_refuses_to_overwrite(tmp_path: Path, fake: FakeDial, capsys: pytest.Cap
 def test_resume_after_interruption(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     out = tmp_path / "out"
     interrupted = FakeDial(fail_after=4)
-    monkeypatch.setattr(collect_mod, "default_generator", lambda domain: interrupted)
+    monkeypatch.setattr(collect_mod, "default_generator", lambda domain, human=None: interrupted)
     with pytest.raises(KeyboardInterrupt):
         collect_mod.main(_argv(out, "--split-every", "3"))
     assert (out / "part_000").is_dir() and not (out / "part_001").exists()
@@ -90,7 +90,7 @@ def test_resume_after_interruption(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     assert len(read_episodes(out).episodes) == 3
 
     resumed = FakeDial()
-    monkeypatch.setattr(collect_mod, "default_generator", lambda domain: resumed)
+    monkeypatch.setattr(collect_mod, "default_generator", lambda domain, human=None: resumed)
     assert collect_mod.main(_argv(out, "--split-every", "3", "--resume")) == 0
     assert resumed.calls == 4  # parts 1 and 2 only
     assert not (out / ".part_001.tmp").exists()

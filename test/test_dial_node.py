@@ -18,7 +18,11 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
+from ompn_ros.data.episode import observation_copies  # noqa: E402
+from sim_nodes import derive_seed  # noqa: E402
 from sim_nodes.dial import generate_episodes  # noqa: E402
+from sim_nodes.dial.human import generate_human_episode  # noqa: E402
+from sim_nodes.human import parse_human  # noqa: E402
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 NODE = [sys.executable, "-m", "sim_nodes.dial.node", "--ros-args"]
@@ -135,6 +139,33 @@ def test_expert_episode_matches_generate_episodes(ros_env: dict[str, str]) -> No
     np.testing.assert_allclose(actions, expected.actions, atol=1e-6)
     assert [m.data for m in rec.of(layout.SUBTASK)] == expected.subtask.tolist()
     assert list(rec.of(layout.SKETCH)[0].data) == expected.sketch.tolist()
+
+
+def test_human_demonstrator_publishes_its_episode(ros_env: dict[str, str]) -> None:
+    """demonstrator:=human: generate_human_episode's noisy rows, observations as often as their copies."""
+    human = ["drop_rate=0.05", "duplicate_rate=0.05"]
+    expected = generate_human_episode(derive_seed(9, 0), parse_human("dial", human))
+    rec = Recorder("dial_human")
+    proc = launch(ros_env, "dial_human", "rate:=0.0", "episodes:=1", "seed:=9", "wait_for_subscribers:=1",
+                  "demonstrator:=human", f"human:=[{','.join(human)}]")  # fmt: skip
+    try:
+        rec.spin_until(lambda: len(rec.of(layout.EPISODE)) >= 2, timeout=60)
+        rec.spin_until(lambda: False, timeout=0.3)
+        code = proc.wait(timeout=30)
+    finally:
+        err = stop(proc)
+        rec.close()
+    assert code == 0, err
+    copies = observation_copies(expected)
+    assert (copies == 0).any() and (copies == 2).any()
+    obs = np.array([m.data for m in rec.of(layout.OBSERVATION)], dtype=np.float32)
+    np.testing.assert_array_equal(obs, np.repeat(expected.observations, copies, axis=0))
+    actions = np.array([m.data for m in rec.of(layout.ACTION)], dtype=np.float32)
+    np.testing.assert_allclose(actions, expected.actions, atol=1e-6)
+    assert [m.data for m in rec.of(layout.SUBTASK)] == expected.subtask.tolist()
+    positions = np.array([m.position for m in rec.of(layout.JOINT_STATES)])  # best effort: a subset
+    gap = np.abs(positions[:, None, :] - expected.extras["joint_position"][None]).max(axis=2).min(axis=1)
+    assert len(positions) > 0 and gap.max() < 1e-9  # the noisy joint states of the episode
 
 
 @pytest.mark.parametrize(

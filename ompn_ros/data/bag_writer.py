@@ -10,6 +10,10 @@ This is the ``ompn_collect`` route (no DDS).  Per episode, with synthetic stamps
     t0 + (T+1)*STEP_NS                 observation_T (+ joint_states_T when extras has T+1 rows)
     t0 + (T+1)*STEP_NS + 10*TOPIC_OFFSET_NS   episode end marker (steps, success)
 
+An episode whose ``extras['observation_copies']`` (:data:`~ompn_ros.data.episode.OBSERVATION_COPIES`,
+the human-like demonstrator's dropped and duplicated messages) says 0 has no observation message
+at that step, and one that says 2 has a second copy 1 ns after the first.
+
 and the next episode starts ``EPISODE_GAP_NS`` after the end marker.  Topics are absolute names
 under ``namespace`` (default ``/``).  Storage goes through :class:`ompn_ros.data.storage.DurableWriter`
 (CRC'd mcap chunks, a commit at least every second).  JointState (dial) comes from ``episode.extras``:
@@ -32,7 +36,7 @@ from ompn_ros.data.storage import DurableWriter
 from ompn_ros.layout import DomainLayout
 
 from . import messages as m
-from .episode import Episode
+from .episode import Episode, observation_copies
 from .errors import BagError
 
 STORAGES = ("mcap", "sqlite3")
@@ -155,12 +159,14 @@ class EpisodeBagWriter:
 
         joints = _joint_arrays(episode, dom)
         obs_raw = [m.encode_float32_array(row, "obs") for row in obs]
+        copies = observation_copies(episode)
         act_raw = _action_raws(episode, dom)
         sub = None if episode.subtask is None else np.asarray(episode.subtask, dtype=np.int64)
         slot = {name: k for k, name in enumerate(dom.step_topics)}
         for t in range(T + 1):
             base = t0 + (t + 1) * layout.STEP_NS
-            self._write(layout.OBSERVATION, base + slot[layout.OBSERVATION] * off, obs_raw[t])
+            for copy in range(int(copies[t])):
+                self._write(layout.OBSERVATION, base + slot[layout.OBSERVATION] * off + copy, obs_raw[t])
             if joints is not None and t < len(joints[1]):
                 stamp = base + slot[layout.JOINT_STATES] * off
                 names, pos, vel, eff = joints

@@ -7,6 +7,10 @@ from typing import Any
 
 import numpy as np
 
+OBSERVATION_COPIES = "observation_copies"
+"""``Episode.extras`` key: int ``[T + 1]``, how many times each observation message is published or written
+(0 = dropped, 2 = duplicated; absent = once each).  The arrays of the episode stay complete."""
+
 DONE_ACTION = -1
 """Marker meaning 'the done step' where an integer action is needed in generic code.
 
@@ -67,6 +71,18 @@ class Episode:
         if self.subtask is None:
             raise ValueError(f"episode of task '{self.task}' (seed {self.seed}) has no subtask labels")
         return boundaries_from_labels(self.subtask)
+
+
+def observation_copies(episode: Episode) -> np.ndarray:
+    """How many times each observation row is published (``extras[OBSERVATION_COPIES]``, default once)."""
+    copies = episode.extras.get(OBSERVATION_COPIES)
+    if copies is None:
+        return np.ones(len(episode.observations), dtype=np.int64)
+    copies = np.asarray(copies, dtype=np.int64)
+    if copies.shape != (len(episode.observations),) or np.any((copies < 0) | (copies > 2)):
+        raise ValueError(f"extras['{OBSERVATION_COPIES}'] of episode seed {episode.seed} must be "
+                         f"{len(episode.observations)} counts in 0..2, got shape {copies.shape}")
+    return copies
 
 
 def boundaries_from_labels(labels: np.ndarray) -> np.ndarray:

@@ -23,8 +23,8 @@ from tqdm import tqdm
 
 from ompn_ros import layout
 from ompn_ros.data.bag_writer import STORAGES, EpisodeBagWriter
-from ompn_ros.data.episode import Episode
-from sim_nodes.registry import DOMAINS, derive_seed, expert_episode
+from ompn_ros.data.episode import Episode, observation_copies
+from sim_nodes.registry import DOMAINS, HumanLike, derive_seed, expert_episode
 
 MANIFEST = "collect.json"
 Generator = Callable[[int, str, bool], Episode]
@@ -40,13 +40,14 @@ def episode_seed(seed: int, index: int) -> int:
     return derive_seed(int(seed), int(index))
 
 
-def default_generator(domain: str) -> Generator:
-    """The domain's expert generator (``sim_nodes.registry.expert_episode``)."""
+def default_generator(domain: str, human: HumanLike | None = None) -> Generator:
+    """The domain's demonstrator (``sim_nodes.registry.expert_episode``): the scripted expert, or
+    the human-like one with the parameters ``human``."""
     if domain not in DOMAINS:
         raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
 
     def generate(seed: int, task: str, partial: bool) -> Episode:
-        return expert_episode(domain, seed, task=task, partial=partial)
+        return expert_episode(domain, seed, task=task, partial=partial, human=human)
 
     return generate
 
@@ -63,8 +64,9 @@ def _settings(
     storage: str,
     split_every: int | None,
     partial: bool,
+    human: HumanLike | None,
 ) -> dict[str, Any]:
-    return {
+    settings: dict[str, Any] = {
         "domain": domain,
         "tasks": list(tasks),
         "episodes": episodes,
@@ -73,6 +75,10 @@ def _settings(
         "split_every": split_every,
         "partial": partial,
     }
+    if human is not None:  # expert collections keep the settings (and resume) of earlier versions
+        settings["demonstrator"] = "human"
+        settings["human"] = human.as_dict()
+    return settings
 
 
 def _prepare_output(out: Path, settings: dict[str, Any], resume: bool, overwrite: bool) -> dict[str, Any]:
@@ -132,6 +138,7 @@ class _Plan:
     storage: str
     partial: bool
     generator: Generator
+    human: bool = False
 
 
 def _check(
@@ -191,6 +198,10 @@ def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) ->
             record["tasks"].append(task)
             record["steps"] += episode.length
             record["successes"] += int(episode.success)
+            if plan.human:
+                copies = observation_copies(episode)
+                for key, count in (("dropped_observations", 0), ("duplicated_observations", 2)):
+                    record[key] = record.get(key, 0) + int(sum(copies == count))
             bar.update(1)
     record["messages"] = writer.stats.total_messages
     record["seconds"] = round(time.perf_counter() - start, 3)
@@ -224,17 +235,21 @@ def collect(
     generator: Generator | None = None,
     progress: bool = True,
     command: Sequence[str] | None = None,
+    human: HumanLike | None = None,
 ) -> dict[str, Any]:
-    """Generate ``episodes`` expert episodes and write them as bag parts under ``out``.
+    """Generate ``episodes`` demonstrations and write them as bag parts under ``out``.
 
-    Returns the manifest (also written to ``out/collect.json``).
+    ``human``: the human-like demonstrator with these parameters instead of the expert (its dropped
+    observation messages are absent from the bag, its duplicated ones written twice).  Returns the
+    manifest (also written to ``out/collect.json``).
     """
     _check(domain, tasks, episodes, storage, split_every, partial, resume, overwrite)
     out = Path(out)
-    settings = _settings(domain, tasks, episodes, seed, storage, split_every, partial)
+    settings = _settings(domain, tasks, episodes, seed, storage, split_every, partial, human)
     manifest = _prepare_output(out, settings, resume, overwrite)
     manifest["command"] = list(command if command is not None else sys.argv)
-    plan = _Plan(domain, tasks, episodes, seed, storage, partial, generator or default_generator(domain))
+    generate = generator or default_generator(domain, human)
+    plan = _Plan(domain, tasks, episodes, seed, storage, partial, generate, human is not None)
     per_part = split_every or episodes
     n_parts = (episodes + per_part - 1) // per_part
     done = {p["name"] for p in manifest["parts"]}

@@ -8,7 +8,7 @@ a belief map plus left-to-right, down-to-top exploration with a *seeded* random 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -250,20 +250,35 @@ def episode_rngs(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     return np.random.default_rng(seed), np.random.default_rng([seed, 1])
 
 
-def rollout(seed: int, task: str | Task = "makebed", *, full_obs: bool = True) -> Episode:
-    """One expert episode from ``seed`` (may fail: ``success=False``; raises :class:`PlanningError`)."""
+Actor = Callable[[CraftWorld, ExpertBot, int], Callable[[], int]]
+"""Builds an episode's demonstrator from (world, expert bot, episode seed): a call returns the next action."""
+
+
+def expert_actor(world: CraftWorld, bot: ExpertBot, seed: int) -> Callable[[], int]:
+    """The scripted expert: the bot's action on what it observes."""
+    return lambda: bot.act(bot_observation(world, bot.full_obs))
+
+
+def rollout(
+    seed: int, task: str | Task = "makebed", *, full_obs: bool = True, actor: Actor = expert_actor
+) -> Episode:
+    """One episode from ``seed`` (may fail: ``success=False``; raises :class:`PlanningError`).
+
+    ``actor`` chooses the actions (default: the expert; :mod:`sim_nodes.craft.human`: human-like).
+    """
     spec = task if isinstance(task, Task) else get_task(task)
     map_rng, bot_rng = episode_rngs(seed)
     world = CraftWorld(spec)
     world.reset(map_rng)
     bot = ExpertBot(spec, full_obs=full_obs, rng=bot_rng)
+    act = actor(world, bot, seed)
     obs = np.empty((MAX_STEPS + 1, N_FEATURES), dtype=np.float32)
     actions = np.empty(MAX_STEPS, dtype=np.int64)
     subtask = np.empty(MAX_STEPS, dtype=np.int64)
     t = 0
     world_features(world, full_obs=full_obs, out=obs[0])
     while t < MAX_STEPS and not world.done:
-        action = bot.act(bot_observation(world, full_obs))
+        action = act()
         subtask[t] = min(world.sketch_index, len(spec.sketch) - 1)
         actions[t] = action
         world.step(action)
@@ -281,7 +296,8 @@ def rollout(seed: int, task: str | Task = "makebed", *, full_obs: bool = True) -
 
 
 def generate_episode(
-    seed: int, *, task: str = "makebed", full_obs: bool = True, max_retries: int = 100
+    seed: int, *, task: str = "makebed", full_obs: bool = True, max_retries: int = 100,
+    actor: Actor = expert_actor,
 ) -> Episode:
     """A *successful* expert episode (the authors' filter, docs/craft.md §2.4).
 
@@ -293,7 +309,7 @@ def generate_episode(
     for attempt in range(max_retries + 1):
         s = seed if attempt == 0 else derive_seed(seed, attempt, stream=_RETRY_STREAM)
         try:
-            episode = rollout(s, spec, full_obs=full_obs)
+            episode = rollout(s, spec, full_obs=full_obs, actor=actor)
         except PlanningError as exc:
             failures.append(f"seed {s}: {exc}")
             continue

@@ -1,14 +1,16 @@
 """``craft_sim``: the Craft world as a ROS 2 node (topics and step contract from :mod:`ompn_ros.layout`).
 
 Parameters (besides the common ones of :mod:`sim_nodes.ros_common`: mode, rate, seed, episodes,
-policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause):
+policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause, demonstrator, human):
 
 * ``task`` (string, one of the 13 Craft tasks, default 'makebed');
 * ``full_obs`` (bool, default true).
 
 Expert mode publishes exactly the episodes of ``generate_episodes(n, task=..., full_obs=..., seed=seed)``
 (successful expert demonstrations, failed maps are regenerated from derived seeds) by replaying them in
-the live env.  Every observation is followed by its ANSI rendering on ``render``.
+the live env; with ``demonstrator:=human`` those of ``generate_human_episode`` (their noisy
+observations, some dropped or published twice).  Every observation is followed by its ANSI rendering
+on ``render``.
 
 Simulated time advances by ``layout.STEP_NS`` (40 ms) per step and 1 s between episodes, the spacing of
 ``ompn_collect`` bags; with ``publish_clock:=true`` (default) it is published on ``/clock`` and stamps the
@@ -27,6 +29,7 @@ from ompn_ros.data.messages import encode_string
 from ompn_ros.nodes.params import ParamSpec
 from sim_nodes.craft.env import CraftEnv
 from sim_nodes.craft.expert import generate_episode
+from sim_nodes.craft.human import generate_human_episode
 from sim_nodes.craft.render import render_ansi
 from sim_nodes.craft.world import TASKS
 from sim_nodes.ros_common import SIM_QOS, EpisodeStart, SimNode, run_sim_node
@@ -56,7 +59,11 @@ class CraftSim(SimNode):
 
     def begin_episode(self, index: int, seed: int) -> EpisodeStart:
         if self.mode == "expert":
-            demo = generate_episode(seed, task=self.task, full_obs=self.full_obs)
+            if self.human is None:
+                demo = generate_episode(seed, task=self.task, full_obs=self.full_obs)
+            else:
+                demo = generate_human_episode(seed, self.human, task=self.task, full_obs=self.full_obs)
+                self.demo = demo
             seed = demo.seed
             self._expert_actions = demo.actions
         self._last_obs, _ = self.env.reset(seed=seed)

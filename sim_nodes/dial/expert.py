@@ -35,7 +35,7 @@ is chosen, so the step that completes a subtask still carries its ordinal (docs/
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -151,18 +151,25 @@ class DialExpert:
 
     def act(self) -> np.ndarray:
         """The noise-free normalised action for the env's current state."""
-        env = self.env
         phase = self.phase
         self._update_phase()
         if self.phase != phase:
             self.integral[:] = 0.0
-        goal = self._goal()
+        self._move_reference(self._goal())
+        return self._torque()
+
+    def _move_reference(self, goal: np.ndarray) -> None:
+        """Move ``q_ref`` toward ``goal`` at the joint speed limit."""
         step = goal - self.q_ref
         largest = float(np.max(np.abs(step[:6])))
         limit = self.joint_speed * CONTROL_DT
         if largest > limit:
             step = step * (limit / largest)
         self.q_ref = self.q_ref + step
+
+    def _torque(self) -> np.ndarray:
+        """The PID torque toward ``q_ref`` (normalised, clipped)."""
+        env = self.env
         q, qd = env.joint_position, env.joint_velocity
         err = self.q_ref - q
         lim = self.gains.integral_limit
@@ -172,6 +179,14 @@ class DialExpert:
         friction = self._friction * np.tanh(err / self.gains.friction_width)
         tau = self._kp * err - self._kd * qd + self._ki * self.integral + bias + friction
         return np.clip(tau / TORQUE_SCALE, -1.0, 1.0)
+
+
+ExpertFactory = Callable[[DialEnv, ExpertGains, float, int], DialExpert]
+"""Builds an episode's demonstrator from (env, gains, tempo, attempt seed)."""
+
+
+def scripted_expert(env: DialEnv, gains: ExpertGains, joint_speed: float, seed: int) -> DialExpert:
+    return DialExpert(env, gains, joint_speed=joint_speed)
 
 
 def episode_sketch(seed: int) -> np.ndarray:
@@ -188,13 +203,15 @@ class DemoRollout:
     """
 
     def __init__(self, env: DialEnv, *, noise: float = DEFAULT_NOISE, permute_labels: bool = False,
-                 gains: ExpertGains | None = None) -> None:  # fmt: skip
+                 gains: ExpertGains | None = None,
+                 make_expert: ExpertFactory = scripted_expert) -> None:  # fmt: skip
         if not noise >= 0:
             raise DialConfigError(f"noise must be >= 0, got {noise!r}")
         self.env = env
         self.noise = float(noise)
         self.permute_labels = permute_labels
         self.gains = gains or ExpertGains()
+        self.make_expert = make_expert
         self.terminated = self.truncated = False
 
     def start(self, seed: int, sketch: np.ndarray) -> None:
@@ -208,7 +225,7 @@ class DemoRollout:
         self.env.reset(seed=seed, options=options)
         lo, hi = self.gains.joint_speed_range
         self.joint_speed = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-        self.expert = DialExpert(self.env, self.gains, joint_speed=self.joint_speed)
+        self.expert = self.make_expert(self.env, self.gains, self.joint_speed, seed)
         self.dart = DartNoise(rng, self.noise)
         self.terminated = self.truncated = False
 
@@ -274,6 +291,7 @@ def generate_episode(
     max_steps_per_subtask: int = MAX_STEPS_PER_SUBTASK,
     gains: ExpertGains | None = None,
     env: DialEnv | None = None,
+    make_expert: ExpertFactory = scripted_expert,
 ) -> Episode:
     """One expert demonstration of a 4-digit sketch (see module docstring).
 
@@ -286,7 +304,7 @@ def generate_episode(
     Extras: ``joint_position``/``joint_velocity``/``joint_effort`` ``[T+1, 9]`` (effort row t =
     actuator torque applied during the step that led to observation t; row 0 is zero),
     ``joint_names``, ``permutation``, ``noise_amount``, ``noise_persist``, ``joint_speed``,
-    ``attempt``.
+    ``attempt``.  ``make_expert`` builds the demonstrator (:mod:`sim_nodes.dial.human`: human-like).
     """
     if task not in (None, "dial"):
         raise DialConfigError(f"task must be 'dial' (or None) for the Dial domain, got {task!r}")
@@ -298,7 +316,9 @@ def generate_episode(
     sketch_arr = episode_sketch(seed) if sketch is None else validate_sketch(sketch, SKETCH_LENGTH)
     if env is None:
         env = DialEnv(press_tolerance=press_tolerance, max_steps_per_subtask=max_steps_per_subtask)
-    rollout = DemoRollout(env, noise=noise, permute_labels=permute_labels, gains=gains)
+    rollout = DemoRollout(
+        env, noise=noise, permute_labels=permute_labels, gains=gains, make_expert=make_expert
+    )
     episode = None
     for attempt in range(max_retries + 1):
         attempt_seed = seed if attempt == 0 else derive_seed(seed, attempt, stream=1)

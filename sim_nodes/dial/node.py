@@ -31,7 +31,7 @@ simulated time (25 Hz steps of 40 ms MuJoCo time, 1 s or ``episode_pause`` betwe
 on ``/clock``); with ``publish_clock:=false`` the node clock instead (see :mod:`sim_nodes.ros_common`).
 
 Parameters (besides the common ones of :mod:`sim_nodes.ros_common`: mode, seed, episodes,
-policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause):
+policy_timeout, wait_for_subscribers, wait_topics, publish_clock, episode_pause, demonstrator, human):
 
 * ``rate`` (float, default 25.0 Hz = real time; 0 = as fast as possible);
 * ``profile`` (``ompn`` | ``robot``, default ``ompn``);
@@ -47,7 +47,9 @@ Expert mode runs exactly the demonstration ``generate_episode(derive_seed(seed, 
 (the same one ``generate_episodes(n, seed=seed)`` yields, including retries), so live recordings
 and ``ompn_collect`` bags agree.  ``action`` carries the expert's noise-free action (the training
 label, as in :class:`~ompn_ros.data.episode.Episode`); the env executes it plus DART noise, so set
-``noise:=0.0`` to make the published action exactly the executed one.  In policy mode the node
+``noise:=0.0`` to make the published action exactly the executed one.  With ``demonstrator:=human``
+it runs ``generate_human_episode`` live (docs/dial.md §3.9) and publishes that episode's recorded,
+noisy observations and joint states, each as often as its ``observation_copies`` say.  In policy mode the node
 executes each ``cmd_action`` (9 floats in [-1, 1]) and publishes it as ``action``; while no
 command arrives the simulation does not advance (the arm is held) and a throttled warning is
 logged every ``policy_timeout`` seconds.
@@ -91,6 +93,7 @@ from sim_nodes.dial.expert import (
     episode_sketch,
     generate_episode,
 )
+from sim_nodes.dial.human import HumanDialFactory, generate_human_episode
 from sim_nodes.dial.scene import FRAME_SKIP
 from sim_nodes.ros_common import SENSOR_QOS, SIM_QOS, EpisodeStart, SimNode, Streams, run_sim_node
 
@@ -217,9 +220,13 @@ class DialSim(SimNode):
         sketch = episode_sketch(seed) if self.sketch is None else self.sketch
         run_seed = seed
         if self.mode == "expert":  # find the attempt generate_episode keeps, then run it live
-            demo = generate_episode(
-                seed, sketch=sketch.tolist(), noise=self.noise, permute_labels=self.permute, env=self.env
-            )
+            options: dict[str, Any] = {"sketch": sketch.tolist(), "noise": self.noise,
+                                       "permute_labels": self.permute, "env": self.env}  # fmt: skip
+            if self.human is None:
+                demo = generate_episode(seed, **options)
+            else:  # published from its recorded (noisy) rows; the live run executes the same actions
+                demo = self.demo = generate_human_episode(seed, self.human, **options)
+                self.rollout.make_expert = HumanDialFactory(self.human)
             attempt = int(demo.extras["attempt"])
             run_seed = seed if attempt == 0 else derive_seed(seed, attempt, stream=1)
         self.rollout.start(run_seed, sketch)
@@ -245,9 +252,16 @@ class DialSim(SimNode):
 
     def publish_step_extras(self, final: bool) -> None:
         env = self.env
-        self.joint_pub.publish(encode_joint_state(
-            self.stamp_ns(), JOINT_STATE_NAMES, env.joint_position, env.joint_velocity, env.joint_effort
-        ))  # fmt: skip
+        position, velocity = env.joint_position, env.joint_velocity
+        copies = 1
+        if self.demo is not None:  # the human-like demonstrator's noisy joint states
+            position = self.demo.extras["joint_position"][self.step_index]
+            velocity = self.demo.extras["joint_velocity"][self.step_index]
+            copies = self.observation_copies() if self.profile == "robot" else 1  # its observation
+        for _ in range(copies):
+            self.joint_pub.publish(encode_joint_state(
+                self.stamp_ns(), JOINT_STATE_NAMES, position, velocity, env.joint_effort
+            ))  # fmt: skip
 
 
 def main(args: list[str] | None = None) -> int:
