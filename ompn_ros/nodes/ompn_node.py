@@ -26,7 +26,12 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       (:mod:`ompn_ros.nodes.episode_gap`, the bag reader's ``split: gaps`` rule).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
-assembler's partner history; episode markers keep it).
+assembler's partner history; episode markers keep it); answered in every state, refused with the reason
+while the node is not active.
+
+Lifecycle: every transition is logged; a request the current state does not offer is refused with
+``success: false`` and one line (:mod:`ompn_ros.nodes.lifecycle_guard`), and the shutdown transition ends
+the process (exit 0).
 
 Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
@@ -104,6 +109,7 @@ from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig,
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, SilenceWatch
+from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, drop_line, load_spec
 from ompn_ros.nodes.ompn_node_params import (
@@ -204,8 +210,11 @@ class OMPNNode(LifecycleNode):
         self._boundary_cdr = BoundaryEncoder(self._status_name)
         self._n_slots = 0
         self._active = False
+        self.finished = threading.Event()  # set by the shutdown transition: main() then exits
         self._jump_back_ns = self._max_lead_ns = self._gap_ns = 0
         self._cache_stamp_limits()
+        guard_change_state(self, self.get_logger().warning)  # an invalid request is refused, not fatal
+        self._service = self.create_service(Trigger, "~/reset", self._on_reset)  # answered in every state
 
     def _cache_stamp_limits(self) -> None:
         """The stamp limits in ns, read once per change rather than once per step."""
@@ -395,7 +404,6 @@ class OMPNNode(LifecycleNode):
         else:  # raw CDR: the float32 data is read in place, no message object is built
             callback = self._on_array_info if self.uses_message_info else self._on_array
             self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
-        self._service = self.create_service(Trigger, "~/reset", self._on_reset)
         self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics)
         if self._gap_ns > 0:  # the node's clock: simulated time under use_sim_time
             self._silence = SilenceWatch(self._gap_ns)
@@ -456,10 +464,13 @@ class OMPNNode(LifecycleNode):
         self._pubs = {}
         self.segmenter = None
         self.assembled = None
+        self.get_logger().info("cleaned up")
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._teardown_inputs()
+        self.get_logger().info(f"shut down from '{state.label}'")
+        self.finished.set()
         return TransitionCallbackReturn.SUCCESS
 
     def _teardown_inputs(self) -> None:
@@ -467,9 +478,6 @@ class OMPNNode(LifecycleNode):
         for sub in self._subs:
             self.destroy_subscription(sub)
         self._subs = []
-        if self._service is not None:
-            self.destroy_service(self._service)
-            self._service = None
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
@@ -809,6 +817,11 @@ class OMPNNode(LifecycleNode):
             self._start_episode(sketch)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if not self._active:
+            state = self._state_machine.current_state[1]
+            response.success = False
+            response.message = f"not reset: the node is '{state}'; ~/reset starts episodes only while active"
+            return response
         if self.assembled is not None:  # held steps are stepped first: they came before the request
             self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
         response.success = self._start_episode(self._episode_sketch)
@@ -912,10 +925,10 @@ def _stop_on_signals() -> threading.Event:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
 
-    Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
-    start-up parameter (one line naming it and the allowed values) or unparsable ROS arguments (rcl's
-    reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote
-    the mapping as a YAML string)."""
+    Exit codes: 0 after SIGINT/SIGTERM or the shutdown transition, 1 when the auto-start configure
+    fails, 2 on an invalid start-up parameter (one line naming it and the allowed values) or unparsable
+    ROS arguments (rcl's reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass
+    a file path or quote the mapping as a YAML string)."""
     if wants_help(args):
         print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
                         "publishes the action, ~/pi and ~/boundary events.", SPECS))
@@ -938,6 +951,7 @@ def main(args: list[str] | None = None) -> int:
             node.trigger_activate()
         executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)
+        node.finished = stop  # the shutdown transition ends the process as a signal does
         spin_until_shutdown(executor, stop=stop)
     except (ParameterError, DetectorConfigError) as exc:  # observation_spec errors are ParameterErrors
         error = exc if isinstance(exc, ParameterError) else ParameterError("detector_*", str(exc))
