@@ -134,6 +134,7 @@ from ompn_ros.segmenter import (
 from ompn_ros.validate import validate_sketch
 
 NODE_NAME = "ompn_node"
+MARKER_QUEUE = 5_000  # episode markers (and sketches) queued for the node: Fast DDS's default sample limit
 LEVEL_OK, LEVEL_WARN = 0, 1
 LIVE_DETECTOR_KEYS = frozenset(
     {"detector_high", "detector_hysteresis", "detector_min_segment_length", "detector_mode",
@@ -160,11 +161,19 @@ def load_policy(path: str) -> Any:
 
 
 def detector_config(values: dict[str, Any]) -> DetectorConfig:
-    """The detector of the ``detector_*`` parameter values (``low = max(0, high - hysteresis)``)."""
-    high = float(values["detector_high"])
+    """The detector of the ``detector_*`` parameter values (``low = high - hysteresis``).
+
+    Raises :class:`DetectorConfigError` when ``detector_hysteresis`` exceeds ``detector_high`` (the run
+    would end below a score of 0, so it would never end)."""
+    high, hysteresis = float(values["detector_high"]), float(values["detector_hysteresis"])
+    if hysteresis > high + 1e-9:
+        raise DetectorConfigError(
+            f"detector_hysteresis={hysteresis} exceeds detector_high={high}: a run would end only below a "
+            "score of 0; set detector_hysteresis <= detector_high"
+        )
     return DetectorConfig(
         high=high,
-        low=max(0.0, high - float(values["detector_hysteresis"])),
+        low=max(0.0, high - hysteresis),
         min_segment_length=int(values["detector_min_segment_length"]),
         mode=str(values["detector_mode"]),
         force_first_step_low=bool(values["detector_force_first_step_low"]),
@@ -390,8 +399,10 @@ class OMPNNode(LifecycleNode):
             self.last_error = "activate without a configured segmenter"
             return TransitionCallbackReturn.FAILURE
         inputs = input_qos(str(self.values["obs_qos"]), int(self.values["qos_depth"]))
+        # a deep queue: a burst of markers waits for the node rather than overwriting the unread ones;
+        # what the middleware still loses is counted (markers_lost)
         markers = QoSProfile(
-            depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
+            depth=MARKER_QUEUE, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
@@ -430,9 +441,10 @@ class OMPNNode(LifecycleNode):
     def _subscribe(
         self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
     ) -> None:
+        lost = ("messages_lost", "markers_lost") if topic == layout.EPISODE else ("messages_lost",)
         events = SubscriptionEventCallbacks(
             incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
-            message_lost=lambda info: self.events.update(messages_lost=info.total_count_change),
+            message_lost=lambda info: self.events.update(dict.fromkeys(lost, info.total_count_change)),
         )
         self._subs.append(
             self.create_subscription(msg_type, topic, callback, qos, raw=raw, event_callbacks=events)
@@ -771,6 +783,7 @@ class OMPNNode(LifecycleNode):
         for status in msg.status:
             if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
+            self.events["markers"] += 1
             values = {kv.key: kv.value for kv in status.values}
             if status.message == layout.EPISODE_START:
                 self._on_start_marker(values.get(layout.KEY_SKETCH, ""))
@@ -834,7 +847,9 @@ class OMPNNode(LifecycleNode):
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
         reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
         clock restarts), episodes_ended (end markers, pauses and clock restarts that closed an episode),
-        episode_gaps (pauses of ``episode_gap`` seen), messages_lost (reported by the middleware),
+        episode_gaps (pauses of ``episode_gap`` seen), markers (episode markers handled: every marker
+        received is counted here or, when the middleware lost it, in markers_lost), messages_lost (all
+        topics, reported by the middleware),
         boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
@@ -848,6 +863,8 @@ class OMPNNode(LifecycleNode):
             "episode_starts",
             "episodes_ended",
             "episode_gaps",
+            "markers",
+            "markers_lost",
             "messages_lost",
             "boundaries",
             "clock_jumps",

