@@ -104,3 +104,88 @@ def test_a_marker_flood_is_processed_or_counted(ctx: Any, ckpt: Path, n: int) ->
     assert c["episode_starts"] == n // 2 - c["markers_lost"] // 2 or c["markers_lost"] > 0, c
     node.destroy_node()
     peer.destroy_node()
+
+
+class Peer:
+    """Publishes /clock, records /diagnostics statuses of ``status`` and spins with the node(s)."""
+
+    def __init__(self, ctx: Any, nodes: list[OMPNNode], status: str) -> None:
+        from rosgraph_msgs.msg import Clock
+
+        self.node = rclpy.create_node("clock_peer", context=ctx)
+        self.ex = SingleThreadedExecutor(context=ctx)
+        for n in [*nodes, self.node]:
+            self.ex.add_node(n)
+        self.clock_pub = self.node.create_publisher(Clock, "/clock", 10)
+        self.clock_type = Clock
+        self.statuses: list[DiagnosticStatus] = []
+        self.node.create_subscription(
+            DiagnosticArray, "/diagnostics",
+            lambda m: self.statuses.extend(s for s in m.status if s.name == status), 100,
+        )  # fmt: skip
+
+    def clock(self, ns: int) -> None:
+        from builtin_interfaces.msg import Time
+
+        msg = self.clock_type(clock=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
+        self.clock_pub.publish(msg)
+        pump(self.ex, lambda: False, 0.15)
+
+    def counters(self) -> dict[str, str]:
+        return {kv.key: kv.value for kv in self.statuses[-1].values} if self.statuses else {}
+
+
+def test_negative_and_leaping_sim_clocks(ctx: Any, ckpt: Path) -> None:
+    node = make_node(ctx, ckpt, name="simclock", use_sim_time=True, diagnostics_period=0.1)
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Peer(ctx, [node], "/simclock: segmenter")
+    assert pump(peer.ex, lambda: peer.clock_pub.get_subscription_count() > 0)
+    second = 1_000_000_000
+    peer.clock(1004 * second)
+    assert pump(peer.ex, lambda: node.get_clock().now().nanoseconds == 1004 * second)
+    for _ in range(3):  # a simulator restarted an hour back: rclpy 7.1.6 raises ValueError in its handler
+        peer.clock(-2596 * second)
+    assert node.events["clock_negative"] >= 1 and node.get_clock().now().nanoseconds == 1004 * second
+    starts = node.events["episode_starts"]
+    peer.clock(1005 * second)
+    peer.clock((1005 + 7200) * second)  # two hours ahead: a new episode, counted
+    assert pump(peer.ex, lambda: node.events["clock_jumps_forward"] == 1)
+    assert node.events["episode_starts"] == starts + 1
+    assert pump(peer.ex, lambda: peer.counters().get("clock_jumps_forward") == "1")
+    node.destroy_node()
+    peer.node.destroy_node()
+
+
+def test_a_stalled_sim_clock_is_reported_once_and_diagnostics_go_on(ctx: Any, ckpt: Path) -> None:
+    node = make_node(ctx, ckpt, name="stalled", use_sim_time=True, diagnostics_period=0.1, clock_stall=0.5)
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Peer(ctx, [node], "/stalled: segmenter")
+    assert pump(peer.ex, lambda: peer.clock_pub.get_subscription_count() > 0)
+    peer.clock(50 * 1_000_000_000)
+    assert pump(peer.ex, lambda: node.get_clock().now().nanoseconds > 0)
+    seen = len(peer.statuses)
+    pump(peer.ex, lambda: False, 1.5)  # /clock stands still for 1.5 s of wall time
+    assert len(peer.statuses) - seen >= 5  # /diagnostics kept going (a steady-clock timer)
+    assert node.events["clock_stalls"] == 1 and peer.counters()["clock_stalls"] == "1"
+    peer.clock(51 * 1_000_000_000)  # moves again, then a second stall is a second report
+    pump(peer.ex, lambda: node.events["clock_stalls"] == 2, 2.0)
+    assert node.events["clock_stalls"] == 2
+    node.destroy_node()
+    peer.node.destroy_node()
+
+
+def test_a_second_node_of_the_same_name_is_reported(ctx: Any, ckpt: Path) -> None:
+    first = make_node(ctx, ckpt, name="twin", diagnostics_period=0.1)
+    second = make_node(ctx, ckpt, name="twin", diagnostics_period=0.1)
+    for node in (first, second):
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Peer(ctx, [first, second], "/twin: segmenter")
+    assert pump(peer.ex, lambda: any("duplicate node name" in s.message for s in peer.statuses))
+    status = next(s for s in peer.statuses if "duplicate node name" in s.message)
+    assert status.level == b"\x01" and {kv.key: kv.value for kv in status.values}["duplicate_names"] == "1"
+    for node in (first, second):
+        node.destroy_node()
+    peer.node.destroy_node()

@@ -82,6 +82,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -108,6 +109,8 @@ from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
+from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, SilenceWatch
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
@@ -221,7 +224,10 @@ class OMPNNode(LifecycleNode):
         self._active = False
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits
         self._jump_back_ns = self._max_lead_ns = self._gap_ns = 0
+        self._clock_watch = ClockWatch()
+        self._duplicates = 0  # other nodes with this node's full name (seen on the graph)
         self._cache_stamp_limits()
+        guard_clock_topic(self, self._on_clock)  # a negative /clock is dropped, not fatal
         guard_change_state(self, self.get_logger().warning)  # an invalid request is refused, not fatal
         self._service = self.create_service(Trigger, "~/reset", self._on_reset)  # answered in every state
 
@@ -230,6 +236,8 @@ class OMPNNode(LifecycleNode):
         self._jump_back_ns = int(float(self.values["clock_jump_back"]) * 1e9)
         self._max_lead_ns = int(float(self.values["max_stamp_lead"]) * 1e9)
         self._gap_ns = round(float(self.values["episode_gap"]) * 1e9)
+        self._clock_watch.stall_ns = round(float(self.values["clock_stall"]) * 1e9)
+        self._clock_watch.jump_forward_ns = round(float(self.values["clock_jump_forward"]) * 1e9)
 
     # --- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
@@ -415,7 +423,10 @@ class OMPNNode(LifecycleNode):
         else:  # raw CDR: the float32 data is read in place, no message object is built
             callback = self._on_array_info if self.uses_message_info else self._on_array
             self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
-        self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics)
+        # the steady clock: /diagnostics (and the stall check) go on while a simulator's /clock stands still
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        period = float(self.values["diagnostics_period"])
+        self._timer = self.create_timer(period, self._health_tick, clock=steady)
         if self._gap_ns > 0:  # the node's clock: simulated time under use_sim_time
             self._silence = SilenceWatch(self._gap_ns)
             self._gap_timer = self.create_timer(self._gap_ns * GAP_TIMER_FRACTION / 1e9, self._check_silence)
@@ -843,6 +854,42 @@ class OMPNNode(LifecycleNode):
         return response
 
     # --- health --------------------------------------------------------------------------------
+    def _on_clock(self, msg: Any) -> bool:
+        """Before rclpy's /clock handler: drop a negative time; a forward leap starts a new episode."""
+        verdict = self._clock_watch.on_clock(clock_ns(msg), time.monotonic_ns())
+        if verdict == "negative":
+            self.events["clock_negative"] += 1
+            self._warn_throttled(f"/clock message dropped: negative time {clock_ns(msg)} ns", False)
+            return False
+        if verdict == "forward":
+            self.events["clock_jumps_forward"] += 1
+            self.get_logger().warning(
+                f"/clock jumped ahead to {clock_ns(msg)} ns (more than clock_jump_forward="
+                f"{self.values['clock_jump_forward']} s): starting a new episode"
+            )
+            seg = self.segmenter
+            if seg is not None and self._active and seg.ready:
+                if seg.detector.steps_seen > 0 and not seg.detector.closed:
+                    self._close_episode(None)
+                started = self._start_episode(self._episode_sketch, count_bad=False)
+                self.events["episode_starts"] += int(started)
+        return True
+
+    def _health_tick(self) -> None:
+        """Steady-clock timer: a /clock stall and a second node of this name are reported once, then
+        the counters go out on /diagnostics."""
+        if self._clock_watch.stalled(time.monotonic_ns()) and self.get_parameter("use_sim_time").value:
+            self.events["clock_stalls"] += 1
+            self.get_logger().warning(
+                f"/clock has not advanced for clock_stall={self.values['clock_stall']} s (stuck at "
+                f"{self._clock_watch.last_ns} ns): is the simulator paused or hung? Steps keep one stamp"
+            )
+        duplicates = same_name_count(self) - 1
+        if duplicates > self._duplicates:
+            self.get_logger().warning(duplicate_line(self.get_fully_qualified_name(), duplicates))
+        self._duplicates = max(0, duplicates)
+        self.publish_diagnostics()
+
     def counters(self) -> dict[str, int]:
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
         reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
@@ -850,7 +897,10 @@ class OMPNNode(LifecycleNode):
         episode_gaps (pauses of ``episode_gap`` seen), markers (episode markers handled: every marker
         received is counted here or, when the middleware lost it, in markers_lost), messages_lost (all
         topics, reported by the middleware),
-        boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
+        boundaries published, clock_jumps (input stamps back by more than ``clock_jump_back``),
+        clock_jumps_forward (``/clock`` ahead by more than ``clock_jump_forward``), clock_stalls (``/clock``
+        stood still for ``clock_stall``), clock_negative (negative ``/clock`` times dropped),
+        bad_end_markers, qos_incompatible (and duplicate_names on /diagnostics); with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
         ``obs_size_mismatch``."""
@@ -868,6 +918,9 @@ class OMPNNode(LifecycleNode):
             "messages_lost",
             "boundaries",
             "clock_jumps",
+            "clock_jumps_forward",
+            "clock_stalls",
+            "clock_negative",
             "bad_end_markers",
             "qos_incompatible",
         ):
@@ -888,9 +941,13 @@ class OMPNNode(LifecycleNode):
         counters = self.counters()
         dropped = self.assembled.dropped_total if self.assembled is not None else 0
         rejected = counters["rejected"] > 0 or dropped > 0
+        counters["duplicate_names"] = self._duplicates
+        message = "rejected input" if rejected else "ok"
+        if self._duplicates:
+            message = f"duplicate node name: {self._duplicates + 1} nodes publish this status"
         raw = encode_diagnostic_status(
             self.get_clock().now().nanoseconds, f"{self.get_fully_qualified_name()}: segmenter",
-            "rejected input" if rejected else "ok", counters, LEVEL_WARN if rejected else LEVEL_OK,
+            message, counters, LEVEL_WARN if rejected or self._duplicates else LEVEL_OK,
         )  # fmt: skip
         try:
             pub.publish(raw)
