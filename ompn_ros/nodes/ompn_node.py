@@ -209,7 +209,6 @@ class OMPNNode(LifecycleNode):
         self._last_receive_ns = 0
         self._pubs: dict[str, Any] = {}
         self._subs: list[Any] = []
-        self._service: Any = None
         self._timer: Any = None
         self._graph_timer: Any = None
         self._hold_timer: Any = None
@@ -229,7 +228,7 @@ class OMPNNode(LifecycleNode):
         self._cache_stamp_limits()
         guard_clock_topic(self, self._on_clock)  # a negative /clock is dropped, not fatal
         guard_change_state(self, self.get_logger().warning)  # an invalid request is refused, not fatal
-        self._service = self.create_service(Trigger, "~/reset", self._on_reset)  # answered in every state
+        self._service: Any = self.create_service(Trigger, "~/reset", self._on_reset)  # in every state
 
     def _cache_stamp_limits(self) -> None:
         """The stamp limits in ns, read once per change rather than once per step."""
