@@ -32,8 +32,11 @@ def _hidden(root: Path) -> list[Path]:
     return [p for p in root.rglob(".*")]
 
 
-def test_train_on_a_full_disk_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    with small_disk(tmp_path / "disk", 1024, free_kb=40) as disk:
+@pytest.mark.parametrize("free_kb", [2, 40, 400])  # full at the log, the best checkpoint, the training state
+def test_train_on_a_full_disk_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], free_kb: int
+) -> None:
+    with small_disk(tmp_path / "disk", 1024, free_kb=free_kb) as disk:
         out = disk / "run"
         code = train_main(["--synthetic", "discrete", "--episodes", "12", "--out", str(out), *SMALL,
                            "--set", "train.iterations=2"])  # fmt: skip
@@ -41,7 +44,10 @@ def test_train_on_a_full_disk_is_one_line(tmp_path: Path, capsys: pytest.Capture
         assert code == 2 and "Traceback" not in err, err
         lines = [line for line in err.splitlines() if line.strip()]
         assert len(lines) == 1 and str(out) in lines[0] and "No space left" in lines[0], err
-        assert not (out / "best").exists() and not _hidden(out)  # a checkpoint is whole or absent
+        assert not _hidden(out)  # no temporary left behind
+        for checkpoint in (out / "best", out / "last"):  # a checkpoint is whole or absent
+            assert not checkpoint.exists() or {"model.safetensors", "config.json"} <= {
+                p.name for p in checkpoint.iterdir()}
 
 
 @pytest.fixture(scope="module")

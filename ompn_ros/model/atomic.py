@@ -101,10 +101,10 @@ def free_space(path: Path) -> str:
     return f"{usage.free / 1e6:.1f} MB free" if usage.free >= 1e6 else f"{usage.free // 1024} KiB free"
 
 
-def write_failure(path: Path, exc: BaseException) -> WriteFailure:
-    """The one-line error of a failed write of ``path`` (the reason and the space left)."""
+def write_failure(path: Path, exc: BaseException, note: str = "") -> WriteFailure:
+    """The one-line error of a failed write of ``path`` (the reason, the space left and ``note``)."""
     reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
-    return WriteFailure(f"cannot write '{path}': {reason} ({free_space(path)}); nothing partial was left")
+    return WriteFailure(f"cannot write '{path}': {reason} ({free_space(path)}){note}")
 
 
 def atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
@@ -124,7 +124,7 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
     except OSError as exc:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
-        raise write_failure(path, exc) from exc
+        raise write_failure(path, exc, "; nothing partial was left") from exc
     except BaseException:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
