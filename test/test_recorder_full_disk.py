@@ -71,3 +71,19 @@ def test_too_little_space_at_start_is_one_line(tmp_path: Path, ros_env: dict[str
         out, _ = proc.communicate(timeout=60)
         assert proc.returncode == 2 and "Traceback" not in out, out
         assert "min_free_mb" in out and str(disk / "bag") in out and not (disk / "bag").exists(), out
+
+
+def test_low_space_is_warned_once_and_the_reserve_is_released(tmp_path: Path) -> None:
+    from ompn_ros.data.disk_guard import DiskGuard
+
+    with small_disk(tmp_path / "disk", 1024) as disk:
+        guard = DiskGuard(disk / "bag", min_free_bytes=400_000, reserve_bytes=200_000)
+        guard.start()
+        assert guard.reserve is not None and guard.reserve.stat().st_size == 200_000
+        assert guard.low() is None
+        (disk / "data").write_bytes(b"\0" * 500_000)  # the recording grows
+        line = guard.low()
+        assert line is not None and "running low" in line and str(disk / "bag") in line
+        assert guard.low() is None  # once
+        guard.release()
+        assert not [p for p in disk.iterdir() if p.name.startswith(".")]
