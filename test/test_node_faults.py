@@ -189,3 +189,17 @@ def test_a_second_node_of_the_same_name_is_reported(ctx: Any, ckpt: Path) -> Non
     for node in (first, second):
         node.destroy_node()
     peer.node.destroy_node()
+
+
+def test_activate_after_a_failed_configure_is_refused(ctx: Any, ckpt: Path, tmp_path: Path) -> None:
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    node = make_node(ctx, tmp_path / "missing", name="unconfigurable")
+    assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+    serve = node._service_change_state.callback  # what the executor runs for a ~/change_state request
+    request = ChangeState.Request(transition=Transition(id=Transition.TRANSITION_ACTIVATE))
+    response = serve(request, ChangeState.Response())  # rclpy 7.1.6 alone raises RCLError here
+    assert response.success is False
+    assert node._state_machine.current_state[1] == "unconfigured"
+    node.destroy_node()
