@@ -14,6 +14,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ompn_ros.model.atomic import atomic_write
+
 
 def plot_episode(
     path: str | Path,
@@ -74,6 +76,8 @@ def plot_episode(
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
+    try:  # whole or absent, like every output file (a full disk: one line naming the file)
+        atomic_write(out, lambda handle: fig.savefig(handle, dpi=100, format=out.suffix.lstrip(".") or "png"))
+    finally:
+        plt.close(fig)
     return out

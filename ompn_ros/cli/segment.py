@@ -83,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="replay mode, one bag: also write OUT, an mcap copy of the bag with the node's ~/pi, "
         "~/segment and ~/boundary added at the observation stamps (none: no copy)",
     )
+    p.add_argument("--overwrite", action="store_true", help="with --annotate: replace an existing OUT")
     p.add_argument("--plot-episodes", type=int, default=3, help="number of episodes to plot")
     p.add_argument("--tune", action="store_true", help="grid-search the online detector instead of replaying")
     p.add_argument(
@@ -173,7 +174,8 @@ def _run(args: argparse.Namespace) -> int:
     print(f"ompn_segment: {line}", file=sys.stderr)
     if args.annotate:
         spec = replay.reader_spec(args.reader_config, args.domain)
-        done = replay.annotate(args.bag, Path(args.annotate), episodes, replays, spec)
+        done = replay.annotate(args.bag, Path(args.annotate), episodes, replays, spec,
+                               overwrite=args.overwrite)
         print(f"ompn_segment: annotated copy written to {done.out}", file=sys.stderr)
     return 0
 

@@ -312,12 +312,15 @@ def _open_reader(src: Path) -> Any:
 
 
 def _prepare_output(out: Path, src: Path, overwrite: bool) -> Path:
-    """Check ``out`` and return the temporary sibling the bag is written into first."""
+    """Check ``out`` and return the hidden staging directory beside it; the bag is written into
+    ``staging / out.name`` (so its storage file gets ``out``'s own, visible name) and moved to ``out``
+    once complete."""
     o, i = out.resolve(), src.resolve()
     if o == i or i in o.parents or o in i.parents:
         raise AnnotateError("the output must not be the input bag, lie inside it or contain it", path=out)
     if out.exists() and not overwrite:
-        raise AnnotateError("output exists (pass overwrite=True to replace it)", path=out)
+        raise AnnotateError("output exists (ompn_segment --overwrite, or overwrite=True, replaces it)",
+                            path=out)
     if not out.parent.is_dir():
         raise AnnotateError("output's parent directory does not exist", path=out)
     tmp = out.parent / f".{out.name}.partial"
@@ -417,14 +420,16 @@ def annotate_bag(
                                 path=src, topic=clash[0])
         note = json.dumps({"source": src.name, "namespace": "/" + namespace.strip("/"),
                            "segment_labels": labels})
-        copied = _write(reader, tmp, storage, topics, added, src, note)
+        tmp.mkdir()
+        copied = _write(reader, tmp / out.name, storage, topics, added, src, note)
     except BaseException:
         _remove(tmp)
         raise
     finally:
         reader.close()
     _remove(out)
-    tmp.rename(out)
+    (tmp / out.name).rename(out)
+    tmp.rmdir()
     counts = Counter(msg.topic for msg in added)
     return AnnotateReport(out=out, storage=storage, copied=copied,
                           added={topic: counts[topic] for topic in topics.values()},

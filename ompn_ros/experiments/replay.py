@@ -26,6 +26,7 @@ from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
+from ompn_ros.model.atomic import atomic_write, atomic_write_text
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
 from sim_nodes.registry import DOMAINS, default_tasks, expert_episode
@@ -68,8 +69,8 @@ def write_read_report(out: Path, result: ReadResult, on_error: str) -> None:
         "errors": result.report.errors,
         "summary": summary,
     }
-    (out / "read_report.json").write_text(json.dumps(doc, indent=1) + "\n")
-    (out / "read_report.txt").write_text(summary + "\n")
+    atomic_write_text(out / "read_report.json", json.dumps(doc, indent=1) + "\n")
+    atomic_write_text(out / "read_report.txt", summary + "\n")
 
 
 def replay_all(policy: Any, episodes: Sequence[Episode], config: DetectorConfig,
@@ -197,14 +198,14 @@ def run_replay(
             arrays[f"ep{i}_{key.rstrip('s') if key == 'scores' else key}"] = getattr(r, key)
     for i, (ep, r) in enumerate(zip(episodes[:plot_episodes], replays, strict=False)):
         _plot(out / f"episode_{i}.png", ep, r, config)
-    np.savez_compressed(out / "pi.npz", **arrays)  # type: ignore[arg-type]
+    # every file whole or absent (a full disk fails with one line naming the file: WriteFailure)
+    atomic_write(out / "pi.npz", lambda handle: np.savez_compressed(handle, **arrays))  # type: ignore[arg-type]
     doc = [_episode_doc(i, ep, r) for i, (ep, r) in enumerate(zip(episodes, replays, strict=True))]
-    (out / "boundaries.json").write_text(
-        json.dumps({"detector": config.to_dict(), "episodes": doc}, indent=1)
-    )
+    atomic_write_text(out / "boundaries.json", json.dumps({"detector": config.to_dict(), "episodes": doc},
+                                                          indent=1))
     summary: dict[str, Any] = {"episodes": len(episodes), "detector": config.to_dict()}
     if episodes and all(ep.subtask is not None for ep in episodes):
         summary["metrics"] = compare_detectors(policy, episodes, {"online": config}, replays=replays,
                                                duration_model=duration_model)
-        (out / "metrics.json").write_text(json.dumps(json_safe(summary["metrics"]), indent=1))
+        atomic_write_text(out / "metrics.json", json.dumps(json_safe(summary["metrics"]), indent=1))
     return summary

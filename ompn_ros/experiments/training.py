@@ -21,6 +21,7 @@ import yaml
 from ompn_ros.data.bag_reader import ReaderSpec, final_row_guessed
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.layout import DOMAINS
+from ompn_ros.model.atomic import atomic_write_text
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
 from ompn_ros.train.distributed import init_distributed, shutdown
@@ -190,8 +191,8 @@ def fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str,
 def write_read_report(out: Path, report: dict[str, Any]) -> None:
     """Store the bag reader's report with the run (``read_report.json`` and ``read_report.txt``)."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "read_report.json").write_text(json.dumps(report, indent=1) + "\n")
-    (out / "read_report.txt").write_text(str(report.get("summary", "")) + "\n")
+    atomic_write_text(out / "read_report.json", json.dumps(report, indent=1) + "\n")
+    atomic_write_text(out / "read_report.txt", str(report.get("summary", "")) + "\n")
 
 
 def weights_hash(policy: Any) -> str:
@@ -243,7 +244,7 @@ def run_training(
             "train_seconds": result.train_seconds,
             "world_size": ctx.world_size,
         }
-        (out / "summary.json").write_text(json.dumps(summary, indent=1, sort_keys=True))
+        atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, sort_keys=True))
         return summary
     finally:
         shutdown(ctx)

@@ -6,6 +6,10 @@ target and renames it into place.  A process killed in between leaves it behind;
 process id, written by older versions, once they are older than :data:`LEGACY_STALE_SECONDS`).
 Checkpoint saving and the training state call it on every save and when a run starts, so nothing
 piles up under ``train_state/``.
+
+:func:`atomic_write` writes one file that way (a full or read-only disk leaves the old file, or
+none, never a truncated one) and turns a failed write into one :class:`WriteFailure` line naming the
+file and the space left on its filesystem.
 """
 
 from __future__ import annotations
@@ -15,8 +19,9 @@ import re
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
+from typing import BinaryIO, Literal
 
 TempKind = Literal["tmp", "old"]
 TAGGED = re.compile(r"^\.(?P<stem>.+)\.(?:tmp|old)-(?P<pid>\d+)-[^/]+$")
@@ -80,4 +85,66 @@ def remove_stale_temps(parent: Path, stem: str | None = None) -> list[Path]:
     return removed
 
 
-__all__ = ["LEGACY_STALE_SECONDS", "is_stale", "make_temp_dir", "remove_stale_temps", "temp_prefix"]
+class WriteFailure(OSError):
+    """A file could not be written (full or read-only filesystem...): the message names it."""
+
+
+def free_space(path: Path) -> str:
+    """The space left on the filesystem that holds ``path`` (its nearest existing parent)."""
+    probe = Path(path).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        usage = shutil.disk_usage(probe)
+    except OSError:
+        return "free space unknown"
+    return f"{usage.free / 1e6:.1f} MB free" if usage.free >= 1e6 else f"{usage.free // 1024} KiB free"
+
+
+def write_failure(path: Path, exc: BaseException, note: str = "") -> WriteFailure:
+    """The one-line error of a failed write of ``path`` (the reason, the space left and ``note``)."""
+    reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
+    return WriteFailure(f"cannot write '{path}': {reason} ({free_space(path)}){note}")
+
+
+def atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
+    """Write ``path`` with ``write(handle)`` into a temporary sibling, synced, then renamed into place.
+
+    Raises :class:`WriteFailure` (an ``OSError``) naming ``path`` when the filesystem refuses; the
+    temporary is removed and an existing ``path`` is left as it was."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp: str | None = None
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name))
+        with os.fdopen(fd, "wb") as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        raise write_failure(path, exc, "; nothing partial was left") from exc
+    except BaseException:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """:func:`atomic_write` of ``text`` (UTF-8)."""
+    atomic_write(path, lambda handle: handle.write(text.encode("utf-8")))
+
+
+__all__ = [
+    "LEGACY_STALE_SECONDS",
+    "WriteFailure",
+    "atomic_write",
+    "atomic_write_text",
+    "free_space",
+    "is_stale",
+    "make_temp_dir",
+    "remove_stale_temps",
+    "temp_prefix",
+    "write_failure",
+]

@@ -27,7 +27,7 @@ import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 
-from ompn_ros.model.atomic import make_temp_dir, remove_stale_temps
+from ompn_ros.model.atomic import free_space, make_temp_dir, remove_stale_temps
 from ompn_ros.model.build import PolicyModule, build_policy, check_model_size, expected_tensors
 from ompn_ros.model.config import ConfigError, OMPNConfig
 
@@ -91,8 +91,12 @@ def save_checkpoint(
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
-    except OSError as exc:
-        raise CheckpointError(f"{path}: cannot write checkpoint: {exc}") from exc
+    except (OSError, SafetensorError) as exc:  # safetensors reports a full disk as its own error
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise CheckpointError(
+            f"{path}: cannot write checkpoint: {reason} ({free_space(path.parent)}); the previous "
+            "checkpoint, if any, is unchanged"
+        ) from exc
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

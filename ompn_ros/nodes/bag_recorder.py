@@ -21,6 +21,7 @@ Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the
         for this long (default 0.3 s).  It ends at once when every topic that was streaming at the
         signal (a message at least every 0.5 s, the last within 1 s) has delivered a message from the
         cut on; a stalled stream is waited for (up to ``drain_timeout``) while its publisher lives.
+    min_free_mb (double): free space needed to start, warned about once when it runs low (default 64).
     commit_period (double): seconds between storage commits (default 1.0): a SIGKILL loses at most
         this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).  Once half the period
         has passed, the next step's opening message is held back with everything stamped after it
@@ -41,6 +42,13 @@ before the first ``/clock`` wait for it (up to 20 000, then they are written in 
 Loss is detected from ``publication_sequence_number`` jumps per topic (a backwards jump = another
 publisher, not counted).
 
+**A full disk** (or any storage error): recording stops at the first failed write or commit, with
+one error line naming the bag and the free space; the recorder then closes the bag properly
+(``metadata.yaml``, the mcap summary and footer, the sqlite3 COMMIT: room for them is kept by
+:class:`ompn_ros.data.disk_guard.DiskGuard`) and exits with status 2, so what was written opens without
+``skip_tail``.  Less than ``min_free_mb`` free at start is refused (exit 2); falling below it while
+recording is warned once.
+
 **Stopping:** SIGINT/SIGTERM do not drop the queue.  The recorder drains what DDS has delivered and
 ends every topic at the same step (``ompn_ros.data.stop_cut``), closes the bag and prints a summary
 (messages per topic, sequence jumps, large time gaps, the drain).  A second signal ends the drain
@@ -53,6 +61,7 @@ import argparse
 import datetime as dt
 import importlib
 import signal
+import sqlite3
 import sys
 import time
 from dataclasses import dataclass, field
@@ -72,6 +81,7 @@ from rclpy.utilities import remove_ros_args
 from ompn_ros import layout
 from ompn_ros.data import messages as m
 from ompn_ros.data.bag_writer import STORAGES, storage_plugin
+from ompn_ros.data.disk_guard import DiskGuard
 from ompn_ros.data.sim_stamps import SimStamper
 from ompn_ros.data.step_commits import COMMIT, StepCommits
 from ompn_ros.data.stop_cut import StopCut
@@ -100,7 +110,10 @@ PARAMS: tuple[ParamSpec, ...] = (
               float_range=(0.001, 60.0)),
     ParamSpec("commit_period", 1.0, "seconds between storage commits (the most a SIGKILL loses)",
               float_range=(0.001, 3600.0)),
+    ParamSpec("min_free_mb", 64.0, "free disk space (MB) needed to start; less while recording is "
+              "warned once (0 = no check)", float_range=(0.0, 1e9)),
 )
+RESERVE_BYTES = 2 * 1024 * 1024  # kept free beside the bag so that a full disk still lets it close
 
 
 STREAM_PERIOD_S = 0.5  # a topic publishing at least every 0.5 s is a stream the drain waits for
@@ -197,9 +210,17 @@ class BagRecorder(Node):
         self.drain_end = ""
         self.received_before_signal = 0
         self.commits: StepCommits[tuple[_Topic, int, bytes]] = StepCommits(step, float(p["commit_period"]))
+        self.failed = ""  # the storage error that stopped the recording
+        self.disk = DiskGuard(self.output, round(float(p["min_free_mb"]) * 1e6), RESERVE_BYTES)
+        self.disk.start()  # NotEnoughSpace (an OSError: exit 2) before anything is created
+        self._space_checked = time.monotonic()
         self.writer: DurableWriter | None = DurableWriter(
             self.output, version=9, storage_plugin=storage_plugin(storage), commit_period=None)
-        self.writer.open()
+        try:
+            self.writer.open()
+        except BaseException:
+            self.disk.release()
+            raise
         self.topics: dict[str, _Topic] = {}
         self.qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
@@ -311,10 +332,26 @@ class BagRecorder(Node):
         """Write the messages and make the commits :class:`StepCommits` decided, in order."""
         for action in actions:
             if action is COMMIT:
-                if self.writer is not None:
-                    self.writer.checkpoint()
+                self._checkpoint()
             else:
                 self._write(*action)
+
+    def _checkpoint(self) -> None:
+        if self.writer is not None and not self.failed:
+            try:
+                self.writer.checkpoint()
+            except (OSError, sqlite3.Error) as err:
+                self._storage_failed(err)
+
+    def _storage_failed(self, err: Exception) -> None:
+        """The first failed write or commit stops the recording: one line, the reserve released for
+        the close (the main loop then closes the bag and exits 2)."""
+        if self.failed:
+            return
+        self.disk.release()
+        self.failed = (f"stopped recording: cannot write to '{self.output}': {err} "
+                       f"({self.disk.free_text()}); closing the bag with what was written")
+        self.get_logger().error(self.failed)
 
     def _finish_held(self) -> None:
         """Write what the stop cut and the pending commit hold back (the recording ends)."""
@@ -335,12 +372,14 @@ class BagRecorder(Node):
         writer = self.writer
         if writer is None:
             return
+        if self.failed:
+            self.write_errors += 1
+            return
         try:
             writer.write(topic.conn, stamp, raw)
-        except OSError as err:  # disk full, ...: count and keep the node alive
+        except (OSError, sqlite3.Error) as err:  # disk full, ...: the recording stops, the bag is closed
             self.write_errors += 1
-            if self.write_errors == 1:
-                self.get_logger().error(f"cannot write to {self.output}: {err}")
+            self._storage_failed(err)
             return
         stats = topic.stats
         stats.count += 1
@@ -352,10 +391,16 @@ class BagRecorder(Node):
         """Periodic: a pending commit a whole period old is made anyway; with none pending and a
         period over (no step opened in half of one), the storage is committed."""
         writer = self.writer
-        if writer is not None:
+        if writer is not None and not self.failed:
             self._apply(self.commits.due(writer.since_checkpoint()))
             if self.commits.idle_commit(writer.since_checkpoint()):
-                writer.checkpoint()
+                self._checkpoint()
+        now = time.monotonic()
+        if now - self._space_checked >= 1.0:  # one statvfs a second
+            self._space_checked = now
+            low = self.disk.low()
+            if low is not None:
+                self.get_logger().warning(low)
 
     # --- stop ---------------------------------------------------------------------------------------
     def drain(self, executor: Any, stop: StopRequest) -> None:
@@ -398,10 +443,17 @@ class BagRecorder(Node):
     def close(self) -> str:
         """Close the bag; returns the summary text."""
         if self.writer is not None:
-            self._flush_preclock()
-            self._finish_held()
-            self.writer.close()
+            if not self.failed:
+                self._flush_preclock()
+                self._finish_held()
+            try:
+                self.writer.close()
+            except (OSError, sqlite3.Error) as err:  # even the reserve did not suffice
+                self.failed = self.failed or f"cannot write to '{self.output}': {err}"
+                self.get_logger().error(f"the bag could not be closed ({err}): read it with --on-error "
+                                        "skip_tail (ompn_train: --set data.on_error=skip_tail)")
             self.writer = None
+        self.disk.release()
         return self.summary()
 
     def summary(self) -> str:
@@ -481,18 +533,18 @@ def main(args: list[str] | None = None) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        while stop.signal_ns is None and rclpy.ok():
+        while stop.signal_ns is None and rclpy.ok() and not node.failed:
             executor.spin_once(timeout_sec=0.05)
             node.pump()
             node.tick()
-        if stop.signal_ns is not None:
+        if stop.signal_ns is not None and not node.failed:
             node.drain(executor, stop)
     finally:
         print(node.close(), flush=True)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return 2 if node.failed else 0
 
 
 if __name__ == "__main__":

@@ -32,7 +32,12 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       trimmed, counted ``idle_trimmed``).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
-assembler's partner history; episode markers keep it).
+assembler's partner history; episode markers keep it); answered in every state, refused with the reason
+while the node is not active.
+
+Lifecycle: every transition is logged; a request the current state does not offer is refused with
+``success: false`` and one line (:mod:`ompn_ros.nodes.lifecycle_guard`), and the shutdown transition ends
+the process (exit 0).
 
 Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
@@ -83,6 +88,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -109,7 +115,10 @@ from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
 from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
+from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, IdleGate, SilenceWatch
+from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 from ompn_ros.nodes.ompn_node_obs import (
     MESSAGE_CLASSES,
@@ -141,6 +150,7 @@ from ompn_ros.segmenter import (
 from ompn_ros.validate import validate_sketch
 
 NODE_NAME = "ompn_node"
+MARKER_QUEUE = 5_000  # episode markers (and sketches) queued for the node: Fast DDS's default sample limit
 LEVEL_OK, LEVEL_WARN = 0, 1
 LIVE_DETECTOR_KEYS = frozenset(
     {"detector_high", "detector_hysteresis", "detector_min_segment_length", "detector_mode",
@@ -167,11 +177,19 @@ def load_policy(path: str) -> Any:
 
 
 def detector_config(values: dict[str, Any]) -> DetectorConfig:
-    """The detector of the ``detector_*`` parameter values (``low = max(0, high - hysteresis)``)."""
-    high = float(values["detector_high"])
+    """The detector of the ``detector_*`` parameter values (``low = high - hysteresis``).
+
+    Raises :class:`DetectorConfigError` when ``detector_hysteresis`` exceeds ``detector_high`` (the run
+    would end below a score of 0, so it would never end)."""
+    high, hysteresis = float(values["detector_high"]), float(values["detector_hysteresis"])
+    if hysteresis > high + 1e-9:
+        raise DetectorConfigError(
+            f"detector_hysteresis={hysteresis} exceeds detector_high={high}: a run would end only below a "
+            "score of 0; set detector_hysteresis <= detector_high"
+        )
     return DetectorConfig(
         high=high,
-        low=max(0.0, high - float(values["detector_hysteresis"])),
+        low=max(0.0, high - hysteresis),
         min_segment_length=int(values["detector_min_segment_length"]),
         mode=str(values["detector_mode"]),
         force_first_step_low=bool(values["detector_force_first_step_low"]),
@@ -204,7 +222,6 @@ class OMPNNode(LifecycleNode):
         self._last_receive_ns = 0
         self._pubs: dict[str, Any] = {}
         self._subs: list[Any] = []
-        self._service: Any = None
         self._timer: Any = None
         self._graph_timer: Any = None
         self._hold_timer: Any = None
@@ -219,14 +236,22 @@ class OMPNNode(LifecycleNode):
         self._boundary_cdr = BoundaryEncoder(self._status_name)
         self._n_slots = 0
         self._active = False
+        self.finished = threading.Event()  # set by the shutdown transition: main() then exits
         self._jump_back_ns = self._max_lead_ns = self._gap_ns = 0
+        self._clock_watch = ClockWatch()
+        self._duplicates = 0  # other nodes with this node's full name (seen on the graph)
         self._cache_stamp_limits()
+        guard_clock_topic(self, self._on_clock)  # a negative /clock is dropped, not fatal
+        guard_change_state(self, self.get_logger().warning)  # an invalid request is refused, not fatal
+        self._service: Any = self.create_service(Trigger, "~/reset", self._on_reset)  # in every state
 
     def _cache_stamp_limits(self) -> None:
         """The stamp limits in ns, read once per change rather than once per step."""
         self._jump_back_ns = int(float(self.values["clock_jump_back"]) * 1e9)
         self._max_lead_ns = int(float(self.values["max_stamp_lead"]) * 1e9)
         self._gap_ns = round(float(self.values["episode_gap"]) * 1e9)
+        self._clock_watch.stall_ns = round(float(self.values["clock_stall"]) * 1e9)
+        self._clock_watch.jump_forward_ns = round(float(self.values["clock_jump_forward"]) * 1e9)
 
     # --- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
@@ -400,8 +425,10 @@ class OMPNNode(LifecycleNode):
             self.last_error = "activate without a configured segmenter"
             return TransitionCallbackReturn.FAILURE
         inputs = input_qos(str(self.values["obs_qos"]), int(self.values["qos_depth"]))
+        # a deep queue: a burst of markers waits for the node rather than overwriting the unread ones;
+        # what the middleware still loses is counted (markers_lost)
         markers = QoSProfile(
-            depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
+            depth=MARKER_QUEUE, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
@@ -414,8 +441,10 @@ class OMPNNode(LifecycleNode):
         else:  # raw CDR: the float32 data is read in place, no message object is built
             callback = self._on_array_info if self.uses_message_info else self._on_array
             self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
-        self._service = self.create_service(Trigger, "~/reset", self._on_reset)
-        self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics)
+        # the steady clock: /diagnostics (and the stall check) go on while a simulator's /clock stands still
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        period = float(self.values["diagnostics_period"])
+        self._timer = self.create_timer(period, self._health_tick, clock=steady)
         if self._gap_ns > 0:  # the node's clock: simulated time under use_sim_time
             self._silence = SilenceWatch(self._gap_ns)
             self._gap_timer = self.create_timer(self._gap_ns * GAP_TIMER_FRACTION / 1e9, self._check_silence)
@@ -443,9 +472,10 @@ class OMPNNode(LifecycleNode):
     def _subscribe(
         self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
     ) -> None:
+        lost = ("messages_lost", "markers_lost") if topic == layout.EPISODE else ("messages_lost",)
         events = SubscriptionEventCallbacks(
             incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
-            message_lost=lambda info: self.events.update(messages_lost=info.total_count_change),
+            message_lost=lambda info: self.events.update(dict.fromkeys(lost, info.total_count_change)),
         )
         self._subs.append(
             self.create_subscription(msg_type, topic, callback, qos, raw=raw, event_callbacks=events)
@@ -477,10 +507,13 @@ class OMPNNode(LifecycleNode):
         self._pubs = {}
         self.segmenter = None
         self.assembled = None
+        self.get_logger().info("cleaned up")
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._teardown_inputs()
+        self.get_logger().info(f"shut down from '{state.label}'")
+        self.finished.set()
         return TransitionCallbackReturn.SUCCESS
 
     def _teardown_inputs(self) -> None:
@@ -488,9 +521,6 @@ class OMPNNode(LifecycleNode):
         for sub in self._subs:
             self.destroy_subscription(sub)
         self._subs = []
-        if self._service is not None:
-            self.destroy_service(self._service)
-            self._service = None
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
@@ -812,6 +842,7 @@ class OMPNNode(LifecycleNode):
         for status in msg.status:
             if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
+            self.events["markers"] += 1
             values = {kv.key: kv.value for kv in status.values}
             if status.message == layout.EPISODE_START:
                 self._on_start_marker(values.get(layout.KEY_SKETCH, ""))
@@ -858,6 +889,11 @@ class OMPNNode(LifecycleNode):
             self._start_episode(sketch)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if not self._active:
+            state = self._state_machine.current_state[1]
+            response.success = False
+            response.message = f"not reset: the node is '{state}'; ~/reset starts episodes only while active"
+            return response
         if self.assembled is not None:  # held steps are stepped first: they came before the request
             self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
         response.success = self._start_episode(self._episode_sketch)
@@ -866,12 +902,53 @@ class OMPNNode(LifecycleNode):
         return response
 
     # --- health --------------------------------------------------------------------------------
+    def _on_clock(self, msg: Any) -> bool:
+        """Before rclpy's /clock handler: drop a negative time; a forward leap starts a new episode."""
+        verdict = self._clock_watch.on_clock(clock_ns(msg), time.monotonic_ns())
+        if verdict == "negative":
+            self.events["clock_negative"] += 1
+            self._warn_throttled(f"/clock message dropped: negative time {clock_ns(msg)} ns", False)
+            return False
+        if verdict == "forward":
+            self.events["clock_jumps_forward"] += 1
+            self.get_logger().warning(
+                f"/clock jumped ahead to {clock_ns(msg)} ns (more than clock_jump_forward="
+                f"{self.values['clock_jump_forward']} s): starting a new episode"
+            )
+            seg = self.segmenter
+            if seg is not None and self._active and seg.ready:
+                if seg.detector.steps_seen > 0 and not seg.detector.closed:
+                    self._close_episode(None)
+                started = self._start_episode(self._episode_sketch, count_bad=False)
+                self.events["episode_starts"] += int(started)
+        return True
+
+    def _health_tick(self) -> None:
+        """Steady-clock timer: a /clock stall and a second node of this name are reported once, then
+        the counters go out on /diagnostics."""
+        if self._clock_watch.stalled(time.monotonic_ns()) and self.get_parameter("use_sim_time").value:
+            self.events["clock_stalls"] += 1
+            self.get_logger().warning(
+                f"/clock has not advanced for clock_stall={self.values['clock_stall']} s (stuck at "
+                f"{self._clock_watch.last_ns} ns): is the simulator paused or hung? Steps keep one stamp"
+            )
+        duplicates = same_name_count(self) - 1
+        if duplicates > self._duplicates:
+            self.get_logger().warning(duplicate_line(self.get_fully_qualified_name(), duplicates))
+        self._duplicates = max(0, duplicates)
+        self.publish_diagnostics()
+
     def counters(self) -> dict[str, int]:
         """Health counters (also on /diagnostics): accepted steps, rejected inputs (total and by
         reason), episodes (that had a step), episode_starts (accepted start markers, ~/reset calls and
         clock restarts), episodes_ended (end markers, pauses and clock restarts that closed an episode),
-        episode_gaps (pauses of ``episode_gap`` seen), messages_lost (reported by the middleware),
-        boundaries published, clock_jumps, bad_end_markers, qos_incompatible; with ``observation_spec``
+        episode_gaps (pauses of ``episode_gap`` seen), markers (episode markers handled: every marker
+        received is counted here or, when the middleware lost it, in markers_lost), messages_lost (all
+        topics, reported by the middleware),
+        boundaries published, clock_jumps (input stamps back by more than ``clock_jump_back``),
+        clock_jumps_forward (``/clock`` ahead by more than ``clock_jump_forward``), clock_stalls (``/clock``
+        stood still for ``clock_stall``), clock_negative (negative ``/clock`` times dropped),
+        bad_end_markers, qos_incompatible (and duplicate_names on /diagnostics); with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
         ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
@@ -885,9 +962,14 @@ class OMPNNode(LifecycleNode):
             "episode_starts",
             "episodes_ended",
             "episode_gaps",
+            "markers",
+            "markers_lost",
             "messages_lost",
             "boundaries",
             "clock_jumps",
+            "clock_jumps_forward",
+            "clock_stalls",
+            "clock_negative",
             "bad_end_markers",
             "qos_incompatible",
         ):
@@ -912,9 +994,13 @@ class OMPNNode(LifecycleNode):
         counters = self.counters()
         dropped = self.assembled.dropped_total if self.assembled is not None else 0
         rejected = counters["rejected"] > 0 or dropped > 0
+        counters["duplicate_names"] = self._duplicates
+        message = "rejected input" if rejected else "ok"
+        if self._duplicates:
+            message = f"duplicate node name: {self._duplicates + 1} nodes publish this status"
         raw = encode_diagnostic_status(
             self.get_clock().now().nanoseconds, f"{self.get_fully_qualified_name()}: segmenter",
-            "rejected input" if rejected else "ok", counters, LEVEL_WARN if rejected else LEVEL_OK,
+            message, counters, LEVEL_WARN if rejected or self._duplicates else LEVEL_OK,
         )  # fmt: skip
         try:
             pub.publish(raw)
@@ -966,10 +1052,10 @@ def _stop_on_signals() -> threading.Event:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
 
-    Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
-    start-up parameter (one line naming it and the allowed values) or unparsable ROS arguments (rcl's
-    reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote
-    the mapping as a YAML string)."""
+    Exit codes: 0 after SIGINT/SIGTERM or the shutdown transition, 1 when the auto-start configure
+    fails, 2 on an invalid start-up parameter (one line naming it and the allowed values) or unparsable
+    ROS arguments (rcl's reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass
+    a file path or quote the mapping as a YAML string)."""
     if wants_help(args):
         print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
                         "publishes the action, ~/pi and ~/boundary events.", SPECS))
@@ -992,6 +1078,7 @@ def main(args: list[str] | None = None) -> int:
             node.trigger_activate()
         executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)
+        node.finished = stop  # the shutdown transition ends the process as a signal does
         spin_until_shutdown(executor, stop=stop)
     except (ParameterError, DetectorConfigError) as exc:  # observation_spec errors are ParameterErrors
         error = exc if isinstance(exc, ParameterError) else ParameterError("detector_*", str(exc))

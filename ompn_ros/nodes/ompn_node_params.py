@@ -3,7 +3,7 @@
 When a change applies (``ompn_ros.nodes.params``):
 
 * live, from the next step: ``detector_*``, ``done_threshold``, ``sketch`` (the default sketch),
-  ``warn_throttle``, ``max_stamp_lead``, ``clock_jump_back``;
+  ``warn_throttle``, ``max_stamp_lead``, ``clock_jump_back``, ``clock_jump_forward``, ``clock_stall``;
 * at the next ``configure`` (refused while active, with the way out): ``checkpoint``, ``domain``,
   ``obs_source``, ``joint_fields``, ``observation_spec``, ``obs_dim``, ``action_type``, ``sketch_mode``,
   ``qos_depth``, ``obs_qos``, ``boundary_replay``, ``diagnostics_period``, ``torch_threads``,
@@ -127,6 +127,12 @@ SPECS: Final = (
               "(0 = no check)", float_range=(0.0, 1e9), apply="live"),
     ParamSpec("clock_jump_back", 1.0, "seconds back in time that count as a clock restart (a new "
               "episode) rather than an out-of-order message", float_range=(0.0, 1e9), apply="live"),
+    ParamSpec("clock_jump_forward", 60.0, "use_sim_time: seconds /clock may leap ahead between two messages "
+              "before it counts as a clock restart (a new episode, counted, warned; 0 = no check)",
+              float_range=(0.0, 1e9), apply="live"),
+    ParamSpec("clock_stall", 5.0, "use_sim_time: seconds of wall time without /clock advancing that are "
+              "reported as a stall (once per stall: a warning and the clock_stalls counter; 0 = no check)",
+              float_range=(0.0, 1e6), apply="live"),
     ParamSpec("episode_gap", 0.0, "seconds between two step stamps, or without a step, that end an "
               "episode and start the next, for streams without episode markers (the reader's "
               "split: gaps / time_gap; 0 = off)", float_range=(0.0, 1e6), apply="configure",

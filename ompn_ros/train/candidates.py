@@ -28,6 +28,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
+from ompn_ros.model.atomic import atomic_write_text
+
 LOG = logging.getLogger(__name__)
 
 CANDIDATE_SEED_STRIDE = 10_007
@@ -131,7 +133,7 @@ def _publish(out_dir: Path, winner: Candidate, everyone: Sequence[Candidate], se
         "winner": winner.index,
         "candidates": candidate_rows(everyone),
     }
-    (out_dir / CANDIDATES_FILE).write_text(json.dumps(doc, indent=1) + "\n")
+    atomic_write_text(out_dir / CANDIDATES_FILE, json.dumps(doc, indent=1) + "\n")
 
 
 def best_of(cfg: C, train_one: Callable[[C], R], is_main: bool = True) -> tuple[R, list[Candidate]]:

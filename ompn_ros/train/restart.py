@@ -28,6 +28,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Protocol, TypeVar
 
+from ompn_ros.model.atomic import atomic_write_text
 from ompn_ros.train.state import TrainStateError
 
 
@@ -98,7 +99,7 @@ def start_attempt(out_dir: Path | None, attempt: int, seed: int, reason: str) ->
     if log.is_file():
         log.rename(out_dir / f"log_attempt{attempt - 1}.jsonl")
     doc = {"attempt": attempt, "seed": seed, "reason": reason}
-    (out_dir / ATTEMPT_FILE).write_text(json.dumps(doc, indent=1) + "\n")
+    atomic_write_text(out_dir / ATTEMPT_FILE, json.dumps(doc, indent=1) + "\n")
 
 
 def restart_reason(cfg: RestartConfig, selection: str, best_score: float, best_iteration: int) -> str:

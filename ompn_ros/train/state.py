@@ -19,14 +19,14 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from ompn_ros.model.atomic import make_temp_dir, remove_stale_temps, temp_prefix
+from ompn_ros.model.atomic import atomic_write_text, make_temp_dir, remove_stale_temps, write_failure
 
 POINTER = "LATEST"
 STATE_FORMAT = 1
@@ -34,21 +34,6 @@ STATE_FORMAT = 1
 
 class TrainStateError(RuntimeError):
     """A training state on disk is missing, incomplete or incompatible."""
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def optimizer_to_files(
@@ -105,6 +90,9 @@ def save_state(
         if target.exists():
             shutil.rmtree(target)
         os.replace(tmp, target)
+    except (OSError, SafetensorError) as exc:  # a full disk: one line naming the state directory
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise write_failure(target, exc) from exc
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

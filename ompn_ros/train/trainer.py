@@ -48,6 +48,7 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.detect.calibrate import agreement
 from ompn_ros.detect.online import MAX_LAG
 from ompn_ros.detect.settings import DetectorSettings
+from ompn_ros.model.atomic import write_failure
 from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
 from ompn_ros.model.config import ACTION_NORMS, ActionNorm, ConfigError, OMPNConfig
@@ -497,8 +498,11 @@ class _Sinks:
 
     def write(self, iteration: int, frames: int, record: dict[str, float]) -> None:
         if self.log_path is not None:
-            with self.log_path.open("a", encoding="utf-8") as handle:
-                handle.write(json.dumps({"iteration": iteration, "frames": frames, **record}) + "\n")
+            try:
+                with self.log_path.open("a", encoding="utf-8") as handle:
+                    handle.write(json.dumps({"iteration": iteration, "frames": frames, **record}) + "\n")
+            except OSError as exc:  # a full disk: one line naming the log
+                raise write_failure(self.log_path, exc) from exc
         if self.writer is not None:
             for key, value in record.items():
                 self.writer.add_scalar(key, value, global_step=iteration)

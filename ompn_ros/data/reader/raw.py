@@ -115,6 +115,15 @@ class RawBag:
 Planner = Callable[[dict[str, str]], "StreamPlan | None"]  # topic types -> what to decode while reading
 
 
+def _unfinished_hint(err: Exception) -> str:
+    """The way out when an mcap file has no end yet: a bag still being recorded, or one whose
+    recorder was killed (rosbags: 'File end magic is invalid')."""
+    if "end magic" not in str(err).lower():
+        return ""
+    return ("; the bag looks unfinished (still being recorded, or its recorder did not close it): "
+            "--on-error skip_tail (ompn_train: --set data.on_error=skip_tail) keeps its whole episodes")
+
+
 def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None = None) -> RawBag:
     """Read every message of the wanted topics with ``rosbags`` (the normal path).
 
@@ -131,7 +140,7 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
     except Exception as err:  # rosbags raises many types on broken storage
         files = storage_files(bag) if bag.is_dir() else [bag]
         where = files[0] if len(files) == 1 else bag
-        raise CorruptBagError(f"cannot open bag: {err}", path=where) from err
+        raise CorruptBagError(f"cannot open bag: {err}{_unfinished_hint(err)}", path=where) from err
     raw.types = {c.topic: c.msgtype for c in reader.connections}
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
     unmatched = storage_connections(reader, conns)

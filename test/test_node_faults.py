@@ -1,0 +1,205 @@
+"""ompn_node in process under a careless user: marker floods, contradicting detector parameters, clocks
+that go negative, stall or jump, and a second node with the same name (DDS on loopback)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+torch = pytest.importorskip("torch")
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+
+from ompn_ros import layout  # noqa: E402
+from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
+from ompn_ros.model.config import OMPNConfig  # noqa: E402
+from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
+from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
+
+OBS_DIM = 4
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(6)
+    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
+    path = tmp_path_factory.mktemp("faults") / "ckpt"
+    save_checkpoint(path, OMPNPolicy(cfg))
+    return path
+
+
+def make_node(ctx: Any, ckpt: Path, name: str = "ompn_node", **params: Any) -> OMPNNode:
+    overrides = [Parameter("checkpoint", value=str(ckpt))]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return OMPNNode(name, context=ctx, parameter_overrides=overrides)
+
+
+def pump(ex: Any, until: Callable[[], bool], timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.01)
+        if until():
+            return True
+    return until()
+
+
+def marker(kind: str) -> DiagnosticArray:
+    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
+                              values=[KeyValue(key=layout.KEY_SKETCH, value="")])  # fmt: skip
+    return DiagnosticArray(status=[status])
+
+
+def test_a_hysteresis_above_high_is_refused_with_the_reason(ctx: Any, ckpt: Path) -> None:
+    node = make_node(ctx, ckpt, detector_high=0.3)
+    result = node.set_parameters([Parameter("detector_hysteresis", value=0.5)])[0]
+    assert not result.successful
+    assert "detector_hysteresis" in result.reason and "detector_high" in result.reason
+    assert node.values["detector_hysteresis"] == 0.0
+    both = node.set_parameters_atomically(
+        [Parameter("detector_high", value=0.6), Parameter("detector_hysteresis", value=0.5)]
+    )
+    assert both.successful  # a valid pair set together
+    node.destroy_node()
+
+
+@pytest.mark.parametrize("n", [2_000, pytest.param(10_000, marks=pytest.mark.slow)])
+def test_a_marker_flood_is_processed_or_counted(ctx: Any, ckpt: Path, n: int) -> None:
+    """Every marker is handled or counted as lost: the sum is what was sent (the node's queue held 100
+    markers, so each burst of 400 lost most of them without a trace).  10 000 markers take ~20 s."""
+    node = make_node(ctx, ckpt, name=f"flooded{n}")
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = rclpy.create_node("flooder", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(peer)
+    pub = peer.create_publisher(DiagnosticArray, layout.EPISODE,
+                                QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE))  # fmt: skip
+    assert pump(ex, lambda: pub.get_subscription_count() > 0)
+    pump(ex, lambda: False, 0.3)
+
+    def handled() -> int:
+        c = node.counters()
+        return c["markers"] + c["markers_lost"]
+
+    start = time.monotonic()
+    for i in range(n):  # bursts of 400 (the node had a queue of 100), each served before the next
+        pub.publish(marker(layout.EPISODE_START if i % 2 == 0 else layout.EPISODE_END))
+        if i % 400 == 399:
+            pump(ex, lambda i=i: handled() >= i + 1, timeout=10)
+    took_s = time.monotonic() - start
+    pump(ex, lambda: False, 0.2)
+    c = node.counters()
+    assert c["markers"] + c["markers_lost"] == n, (c, took_s)
+    assert c["episode_starts"] == n // 2 - c["markers_lost"] // 2 or c["markers_lost"] > 0, c
+    node.destroy_node()
+    peer.destroy_node()
+
+
+class Peer:
+    """Publishes /clock, records /diagnostics statuses of ``status`` and spins with the node(s)."""
+
+    def __init__(self, ctx: Any, nodes: list[OMPNNode], status: str) -> None:
+        from rosgraph_msgs.msg import Clock
+
+        self.node = rclpy.create_node("clock_peer", context=ctx)
+        self.ex = SingleThreadedExecutor(context=ctx)
+        for n in [*nodes, self.node]:
+            self.ex.add_node(n)
+        self.clock_pub = self.node.create_publisher(Clock, "/clock", 10)
+        self.clock_type = Clock
+        self.statuses: list[DiagnosticStatus] = []
+        self.node.create_subscription(
+            DiagnosticArray, "/diagnostics",
+            lambda m: self.statuses.extend(s for s in m.status if s.name == status), 100,
+        )  # fmt: skip
+
+    def clock(self, ns: int) -> None:
+        from builtin_interfaces.msg import Time
+
+        msg = self.clock_type(clock=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000))
+        self.clock_pub.publish(msg)
+        pump(self.ex, lambda: False, 0.15)
+
+    def counters(self) -> dict[str, str]:
+        return {kv.key: kv.value for kv in self.statuses[-1].values} if self.statuses else {}
+
+
+def test_negative_and_leaping_sim_clocks(ctx: Any, ckpt: Path) -> None:
+    node = make_node(ctx, ckpt, name="simclock", use_sim_time=True, diagnostics_period=0.1)
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Peer(ctx, [node], "/simclock: segmenter")
+    assert pump(peer.ex, lambda: peer.clock_pub.get_subscription_count() > 0)
+    second = 1_000_000_000
+    peer.clock(1004 * second)
+    assert pump(peer.ex, lambda: node.get_clock().now().nanoseconds == 1004 * second)
+    for _ in range(3):  # a simulator restarted an hour back: rclpy 7.1.6 raises ValueError in its handler
+        peer.clock(-2596 * second)
+    assert node.events["clock_negative"] >= 1 and node.get_clock().now().nanoseconds == 1004 * second
+    starts = node.events["episode_starts"]
+    peer.clock(1005 * second)
+    peer.clock((1005 + 7200) * second)  # two hours ahead: a new episode, counted
+    assert pump(peer.ex, lambda: node.events["clock_jumps_forward"] == 1)
+    assert node.events["episode_starts"] == starts + 1
+    assert pump(peer.ex, lambda: peer.counters().get("clock_jumps_forward") == "1")
+    node.destroy_node()
+    peer.node.destroy_node()
+
+
+def test_a_stalled_sim_clock_is_reported_once_and_diagnostics_go_on(ctx: Any, ckpt: Path) -> None:
+    node = make_node(ctx, ckpt, name="stalled", use_sim_time=True, diagnostics_period=0.1, clock_stall=0.5)
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Peer(ctx, [node], "/stalled: segmenter")
+    assert pump(peer.ex, lambda: peer.clock_pub.get_subscription_count() > 0)
+    peer.clock(50 * 1_000_000_000)
+    assert pump(peer.ex, lambda: node.get_clock().now().nanoseconds > 0)
+    seen = len(peer.statuses)
+    pump(peer.ex, lambda: False, 1.5)  # /clock stands still for 1.5 s of wall time
+    assert len(peer.statuses) - seen >= 5  # /diagnostics kept going (a steady-clock timer)
+    assert node.events["clock_stalls"] == 1 and peer.counters()["clock_stalls"] == "1"
+    peer.clock(51 * 1_000_000_000)  # moves again, then a second stall is a second report
+    pump(peer.ex, lambda: node.events["clock_stalls"] == 2, 2.0)
+    assert node.events["clock_stalls"] == 2
+    node.destroy_node()
+    peer.node.destroy_node()
+
+
+def test_a_second_node_of_the_same_name_is_reported(ctx: Any, ckpt: Path) -> None:
+    first = make_node(ctx, ckpt, name="twin", diagnostics_period=0.1)
+    second = make_node(ctx, ckpt, name="twin", diagnostics_period=0.1)
+    for node in (first, second):
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    peer = Peer(ctx, [first, second], "/twin: segmenter")
+    assert pump(peer.ex, lambda: any("duplicate node name" in s.message for s in peer.statuses))
+    status = next(s for s in peer.statuses if "duplicate node name" in s.message)
+    assert status.level == b"\x01" and {kv.key: kv.value for kv in status.values}["duplicate_names"] == "1"
+    for node in (first, second):
+        node.destroy_node()
+    peer.node.destroy_node()
+
+
+def test_activate_after_a_failed_configure_is_refused(ctx: Any, ckpt: Path, tmp_path: Path) -> None:
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    node = make_node(ctx, tmp_path / "missing", name="unconfigurable")
+    assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+    serve = node._service_change_state.callback  # what the executor runs for a ~/change_state request
+    request = ChangeState.Request(transition=Transition(id=Transition.TRANSITION_ACTIVATE))
+    response = serve(request, ChangeState.Response())  # rclpy 7.1.6 alone raises RCLError here
+    assert response.success is False
+    assert node._state_machine.current_state[1] == "unconfigured"
+    node.destroy_node()
