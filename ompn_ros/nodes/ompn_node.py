@@ -31,12 +31,17 @@ assembler's partner history; episode markers keep it).
 Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).
-    ``~/pi``          Float32MultiArray, ``layout.dim=[('slot', n, n)]``, ``data`` = the n slot
-                      probabilities π_1..π_n (lowest slot first), then the expected position
-                      Σ i·π_i (paper π_avg), then π_end: n + 2 values.
-    ``~/boundary``    DiagnosticArray, one status named '<node>/subtask_boundary' with keys step, subtask,
-                      score, level, detected_at, stamp_ns, final; ``header.stamp`` = the boundary step's
-                      input stamp.  RELIABLE; a late subscriber gets the last event only
+    ``~/state``       ompn_interfaces/msg/SubtaskState: header (the observation's stamp and frame_id),
+                      episode, step, ``pi`` (π_1..π_n, lowest slot first), ``expected_position``
+                      (Σ i·π_i, paper π_avg), ``pi_end``.
+    ``~/pi``          Float32MultiArray, the same numbers packed: π_1..π_n, Σ i·π_i, π_end (one
+                      dimension of n + 2 values, label ``layout.PI_LABEL``).
+    ``~/boundary``    ompn_interfaces/msg/SubtaskBoundary: header (stamp = the boundary step's input
+                      stamp, frame_id = the observation's), node, episode, step, subtask, subtask_id (from
+                      the sketch, -1 unknown), score, memory_level, decided_step and decided_stamp, final
+                      (every episode's last boundary; when the detector published it before the episode
+                      ended, it comes again with final set: :func:`ompn_ros.data.interfaces.with_final`).
+                      RELIABLE; a late subscriber gets the last event only
                       (``boundary_replay='last'``, TRANSIENT_LOCAL depth 1) or nothing old ('none').
     ``/diagnostics``  periodic DiagnosticArray, one status named '<fully qualified node name>: segmenter'
                       with the counters (:meth:`OMPNNode.counters`).
@@ -87,8 +92,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
 
+from ompn_interfaces.msg import SubtaskBoundary, SubtaskState
 from ompn_ros import layout
 from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
+from ompn_ros.data.interfaces import encode_subtask_state, with_final
 from ompn_ros.data.messages import (
     StampRangeError,
     encode_diagnostic_status,
@@ -200,8 +207,9 @@ class OMPNNode(LifecycleNode):
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
-        self._status_name = f"{self.get_name()}/subtask_boundary"
-        self._boundary_cdr = BoundaryEncoder(self._status_name)
+        self._boundary_cdr = BoundaryEncoder(self.get_fully_qualified_name())
+        self._frame_id = ""  # the observation's header.frame_id (JointState input)
+        self._last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
         self._n_slots = 0
         self._active = False
         self._jump_back_ns = self._max_lead_ns = self._gap_ns = 0
@@ -357,8 +365,9 @@ class OMPNNode(LifecycleNode):
         self._pubs = {
             "action": self.create_lifecycle_publisher(action_type, layout.CMD_ACTION, per_step),
             "pi": self.create_lifecycle_publisher(Float32MultiArray, layout.PI, per_step),
+            "state": self.create_lifecycle_publisher(SubtaskState, layout.STATE, per_step),
             "boundary": self.create_lifecycle_publisher(
-                DiagnosticArray,
+                SubtaskBoundary,
                 layout.BOUNDARY,
                 boundary_qos(str(self.values["boundary_replay"])),
                 event_callbacks=events,
@@ -597,6 +606,7 @@ class OMPNNode(LifecycleNode):
             return
         with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
             parts = [np.asarray(getattr(msg, f), dtype=np.float32) for f in self.values["joint_fields"]]
+        self._frame_id = msg.header.frame_id
         self.process_observation(np.concatenate(parts), stamp)
 
     def _reject(self, error: InvalidInput) -> None:
@@ -642,7 +652,10 @@ class OMPNNode(LifecycleNode):
         pi_values[:n] = so.pi
         pi_values[n] = so.expected_position
         pi_values[n + 1] = so.pi_end
-        self._pubs["pi"].publish(encode_float32_array(pi_values, "slot", n))
+        self._pubs["pi"].publish(encode_float32_array(pi_values, layout.PI_LABEL))
+        self._pubs["state"].publish(encode_subtask_state(
+            self.last_stamp_ns, self._frame_id, self.events["episodes"], out.step_index, so.pi,
+            so.expected_position, so.pi_end))
         if out.boundary is not None:
             self.log_boundary(out.boundary)
 
@@ -678,11 +691,15 @@ class OMPNNode(LifecycleNode):
         return True
 
     # --- outputs -------------------------------------------------------------------------------
-    def publish_boundary(self, event: BoundaryEvent, log: bool = True) -> None:
+    def publish_boundary(self, event: BoundaryEvent, log: bool = True, decided_ns: int | None = None) -> None:
         """Publish ``event`` on ``~/boundary`` (:class:`BoundaryEncoder`: the codec's bytes, the constant
         part encoded once) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
-        self._pubs["boundary"].publish(self._boundary_cdr.encode(stamp, event))
+        decided = self.last_stamp_ns if decided_ns is None else decided_ns
+        self._pubs["boundary"].publish(self._boundary_cdr.encode(
+            event, stamp_ns=stamp, episode=self.events["episodes"], frame_id=self._frame_id,
+            sketch=self._episode_sketch, decided_stamp_ns=decided))
+        self._last_boundary = (event, decided)
         self.events["boundaries"] += 1
         if log:
             self.log_boundary(event)
@@ -717,6 +734,7 @@ class OMPNNode(LifecycleNode):
             self.get_logger().warning(f"episode start rejected: {exc}; waiting for the next valid start")
             return False
         seg.forget_stamps()
+        self._last_boundary = None
         self._last_receive_ns = 0
         self.last_stamp_ns = 0
         self._episode_sketch = sketch
@@ -737,6 +755,10 @@ class OMPNNode(LifecycleNode):
         self.events["episodes_ended"] += 1
         for event in closing:
             self.publish_boundary(event)
+        if self._last_boundary is not None:  # the boundary published at the end comes again as final
+            last, decided = self._last_boundary
+            for event in with_final([last])[1:]:
+                self.publish_boundary(event, decided_ns=decided)
 
     def _end_at_pause(self) -> bool:
         """``episode_gap``: close the open episode as an end marker would and start the next one."""
