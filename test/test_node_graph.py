@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
+from ompn_interfaces.msg import SubtaskBoundary  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
@@ -182,11 +183,8 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
         clock = peer.node.create_publisher(Clock, "/clock", 10)
         obs_pub = peer.node.create_publisher(Float32MultiArray, f"/{sim}/observation", RELIABLE)
         ep_pub = peer.node.create_publisher(DiagnosticArray, f"/{sim}/episode", RELIABLE)
-        events: list[tuple[int, dict[str, str]]] = []
-        peer.node.create_subscription(
-            DiagnosticArray, f"/{sim}/ompn_node/boundary",
-            lambda msg: events.append((m.stamp_to_ns(msg.header.stamp),
-                                       {kv.key: kv.value for kv in msg.status[0].values})), LATE)  # fmt: skip
+        events: list[SubtaskBoundary] = []
+        peer.node.create_subscription(SubtaskBoundary, f"/{sim}/ompn_node/boundary", events.append, LATE)
         pis: list = []
         peer.node.create_subscription(Float32MultiArray, f"/{sim}/ompn_node/pi", pis.append, RELIABLE)
         name = f"/{sim}/ompn_node: segmenter"
@@ -217,9 +215,9 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
             obs_pub.publish(Float32MultiArray(data=rng.normal(size=OBS_DIM).tolist()))
             assert peer.pump(lambda t=t: len(pis) == t + 1, 10), peer.last(name)
         ep_pub.publish(marker("end", steps="7"))
-        assert peer.pump(lambda: any(e["final"] == "true" for _, e in events), 10)
-        for header_ns, event in events:  # sim time, not wall time
-            assert t0 < header_ns == int(event["stamp_ns"]) < t0 + 10**9
+        assert peer.pump(lambda: any(e.final for e in events), 10)
+        for event in events:  # sim time, not wall time
+            assert t0 < m.stamp_to_ns(event.header.stamp) <= m.stamp_to_ns(event.decided_stamp) < t0 + 10**9
 
         for k in range(2):  # the next episode begins (the end marker closed the last one) ...
             tick(t0 + 2 * 10**9 + k * 40_000_000)
