@@ -74,6 +74,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -105,10 +106,12 @@ from ompn_ros.data.messages import (
     parse_float32_array,
     parse_sketch_value,
 )
-from ompn_ros.data.obs import Decided, Drop
+from ompn_ros.data.obs import Decided, Drop, ObservationSpecError
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
-from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
+from ompn_ros.detect.settings import NODE_PARAMETERS, DetectorSettingsError, node_parameters, resolve_detector
+from ompn_ros.model.checkpoint import CheckpointError
+from ompn_ros.model.config import ConfigError
 from ompn_ros.model.factory import stepper_from_checkpoint
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, SilenceWatch
 from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
@@ -192,6 +195,8 @@ class OMPNNode(LifecycleNode):
         self.segmenter: StreamingSegmenter | None = None
         self.assembled: AssembledInput | None = None  # observation_spec input (None: single topic)
         self.last_error = ""
+        self.configure_error: Exception | None = None  # of the last failed configure
+        self.quiet_configure = False
         self.events: Counter[str] = Counter()  # node-level counters (counters())
         self.qos_warnings: list[str] = []
         self.last_stamp_ns = 0
@@ -326,7 +331,9 @@ class OMPNNode(LifecycleNode):
             self._configure()
         except Exception as exc:  # any failure is the transition's reason, never a crash
             self.last_error = f"{type(exc).__name__}: {exc}"
-            self.get_logger().error(f"configure failed: {self.last_error}")
+            self.configure_error = exc
+            if not self.quiet_configure:  # main() reports an auto-start failure itself, in one line
+                self.get_logger().error(f"configure failed: {self.last_error}")
             self.segmenter = None
             self.assembled = None
             return TransitionCallbackReturn.FAILURE
@@ -931,13 +938,32 @@ def _stop_on_signals() -> threading.Event:
     return stop
 
 
+KNOWN_CONFIGURE_ERRORS = (NodeConfigError, CheckpointError, ConfigError, DetectorConfigError,
+                          DetectorSettingsError, ObservationSpecError, FileNotFoundError)
+"""Configure failures caused by the parameters or the checkpoint (not by a bug in this package)."""
+
+
+def _cannot_start(node: OMPNNode) -> int:
+    """The auto-start configure failed: a known cause is one line and exit code 2 (README), anything
+    else a bug: its traceback and exit code 1."""
+    exc = node.configure_error
+    if isinstance(exc, KNOWN_CONFIGURE_ERRORS):
+        print(f"{NODE_NAME}: cannot start: {exc}", file=sys.stderr)
+        return 2
+    if exc is not None:
+        traceback.print_exception(exc)
+    node.get_logger().fatal(f"cannot start: {node.last_error}")
+    return 1
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
 
-    Exit codes: 0 after SIGINT/SIGTERM, 1 when the auto-start configure fails, 2 on an invalid
-    start-up parameter (one line naming it and the allowed values) or unparsable ROS arguments (rcl's
-    reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote
-    the mapping as a YAML string)."""
+    Exit codes: 0 after SIGINT/SIGTERM, 2 when the auto-start configure fails for a known cause (a
+    missing checkpoint, one that does not fit the domain or parameters: one line), 1 for any other
+    configure failure (a bug: its traceback), 2 on an invalid start-up parameter (one line naming it
+    and the allowed values) or unparsable ROS arguments (rcl's reason, e.g. an unquoted YAML mapping
+    given to ``-p observation_spec:=``: pass a file path or quote the mapping as a YAML string)."""
     if wants_help(args):
         print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
                         "publishes the action, ~/pi and ~/boundary events.", SPECS))
@@ -953,10 +979,11 @@ def main(args: list[str] | None = None) -> int:
     try:
         node = OMPNNode()
         if node.values["auto_start"]:
+            node.quiet_configure = True
             node.trigger_configure()
+            node.quiet_configure = False
             if node.segmenter is None:
-                node.get_logger().fatal(f"cannot start: {node.last_error}")
-                return 1
+                return _cannot_start(node)
             node.trigger_activate()
         executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)
