@@ -248,3 +248,31 @@ def test_invalid_start_up_parameter_exits_2_with_one_line(module: str, param: st
     assert proc.returncode == 2, proc.stdout + proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and param.split(":=")[0] in lines[0] and "Traceback" not in proc.stderr, lines
+
+
+def test_diagnostics_keep_their_rate_under_interleaved_clocks(ckpt: Path, ros_env: dict[str, str]) -> None:
+    """Two sims' clocks on one /clock (100 s apart, alternating): a use_sim_time node still sends
+    /diagnostics once per diagnostics_period of real time, not at every forward jump."""
+    sim = f"mix_{os.getpid()}"
+    proc = start_node(ckpt, ros_env, "use_sim_time:=true", "diagnostics_period:=0.5", ns=f"/{sim}")
+    peer = Peer([proc])
+    try:
+        clock = peer.node.create_publisher(Clock, "/clock", 10)
+        name = f"/{sim}/ompn_node: segmenter"
+        ticks = iter(range(10**9))
+
+        def interleave() -> bool:
+            k = next(ticks)
+            clock.publish(m.encode_clock((900 + 100 * (k % 2)) * 10**9 + (k // 2) * 10_000_000))
+            return False
+
+        assert peer.pump(lambda: interleave() or bool(peer.diags.get(name)), 60), "no /diagnostics"
+        before, start = len(peer.diags[name]), time.monotonic()
+        peer.pump(interleave, 4.0)
+        sent = len(peer.diags[name]) - before
+        elapsed = time.monotonic() - start
+        assert 2 <= sent <= elapsed / 0.5 + 3, (sent, elapsed, next(ticks))
+    finally:
+        peer.close()
+        out = stop(proc)
+    assert "Traceback" not in out

@@ -83,6 +83,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -135,7 +136,7 @@ from ompn_ros.segmenter import (
     StreamingSegmenter,
     classify_stamp,
 )
-from ompn_ros.validate import validate_sketch
+from ompn_ros.validate import WrongObservationLength, validate_sketch
 
 NODE_NAME = "ompn_node"
 LEVEL_OK, LEVEL_WARN = 0, 1
@@ -214,6 +215,7 @@ class OMPNNode(LifecycleNode):
         self._last_warn = -float("inf")
         self._boundary_cdr = BoundaryEncoder(self.get_fully_qualified_name())
         self._frame_id = ""  # the observation's header.frame_id (JointState input)
+        self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
         self._last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
         self._n_slots = 0
         self._active = False
@@ -412,7 +414,10 @@ class OMPNNode(LifecycleNode):
             callback = self._on_array_info if self.uses_message_info else self._on_array
             self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
         self._service = self.create_service(Trigger, "~/reset", self._on_reset)
-        self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics)
+        # The steady clock: /diagnostics keeps its rate whatever /clock does (stalled, or two sims'
+        # clocks interleaved on it, which made a ROS-time timer fire at every forward jump).
+        self._timer = self.create_timer(float(self.values["diagnostics_period"]), self.publish_diagnostics,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
         if self._gap_ns > 0:  # the node's clock: simulated time under use_sim_time
             self._silence = SilenceWatch(self._gap_ns)
             self._gap_timer = self.create_timer(self._gap_ns * GAP_TIMER_FRACTION / 1e9, self._check_silence)
@@ -638,7 +643,10 @@ class OMPNNode(LifecycleNode):
             )
             out = seg.step(obs, stamp_ns)
         except InvalidInput as exc:
-            self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
+            if isinstance(exc, WrongObservationLength):
+                self._report_size_mismatch(exc)
+            else:
+                self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
             return
         self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
         if out.step_index == 0:
@@ -665,6 +673,23 @@ class OMPNNode(LifecycleNode):
             so.expected_position, so.pi_end))
         if out.boundary is not None:
             self.log_boundary(out.boundary)
+
+    def _report_size_mismatch(self, exc: WrongObservationLength) -> None:
+        """One error line per observed size that does not fit the checkpoint (each such message is
+        still skipped and counted as ``rejected_wrong_length``), naming where the size comes from."""
+        if str(exc) in self._sizes_reported:
+            return
+        self._sizes_reported.add(str(exc))
+        if self.assembled is not None:
+            source = f"observation_spec (step topic {self.assembled.spec.step_topic})"
+        elif self.values["obs_source"] == "joint_state":
+            fields = list(self.values["joint_fields"])
+            source = f"'{layout.JOINT_STATES}' fields {fields} (obs_source=joint_state)"
+        else:
+            source = f"'{layout.OBSERVATION}'"
+        self.get_logger().error(
+            f"{exc} from {source}: every such message is skipped (counted as rejected_wrong_length); "
+            "publish what the model was trained on, or use a checkpoint trained on this robot")
 
     def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int, now_ns: int | None) -> bool:
         """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
