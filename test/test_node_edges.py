@@ -1,6 +1,7 @@
-"""A JointState whose joint count does not fit the checkpoint: one clear error at the first message
-(naming the size, the source and the fix), then every such message skipped and counted, not a
-warning per message."""
+"""ompn_node in process at two edges: a JointState whose joint count does not fit the checkpoint is
+one clear error at the first message (naming the size, the source and the fix), then every such
+message is skipped and counted, not a warning per message; and every episode ends with a final
+boundary even when the detector published its last boundary before the episode closed."""
 
 from __future__ import annotations
 
@@ -55,4 +56,32 @@ def test_a_joint_count_mismatch_is_one_error_then_counted(ctx, ckpt: Path, capfd
     assert node.counters()["rejected_wrong_length"] == 20
     node._on_joint_state(_joints(6, 20))  # the right size is stepped
     assert node.counters()["accepted"] == 1
+    node.destroy_node()
+
+
+def test_an_episode_whose_last_boundary_came_early_still_ends_with_a_final_one(ctx, ckpt: Path) -> None:
+    """The detector published the boundary at the episode's last step before the end marker, so
+    closing the episode adds nothing: the node repeats that boundary with final set (issue: 'final'
+    came with the end of only some episodes)."""
+    from ompn_ros.data.interfaces import decode_subtask_boundary
+    from ompn_ros.detect.online import BoundaryEvent
+
+    overrides = [Parameter("checkpoint", value=str(ckpt)), Parameter("max_stamp_lead", value=0.0)]
+    node = OMPNNode(context=ctx, parameter_overrides=overrides)
+    ok = TransitionCallbackReturn.SUCCESS
+    assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
+    sent: list[bytes] = []
+    node._pubs["boundary"].publish = sent.append
+    for t in range(3):
+        # the array path: three observations, stamps 1..3 s
+        node.process_observation(torch.zeros(OBS_DIM).numpy(), (t + 1) * 10**9)
+    early = BoundaryEvent(step=2, detected_at=2, subtask=0, score=0.9, level=1, stamp_ns=3 * 10**9)
+    node.publish_boundary(early)  # as the detector does at the done step
+    node.segmenter.end_episode = lambda last_step=None: []  # nothing left to close
+    node._close_episode(None)
+    got = [decode_subtask_boundary(raw) for raw in sent]
+    assert [(b.step, b.subtask, b.final, b.decided_stamp_ns) for b in got] == [
+        (2, 0, False, 3 * 10**9), (2, 0, True, 3 * 10**9)]
+    node._close_episode(None)  # a second close adds no second final boundary
+    assert len(sent) == 2
     node.destroy_node()
