@@ -28,7 +28,8 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
 assembler's partner history; episode markers keep it).
 
-Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
+Publications (per accepted observation; built by :mod:`ompn_ros.data.messages` and, for the
+``ompn_interfaces`` types, :mod:`ompn_ros.data.interfaces`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).
     ``~/state``       ompn_interfaces/msg/SubtaskState: header (the observation's stamp and frame_id),

@@ -1,7 +1,6 @@
-"""``ompn_node``'s typed outputs: the ``~/boundary`` event and the ``~/state`` message.
+"""The CDR of ``ompn_node``'s ``~/boundary`` event, an ``ompn_interfaces/msg/SubtaskBoundary``.
 
-``~/boundary`` is an ``ompn_interfaces/msg/SubtaskBoundary`` and ``~/state`` an
-``ompn_interfaces/msg/SubtaskState``; their CDR is built by :mod:`ompn_ros.data.interfaces`, which
+Built by :mod:`ompn_ros.data.interfaces` (the node's name and frame id encoded once), which
 ``ompn_segment --annotate`` uses for annotated bags too.
 """
 
