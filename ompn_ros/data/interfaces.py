@@ -3,10 +3,11 @@
 ``ompn_node`` publishes ``ompn_interfaces/msg/SubtaskBoundary`` on ``~/boundary`` and
 ``ompn_interfaces/msg/SubtaskState`` on ``~/state``; ``ompn_segment --annotate`` writes the same
 types into annotated bags (the fields: ``ompn_interfaces/msg/*.msg``).  Both sides build the CDR
-here, so a consumer reads live and recorded events alike.  The encoders write the little-endian CDR layout of the ``.msg`` files
-directly (the boundary is the node's latency-critical output); their bytes equal what rclpy and the
-``rosbags`` typestore serialise (tested).  Decoding goes through the ``rosbags`` typestore, with the
-definitions read from the package's ``.msg`` files (:func:`register`).
+here, so a consumer reads live and recorded events alike.  The encoders write the little-endian CDR
+layout of the ``.msg`` files directly (the boundary is the node's latency-critical output); rclpy and
+the ``rosbags`` typestore decode their bytes to the fields they were built from (tested).  Decoding
+here goes through the ``rosbags`` typestore, with the definitions read from the package's ``.msg``
+files (:func:`register`).
 """
 
 from __future__ import annotations
