@@ -23,13 +23,18 @@ export MUJOCO_GL ?= egl
 setup: $(STAMP)
 
 # Order matters: the CPU torch first (otherwise pip resolves a multi-GB CUDA build), then the
-# ROS 2 Jazzy wheels, then the rest, then this package in editable mode.
-$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml
+# ROS 2 Jazzy wheels, then the rest, then the messages (ompn_interfaces, built with CMake into the venv),
+# then this package in editable mode.
+INTERFACES := $(wildcard ompn_interfaces/msg/*.msg) ompn_interfaces/CMakeLists.txt ompn_interfaces/package.xml
+
+$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml $(INTERFACES)
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet torch==2.13.0
 	$(PIP) install --quiet 'ros-jazzy-rclpy[fastrtps]==7.1.6' 'ros-jazzy-common-interfaces==5.3.6'
 	$(PIP) install --quiet -r requirements-dev.txt
+	$(PIP) install --quiet -r ompn_interfaces/requirements-venv.txt
+	$(PY) ompn_interfaces/build_venv.py
 	$(PIP) install --quiet --no-deps --no-build-isolation -e .
 	$(PY) -m ompn_ros.model._jit_stream
 	touch $(STAMP)
@@ -51,7 +56,8 @@ lint: setup
 	$(VENV)/bin/mypy
 
 colcon: setup
-	source $(VENV)/bin/activate && colcon build --base-paths . --build-base build --install-base install
+	source $(VENV)/bin/activate && AMENT_PREFIX_PATH=$$VIRTUAL_ENV CMAKE_PREFIX_PATH=$$VIRTUAL_ENV \
+	  colcon build --base-paths . ompn_interfaces --build-base build --install-base install
 
 bench: setup
 	$(PY) bench/run_all.py

@@ -232,6 +232,8 @@ class _Client:
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float32MultiArray
 
+        from ompn_interfaces.msg import SubtaskBoundary
+
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         events = QoSProfile(
             depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
@@ -252,18 +254,17 @@ class _Client:
             raw=True,
         )
         self.node.create_subscription(
-            DiagnosticArray, "/ompn_node/boundary", self._on_boundary, events, raw=True
+            SubtaskBoundary, "/ompn_node/boundary", self._on_boundary, events, raw=True
         )
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
-        self._diagnostic_array = DiagnosticArray
+        self._boundary_type = SubtaskBoundary
 
     def _on_boundary(self, raw: bytes) -> None:
         arrival = time.monotonic_ns()
         from rclpy.serialization import deserialize_message
 
-        msg = deserialize_message(raw, self._diagnostic_array)
-        values = {kv.key: kv.value for kv in msg.status[0].values}
-        self.boundaries.append((int(values["detected_at"]), arrival))
+        msg = deserialize_message(raw, self._boundary_type)
+        self.boundaries.append((int(msg.decided_step), arrival))
 
     def _on_diag(self, msg: Any) -> None:
         if msg.status and msg.status[0].name.endswith(": segmenter"):

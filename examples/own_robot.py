@@ -70,8 +70,8 @@ if str(ROOT) not in sys.path:
 
 from ompn_ros import containment, layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
-from ompn_ros.data import messages as msgs  # noqa: E402
 from ompn_ros.data.episode import Episode  # noqa: E402
+from ompn_ros.data.interfaces import decode_subtask_boundary  # noqa: E402
 from ompn_ros.detect.tune import score_predictions  # noqa: E402
 
 READER = ROOT / "config" / "reader_dial_robot.yaml"
@@ -302,12 +302,11 @@ def live_boundaries(bag: Path) -> list[list[int]]:
     episodes: list[list[int]] = [[]]
     with Reader(bag) as reader:
         conns = [c for c in reader.connections if c.topic.endswith("/" + LIVE_BOUNDARY)]
-        for conn, _, raw in reader.messages(connections=conns):
-            for status in msgs.deserialize(raw, conn.msgtype).status:
-                values = {kv.key: kv.value for kv in status.values}
-                episodes[-1].append(int(values["step"]))
-                if values.get("final") == "true":
-                    episodes.append([])
+        for _, _, raw in reader.messages(connections=conns):
+            event = decode_subtask_boundary(raw)  # ompn_interfaces/msg/SubtaskBoundary
+            episodes[-1].append(event.step)
+            if event.final:
+                episodes.append([])
     return episodes[:-1] if not episodes[-1] else episodes
 
 

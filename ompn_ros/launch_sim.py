@@ -87,17 +87,20 @@ def sim_launch_description(
         "use_sim_time": use_sim_time,
     }
     recorder_file = PathJoinSubstitution([FindPackageShare("ompn_ros"), "config", "bag_recorder.yaml"])
+    # The sim publishes its time on 'clock' in the namespace (sim_nodes.ros_common); every node of
+    # this launch follows that one under use_sim_time, never another namespace's sim.
+    own_clock = [("/clock", "clock")]
     return LaunchDescription([
         *_arguments(domain, rate, sim_arguments),
         Node(package="ompn_ros", executable="ompn_node", name="ompn_node", namespace=namespace,
-             output="screen", parameters=[
+             output="screen", remappings=own_clock, parameters=[
                  LaunchConfiguration("params_file"),
                  {"checkpoint": _param("checkpoint"), "use_sim_time": use_sim_time},
              ]),
         Node(package="ompn_ros", executable="bag_recorder", name="bag_recorder", namespace=namespace,
-             output="screen", condition=IfCondition(record),
+             output="screen", condition=IfCondition(record), remappings=own_clock,
              parameters=[recorder_file, {"output": _param("bag"), "storage": _param("storage"),
                                          "use_sim_time": use_sim_time}]),
         Node(package="ompn_ros", executable=f"{domain}_sim", name=f"{domain}_sim", namespace=namespace,
-             output="screen", parameters=[sim_parameters]),
+             output="screen", remappings=own_clock, parameters=[sim_parameters]),
     ])

@@ -50,7 +50,9 @@ CMD_ACTION: Final = "cmd_action"  # same type as ACTION
 
 # --- ompn_node private outputs ---------------------------------------------------------------------
 PI: Final = "~/pi"  # Float32MultiArray: n slot probs (lowest slot first), then E[pos], then pi_end
-BOUNDARY: Final = "~/boundary"  # DiagnosticArray boundary event
+PI_LABEL: Final = "pi_slots_then_expected_position_then_pi_end"  # ~/pi's one dimension: all n + 2 values
+STATE: Final = "~/state"  # ompn_interfaces/msg/SubtaskState: ~/pi with named fields, one per step
+BOUNDARY: Final = "~/boundary"  # ompn_interfaces/msg/SubtaskBoundary boundary event
 DIAGNOSTICS: Final = "/diagnostics"  # DiagnosticArray node health (counters)
 
 # --- episode marker keys (DiagnosticStatus.name == EPISODE_STATUS_NAME) ----------------------------

@@ -32,13 +32,15 @@ in the ``cmd_action`` callback).  ``episodes`` = 0 means forever; otherwise the 
 **Time.**  A sim keeps its own *simulated time*: it advances by ``step_ns`` (40 ms, 25 Hz, unless the
 domain says otherwise) per step and by ``max(1 s, episode_pause)`` before every episode (the first one
 included, so no stamp is 0), and never goes back while the node runs.  With ``publish_clock:=true``
-(the default, as a simulator does) the sim publishes it on ``/clock`` (``rosgraph_msgs/Clock``) before
-each observation, so every node of the graph can run with ``use_sim_time:=true``, the sim itself
-included (its step timer runs on the steady clock, so it never waits for its own ``/clock``).  Every
-stamp the sim writes (episode markers, ``JointState`` headers) comes from ONE source: the simulated
-time when it publishes ``/clock``, otherwise the node clock (wall time, or another publisher's
-``/clock`` under ``use_sim_time:=true``).  Run one ``/clock`` publisher per graph: with several sims
-(or a bag played with ``--clock``), set ``publish_clock:=false`` on all but one.
+(the default, as a simulator does) the sim publishes it (``rosgraph_msgs/Clock``) before each
+observation on ``clock_topic``: the relative ``clock`` by default, i.e. ``/clock`` for a sim without a
+namespace and ``<ns>/clock`` for a namespaced one, so that two namespaced sims never interleave their
+clocks on one topic.  A node that follows a namespaced sim's time runs with ``use_sim_time:=true`` and
+the remapping ``/clock:=<ns>/clock`` (the launch files add it); ``clock_topic:=/clock`` makes a
+namespaced sim the graph's global clock.  The sim's step timer runs on the steady clock, so it never
+waits for its own clock.  Every stamp the sim writes (episode markers, ``JointState`` headers) comes
+from ONE source: the simulated time when it publishes its clock, otherwise the node clock (wall time,
+or another publisher's ``/clock`` under ``use_sim_time:=true``).
 
 **QoS.**  The step-contract topics and ``cmd_action`` use :data:`SIM_QOS` (reliable, depth 100: the
 1 kHz zero-loss path).  ``sensor_msgs/JointState`` is published like a robot driver does, with the
@@ -98,7 +100,7 @@ CLOCK_QOS = QoSProfile(
 )  # fmt: skip
 """QoS of ``/clock``: reliable (serves reliable and best-effort subscribers), depth 1."""
 
-CLOCK_TOPIC = "/clock"
+CLOCK_TOPIC = "clock"  # the default of clock_topic: /clock, or <ns>/clock under a namespace
 MODES = ("expert", "policy")
 EPISODE_GAP_NS = layout.EPISODE_GAP_NS  # minimum simulated time between two episodes
 _FAST_TICK_S = 0.001
@@ -106,6 +108,17 @@ _FAST_BATCH = 64  # steps per tick when rate == 0
 _LINGER_S = 0.5  # keep spinning after the last episode so reliable messages get delivered
 _SETTLE_S = 0.5
 _FINAL_ANSWER_GRACE_S = 1.0
+
+
+def _topic_name_rule(value: Any) -> str | None:
+    """``ParamSpec`` check of ``clock_topic``: a valid ROS topic name (absolute or relative)."""
+    from rclpy.validate_topic_name import validate_topic_name
+
+    try:
+        validate_topic_name(str(value))
+    except Exception as exc:  # rclpy's InvalidTopicNameException: its reason
+        return str(exc).splitlines()[0]
+    return None
 
 
 COMMON_PARAMS: tuple[ParamSpec, ...] = (
@@ -132,6 +145,12 @@ COMMON_PARAMS: tuple[ParamSpec, ...] = (
         "publish_clock", True,
         "publish the simulated time on /clock and stamp every message with it (false: stamps from the"
         " node clock)",
+    ),
+    ParamSpec(
+        "clock_topic", CLOCK_TOPIC,
+        "where publish_clock publishes: 'clock' = /clock, or <ns>/clock under a namespace (namespaced sims"
+        " never interleave); '/clock' = the global clock even under a namespace",
+        check=_topic_name_rule,
     ),
     ParamSpec(
         "episode_pause", 0.0, "wall-clock seconds the sim holds between two episodes",
@@ -291,7 +310,8 @@ class SimNode(Node):
         self.sim_time_ns = 0  # simulated time, monotonic over the node's life
         self.streams = self.make_streams()
         self._clock_pub = (
-            self.create_publisher(ClockMsg, CLOCK_TOPIC, CLOCK_QOS) if self.publish_clock else None
+            self.create_publisher(ClockMsg, str(self.params["clock_topic"]), CLOCK_QOS)
+            if self.publish_clock else None
         )
         self.finished = False
         self.episode_index = 0

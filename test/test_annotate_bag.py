@@ -30,6 +30,7 @@ from ompn_ros.data.annotate import (  # noqa: E402
 )
 from ompn_ros.data.bag_reader import read_episodes  # noqa: E402
 from ompn_ros.data.bag_writer import write_episodes  # noqa: E402
+from ompn_ros.data.interfaces import with_final  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
@@ -39,7 +40,8 @@ from ompn_ros.train import synthetic  # noqa: E402
 
 torch.set_num_threads(1)
 NS = "/ompn_node"
-PI, SEGMENT, BOUNDARY = f"{NS}/pi", f"{NS}/segment", f"{NS}/boundary"
+PI, SEGMENT, BOUNDARY, STATE = f"{NS}/pi", f"{NS}/segment", f"{NS}/boundary", f"{NS}/state"
+ADDED = (PI, SEGMENT, BOUNDARY, STATE)
 # Craft topics with the small observations of the synthetic corridor task
 DOMAIN = dataclasses.replace(layout.CRAFT, obs_dim=synthetic.discrete_obs_dim(8, 4))
 
@@ -114,7 +116,7 @@ def test_every_original_message_is_copied_unchanged(recorded, annotated) -> None
     _, bag, *_ = recorded
     out, report = annotated
     original = _mcap_messages(bag)
-    copied = [msg for msg in _mcap_messages(out) if msg[0] not in (PI, SEGMENT, BOUNDARY)]
+    copied = [msg for msg in _mcap_messages(out) if msg[0] not in ADDED]
     assert sorted(copied) == sorted(original)
     assert report.copied == len(original)
 
@@ -128,8 +130,15 @@ def test_pi_is_published_once_per_step_at_the_observation_stamps(recorded, annot
     want = np.concatenate([np.column_stack([r.pi, r.expected_position, r.pi_end]) for r in results])
     np.testing.assert_allclose(values, want, rtol=0, atol=1e-6)
     dims = {(d.label, d.size, d.stride) for _, msg in pis for d in msg.layout.dim}
-    assert dims == {("slot", 3, 3)}
+    assert dims == {(layout.PI_LABEL, 5, 5)}  # one dimension over all n + 2 values
     assert report.added[PI] == report.steps == sum(e.length for e in episodes)
+    states = _decoded(out, STATE)
+    assert [t for t, _ in states] == [t for t, _ in pis]
+    named = np.array([[*msg.pi, msg.expected_position, msg.pi_end] for _, msg in states])
+    np.testing.assert_array_equal(named, values)
+    assert [(msg.episode, msg.step) for _, msg in states] == [
+        (i + 1, t) for i, e in enumerate(episodes) for t in range(e.length)]
+    assert all(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == t for t, msg in states)
 
 
 def test_segment_labels_follow_the_boundaries(recorded, annotated) -> None:
@@ -152,18 +161,19 @@ def test_boundary_events_match_the_replay(recorded, annotated) -> None:
     _, _, _, stamps, results = recorded
     out, report = annotated
     events = _decoded(out, BOUNDARY)
-    want = [(st, b) for st, r in zip(stamps, results) for b in r.boundaries]
+    want = [(i + 1, st, b)
+            for i, (st, r) in enumerate(zip(stamps, results)) for b in with_final(r.boundaries)]
     assert len(events) == len(want) == report.added[BOUNDARY]
-    for (log_time, msg), (st, b) in zip(events, want):
+    assert sum(b.final for *_, b in want) == len(results)  # one final boundary per episode
+    for (log_time, msg), (episode, st, b) in zip(events, want):
         assert log_time == st[b.detected_at]
-        status = msg.status[0]
-        assert status.name == "ompn_node/subtask_boundary" and status.message == "boundary"
-        values = {kv.key: kv.value for kv in status.values}
-        assert int(values["step"]) == b.step and int(values["detected_at"]) == b.detected_at
-        assert int(values["subtask"]) == b.subtask and values["final"] == ("true" if b.final else "false")
-        assert float(values["score"]) == pytest.approx(b.score, abs=1e-6)
+        assert (msg.node, msg.episode, msg.step, msg.subtask, msg.subtask_id, msg.memory_level) == (
+            NS, episode, b.step, b.subtask, -1, b.level)
+        assert (msg.decided_step, msg.final, msg.header.frame_id) == (b.detected_at, b.final, "")
+        assert msg.score == pytest.approx(b.score, rel=1e-6)
         header = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        assert header == int(values["stamp_ns"]) == st[b.step] == b.stamp_ns
+        assert header == st[b.step] == b.stamp_ns
+        assert msg.decided_stamp.sec * 1_000_000_000 + msg.decided_stamp.nanosec == log_time
 
 
 def test_output_opens_with_rosbags_anyreader(recorded, annotated) -> None:
@@ -183,7 +193,8 @@ def test_output_opens_with_rosbags_anyreader(recorded, annotated) -> None:
         for c in reader.connections:
             assert counts[c.topic] == c.msgcount and types[c.topic] == c.msgtype
     assert types[PI] == layout.FLOAT32_ARRAY and types[SEGMENT] == layout.INT32
-    assert types[BOUNDARY] == layout.DIAGNOSTIC_ARRAY
+    assert types[BOUNDARY] == "ompn_interfaces/msg/SubtaskBoundary"
+    assert types[STATE] == "ompn_interfaces/msg/SubtaskState"
     assert counts[PI] == report.steps and len(first.data) == 5
 
 
@@ -200,14 +211,14 @@ def test_sqlite3_input(tmp_path: Path) -> None:
     got = _mcap_messages(tmp_path / "out")
     with AnyReader([bag]) as reader:
         original = sorted((c.topic, s, bytes(d)) for c, s, d in reader.messages())
-    assert sorted((t, s, d) for t, _, s, d in got if t not in (PI, SEGMENT, BOUNDARY)) == original
+    assert sorted((t, s, d) for t, _, s, d in got if t not in ADDED) == original
     assert sum(t == PI for t, *_ in got) == report.steps == sum(e.length for e in episodes)
     # the storage file alone is a bag too, and sqlite3 is an output storage as well
     db3 = annotate_bag(next(bag.glob("*.db3")), tmp_path / "out_db", outputs, storage="sqlite3")
     with AnyReader([tmp_path / "out_db"]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert db3.copied == report.copied and counts[PI] == report.steps
-    assert counts[BOUNDARY] == sum(len(r.boundaries) for _, r in outputs)
+    assert counts[BOUNDARY] == sum(len(with_final(r.boundaries)) for _, r in outputs)
 
 
 def test_refuses_bad_input_and_existing_output(recorded, annotated, tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ from ompn_ros.data.annotate import (
     pi_rows,
     segment_labels,
 )
+from ompn_ros.data.interfaces import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import ReplayResult
 
@@ -54,33 +55,36 @@ def test_pi_rows_match_the_node_layout() -> None:
 
 
 def test_boundary_message_decodes_to_the_event() -> None:
-    raw = boundary_message(EVENTS[0], 1_500_000_123, "ompn_node/subtask_boundary")
-    msg = m.deserialize(raw, "diagnostic_msgs/msg/DiagnosticArray")
-    assert m.stamp_to_ns(msg.header.stamp) == 1_500_000_123
-    values = {kv.key: kv.value for kv in msg.status[0].values}
-    assert values == {"step": "2", "subtask": "0", "score": "0.250000", "level": "2",
-                      "detected_at": "4", "stamp_ns": "1500000123", "final": "false"}
+    raw = boundary_message(EVENTS[1], 1_500_000_123, "/ompn_node", 4, np.array([7, 9]), 1_600_000_000)
+    assert decode_subtask_boundary(raw) == SubtaskBoundary(
+        stamp_ns=1_500_000_123, frame_id="", node="/ompn_node", episode=4, step=5, subtask=1, subtask_id=9,
+        score=0.25, memory_level=2, decided_step=6, decided_stamp_ns=1_600_000_000, final=False)
+    unknown = decode_subtask_boundary(boundary_message(EVENTS[2], 1, "/n", 1, np.array([7, 9]), 1))
+    assert (unknown.subtask_id, unknown.final) == (-1, True)  # no sketch entry for the third subtask
 
 
 def test_episode_messages_order_and_stamps() -> None:
     stamps = np.arange(9, dtype=np.int64) * 100 + 1000  # T + 1 observations
-    topics, status = output_topics("/ompn_node")
-    msgs = episode_messages(stamps, _result(8), 0, topics, status)
+    topics, node = output_topics("/ompn_node")
+    msgs = episode_messages(stamps, _result(8), 0, topics, node)
     assert [(x.stamp, x.topic) for x in msgs if x.topic == topics["boundary"]] == [
         (1400, "/ompn_node/boundary"), (1600, "/ompn_node/boundary"), (1700, "/ompn_node/boundary")]
     at_1400 = [x.topic for x in msgs if x.stamp == 1400]
-    assert at_1400 == [topics["boundary"], topics["pi"], topics["segment"]]
+    assert at_1400 == [topics["boundary"], topics["state"], topics["pi"], topics["segment"]]
+    decoded = [decode_subtask_boundary(x.data) for x in msgs if x.topic == topics["boundary"]]
+    assert [(b.episode, b.step, b.decided_stamp_ns, b.final) for b in decoded] == [
+        (1, 2, 1400, False), (1, 5, 1600, False), (1, 7, 1700, True)]
     segs = [m.parse_int32(x.data) for x in msgs if x.topic == topics["segment"]]
     assert segs == segment_labels(EVENTS, 8).tolist()
     with pytest.raises(AnnotateError, match="episode #3: 5 observation stamps for 8 replayed steps"):
-        episode_messages(stamps[:5], _result(8), 3, topics, status)
+        episode_messages(stamps[:5], _result(8), 3, topics, node)
 
 
 def test_output_topics_and_bad_namespace() -> None:
-    topics, status = output_topics("robot/ompn")
-    assert topics == {"pi": "/robot/ompn/pi", "segment": "/robot/ompn/segment",
+    topics, node = output_topics("robot/ompn")
+    assert topics == {"state": "/robot/ompn/state", "pi": "/robot/ompn/pi", "segment": "/robot/ompn/segment",
                       "boundary": "/robot/ompn/boundary"}
-    assert status == "ompn/subtask_boundary"
+    assert node == "/robot/ompn"
     for bad in ("/", "", "/a b", "/1node"):
         with pytest.raises(AnnotateError, match="namespace must be a ROS name"):
             output_topics(bad)

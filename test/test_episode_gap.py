@@ -21,8 +21,8 @@ rclpy = pytest.importorskip("rclpy")
 from rclpy.parameter import Parameter  # noqa: E402
 from test_node_poison import active_node as poison_active_node  # noqa: E402 (publishers that record)
 
-from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
+from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
@@ -90,8 +90,8 @@ def active_node(ctx, ckpt: Path, **params: Any) -> OMPNNode:
 def events(node: OMPNNode) -> list[tuple[int, str, int, str]]:
     out = []
     for raw in node._pubs["boundary"].raws:
-        values = {kv.key: kv.value for kv in m.deserialize(raw, layout.DIAGNOSTIC_ARRAY).status[0].values}
-        out.append((int(values["step"]), values["score"], int(values["stamp_ns"]), values["final"]))
+        b = decode_subtask_boundary(raw)
+        out.append((b.step, f"{b.score:.6f}", b.stamp_ns, str(b.final).lower()))
     return out
 
 
@@ -104,8 +104,8 @@ def replay(ckpt: Path, obs: np.ndarray, stamps: list[int]) -> list[tuple[int, st
         event = seg.step(x, s).boundary
         if event is not None:
             out.append(event)
-    out += seg.end_episode(len(obs) - 1)
-    return [(e.step, f"{e.score:.6f}", e.stamp_ns, str(e.final).lower()) for e in out]
+    out = with_final(out + seg.end_episode(len(obs) - 1))
+    return [(e.step, f"{float(np.float32(e.score)):.6f}", e.stamp_ns, str(e.final).lower()) for e in out]
 
 
 def test_a_pause_between_stamps_ends_the_episode_like_a_marker(ctx, ckpt: Path) -> None:

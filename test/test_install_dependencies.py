@@ -25,6 +25,7 @@ LATER_STDLIB = frozenset({"compression"})  # compression.zstd, Python 3.14
 ROS = frozenset({
     "rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs",
     "diagnostic_msgs", "lifecycle_msgs", "rosgraph_msgs", "ament_index_python", "launch", "launch_ros",
+    "ompn_interfaces",  # this repository's interface package (ompn_interfaces/): colcon or make setup
 })
 # Python packages: import name -> (rosdep key, or None when only pip has it; pip distribution).
 PYTHON: dict[str, tuple[str | None, str]] = {

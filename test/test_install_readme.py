@@ -6,6 +6,9 @@ ROS 2 installation (``ros2 ...``, ``source /opt/ros/...``) are left out: ROS 2 i
 here.  ``git clone <repo> ompn_ros`` clones this checkout (its committed HEAD).  Afterwards the
 workspace must hold the colcon install of ompn_ros, and its console scripts must run with every
 runtime dependency from the fresh venv: one Dial episode is collected into an mcap bag and read back.
+The interface package (ament_cmake) needs the ROS build tools: in place of ``source
+/opt/ros/jazzy/setup.bash`` an underlay venv gets the ROS 2 wheels and ompn_interfaces' build
+requirements, and the same variables setup.bash sets point at it (:data:`UNDERLAY`).
 
 Slow (it downloads and installs torch, mujoco, dm_control, ...): ``pytest -m slow``.
 """
@@ -26,6 +29,16 @@ HEADING = re.compile(r"^##\s+.*real ros 2 jazzy install.*$", re.IGNORECASE | re.
 FENCE = re.compile(r"^```(?:bash|sh|shell)?\s*\n(.*?)^```", re.DOTALL | re.MULTILINE)
 SKIPPED = ("ros2 ", "source /opt/ros")
 CLONE = re.compile(r"git clone\s+(<[^>]*>|\S+)")
+
+# The stand-in for `source /opt/ros/jazzy/setup.bash`: the ROS 2 wheels in a venv of their own, and the
+# variables a ROS setup.bash sets (prefix paths, Python path, library path) pointing at it.
+UNDERLAY = r"""
+python3 -m venv ~/ros_underlay
+~/ros_underlay/bin/python -m pip install --quiet 'ros-jazzy-rclpy[fastrtps]==7.1.6' \
+    'ros-jazzy-common-interfaces==5.3.6' numpy==2.4.6 -r {repo}/ompn_interfaces/requirements-venv.txt
+U=~/ros_underlay; SITE=$(echo $U/lib/python3*/site-packages); LIBS=$(ls -d $SITE/ros_*.libs | tr '\n' ':')
+export AMENT_PREFIX_PATH=$U CMAKE_PREFIX_PATH=$U PYTHONPATH=$SITE LD_LIBRARY_PATH=$U/lib:$LIBS
+"""
 
 # After the block: cwd is the workspace and install/setup.bash is sourced (the block's last steps).
 CHECKS = r"""
@@ -75,6 +88,9 @@ def runnable_lines(block: str, repo: Path) -> list[str]:
     lines = []
     for raw in block.splitlines():
         line = raw.strip()
+        if line.startswith("source /opt/ros"):
+            lines.append(UNDERLAY.format(repo=shlex.quote(str(repo))).strip())
+            continue
         if not line or line.startswith("#") or line.startswith(SKIPPED):
             continue
         lines.append(CLONE.sub(f"git clone {shlex.quote(str(repo))}", line))
@@ -116,7 +132,8 @@ def test_block_extraction_drops_ros_lines_and_points_clone_here(tmp_path: Path):
         "ros2 launch ompn_ros dial_sim.launch.py\n```\n## Next\n```bash\nnot this\n```\n"
     )
     lines = runnable_lines(install_block(readme), tmp_path)
-    expected = [f"git clone {tmp_path} ompn_ros  # the package", "pip install -r ompn_ros/requirements.txt"]
+    expected = [UNDERLAY.format(repo=shlex.quote(str(tmp_path))).strip(),  # for `source /opt/ros/...`
+                f"git clone {tmp_path} ompn_ros  # the package", "pip install -r ompn_ros/requirements.txt"]
     assert lines == expected
     with pytest.raises(ReadmeSectionError, match="no '## Real ROS 2 Jazzy install' section"):
         install_block("# x\n## Install\n```bash\nls\n```\n")

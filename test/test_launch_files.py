@@ -366,6 +366,8 @@ def _check_remaps(node: Made, res: _Resolver) -> None:
     topics = layout_topics(res.install)
     for pair in node.arg("remappings") or []:  # type: ignore[attr-defined]
         source = res.value(pair[0])
+        if (source, res.value(pair[1])) == ("/clock", "clock"):  # use_sim_time follows the namespace's sim
+            continue
         if source not in topics:
             raise res.fail(f"remaps {source!r}, which is no topic of ompn_ros/layout.py")
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from ompn_ros import layout
 from ompn_ros.cli.live_demo import Streams, _summarise
+from ompn_ros.data.interfaces import SubtaskBoundary, encode_subtask_boundary
 
 
 def _streams(boundary_steps: list[tuple[int, int]], steps: int = 6) -> Streams:
@@ -15,8 +16,11 @@ def _streams(boundary_steps: list[tuple[int, int]], steps: int = 6) -> Streams:
     streams.subtask = [0, 0, 0, 1, 1, 1][:steps]
     streams.pi_rows = [[0.5, 0.5, 1.5, 0.0]] * (steps + 1)
     for ordinal, (step, detected_at) in enumerate(boundary_steps):
-        keys = {"step": str(step), "detected_at": str(detected_at), "subtask": str(ordinal)}
-        streams.boundaries.append((keys, 1_000_000 * detected_at + 500_000))
+        event = SubtaskBoundary(stamp_ns=step, frame_id="", node="/ompn_node", episode=1, step=step,
+                                subtask=ordinal, subtask_id=-1, score=0.5, memory_level=1,
+                                decided_step=detected_at, decided_stamp_ns=detected_at, final=False)
+        streams.on_boundary(encode_subtask_boundary(event))  # the CDR the node publishes
+        streams.boundaries[-1] = (streams.boundaries[-1][0], 1_000_000 * detected_at + 500_000)
     return streams
 
 

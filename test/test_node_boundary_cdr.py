@@ -1,37 +1,81 @@
-"""ompn_node's boundary encoder writes exactly the bytes of the general DiagnosticArray codec."""
+"""The typed outputs' CDR (ompn_ros.data.interfaces): what the node publishes and annotated bags hold
+decodes, with rclpy and with the rosbags typestore, to the fields it was built from."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
+from rclpy.serialization import deserialize_message
 
-from ompn_ros.data.messages import StampRangeError, deserialize, encode_diagnostic_status
+from ompn_interfaces.msg import SubtaskBoundary as RosBoundary
+from ompn_interfaces.msg import SubtaskState as RosState
+from ompn_ros.data.interfaces import (
+    SUBTASK_ID_UNKNOWN,
+    SubtaskBoundary,
+    decode_subtask_boundary,
+    encode_subtask_state,
+    with_final,
+)
+from ompn_ros.data.messages import StampRangeError, join_stamp
 from ompn_ros.detect.online import BoundaryEvent
-from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder, boundary_values
+from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 
 
-def test_same_bytes_as_the_codec_for_many_events() -> None:
+def _random_event(rng: np.random.Generator) -> BoundaryEvent:
+    return BoundaryEvent(
+        step=int(rng.integers(0, 10 ** int(rng.integers(1, 7)))), detected_at=int(rng.integers(0, 10**6)),
+        subtask=int(rng.integers(0, 12)), score=float(rng.normal() * 10 ** int(rng.integers(-3, 4))),
+        level=int(rng.integers(0, 5)), stamp_ns=int(rng.integers(0, 2**31 * 10**9)),
+        final=bool(rng.random() < 0.2),
+    )  # fmt: skip
+
+
+def test_rclpy_and_rosbags_decode_the_fields_of_many_events() -> None:
     rng = np.random.default_rng(3)
-    names = ("ompn_node/subtask_boundary", "a/subtask_boundary", "node_with_a_longer_name_x/subtask_boundary")
-    for name in names:
-        enc = BoundaryEncoder(name)
-        for _ in range(300):
-            event = BoundaryEvent(
-                step=int(rng.integers(0, 10 ** int(rng.integers(1, 7)))),
-                detected_at=int(rng.integers(0, 10**6)), subtask=int(rng.integers(0, 12)),
-                score=float(rng.normal() * 10 ** int(rng.integers(-3, 4))), level=int(rng.integers(-1, 4)),
-                stamp_ns=int(rng.integers(0, 2**31 * 10**9)) if rng.random() < 0.8 else 0,
-                final=bool(rng.random() < 0.2),
-            )  # fmt: skip
-            stamp = event.stamp_ns or int(rng.integers(1, 2**31 * 10**9))
-            want = encode_diagnostic_status(stamp, name, "boundary", boundary_values(event))
-            assert enc.encode(stamp, event) == want, event
-    msg = deserialize(enc.encode(7, event), "diagnostic_msgs/msg/DiagnosticArray")
-    assert [kv.key for kv in msg.status[0].values] == list(boundary_values(event))
-    assert msg.status[0].values[-1].value == ("true" if event.final else "false")
+    for node, frame in (("/ompn_node", ""), ("/a/b/ompn_node", "base_link"), ("/x", "odd"), ("/n", "abcd")):
+        enc = BoundaryEncoder(node)
+        for _ in range(200):
+            event = _random_event(rng)
+            sketch = rng.integers(0, 20, size=int(rng.integers(0, 6)))
+            episode, decided = int(rng.integers(1, 10**5)), int(rng.integers(0, 2**31 * 10**9))
+            raw = enc.encode(event, stamp_ns=event.stamp_ns, episode=episode, frame_id=frame, sketch=sketch,
+                             decided_stamp_ns=decided)
+            want_id = int(sketch[event.subtask]) if event.subtask < len(sketch) else SUBTASK_ID_UNKNOWN
+            msg = deserialize_message(raw, RosBoundary)
+            got = (join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec), msg.header.frame_id, msg.node,
+                   msg.episode, msg.step, msg.subtask, msg.subtask_id, msg.memory_level, msg.decided_step,
+                   join_stamp(msg.decided_stamp.sec, msg.decided_stamp.nanosec), msg.final)
+            assert got == (event.stamp_ns, frame, node, episode, event.step, event.subtask, want_id,
+                           event.level, event.detected_at, decided, event.final)
+            assert msg.score == pytest.approx(event.score, rel=1e-6, abs=1e-30)
+            fields = decode_subtask_boundary(raw)
+            assert dataclasses.replace(fields, score=event.score) == SubtaskBoundary.from_event(
+                event, node=node, episode=episode, frame_id=frame, sketch=sketch, decided_stamp_ns=decided)
+            assert fields.score == np.float32(event.score)
 
 
-def test_a_stamp_out_of_range_raises_like_the_codec() -> None:
+def test_the_state_decodes_with_named_fields() -> None:
+    for frame, n in (("", 2), ("abc", 3), ("base", 4)):
+        pi = np.arange(1, n + 1, dtype=np.float32) / n
+        msg = deserialize_message(encode_subtask_state(5_000_000_007, frame, 3, 41, pi, 1.5, 0.25), RosState)
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id) == (5, 7, frame)
+        assert (msg.episode, msg.step, msg.expected_position, msg.pi_end) == (3, 41, 1.5, 0.25)
+        assert np.array_equal(np.asarray(msg.pi), pi)
+
+
+def test_a_stamp_out_of_range_raises() -> None:
     event = BoundaryEvent(step=1, detected_at=2, subtask=0, score=0.5, level=1, stamp_ns=0)
     with pytest.raises(StampRangeError):
-        BoundaryEncoder("n/subtask_boundary").encode(2**31 * 10**9, event)
+        BoundaryEncoder("/n").encode(event, stamp_ns=2**31 * 10**9, episode=1, frame_id="", sketch=None,
+                                     decided_stamp_ns=0)
+
+
+def test_every_episode_ends_with_one_final_boundary() -> None:
+    a = BoundaryEvent(step=3, detected_at=4, subtask=0, score=0.5, level=1, stamp_ns=30)
+    b = dataclasses.replace(a, step=9, detected_at=9, subtask=1)
+    assert with_final([]) == []
+    assert with_final([a, b]) == [a, b, dataclasses.replace(b, final=True)]  # published before the end
+    closed = [a, dataclasses.replace(b, final=True)]
+    assert with_final(closed) == closed  # the detector closed the episode itself

@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
+from ompn_interfaces.msg import SubtaskBoundary  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
@@ -182,11 +183,8 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
         clock = peer.node.create_publisher(Clock, "/clock", 10)
         obs_pub = peer.node.create_publisher(Float32MultiArray, f"/{sim}/observation", RELIABLE)
         ep_pub = peer.node.create_publisher(DiagnosticArray, f"/{sim}/episode", RELIABLE)
-        events: list[tuple[int, dict[str, str]]] = []
-        peer.node.create_subscription(
-            DiagnosticArray, f"/{sim}/ompn_node/boundary",
-            lambda msg: events.append((m.stamp_to_ns(msg.header.stamp),
-                                       {kv.key: kv.value for kv in msg.status[0].values})), LATE)  # fmt: skip
+        events: list[SubtaskBoundary] = []
+        peer.node.create_subscription(SubtaskBoundary, f"/{sim}/ompn_node/boundary", events.append, LATE)
         pis: list = []
         peer.node.create_subscription(Float32MultiArray, f"/{sim}/ompn_node/pi", pis.append, RELIABLE)
         name = f"/{sim}/ompn_node: segmenter"
@@ -217,9 +215,9 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
             obs_pub.publish(Float32MultiArray(data=rng.normal(size=OBS_DIM).tolist()))
             assert peer.pump(lambda t=t: len(pis) == t + 1, 10), peer.last(name)
         ep_pub.publish(marker("end", steps="7"))
-        assert peer.pump(lambda: any(e["final"] == "true" for _, e in events), 10)
-        for header_ns, event in events:  # sim time, not wall time
-            assert t0 < header_ns == int(event["stamp_ns"]) < t0 + 10**9
+        assert peer.pump(lambda: any(e.final for e in events), 10)
+        for event in events:  # sim time, not wall time
+            assert t0 < m.stamp_to_ns(event.header.stamp) <= m.stamp_to_ns(event.decided_stamp) < t0 + 10**9
 
         for k in range(2):  # the next episode begins (the end marker closed the last one) ...
             tick(t0 + 2 * 10**9 + k * 40_000_000)
@@ -250,3 +248,31 @@ def test_invalid_start_up_parameter_exits_2_with_one_line(module: str, param: st
     assert proc.returncode == 2, proc.stdout + proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and param.split(":=")[0] in lines[0] and "Traceback" not in proc.stderr, lines
+
+
+def test_diagnostics_keep_their_rate_under_interleaved_clocks(ckpt: Path, ros_env: dict[str, str]) -> None:
+    """Two sims' clocks on one /clock (100 s apart, alternating): a use_sim_time node still sends
+    /diagnostics once per diagnostics_period of real time, not at every forward jump."""
+    sim = f"mix_{os.getpid()}"
+    proc = start_node(ckpt, ros_env, "use_sim_time:=true", "diagnostics_period:=0.5", ns=f"/{sim}")
+    peer = Peer([proc])
+    try:
+        clock = peer.node.create_publisher(Clock, "/clock", 10)
+        name = f"/{sim}/ompn_node: segmenter"
+        ticks = iter(range(10**9))
+
+        def interleave() -> bool:
+            k = next(ticks)
+            clock.publish(m.encode_clock((900 + 100 * (k % 2)) * 10**9 + (k // 2) * 10_000_000))
+            return False
+
+        assert peer.pump(lambda: interleave() or bool(peer.diags.get(name)), 60), "no /diagnostics"
+        before, start = len(peer.diags[name]), time.monotonic()
+        peer.pump(interleave, 4.0)
+        sent = len(peer.diags[name]) - before
+        elapsed = time.monotonic() - start
+        assert 2 <= sent <= elapsed / 0.5 + 3, (sent, elapsed, next(ticks))
+    finally:
+        peer.close()
+        out = stop(proc)
+    assert "Traceback" not in out

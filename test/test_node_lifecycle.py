@@ -23,6 +23,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32  # noqa: E402
 
+from ompn_interfaces.msg import SubtaskBoundary  # noqa: E402
+from ompn_ros import layout  # noqa: E402
 from ompn_ros.checkpoints import shipped_checkpoint  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings, save_detector_settings  # noqa: E402
@@ -61,21 +63,19 @@ class Harness:
         self.js_pub = self.peer.create_publisher(JointState, "joint_states", RELIABLE)
         self.pi: list[np.ndarray] = []
         self.actions: list[int] = []
-        self.boundaries: list[dict[str, str]] = []
+        self.boundaries: list[SubtaskBoundary] = []
         name = node.get_name()
         self.peer.create_subscription(Float32MultiArray, f"/{name}/pi", self._on_pi, RELIABLE)
         self.peer.create_subscription(Int32, "cmd_action", lambda m: self.actions.append(m.data), RELIABLE)
         events = QoSProfile(
             depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
         )
-        self.peer.create_subscription(DiagnosticArray, f"/{name}/boundary", self._on_boundary, events)
+        self.peer.create_subscription(SubtaskBoundary, f"/{name}/boundary", self.boundaries.append, events)
 
     def _on_pi(self, msg: Float32MultiArray) -> None:
-        assert [(d.label, d.size, d.stride) for d in msg.layout.dim] == [("slot", 3, 3)]
+        # one dimension over all n + 2 values (3 slots, the expected position, pi_end)
+        assert [(d.label, d.size, d.stride) for d in msg.layout.dim] == [(layout.PI_LABEL, 5, 5)]
         self.pi.append(np.array(msg.data, dtype=np.float32))
-
-    def _on_boundary(self, msg: DiagnosticArray) -> None:
-        self.boundaries.append({kv.key: kv.value for kv in msg.status[0].values})
 
     def pump(self, until: Callable[[], bool], timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -356,5 +356,5 @@ def test_a_late_boundary_subscriber_gets_the_last_event_only(ctx, ckpt: Path) ->
     assert node.counters()["boundaries"] >= 3
     h = Harness(ctx, node)  # subscribes ~/boundary TRANSIENT_LOCAL depth 1000 only now
     h.pump(lambda: len(h.boundaries) > 1, timeout=2.0)
-    assert len(h.boundaries) == 1 and h.boundaries[0]["final"] == "true"
+    assert len(h.boundaries) == 1 and h.boundaries[0].final
     node.destroy_node()

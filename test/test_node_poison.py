@@ -27,6 +27,7 @@ from std_msgs.msg import Int32MultiArray  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
+from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
@@ -85,11 +86,12 @@ def joint_state(sec: int, nanosec: int, obs: np.ndarray) -> JointState:
 
 def boundaries(node: OMPNNode, start: int = 0) -> list[dict[str, str]]:
     out = []
-    for raw in node._pubs["boundary"].raws[start:]:
-        parsed = m.deserialize(raw, layout.DIAGNOSTIC_ARRAY)
-        values = {kv.key: kv.value for kv in parsed.status[0].values}
-        values["header_ns"] = str(m.stamp_to_ns(parsed.header.stamp))
-        out.append(values)
+    for raw in node._pubs["boundary"].raws[start:]:  # ompn_interfaces/SubtaskBoundary, decoded
+        b = decode_subtask_boundary(raw)
+        out.append({"step": str(b.step), "subtask": str(b.subtask), "score": f"{b.score:.6f}",
+                    "level": str(b.memory_level), "detected_at": str(b.decided_step),
+                    "stamp_ns": str(b.stamp_ns), "final": "true" if b.final else "false",
+                    "header_ns": str(b.stamp_ns), "episode": str(b.episode)})
     return out
 
 
@@ -119,8 +121,8 @@ def replay(ckpt: Path, sketch: list[int], obs: np.ndarray, stamps_ns: list[int])
         pis.append(np.concatenate([so.pi, [so.expected_position, so.pi_end]]).astype(np.float32))
         if out.boundary is not None:
             events.append(out.boundary)
-    events += seg.end_episode(len(obs) - 2)
-    return [(e.step, f"{e.score:.6f}", e.stamp_ns) for e in events], np.array(pis)
+    events = with_final(events + seg.end_episode(len(obs) - 2))  # the node ends it with a final one
+    return [(e.step, f"{float(np.float32(e.score)):.6f}", e.stamp_ns) for e in events], np.array(pis)
 
 
 def assert_matches_replay(node: OMPNNode, ckpt: Path, seed: int, joint: bool = False) -> None:

@@ -1,8 +1,9 @@
 """Two processes over DDS: this test plays the sim, ``ompn_node`` runs as a subprocess.
 
-sim (this process) -> observation/episode markers -> ompn_node (subprocess) -> ~/pi, ~/boundary
--> subscriber (this process).  Boundary events must equal the offline replay of the same
-StreamingSegmenter and match the ground truth of the synthetic task.
+sim (this process) -> observation/episode markers -> ompn_node (subprocess) -> ~/state, ~/pi,
+~/boundary -> subscriber (this process).  Every field of the typed boundary events
+(ompn_interfaces/SubtaskBoundary) and states (SubtaskState) must equal the offline replay of the same
+StreamingSegmenter fed the stamps the node used, and the boundaries match the synthetic task's truth.
 """
 
 from __future__ import annotations
@@ -28,7 +29,10 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
+from ompn_interfaces.msg import SubtaskBoundary, SubtaskState  # noqa: E402
 from ompn_ros import containment, layout  # noqa: E402
+from ompn_ros.data.interfaces import with_final  # noqa: E402
+from ompn_ros.data.messages import stamp_to_ns  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
@@ -111,17 +115,14 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         obs_pub = sim.create_publisher(Float32MultiArray, f"/{ns}/{layout.OBSERVATION}", RELIABLE)
         ep_pub = sim.create_publisher(DiagnosticArray, f"/{ns}/{layout.EPISODE}", RELIABLE)
         pis: list[np.ndarray] = []
-        events: list[dict[str, str]] = []
+        events: list[SubtaskBoundary] = []
+        states: list[SubtaskState] = []
         diags: list[dict[str, str]] = []
         sim.create_subscription(
             Float32MultiArray, f"/{ns}/ompn_node/pi", lambda m: pis.append(np.array(m.data)), RELIABLE
         )
-        sim.create_subscription(
-            DiagnosticArray,
-            f"/{ns}/ompn_node/boundary",
-            lambda m: events.append({kv.key: kv.value for kv in m.status[0].values}),
-            EVENTS,
-        )
+        sim.create_subscription(SubtaskBoundary, f"/{ns}/ompn_node/boundary", events.append, EVENTS)
+        sim.create_subscription(SubtaskState, f"/{ns}/ompn_node/state", states.append, RELIABLE)
         sim.create_subscription(
             DiagnosticArray,
             "/diagnostics",
@@ -156,22 +157,32 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
                 obs_pub.publish(Float32MultiArray(data=ep.observations[t].tolist()))
                 assert pump(lambda t=t, start=start: len(pis) == start + t + 1, 5), f"no ~/pi for step {t}"
             ep_pub.publish(marker(layout.EPISODE_END, {layout.KEY_STEPS: str(ep.length)}))
-            assert pump(lambda i=i: sum(e["final"] == "true" for e in events) == i + 1, 5)
+            assert pump(lambda i=i: sum(e.final for e in events) == i + 1, 5)
+        assert pump(lambda: len(states) == sum(ep.length + 1 for ep in episodes), 5)
 
         segmenter = StreamingSegmenter(StreamingPolicy.from_checkpoint(ckpt), DetectorConfig(high=HIGH))
-        expected, got_by_episode, preds = [], [], []
-        final_idx = [j for j, e in enumerate(events) if e["final"] == "true"]
-        bounds = [0, *[j + 1 for j in final_idx]]
+        preds, state0 = [], 0
         for i, ep in enumerate(episodes):
-            replay = replay_episode(segmenter, ep, include_done_step=True)
-            expected.append([(b.step, b.subtask, b.detected_at) for b in replay.boundaries])
-            got = events[bounds[i] : bounds[i + 1]]
-            got_by_episode.append([(int(e["step"]), int(e["subtask"]), int(e["detected_at"])) for e in got])
-            preds.append(np.array([int(e["step"]) for e in got]))
-            assert int(got[-1]["step"]) == ep.length - 1
-        assert got_by_episode == expected
+            ep_states = states[state0 : state0 + ep.length + 1]
+            state0 += ep.length + 1
+            stamps = np.array([stamp_to_ns(st.header.stamp) for st in ep_states], dtype=np.int64)
+            replay = replay_episode(segmenter, ep, include_done_step=True, stamps_ns=stamps)
+            assert [(st.episode, st.step, st.header.frame_id) for st in ep_states] == [
+                (i + 1, t, "") for t in range(ep.length + 1)]
+            got_rows = np.array([[*st.pi, st.expected_position, st.pi_end] for st in ep_states[: ep.length]])
+            want_rows = np.column_stack([replay.pi, replay.expected_position, replay.pi_end])
+            np.testing.assert_allclose(got_rows, want_rows, rtol=0, atol=1e-5)
+            got = [e for e in events if e.episode == i + 1]
+            want = with_final(replay.boundaries)
+            assert [(e.node, e.header.frame_id, e.step, e.subtask, e.subtask_id, e.memory_level,
+                     e.decided_step, e.final, stamp_to_ns(e.header.stamp), stamp_to_ns(e.decided_stamp))
+                    for e in got] == [
+                (f"/{ns}/ompn_node", "", b.step, b.subtask, -1, b.level, b.detected_at, b.final,
+                 b.stamp_ns, int(stamps[b.detected_at])) for b in want]  # fmt: skip
+            np.testing.assert_allclose([e.score for e in got], [b.score for b in want], rtol=1e-6)
+            preds.append(np.array(sorted({e.step for e in got})))
+            assert got[-1].step == ep.length - 1 and got[-1].final
         assert mean_f1(preds, [ep.boundaries for ep in episodes], tol=1).f1 >= 0.75
-        assert all(e["level"].isdigit() and 0.0 <= float(e["score"]) <= 1.0 for e in events)
         # the node's services are served by its executor (lifecycle state, ~/reset)
         state = call(sim, ex, GetState, f"/{ns}/ompn_node/get_state")
         assert state is not None and state.current_state.label == "active"

@@ -35,17 +35,19 @@ def _console_scripts() -> list[str]:
 
 @pytest.fixture(scope="module")
 def colcon_install(tmp_path_factory) -> Path:
-    """A fresh `colcon build` of this package; returns the install base."""
+    """A fresh `colcon build` of this package and its interface package (as `make colcon`: the ROS
+    wheels of the venv are the underlay); returns the install base."""
     work = tmp_path_factory.mktemp("colcon")
     colcon = VENV_BIN / "colcon"
     if not colcon.exists():
         pytest.fail("colcon is not installed in the venv; run `make setup`")
     env = dict(os.environ)
     env["PATH"] = f"{VENV_BIN}:{env.get('PATH', '')}"
+    env["AMENT_PREFIX_PATH"] = env["CMAKE_PREFIX_PATH"] = sys.prefix
     result = subprocess.run(
-        [str(colcon), "build", "--base-paths", str(ROOT), "--build-base", str(work / "build"),
-         "--install-base", str(work / "install")],
-        cwd=work, env=env, capture_output=True, text=True, timeout=240,
+        [str(colcon), "build", "--base-paths", str(ROOT), str(ROOT / "ompn_interfaces"),
+         "--build-base", str(work / "build"), "--install-base", str(work / "install")],
+        cwd=work, env=env, capture_output=True, text=True, timeout=480,
     )
     assert result.returncode == 0, f"colcon build failed:\n{result.stdout}\n{result.stderr}"
     return work / "install"
@@ -76,6 +78,17 @@ def test_ament_index_resolves_package_and_share(colcon_install: Path):
     assert "package.xml" in info["files"]
     shipped = sorted(p.name for pattern in ("*.yaml", "*.xml") for p in (ROOT / "config").glob(pattern))
     assert shipped and info["config"] == shipped
+
+
+def test_the_interface_package_is_installed_beside_it(colcon_install: Path):
+    probe = ("import ompn_interfaces, rclpy.serialization as s;"
+             "from ompn_interfaces.msg import SubtaskBoundary;"
+             "m = SubtaskBoundary(step=3, final=True);"
+             "assert s.deserialize_message(s.serialize_message(m), SubtaskBoundary) == m;"
+             "print(ompn_interfaces.__file__)")
+    result = _in_setup_bash(colcon_install, f"python -c \"{probe}\"", timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().startswith(str(colcon_install / "ompn_interfaces")), result.stdout
 
 
 def test_every_console_script_is_where_ros2_run_looks(colcon_install: Path):

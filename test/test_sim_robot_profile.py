@@ -42,7 +42,7 @@ def test_robot_profile_publishes_only_robot_topics(ros_env: dict[str, str]) -> N
             proc.wait()
         lis.close()
     assert code == 0, err
-    ours = {t for t in topics if t not in ("/rosout", "/parameter_events", "/clock")}
+    ours = {t for t in topics if t not in ("/rosout", "/parameter_events", f"/{ns}/clock")}
     assert ours == {js_topic, skill_topic, effort_topic}, topics  # no markers, sketch or observation
     assert js_qos == [ReliabilityPolicy.BEST_EFFORT]
 

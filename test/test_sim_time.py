@@ -1,4 +1,5 @@
-"""Sim time: the sims publish /clock, run under use_sim_time:=true, and stamp everything in one time base."""
+"""Sim time: the sims publish their clock (<ns>/clock under a namespace, so that namespaced sims never
+interleave on /clock), run under use_sim_time:=true, and stamp everything in one time base."""
 
 from __future__ import annotations
 
@@ -80,6 +81,7 @@ def _run_dial(ros_env: dict[str, str], ns: str, clock_qos: QoSProfile, *params: 
               publish_clock: Callable[[Listener], None] | None = None) -> tuple[Listener, int | None, str]:
     lis = Listener()
     lis.listen("/clock", Clock, clock_qos)
+    lis.listen(f"/{ns}/clock", Clock, clock_qos)
     lis.listen(f"/{ns}/{layout.JOINT_STATES}", JointState, qos_profile_sensor_data)
     lis.listen(f"/{ns}/{layout.EPISODE}", DiagnosticArray, RELIABLE)
     proc = launch(ros_env, ns, "use_sim_time:=true", "rate:=200.0", "episodes:=2", "sketch:=[1,2,3,4]",
@@ -106,9 +108,10 @@ def test_sim_publishes_clock_and_stamps_in_its_time(ros_env: dict[str, str]) -> 
     assert code == 0, err
     markers = lis.of(f"/{ns}/{layout.EPISODE}")
     joints = lis.of(f"/{ns}/{layout.JOINT_STATES}")
-    clock = [stamp_ns(m.clock) for m in lis.of("/clock")]
+    clock = [stamp_ns(m.clock) for m in lis.of(f"/{ns}/clock")]
     assert len(markers) == 4 and len(joints) > 40, err
     assert len(clock) > 40 and clock == sorted(clock)  # it advances, never back
+    assert lis.of("/clock") == []  # a namespaced sim keeps its clock in its namespace
     js = [stamp_ns(m.header.stamp) for m in joints]
     ticks = set(clock)
     # One time base: every stamp IS a /clock value (best effort may drop some /clock samples, so
@@ -156,7 +159,7 @@ def test_without_publish_clock_stamps_follow_the_node_clock(ros_env: dict[str, s
 def test_craft_sim_runs_on_its_own_clock(ros_env: dict[str, str]) -> None:
     ns = f"crafttime_{uuid.uuid4().hex[:6]}"
     lis = Listener()
-    lis.listen("/clock", Clock, RELIABLE)
+    lis.listen(f"/{ns}/clock", Clock, RELIABLE)
     lis.listen(f"/{ns}/{layout.EPISODE}", DiagnosticArray, RELIABLE)
     proc = launch(ros_env, ns, "use_sim_time:=true", "rate:=0.0", "episodes:=2", "wait_for_subscribers:=1",
                   "wait_topics:=[episode]", sim="craft")  # fmt: skip
@@ -177,5 +180,5 @@ def test_craft_sim_runs_on_its_own_clock(ros_env: dict[str, str]) -> None:
     assert start0 == layout.EPISODE_GAP_NS  # the sim's time, not the wall clock
     assert (end0 - start0, end1 - start1) == (steps[0] * STEP_NS, steps[1] * STEP_NS)
     assert start1 - end0 == layout.EPISODE_GAP_NS
-    clock = [stamp_ns(m.clock) for m in lis.of("/clock")]
+    clock = [stamp_ns(m.clock) for m in lis.of(f"/{ns}/clock")]
     assert clock == sorted(clock) and clock[-1] == end1  # the last /clock is the final observation's time

@@ -5,16 +5,17 @@ message definitions, QoS, log stamps and CDR bytes kept exactly) into a new rosb
 mcap by default) and adds, for every replayed step of every episode, what the live node would have
 published while that recording played:
 
-* ``<ns>/pi`` (``std_msgs/Float32MultiArray``, the node's ``~/pi`` layout: dimension
-  ``('slot', n, n)``, data = π_1..π_n lowest slot first, then the expected position Σ i·π_i
-  (Lu et al., ICLR 2021, §3.3 π_avg), then π_end; n + 2 values) at the step's observation stamp;
+* ``<ns>/state`` (``ompn_interfaces/msg/SubtaskState``, the node's ``~/state``: episode, step, π_1..π_n
+  lowest slot first, the expected position Σ i·π_i (Lu et al., ICLR 2021, §3.3 π_avg), π_end) and
+  ``<ns>/pi`` (``std_msgs/Float32MultiArray``, the same n + 2 values packed as the node's ``~/pi``)
+  at the step's observation stamp;
 * ``<ns>/segment`` (``std_msgs/Int32``): the segment ordinal of the step (see :data:`SegmentLabels`);
-* ``<ns>/boundary`` (``diagnostic_msgs/DiagnosticArray``, the node's ``~/boundary`` event: one
-  status ``'<node>/subtask_boundary'`` with keys step, subtask, score, level, detected_at, stamp_ns,
-  final; ``header.stamp`` = the boundary step's observation stamp) logged at the stamp of the step
-  where the online detector committed it (``detected_at``; a boundary committed on the done step is
-  logged at the final observation's stamp when the episode's stamps include it, else at the last
-  real step's).
+* ``<ns>/boundary`` (``ompn_interfaces/msg/SubtaskBoundary``, the node's ``~/boundary`` event, built by
+  :mod:`ompn_ros.data.interfaces`: node = ``<ns>``, episode = the episode's number from 1,
+  ``subtask_id`` from the episode's sketch when it has one, the last boundary ``final``) logged at
+  the stamp of the step where the online detector committed it (``decided_step``; a boundary
+  committed on the done step is logged at the final observation's stamp when the episode's stamps
+  include it, else at the last real step's).  ``header.frame_id`` is empty.
 
 Opened in Foxglove or PlotJuggler, π then runs under the robot's own data.  The segmentation is the
 one :func:`ompn_ros.segmenter.replay_episode` computes, i.e. the very segmenter ``ompn_node`` runs.
@@ -49,6 +50,7 @@ from ompn_ros import layout
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import ReplayResult
 
+from . import interfaces
 from . import messages as m
 from .bag_writer import resolve_topic, storage_plugin
 from .episode import Episode
@@ -70,10 +72,10 @@ STAMPS_KEY = "obs_stamp_ns"
 CUSTOM_DATA_KEY = "ompn_ros.annotation"
 """``metadata.yaml`` ``custom_data`` key of the output: JSON with source, namespace, segment_labels."""
 SEGMENT = "~/segment"  # Int32: segment ordinal per step (annotated bags only)
-BOUNDARY_STATUS_SUFFIX = "subtask_boundary"
 STORAGES: tuple[Storage, ...] = ("mcap", "sqlite3")
 _ROS_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-_RANK = {"boundary": 1, "pi": 2, "segment": 3}  # order at one stamp: the node publishes events first
+# order at one stamp: the node publishes events first
+_RANK = {"boundary": 1, "state": 2, "pi": 3, "segment": 4}
 
 
 class AnnotateError(BagError):
@@ -157,23 +159,19 @@ def pi_rows(result: ReplayResult) -> np.ndarray:
                            np.asarray(result.pi_end, np.float32)[:, None]], axis=1)
 
 
-def boundary_message(event: BoundaryEvent, stamp_ns: int, status_name: str) -> bytes:
+def boundary_message(event: BoundaryEvent, stamp_ns: int, node: str, episode: int,
+                     sketch: np.ndarray | None, decided_stamp_ns: int) -> bytes:
     """CDR of the node's ``~/boundary`` event for ``event`` (``header.stamp`` = ``stamp_ns``)."""
-    values = {
-        "step": event.step,
-        "subtask": event.subtask,
-        "score": f"{event.score:.6f}",
-        "level": event.level,
-        "detected_at": event.detected_at,
-        "stamp_ns": stamp_ns,
-        "final": "true" if event.final else "false",
-    }
-    return m.encode_diagnostic_status(stamp_ns, status_name, "boundary", values, 0)
+    return interfaces.encode_subtask_boundary(interfaces.SubtaskBoundary.from_event(
+        event, node=node, episode=episode, sketch=sketch, decided_stamp_ns=decided_stamp_ns,
+        stamp_ns=stamp_ns))
 
 
 def episode_messages(stamps: np.ndarray, result: ReplayResult, number: int, topics: dict[str, str],
-                     status_name: str, labels: SegmentLabels = "boundary") -> list[_Message]:
-    """The annotation messages of one replayed episode, in stamp order (see the module docstring)."""
+                     node: str, labels: SegmentLabels = "boundary",
+                     sketch: np.ndarray | None = None) -> list[_Message]:
+    """The annotation messages of one replayed episode (``number`` from 0), in stamp order (see the
+    module docstring)."""
     try:
         rows = pi_rows(result)
     except ValueError as err:
@@ -184,17 +182,20 @@ def episode_messages(stamps: np.ndarray, result: ReplayResult, number: int, topi
                             f"steps (expected {steps} or {steps + 1} with the final observation)")
     out: list[_Message] = []
     n_slots = rows.shape[1] - 2
-    for b in result.boundaries:
+    for b in interfaces.with_final(result.boundaries):
         if not 0 <= b.step <= b.detected_at or b.step >= steps or b.detected_at > steps:
             raise AnnotateError(f"episode #{number}: boundary at step {b.step} detected at "
                                 f"{b.detected_at} lies outside its {steps} steps")
         log_stamp = int(stamps[min(b.detected_at, len(stamps) - 1)])
-        out.append(_Message(log_stamp, _RANK["boundary"], topics["boundary"],
-                            boundary_message(b, int(stamps[b.step]), status_name)))
+        out.append(_Message(log_stamp, _RANK["boundary"], topics["boundary"], boundary_message(
+            b, int(stamps[b.step]), node, number + 1, sketch, log_stamp)))
     segments = segment_labels(result.boundaries, steps, labels)
     for t in range(steps):
         stamp = int(stamps[t])
-        pi_cdr = m.encode_float32_array(rows[t], "slot", n_slots)
+        state = interfaces.encode_subtask_state(stamp, "", number + 1, t, rows[t, :n_slots],
+                                                float(rows[t, n_slots]), float(rows[t, n_slots + 1]))
+        out.append(_Message(stamp, _RANK["state"], topics["state"], state))
+        pi_cdr = m.encode_float32_array(rows[t], layout.PI_LABEL)
         out.append(_Message(stamp, _RANK["pi"], topics["pi"], pi_cdr))
         out.append(_Message(stamp, _RANK["segment"], topics["segment"], m.encode_int32(int(segments[t]))))
     out.sort(key=lambda msg: (msg.stamp, msg.rank))
@@ -202,14 +203,15 @@ def episode_messages(stamps: np.ndarray, result: ReplayResult, number: int, topi
 
 
 def output_topics(namespace: str) -> tuple[dict[str, str], str]:
-    """``({'pi', 'segment', 'boundary'} -> absolute topic, boundary status name)`` for ``namespace``."""
+    """``({'state', 'pi', 'segment', 'boundary'} -> absolute topic, the node's name)`` for ``namespace``."""
     ns = "/" + namespace.strip("/")
     node = ns.rsplit("/", 1)[-1]
     if not node or not all(_ROS_NAME.fullmatch(part) for part in ns.strip("/").split("/")):
         raise AnnotateError(f"namespace must be a ROS name like '/ompn_node', got {namespace!r}")
     topics = {key: resolve_topic(name.removeprefix("~/"), ns)
-              for key, name in (("pi", layout.PI), ("segment", SEGMENT), ("boundary", layout.BOUNDARY))}
-    return topics, f"{node}/{BOUNDARY_STATUS_SUFFIX}"
+              for key, name in (("state", layout.STATE), ("pi", layout.PI), ("segment", SEGMENT),
+                                ("boundary", layout.BOUNDARY))}
+    return topics, ns
 
 
 def observation_stamps(src: str | Path, episodes: Sequence[Episode], *,
@@ -359,13 +361,14 @@ def _copy_connections(reader: Any, writer: Any, src: Path) -> dict[int, Any]:
 
 
 def _all_annotations(episodes_outputs: Sequence[tuple[Episode | np.ndarray | Sequence[int], ReplayResult]],
-                     topics: dict[str, str], status_name: str,
+                     topics: dict[str, str], node: str,
                      labels: SegmentLabels) -> tuple[list[_Message], int]:
     messages: list[_Message] = []
     steps = 0
     for number, (source, result) in enumerate(episodes_outputs):
         stamps = episode_stamps(source, number)
-        part = episode_messages(stamps, result, number, topics, status_name, labels)
+        sketch = source.sketch if isinstance(source, Episode) else None
+        part = episode_messages(stamps, result, number, topics, node, labels, sketch)
         steps += len(result.pi)
         messages.extend(part)
     messages.sort(key=lambda msg: (msg.stamp, msg.rank))
@@ -409,8 +412,8 @@ def annotate_bag(
     src, out = Path(src), Path(out)
     if storage not in STORAGES:
         raise AnnotateError(f"storage must be one of {STORAGES}, got {storage!r}")
-    topics, status_name = output_topics(namespace)
-    added, steps = _all_annotations(episodes_outputs, topics, status_name, labels)
+    topics, node = output_topics(namespace)
+    added, steps = _all_annotations(episodes_outputs, topics, node, labels)
     tmp = _prepare_output(out, src, overwrite)
     reader = _open_reader(src)
     try:
@@ -451,8 +454,9 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
     writer.open()
     try:
         mapping = _copy_connections(reader, writer, src)
-        ts = m.typestore()
-        types = {"pi": layout.FLOAT32_ARRAY, "segment": layout.INT32, "boundary": layout.DIAGNOSTIC_ARRAY}
+        ts = interfaces.register()
+        types = {"state": interfaces.SUBTASK_STATE, "pi": layout.FLOAT32_ARRAY, "segment": layout.INT32,
+                 "boundary": interfaces.SUBTASK_BOUNDARY}
         out_conns = {topic: writer.add_connection(topic, types[key], typestore=ts)
                      for key, topic in topics.items()}
         copied = 0

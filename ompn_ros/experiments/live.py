@@ -21,6 +21,7 @@ import numpy as np
 
 from ompn_ros import layout
 from ompn_ros.data.episode import boundaries_from_labels
+from ompn_ros.data.interfaces import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import expansion_scores
 from ompn_ros.metrics import alignment_accuracy, f1_with_tolerance
 from ompn_ros.paths import config_file
@@ -52,14 +53,14 @@ class Streams:
 
     DDS keeps the order within a topic but not across topics, so episodes are cut from each stream
     by counts (an episode of T steps has T subtask labels and T + 1 observations and π rows), and
-    the boundary stream where the subtask ordinal starts again (it counts up within an episode).
+    the boundary stream by the events' episode number.
     """
 
     ends: list[dict[str, str]] = field(default_factory=list)
     obs_times: list[int] = field(default_factory=list)
     subtask: list[int] = field(default_factory=list)
     pi_rows: list[list[float]] = field(default_factory=list)
-    boundaries: list[tuple[dict[str, str], int]] = field(default_factory=list)  # (keys, receive ns)
+    boundaries: list[tuple[SubtaskBoundary, int]] = field(default_factory=list)  # (event, receive ns)
 
     def on_episode(self, msg: Any) -> None:
         """A ``diagnostic_msgs/DiagnosticArray`` on the episode topic: starts printed, ends kept."""
@@ -72,30 +73,22 @@ class Streams:
             elif status.message == layout.EPISODE_END:
                 self.ends.append(keys)
 
-    def on_boundary(self, msg: Any) -> None:
-        """A boundary event of the node: kept with its receive time and printed."""
+    def on_boundary(self, raw: bytes) -> None:
+        """A boundary event of the node (``SubtaskBoundary`` CDR): kept with its receive time, printed."""
         received = time.monotonic_ns()
-        for status in msg.status:
-            keys = _kv(status)
-            if "step" not in keys:
-                continue
-            self.boundaries.append((keys, received))
-            final = " (episode end)" if keys.get("final") == "true" else ""
-            print(
-                f"   detected boundary: step {int(keys['step']):4d} "
-                f"(subtask {keys.get('subtask', '?')}){final}",
-                flush=True,
-            )
+        event = decode_subtask_boundary(raw)
+        self.boundaries.append((event, received))
+        final = " (episode end)" if event.final else ""
+        print(f"   detected boundary: step {event.step:4d} (subtask {event.subtask}){final}", flush=True)
 
     def episodes(self) -> list[LiveEpisode]:
         out: list[LiveEpisode] = []
         obs0, sub0 = 0, 0
-        groups: list[list[tuple[dict[str, str], int]]] = []
-        for keys, received in self.boundaries:
-            ordinal = int(keys.get("subtask", 0))
-            if not groups or ordinal <= int(groups[-1][-1][0].get("subtask", 0)):
+        groups: list[list[tuple[SubtaskBoundary, int]]] = []
+        for event, received in self.boundaries:
+            if not groups or event.episode != groups[-1][-1][0].episode:
                 groups.append([])
-            groups[-1].append((keys, received))
+            groups[-1].append((event, received))
         for i, end in enumerate(self.ends):
             steps = int(end.get(layout.KEY_STEPS, 0))
             ep = LiveEpisode(index=int(end.get(layout.KEY_EPISODE, len(out))), steps=steps)
@@ -103,8 +96,8 @@ class Streams:
             ep.pi_rows = self.pi_rows[obs0 : obs0 + steps + 1]
             ep.subtask = self.subtask[sub0 : sub0 + steps]
             obs0, sub0 = obs0 + steps + 1, sub0 + steps
-            for keys, received in groups[i] if i < len(groups) else []:
-                step, seen_at = int(keys["step"]), int(keys.get("detected_at", keys["step"]))
+            for event, received in groups[i] if i < len(groups) else []:
+                step, seen_at = event.step, event.decided_step
                 # A boundary on the final (done) observation closes the last subtask, whose last real
                 # step is T - 1: the same rule as the offline replay (segmenter.replay_episode).
                 step = min(step, max(steps - 1, 0))
@@ -112,7 +105,7 @@ class Streams:
                     continue
                 ep.boundaries.append(step)
                 ep.detected_at.append(seen_at)
-                if keys.get("final") != "true" and 0 <= seen_at < len(ep.obs_times):
+                if not event.final and 0 <= seen_at < len(ep.obs_times):
                     ep.latencies_ms.append((received - ep.obs_times[seen_at]) / 1e6)
             out.append(ep)
         return out
@@ -126,6 +119,8 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
     from rclpy.executors import ExternalShutdownException
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float32MultiArray, Int32
+
+    from ompn_interfaces.msg import SubtaskBoundary as SubtaskBoundaryMsg
 
     rclpy.init()
     node = rclpy.create_node("ompn_demo_monitor")
@@ -145,7 +140,8 @@ def monitor(episodes: int, timeout: float, node_name: str) -> list[LiveEpisode]:
 
     node.create_subscription(Int32, layout.SUBTASK, on_subtask, reliable)
     node.create_subscription(Float32MultiArray, f"/{node_name}/pi", on_pi, reliable)
-    node.create_subscription(DiagnosticArray, f"/{node_name}/boundary", streams.on_boundary, events_qos)
+    node.create_subscription(SubtaskBoundaryMsg, f"/{node_name}/boundary", streams.on_boundary, events_qos,
+                             raw=True)
     deadline = time.monotonic() + timeout
     try:
         # The sim starts once ompn_node and this monitor subscribe to observation: subscribe last,

@@ -39,15 +39,21 @@ Lifecycle: every transition is logged; a request the current state does not offe
 ``success: false`` and one line (:mod:`ompn_ros.nodes.lifecycle_guard`), and the shutdown transition ends
 the process (exit 0).
 
-Publications (per accepted observation; every one built by :mod:`ompn_ros.data.messages`):
+Publications (per accepted observation; built by :mod:`ompn_ros.data.messages` and, for the
+``ompn_interfaces`` types, :mod:`ompn_ros.data.interfaces`):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).
-    ``~/pi``          Float32MultiArray, ``layout.dim=[('slot', n, n)]``, ``data`` = the n slot
-                      probabilities π_1..π_n (lowest slot first), then the expected position
-                      Σ i·π_i (paper π_avg), then π_end: n + 2 values.
-    ``~/boundary``    DiagnosticArray, one status named '<node>/subtask_boundary' with keys step, subtask,
-                      score, level, detected_at, stamp_ns, final; ``header.stamp`` = the boundary step's
-                      input stamp.  RELIABLE; a late subscriber gets the last event only
+    ``~/state``       ompn_interfaces/msg/SubtaskState: header (the observation's stamp and frame_id),
+                      episode, step, ``pi`` (π_1..π_n, lowest slot first), ``expected_position``
+                      (Σ i·π_i, paper π_avg), ``pi_end``.
+    ``~/pi``          Float32MultiArray, the same numbers packed: π_1..π_n, Σ i·π_i, π_end (one
+                      dimension of n + 2 values, label ``layout.PI_LABEL``).
+    ``~/boundary``    ompn_interfaces/msg/SubtaskBoundary: header (stamp = the boundary step's input
+                      stamp, frame_id = the observation's), node, episode, step, subtask, subtask_id (from
+                      the sketch, -1 unknown), score, memory_level, decided_step and decided_stamp, final
+                      (every episode's last boundary; when the detector published it before the episode
+                      ended, it comes again with final set: :func:`ompn_ros.data.interfaces.with_final`).
+                      RELIABLE; a late subscriber gets the last event only
                       (``boundary_replay='last'``, TRANSIENT_LOCAL depth 1) or nothing old ('none').
     ``/diagnostics``  periodic DiagnosticArray, one status named '<fully qualified node name>: segmenter'
                       with the counters (:meth:`OMPNNode.counters`).
@@ -80,6 +86,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -99,8 +106,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
 
+from ompn_interfaces.msg import SubtaskBoundary, SubtaskState
 from ompn_ros import layout
 from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
+from ompn_ros.data.interfaces import encode_subtask_state, with_final
 from ompn_ros.data.messages import (
     StampRangeError,
     encode_diagnostic_status,
@@ -110,10 +119,12 @@ from ompn_ros.data.messages import (
     parse_float32_array,
     parse_sketch_value,
 )
-from ompn_ros.data.obs import Decided, Drop
+from ompn_ros.data.obs import Decided, Drop, ObservationSpecError
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
-from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
+from ompn_ros.detect.settings import NODE_PARAMETERS, DetectorSettingsError, node_parameters, resolve_detector
+from ompn_ros.model.checkpoint import CheckpointError
+from ompn_ros.model.config import ConfigError
 from ompn_ros.model.factory import stepper_from_checkpoint
 from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
@@ -147,7 +158,7 @@ from ompn_ros.segmenter import (
     StreamingSegmenter,
     classify_stamp,
 )
-from ompn_ros.validate import validate_sketch
+from ompn_ros.validate import WrongObservationLength, validate_sketch
 
 NODE_NAME = "ompn_node"
 MARKER_QUEUE = 5_000  # episode markers (and sketches) queued for the node: Fast DDS's default sample limit
@@ -216,6 +227,8 @@ class OMPNNode(LifecycleNode):
         self.segmenter: StreamingSegmenter | None = None
         self.assembled: AssembledInput | None = None  # observation_spec input (None: single topic)
         self.last_error = ""
+        self.configure_error: Exception | None = None  # of the last failed configure
+        self.quiet_configure = False
         self.events: Counter[str] = Counter()  # node-level counters (counters())
         self.qos_warnings: list[str] = []
         self.last_stamp_ns = 0
@@ -232,8 +245,10 @@ class OMPNNode(LifecycleNode):
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
-        self._status_name = f"{self.get_name()}/subtask_boundary"
-        self._boundary_cdr = BoundaryEncoder(self._status_name)
+        self._boundary_cdr = BoundaryEncoder(self.get_fully_qualified_name())
+        self._frame_id = ""  # the observation's header.frame_id (JointState input)
+        self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
+        self._last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
         self._n_slots = 0
         self._active = False
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits
@@ -358,7 +373,9 @@ class OMPNNode(LifecycleNode):
             self._configure()
         except Exception as exc:  # any failure is the transition's reason, never a crash
             self.last_error = f"{type(exc).__name__}: {exc}"
-            self.get_logger().error(f"configure failed: {self.last_error}")
+            self.configure_error = exc
+            if not self.quiet_configure:  # main() reports an auto-start failure itself, in one line
+                self.get_logger().error(f"configure failed: {self.last_error}")
             self.segmenter = None
             self.assembled = None
             return TransitionCallbackReturn.FAILURE
@@ -401,8 +418,9 @@ class OMPNNode(LifecycleNode):
         self._pubs = {
             "action": self.create_lifecycle_publisher(action_type, layout.CMD_ACTION, per_step),
             "pi": self.create_lifecycle_publisher(Float32MultiArray, layout.PI, per_step),
+            "state": self.create_lifecycle_publisher(SubtaskState, layout.STATE, per_step),
             "boundary": self.create_lifecycle_publisher(
-                DiagnosticArray,
+                SubtaskBoundary,
                 layout.BOUNDARY,
                 boundary_qos(str(self.values["boundary_replay"])),
                 event_callbacks=events,
@@ -654,6 +672,7 @@ class OMPNNode(LifecycleNode):
         if isinstance(got, str):
             self._reject(MalformedMessage(got))
             return
+        self._frame_id = msg.header.frame_id
         with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
             self.process_observation(got.astype(np.float32), stamp)
 
@@ -698,7 +717,10 @@ class OMPNNode(LifecycleNode):
             )
             out = seg.step(obs, stamp_ns)
         except InvalidInput as exc:
-            self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
+            if isinstance(exc, WrongObservationLength):
+                self._report_size_mismatch(exc)
+            else:
+                self._warn_throttled(f"skipped observation ({exc.reason}): {exc}")
             return
         self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
         if out.step_index == 0:
@@ -719,9 +741,29 @@ class OMPNNode(LifecycleNode):
         pi_values[:n] = so.pi
         pi_values[n] = so.expected_position
         pi_values[n + 1] = so.pi_end
-        self._pubs["pi"].publish(encode_float32_array(pi_values, "slot", n))
+        self._pubs["pi"].publish(encode_float32_array(pi_values, layout.PI_LABEL))
+        self._pubs["state"].publish(encode_subtask_state(
+            self.last_stamp_ns, self._frame_id, self.events["episodes"], out.step_index, so.pi,
+            so.expected_position, so.pi_end))
         if out.boundary is not None:
             self.log_boundary(out.boundary)
+
+    def _report_size_mismatch(self, exc: WrongObservationLength) -> None:
+        """One error line per observed size that does not fit the checkpoint (each such message is
+        still skipped and counted as ``rejected_wrong_length``), naming where the size comes from."""
+        if str(exc) in self._sizes_reported:
+            return
+        self._sizes_reported.add(str(exc))
+        if self.assembled is not None:
+            source = f"observation_spec (step topic {self.assembled.spec.step_topic})"
+        elif self.values["obs_source"] == "joint_state":
+            fields = list(self.values["joint_fields"])
+            source = f"'{layout.JOINT_STATES}' fields {fields} (obs_source=joint_state)"
+        else:
+            source = f"'{layout.OBSERVATION}'"
+        self.get_logger().error(
+            f"{exc} from {source}: every such message is skipped (counted as rejected_wrong_length); "
+            "publish what the model was trained on, or use a checkpoint trained on this robot")
 
     def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int, now_ns: int | None) -> bool:
         """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
@@ -755,11 +797,15 @@ class OMPNNode(LifecycleNode):
         return True
 
     # --- outputs -------------------------------------------------------------------------------
-    def publish_boundary(self, event: BoundaryEvent, log: bool = True) -> None:
+    def publish_boundary(self, event: BoundaryEvent, log: bool = True, decided_ns: int | None = None) -> None:
         """Publish ``event`` on ``~/boundary`` (:class:`BoundaryEncoder`: the codec's bytes, the constant
         part encoded once) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
-        self._pubs["boundary"].publish(self._boundary_cdr.encode(stamp, event))
+        decided = self.last_stamp_ns if decided_ns is None else decided_ns
+        self._pubs["boundary"].publish(self._boundary_cdr.encode(
+            event, stamp_ns=stamp, episode=self.events["episodes"], frame_id=self._frame_id,
+            sketch=self._episode_sketch, decided_stamp_ns=decided))
+        self._last_boundary = (event, decided)
         self.events["boundaries"] += 1
         if log:
             self.log_boundary(event)
@@ -794,6 +840,7 @@ class OMPNNode(LifecycleNode):
             self.get_logger().warning(f"episode start rejected: {exc}; waiting for the next valid start")
             return False
         seg.forget_stamps()
+        self._last_boundary = None
         self._last_receive_ns = 0
         self.last_stamp_ns = 0
         self._episode_sketch = sketch
@@ -814,6 +861,10 @@ class OMPNNode(LifecycleNode):
         self.events["episodes_ended"] += 1
         for event in closing:
             self.publish_boundary(event)
+        if self._last_boundary is not None:  # the boundary published at the end comes again as final
+            last, decided = self._last_boundary
+            for event in with_final([last])[1:]:
+                self.publish_boundary(event, decided_ns=decided)
 
     def _end_at_pause(self) -> bool:
         """``episode_gap``: close the open episode as an end marker would and start the next one."""
@@ -1049,13 +1100,33 @@ def _stop_on_signals() -> threading.Event:
     return stop
 
 
+KNOWN_CONFIGURE_ERRORS = (NodeConfigError, CheckpointError, ConfigError, DetectorConfigError,
+                          DetectorSettingsError, ObservationSpecError, FileNotFoundError)
+"""Configure failures caused by the parameters or the checkpoint (not by a bug in this package)."""
+
+
+def _cannot_start(node: OMPNNode) -> int:
+    """The auto-start configure failed: a known cause is one line and exit code 2 (README), anything
+    else a bug: its traceback and exit code 1."""
+    exc = node.configure_error
+    if isinstance(exc, KNOWN_CONFIGURE_ERRORS):
+        print(f"{NODE_NAME}: cannot start: {exc}", file=sys.stderr)
+        return 2
+    if exc is not None:
+        traceback.print_exception(exc)
+    node.get_logger().fatal(f"cannot start: {node.last_error}")
+    return 1
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ompn_node``: configure + activate (``auto_start``), then spin.
 
-    Exit codes: 0 after SIGINT/SIGTERM or the shutdown transition, 1 when the auto-start configure
-    fails, 2 on an invalid start-up parameter (one line naming it and the allowed values) or unparsable
-    ROS arguments (rcl's reason, e.g. an unquoted YAML mapping given to ``-p observation_spec:=``: pass
-    a file path or quote the mapping as a YAML string)."""
+    Exit codes: 0 after SIGINT/SIGTERM or the shutdown transition, 2 when the auto-start configure
+    fails for a known cause (a missing checkpoint, one that does not fit the domain or parameters: one
+    line), 1 for any other configure failure (a bug: its traceback), 2 on an invalid start-up parameter
+    (one line naming it and the allowed values) or unparsable ROS arguments (rcl's reason, e.g. an
+    unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote the mapping as
+    a YAML string)."""
     if wants_help(args):
         print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
                         "publishes the action, ~/pi and ~/boundary events.", SPECS))
@@ -1071,10 +1142,11 @@ def main(args: list[str] | None = None) -> int:
     try:
         node = OMPNNode()
         if node.values["auto_start"]:
+            node.quiet_configure = True
             node.trigger_configure()
+            node.quiet_configure = False
             if node.segmenter is None:
-                node.get_logger().fatal(f"cannot start: {node.last_error}")
-                return 1
+                return _cannot_start(node)
             node.trigger_activate()
         executor = make_executor(str(node.values["executor"]))
         executor.add_node(node)

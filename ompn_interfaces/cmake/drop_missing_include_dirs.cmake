@@ -1,0 +1,18 @@
+# At the end of configuring, remove include directories that do not exist from every imported
+# target of this directory (generator expressions are kept as they are).
+function(ompn_drop_missing_include_dirs)
+  get_directory_property(_targets DIRECTORY "${CMAKE_CURRENT_SOURCE_DIR}" IMPORTED_TARGETS)
+  foreach(_target IN LISTS _targets)
+    get_target_property(_dirs ${_target} INTERFACE_INCLUDE_DIRECTORIES)
+    if(_dirs)
+      set(_kept "")
+      foreach(_dir IN LISTS _dirs)
+        if(_dir MATCHES "^\\$<" OR EXISTS "${_dir}")
+          list(APPEND _kept "${_dir}")
+        endif()
+      endforeach()
+      set_target_properties(${_target} PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kept}")
+    endif()
+  endforeach()
+endfunction()
+cmake_language(DEFER DIRECTORY "${CMAKE_CURRENT_SOURCE_DIR}" CALL ompn_drop_missing_include_dirs)
