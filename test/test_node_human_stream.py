@@ -21,6 +21,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.episode import Episode, observation_copies  # noqa: E402
+from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
 from sim_nodes import derive_seed  # noqa: E402
@@ -62,10 +63,8 @@ def live(node: OMPNNode, stream: Episode, t0_ns: int) -> tuple[list[tuple[Any, .
     node._on_episode(marker(layout.EPISODE_END, steps=str(stream.length)))
     events = []
     for raw in node._pubs["boundary"].raws[b0:]:
-        values = {kv.key: kv.value for kv in m.deserialize(raw, layout.DIAGNOSTIC_ARRAY).status[0].values}
-        events.append(
-            (int(values["step"]), int(values["subtask"]), int(values["detected_at"]), values["score"])
-        )
+        b = decode_subtask_boundary(raw)
+        events.append((b.step, b.subtask, b.decided_step, f"{b.score:.6f}"))
     return events, np.array([m.parse_float32_array(r) for r in node._pubs["pi"].raws[p0:]])
 
 
@@ -86,7 +85,7 @@ def test_live_output_on_a_human_like_stream_equals_its_replay(ctx) -> None:
         stream = received(ep)
         got, pis = live(node, stream, t0 + i * 10 * 1_000_000_000)
         replay = replay_episode(offline, stream, include_done_step=True)
-        want = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in replay.boundaries]
+        want = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in with_final(replay.boundaries)]
         assert got == want, (task, got, want)
         assert len(pis) == len(stream.observations)
         np.testing.assert_allclose(pis[:-1, -1], replay.pi_end, atol=1e-6)
