@@ -29,7 +29,8 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
                       episode once the observation changed by less than ``idle_speed`` per second for
                       ``idle_s`` (the reader's ``split: idle``; still steps are held, then stepped or
-                      trimmed, counted ``idle_trimmed``).
+                      trimmed, counted ``idle_trimmed``; a marker or ``~/reset`` ends the held ones as
+                      the end of a bag does: the first is the final observation, the others trimmed).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
 assembler's partner history; episode markers keep it); answered in every state, refused with the reason
@@ -678,7 +679,17 @@ class OMPNNode(LifecycleNode):
 
     def _idle_steps(self, gate: IdleGate, obs: np.ndarray, stamp_ns: int) -> None:
         """``idle_s``: step what the idle rule decided (held still observations included, in order)."""
-        for kind, x, stamp in gate.push(obs, stamp_ns):
+        self._idle_decided(gate.push(obs, stamp_ns))
+
+    def _flush_idle(self) -> None:
+        """``idle_s``, before an episode marker or ``~/reset``: the held still observations end the open
+        episode as at the end of a bag (the first is its final observation, the others trimmed)."""
+        if self._idle is not None:
+            self._idle_decided(self._idle.flush())
+
+    def _idle_decided(self, decided: list[tuple[str, np.ndarray | None, int]]) -> None:
+        """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``)."""
+        for kind, x, stamp in decided:
             seg = self.segmenter
             if seg is None:
                 return
@@ -843,6 +854,7 @@ class OMPNNode(LifecycleNode):
             if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
             self.events["markers"] += 1
+            self._flush_idle()
             values = {kv.key: kv.value for kv in status.values}
             if status.message == layout.EPISODE_START:
                 self._on_start_marker(values.get(layout.KEY_SKETCH, ""))
@@ -896,6 +908,7 @@ class OMPNNode(LifecycleNode):
             return response
         if self.assembled is not None:  # held steps are stepped first: they came before the request
             self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
+        self._flush_idle()
         response.success = self._start_episode(self._episode_sketch)
         self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
