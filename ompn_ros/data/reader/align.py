@@ -16,9 +16,9 @@ from ompn_ros import layout
 
 from ..errors import AlignmentError
 from ..idle import idle_windows
+from ..repeats import REPEAT_NS
 from .context import BagContext
 from .decode import Marker
-from .repeats import REPEAT_NS
 
 
 def attach(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarray) -> np.ndarray:

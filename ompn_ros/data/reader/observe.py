@@ -22,10 +22,10 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from ..obs import ObservationSpec
+from ..repeats import Repeats
 from .columns import AssemblySink
 from .context import BagContext
 from .raw import bag_messages
-from .repeats import Repeats
 
 
 @dataclass

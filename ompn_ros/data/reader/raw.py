@@ -19,11 +19,11 @@ from rosbags.rosbag2 import Reader
 
 from ..errors import CorruptBagError
 from ..obs import ObservationSpec
+from ..repeats import Repeats, unrepeated
 from .columns import AssemblySink, Float32Column
 from .compressed import NOTE as compressed_note
 from .compressed import decompress, is_compressed
 from .paths import storage_files
-from .repeats import Repeats, unrepeated
 
 
 @dataclass(frozen=True)

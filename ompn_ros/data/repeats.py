@@ -15,7 +15,7 @@ from functools import cache
 
 from rosbags.interfaces import Connection
 
-from .. import messages as m
+from . import messages as m
 
 REPEAT_NS = 100_000
 """Headerless messages with equal bytes logged at most this far apart (ns) are one message sent twice
