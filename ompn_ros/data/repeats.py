@@ -1,11 +1,14 @@
-"""Messages a driver sent twice: dropped while reading, counted per topic (docs/bags.md).
+"""Messages a driver sent twice: dropped by the bag reader while reading and by ``ompn_node`` before
+stepping, counted per topic (docs/bags.md).
 
 A message is a *repeat* when its bytes equal those of the previous message of the same topic and
 either its type starts with a ``std_msgs/Header`` whose stamp is not zero (the same sample sent
 again, however late) or it was logged at most :data:`REPEAT_NS` after it (a headerless message:
 two equal states of a still robot one driver period apart stay two observations).  Repeats are
 counted in the read report's ``duplicates`` table and named in a note; the same rule holds in strict
-and non-strict reads.  Cost: one bytes comparison per message; memory: the last message per topic.
+and non-strict reads.  Live, the receive time (or the DDS source timestamp) takes the log stamp's
+place, and a decoded JointState is compared by header stamp and data (:meth:`Repeats.seen_sample`),
+counted ``repeated_messages``.  Cost: one bytes comparison per message; memory: the last message per topic.
 """
 
 from __future__ import annotations
@@ -40,26 +43,35 @@ class Repeats:
         self._last: dict[str, tuple[int, bytes | memoryview]] = {}
 
     def seen(self, topic: str, msgtype: str, stamp: int, data: bytes | memoryview) -> bool:
-        """Whether this message repeats the previous one of ``topic`` (counted; else remembered)."""
+        """Whether this message (CDR ``data`` logged or received at ``stamp``) repeats the previous one
+        of ``topic`` (counted; else remembered)."""
+        stamped = has_header(msgtype) and bytes(data[4:12]) != bytes(8)
+        return self._seen(topic, stamp, data, stamped)
+
+    def seen_sample(self, topic: str, header_ns: int, payload: bytes) -> bool:
+        """:meth:`seen` for a decoded stamped message (``ompn_node``'s JointState): a repeat when its
+        non-zero header stamp and ``payload`` (the rest of the message, as bytes) equal the previous."""
+        return header_ns != 0 and self._seen(topic, header_ns, header_ns.to_bytes(8, "little", signed=True)
+                                             + payload, True)
+
+    def _seen(self, topic: str, stamp: int, data: bytes | memoryview, stamped: bool) -> bool:
         last = self._last.get(topic)
-        if last is not None and last[1] == data and _same_sample(msgtype, stamp - last[0], data):
+        if last is not None and last[1] == data and (stamped or 0 <= stamp - last[0] <= REPEAT_NS):
             self.counts[topic] = self.counts.get(topic, 0) + 1
             return True
         self._last[topic] = (stamp, data)
         return False
+
+    @property
+    def total(self) -> int:
+        """Repeats dropped, all topics."""
+        return sum(self.counts.values())
 
     def notes(self) -> list[str]:
         """One note per topic with repeats, for the bag's report."""
         return [f"topic '{topic}': {n} message(s) repeated the previous one (same bytes; same header "
                 f"stamp or at most {REPEAT_NS // 1000} µs later): read once, counted in 'duplicates'"
                 for topic, n in sorted(self.counts.items())]
-
-
-def _same_sample(msgtype: str, delay_ns: int, data: bytes | memoryview) -> bool:
-    """Equal bytes: the same sample when a non-zero header stamp says so, or when close in time."""
-    if has_header(msgtype) and bytes(data[4:12]) != bytes(8):
-        return True
-    return 0 <= delay_ns <= REPEAT_NS
 
 
 def unrepeated(messages: Iterator[tuple[Connection, int, bytes]],

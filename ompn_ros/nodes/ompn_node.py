@@ -112,6 +112,7 @@ from ompn_ros.data.messages import (
     parse_sketch_value,
 )
 from ompn_ros.data.obs import Decided, Drop
+from ompn_ros.data.repeats import Repeats
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
@@ -229,6 +230,7 @@ class OMPNNode(LifecycleNode):
         self._gap_timer: Any = None
         self._silence: SilenceWatch | None = None
         self._idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
+        self._repeats = Repeats()  # messages a driver sent twice: one step (the reader's rule)
         self._joints: JointInput | None = None  # obs_source 'joint_state'
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
@@ -557,6 +559,8 @@ class OMPNNode(LifecycleNode):
         self._on_raw_array(raw, stamp, now)
 
     def _on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None) -> None:
+        if self._repeats.seen(layout.OBSERVATION, layout.FLOAT32_ARRAY, stamp_ns, raw):
+            return  # the same message sent twice: one step
         try:
             data = parse_float32_array(raw)
         except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
@@ -575,6 +579,9 @@ class OMPNNode(LifecycleNode):
         last = self._last_receive_ns
         receive = now if (now > last or last - now > self._jump_back_ns) else last + 1
         self._last_receive_ns = receive
+        if self._repeats.seen(assembled.spec.step_topic, assembled.spec.type_of(assembled.spec.step_topic),
+                              receive, raw):
+            return
         try:
             assembled.asm.hold(receive, raw)
         except Exception as exc:  # the assembler counts what it knows; anything else is malformed input
@@ -612,6 +619,8 @@ class OMPNNode(LifecycleNode):
             if assembled is None or not self._active:
                 return
             now = self.get_clock().now().nanoseconds
+            if self._repeats.seen(topic, assembled.spec.type_of(topic), now, raw):
+                return
             try:
                 rejected = assembled.asm.offer(topic, now, raw)
             except Exception as exc:  # never fatal: counted as a node event, warned
@@ -647,8 +656,11 @@ class OMPNNode(LifecycleNode):
         except StampRangeError as exc:
             self._reject(BadStamp(str(exc)))
             return
-        joints = self._joints or JointInput(self.values["joint_fields"], None, None)
         fields = {f: np.asarray(getattr(msg, f)) for f in layout.JOINT_FIELDS}
+        payload = "\0".join(msg.name).encode() + b"".join(v.tobytes() + b"|" for v in fields.values())
+        if self._repeats.seen_sample(layout.JOINT_STATES, stamp, payload):
+            return  # the same sample sent twice (same header stamp and data): one step
+        joints = self._joints or JointInput(self.values["joint_fields"], None, None)
         got = joints.observation(stamp, msg.name, fields)
         if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
             return
@@ -965,7 +977,8 @@ class OMPNNode(LifecycleNode):
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
         ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
-        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value)."""
+        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value);
+        ``repeated_messages``: messages a driver sent twice, stepped once (:mod:`ompn_ros.data.repeats`)."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
@@ -989,6 +1002,7 @@ class OMPNNode(LifecycleNode):
             out[key] = int(self.events[key])
         if seg is not None:
             out.update({f"rejected_{k}": int(v) for k, v in seg.rejected.items()})
+        out["repeated_messages"] = self._repeats.total
         if self._idle is not None:
             out["idle_trimmed"] = self._idle.trimmed
         if self._joints is not None and self._joints.merger is not None:

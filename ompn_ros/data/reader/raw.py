@@ -92,7 +92,7 @@ class RawBag:
     assembly: AssemblySink | None = None  # the assembler's rows when they were built while reading
     cut: int | None = None  # truncate(): messages stamped at or after it are dropped
     notes: list[str] = field(default_factory=list)  # for the bag's report (e.g. a QoS string mismatch)
-    repeats: Repeats = field(default_factory=Repeats)  # messages sent twice, dropped (reader.repeats)
+    repeats: Repeats = field(default_factory=Repeats)  # messages sent twice, dropped (data.repeats)
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""
