@@ -35,6 +35,11 @@ def has_header(msgtype: str) -> bool:
     return bool(fields) and fields[0][1][1] in ("std_msgs/msg/Header", "std_msgs/Header")
 
 
+def _header_stamped(msgtype: str, data: bytes | memoryview) -> bool:
+    """Whether ``data`` starts with a ``std_msgs/Header`` whose stamp is not zero."""
+    return has_header(msgtype) and bytes(data[4:12]) != bytes(8)
+
+
 class Repeats:
     """The last message per topic and the repeats dropped so far (``counts``: topic -> repeats)."""
 
@@ -45,22 +50,28 @@ class Repeats:
     def seen(self, topic: str, msgtype: str, stamp: int, data: bytes | memoryview) -> bool:
         """Whether this message (CDR ``data`` logged or received at ``stamp``) repeats the previous one
         of ``topic`` (counted; else remembered)."""
-        stamped = has_header(msgtype) and bytes(data[4:12]) != bytes(8)
-        return self._seen(topic, stamp, data, stamped)
+        last = self._last.get(topic)
+        if last is not None and last[1] == data and (0 <= stamp - last[0] <= REPEAT_NS
+                                                     or _header_stamped(msgtype, data)):
+            return self._count(topic)
+        self._last[topic] = (stamp, data)
+        return False
 
     def seen_sample(self, topic: str, header_ns: int, payload: bytes) -> bool:
         """:meth:`seen` for a decoded stamped message (``ompn_node``'s JointState): a repeat when its
         non-zero header stamp and ``payload`` (the rest of the message, as bytes) equal the previous."""
-        return header_ns != 0 and self._seen(topic, header_ns, header_ns.to_bytes(8, "little", signed=True)
-                                             + payload, True)
-
-    def _seen(self, topic: str, stamp: int, data: bytes | memoryview, stamped: bool) -> bool:
+        if header_ns == 0:
+            return False
+        key = header_ns.to_bytes(8, "little", signed=True) + payload
         last = self._last.get(topic)
-        if last is not None and last[1] == data and (stamped or 0 <= stamp - last[0] <= REPEAT_NS):
-            self.counts[topic] = self.counts.get(topic, 0) + 1
-            return True
-        self._last[topic] = (stamp, data)
+        if last is not None and last[1] == key:
+            return self._count(topic)
+        self._last[topic] = (header_ns, key)
         return False
+
+    def _count(self, topic: str) -> bool:
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        return True
 
     @property
     def total(self) -> int:
