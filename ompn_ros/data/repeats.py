@@ -69,6 +69,10 @@ class Repeats:
         self._last[topic] = (header_ns, key)
         return False
 
+    def forget(self) -> None:
+        """Forget the last messages (``ompn_node``: an episode marker or ``~/reset`` starts afresh)."""
+        self._last.clear()
+
     def _count(self, topic: str) -> bool:
         self.counts[topic] = self.counts.get(topic, 0) + 1
         return True

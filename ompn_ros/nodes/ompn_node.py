@@ -693,9 +693,11 @@ class OMPNNode(LifecycleNode):
         """``idle_s``: step what the idle rule decided (held still observations included, in order)."""
         self._idle_decided(gate.push(obs, stamp_ns))
 
-    def _flush_idle(self) -> None:
-        """``idle_s``, before an episode marker or ``~/reset``: the held still observations end the open
-        episode as at the end of a bag (the first is its final observation, the others trimmed)."""
+    def _input_ends(self) -> None:
+        """Before an episode marker or ``~/reset``: with ``idle_s`` the held still observations end the
+        open episode as at the end of a bag (the first is its final observation, the others trimmed);
+        the next message is never a repeat of one before."""
+        self._repeats.forget()
         if self._idle is not None:
             self._idle_decided(self._idle.flush())
 
@@ -866,7 +868,7 @@ class OMPNNode(LifecycleNode):
             if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
             self.events["markers"] += 1
-            self._flush_idle()
+            self._input_ends()
             values = {kv.key: kv.value for kv in status.values}
             if status.message == layout.EPISODE_START:
                 self._on_start_marker(values.get(layout.KEY_SKETCH, ""))
@@ -920,7 +922,7 @@ class OMPNNode(LifecycleNode):
             return response
         if self.assembled is not None:  # held steps are stepped first: they came before the request
             self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
-        self._flush_idle()
+        self._input_ends()
         response.success = self._start_episode(self._episode_sketch)
         self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
