@@ -42,8 +42,9 @@ def test_human_bags_are_read_back(tmp_path: Path) -> None:
     assert manifest["parts"][0]["dropped_observations"] == dropped
     assert manifest["parts"][0]["duplicated_observations"] == duplicated
 
-    # the preset is strict: a missing or duplicate partner is an error naming the message
-    with pytest.raises(AlignmentError, match="duplicate"):
+    # the preset is strict: a dropped observation leaves two partners on the step before, an error
+    # naming the message and the fix
+    with pytest.raises(AlignmentError, match=r"second partner .* 'strict: false'"):
         read_episodes(out, spec=ReaderSpec.for_domain("craft"))
     spec = dataclasses.replace(ReaderSpec.for_domain("craft"), strict=False)
     result = read_episodes(out, spec=spec)
@@ -54,10 +55,32 @@ def test_human_bags_are_read_back(tmp_path: Path) -> None:
         np.testing.assert_array_equal(got.actions, src.actions[kept])
         np.testing.assert_array_equal(got.subtask, src.subtask[kept])
         np.testing.assert_array_equal(got.observations, src.observations[[*kept, src.length]])
-    report = result.report  # counted: the steps of dropped observations, the first copy of duplicates
-    assert report.total("duplicates") == {"/action": dropped, "/subtask": dropped}
-    assert report.total("missing") == {"/action": duplicated}
-    assert sum(b.dropped_steps for b in report.bags) == duplicated
+    report = result.report  # counted: the steps of dropped observations, the second copy of duplicates
+    assert report.total("duplicates") == {"/action": dropped, "/subtask": dropped, "/observation": duplicated}
+    assert report.total("missing") == {}
+    assert sum(b.dropped_steps for b in report.bags) == 0
+
+
+def test_human_bags_with_duplicates_only_read_with_the_preset(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture) -> None:
+    """Was: the first copy of a duplicated observation had no action, an error of the strict preset."""
+    out = tmp_path / "bags"
+    human = ["drop_rate=0", "duplicate_rate=0.1"]
+    assert collect_cli.main(["--domain", "craft", "--task", "makebed", "--episodes", "4", "--seed", "5",
+                             "--out", str(out), "--demonstrator", "human",
+                             *[f"--human={h}" for h in human]]) == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    assert "0 observation messages dropped" in printed and "the presets read them" in printed
+    sources = [expert_episode("craft", episode_seed(5, i), task="makebed", human=parse_human("craft", human))
+               for i in range(4)]  # fmt: skip
+    duplicated = sum(int((observation_copies(ep) == 2).sum()) for ep in sources)
+    result = read_episodes(out, spec=ReaderSpec.for_domain("craft"))
+    assert duplicated > 0 and len(result.episodes) == 4
+    for src, got in zip(sources, result.episodes, strict=True):
+        np.testing.assert_array_equal(got.observations, src.observations)
+        np.testing.assert_array_equal(got.actions, src.actions)
+        np.testing.assert_array_equal(got.subtask, src.subtask)
+    assert result.report.total("duplicates") == {"/observation": duplicated}
 
 
 def test_human_parameters_need_the_human_demonstrator(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

@@ -155,8 +155,8 @@ def test_sketch_outside_the_vocabulary_is_not_run_on_the_previous_sketch(ctx, ck
     node = active_node(ctx, ckpt)
     assert_matches_replay(node, ckpt, seed=2)
     node._on_episode(marker("start", sketch="7,9"))
-    for t in range(3):
-        node._on_raw_array(m.encode_float32_array(np.ones(OBS_DIM)), t + 1)
+    for t in range(3):  # different observations (the same bytes 1 ns later would be one message sent twice)
+        node._on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t + 1.0)), t + 1)
     node._on_episode(marker("end", steps="2"))
     counters = node.counters()
     assert counters["rejected_bad_sketch"] == 1 and counters["rejected_no_sketch"] == 3
@@ -364,6 +364,7 @@ def test_property_any_marker_or_stamp_sequence_leaves_a_working_node(ctx, ckpt: 
             node._on_reset(Trigger.Request(), Trigger.Response())
     counters = node.counters()
     observations = sum(k in ("stamp", "joint", "raw") for k, _ in events)  # each one counted once
-    assert counters["accepted"] + counters["rejected"] - counters["rejected_bad_sketch"] == observations
+    counted = counters["accepted"] + counters["rejected"] - counters["rejected_bad_sketch"]
+    assert counted + counters["repeated_messages"] == observations  # a message sent twice: one step
     assert_matches_replay(node, ckpt, seed=10, joint=True)
     node.destroy_node()

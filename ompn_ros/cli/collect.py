@@ -130,8 +130,11 @@ def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
         if human is not None:
             dropped = sum(p.get("dropped_observations", 0) for p in manifest["parts"])
             doubled = sum(p.get("duplicated_observations", 0) for p in manifest["parts"])
-            print(f"human-like: {dropped} observation messages dropped, {doubled} duplicated; read the bags "
-                  "with 'strict: false' in the reader spec (docs/dial.md §3.9)")
+            how = ("the presets read them (duplicates are read once)" if not dropped else
+                   "read the bags with 'strict: false' in the reader spec (a dropped observation's step "
+                   "is lost)")
+            print(f"human-like: {dropped} observation messages dropped, {doubled} duplicated; {how} "
+                  "(docs/dial.md §3.9)")
         return 0
 
     return body

@@ -354,7 +354,7 @@ def parse_sketch_value(text: str, vocab: int | None = None) -> np.ndarray:
     return parse_sketch_text(text, vocab)
 
 
-def _after_padding(data: np.ndarray, data_offset: int) -> np.ndarray:
+def after_data_offset(data: np.ndarray, data_offset: int) -> np.ndarray:
     """``data`` without the ``layout.data_offset`` padding elements at its front."""
     if data_offset > len(data):
         raise ValueError(f"layout.data_offset {data_offset} exceeds the {len(data)} data elements")
@@ -386,28 +386,13 @@ def multiarray_data_start(raw: bytes | memoryview) -> tuple[int, int]:
     return pos + 4 * offset, n - offset
 
 
-def multiarray_data_offset(raw: bytes | memoryview, typename: str) -> int:
-    """``layout.data_offset`` of a MultiArray message of type ``typename`` (any element type)."""
-    if bytes(raw[:4]) != CDR_LE_HEADER:
-        return int(deserialize(raw, typename).layout.data_offset)
-    pos = 4
-    (ndim,) = _U32.unpack_from(raw, pos)
-    if ndim > 64:
-        raise ValueError(f"implausible number of dimensions {ndim}")
-    pos += 4
-    for _ in range(ndim):
-        (slen,) = _U32.unpack_from(raw, pos)
-        pos = ((pos + 4 + slen + 3) & ~3) + 8
-    return int(_U32.unpack_from(raw, pos)[0])
-
-
 def parse_float32_array(raw: bytes | memoryview) -> np.ndarray:
     """Data of one ``Float32MultiArray`` as a float32 vector."""
     try:
         start, n = multiarray_data_start(raw)
     except (ValueError, struct.error):
         msg = deserialize(raw, layout.FLOAT32_ARRAY)
-        return _after_padding(np.asarray(msg.data, dtype=np.float32), int(msg.layout.data_offset))
+        return after_data_offset(np.asarray(msg.data, dtype=np.float32), int(msg.layout.data_offset))
     return np.frombuffer(raw, dtype="<f4", count=n, offset=start).astype(np.float32)
 
 
@@ -417,7 +402,7 @@ def parse_int32_array(raw: bytes | memoryview) -> np.ndarray:
         start, n = multiarray_data_start(raw)
     except (ValueError, struct.error):
         msg = deserialize(raw, layout.INT32_ARRAY)
-        return _after_padding(np.asarray(msg.data, dtype=np.int64), int(msg.layout.data_offset))
+        return after_data_offset(np.asarray(msg.data, dtype=np.int64), int(msg.layout.data_offset))
     return np.frombuffer(raw, dtype="<i4", count=n, offset=start).astype(np.int64)
 
 

@@ -90,6 +90,18 @@ class IdleGate:
         self._pending = {r: v for r, v in self._pending.items() if r in held}
         return out
 
+    def flush(self) -> list[tuple[str, np.ndarray | None, int]]:
+        """An episode marker or ``~/reset``: the stream the rule sees ends here, as a bag ends for the
+        reader.  The open episode ends at its first held still observation (returned as ``end``), the
+        other held ones are trimmed, and the next observation is judged afresh."""
+        last_ns = self._prev[1] if self._prev is not None else 0
+        out: list[tuple[str, np.ndarray | None, int]] = []
+        for cut in self.splitter.finish():
+            x, s = self._pending.get(cut.row, (None, last_ns))
+            out.append((cut.kind, x, s))
+        self._prev, self._pending = None, {}
+        return out
+
     @property
     def trimmed(self) -> int:
         return self.splitter.trimmed

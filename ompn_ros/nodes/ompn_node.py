@@ -29,7 +29,8 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
                       episode once the observation changed by less than ``idle_speed`` per second for
                       ``idle_s`` (the reader's ``split: idle``; still steps are held, then stepped or
-                      trimmed, counted ``idle_trimmed``).
+                      trimmed, counted ``idle_trimmed``; a marker or ``~/reset`` ends the held ones as
+                      the end of a bag does: the first is the final observation, the others trimmed).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).
 Service: ``~/reset`` (std_srvs/Trigger) starts a new episode and clears all per-episode state (and the
 assembler's partner history; episode markers keep it); answered in every state, refused with the reason
@@ -120,6 +121,7 @@ from ompn_ros.data.messages import (
     parse_sketch_value,
 )
 from ompn_ros.data.obs import Decided, Drop, ObservationSpecError
+from ompn_ros.data.repeats import Repeats
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
 from ompn_ros.detect.settings import NODE_PARAMETERS, DetectorSettingsError, node_parameters, resolve_detector
@@ -241,6 +243,7 @@ class OMPNNode(LifecycleNode):
         self._gap_timer: Any = None
         self._silence: SilenceWatch | None = None
         self._idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
+        self._repeats = Repeats()  # messages a driver sent twice: one step (the reader's rule)
         self._joints: JointInput | None = None  # obs_source 'joint_state'
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
@@ -574,6 +577,8 @@ class OMPNNode(LifecycleNode):
         self._on_raw_array(raw, stamp, now)
 
     def _on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None) -> None:
+        if self._repeats.seen(layout.OBSERVATION, layout.FLOAT32_ARRAY, stamp_ns, raw):
+            return  # the same message sent twice: one step
         try:
             data = parse_float32_array(raw)
         except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
@@ -592,6 +597,9 @@ class OMPNNode(LifecycleNode):
         last = self._last_receive_ns
         receive = now if (now > last or last - now > self._jump_back_ns) else last + 1
         self._last_receive_ns = receive
+        if self._repeats.seen(assembled.spec.step_topic, assembled.spec.type_of(assembled.spec.step_topic),
+                              receive, raw):
+            return
         try:
             assembled.asm.hold(receive, raw)
         except Exception as exc:  # the assembler counts what it knows; anything else is malformed input
@@ -629,6 +637,8 @@ class OMPNNode(LifecycleNode):
             if assembled is None or not self._active:
                 return
             now = self.get_clock().now().nanoseconds
+            if self._repeats.seen(topic, assembled.spec.type_of(topic), now, raw):
+                return
             try:
                 rejected = assembled.asm.offer(topic, now, raw)
             except Exception as exc:  # never fatal: counted as a node event, warned
@@ -664,8 +674,11 @@ class OMPNNode(LifecycleNode):
         except StampRangeError as exc:
             self._reject(BadStamp(str(exc)))
             return
-        joints = self._joints or JointInput(self.values["joint_fields"], None, None)
         fields = {f: np.asarray(getattr(msg, f)) for f in layout.JOINT_FIELDS}
+        payload = "\0".join(msg.name).encode() + b"".join(v.tobytes() + b"|" for v in fields.values())
+        if self._repeats.seen_sample(layout.JOINT_STATES, stamp, payload):
+            return  # the same sample sent twice (same header stamp and data): one step
+        joints = self._joints or JointInput(self.values["joint_fields"], None, None)
         got = joints.observation(stamp, msg.name, fields)
         if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
             return
@@ -697,7 +710,19 @@ class OMPNNode(LifecycleNode):
 
     def _idle_steps(self, gate: IdleGate, obs: np.ndarray, stamp_ns: int) -> None:
         """``idle_s``: step what the idle rule decided (held still observations included, in order)."""
-        for kind, x, stamp in gate.push(obs, stamp_ns):
+        self._idle_decided(gate.push(obs, stamp_ns))
+
+    def _input_ends(self) -> None:
+        """Before an episode marker or ``~/reset``: with ``idle_s`` the held still observations end the
+        open episode as at the end of a bag (the first is its final observation, the others trimmed);
+        the next message is never a repeat of one before."""
+        self._repeats.forget()
+        if self._idle is not None:
+            self._idle_decided(self._idle.flush())
+
+    def _idle_decided(self, decided: list[tuple[str, np.ndarray | None, int]]) -> None:
+        """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``)."""
+        for kind, x, stamp in decided:
             seg = self.segmenter
             if seg is None:
                 return
@@ -894,6 +919,7 @@ class OMPNNode(LifecycleNode):
             if status.name != layout.EPISODE_STATUS_NAME or self.segmenter is None or not self._active:
                 continue
             self.events["markers"] += 1
+            self._input_ends()
             values = {kv.key: kv.value for kv in status.values}
             if status.message == layout.EPISODE_START:
                 self._on_start_marker(values.get(layout.KEY_SKETCH, ""))
@@ -947,6 +973,7 @@ class OMPNNode(LifecycleNode):
             return response
         if self.assembled is not None:  # held steps are stepped first: they came before the request
             self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
+        self._input_ends()
         response.success = self._start_episode(self._episode_sketch)
         self.events["episode_starts"] += int(response.success)
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
@@ -1003,7 +1030,8 @@ class OMPNNode(LifecycleNode):
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
         ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
-        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value)."""
+        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value);
+        ``repeated_messages``: messages a driver sent twice, stepped once (:mod:`ompn_ros.data.repeats`)."""
         seg = self.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:
@@ -1027,6 +1055,7 @@ class OMPNNode(LifecycleNode):
             out[key] = int(self.events[key])
         if seg is not None:
             out.update({f"rejected_{k}": int(v) for k, v in seg.rejected.items()})
+        out["repeated_messages"] = self._repeats.total
         if self._idle is not None:
             out["idle_trimmed"] = self._idle.trimmed
         if self._joints is not None and self._joints.merger is not None:

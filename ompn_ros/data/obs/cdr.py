@@ -55,9 +55,12 @@ def header_stamp(raw: bytes | memoryview) -> int:
 
 
 def parse_float64_array(raw: bytes | memoryview) -> np.ndarray:
-    """Data of one ``std_msgs/Float64MultiArray`` as float64 (a read-only view into ``raw``)."""
+    """Data of one ``std_msgs/Float64MultiArray`` as float64 (a read-only view into ``raw``); the
+    ``layout.data_offset`` padding elements at the front of ``data`` are not elements of the array
+    (std_msgs/MultiArrayLayout): they are skipped, by the bag reader and the live node alike."""
     if not _little_endian(raw):
-        return np.asarray(m.deserialize(raw, "std_msgs/msg/Float64MultiArray").data, dtype=np.float64)
+        msg = m.deserialize(raw, "std_msgs/msg/Float64MultiArray")
+        return m.after_data_offset(np.asarray(msg.data, dtype=np.float64), int(msg.layout.data_offset))
     pos = 4
     (ndim,) = _U32.unpack_from(raw, pos)
     pos += 4
@@ -66,12 +69,13 @@ def parse_float64_array(raw: bytes | memoryview) -> np.ndarray:
     for _ in range(ndim):
         (slen,) = _U32.unpack_from(raw, pos)
         pos = _align(pos + 4 + slen, 4) + 8  # label, then size and stride
-    (n,) = _U32.unpack_from(raw, pos + 4)  # after data_offset
+    offset, n = struct.unpack_from("<II", raw, pos)
     pos += 8
     if n:
         pos = _align(pos, 8)
     _check_end(raw, pos + 8 * n, "Float64MultiArray")
-    return np.frombuffer(raw, dtype="<f8", count=n, offset=pos)
+    return m.after_data_offset(np.frombuffer(raw, dtype="<f8", count=n, offset=pos), offset)
+
 
 
 def parse_stamped_doubles(raw: bytes | memoryview, count: int, typename: str) -> tuple[int, np.ndarray]:

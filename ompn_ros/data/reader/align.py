@@ -16,6 +16,7 @@ from ompn_ros import layout
 
 from ..errors import AlignmentError
 from ..idle import idle_windows
+from ..repeats import REPEAT_NS
 from .context import BagContext
 from .decode import Marker
 
@@ -24,7 +25,8 @@ def attach(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarr
     """Per observation, the index of its first partner message on ``topic`` (-1 = none).
 
     Unattached messages and duplicate partners are counted in the report; with ``strict`` a
-    duplicate raises :class:`AlignmentError` naming the second partner.
+    duplicate raises :class:`AlignmentError` naming the second partner and ``strict: false``.  A
+    message sent twice never gets here (:mod:`.repeats` dropped it while reading).
     """
     n_obs = len(obs_stamps)
     tol = round(ctx.spec.tolerance * 1e9)
@@ -42,7 +44,10 @@ def attach(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarr
         ctx.report._add(ctx.report.duplicates, topic, int((count[dup_steps] - 1).sum()))
         if ctx.spec.strict:
             second = msg_ids[np.flatnonzero(idx[ok] == dup_steps[0])[1]]
-            raise AlignmentError(f"second partner for observation #{dup_steps[0]} (duplicate)",
+            raise AlignmentError(f"second partner for observation #{dup_steps[0]} (not a repeat of the "
+                                 f"first: it differs, or came over {REPEAT_NS / 1e6:g} ms later); to keep "
+                                 "the first partner and count the others, read with 'strict: false' in the "
+                                 "reader spec",
                                  path=ctx.path, topic=topic, index=int(second),
                                  stamp=int(stamps[second]))
     return first

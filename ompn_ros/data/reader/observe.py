@@ -22,8 +22,10 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from ..obs import ObservationSpec
+from ..repeats import Repeats
 from .columns import AssemblySink
 from .context import BagContext
+from .raw import bag_messages
 
 
 @dataclass
@@ -65,11 +67,13 @@ def record_order(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[tuple[str
 def reread(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[tuple[str, int, bytes]]:
     """The messages of ``topics`` read again from the storage, in record order: the same messages
     as the first read (its first ``raw.count`` wanted messages), those stamped at or after
-    ``raw.cut`` left out.  Used when their bytes were not kept (decoded while reading)."""
+    ``raw.cut`` left out.  Used when their bytes were not kept (decoded while reading).  The messages
+    come as in the first read (:func:`~.raw.bag_messages`: QoS-string mismatches, undeclared
+    compression, repeats)."""
     wanted, cut = set(topics), ctx.raw.cut
     with Reader(ctx.raw.path) as reader:
         conns = [c for c in reader.connections if c.topic in ctx.raw.topics]
-        for n, (conn, stamp, data) in enumerate(reader.messages(connections=conns)):
+        for n, (conn, stamp, data) in enumerate(bag_messages(reader, conns, [], Repeats())):
             if n >= ctx.raw.count:
                 break
             if conn.topic in wanted and (cut is None or stamp < cut):

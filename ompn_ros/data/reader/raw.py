@@ -19,6 +19,7 @@ from rosbags.rosbag2 import Reader
 
 from ..errors import CorruptBagError
 from ..obs import ObservationSpec
+from ..repeats import Repeats, unrepeated
 from .columns import AssemblySink, Float32Column
 from .compressed import NOTE as compressed_note
 from .compressed import decompress, is_compressed
@@ -91,11 +92,12 @@ class RawBag:
     assembly: AssemblySink | None = None  # the assembler's rows when they were built while reading
     cut: int | None = None  # truncate(): messages stamped at or after it are dropped
     notes: list[str] = field(default_factory=list)  # for the bag's report (e.g. a QoS string mismatch)
+    repeats: Repeats = field(default_factory=Repeats)  # messages sent twice, dropped (data.repeats)
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""
         self.count += 1
-        if wanted is not None and topic not in wanted:
+        if (wanted is not None and topic not in wanted) or self.repeats.seen(topic, msgtype, stamp, data):
             return
         tdata = self.topics.get(topic)
         if tdata is None:
@@ -143,10 +145,6 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
         raise CorruptBagError(f"cannot open bag: {err}{_unfinished_hint(err)}", path=where) from err
     raw.types = {c.topic: c.msgtype for c in reader.connections}
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
-    unmatched = storage_connections(reader, conns)
-    raw.notes.extend(f"topic '{topic}': the QoS profiles or type hash in metadata.yaml differ from the "
-                     "storage file's; its messages are read anyway (as ros2 bag play does)"
-                     for topic in sorted({c.topic for c in unmatched}))
     for topic in {c.topic for c in conns}:
         raw.topics[topic] = TopicData(raw.types[topic])
     try:
@@ -157,7 +155,7 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
     try:
         if conns:
             fed = set(sink.spec.topics) if sink is not None else set()
-            for conn, stamp, data in _decompressed(reader.messages(connections=conns + unmatched), raw.notes):
+            for conn, stamp, data in bag_messages(reader, conns, raw.notes, raw.repeats):
                 topic, tdata = conn.topic, raw.topics[conn.topic]
                 tdata.add(stamp, data, read)
                 if topic in fed:
@@ -174,6 +172,19 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
             pass
     raw.count = read
     return raw
+
+
+def bag_messages(reader: Reader, conns: list[Connection], notes: list[str],
+                 repeats: Repeats) -> Iterator[tuple[Connection, int, bytes]]:
+    """The messages of ``conns`` in record order, as every read of an opened bag takes them: with the
+    storage files' own connections whose QoS string differs (:func:`storage_connections`),
+    decompressed when undeclared zstd frames (:func:`_decompressed`), without repeats
+    (:mod:`.repeats`).  ``notes`` gets one line per topic read despite a QoS mismatch."""
+    unmatched = storage_connections(reader, conns)
+    notes.extend(f"topic '{topic}': the QoS profiles or type hash in metadata.yaml differ from the "
+                 "storage file's; its messages are read anyway (as ros2 bag play does)"
+                 for topic in sorted({c.topic for c in unmatched}))
+    return unrepeated(_decompressed(reader.messages(connections=conns + unmatched), notes), repeats)
 
 
 def _decompressed(messages: Iterator[tuple[Connection, int, bytes]],

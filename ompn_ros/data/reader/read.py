@@ -118,6 +118,9 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError,
             raw.corrupt = _renamed(raw.corrupt, readable, bag)
         report.error = str(raw.corrupt)
     report.notes.extend(raw.notes)
+    for topic, n in raw.repeats.counts.items():
+        report._add(report.duplicates, topic, n)
+    report.notes.extend(raw.repeats.notes())
     _crc_note(readable, report)
     ctx = BagContext(raw, spec, report, name=bag)
     topics = ctx.resolve_all()

@@ -10,10 +10,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .. import messages as m
 from ..errors import CorruptBagError, VectorLengthError
 from ..obs.cdr import parse_float64_array
-from ..obs.spec import FLOAT64_ARRAY
 
 
 def stack_float64_arrays(raws: Sequence[bytes], expected_dim: int | None, path: str, topic: str,
@@ -27,11 +25,7 @@ def stack_float64_arrays(raws: Sequence[bytes], expected_dim: int | None, path: 
     out: np.ndarray | None = None
     for i, raw in enumerate(raws):
         try:
-            vec = parse_float64_array(raw)
-            offset = m.multiarray_data_offset(raw, FLOAT64_ARRAY) if len(vec) else 0
-            if offset > len(vec):
-                raise ValueError(f"layout.data_offset {offset} exceeds the {len(vec)} data elements")
-            vec = vec[offset:]  # padding at the front of data is not part of the array
+            vec = parse_float64_array(raw)  # without the layout.data_offset padding
         except Exception as err:  # struct/ValueError on bad CDR, rosbags errors in the fallback
             raise CorruptBagError(f"cannot decode Float64MultiArray: {err}", path=path, topic=topic,
                                   index=i, stamp=int(stamps[i])) from err
