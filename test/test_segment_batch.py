@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import os
 import signal
@@ -15,22 +16,20 @@ import numpy as np
 import pytest
 import yaml
 
-pytest.importorskip("torch")
-
-from ompn_ros import layout  # noqa: E402
-from ompn_ros.cli._common import KNOWN_ERRORS  # noqa: E402
-from ompn_ros.cli.segment import main  # noqa: E402
-from ompn_ros.data import ReaderSpec, read_episodes  # noqa: E402
-from ompn_ros.data import messages as m  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig  # noqa: E402
-from ompn_ros.detect.tune import score_predictions  # noqa: E402
-from ompn_ros.experiments.batch import REFUSED_ERRORS  # noqa: E402
-from ompn_ros.experiments.batch_bags import bag_keys, list_bags  # noqa: E402
-from ompn_ros.experiments.replay import replay_all  # noqa: E402
-from ompn_ros.model.build import build_policy  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
+from ompn_ros import layout
+from ompn_ros.cli._common import KNOWN_ERRORS
+from ompn_ros.cli.segment import main
+from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data import messages as m
+from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.tune import score_predictions
+from ompn_ros.experiments.batch import REFUSED_ERRORS
+from ompn_ros.experiments.batch_bags import bag_keys, list_bags
+from ompn_ros.experiments.replay import replay_all
+from ompn_ros.model.build import build_policy
+from ompn_ros.model.checkpoint import save_checkpoint
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.load import stepper_from_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = {"reader": {
@@ -72,7 +71,8 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> dict:
     bags = root / "bags"
     (bags / "day2").mkdir(parents=True)
     stamps = {"a": _write_lab_bag(bags / "a", 1), "b": _write_lab_bag(bags / "b", 2),
-              "day2__c": _write_lab_bag(bags / "day2" / "c", 3), "day2__d": _write_lab_bag(bags / "day2" / "d", 4)}
+              "day2__c": _write_lab_bag(bags / "day2" / "c", 3),
+              "day2__d": _write_lab_bag(bags / "day2" / "d", 4)}
     (bags / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
     spec = root / "lab_reader.yaml"
     spec.write_text(yaml.safe_dump(SPEC))
@@ -116,7 +116,7 @@ def test_batch_segments_every_bag_and_names_the_refused_one(
             segs = [row for row in mine if int(row["episode"]) == number]
             assert [int(row["end_step"]) for row in segs] == sorted(b.step for b in r.boundaries)
             assert int(segs[0]["start_step"]) == 0 and int(segs[-1]["end_step"]) == ep.length - 1
-            for prev, row in zip(segs, segs[1:], strict=False):
+            for prev, row in itertools.pairwise(segs):
                 assert int(row["start_step"]) == int(prev["end_step"]) + 1  # segments tile the episode
             for row in segs:  # stamps are the bag's own observation stamps
                 assert int(row["start_stamp_ns"]) == stamps[number][int(row["start_step"])]
@@ -157,8 +157,8 @@ def test_a_killed_run_loses_no_completed_bag(lab: dict, tmp_path: Path) -> None:
         _write_lab_bag(bags / f"run{i}", 10 + i, episodes=3, steps=60)
     out = tmp_path / "seg"
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
-    proc = subprocess.Popen([sys.executable, "-m", "ompn_ros.cli.segment", "--bags", str(bags), *_args(lab, out)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    command = [sys.executable, "-m", "ompn_ros.cli.segment", "--bags", str(bags), *_args(lab, out)]
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
     while not list((out / "bags").glob("*.json")) and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.02)
@@ -189,7 +189,8 @@ def test_bad_batch_options_are_one_line(lab: dict, tmp_path: Path, capsys: pytes
     assert code == 2 and "Traceback" not in err and needle in err and len(err.strip().splitlines()) == 1
 
 
-def test_an_empty_folder_refuses_the_run(lab: dict, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_empty_folder_refuses_the_run(lab: dict, tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "empty").mkdir()
     assert main(["--bags", str(tmp_path / "empty"), *_args(lab, tmp_path / "o")]) == 2
     err = capsys.readouterr().err

@@ -27,8 +27,8 @@ def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--bags", metavar="SOURCE",
         help="batch mode: a folder of bags, a glob, or a text file listing one bag per line; every bag is "
-        "segmented into OUT/segments.csv, OUT/summary.json, OUT/metrics.json (labels) and OUT/bags/<key>.json; "
-        "a rerun skips complete bags (none: one --bag)")
+        "segmented into OUT/segments.csv, OUT/summary.json, OUT/metrics.json (labels) and "
+        "OUT/bags/<key>.json; a rerun skips complete bags (none: one --bag)")
     parser.add_argument("--jobs", type=int, default=1, help="batch mode: worker processes, one bag per task")
 
 

@@ -104,19 +104,21 @@ def segment_rows(number: int, ep: Episode, r: ReplayResult, stamps: np.ndarray |
     """One row per online segment of episode ``number`` (see ``batch_table.COLUMNS``)."""
     rows, start = [], 0
     for b in sorted(r.boundaries, key=lambda e: e.step):
-        known = ep.sketch is not None and 0 <= b.subtask < len(ep.sketch)
+        sketch = ep.sketch
+        known = int(sketch[b.subtask]) if sketch is not None and 0 <= b.subtask < len(sketch) else None
         rows.append({
             "episode": number, "task": ep.task, "start_step": start, "end_step": int(b.step),
             "start_stamp_ns": int(stamps[start]) if stamps is not None else None,
             "end_stamp_ns": int(stamps[b.step]) if stamps is not None else None,
-            "subtask": int(b.subtask), "subtask_id": int(ep.sketch[b.subtask]) if known else None,
+            "subtask": int(b.subtask), "subtask_id": known,
             "score": float(b.score), "detector": detector,
         })
         start = int(b.step) + 1
     return rows
 
 
-def episode_scores(episodes: Sequence[Episode], replays: Sequence[ReplayResult]) -> dict[str, list[float]] | None:
+def episode_scores(episodes: Sequence[Episode],
+                   replays: Sequence[ReplayResult]) -> dict[str, list[float]] | None:
     """Per episode: F1 at tolerance 0 and 1 and the alignment counts (authors', strict) of the online
     boundaries; None unless every episode has labels.  Summed over bags they give
     ``detect/tune.score_predictions`` of all episodes."""
@@ -156,7 +158,8 @@ def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, An
     stamps = _stamps(settings, path, episodes)
     if settings.annotate is not None and stamps is not None:
         settings.annotate.mkdir(parents=True, exist_ok=True)
-        annotate_bag(path, settings.annotate / bag.key, list(zip(stamps, replays, strict=True)), overwrite=True)
+        pairs = list(zip(stamps, replays, strict=True))
+        annotate_bag(path, settings.annotate / bag.key, pairs, overwrite=True)
     rows = [row for i, (ep, r) in enumerate(zip(episodes, replays, strict=True))
             for row in segment_rows(i, ep, r, None if stamps is None else stamps[i], settings.detector.mode)]
     return {**doc, "steps": sum(ep.length for ep in episodes), "rows": rows,

@@ -138,5 +138,5 @@ def summary_line(summary: dict[str, Any]) -> str:
     return text + "".join(f"\n  refused {item['bag']}: {item['reason']}" for item in refused)
 
 
-__all__ = ["COLUMNS", "batch_metrics", "status_line", "summarize", "summary_line", "table_rows", "write_outputs",
-           "write_table"]
+__all__ = ["COLUMNS", "batch_metrics", "status_line", "summarize", "summary_line", "table_rows",
+           "write_outputs", "write_table"]
