@@ -687,12 +687,13 @@ def _models(model_config: OMPNConfig, cfg: TrainConfig, train_eps: Sequence[Epis
             ctx: DistContext, device: torch.device | None = None) -> _Models:
     """A new policy with the training split's normalisations on ``device`` (CPU: None), its average and
     its optimizer."""
-    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
-    policy.set_obs_normalization(norm.mean, norm.scale)
-    if model_config.action_norm == "standard":
-        mean, std = action_normalization(train_eps)
-        policy.set_action_normalization(mean, std)
+    if ctx.is_main:  # the other ranks get rank 0's statistics (broadcast): they read only their shards
+        norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
+        policy.set_obs_normalization(norm.mean, norm.scale)
+        if model_config.action_norm == "standard":
+            mean, std = action_normalization(train_eps)
+            policy.set_action_normalization(mean, std)
     if device is not None:
         policy.to(device)
     broadcast_module(policy, ctx)

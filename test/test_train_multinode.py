@@ -1,0 +1,63 @@
+"""``torchrun --nnodes=2``: two "nodes" (two torchrun invocations on this machine, rendezvous on
+127.0.0.1) train exactly as one node with two processes, and as one process within float tolerance."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAIN = ["-m", "ompn_ros.cli.train", "--synthetic", "discrete", "--episodes", "32", "--quiet",
+         "--set", "model.n_slots=2", "--set", "model.slot_size=16", "--set", "train.iterations=6",
+         "--set", "train.eval_every=3", "--set", "train.batch_size=8", "--set", "train.lr=0.003",
+         "--set", "train.val_ratio=0.25", "--set", "train.threads=1", "--set", "train.device=cpu"]
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo", MASTER_ADDR="127.0.0.1",
+               PYTHONPATH=f"{ROOT}{os.pathsep}{env.get('PYTHONPATH', '')}")
+    return env
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _log(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+
+
+def test_two_nodes_train_as_one_node_with_two_processes(tmp_path: Path) -> None:
+    env, port = _env(), _free_port()
+    run = [sys.executable, "-m", "torch.distributed.run"]
+    nodes = [subprocess.Popen(
+        [*run, "--nnodes=2", f"--node_rank={rank}", "--nproc_per_node=1", "--master_addr=127.0.0.1",
+         f"--master_port={port}", *TRAIN, "--out", str(tmp_path / "two_nodes")],
+        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for rank in (0, 1)]
+    results = [node.communicate(timeout=300) for node in nodes]
+    for node, (_, err) in zip(nodes, results, strict=True):
+        assert node.returncode == 0, err[-3000:]
+    one_node = subprocess.run([*run, "--standalone", "--nproc_per_node=2", *TRAIN, "--out",
+                               str(tmp_path / "one_node")],
+                              env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert one_node.returncode == 0, one_node.stderr[-3000:]
+    single = subprocess.run([sys.executable, *TRAIN, "--out", str(tmp_path / "single")],
+                            env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert single.returncode == 0, single.stderr[-3000:]
+    hashes = {name: [(tmp_path / name / f"weights_rank{r}.sha256").read_text() for r in (0, 1)]
+              for name in ("two_nodes", "one_node")}
+    assert hashes["two_nodes"][0] == hashes["two_nodes"][1] == hashes["one_node"][0]  # bit for bit
+    assert json.loads((tmp_path / "two_nodes" / "summary.json").read_text())["world_size"] == 2
+    for two, one in zip(_log(tmp_path / "two_nodes"), _log(tmp_path / "single"), strict=True):
+        assert two["iteration"] == one["iteration"]
+        assert two["train_loss"] == pytest.approx(one["train_loss"], rel=1e-4)
+        assert two["loss"] == pytest.approx(one["loss"], rel=1e-4)
