@@ -39,7 +39,7 @@ SPEC = {"reader": {
     "task": "lab_demo", "final_observation": "duplicate"}}
 
 
-def _write_lab_bag(path: Path, seed: int, episodes: int = 2, steps: int = 30) -> list[list[int]]:
+def write_lab_bag(path: Path, seed: int, episodes: int = 2, steps: int = 30) -> list[list[int]]:
     """Another lab's recording (rosbags writer): features, commands and skill ids at 20 Hz, episodes
     split by 2 s pauses; returns the observation log stamps of each episode."""
     from rosbags.rosbag2 import Writer
@@ -70,9 +70,9 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> dict:
     root = tmp_path_factory.mktemp("lab")
     bags = root / "bags"
     (bags / "day2").mkdir(parents=True)
-    stamps = {"a": _write_lab_bag(bags / "a", 1), "b": _write_lab_bag(bags / "b", 2),
-              "day2__c": _write_lab_bag(bags / "day2" / "c", 3),
-              "day2__d": _write_lab_bag(bags / "day2" / "d", 4)}
+    stamps = {"a": write_lab_bag(bags / "a", 1), "b": write_lab_bag(bags / "b", 2),
+              "day2__c": write_lab_bag(bags / "day2" / "c", 3),
+              "day2__d": write_lab_bag(bags / "day2" / "d", 4)}
     (bags / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
     spec = root / "lab_reader.yaml"
     spec.write_text(yaml.safe_dump(SPEC))
@@ -154,7 +154,7 @@ def test_a_killed_run_loses_no_completed_bag(lab: dict, tmp_path: Path) -> None:
     bags = tmp_path / "many"
     bags.mkdir()
     for i in range(8):
-        _write_lab_bag(bags / f"run{i}", 10 + i, episodes=3, steps=60)
+        write_lab_bag(bags / f"run{i}", 10 + i, episodes=3, steps=60)
     out = tmp_path / "seg"
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     command = [sys.executable, "-m", "ompn_ros.cli.segment", "--bags", str(bags), *_args(lab, out)]

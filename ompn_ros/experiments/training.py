@@ -2,8 +2,9 @@
 
 The config has three sections (``model``: :class:`~ompn_ros.model.config.OMPNConfig`, ``train``:
 :class:`~ompn_ros.train.trainer.TrainConfig`, ``data``: ``domain``, ``reader_spec``, ``on_error``,
-``cache``, ``action_dim``); ``section.key=value`` overrides are parsed as YAML.  What the bag
-reader used and dropped is printed and stored with the run (``read_report.json`` / ``.txt``).
+``cache``, ``cache_workers``: per-bag cache entries built in parallel, ``action_dim``);
+``section.key=value`` overrides are parsed as YAML.  What the bag reader used and dropped is printed
+and stored with the run (``read_report.json`` / ``.txt``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import yaml
 
 from ompn_ros.data.bag_reader import ReaderSpec, final_row_guessed
 from ompn_ros.data.cache import load_arrays
+from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
@@ -150,7 +152,11 @@ def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
             f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
         )
     on_error = data.get("on_error", "raise")
-    arrays = load_arrays(bags, spec=spec, on_error=on_error, use_cache=bool(data.get("cache", True)))
+    workers = int(data.get("cache_workers", 0))
+    if workers and bool(data.get("cache", True)):  # per-bag entries: parallel, reused when bags are added
+        arrays = load_arrays_per_bag(bags, spec=spec, on_error=on_error, workers=workers)
+    else:
+        arrays = load_arrays(bags, spec=spec, on_error=on_error, use_cache=bool(data.get("cache", True)))
     episodes = arrays.episodes()
     if not episodes:
         raise TrainSetupError(f"no episodes found in {bags}")
