@@ -7,6 +7,7 @@ The options and the command-line shell of batch mode; the work is ``experiments/
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -58,5 +59,6 @@ def run_batch_cli(args: argparse.Namespace) -> int:
     docs = run_batch(settings, bags, args.jobs, progress=lambda doc, done, total: print(
         "ompn_segment: " + batch_table.status_line(doc, done, total), file=sys.stderr, flush=True))
     summary = batch_table.write_outputs(settings.out, docs, time.perf_counter() - start)
+    print(json.dumps(summary, indent=1))
     print(f"ompn_segment: {batch_table.summary_line(summary)}", file=sys.stderr)
     return SOME_REFUSED if summary["refused"] else 0
