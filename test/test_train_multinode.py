@@ -61,3 +61,17 @@ def test_two_nodes_train_as_one_node_with_two_processes(tmp_path: Path) -> None:
         assert two["iteration"] == one["iteration"]
         assert two["train_loss"] == pytest.approx(one["train_loss"], rel=1e-4)
         assert two["loss"] == pytest.approx(one["loss"], rel=1e-4)
+
+
+def test_only_rank_0_writes_the_read_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under torchrun rank 0 refuses a non-empty output directory: another rank writing the read report
+    first made a fresh run fail now and then ("output directory ... is not empty")."""
+    from ompn_ros.experiments import training
+
+    monkeypatch.setenv("RANK", "1")
+    training.write_read_report(tmp_path / "run", {"summary": "read 1 bag(s)"})
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
+    monkeypatch.setenv("RANK", "0")
+    training.prepare_out_dir(tmp_path / "run", resume=False, overwrite=False)
+    training.write_read_report(tmp_path / "run", {"summary": "read 1 bag(s)"})
+    assert (tmp_path / "run" / "read_report.txt").read_text() == "read 1 bag(s)\n"

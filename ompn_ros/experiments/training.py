@@ -194,7 +194,10 @@ def fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str,
 
 
 def write_read_report(out: Path, report: dict[str, Any]) -> None:
-    """Store the bag reader's report with the run (``read_report.json`` and ``read_report.txt``)."""
+    """Store the bag reader's report with the run (``read_report.json`` and ``read_report.txt``); under
+    ``torchrun`` rank 0 alone writes it (it checks that the output directory is empty first)."""
+    if int(os.environ.get("RANK", "0")) != 0:
+        return
     out.mkdir(parents=True, exist_ok=True)
     (out / "read_report.json").write_text(json.dumps(report, indent=1) + "\n")
     (out / "read_report.txt").write_text(str(report.get("summary", "")) + "\n")
