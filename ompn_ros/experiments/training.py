@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,12 +21,12 @@ from typing import Any
 import yaml
 
 from ompn_ros.data.bag_reader import ReaderSpec, final_row_guessed
-from ompn_ros.data.cache import load_arrays
+from ompn_ros.data.cache import EpisodeArrays, load_arrays
 from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
-from ompn_ros.train.distributed import init_distributed, shutdown
+from ompn_ros.train.distributed import DistContext, broadcast_text, init_distributed, shutdown
 from ompn_ros.train.synthetic import SyntheticKind, make_dataset, synthetic_spec
 from ompn_ros.train.trainer import TrainConfig, train
 
@@ -139,6 +140,27 @@ def synthetic_data(task: SyntheticKind, episodes: int, data: dict[str, Any]) -> 
     )
 
 
+def shared_arrays(load: Callable[[], EpisodeArrays], ctx: DistContext | None = None,
+                  share: Callable[[str, DistContext], str] = broadcast_text) -> EpisodeArrays:
+    """``load()`` in one process.  Under ``torchrun`` rank 0 alone loads (reads the bags into the cache)
+    and ``share``s the cache entry's path; the other ranks open it memory-mapped and so read only the
+    episodes of their shards (without a cache, ``data.cache: false``, every rank reads the bags)."""
+    ctx = ctx if ctx is not None else init_distributed()
+    if not ctx.enabled:
+        return load()
+    arrays = load() if ctx.is_main else None
+    path = share(str(arrays.cache_path or "") if arrays is not None else "", ctx)
+    if arrays is not None:
+        return arrays
+    if not path:
+        return load()
+    try:
+        return EpisodeArrays.load(Path(path))
+    except OSError as exc:
+        raise TrainSetupError(f"rank {ctx.rank} cannot open the cache entry {path} that rank 0 built "
+                              f"({exc}): put OMPN_CACHE_DIR on a disk every machine sees") from exc
+
+
 def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
     """Episodes from ``bags`` (cached reader; ``data.on_error`` raise | skip_tail) and the model sizes."""
     domain_name = data.get("domain")
@@ -152,11 +174,12 @@ def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
             f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
         )
     on_error = data.get("on_error", "raise")
-    workers = int(data.get("cache_workers", 0))
-    if workers and bool(data.get("cache", True)):  # per-bag entries: parallel, reused when bags are added
-        arrays = load_arrays_per_bag(bags, spec=spec, on_error=on_error, workers=workers)
+    workers, cached = int(data.get("cache_workers", 0)), bool(data.get("cache", True))
+    if workers and cached:  # per-bag entries: parallel, reused when bags are added
+        arrays = shared_arrays(lambda: load_arrays_per_bag(bags, spec=spec, on_error=on_error,
+                                                           workers=workers))
     else:
-        arrays = load_arrays(bags, spec=spec, on_error=on_error, use_cache=bool(data.get("cache", True)))
+        arrays = shared_arrays(lambda: load_arrays(bags, spec=spec, on_error=on_error, use_cache=cached))
     episodes = arrays.episodes()
     if not episodes:
         raise TrainSetupError(f"no episodes found in {bags}")
