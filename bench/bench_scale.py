@@ -154,20 +154,13 @@ def training_cost(bags: Path, domain: str, iterations: int, batch: int, tmp: Pat
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--bags", type=int, default=100, help="generated bags per domain")
-    parser.add_argument("--iterations", type=int, default=8, help="training iterations per measurement")
-    parser.add_argument("--only", default="segment,cache,multinode,train", help="which parts to run")
-    parser.add_argument("--out", type=Path, default=None, help="JSON results file (none: print only)")
-    args = parser.parse_args()
-    parts = set(args.only.split(","))
+def measure(count: int, iterations: int, parts: set[str]) -> dict[str, dict[str, float]]:
+    """Generate ``count`` bags per domain in a temporary folder and measure ``parts``."""
     tmp = Path(tempfile.mkdtemp(prefix="bench_scale_"))
     os.environ["OMPN_CACHE_DIR"] = str(tmp / "cache")
     results: dict[str, dict[str, float]] = {}
     try:
-        bags = {d: make_bags(tmp / "bags", d, args.bags) for d in ("craft", "dial")}
+        bags = {d: make_bags(tmp / "bags", d, count) for d in ("craft", "dial")}
         for domain in ("craft", "dial") if "segment" in parts else ():
             for jobs in (1, 2):
                 name = f"segment_{domain}_jobs{jobs}"
@@ -178,16 +171,35 @@ def main() -> None:
             results["cache_dial"] = cache(bags["dial"], extra, tmp)
             print(results["cache_dial"], flush=True)
         if "multinode" in parts:
-            results["multinode"] = multinode(tmp, args.iterations)
+            results["multinode"] = multinode(tmp, iterations)
             print(results["multinode"], flush=True)
         for domain, batch in (("craft", 64), ("dial", 32)) if "train" in parts else ():
             try:
-                results[f"train_{domain}"] = training_cost(bags[domain], domain, args.iterations, batch, tmp)
+                results[f"train_{domain}"] = training_cost(bags[domain], domain, iterations, batch, tmp)
             except RuntimeError as exc:  # one failed measurement does not lose the others
                 results[f"train_{domain}"] = {"error": str(exc)}  # type: ignore[dict-item]
             print(domain, results[f"train_{domain}"], flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    return results
+
+
+def run(quick: bool = False) -> dict[str, tuple[float, str]]:
+    """``bench/run_all.py`` entry (on request: ``--only scale``): the figures, flat."""
+    results = measure(10 if quick else 100, 2 if quick else 6, {"segment", "cache", "multinode", "train"})
+    return {f"{group}.{name}": (value, "") for group, figures in results.items()
+            for name, value in figures.items() if isinstance(value, int | float)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bags", type=int, default=100, help="generated bags per domain")
+    parser.add_argument("--iterations", type=int, default=6, help="training iterations per measurement")
+    parser.add_argument("--only", default="segment,cache,multinode,train", help="which parts to run")
+    parser.add_argument("--out", type=Path, default=None, help="JSON results file (none: print only)")
+    args = parser.parse_args()
+    results = measure(args.bags, args.iterations, set(args.only.split(",")))
     text = json.dumps(results, indent=1)
     print(text)
     if args.out is not None:
