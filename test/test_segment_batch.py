@@ -205,3 +205,35 @@ def test_keys_are_unique_and_safe(tmp_path: Path) -> None:
 
 def test_batch_refuses_what_the_commands_report_as_one_line() -> None:
     assert set(REFUSED_ERRORS) == set(KNOWN_ERRORS)
+
+
+def test_rows_name_the_sketch_id_of_each_segment() -> None:
+    from ompn_ros.data.episode import Episode
+    from ompn_ros.detect.online import BoundaryEvent
+    from ompn_ros.experiments.batch import segment_rows
+    from ompn_ros.segmenter import ReplayResult
+
+    ep = Episode(observations=np.zeros((7, 2), np.float32), actions=np.zeros(6, np.int64),
+                 subtask=None, sketch=np.array([7, 6]), task="t", seed=0)
+    events = [BoundaryEvent(step=5, detected_at=6, subtask=2, score=0.9, level=2, stamp_ns=0, final=True),
+              BoundaryEvent(step=1, detected_at=2, subtask=0, score=0.7, level=1, stamp_ns=0),
+              BoundaryEvent(step=3, detected_at=4, subtask=1, score=0.8, level=1, stamp_ns=0)]
+    empty = np.zeros((6, 3))
+    replay = ReplayResult(p_hat=empty, pi=empty, pi_end=empty[:, 0], expected_position=empty[:, 0],
+                          scores=empty[:, 0], boundaries=events)
+    rows = segment_rows(4, ep, replay, np.arange(7) * 10, "hsmm")
+    found = [(r["start_step"], r["end_step"], r["subtask_id"]) for r in rows]
+    assert found == [(0, 1, 7), (2, 3, 6), (4, 5, None)]
+    assert [(r["start_stamp_ns"], r["end_stamp_ns"]) for r in rows] == [(0, 10), (20, 30), (40, 50)]
+    assert {r["episode"] for r in rows} == {4} and rows[2]["score"] == 0.9
+    assert [r["end_stamp_ns"] for r in segment_rows(0, ep, replay, None, "hsmm")] == [None] * 3
+
+
+def test_the_table_is_also_parquet_when_pyarrow_is_installed(tmp_path: Path) -> None:
+    pq = pytest.importorskip("pyarrow.parquet")
+    from ompn_ros.experiments.batch_table import write_table
+
+    rows = [{"bag": "b", "episode": 0, "start_step": 0, "end_step": 3, "subtask": 0, "score": 0.5}]
+    written = write_table(tmp_path, rows)
+    assert [p.name for p in written] == ["segments.csv", "segments.parquet"]
+    assert pq.read_table(written[1]).to_pylist()[0]["end_step"] == 3
