@@ -101,7 +101,7 @@ def test_batch_segments_every_bag_and_names_the_refused_one(
     assert (summary["bags"], summary["read"], summary["segmented"]) == (5, 4, 4)
     [refused] = summary["refused"]
     assert refused["bag"].endswith("broken.mcap") and "broken.mcap" in refused["reason"]
-    assert "Traceback" not in err and "[5/5 100%]" in err and "refused broken.mcap" not in err
+    assert "Traceback" not in err and "[5/5 100% eta 0 s]" in err and "refused broken.mcap" not in err
     assert "1 refused" in err and f"refused {refused['bag']}: " in err
     assert sorted(p.name for p in copies.iterdir()) == sorted(lab["stamps"])  # one annotated copy per bag
     rows = _table(out)

@@ -57,7 +57,8 @@ def run_batch_cli(args: argparse.Namespace) -> int:
     bags = list_bags(args.bags)
     start = time.perf_counter()
     docs = run_batch(settings, bags, args.jobs, progress=lambda doc, done, total: print(
-        "ompn_segment: " + batch_table.status_line(doc, done, total), file=sys.stderr, flush=True))
+        "ompn_segment: " + batch_table.status_line(doc, done, total, time.perf_counter() - start),
+        file=sys.stderr, flush=True))
     summary = batch_table.write_outputs(settings.out, docs, time.perf_counter() - start)
     print(json.dumps(summary, indent=1))
     print(f"ompn_segment: {batch_table.summary_line(summary)}", file=sys.stderr)

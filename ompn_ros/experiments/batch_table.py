@@ -118,9 +118,10 @@ def write_outputs(out: Path, docs: Sequence[dict[str, Any]], seconds: float) -> 
     return summary
 
 
-def status_line(doc: dict[str, Any], done: int, total: int) -> str:
-    """The progress line of one finished bag."""
-    head = f"[{done}/{total} {100 * done // max(total, 1)}%] {doc['key']}: "
+def status_line(doc: dict[str, Any], done: int, total: int, elapsed: float | None = None) -> str:
+    """The progress line of one finished bag (with the time left at this pace when ``elapsed`` is given)."""
+    eta = f" eta {elapsed / done * (total - done):.0f} s" if elapsed is not None and done else ""
+    head = f"[{done}/{total} {100 * done // max(total, 1)}%{eta}] {doc['key']}: "
     if doc.get("skipped"):
         return head + "complete, skipped"
     if doc.get("status") == "segmented":
