@@ -43,6 +43,7 @@ def _log(out: Path) -> list[dict]:
     return [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow  # three training runs (about a minute): make test-slow; make test keeps the 2-process one
 def test_two_nodes_train_as_one_node_with_two_processes(tmp_path: Path) -> None:
     """Another lab's bags, read once into the shared cache by rank 0; every rank trains its shards."""
     for i in range(6):
