@@ -6,6 +6,7 @@ import csv
 import itertools
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -187,6 +188,19 @@ def test_bad_batch_options_are_one_line(lab: dict, tmp_path: Path, capsys: pytes
     code = main(["--bags", str(lab["bags"]), *extra, *_args(lab, tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and needle in err and len(err.strip().splitlines()) == 1
+
+
+def test_copies_inside_the_bags_are_refused(lab: dict, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    copies = lab["bags"] / "annotated"
+    (copies / "old").mkdir(parents=True)
+    write_lab_bag(copies / "old" / "a", 99, episodes=1, steps=6)
+    try:
+        code = main(["--bags", str(lab["bags"]), "--annotate", str(copies), *_args(lab, tmp_path / "o")])
+    finally:
+        shutil.rmtree(copies)
+    err = capsys.readouterr().err
+    assert code == 2 and "--annotate" in err and "write them elsewhere" in err and "Traceback" not in err
 
 
 def test_an_empty_folder_refuses_the_run(lab: dict, tmp_path: Path,

@@ -16,7 +16,7 @@ from ompn_ros.detect.settings import resolve_detector
 from ompn_ros.detect.tune import load_detector_yaml
 from ompn_ros.experiments import batch_table
 from ompn_ros.experiments.batch import BatchSettings, run_batch
-from ompn_ros.experiments.batch_bags import list_bags
+from ompn_ros.experiments.batch_bags import BatchBag, list_bags
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.load import stepper_from_checkpoint
 
@@ -41,6 +41,17 @@ def check_batch_arguments(args: argparse.Namespace) -> None:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
 
 
+def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
+    """Refuse annotated copies among the bags to segment (a rerun would segment the copies)."""
+    if annotate is None:
+        return
+    folder = annotate.resolve()
+    inside = [b.path for b in bags if b.path is not None and folder in b.path.resolve().parents]
+    if inside:
+        raise ValueError(f"--annotate {annotate} holds bags that --bags lists ({inside[0]}): a rerun would "
+                         "segment the copies; write them elsewhere")
+
+
 def run_batch_cli(args: argparse.Namespace) -> int:
     """Segment the bags of ``--bags``; 0 when every bag was segmented, :data:`SOME_REFUSED` otherwise."""
     try:
@@ -55,6 +66,7 @@ def run_batch_cli(args: argparse.Namespace) -> int:
         out=Path(args.out), annotate=Path(args.annotate) if args.annotate else None,
         reader_config=args.reader_config, domain=args.domain, on_error=args.on_error)
     bags = list_bags(args.bags)
+    _check_copies(settings.annotate, bags)
     start = time.perf_counter()
     docs = run_batch(settings, bags, args.jobs, progress=lambda doc, done, total: print(
         "ompn_segment: " + batch_table.status_line(doc, done, total, time.perf_counter() - start),
