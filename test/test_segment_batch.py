@@ -179,6 +179,8 @@ def test_a_killed_run_loses_no_completed_bag(lab: dict, tmp_path: Path) -> None:
     detector.write_text("ompn_node:\n  ros__parameters:\n    detector_high: 0.3\n")
     assert main(["--bags", str(bags), "--detector-config", str(detector), *_args(lab, out)]) == 0
     assert json.loads((out / "summary.json").read_text())["skipped"] == 0
+    assert main(["--bags", str(bags), "--detector-config", str(detector), *_args(lab, out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["skipped"] == 8  # the same settings: all skipped
 
 
 @pytest.mark.parametrize(("extra", "needle"), [(["--tune"], "--bags"), (["--jobs", "0"], "--jobs"),

@@ -16,6 +16,7 @@ observation stamps; memory: one bag's episodes per worker.
 from __future__ import annotations
 
 import hashlib
+import json
 import multiprocessing
 import sys
 import time
@@ -72,11 +73,15 @@ class BatchSettings:
     on_error: OnError = "raise"
 
     def fingerprint(self) -> dict[str, Any]:
-        """What a complete record must have been made with (else the bag is redone)."""
+        """What a complete record must have been made with (else the bag is redone): the checkpoint's
+        files (size, newest change), the detector, the reader spec, ``on_error``, whether copies are made."""
         spec = Path(self.reader_config).read_bytes() if self.reader_config else b""
-        return {"checkpoint": str(Path(self.checkpoint).resolve()), "detector": self.detector.to_dict(),
-                "reader": hashlib.sha256(spec).hexdigest() if spec else self.domain or "",
-                "on_error": self.on_error, "annotate": self.annotate is not None}
+        doc = {"checkpoint": str(Path(self.checkpoint).resolve()),
+               "checkpoint_stamp": records.bag_stamp(Path(self.checkpoint)),
+               "detector": self.detector.to_dict(),
+               "reader": hashlib.sha256(spec).hexdigest() if spec else self.domain or "",
+               "on_error": self.on_error, "annotate": self.annotate is not None}
+        return dict(json.loads(json.dumps(doc)))  # as read back from a record
 
 
 _STEPPERS: dict[str, Stepper] = {}

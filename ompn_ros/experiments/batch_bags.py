@@ -103,7 +103,8 @@ def bag_keys(paths: list[Path]) -> dict[Path, str]:
 
 
 def bag_stamp(path: Path) -> list[int]:
-    """Size and newest modification time (ns) of a bag's files: a changed bag is redone."""
+    """Size and newest modification time (ns) of the files of a bag (or any folder): a changed bag is
+    redone."""
     files = [f for f in sorted(path.rglob("*")) if f.is_file()] if path.is_dir() else [path]
     stats = [f.stat() for f in files]
     return [sum(s.st_size for s in stats), max((s.st_mtime_ns for s in stats), default=0)]
