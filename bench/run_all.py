@@ -16,9 +16,9 @@ import traceback
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ON_REQUEST = {"own_robot"}
+ON_REQUEST = {"own_robot", "scale"}
 """Areas that run only when named with --only (the full own-robot flow trains for tens of minutes;
-``make bench-own-robot`` runs it)."""
+``make bench-own-robot`` runs it; ``scale`` generates and segments hundreds of bags)."""
 
 
 def _load(path: Path):

@@ -3,6 +3,7 @@
 Replay (the same class the live node runs):
 
     ompn_segment --bag PATH --checkpoint DIR [--reader-config YAML] [--out DIR] [--detector-config YAML]
+    ompn_segment --bags FOLDER|GLOB|LIST --jobs N --checkpoint DIR [--annotate DIR] [--out DIR]
 
 writes pi.npz (per episode ep<i>_{pi,p_hat,pi_end,expected_position,score}), boundaries.json
 (online events and ground truth), metrics.json (online vs offline, when the bag has subtask
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import torch
 
+from ompn_ros.cli._batch import add_batch_arguments, check_batch_arguments, run_batch_cli
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.online import MAX_LAG
@@ -50,7 +52,8 @@ from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG, duration_detec
 
 def build_parser() -> argparse.ArgumentParser:
     p = make_parser("ompn_segment", __doc__)
-    p.add_argument("--bag", help="bag file/directory/glob to replay (none: give --generate)")
+    p.add_argument("--bag", help="bag file/directory/glob to replay (none: give --bags or --generate)")
+    add_batch_arguments(p)
     p.add_argument(
         "--checkpoint",
         required=True,
@@ -80,8 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--annotate",
         metavar="OUT",
-        help="replay mode, one bag: also write OUT, an mcap copy of the bag with the node's ~/pi, "
-        "~/segment and ~/boundary added at the observation stamps (none: no copy)",
+        help="replay mode: also write OUT, an mcap copy of the bag with the node's ~/pi, ~/segment and "
+        "~/boundary added at the observation stamps (--bags: OUT/<key> per bag; none: no copy)",
     )
     p.add_argument("--overwrite", action="store_true", help="with --annotate: replace an existing OUT")
     p.add_argument("--plot-episodes", type=int, default=3, help="number of episodes to plot")
@@ -152,6 +155,9 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
 
 
 def _run(args: argparse.Namespace) -> int:
+    check_batch_arguments(args)
+    if args.bags:
+        return run_batch_cli(args)
     if args.annotate and (args.tune or not args.bag):
         raise ReplayError("--annotate copies the replayed bag: it needs --bag and no --tune")
     torch.set_num_threads(1)

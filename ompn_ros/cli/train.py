@@ -31,6 +31,7 @@ from pathlib import Path
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.experiments import training
 from ompn_ros.experiments.training import TrainSetupError, apply_overrides, load_config
+from ompn_ros.train.device import resolve_device
 from ompn_ros.train.distributed import DistributedError
 from ompn_ros.train.state import TrainStateError
 
@@ -78,6 +79,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     config = load_config(args.config)
     apply_overrides(config, args.overrides)
+    resolve_device(str(config["train"].get("device", "auto")))  # no GPU for 'cuda': one line before the bags
     training.prepare_out_dir(args.out, args.resume, args.overwrite)
     if args.synthetic:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])

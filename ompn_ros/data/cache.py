@@ -232,10 +232,10 @@ def load_arrays(
     key = content_key(bags, spec, on_error)
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     entry = root / f"episodes_{key}"
-    hit = _open_hit(entry)
+    hit = open_hit(entry)
     if hit is None:
         _prune_legacy(root)
-        _build(bags, spec, on_error, entry)
+        build_entry(bags, spec, on_error, entry)
         hit = EpisodeArrays.load(entry)
     else:
         hit.cache_hit = True
@@ -243,7 +243,7 @@ def load_arrays(
     return hit
 
 
-def _open_hit(entry: Path) -> EpisodeArrays | None:
+def open_hit(entry: Path) -> EpisodeArrays | None:
     """The entry if it is complete and of this format; a stale or broken one is deleted."""
     if not entry.exists():
         return None
@@ -270,7 +270,11 @@ def _prune_legacy(root: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
-def _build(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path) -> None:
+class EmptyEntryError(ValueError):
+    """No episode could be read from the bags of an entry (the message names them and says why)."""
+
+
+def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path) -> None:
     """Parse ``bags`` one at a time into the entry at ``entry`` (memory: one bag's parse)."""
     report = ReadReport()
     writer = EntryWriter(entry)
@@ -285,7 +289,8 @@ def _build(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Pat
             del result  # release this bag's parse before reading the next one
             _release_freed_memory()
         if len(writer) == 0:
-            raise ValueError(f"no episodes could be read from {[str(b) for b in bags]}:\n{report.summary()}")
+            names = [str(b) for b in bags]
+            raise EmptyEntryError(f"no episodes could be read from {names}:\n{report.summary()}")
         writer.finish(report.summary())
     except BaseException:
         writer.abort()
@@ -313,5 +318,5 @@ def _in_memory(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError) -> Epi
     return arrays
 
 
-__all__ = ["CACHE_FORMAT", "CacheFormatError", "EpisodeArrays", "content_key", "default_cache_dir",
-           "load_arrays"]
+__all__ = ["CACHE_FORMAT", "CacheFormatError", "EmptyEntryError", "EpisodeArrays", "build_entry",
+           "content_key", "default_cache_dir", "load_arrays", "open_hit"]

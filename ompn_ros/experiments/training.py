@@ -2,8 +2,9 @@
 
 The config has three sections (``model``: :class:`~ompn_ros.model.config.OMPNConfig`, ``train``:
 :class:`~ompn_ros.train.trainer.TrainConfig`, ``data``: ``domain``, ``reader_spec``, ``on_error``,
-``cache``, ``action_dim``); ``section.key=value`` overrides are parsed as YAML.  What the bag
-reader used and dropped is printed and stored with the run (``read_report.json`` / ``.txt``).
+``cache``, ``cache_workers``: per-bag cache entries built in parallel, ``action_dim``);
+``section.key=value`` overrides are parsed as YAML.  What the bag reader used and dropped is printed
+and stored with the run (``read_report.json`` / ``.txt``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import hashlib
 import json
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,12 +21,13 @@ from typing import Any
 import yaml
 
 from ompn_ros.data.bag_reader import ReaderSpec, final_row_guessed
-from ompn_ros.data.cache import load_arrays
+from ompn_ros.data.cache import EpisodeArrays, load_arrays
+from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.atomic import atomic_write_text
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
-from ompn_ros.train.distributed import init_distributed, shutdown
+from ompn_ros.train.distributed import DistContext, broadcast_text, init_distributed, shutdown
 from ompn_ros.train.synthetic import SyntheticKind, make_dataset, synthetic_spec
 from ompn_ros.train.trainer import TrainConfig, train
 
@@ -138,6 +141,27 @@ def synthetic_data(task: SyntheticKind, episodes: int, data: dict[str, Any]) -> 
     )
 
 
+def shared_arrays(load: Callable[[], EpisodeArrays], ctx: DistContext | None = None,
+                  share: Callable[[str, DistContext], str] = broadcast_text) -> EpisodeArrays:
+    """``load()`` in one process.  Under ``torchrun`` rank 0 alone loads (reads the bags into the cache)
+    and ``share``s the cache entry's path; the other ranks open it memory-mapped and so read only the
+    episodes of their shards (without a cache, ``data.cache: false``, every rank reads the bags)."""
+    ctx = ctx if ctx is not None else init_distributed()
+    if not ctx.enabled:
+        return load()
+    arrays = load() if ctx.is_main else None
+    path = share(str(arrays.cache_path or "") if arrays is not None else "", ctx)
+    if arrays is not None:
+        return arrays
+    if not path:
+        return load()
+    try:
+        return EpisodeArrays.load(Path(path))
+    except OSError as exc:
+        raise TrainSetupError(f"rank {ctx.rank} cannot open the cache entry {path} that rank 0 built "
+                              f"({exc}): put OMPN_CACHE_DIR on a disk every machine sees") from exc
+
+
 def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
     """Episodes from ``bags`` (cached reader; ``data.on_error`` raise | skip_tail) and the model sizes."""
     domain_name = data.get("domain")
@@ -151,7 +175,12 @@ def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
             f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
         )
     on_error = data.get("on_error", "raise")
-    arrays = load_arrays(bags, spec=spec, on_error=on_error, use_cache=bool(data.get("cache", True)))
+    workers, cached = int(data.get("cache_workers", 0)), bool(data.get("cache", True))
+    if workers and cached:  # per-bag entries: parallel, reused when bags are added
+        arrays = shared_arrays(lambda: load_arrays_per_bag(bags, spec=spec, on_error=on_error,
+                                                           workers=workers))
+    else:
+        arrays = shared_arrays(lambda: load_arrays(bags, spec=spec, on_error=on_error, use_cache=cached))
     episodes = arrays.episodes()
     if not episodes:
         raise TrainSetupError(f"no episodes found in {bags}")
@@ -189,7 +218,10 @@ def fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str,
 
 
 def write_read_report(out: Path, report: dict[str, Any]) -> None:
-    """Store the bag reader's report with the run (``read_report.json`` and ``read_report.txt``)."""
+    """Store the bag reader's report with the run (``read_report.json`` and ``read_report.txt``); under
+    ``torchrun`` rank 0 alone writes it (it checks that the output directory is empty first)."""
+    if int(os.environ.get("RANK", "0")) != 0:
+        return
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "read_report.json", json.dumps(report, indent=1) + "\n")
     atomic_write_text(out / "read_report.txt", str(report.get("summary", "")) + "\n")

@@ -8,7 +8,10 @@ summed across ranks after each backward pass.  The local loss is scaled by
 gradient of the per-token mean over the *global* batch (docs/craft.md §3.8's loss), whatever the shard
 sizes.  ``DistributedDataParallel`` is not used because training calls
 ``OMPNPolicy.forward_sequence`` rather than ``forward``; an explicit all-reduce is simpler and exact.
-Only rank 0 evaluates, logs and writes checkpoints.
+Only rank 0 evaluates, logs and writes checkpoints.  The same holds across machines
+(``torchrun --nnodes``): ``RANK`` is the global rank, and rank 0 alone reads the bags into the
+cache, whose entry the other ranks open memory-mapped (``experiments/training.py``), so they read the
+episodes of their shards only.
 """
 
 from __future__ import annotations
@@ -70,6 +73,19 @@ def broadcast_module(module: nn.Module, ctx: DistContext) -> None:
     with torch.no_grad():
         for tensor in list(module.parameters()) + list(module.buffers()):
             dist.broadcast(tensor.data, src=0)
+
+
+def broadcast_text(text: str, ctx: DistContext) -> str:
+    """Rank 0's ``text`` on every rank (its UTF-8 bytes in a tensor; nothing is pickled)."""
+    if not ctx.enabled:
+        return text
+    data = torch.tensor(list(text.encode()) if ctx.is_main else [], dtype=torch.uint8)
+    size = torch.tensor([data.numel()], dtype=torch.int64)
+    dist.broadcast(size, src=0)
+    if not ctx.is_main:
+        data = torch.empty(int(size.item()), dtype=torch.uint8)
+    dist.broadcast(data, src=0)
+    return bytes(data.tolist()).decode()
 
 
 def all_reduce_sum(value: float, ctx: DistContext) -> float:

@@ -24,6 +24,7 @@ from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.batching import collate
+from ompn_ros.train.device import batch_to, device_of
 
 
 class EvaluationError(ValueError):
@@ -140,13 +141,14 @@ def teacher_forced_p_hat(
     was_training = policy.training
     policy.eval()
     use_sketch = config.sketch_mode != "none"
+    device = device_of(policy)
     total_loss = total_acc = total_valid = 0.0
     p_hats: list[np.ndarray] = []
     try:
         with torch.no_grad():
             for start in range(0, len(episodes), batch_size):
                 chunk = episodes[start : start + batch_size]
-                batch = collate(chunk, config.action_type, config.action_dim, use_sketch)
+                batch = batch_to(collate(chunk, config.action_type, config.action_dim, use_sketch), device)
                 out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=bptt)
                 _, stats = bc_loss(
                     out, batch.actions, batch.mask, batch.done_mask, config, no_done_loss=no_done_loss,
@@ -156,7 +158,7 @@ def teacher_forced_p_hat(
                 total_loss += stats["loss"] * n_valid
                 total_acc += stats.get("accuracy", 0.0) * n_valid
                 total_valid += n_valid
-                p_hat = out.p_hat.numpy()
+                p_hat = out.p_hat.cpu().numpy()
                 for i, ep in enumerate(chunk):
                     p_hats.append(p_hat[i, : ep.length].astype(np.float64))
     finally:

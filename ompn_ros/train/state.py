@@ -46,7 +46,7 @@ def optimizer_to_files(
         for name, value in entries.items():
             if not isinstance(value, torch.Tensor):
                 value = torch.tensor(value)
-            tensors[f"state.{index}.{name}"] = value.detach().clone().contiguous()
+            tensors[f"state.{index}.{name}"] = value.detach().cpu().clone().contiguous()
     groups = [{k: (list(v) if isinstance(v, tuple) else v) for k, v in g.items()} for g in sd["param_groups"]]
     return tensors, groups
 

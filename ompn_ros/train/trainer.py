@@ -67,6 +67,7 @@ from ompn_ros.train.batching import (
 from ompn_ros.train.candidates import best_of, candidate_rows
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.detector import bundle as bundle_detector
+from ompn_ros.train.device import DEVICES, Device, batch_to, device_of, resolve_device
 from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
 from ompn_ros.train.distributed import (
     DistContext,
@@ -133,7 +134,7 @@ _NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
 }
 _CHOICES: dict[str, tuple[str, ...]] = {
     "lr_schedule": LR_SCHEDULES, "selection": SELECTIONS, "labels": LABEL_MODES, "obs_norm": OBS_NORMS,
-    "action_norm": ACTION_NORMS,
+    "action_norm": ACTION_NORMS, "device": DEVICES,
 }
 
 
@@ -238,6 +239,8 @@ class TrainConfig:
             from the teachers' averaged ``p_hat`` to the student's over the real steps
             (:mod:`ompn_ros.train.distill`).
         distill_weight: weight of that term (> 0 exactly when ``distill_from`` names teachers).
+        device: ``'cpu'``, ``'cuda'`` (the batched forward, loss and update on the GPU; ``bf16`` is then
+            off) or ``'auto'`` (``cuda`` when torch sees a GPU); :mod:`ompn_ros.train.device`.
     """
 
     lr: float = 1e-3
@@ -279,6 +282,7 @@ class TrainConfig:
     action_norm: ActionNorm = "none"
     distill_from: list[str] = field(default_factory=list)
     distill_weight: float = 0.0
+    device: Device = "auto"
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
@@ -684,14 +688,18 @@ def _split(
 
 
 def _models(model_config: OMPNConfig, cfg: TrainConfig, train_eps: Sequence[Episode],
-            ctx: DistContext) -> _Models:
-    """A new policy with the training split's normalisations, its average and its optimizer."""
-    norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
+            ctx: DistContext, device: torch.device | None = None) -> _Models:
+    """A new policy with the training split's normalisations on ``device`` (CPU: None), its average and
+    its optimizer."""
     policy = build_policy(model_config)  # OMPNPolicy or, with arch='lstm', the LSTM baseline
-    policy.set_obs_normalization(norm.mean, norm.scale)
-    if model_config.action_norm == "standard":
-        mean, std = action_normalization(train_eps)
-        policy.set_action_normalization(mean, std)
+    if ctx.is_main:  # the other ranks get rank 0's statistics (broadcast): they read only their shards
+        norm: ObsNormalization = obs_normalization(train_eps, cfg.obs_norm)
+        policy.set_obs_normalization(norm.mean, norm.scale)
+        if model_config.action_norm == "standard":
+            mean, std = action_normalization(train_eps)
+            policy.set_action_normalization(mean, std)
+    if device is not None:
+        policy.to(device)
     broadcast_module(policy, ctx)
     policy.train()
     average = WeightAverage(policy, cfg.ema_decay) if cfg.ema_decay else None
@@ -772,7 +780,10 @@ class _Attempt:
 
     def __init__(self, episodes: Sequence[Episode], model_config: OMPNConfig, cfg: TrainConfig, attempt: int,
                  ctx: DistContext, callback: Callable[[int, dict[str, float]], None] | None) -> None:
-        if cfg.bf16 and not resolve_bf16(cfg.bf16, cfg.force_bf16):
+        device = resolve_device(cfg.device)
+        if cfg.bf16 and device.type != "cpu" and ctx.is_main:
+            LOG.warning("train.bf16 applies to the CPU forward only: training on %s runs in float32", device)
+        if cfg.bf16 and (device.type != "cpu" or not resolve_bf16(cfg.bf16, cfg.force_bf16)):
             cfg = replace(cfg, bf16=False)  # what runs is what the checkpoints record
         model_config = _with_action_norm(model_config, cfg.action_norm)
         _check_episodes(episodes, model_config)
@@ -783,7 +794,7 @@ class _Attempt:
         self.cfg, self.model_config, self.attempt = cfg, model_config, attempt
         self.ctx, self.callback = ctx, callback
         self.train_eps, self.val_eps, n_val, self.selection = _split(episodes, model_config, cfg, ctx)
-        self.models = _models(model_config, cfg, self.train_eps, ctx)
+        self.models = _models(model_config, cfg, self.train_eps, ctx, device)
         self.out_dir = Path(cfg.out_dir) if cfg.out_dir is not None else None
         if self.out_dir is not None and ctx.is_main:
             clean_state_root(self.out_dir / "train_state")  # temporaries of a killed earlier run
@@ -932,6 +943,7 @@ def train_step(
             batch.obs[..., start:stop] = dropout_inputs(
                 batch.obs[..., start:stop], cfg.obs_dropout, (cfg.seed, iteration, ctx.rank)
             )
+        batch = batch_to(batch, device_of(policy))
     global_valid = all_reduce_sum(local_valid, ctx)
     stats: dict[str, float] = {}
     if batch is not None:

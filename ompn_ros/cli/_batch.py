@@ -1,0 +1,77 @@
+"""``ompn_segment --bags SOURCE --jobs N``: segment many bags over a pool of processes.
+
+The options and the command-line shell of batch mode; the work is ``experiments/batch.py``
+(tasks, resuming) and ``experiments/batch_table.py`` (table, summary, metrics).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from ompn_ros.detect.settings import resolve_detector
+from ompn_ros.detect.tune import load_detector_yaml
+from ompn_ros.experiments import batch_table
+from ompn_ros.experiments.batch import BatchSettings, run_batch
+from ompn_ros.experiments.batch_bags import BatchBag, list_bags
+from ompn_ros.model.checkpoint import CheckpointError
+from ompn_ros.model.load import stepper_from_checkpoint
+
+SOME_REFUSED = 1
+"""Exit status of a batch run in which some bags were refused (2: the run itself could not start)."""
+
+
+def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--bags", metavar="SOURCE",
+        help="batch mode: a folder of bags, a glob, or a text file listing one bag per line; every bag is "
+        "segmented into OUT/segments.csv, OUT/summary.json, OUT/metrics.json (labels) and "
+        "OUT/bags/<key>.json; a rerun skips complete bags (none: one --bag)")
+    parser.add_argument("--jobs", type=int, default=1, help="batch mode: worker processes, one bag per task")
+
+
+def check_batch_arguments(args: argparse.Namespace) -> None:
+    """Refuse option combinations batch mode does not take (one line naming the option)."""
+    if args.bags and (args.bag or args.tune or args.generate):
+        raise ValueError("--bags replays many bags: give it without --bag, --tune and --generate")
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+
+
+def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
+    """Refuse annotated copies among the bags to segment (a rerun would segment the copies)."""
+    if annotate is None:
+        return
+    folder = annotate.resolve()
+    inside = [b.path for b in bags if b.path is not None and folder in b.path.resolve().parents]
+    if inside:
+        raise ValueError(f"--annotate {annotate} holds bags that --bags lists ({inside[0]}): a rerun would "
+                         "segment the copies; write them elsewhere")
+
+
+def run_batch_cli(args: argparse.Namespace) -> int:
+    """Segment the bags of ``--bags``; 0 when every bag was segmented, :data:`SOME_REFUSED` otherwise."""
+    try:
+        stepper_from_checkpoint(args.checkpoint)  # a bad checkpoint refuses the run, not every bag
+    except CheckpointError as exc:
+        raise ValueError(f"--checkpoint: {exc}") from exc
+    explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
+    detector, line = resolve_detector(args.checkpoint, explicit, f"--detector-config {args.detector_config}")
+    print(f"ompn_segment: {line}", file=sys.stderr)
+    settings = BatchSettings(
+        checkpoint=args.checkpoint, detector=detector.online, duration_model=detector.duration_model,
+        out=Path(args.out), annotate=Path(args.annotate) if args.annotate else None,
+        reader_config=args.reader_config, domain=args.domain, on_error=args.on_error)
+    bags = list_bags(args.bags)
+    _check_copies(settings.annotate, bags)
+    start = time.perf_counter()
+    docs = run_batch(settings, bags, args.jobs, progress=lambda doc, done, total: print(
+        "ompn_segment: " + batch_table.status_line(doc, done, total, time.perf_counter() - start),
+        file=sys.stderr, flush=True))
+    summary = batch_table.write_outputs(settings.out, docs, time.perf_counter() - start)
+    print(json.dumps(summary, indent=1))
+    print(f"ompn_segment: {batch_table.summary_line(summary)}", file=sys.stderr)
+    return SOME_REFUSED if summary["refused"] else 0

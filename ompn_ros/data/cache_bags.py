@@ -1,0 +1,118 @@
+"""The episode cache for many bags: one entry per bag, built in parallel, reused when bags are added.
+
+:func:`load_arrays_per_bag` keeps an entry per bag under ``<cache_dir>/bags/`` (the key of
+:func:`~ompn_ros.data.cache.content_key` over that bag alone: its bytes, the reader spec,
+``on_error``), builds the missing ones over ``workers`` processes (one bag per task, each parsed as
+:func:`~ompn_ros.data.cache.load_arrays` parses one, so a process holds one bag's parse at a time:
+about 1.5x the largest bag, times ``workers`` in all), then appends the per-bag entries, in bag
+order and memory-mapped, into one dataset entry ``episodes_set_<key>`` (``key``: a hash of the
+per-bag keys).  Adding bags to a dataset parses only the new ones; the assembly copies the arrays
+once more (disk: the per-bag entries plus the dataset entry).
+
+``ompn_train`` uses it with ``data.cache_workers: N`` (N >= 1; 0 is the single-entry cache).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import multiprocessing
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from .bag_reader import OnError, ReaderSpec, resolve_bag_paths
+from .cache import EmptyEntryError, EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit
+from .cache_store import EntryWriter, NpyAppendError
+
+BAGS_DIR = "bags"
+MAX_REPORT_LINES = 40
+
+
+def _build_one(bag: Path, spec: ReaderSpec, on_error: OnError, entry: Path) -> bool:
+    """Build the entry of ``bag`` unless it exists; False when the bag has no episode to keep
+    (``on_error='skip_tail'``: such a bag gets no entry and is read again next time)."""
+    if open_hit(entry) is not None:  # another run may have built it meanwhile
+        return True
+    try:
+        build_entry([bag], spec, on_error, entry)
+    except EmptyEntryError:
+        return False
+    return True
+
+
+def build_bag_entries(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, root: Path,
+                      workers: int = 1) -> tuple[list[Path], int]:
+    """The entries of the bags that have episodes (built where missing, over ``workers`` processes) and
+    how many bags were parsed."""
+    if workers < 1:
+        raise ValueError(f"data.cache_workers must be at least 1 for per-bag entries, got {workers}")
+    entries = [root / BAGS_DIR / f"bag_{content_key([bag], spec, on_error)}" for bag in bags]
+    missing = [(bag, entry) for bag, entry in zip(bags, entries, strict=True) if open_hit(entry) is None]
+    empty: set[Path] = set()
+    if workers == 1 or len(missing) <= 1:
+        empty = {entry for bag, entry in missing if not _build_one(bag, spec, on_error, entry)}
+    else:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=context) as pool:
+            futures = {entry: pool.submit(_build_one, bag, spec, on_error, entry) for bag, entry in missing}
+            for entry, future in futures.items():  # the first bag that fails stops the build, named
+                if not future.result():
+                    empty.add(entry)
+    kept = [entry for entry in entries if entry not in empty]
+    if not kept:
+        raise EmptyEntryError(f"no episodes could be read from {[str(b) for b in bags]}")
+    return kept, len(missing)
+
+
+def merged_report(reports: Sequence[str], episodes: int, bags: int) -> str:
+    """One summary of the per-bag reports: a total line, then each distinct line once (bounded)."""
+    lines = [f"read {bags} bag(s) through per-bag cache entries: {episodes} episode(s)"]
+    seen = set(lines)
+    for report in reports:
+        for line in report.splitlines()[1:]:
+            if line not in seen and len(lines) < MAX_REPORT_LINES:
+                seen.add(line)
+                lines.append(line)
+    return "\n".join(lines)
+
+
+def assemble(entries: Sequence[Path], target: Path) -> None:
+    """Append the episodes of ``entries`` (memory-mapped, one entry at a time) into one entry ``target``."""
+    writer = EntryWriter(target)
+    reports = []
+    try:
+        for entry in entries:
+            part = EpisodeArrays.load(entry)
+            reports.append(part.report)
+            try:
+                writer.add(part.episodes())
+            except NpyAppendError as err:
+                raise ValueError(f"cache entry {entry} does not fit the bags before it: {err}") from err
+            del part
+        writer.finish(merged_report(reports, len(writer), len(entries)))
+    except BaseException:
+        writer.abort()
+        raise
+
+
+def load_arrays_per_bag(paths: str | Path | Sequence[str | Path], *, spec: ReaderSpec | None = None,
+                        cache_dir: str | Path | None = None, on_error: OnError = "raise",
+                        workers: int = 1) -> EpisodeArrays:
+    """Episodes of ``paths`` like :func:`~ompn_ros.data.cache.load_arrays`, through per-bag entries (see
+    the module doc); ``built`` bags are counted in the result's ``report`` header."""
+    spec = spec or ReaderSpec()
+    bags = resolve_bag_paths(paths)
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    entries, built = build_bag_entries(bags, spec, on_error, root, workers)
+    key = hashlib.blake2b("\n".join(e.name for e in entries).encode(), digest_size=20).hexdigest()
+    target = root / f"episodes_set_{key}"
+    hit = open_hit(target)
+    if hit is None:
+        assemble(entries, target)
+        hit = EpisodeArrays.load(target)
+    hit.cache_hit = built == 0
+    hit.key = key
+    return hit
+
+
+__all__ = ["assemble", "build_bag_entries", "load_arrays_per_bag", "merged_report"]
