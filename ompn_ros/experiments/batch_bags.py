@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ompn_ros.data.bag_reader import STORAGE_SUFFIXES, resolve_bag_paths
 from ompn_ros.data.errors import BagError
-from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
+from ompn_ros.model.atomic import atomic_write_text, remove_stale_temps
 
 RECORDS = "bags"
 RECORD_FORMAT = "ompn_ros.batch_bag"
@@ -117,17 +116,7 @@ def record_path(out: Path, key: str) -> Path:
 def write_record(out: Path, key: str, doc: dict[str, Any]) -> Path:
     """Write ``doc`` as the record of ``key`` atomically (a killed writer leaves only a stale temporary)."""
     target = record_path(out, key)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(target.name), dir=target.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump({"format": RECORD_FORMAT, **doc}, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(target, json.dumps({"format": RECORD_FORMAT, **doc}))
     return target
 
 

@@ -17,13 +17,11 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ompn_ros.model.atomic import temp_prefix
+from ompn_ros.model.atomic import atomic_write
 
 COLUMNS = ("bag", "episode", "task", "start_step", "end_step", "start_stamp_ns", "end_stamp_ns", "subtask",
            "subtask_id", "score", "detector")
@@ -33,17 +31,7 @@ METRICS = "metrics.json"
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.name), dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda handle: handle.write(data))
 
 
 def table_rows(docs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
