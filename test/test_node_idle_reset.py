@@ -9,17 +9,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-from driver_bags import BEST_EFFORT, JOINT_STATE, MS, BagWriter, joint_state
 
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from std_srvs.srv import Trigger  # noqa: E402
 from test_node_poison import active_node, marker  # noqa: E402
-from test_node_real_streams import ARM, _idle_stream, ckpts, events, msg, replay, stream_pos  # noqa: E402, F401
+from test_node_real_streams import ARM, ckpts, events, idle_bag, msg, replay, stream_pos  # noqa: E402, F401
 
 from ompn_ros import layout  # noqa: E402
-from ompn_ros.data import ReaderSpec, read_episodes  # noqa: E402
 
 HELD = 10  # still observations held when the marker or the reset comes (fewer than idle_s: 25)
 
@@ -38,17 +36,7 @@ def test_marker_or_reset_flushes_the_held_still_observations(
         ctx, ckpts: dict[int, Path], tmp_path: Path, how: str) -> None:  # noqa: F811 (the imported fixture)
     """Was: the held still observations stayed in the idle rule across the reset and the first of them
     was stepped into the new episode as its final observation (an extra episode, wrong boundaries)."""
-    stream = _idle_stream(np.random.default_rng(1))
-    bag = BagWriter(tmp_path / "bag")
-    for head, pos, vel in stream:
-        bag.add("/joint_states", JOINT_STATE, head + 2 * MS, joint_state(head, ARM, pos, vel), BEST_EFFORT)
-    bag.write()
-    spec = ReaderSpec.from_dict({
-        "observation": {"topic": "/joint_states", "type": JOINT_STATE, "fields": ["position"]},
-        "action": {"topic": "/joint_states", "type": JOINT_STATE, "fields": ["velocity"]},
-        "subtask": None, "sketch": None, "episode": None, "stamp": "header", "split": "idle",
-        "idle_s": 0.5, "idle_speed": 0.01, "final_observation": "drop_last_step"})
-    offline = read_episodes(tmp_path / "bag", spec=spec)
+    stream, offline = idle_bag(tmp_path, 1)
     first_end = 16 + 50 + HELD  # the first demonstration, then HELD of its 50 still observations
     node = active_node(ctx, ckpts[3], obs_source="joint_state", idle_s=0.5, idle_speed=0.01,
                        max_stamp_lead=0.0)

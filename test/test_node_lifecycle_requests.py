@@ -5,7 +5,6 @@ process (exit 0).  The node runs as a subprocess with its default executor (DDS 
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -17,6 +16,7 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
+from child_process import interrupt  # noqa: E402
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
@@ -101,13 +101,7 @@ def test_lifecycle_misuse_is_refused_and_shutdown_ends_the_process(ckpt: Path, r
         rc = proc.wait(timeout=20)  # the shutdown transition ends the process
     finally:
         rclpy.try_shutdown(context=ctx)
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = interrupt(proc)
     assert rc == 0, out
     assert "Traceback" not in out and "FATAL" not in out, out
     refused = [line for line in out.splitlines() if "refused" in line]

@@ -83,8 +83,10 @@ def _idle_stream(rng: np.random.Generator) -> list[tuple[int, np.ndarray, np.nda
     return out
 
 
-def test_idle_rule_live_cuts_where_the_reader_cuts(ctx, ckpts: dict[int, Path], tmp_path: Path) -> None:
-    stream = _idle_stream(np.random.default_rng(0))
+def idle_bag(tmp_path: Path, seed: int) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], Any]:
+    """A driver's stream that idles between demonstrations, recorded into a bag and read with
+    ``split: idle``: (the stream, the reader's result)."""
+    stream = _idle_stream(np.random.default_rng(seed))
     bag = BagWriter(tmp_path / "bag")
     for head, pos, vel in stream:
         bag.add("/joint_states", JOINT_STATE, head + 2 * MS, joint_state(head, ARM, pos, vel), BEST_EFFORT)
@@ -94,7 +96,11 @@ def test_idle_rule_live_cuts_where_the_reader_cuts(ctx, ckpts: dict[int, Path], 
         "action": {"topic": "/joint_states", "type": JOINT_STATE, "fields": ["velocity"]},
         "subtask": None, "sketch": None, "episode": None, "stamp": "header", "split": "idle",
         "idle_s": 0.5, "idle_speed": 0.01, "final_observation": "drop_last_step"})
-    offline = read_episodes(tmp_path / "bag", spec=spec)
+    return stream, read_episodes(tmp_path / "bag", spec=spec)
+
+
+def test_idle_rule_live_cuts_where_the_reader_cuts(ctx, ckpts: dict[int, Path], tmp_path: Path) -> None:
+    stream, offline = idle_bag(tmp_path, 0)
     assert len(offline.episodes) == 2
     node = active_node(ctx, ckpts[3], obs_source="joint_state", idle_s=0.5, idle_speed=0.01,
                        max_stamp_lead=0.0)

@@ -9,7 +9,6 @@ StreamingSegmenter fed the stamps the node used, and the boundaries match the sy
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -24,6 +23,7 @@ pytest.importorskip("ompn_ros.model.streaming")
 trainer = pytest.importorskip("ompn_ros.train.trainer")
 synthetic = pytest.importorskip("ompn_ros.train.synthetic")
 
+from child_process import interrupt  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -194,12 +194,7 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         assert pump(lambda: int(diags[-1]["episode_starts"]) == starts_before + 1, 5)
     finally:
         rclpy.try_shutdown(context=ctx)
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = interrupt(proc)
     assert proc.returncode == 0, out
     assert "subtask boundary" in out
     assert "FATAL" not in out and "context is invalid" not in out and "Traceback" not in out

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
+
+from child_process import interrupt
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "subtask_progress.py"
@@ -75,12 +76,7 @@ def test_the_example_node_reads_published_boundaries(ros_env: dict[str, str]) ->
         time.sleep(1.0)
     finally:
         rclpy.try_shutdown(context=ctx)
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = interrupt(proc)
     assert out.splitlines()[-3:] == [
         "[/r] episode 1: subtask 0 (id 3) done at step 5, score 0.75, decided 2 steps later",
         "[/r] episode 1: subtask 1 (id 4) done at step 12, score 0.75, decided 2 steps later",
