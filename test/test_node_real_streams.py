@@ -17,9 +17,9 @@ rclpy = pytest.importorskip("rclpy")
 from sensor_msgs.msg import JointState  # noqa: E402
 from test_node_poison import active_node  # noqa: E402 (publishers that record)
 
-from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, read_episodes  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
+from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
@@ -53,8 +53,8 @@ def msg(head: int, names: list[str], position: Any, velocity: Any = ()) -> Joint
 def events(node: Any) -> list[tuple[int, str, int, str]]:
     out = []
     for raw in node._pubs["boundary"].raws:
-        values = {kv.key: kv.value for kv in m.deserialize(raw, layout.DIAGNOSTIC_ARRAY).status[0].values}
-        out.append((int(values["step"]), values["score"], int(values["stamp_ns"]), values["final"]))
+        b = decode_subtask_boundary(raw)
+        out.append((b.step, f"{b.score:.6f}", b.stamp_ns, str(b.final).lower()))
     return out
 
 
@@ -64,7 +64,7 @@ def replay(ckpt: Path, obs: np.ndarray, stamps: np.ndarray) -> list[tuple[int, s
     seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DetectorConfig(high=0.3, low=0.3))
     seg.reset(None)
     out = [e for x, s in zip(obs, stamps, strict=True) if (e := seg.step(x, int(s)).boundary) is not None]
-    out += seg.end_episode(len(obs) - 2)
+    out = with_final(out + seg.end_episode(len(obs) - 2))  # every episode ends with a final boundary
     return [(e.step, f"{e.score:.6f}", e.stamp_ns, str(e.final).lower()) for e in out]
 
 
