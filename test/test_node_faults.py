@@ -211,10 +211,10 @@ import sys, time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-n, topic, name, key = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
+n, depth, topic, name, key = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5]
 rclpy.init()
 node = rclpy.create_node("deep_flooder")
-qos = QoSProfile(depth=n, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+qos = QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 pub = node.create_publisher(DiagnosticArray, topic, qos)
 deadline = time.monotonic() + 20
 while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
@@ -235,20 +235,20 @@ rclpy.shutdown()
 
 
 def flood_from_another_process(
-    ctx: Any, ckpt: Path, env: dict[str, str], n: int
+    ctx: Any, ckpt: Path, env: dict[str, str], n: int, depth: int
 ) -> tuple[dict[str, int], str]:
-    """A publisher with a queue of ``n`` sends ``n`` markers as fast as it can from another process and
+    """A publisher with a queue of ``depth`` sends ``n`` markers as fast as it can from another process and
     waits until all are acknowledged; the node's counters once it has served its queue, and what the
     publisher printed."""
     import subprocess
     import sys
 
-    node = make_node(ctx, ckpt, name=f"deepflood{n}")
+    node = make_node(ctx, ckpt, name=f"deepflood{n}_{depth}")
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
     assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
-    args = [str(n), layout.EPISODE, layout.EPISODE_STATUS_NAME, layout.KEY_SKETCH]
+    args = [str(n), str(depth), layout.EPISODE, layout.EPISODE_STATUS_NAME, layout.KEY_SKETCH]
     proc = subprocess.Popen([sys.executable, "-c", FLOODER, *args], env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
 
@@ -279,8 +279,20 @@ def test_a_deep_queued_marker_flood_is_processed_or_counted(
     KEEP_ALL, a full queue holds the publisher back, and the short variant's depth no longer matters."""
     if n < ompn_node.MARKER_QUEUE:  # the short variant: a node queue below the flood, as the long one
         monkeypatch.setattr(ompn_node, "MARKER_QUEUE", n // 2)
-    c, out = flood_from_another_process(ctx, ckpt, ros_env, n)
+    c, out = flood_from_another_process(ctx, ckpt, ros_env, n, n)
     assert out.startswith("rc 0:"), out
     assert c["markers"] + c["markers_lost"] == n, (c, out)
     if c["markers_lost"] == 0:  # every second marker is a 'start'
         assert c["episode_starts"] == n // 2, c
+
+
+def test_a_shallow_queued_marker_flood_is_counted_as_lost(
+    ctx: Any, ckpt: Path, ros_env: dict[str, str]
+) -> None:
+    """A reliable publisher with the default queue of 10 overwrites markers the node has not yet
+    acknowledged: the node hears of the gap and counts it (markers_lost), so the sum is still what was
+    sent."""
+    n = 6_000
+    c, out = flood_from_another_process(ctx, ckpt, ros_env, n, 10)
+    assert out.startswith("rc 0:"), out
+    assert c["markers"] + c["markers_lost"] == n, (c, out)
