@@ -23,6 +23,7 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
+from ompn_ros.nodes import ompn_node  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 
 OBS_DIM = 4
@@ -203,3 +204,95 @@ def test_activate_after_a_failed_configure_is_refused(ctx: Any, ckpt: Path, tmp_
     assert response.success is False
     assert node._state_machine.current_state[1] == "unconfigured"
     node.destroy_node()
+
+
+FLOODER = """
+import sys, time
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+n, depth, topic, name, key = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5]
+rclpy.init()
+node = rclpy.create_node("deep_flooder")
+qos = QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+pub = node.create_publisher(DiagnosticArray, topic, qos)
+deadline = time.monotonic() + 20
+while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+    time.sleep(0.01)
+time.sleep(0.5)
+def marker(kind):
+    status = DiagnosticStatus(name=name, message=kind, values=[KeyValue(key=key, value="")])
+    return DiagnosticArray(status=[status])
+start = time.monotonic()
+for i in range(n):
+    pub.publish(marker("start" if i % 2 == 0 else "end"))
+print(f"published {n} in {time.monotonic() - start:.2f} s", flush=True)
+acked = pub.wait_for_all_acked(rclpy.duration.Duration(seconds=60))
+print(f"acked {acked} after {time.monotonic() - start:.2f} s", flush=True)
+node.destroy_node()
+rclpy.shutdown()
+"""
+
+
+def flood_from_another_process(
+    ctx: Any, ckpt: Path, env: dict[str, str], n: int, depth: int
+) -> tuple[dict[str, int], str]:
+    """A publisher with a queue of ``depth`` sends ``n`` markers as fast as it can from another process and
+    waits until all are acknowledged; the node's counters once it has served its queue, and what the
+    publisher printed."""
+    import subprocess
+    import sys
+
+    node = make_node(ctx, ckpt, name=f"deepflood{n}_{depth}")
+    assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    args = [str(n), str(depth), layout.EPISODE, layout.EPISODE_STATUS_NAME, layout.KEY_SKETCH]
+    proc = subprocess.Popen([sys.executable, "-c", FLOODER, *args], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+
+    def total() -> int:
+        c = node.counters()
+        return c["markers"] + c["markers_lost"]
+
+    try:
+        pump(ex, lambda: total() >= n or proc.poll() is not None, timeout=90)
+        pump(ex, lambda: total() >= n, timeout=30)  # all acknowledged: the node reads its queue
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out = proc.communicate()[0]
+    counters = node.counters()
+    node.destroy_node()
+    return counters, f"rc {proc.returncode}: {out}"
+
+
+@pytest.mark.parametrize("n", [2_000, pytest.param(10_000, marks=pytest.mark.slow)])
+def test_a_deep_queued_marker_flood_is_processed_or_counted(
+    ctx: Any, ckpt: Path, ros_env: dict[str, str], monkeypatch: pytest.MonkeyPatch, n: int
+) -> None:
+    """A publisher whose queue is deeper than the node's (KEEP_LAST n, RELIABLE) sends n markers at once
+    from another process: every one is handled or counted as lost, and the counters agree.  A KEEP_LAST
+    marker queue (5 000, or 1 000 in the short variant) overwrote the unread ones without a count; read
+    KEEP_ALL, a full queue holds the publisher back, and the short variant's depth no longer matters."""
+    if n < ompn_node.MARKER_QUEUE:  # the short variant: a node queue below the flood, as the long one
+        monkeypatch.setattr(ompn_node, "MARKER_QUEUE", n // 2)
+    c, out = flood_from_another_process(ctx, ckpt, ros_env, n, n)
+    assert out.startswith("rc 0:"), out
+    assert c["markers"] + c["markers_lost"] == n, (c, out)
+    if c["markers_lost"] == 0:  # every second marker is a 'start'
+        assert c["episode_starts"] == n // 2, c
+
+
+def test_a_shallow_queued_marker_flood_is_counted_as_lost(
+    ctx: Any, ckpt: Path, ros_env: dict[str, str]
+) -> None:
+    """A reliable publisher with the default queue of 10 overwrites markers the node has not yet
+    acknowledged: the node hears of the gap and counts it (markers_lost), so the sum is still what was
+    sent."""
+    n = 6_000
+    c, out = flood_from_another_process(ctx, ckpt, ros_env, n, 10)
+    assert out.startswith("rc 0:"), out
+    assert c["markers"] + c["markers_lost"] == n, (c, out)

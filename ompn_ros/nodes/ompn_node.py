@@ -163,7 +163,7 @@ from ompn_ros.segmenter import (
 from ompn_ros.validate import WrongObservationLength, validate_sketch
 
 NODE_NAME = "ompn_node"
-MARKER_QUEUE = 5_000  # episode markers (and sketches) queued for the node: Fast DDS's default sample limit
+MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
 LEVEL_OK, LEVEL_WARN = 0, 1
 LIVE_DETECTOR_KEYS = frozenset(
     {"detector_high", "detector_hysteresis", "detector_min_segment_length", "detector_mode",
@@ -446,10 +446,11 @@ class OMPNNode(LifecycleNode):
             self.last_error = "activate without a configured segmenter"
             return TransitionCallbackReturn.FAILURE
         inputs = input_qos(str(self.values["obs_qos"]), int(self.values["qos_depth"]))
-        # a deep queue: a burst of markers waits for the node rather than overwriting the unread ones;
-        # what the middleware still loses is counted (markers_lost)
+        # KEEP_ALL: a full queue refuses new markers, and the reliable publisher resends them once the
+        # node has read some, rather than the queue overwriting unread ones; what the middleware still
+        # loses (a best-effort or shallow publisher) is counted (markers_lost)
         markers = QoSProfile(
-            depth=MARKER_QUEUE, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
+            depth=MARKER_QUEUE, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
