@@ -41,12 +41,13 @@ def _env() -> dict[str, str]:
     return env
 
 
-def make_bags(root: Path, domain: str, count: int, first_seed: int = 50_000) -> Path:
-    """``count`` bags of one expert episode each (Craft: the paper's tasks in turn)."""
+def make_bags(root: Path, domain: str, count: int, first_seed: int = 50_000, per_bag: int = 1) -> Path:
+    """``count`` bags of ``per_bag`` expert episodes each (Craft: the paper's tasks in turn)."""
     tasks = default_tasks(domain)
     for i in range(count):
-        episode = expert_episode(domain, first_seed + i, task=tasks[i % len(tasks)])
-        write_episodes(root / domain / f"bag{i:04d}", [episode], domain)
+        seeds = range(first_seed + i * per_bag, first_seed + (i + 1) * per_bag)
+        episodes = [expert_episode(domain, seed, task=tasks[seed % len(tasks)]) for seed in seeds]
+        write_episodes(root / domain / f"bag{i:04d}", episodes, domain)
     return root / domain
 
 
@@ -154,13 +155,13 @@ def training_cost(bags: Path, domain: str, iterations: int, batch: int, tmp: Pat
     return out
 
 
-def measure(count: int, iterations: int, parts: set[str]) -> dict[str, dict[str, float]]:
-    """Generate ``count`` bags per domain in a temporary folder and measure ``parts``."""
+def measure(count: int, iterations: int, parts: set[str], per_bag: int = 1) -> dict[str, dict[str, float]]:
+    """Generate ``count`` bags of ``per_bag`` episodes per domain in a temporary folder; measure ``parts``."""
     tmp = Path(tempfile.mkdtemp(prefix="bench_scale_"))
     os.environ["OMPN_CACHE_DIR"] = str(tmp / "cache")
     results: dict[str, dict[str, float]] = {}
     try:
-        bags = {d: make_bags(tmp / "bags", d, count) for d in ("craft", "dial")}
+        bags = {d: make_bags(tmp / "bags", d, count, per_bag=per_bag) for d in ("craft", "dial")}
         for domain in ("craft", "dial") if "segment" in parts else ():
             for jobs in (1, 2):
                 name = f"segment_{domain}_jobs{jobs}"
@@ -195,11 +196,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bags", type=int, default=100, help="generated bags per domain")
+    parser.add_argument("--per-bag", type=int, default=1, help="expert episodes per generated bag")
     parser.add_argument("--iterations", type=int, default=6, help="training iterations per measurement")
     parser.add_argument("--only", default="segment,cache,multinode,train", help="which parts to run")
     parser.add_argument("--out", type=Path, default=None, help="JSON results file (none: print only)")
     args = parser.parse_args()
-    results = measure(args.bags, args.iterations, set(args.only.split(",")))
+    results = measure(args.bags, args.iterations, set(args.only.split(",")), args.per_bag)
     text = json.dumps(results, indent=1)
     print(text)
     if args.out is not None:
