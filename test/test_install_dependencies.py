@@ -47,6 +47,11 @@ PYTHON: dict[str, tuple[str | None, str]] = {
     "gymnasium": (None, "gymnasium"),
     "tensorboard": (None, "tensorboard"),
 }
+# Imported only inside ``try: ... except ImportError``: a feature that is there when the user has the
+# package, never a dependency.
+OPTIONAL = {
+    "pyarrow": "ompn_segment --bags also writes segments.parquet (experiments/batch_table.py)",
+}
 # Needed at run time without an import statement in our sources.
 USED_WITHOUT_IMPORT = {
     "scipy": "the BLAS behind numba's np.dot in the compiled streaming step",
@@ -132,6 +137,8 @@ def missing_from_requirements(modules: dict[str, str], text: str) -> list[str]:
 @pytest.fixture(scope="module")
 def used() -> dict[str, str]:
     modules = third_party_imports(ROOT / "ompn_ros", ROOT / "sim_nodes", ROOT / "launch")
+    assert set(OPTIONAL) <= set(modules), f"optional imports no longer used: {set(OPTIONAL) - set(modules)}"
+    modules = {m: where for m, where in modules.items() if m not in OPTIONAL}
     modules.update({m: "(no import statement)" for m in USED_WITHOUT_IMPORT})
     return modules
 
