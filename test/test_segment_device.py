@@ -18,9 +18,11 @@ from ompn_ros.experiments.replay import ReplayResult, replay_all
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.load import stepper_from_checkpoint
+from ompn_ros.model.load import build_stepper, stepper_from_checkpoint
+from ompn_ros.model.streaming import StreamingInputError
 from ompn_ros.train.device import stray_tensors
 
+CONFIG = OMPNConfig(obs_dim=4, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)
 GPU = pytest.mark.skipif(not torch.cuda.is_available(), reason="torch sees no GPU")
 
 
@@ -33,8 +35,7 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> dict:
     write_lab_bag(root / "bags" / "b", 2)
     (root / "lab_reader.yaml").write_text(yaml.safe_dump(SPEC))
     torch.manual_seed(0)
-    config = OMPNConfig(obs_dim=4, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)
-    save_checkpoint(root / "model", build_policy(config))
+    save_checkpoint(root / "model", build_policy(CONFIG))
     return {"bags": root / "bags", "spec": root / "lab_reader.yaml", "model": root / "model"}
 
 
@@ -86,3 +87,13 @@ def test_the_cuda_replay_matches_the_cpu_replay(lab: dict, tmp_path: Path) -> No
                      "--reader-config", str(lab["spec"]), "--out", str(out)]) == 0
         tables.append([{k: v for k, v in row.items() if k != "score"} for row in _table(out)])
     assert tables[0] == tables[1] and tables[0]
+
+
+@pytest.mark.parametrize("backend", ["jit", "numpy"])
+def test_the_compiled_backends_and_the_lstm_refuse_a_gpu_device(backend: str) -> None:
+    ompn = build_policy(CONFIG)
+    with pytest.raises(StreamingInputError, match="CPU only"):
+        build_stepper(ompn, backend, "cuda")  # type: ignore[arg-type]
+    lstm = build_policy(OMPNConfig(obs_dim=4, action_type="continuous", action_dim=2, arch="lstm"))
+    with pytest.raises(StreamingInputError, match="CPU only"):
+        build_stepper(lstm, backend, "cuda")  # type: ignore[arg-type]
