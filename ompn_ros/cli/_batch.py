@@ -52,10 +52,11 @@ def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
                          "segment the copies; write them elsewhere")
 
 
-def run_batch_cli(args: argparse.Namespace) -> int:
-    """Segment the bags of ``--bags``; 0 when every bag was segmented, :data:`SOME_REFUSED` otherwise."""
-    try:
-        stepper_from_checkpoint(args.checkpoint)  # a bad checkpoint refuses the run, not every bag
+def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
+    """Segment the bags of ``--bags`` on ``device`` ('cpu' or 'cuda'); 0 when every bag was segmented,
+    :data:`SOME_REFUSED` otherwise."""
+    try:  # a bad checkpoint refuses the run, not every bag
+        stepper_from_checkpoint(args.checkpoint, "jit" if device == "cpu" else "torch", device)
     except CheckpointError as exc:
         raise ValueError(f"--checkpoint: {exc}") from exc
     explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
@@ -64,7 +65,7 @@ def run_batch_cli(args: argparse.Namespace) -> int:
     settings = BatchSettings(
         checkpoint=args.checkpoint, detector=detector.online, duration_model=detector.duration_model,
         out=Path(args.out), annotate=Path(args.annotate) if args.annotate else None,
-        reader_config=args.reader_config, domain=args.domain, on_error=args.on_error)
+        reader_config=args.reader_config, domain=args.domain, on_error=args.on_error, device=device)
     bags = list_bags(args.bags)
     _check_copies(settings.annotate, bags)
     start = time.perf_counter()

@@ -48,6 +48,7 @@ from ompn_ros.experiments.replay import ReplayError, replay_all
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.factory import stepper_from_checkpoint
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG, duration_detector, pick_online
+from ompn_ros.train.device import DEVICES, resolve_device
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -78,6 +79,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--detector-config",
         help="YAML with detector_* keys, e.g. config/ompn_node_craft.yaml (none: the checkpoint's own "
         "detector.json, else the detector defaults)",
+    )
+    p.add_argument(
+        "--device", choices=DEVICES, default="auto",
+        help="replay: cpu steps the compiled kernel; cuda steps the policy's torch module on the GPU; "
+        "auto is cpu (a batch-1 replay is faster on the CPU than on a GPU)",
     )
     p.add_argument("--out", default="segment_out", help="output directory (replay mode)")
     p.add_argument(
@@ -154,15 +160,21 @@ def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> 
     return 0
 
 
+def replay_device(name: str) -> str:
+    """The device ``--device name`` replays on ('cpu' or 'cuda'); ``auto`` is the CPU (batch 1)."""
+    return "cpu" if name == "auto" else resolve_device(name, "--device").type
+
+
 def _run(args: argparse.Namespace) -> int:
+    device = replay_device(args.device)  # before any bag is read
     check_batch_arguments(args)
     if args.bags:
-        return run_batch_cli(args)
+        return run_batch_cli(args, device)
     if args.annotate and (args.tune or not args.bag):
         raise ReplayError("--annotate copies the replayed bag: it needs --bag and no --tune")
     torch.set_num_threads(1)
     try:
-        policy = stepper_from_checkpoint(args.checkpoint)
+        policy = stepper_from_checkpoint(args.checkpoint, "jit" if device == "cpu" else "torch", device)
     except CheckpointError as exc:
         raise ReplayError(f"--checkpoint: {exc}") from exc
     episodes = _episodes(args)

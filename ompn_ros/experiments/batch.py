@@ -43,6 +43,7 @@ from ompn_ros.experiments.replay import check_finite, reader_spec, replay_all
 from ompn_ros.metrics import alignment_counts, f1_with_tolerance
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.load import Stepper, stepper_from_checkpoint
+from ompn_ros.model.streaming import Backend
 from ompn_ros.segmenter import ReplayResult
 
 REFUSED_ERRORS: tuple[type[BaseException], ...] = (BagError, ReaderSpecError, CheckpointError, ValueError,
@@ -61,6 +62,7 @@ class BatchSettings:
         out: the run's folder (records, table, summary).
         annotate: the folder of annotated copies (None: none written).
         reader_config, domain, on_error: how bags are read (``experiments/replay.py``).
+        device: where the policy steps: 'cpu' (the compiled kernel) or 'cuda' (its torch module).
     """
 
     checkpoint: str
@@ -71,6 +73,7 @@ class BatchSettings:
     reader_config: str | None = None
     domain: str | None = None
     on_error: OnError = "raise"
+    device: str = "cpu"
 
     def fingerprint(self) -> dict[str, Any]:
         """What a complete record must have been made with (else the bag is redone): the checkpoint's
@@ -84,14 +87,15 @@ class BatchSettings:
         return dict(json.loads(json.dumps(doc)))  # as read back from a record
 
 
-_STEPPERS: dict[str, Stepper] = {}
+_STEPPERS: dict[tuple[str, str], Stepper] = {}
 
 
-def _stepper(checkpoint: str) -> Stepper:
-    """One stepper per checkpoint and process (loaded by the first task of a worker)."""
-    if checkpoint not in _STEPPERS:
-        _STEPPERS[checkpoint] = stepper_from_checkpoint(checkpoint)
-    return _STEPPERS[checkpoint]
+def _stepper(checkpoint: str, device: str = "cpu") -> Stepper:
+    """One stepper per checkpoint, device and process (loaded by the first task of a worker)."""
+    if (checkpoint, device) not in _STEPPERS:
+        backend: Backend = "jit" if device == "cpu" else "torch"
+        _STEPPERS[checkpoint, device] = stepper_from_checkpoint(checkpoint, backend, device)
+    return _STEPPERS[checkpoint, device]
 
 
 def is_complete(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, Any]) -> bool:
@@ -158,7 +162,8 @@ def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, An
     doc: dict[str, Any] = {"read": True, "read_summary": result.report.summary(), "episodes": len(episodes)}
     if not episodes:
         raise BagError("no episodes found", path=path)
-    replays = replay_all(_stepper(settings.checkpoint), episodes, settings.detector, settings.duration_model)
+    stepper = _stepper(settings.checkpoint, settings.device)
+    replays = replay_all(stepper, episodes, settings.detector, settings.duration_model)
     check_finite(replays, episodes)
     stamps = _stamps(settings, path, episodes)
     if settings.annotate is not None and stamps is not None:

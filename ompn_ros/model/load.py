@@ -16,28 +16,37 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TypeAlias
 
+import torch
+
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.model.build import PolicyModule
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.ensemble import EnsembleStepper, is_ensemble, read_ensemble
 from ompn_ros.model.lstm import LSTMPolicy, LSTMStreamingPolicy
-from ompn_ros.model.streaming import Backend, StreamingPolicy
+from ompn_ros.model.streaming import Backend, StreamingInputError, StreamingPolicy
 
 Stepper: TypeAlias = StreamingPolicy | LSTMStreamingPolicy | EnsembleStepper
 """Any batch-1 stepper: ``reset(sketch)``, ``step(obs) -> StepOutput``, ``config``."""
 
 
-def build_stepper(policy: PolicyModule, backend: Backend = "jit") -> StreamingPolicy | LSTMStreamingPolicy:
+def build_stepper(
+    policy: PolicyModule, backend: Backend = "jit", device: torch.device | str = "cpu"
+) -> StreamingPolicy | LSTMStreamingPolicy:
     """The streaming stepper of ``policy`` (compiled OMPN stepper, or the LSTM's stepper).
 
-    The LSTM has no compiled kernel: ``'jit'`` selects its numpy path.
+    The LSTM has no compiled kernel: ``'jit'`` selects its numpy path.  ``device`` (default CPU) is
+    where the OMPN ``'torch'`` backend steps; the LSTM's stepper runs on the CPU only.
     """
     if isinstance(policy, LSTMPolicy):
+        if torch.device(device).type != "cpu":
+            raise StreamingInputError(f"the LSTM stepper runs on the CPU only, not on {device}: use the CPU")
         return LSTMStreamingPolicy(policy, backend="numpy" if backend == "jit" else backend)
-    return StreamingPolicy(policy, backend=backend)
+    return StreamingPolicy(policy, backend=backend, device=device)
 
 
-def stepper_from_checkpoint(path: str | Path, backend: Backend = "jit") -> Stepper:
+def stepper_from_checkpoint(
+    path: str | Path, backend: Backend = "jit", device: torch.device | str = "cpu"
+) -> Stepper:
     """Load a checkpoint of either architecture, or an ensemble directory, and wrap it in its stepper.
 
     Raises :class:`~ompn_ros.model.checkpoint.CheckpointError` (or its subclass ``EnsembleError``)
@@ -45,10 +54,10 @@ def stepper_from_checkpoint(path: str | Path, backend: Backend = "jit") -> Stepp
     """
     if is_ensemble(path):
         members, _ = read_ensemble(path)
-        steppers = [build_stepper(load_checkpoint(m)[0], backend=backend) for m in members]
+        steppers = [build_stepper(load_checkpoint(m)[0], backend=backend, device=device) for m in members]
         return EnsembleStepper(steppers, names=[str(m) for m in members])
     policy, _ = load_checkpoint(path)
-    return build_stepper(policy, backend=backend)
+    return build_stepper(policy, backend=backend, device=device)
 
 
 def shipped_stepper(domain: str, backend: Backend = "jit") -> Stepper:

@@ -11,6 +11,8 @@ Three backends share the weights of one :class:`OMPNPolicy`:
   computed once in :meth:`reset`, the observation normalisation is folded into the encoder, all
   projections of x are one matrix-vector product, and sparse observations are encoded by a gather.
 * ``'torch'``: the eager :meth:`OMPNPolicy.step` under ``torch.inference_mode`` (the reference).
+  Its ``device`` argument (default CPU) runs the module and every step's tensors there (a copy of
+  the module moved to that device); the two compiled backends run on the CPU only.
 
 All three agree to float32 rounding (tested to 1e-5).  Weights are copied at construction: later
 changes to the module are not seen (build a new StreamingPolicy after training).
@@ -18,6 +20,7 @@ changes to the module are not seen (build a new StreamingPolicy after training).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
@@ -42,9 +45,17 @@ def _np(t: torch.Tensor) -> np.ndarray:
 class StreamingPolicy:
     """Stateful, batch-1, no-autograd OMPN stepping; see the module docstring."""
 
-    def __init__(self, policy: OMPNPolicy, backend: Backend = "jit") -> None:
+    def __init__(
+        self, policy: OMPNPolicy, backend: Backend = "jit", device: torch.device | str = "cpu"
+    ) -> None:
         if backend not in BACKENDS:
             raise StreamingInputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        self.device = torch.device(device)
+        if self.device.type != "cpu":
+            if backend != "torch":
+                raise StreamingInputError(f"backend {backend!r} runs on the CPU only; use backend='torch' "
+                                          f"for device {self.device}")
+            policy = copy.deepcopy(policy).to(self.device)  # the caller's module stays where it is
         self.policy = policy  # no dropout or batch norm: train/eval mode does not matter
         self.config: OMPNConfig = policy.config
         self.backend = backend
@@ -64,7 +75,9 @@ class StreamingPolicy:
             self.reset()
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, backend: Backend = "jit") -> StreamingPolicy:
+    def from_checkpoint(
+        cls, path: str | Path, backend: Backend = "jit", device: torch.device | str = "cpu"
+    ) -> StreamingPolicy:
         """The stepper of an OMPN checkpoint (``arch='ompn'``); for any architecture or an ensemble
         directory use :func:`ompn_ros.model.load.stepper_from_checkpoint`."""
         policy, _ = load_checkpoint(path)
@@ -73,11 +86,13 @@ class StreamingPolicy:
                 f"{path}: arch={policy.config.arch!r} is not an OMPN checkpoint; use "
                 "ompn_ros.model.load.stepper_from_checkpoint for any architecture"
             )
-        return cls(policy, backend=backend)
+        return cls(policy, backend=backend, device=device)
 
     def reset(self, sketch: np.ndarray | None = None) -> None:
         """Start a new episode (initial memory M^0; the next step is the hard-coded first step)."""
         sketch_t = sketch_tensor(sketch)
+        if sketch_t is not None:
+            sketch_t = sketch_t.to(self.device)
         with torch.inference_mode():
             state = self.policy.initial_state(1, sketch_t)
         self._state = state
@@ -127,9 +142,10 @@ class StreamingPolicy:
     def _step_torch(self, arr: np.ndarray) -> StepOutput:
         assert self._state is not None
         with torch.inference_mode():
-            out, self._state = self.policy.step(torch.from_numpy(arr).unsqueeze(0), self._state)
+            obs = torch.from_numpy(arr).unsqueeze(0).to(self.device)
+            out, self._state = self.policy.step(obs, self._state)
         pi_hat = out.p_hat[0, 1:].flip(0).tolist()
-        return self._finish(out.action_out[0].numpy(), pi_hat, float(out.pi_end[0]), out.pi[0].tolist())
+        return self._finish(out.action_out[0].cpu().numpy(), pi_hat, float(out.pi_end[0]), out.pi[0].tolist())
 
     def _step_numpy(self, s: np.ndarray) -> StepOutput:
         assert self._w is not None
