@@ -118,10 +118,11 @@ def test_topics_arrive_at_rate_in_contract_order(ros_env: dict[str, str]) -> Non
     assert rec.of(layout.SUBTASK)[0].data == 0
 
 
-def test_expert_episode_matches_generate_episodes(ros_env: dict[str, str]) -> None:
-    expected = next(iter(generate_episodes(1, seed=9)))
-    rec = Recorder("dial_full")
-    proc = launch(ros_env, "dial_full", "rate:=0.0", "episodes:=1", "seed:=9", "wait_for_subscribers:=1")
+def one_episode(ros_env: dict[str, str], ns: str, *params: str) -> Recorder:
+    """Run dial_sim in namespace ``ns`` for one episode (seed 9, as fast as it can) with ``params``;
+    what it published, once it exited with code 0."""
+    rec = Recorder(ns)
+    proc = launch(ros_env, ns, "rate:=0.0", "episodes:=1", "seed:=9", "wait_for_subscribers:=1", *params)
     try:
         rec.spin_until(lambda: len(rec.of(layout.EPISODE)) >= 2, timeout=60)
         rec.spin_until(lambda: False, timeout=0.3)
@@ -130,6 +131,12 @@ def test_expert_episode_matches_generate_episodes(ros_env: dict[str, str]) -> No
         err = stop(proc)
         rec.close()
     assert code == 0, err
+    return rec
+
+
+def test_expert_episode_matches_generate_episodes(ros_env: dict[str, str]) -> None:
+    expected = next(iter(generate_episodes(1, seed=9)))
+    rec = one_episode(ros_env, "dial_full")
     end = {kv.key: kv.value for kv in rec.of(layout.EPISODE)[1].status[0].values}
     assert end[layout.KEY_SUCCESS] == "true" and int(end[layout.KEY_STEPS]) == expected.length
     obs = np.array([m.data for m in rec.of(layout.OBSERVATION)], dtype=np.float32)
@@ -145,17 +152,7 @@ def test_human_demonstrator_publishes_its_episode(ros_env: dict[str, str]) -> No
     """demonstrator:=human: generate_human_episode's noisy rows, observations as often as their copies."""
     human = ["drop_rate=0.05", "duplicate_rate=0.05"]
     expected = generate_human_episode(derive_seed(9, 0), parse_human("dial", human))
-    rec = Recorder("dial_human")
-    proc = launch(ros_env, "dial_human", "rate:=0.0", "episodes:=1", "seed:=9", "wait_for_subscribers:=1",
-                  "demonstrator:=human", f"human:=[{','.join(human)}]")  # fmt: skip
-    try:
-        rec.spin_until(lambda: len(rec.of(layout.EPISODE)) >= 2, timeout=60)
-        rec.spin_until(lambda: False, timeout=0.3)
-        code = proc.wait(timeout=30)
-    finally:
-        err = stop(proc)
-        rec.close()
-    assert code == 0, err
+    rec = one_episode(ros_env, "dial_human", "demonstrator:=human", f"human:=[{','.join(human)}]")
     copies = observation_copies(expected)
     assert (copies == 0).any() and (copies == 2).any()
     obs = np.array([m.data for m in rec.of(layout.OBSERVATION)], dtype=np.float32)
