@@ -5,8 +5,10 @@
 loss and update on the GPU: the policy's parameters and buffers, the optimizer state and every
 tensor of a batch (:func:`batch_to`) live there; checkpoints and the resumable state are written
 from CPU copies, so they load on any machine.  ``auto`` is ``cuda`` when torch sees a GPU, else
-``cpu``.  The node steps on the CPU either way (batch 1, compiled kernel); ``ompn_segment --device``
-takes the same names with ``auto`` meaning ``cpu`` (a batch-1 replay is faster there).
+``cpu``.  The default is ``cpu``: the CUDA path is covered by tests that need a GPU and have not yet
+run on one, so a GPU is used only when asked for.  The node steps on the CPU either way (batch 1,
+compiled kernel); ``ompn_segment --device`` takes the same names with ``auto`` meaning ``cpu`` (a
+batch-1 replay is faster there).
 """
 
 from __future__ import annotations

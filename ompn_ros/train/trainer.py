@@ -282,7 +282,7 @@ class TrainConfig:
     action_norm: ActionNorm = "none"
     distill_from: list[str] = field(default_factory=list)
     distill_weight: float = 0.0
-    device: Device = "auto"
+    device: Device = "cpu"  # cuda and auto opt in: the CUDA path has not yet been run on a GPU (device.py)
 
     def __post_init__(self) -> None:
         def need(cond: bool, name: str, what: str) -> None:
