@@ -52,7 +52,7 @@ test-slow: setup
 	$(PY) -m pytest test -m slow -q -p no:cacheprovider
 
 lint: setup
-	$(VENV)/bin/ruff check ompn_ros sim_nodes test bench examples
+	$(VENV)/bin/ruff check ompn_ros sim_nodes lab test bench examples
 	$(VENV)/bin/mypy
 
 colcon: setup
@@ -70,10 +70,10 @@ doctor: setup
 	$(PY) -m ompn_ros.cli.demo --smoke
 
 reproduce-craft: setup
-	$(PY) -m ompn_ros.cli.reproduce craft --members full_nosketch=3,partial_nosketch=3
+	$(PY) -m lab.reproduce craft --members full_nosketch=3,partial_nosketch=3
 
 reproduce-dial: setup
-	$(PY) -m ompn_ros.cli.reproduce dial
+	$(PY) -m lab.reproduce dial
 
 clean:
 	rm -rf build install log .pytest_cache .mypy_cache .ruff_cache *.egg-info

@@ -59,7 +59,6 @@ setup(
             "ompn_collect = ompn_ros.cli.collect:main",
             "ompn_segment = ompn_ros.cli.segment:main",
             "ompn_ensemble = ompn_ros.cli.ensemble:main",
-            "ompn_reproduce = ompn_ros.cli.reproduce:main",
             "ompn_closed_loop = ompn_ros.cli.closed_loop:main",
             "episode_monitor = ompn_ros.nodes.episode_monitor:main",
         ],

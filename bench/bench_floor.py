@@ -30,7 +30,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from ompn_ros import containment  # noqa: E402 (after the path insert)
+from ompn_ros.ros import containment  # noqa: E402 (after the path insert)
 
 containment.contain(os.environ)  # loopback + shared memory only, a per-run ROS_DOMAIN_ID
 

@@ -1,7 +1,7 @@
 """Benchmark: memory while reading bags into the episode cache, and training from the memory-mapped cache.
 
 Data: three Craft bags of about the same size (quick ~50 MB each, full ~230 MB each), generated
-with :func:`ompn_ros.experiments.collect.collect` (expert episodes, one run split into parts).
+with :func:`ompn_ros.app.collect.collect` (expert episodes, one run split into parts).
 
 1. **Reading.**  Child processes report their peak RSS (``VmHWM``) on the first bag for: the bag
    reader alone (``read_episodes``), the in-memory path (``load_arrays(use_cache=False)``: parse +
@@ -212,7 +212,7 @@ def _run_child(name: str, *args: Any) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------------- parent
 def _make_bags(out: Path, megabytes: int, parts: int, storage: str = "mcap") -> list[Path]:
     """``parts`` Craft bags of about ``megabytes`` each (one ``collect`` run split into parts)."""
-    from ompn_ros.experiments.collect import collect
+    from ompn_ros.app.collect import collect
 
     per_part = max(10, megabytes * MB // EPISODE_BYTES)
     collect(out, domain="craft", tasks=TASKS, episodes=parts * per_part, seed=0, split_every=per_part,
@@ -227,7 +227,7 @@ def _make_multi_topic_bag(path: Path, megabytes: int) -> Path:
     from rosbags.rosbag2 import Writer
 
     from ompn_ros.data import messages as m
-    from ompn_ros.data.bag_writer import storage_plugin
+    from ompn_ros.data.recorder.bag_writer import storage_plugin
 
     rng = np.random.default_rng(0)
     v3 = m.msg_class("geometry_msgs/msg/Vector3")

@@ -45,7 +45,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from ompn_ros import containment  # noqa: E402 (after the path insert)
+from ompn_ros.ros import containment  # noqa: E402 (after the path insert)
 
 containment.contain(os.environ)  # loopback + shared memory only, a per-run ROS_DOMAIN_ID
 
@@ -203,7 +203,7 @@ def bench_ensemble_in_process(path: Path, domain: str, steps: int) -> Result:
     import torch
 
     from ompn_ros.detect.online import DetectorConfig
-    from ompn_ros.model.factory import stepper_from_checkpoint
+    from ompn_ros.model.load import stepper_from_checkpoint
     from ompn_ros.segmenter import StreamingSegmenter
 
     torch.set_num_threads(1)
@@ -465,7 +465,7 @@ def bench_multi_in_process(steps: int) -> Result:
     from ompn_ros.checkpoints import shipped_checkpoint
     from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec
     from ompn_ros.detect.online import DetectorConfig
-    from ompn_ros.model.factory import stepper_from_checkpoint
+    from ompn_ros.model.load import stepper_from_checkpoint
     from ompn_ros.segmenter import StreamingSegmenter
 
     torch.set_num_threads(1)
@@ -628,7 +628,7 @@ def main() -> None:
                         help="ompn_node's obs_qos parameter (default: the shipped best_effort)")
     parser.add_argument("--ensemble", type=Path, default=None, metavar="DIR",
                         help="instead: a Craft ensemble checkpoint directory (ensemble.json, written by "
-                             "ompn_reproduce --members), in process and in ompn_node at 100 Hz")
+                             "python -m lab.reproduce --members), in process and in ompn_node at 100 Hz")
     args = parser.parse_args()
     if args.ensemble is not None:
         from ompn_ros.model.ensemble import read_ensemble

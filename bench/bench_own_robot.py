@@ -44,10 +44,10 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ompn_ros.experiments.spec import DEFAULT_EPISODES  # noqa: E402
+from lab.spec import DEFAULT_EPISODES  # noqa: E402
 
 # DDS containment (loopback and shared memory, a domain in 1..100) is applied to every child
-# process by the example (ompn_ros.containment); this process itself starts no ROS node.
+# process by the example (ompn_ros.ros.containment); this process itself starts no ROS node.
 
 Result = dict[str, tuple[float, str]]
 # one torch thread: with other jobs on the CPU, two threads made training 7x slower (spin-waiting)

@@ -40,9 +40,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from ompn_ros import containment  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.reader.journal import committed_view  # noqa: E402
+from ompn_ros.ros import containment  # noqa: E402
 
 TOPICS_1 = ("observation",)
 TOPICS_3 = ("observation", "subtask", "action")

@@ -44,7 +44,7 @@ compared with ``ompn_segment`` on the same live recording (the offline replay of
 
 Run: ``python examples/own_robot.py --out runs/own_robot [--episodes 300 --heldout 50]`` (or
 ``examples/own_robot.sh``).  Every process runs DDS on loopback and shared memory only
-(``ompn_ros.containment``), in a namespace of its own.  Exit code 2 with one line on a known failure.
+(``ompn_ros.ros.containment``), in a namespace of its own.  Exit code 2 with one line on a known failure.
 """
 
 from __future__ import annotations
@@ -68,11 +68,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from ompn_ros import containment, layout  # noqa: E402
+from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
 from ompn_ros.data.episode import Episode  # noqa: E402
 from ompn_ros.data.interfaces import decode_subtask_boundary  # noqa: E402
 from ompn_ros.detect.tune import score_predictions  # noqa: E402
+from ompn_ros.ros import containment  # noqa: E402
 
 READER = ROOT / "config" / "reader_dial_robot.yaml"
 TRAIN_CONFIG = ROOT / "config" / "train_dial.yaml"

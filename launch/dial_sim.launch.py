@@ -8,10 +8,10 @@ checkpoint on every observation and publishes ``cmd_action``, ``~/pi`` and ``~/b
 ``bag_recorder`` writes the sim topics to a rosbag2 (``record:=false`` leaves it out).  With
 ``mode:=policy`` the sim executes the node's ``cmd_action`` instead of the expert's action.
 ``ros2 launch ompn_ros dial_sim.launch.py --show-args`` lists the arguments
-(:mod:`ompn_ros.launch_sim`, shared with ``craft_sim.launch.py``).
+(:mod:`ompn_ros.ros.launch_sim`, shared with ``craft_sim.launch.py``).
 """
 
-from ompn_ros.launch_sim import sim_launch_description
+from ompn_ros.ros.launch_sim import sim_launch_description
 
 
 def generate_launch_description():  # type: ignore[no-untyped-def]

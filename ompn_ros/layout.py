@@ -135,3 +135,11 @@ def topic_types(domain: DomainLayout) -> dict[str, str]:
     if domain.name == "craft":
         types[RENDER] = STRING
     return types
+
+
+def resolve_topic(name: str, namespace: str = "/") -> str:
+    """Absolute topic name of a layout topic (relative names follow ``namespace``)."""
+    if name.startswith("/"):
+        return name
+    ns = "/" + namespace.strip("/")
+    return f"{ns.rstrip('/')}/{name}"

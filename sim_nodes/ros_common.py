@@ -79,7 +79,7 @@ from ompn_ros import layout
 from ompn_ros.data import messages
 from ompn_ros.data.episode import Episode, observation_copies
 from ompn_ros.layout import DomainLayout
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, help_text, wants_help
+from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable, help_text, wants_help
 from sim_nodes import SEED_MAX, derive_seed
 from sim_nodes.human import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 

@@ -6,10 +6,10 @@ import os
 import sys
 
 # Fast DDS must stay on loopback and shared memory (config/fastdds_loopback.xml, see
-# ompn_ros.containment: the profile, ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT so that rmw applies
+# ompn_ros.ros.containment: the profile, ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT so that rmw applies
 # it untouched, no static peers), and concurrent runs must not see each other (a random
 # ROS_DOMAIN_ID). This runs before any test module imports rclpy, so a bare `pytest` is contained.
-from ompn_ros import containment
+from ompn_ros.ros import containment
 
 containment.contain(os.environ)
 os.environ.setdefault("MUJOCO_GL", "egl")

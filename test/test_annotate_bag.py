@@ -19,8 +19,7 @@ from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
-from ompn_ros.data import messages as m  # noqa: E402
-from ompn_ros.data.annotate import (  # noqa: E402
+from ompn_ros.app.annotate import (  # noqa: E402
     CUSTOM_DATA_KEY,
     STAMPS_KEY,
     AnnotateError,
@@ -28,9 +27,10 @@ from ompn_ros.data.annotate import (  # noqa: E402
     match_observation_stamps,
     observation_stamps,
 )
-from ompn_ros.data.bag_reader import read_episodes  # noqa: E402
-from ompn_ros.data.bag_writer import write_episodes  # noqa: E402
+from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.interfaces import with_final  # noqa: E402
+from ompn_ros.data.reader import read_episodes  # noqa: E402
+from ompn_ros.data.recorder.bag_writer import write_episodes  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ompn_ros.data import messages as m
-from ompn_ros.data.annotate import (
+from ompn_ros.app.annotate import (
     AnnotateError,
     boundary_message,
     episode_messages,
@@ -14,6 +13,7 @@ from ompn_ros.data.annotate import (
     pi_rows,
     segment_labels,
 )
+from ompn_ros.data import messages as m
 from ompn_ros.data.interfaces import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import ReplayResult

@@ -12,9 +12,9 @@ from test_segment_batch import SPEC, write_lab_bag
 
 from ompn_ros.data import ReaderSpec
 from ompn_ros.data import cache as cache_module
-from ompn_ros.data.bag_reader import final_row_guessed
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.data.cache_bags import load_arrays_per_bag
+from ompn_ros.data.reader import final_row_guessed
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_adding_bags_parses_only_the_new_ones(bags: Path, tmp_path: Path,
 
 def test_ompn_train_reads_through_per_bag_entries(bags: Path, tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
-    from ompn_ros.experiments import training
+    from ompn_ros.app import training
 
     monkeypatch.setenv("OMPN_CACHE_DIR", str(tmp_path / "cache"))
     spec = tmp_path / "reader.yaml"

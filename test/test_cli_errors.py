@@ -13,13 +13,14 @@ import pytest
 import torch
 from test_data_common import make_episodes
 
+from lab import reproduce
 from ompn_ros.checkpoints import shipped_checkpoint
-from ompn_ros.cli import closed_loop, collect, demo, ensemble, live_demo, reproduce, segment, train
+from ompn_ros.cli import closed_loop, collect, demo, ensemble, live_demo, segment, train
 from ompn_ros.cli._common import missing_default_texts
 from ompn_ros.data import write_episodes
+from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.factory import build_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIS = {
@@ -27,7 +28,7 @@ CLIS = {
     "ompn_collect": collect,
     "ompn_segment": segment,
     "ompn_ensemble": ensemble,
-    "ompn_reproduce": reproduce,
+    "python -m lab.reproduce": reproduce,
     "ompn_closed_loop": closed_loop,
     "ompn_demo": demo,
     "ompn_live_demo": live_demo,
@@ -138,9 +139,9 @@ def test_an_invalid_config_is_one_line_and_debug_shows_the_traceback(
     with pytest.raises(ValueError, match="n_slots"):
         train.main([*args, "--debug"])
     assert reproduce.main(["craft", "--test-ratio", "1.5", "--work", str(tmp_path / "w")]) == 2
-    _one_line_error(capsys.readouterr().err, "ompn_reproduce", "--test-ratio")
+    _one_line_error(capsys.readouterr().err, "python -m lab.reproduce", "--test-ratio")
     assert reproduce.main([]) == 2
-    _one_line_error(capsys.readouterr().err, "ompn_reproduce", "domain")
+    _one_line_error(capsys.readouterr().err, "python -m lab.reproduce", "domain")
     assert not (tmp_path / "w").exists()
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from ompn_ros.eval.closed_loop import (
+from ompn_ros.app.closed_loop import (
     EVAL_SEED_BASE,
     ClosedLoopError,
     RandomAgent,
@@ -18,9 +18,10 @@ from ompn_ros.eval.closed_loop import (
     run_craft,
     run_dial,
 )
+from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.factory import build_policy, build_stepper
+from ompn_ros.model.load import build_stepper
 
 torch.set_num_threads(1)
 

@@ -7,11 +7,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from ompn_ros.eval.closed_loop import run_craft
-from ompn_ros.eval.closed_loop_ros import ros_available, ros_eval_seeds, run_ros_closed_loop
+from ompn_ros.app.closed_loop import run_craft
+from ompn_ros.app.closed_loop_ros import ros_available, ros_eval_seeds, run_ros_closed_loop
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.train.trainer import TrainConfig, train
 
 torch.set_num_threads(1)
@@ -48,7 +48,7 @@ def test_ros_closed_loop_matches_in_process(tiny_checkpoint: Path) -> None:
 
 
 def test_ros_closed_loop_lstm_checkpoint(tmp_path: Path) -> None:
-    from ompn_ros.model.factory import build_policy
+    from ompn_ros.model.build import build_policy
     from ompn_ros.nodes.ompn_node import load_policy
 
     cfg = OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5, n_slots=2, slot_size=16,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from ompn_ros import containment
+from ompn_ros.ros import containment
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE = (
@@ -42,7 +42,7 @@ def test_pytest_session_is_contained():
 def test_child_env_gives_this_process_and_its_children_one_domain(monkeypatch: pytest.MonkeyPatch,
                                                                    capsys: pytest.CaptureFixture[str],
                                                                    domain: str):
-    from ompn_ros.ros_env import child_env
+    from ompn_ros.ros.env import child_env
 
     monkeypatch.setenv("ROS_DOMAIN_ID", domain)
     monkeypatch.setenv("ROS_LOCALHOST_ONLY", "1")

@@ -12,7 +12,7 @@ from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 
 from ompn_ros import layout
 from ompn_ros.data import messages as m
-from ompn_ros.nodes.params import ParameterError, ParamSpec
+from ompn_ros.ros.params import ParameterError, ParamSpec
 from sim_nodes.ros_common import (
     COMMON_PARAMS,
     encode_action,

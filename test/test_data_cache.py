@@ -11,7 +11,7 @@ from test_data_common import assert_same_episode, make_episodes
 
 from ompn_ros.data import ReaderSpec, load_arrays, write_episodes
 from ompn_ros.data import cache as cache_mod
-from ompn_ros.data.storage import refresh_chunk_crcs
+from ompn_ros.data.recorder.storage import refresh_chunk_crcs
 
 
 def test_cache_hit_and_content_miss(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

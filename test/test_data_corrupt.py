@@ -20,7 +20,7 @@ from ompn_ros.data import (
     write_episodes,
 )
 from ompn_ros.data import messages as m
-from ompn_ros.data.bag_writer import EpisodeBagWriter
+from ompn_ros.data.recorder.bag_writer import EpisodeBagWriter
 
 
 def _storage_file(bag: Path) -> Path:

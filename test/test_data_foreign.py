@@ -10,8 +10,8 @@ import pytest
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
-from ompn_ros.data.bag_reader import final_row_guessed
 from ompn_ros.data.errors import NoEpisodeError
+from ompn_ros.data.reader import final_row_guessed
 from ompn_ros.data.reader.assemble import EXTRAPOLATED_LAST
 
 SPEC_FILE = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
@@ -22,7 +22,7 @@ MSG_ORDER = [2, 0, 1]  # the robot publishes wrist, shoulder, elbow
 def _write_foreign_bag(path: Path, rng: np.random.Generator, storage: str) -> dict:
     from rosbags.rosbag2 import Writer
 
-    from ompn_ros.data.bag_writer import storage_plugin
+    from ompn_ros.data.recorder.bag_writer import storage_plugin
 
     truth: dict = {"episodes": [], "dropped": 0, "duplicates": 0}
     names = [JOINTS[k] for k in MSG_ORDER]

@@ -11,7 +11,7 @@ from test_data_common import assert_same_episode, make_episodes
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes, write_episodes
-from ompn_ros.data.bag_writer import END_MARKER_OFFSET_NS
+from ompn_ros.data.recorder.bag_writer import END_MARKER_OFFSET_NS
 
 STORAGES = ("mcap", "sqlite3")
 

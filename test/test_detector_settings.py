@@ -137,7 +137,7 @@ def test_node_parameters_round_trip_through_the_node_yaml_reader() -> None:
 def test_retuning_keeps_a_shipped_checkpoint_shipped(tmp_path: Path, before: str, after: str) -> None:
     import dataclasses
 
-    from ompn_ros.experiments.replay import store_tuned
+    from ompn_ros.app.replay import store_tuned
 
     save_detector_settings(tmp_path, dataclasses.replace(_settings(), source=before))  # type: ignore[arg-type]
     tuned = DetectorConfig(high=0.3, mode="falling_edge")

@@ -25,7 +25,7 @@ the reason.
 def render() -> str:
     sys.path.insert(0, str(ROOT))
     from ompn_ros.nodes import bag_recorder, episode_monitor, ompn_node_params, smoke
-    from ompn_ros.nodes.params import markdown_table
+    from ompn_ros.ros.params import markdown_table
     from sim_nodes.craft.node import CRAFT_PARAMS
     from sim_nodes.dial.node import DIAL_PARAMS
     from sim_nodes.ros_common import COMMON_PARAMS

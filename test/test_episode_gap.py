@@ -26,10 +26,10 @@ from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.factory import stepper_from_checkpoint  # noqa: E402
+from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
-from ompn_ros.nodes.params import ParameterError  # noqa: E402
+from ompn_ros.ros.params import ParameterError  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 
 OBS_DIM = 6

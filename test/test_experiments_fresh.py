@@ -1,4 +1,4 @@
-"""``python -m ompn_ros.experiments.fresh``: a reproduction's runs on newly generated episodes."""
+"""``python -m lab.fresh``: a reproduction's runs on newly generated episodes."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from ompn_ros.cli import reproduce
-from ompn_ros.experiments import fresh
+from lab import fresh, reproduce
 
 
 def test_runs_are_scored_on_new_episodes_with_their_own_validation(

@@ -8,12 +8,12 @@ from typing import Any
 
 import pytest
 
+from lab import hparams, report, report_hparams
+from lab.hparams_figure import save_hparams_figure
+from lab.pipeline import State
+from lab.scoring import Evaluation
+from lab.spec import ReproduceError
 from ompn_ros.cli._common import missing_default_texts
-from ompn_ros.experiments import hparams, report, report_hparams
-from ompn_ros.experiments.hparams_figure import save_hparams_figure
-from ompn_ros.experiments.pipeline import State
-from ompn_ros.experiments.scoring import Evaluation
-from ompn_ros.experiments.spec import ReproduceError
 
 
 def test_grid_is_every_n_m_seed_and_shards_partition_it(tmp_path: Path):

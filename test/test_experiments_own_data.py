@@ -8,9 +8,9 @@ from typing import Any
 
 import pytest
 
-from ompn_ros.experiments import own_data, report, report_own
-from ompn_ros.experiments.runs import load_train_config, pin_fixed_length
-from ompn_ros.experiments.spec import REPRODUCTION_ITERATIONS
+from lab import own_data, report, report_own
+from lab.runs import load_train_config, pin_fixed_length
+from lab.spec import REPRODUCTION_ITERATIONS
 from ompn_ros.train.trainer import TrainConfig
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from ompn_ros.experiments import report
+from lab import report
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
@@ -61,7 +61,7 @@ def _write_tiny(results: Path) -> None:
         "total_seconds": 2.0,
         "n_test": {"full": 6},
         "figures": [],
-        "command": ["ompn_reproduce", "craft"],
+        "command": ["python -m lab.reproduce", "craft"],
     }
     report.write_results(results, "craft", {"full_nosketch": row}, extras, meta)
 
@@ -93,7 +93,7 @@ def test_report_command_regenerates_the_readme(tmp_path: Path, capsys: pytest.Ca
 
 
 def test_ompn_reproduce_report_only_regenerates_the_readme(tmp_path: Path):
-    from ompn_ros.cli import reproduce
+    from lab import reproduce
 
     _write_tiny(tmp_path)
     (tmp_path / "README.md").write_text("stale\n")

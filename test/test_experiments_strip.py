@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from test_data_common import make_episodes
 
-from ompn_ros.data.bag_reader import ReaderSpec
-from ompn_ros.data.bag_writer import write_episodes
+from lab.strip import StripError, strip_bags, strip_final_observations
 from ompn_ros.data.cache import load_arrays
-from ompn_ros.experiments.strip import StripError, strip_bags, strip_final_observations
+from ompn_ros.data.reader import ReaderSpec
+from ompn_ros.data.recorder.bag_writer import write_episodes
 
 
 def _read(bag: Path, domain: str, how: str, strict: bool = False) -> list:

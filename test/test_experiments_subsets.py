@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from ompn_ros.experiments.subsets import Run, SubsetError, best_of, main, read_run
+from lab.subsets import Run, SubsetError, best_of, main, read_run
 
 
 def _write(work: Path, arm: str, vals: list[float], test_align: float) -> None:

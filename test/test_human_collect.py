@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ompn_ros.app.collect import episode_seed
 from ompn_ros.cli import collect as collect_cli
-from ompn_ros.data.bag_reader import read_episodes
 from ompn_ros.data.episode import observation_copies
 from ompn_ros.data.errors import AlignmentError
+from ompn_ros.data.reader import read_episodes
 from ompn_ros.data.reader.spec import ReaderSpec
-from ompn_ros.experiments.collect import episode_seed
 from sim_nodes.registry import expert_episode, parse_human
 
 HUMAN = ["drop_rate=0.08", "duplicate_rate=0.08", "pause_rate=0.1"]

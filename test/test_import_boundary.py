@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-ROS_SIDE = {"ompn_ros.nodes", "sim_nodes.ros_common"}
+ROS_SIDE = {"ompn_ros.nodes", "ompn_ros.ros", "sim_nodes.ros_common"}
 
 
 def _core_modules() -> list[str]:
@@ -25,7 +25,7 @@ def _core_modules() -> list[str]:
 
 def test_core_modules_exist():
     modules = _core_modules()
-    for expected in ("ompn_ros.model.policy", "ompn_ros.segmenter", "ompn_ros.data.bag_reader",
+    for expected in ("ompn_ros.model.policy", "ompn_ros.segmenter", "ompn_ros.data.reader",
                      "sim_nodes.craft.env", "sim_nodes.dial.env", "ompn_ros.metrics"):
         assert expected in modules
 

@@ -28,7 +28,7 @@ ENTRY_POINT_PACKAGES = ("ompn_ros.cli", "ompn_ros.nodes")
 MAX_ENTRY_POINT_LOCAL_IMPORTS = 57
 """A ratchet for ``cli/`` and ``nodes/``: lower it whenever one of their local imports goes."""
 SIM_NODES_MAY_IMPORT = (
-    "ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages", "ompn_ros.nodes.params",
+    "ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages", "ompn_ros.ros.params",
     "ompn_ros.validate",
 )
 """The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""

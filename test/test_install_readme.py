@@ -57,7 +57,7 @@ PY
 install/ompn_ros/lib/ompn_ros/ompn_collect --domain dial --episodes 1 --seed 0 --out "$HOME/bags/dial" --quiet
 python - <<'PY'
 import os
-from ompn_ros.data.bag_reader import read_episodes
+from ompn_ros.data.reader import read_episodes
 eps = read_episodes(os.path.expanduser("~/bags/dial")).episodes
 assert len(eps) == 1 and len(eps[0].actions) > 0, eps
 print("bag ok", len(eps[0].actions))

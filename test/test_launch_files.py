@@ -2,7 +2,7 @@
 
 Each installed ``share/ompn_ros/launch/*.launch.py`` is run against stand-ins of the ``launch`` and
 ``launch_ros`` classes that record what they were given (the sim launch files build their description
-with the installed ``ompn_ros.launch_sim``).  Its launch-time values are then resolved
+with the installed ``ompn_ros.ros.launch_sim``).  Its launch-time values are then resolved
 (``DeclareLaunchArgument`` defaults, ``LaunchConfiguration``, ``FindPackageShare`` +
 ``PathJoinSubstitution``).  A launch file passes when
 
@@ -158,7 +158,7 @@ STAND_INS = {
     "launch_ros.parameter_descriptions": ("ParameterValue",),
     "launch_ros.substitutions": ("FindPackageShare",),
 }
-BUILDER = "ompn_ros.launch_sim"  # the module the sim launch files build their description with
+BUILDER = "ompn_ros.ros.launch_sim"  # the module the sim launch files build their description with
 
 
 @dataclass
@@ -437,7 +437,7 @@ def test_node_launch_file_requires_the_checkpoint(install: Install):
     assert {"obs_topic", "joint_states_topic"} <= set(summary.arguments)
 
 
-BUILT = "ompn_ros/launch_sim.py"  # the builder module the sim launch files call
+BUILT = "ompn_ros/ros/launch_sim.py"  # the builder module the sim launch files call
 # (launch file, None = break the launch file itself or BUILT = break the builder, old, new, error)
 BROKEN = [
     ("dial_sim.launch.py", None, '"dial", rate=', '"dail", rate=',

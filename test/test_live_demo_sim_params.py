@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
+from ompn_ros.app import live
 from ompn_ros.cli import live_demo
-from ompn_ros.experiments import live
 
 
 def test_sim_params_are_parsed_and_the_demos_own_are_refused(capsys: pytest.CaptureFixture[str]) -> None:

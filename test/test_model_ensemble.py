@@ -18,7 +18,7 @@ from ompn_ros.model.ensemble import (
     read_ensemble,
     write_ensemble,
 )
-from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.model.streaming import StreamingPolicy
 from ompn_ros.segmenter import StreamingSegmenter
@@ -79,7 +79,7 @@ def test_continuous_ensemble_averages_the_gaussian_means(tmp_path: Path) -> None
 
 
 def test_streaming_ensemble_matches_the_offline_average(tmp_path: Path) -> None:
-    """The node's ensemble and ompn_reproduce's offline ensemble see the same p_hat."""
+    """The node's ensemble and python -m lab.reproduce's offline ensemble see the same p_hat."""
     obs_dim, action_type, action_dim, _ = synthetic_spec("discrete")
     paths = [_checkpoint(tmp_path / f"s{i}", seed=20 + i, obs_dim=obs_dim, action_dim=action_dim,
                          action_type=action_type) for i in range(2)]

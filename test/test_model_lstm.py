@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import torch
 
+from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
 from ompn_ros.model.config import ConfigError, OMPNConfig
-from ompn_ros.model.factory import build_policy, build_stepper, stepper_from_checkpoint
+from ompn_ros.model.load import build_stepper, stepper_from_checkpoint
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.lstm import LSTMPolicy, LSTMStreamingPolicy
 from ompn_ros.model.policy import ModelInputError, OMPNPolicy

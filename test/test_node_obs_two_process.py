@@ -36,7 +36,7 @@ from ompn_ros.data.obs import ObservationSpec, assemble_stream  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.factory import stepper_from_checkpoint  # noqa: E402
+from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 

@@ -7,7 +7,7 @@ import pytest
 pytest.importorskip("rclpy")
 from rclpy.parameter import Parameter
 
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
+from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable
 
 SPECS = (
     ParamSpec("high", 0.5, "threshold", float_range=(0.0, 1.0), apply="live"),

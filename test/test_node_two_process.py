@@ -30,12 +30,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
 from ompn_interfaces.msg import SubtaskBoundary, SubtaskState  # noqa: E402
-from ompn_ros import containment, layout  # noqa: E402
+from ompn_ros import layout  # noqa: E402
 from ompn_ros.data.interfaces import with_final  # noqa: E402
 from ompn_ros.data.messages import stamp_to_ns  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
+from ompn_ros.ros import containment  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
 
 torch.set_num_threads(1)

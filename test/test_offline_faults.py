@@ -19,9 +19,9 @@ from small_disk import small_disk
 from ompn_ros import layout
 from ompn_ros.cli.segment import main as segment_main
 from ompn_ros.cli.train import main as train_main
-from ompn_ros.data.bag_writer import write_episodes
 from ompn_ros.data.errors import CorruptBagError
 from ompn_ros.data.reader.raw import collect_rosbags
+from ompn_ros.data.recorder.bag_writer import write_episodes
 from ompn_ros.train import synthetic
 
 SMALL = ["--quiet", "--set", "model.n_slots=2", "--set", "model.slot_size=16", "--set", "train.batch_size=8",

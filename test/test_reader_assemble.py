@@ -13,9 +13,9 @@ from rosbags.rosbag2 import Writer
 
 from ompn_ros.data import ReaderSpec, ReaderSpecError, TopicTypeError, load_arrays, read_episodes
 from ompn_ros.data import messages as m
-from ompn_ros.data.bag_reader import iter_raw_messages
-from ompn_ros.data.bag_writer import storage_plugin
 from ompn_ros.data.obs import assemble_stream
+from ompn_ros.data.reader import iter_raw_messages
+from ompn_ros.data.recorder.bag_writer import storage_plugin
 
 MS = 1_000_000
 C = m.msg_class

@@ -10,7 +10,7 @@ from test_data_common import assert_same_episode, make_episodes
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
-from ompn_ros.data.bag_writer import EpisodeBagWriter
+from ompn_ros.data.recorder.bag_writer import EpisodeBagWriter
 from ompn_ros.layout import JOINT_FIELDS
 
 

@@ -19,15 +19,14 @@ from test_reader_labels import _ordinals, _spec, _write_lab_bag
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
-from ompn_ros.data.bag_reader import iter_raw_messages
-from ompn_ros.data.bag_writer import EpisodeBagWriter, storage_plugin
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.obs import assemble_stream
-from ompn_ros.data.reader import observe
+from ompn_ros.data.reader import iter_raw_messages, observe
 from ompn_ros.data.reader import read as read_module
 from ompn_ros.data.reader.columns import Float32Column
 from ompn_ros.data.reader.read import read_raw
 from ompn_ros.data.reader.verify import nonfinite_rows
+from ompn_ros.data.recorder.bag_writer import EpisodeBagWriter, storage_plugin
 
 MS = 1_000_000
 

@@ -17,7 +17,7 @@ import pytest
 from test_data_common import assert_same_episode, make_episodes
 
 from ompn_ros.data import CorruptBagError, Episode, ReaderSpec, read_episodes, write_episodes
-from ompn_ros.data.storage import refresh_chunk_crcs
+from ompn_ros.data.recorder.storage import refresh_chunk_crcs
 
 MAGIC = b"\x89MCAP0\r\n"
 CHUNK, FOOTER = 0x06, 0x02

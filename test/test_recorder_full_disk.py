@@ -74,7 +74,7 @@ def test_too_little_space_at_start_is_one_line(tmp_path: Path, ros_env: dict[str
 
 
 def test_low_space_is_warned_once_and_the_reserve_is_released(tmp_path: Path) -> None:
-    from ompn_ros.data.disk_guard import DiskGuard
+    from ompn_ros.data.recorder.disk_guard import DiskGuard
 
     with small_disk(tmp_path / "disk", 1024) as disk:
         guard = DiskGuard(disk / "bag", min_free_bytes=400_000, reserve_bytes=200_000)

@@ -17,9 +17,9 @@ from rosbags.rosbag2 import StoragePlugin
 from ompn_ros import layout
 from ompn_ros.data import BagError, Episode, read_episodes, write_episodes
 from ompn_ros.data import messages as m
-from ompn_ros.data.sim_stamps import SimStamper
-from ompn_ros.data.stop_cut import StopCut
-from ompn_ros.data.storage import DurableWriter, chunk_crcs, offered_qos, refresh_chunk_crcs
+from ompn_ros.data.recorder.sim_stamps import SimStamper
+from ompn_ros.data.recorder.stop_cut import StopCut
+from ompn_ros.data.recorder.storage import DurableWriter, chunk_crcs, offered_qos, refresh_chunk_crcs
 
 
 def _episodes(n: int = 3, steps: int = 40) -> list[Episode]:

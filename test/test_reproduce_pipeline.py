@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ompn_ros.cli import reproduce
+from lab import data, ensembles, reproduce, spec
+from lab.scoring import DURATION_DELAYS
 from ompn_ros.data.episode import Episode
-from ompn_ros.experiments import data, ensembles, spec
-from ompn_ros.experiments.scoring import DURATION_DELAYS
 from ompn_ros.paths import config_file
 
 
@@ -149,14 +148,14 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     # runs added to the work directory later (e.g. more seeds) keep their command through re-evaluation
     extras_file = tmp_path / "results" / "craft_extras.json"
     doc = json.loads(extras_file.read_text())
-    later = [["ompn_reproduce", "craft", "--seeds", "5", "--skip-trained"]]
+    later = [["python -m lab.reproduce", "craft", "--seeds", "5", "--skip-trained"]]
     doc["meta"]["trained"]["later_commands"] = later
     extras_file.write_text(json.dumps(doc))
     assert _tiny_craft(tmp_path, "--reevaluate") == 0
     meta = json.loads(extras_file.read_text())["meta"]
     assert meta["trained"]["later_commands"] == later
     quote = ("added or trained again later, on the same bags and split, by: "
-             "`ompn_reproduce craft --seeds 5 --skip-trained`")
+             "`python -m lab.reproduce craft --seeds 5 --skip-trained`")
     assert quote in (tmp_path / "results" / "README.md").read_text()
 
 
@@ -267,7 +266,7 @@ def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path:
     assert cells[1 + columns.index("online_delay_mean")] == f"{delay['mean']:.2f} ({delay['std']:.2f})"
     # the ensemble is written as a checkpoint the node loads, with its tuned detector beside it
     from ompn_ros.model.ensemble import EnsembleStepper, read_ensemble
-    from ompn_ros.model.factory import stepper_from_checkpoint
+    from ompn_ros.model.load import stepper_from_checkpoint
 
     ensemble_dir = runs / "full_nosketch_seed0_ensemble2"
     members, extra = read_ensemble(ensemble_dir)
@@ -302,7 +301,7 @@ def test_evaluate_names_a_directory_that_is_no_single_checkpoint(
 def test_distill_extra_trains_a_student_on_each_seeds_members(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from ompn_ros.experiments import pipeline
+    from lab import pipeline
     from ompn_ros.model.checkpoint import load_checkpoint
     from ompn_ros.train.trainer import TrainConfig
 

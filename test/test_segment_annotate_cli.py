@@ -12,7 +12,7 @@ mcap_reader = pytest.importorskip("mcap.reader")
 
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.cli.segment import main  # noqa: E402
-from ompn_ros.data.bag_writer import write_episodes  # noqa: E402
+from ompn_ros.data.recorder.bag_writer import write_episodes  # noqa: E402
 from ompn_ros.train import synthetic  # noqa: E402
 
 

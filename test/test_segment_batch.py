@@ -18,15 +18,15 @@ import pytest
 import yaml
 
 from ompn_ros import layout
+from ompn_ros.app.batch import REFUSED_ERRORS
+from ompn_ros.app.batch_bags import bag_keys, list_bags
+from ompn_ros.app.replay import replay_all
 from ompn_ros.cli._common import KNOWN_ERRORS
 from ompn_ros.cli.segment import main
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.tune import score_predictions
-from ompn_ros.experiments.batch import REFUSED_ERRORS
-from ompn_ros.experiments.batch_bags import bag_keys, list_bags
-from ompn_ros.experiments.replay import replay_all
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
@@ -224,9 +224,9 @@ def test_batch_refuses_what_the_commands_report_as_one_line() -> None:
 
 
 def test_rows_name_the_sketch_id_of_each_segment() -> None:
+    from ompn_ros.app.batch import segment_rows
     from ompn_ros.data.episode import Episode
     from ompn_ros.detect.online import BoundaryEvent
-    from ompn_ros.experiments.batch import segment_rows
     from ompn_ros.segmenter import ReplayResult
 
     ep = Episode(observations=np.zeros((7, 2), np.float32), actions=np.zeros(6, np.int64),
@@ -247,7 +247,7 @@ def test_rows_name_the_sketch_id_of_each_segment() -> None:
 
 def test_the_table_is_also_parquet_when_pyarrow_is_installed(tmp_path: Path) -> None:
     pq = pytest.importorskip("pyarrow.parquet")
-    from ompn_ros.experiments.batch_table import write_table
+    from ompn_ros.app.batch_table import write_table
 
     rows = [{"bag": "b", "episode": 0, "start_step": 0, "end_step": 3, "subtask": 0, "score": 0.5}]
     written = write_table(tmp_path, rows)

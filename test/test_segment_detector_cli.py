@@ -13,7 +13,7 @@ pytest.importorskip("torch")
 
 from ompn_ros import layout
 from ompn_ros.cli.segment import main
-from ompn_ros.data.bag_writer import write_episodes
+from ompn_ros.data.recorder.bag_writer import write_episodes
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.train import synthetic
 

@@ -11,10 +11,10 @@ import torch
 import yaml
 from test_segment_batch import SPEC, write_lab_bag
 
+from ompn_ros.app.replay import ReplayResult, replay_all
 from ompn_ros.cli.segment import main
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.detect.online import DetectorConfig
-from ompn_ros.experiments.replay import ReplayResult, replay_all
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig

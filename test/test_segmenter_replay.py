@@ -13,10 +13,10 @@ pytest.importorskip("ompn_ros.model.streaming")
 trainer = pytest.importorskip("ompn_ros.train.trainer")
 synthetic = pytest.importorskip("ompn_ros.train.synthetic")
 
+from ompn_ros.app import replay as cli  # noqa: E402
 from ompn_ros.cli import segment as segment_cli  # noqa: E402
 from ompn_ros.detect import tune  # noqa: E402
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig  # noqa: E402
-from ompn_ros.experiments import replay as cli  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 
 torch.set_num_threads(1)
@@ -100,7 +100,7 @@ def test_choose_detector_maximises_its_objective(ckpt: Path, episodes, objective
 
 
 def test_ompn_segment_cli_on_a_bag(ckpt: Path, episodes, tmp_path: Path) -> None:
-    bag_writer = pytest.importorskip("ompn_ros.data.bag_writer")
+    bag_writer = pytest.importorskip("ompn_ros.data.recorder.bag_writer")
     bag = tmp_path / "bag"
     import dataclasses
 

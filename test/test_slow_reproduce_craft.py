@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from ompn_ros.cli import reproduce
+from lab import reproduce
 
 
 @pytest.mark.slow

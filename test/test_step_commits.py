@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ompn_ros.data.step_commits import COMMIT, STREAM_NS, StepCommits
+from ompn_ros.data.recorder.step_commits import COMMIT, STREAM_NS, StepCommits
 
 TOPICS = ("obs", "action", "subtask")
 STEP_NS = 1_000_000  # 1 kHz

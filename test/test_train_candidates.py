@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from ompn_ros.data.bag_reader import BagReport, ReadReport, final_row_guessed
+from ompn_ros.data.reader import BagReport, ReadReport, final_row_guessed
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import (

@@ -101,8 +101,8 @@ def test_errors_exit_with_code_2(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 
 def test_train_from_a_bag(tmp_path: Path) -> None:
-    bag_writer = pytest.importorskip("ompn_ros.data.bag_writer")
-    pytest.importorskip("ompn_ros.data.bag_reader")
+    bag_writer = pytest.importorskip("ompn_ros.data.recorder.bag_writer")
+    pytest.importorskip("ompn_ros.data.reader")
     from ompn_ros.train.synthetic import make_dataset
 
     bag_writer.write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 6, seed=0), "craft")
@@ -116,7 +116,7 @@ def test_train_from_a_users_bag_with_a_reader_spec(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A bag that is not one of our domains: sizes come from the data and the reader YAML."""
-    from ompn_ros.data.bag_writer import write_episodes
+    from ompn_ros.data.recorder.bag_writer import write_episodes
     from ompn_ros.train.synthetic import make_dataset
 
     write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 6, seed=1), "craft")
@@ -156,7 +156,7 @@ def test_a_non_empty_out_dir_needs_resume_or_overwrite(
 def test_the_read_report_is_printed_and_stored_with_the_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from ompn_ros.data.bag_writer import write_episodes
+    from ompn_ros.data.recorder.bag_writer import write_episodes
     from ompn_ros.train.synthetic import make_dataset
 
     write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 6, seed=0), "craft")
@@ -175,8 +175,8 @@ def test_bags_without_their_final_observation_train_two_candidates(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The Craft config's candidates_no_final (2) applies exactly when the reader guessed row T."""
-    from ompn_ros.data.bag_writer import write_episodes
-    from ompn_ros.experiments.strip import strip_final_observations
+    from lab.strip import strip_final_observations
+    from ompn_ros.data.recorder.bag_writer import write_episodes
     from ompn_ros.train.synthetic import make_dataset
 
     write_episodes(tmp_path / "bag", make_dataset("craft_shaped", 8, seed=2), "craft")

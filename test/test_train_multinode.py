@@ -14,9 +14,9 @@ import pytest
 import yaml
 from test_segment_batch import SPEC, write_lab_bag
 
+from ompn_ros.app import training
 from ompn_ros.data import ReaderSpec
 from ompn_ros.data.cache import load_arrays
-from ompn_ros.experiments import training
 from ompn_ros.train.distributed import DistContext
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,11 +12,11 @@ import sys
 import time
 from pathlib import Path
 
+from ompn_ros.app import batch_table
+from ompn_ros.app.batch import BatchSettings, run_batch
+from ompn_ros.app.batch_bags import BatchBag, list_bags
 from ompn_ros.detect.settings import resolve_detector
 from ompn_ros.detect.tune import load_detector_yaml
-from ompn_ros.experiments import batch_table
-from ompn_ros.experiments.batch import BatchSettings, run_batch
-from ompn_ros.experiments.batch_bags import BatchBag, list_bags
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.load import stepper_from_checkpoint
 

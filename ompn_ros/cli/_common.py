@@ -128,7 +128,7 @@ def add_live_demo_arguments(parser: argparse.ArgumentParser) -> argparse.Argumen
 
 
 LIVE_SIM_PARAMS = ("mode", "rate", "seed", "episodes", "wait_for_subscribers", "wait_topics")
-"""The sim parameters the live demo sets itself (``ompn_ros.experiments.live.launch``)."""
+"""The sim parameters the live demo sets itself (``ompn_ros.app.live.launch``)."""
 _SIM_PARAM = re.compile(r"[A-Za-z_][A-Za-z0-9_]*:=\S.*")
 
 

@@ -8,8 +8,8 @@ Examples:
 
 Craft: --episodes rollouts per task (default tasks makebed, makeaxe, makeshears), success = all 4
 subtasks within 64 steps.  Dial: return = subtasks completed (max 4).  In-process evaluation uses
-the held-out seeds 10 000 + i (ompn_ros.eval.closed_loop); --ros runs sim + ompn_node + monitor
-processes (ompn_ros.eval.closed_loop_ros), whose seeds are derive_seed(10 000, i).
+the held-out seeds 10 000 + i (ompn_ros.app.closed_loop); --ros runs sim + ompn_node + monitor
+processes (ompn_ros.app.closed_loop_ros), whose seeds are derive_seed(10 000, i).
 Prints a table and writes JSON (--json).  Exit codes: 0 ok, 1 ROS run failed, 2 bad arguments.
 """
 
@@ -23,8 +23,7 @@ from typing import Any
 
 import torch
 
-from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.eval.closed_loop import (
+from ompn_ros.app.closed_loop import (
     CRAFT_EVAL_TASKS,
     ClosedLoopError,
     ClosedLoopReport,
@@ -33,9 +32,10 @@ from ompn_ros.eval.closed_loop import (
     format_table,
     run_closed_loop,
 )
-from ompn_ros.eval.closed_loop_ros import RosEvalError, ros_eval_seeds, run_ros_closed_loop
+from ompn_ros.app.closed_loop_ros import RosEvalError, ros_eval_seeds, run_ros_closed_loop
+from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.model.checkpoint import load_checkpoint
-from ompn_ros.model.factory import build_stepper
+from ompn_ros.model.load import build_stepper
 
 
 def build_parser() -> argparse.ArgumentParser:

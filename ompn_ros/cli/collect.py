@@ -9,7 +9,7 @@ writes bags/craft/part_000/ ... part_003/ (one rosbag2 v9 directory per part; a 
 without --split-every) and bags/craft/collect.json (command, seeds, counts).  Episode i uses task
 tasks[i % len(tasks)] and seed episode_seed(seed, i).  Each part is written under a hidden
 temporary name and renamed when complete, so --resume continues after the last complete part and
-never reads a half-written one.  The library is ompn_ros.experiments.collect.
+never reads a half-written one.  The library is ompn_ros.app.collect.
 """
 
 from __future__ import annotations
@@ -20,9 +20,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ompn_ros import layout
-from ompn_ros.cli._common import command_line, make_parser, run_cli
-from ompn_ros.data.bag_writer import STORAGES
-from ompn_ros.experiments.collect import (
+from ompn_ros.app.collect import (
     MANIFEST,
     CollectError,
     Generator,
@@ -31,6 +29,8 @@ from ompn_ros.experiments.collect import (
     episode_seed,
     part_name,
 )
+from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.data.recorder.bag_writer import STORAGES
 from sim_nodes.registry import DEMONSTRATORS, parse_human
 
 __all__ = [

@@ -1,7 +1,7 @@
 """ompn_demo (make demo): the main job on the shipped defaults.
 
 --smoke runs the DDS self-check: smoke_listener and smoke_talker as two processes.  Without it, the
-live segmentation demo runs: a sim and ompn_node as processes, monitored (ompn_ros.experiments.live).
+live segmentation demo runs: a sim and ompn_node as processes, monitored (ompn_ros.app.live).
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ import subprocess
 import sys
 import time
 
+from ompn_ros.app import live
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
-from ompn_ros.experiments import live
-from ompn_ros.ros_env import child_env
+from ompn_ros.ros.env import child_env
 
 
 def run_smoke(count: int = 100, rate: float = 100.0) -> int:

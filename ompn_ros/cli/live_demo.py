@@ -3,7 +3,7 @@
 The sim (expert mode) publishes observations and the ground-truth subtask index; ompn_node steps
 the ordered memory on every observation and publishes boundary events.  The monitor subscribes to
 both, prints every detected boundary next to the true one, and ends with the online F1, alignment
-accuracy and latency summary plus a saved plot of π over time (ompn_ros.experiments.live).
+accuracy and latency summary plus a saved plot of π over time (ompn_ros.app.live).
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from ompn_ros.app import live
+from ompn_ros.app.live import LiveEpisode, Streams
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
-from ompn_ros.experiments import live
-from ompn_ros.experiments.live import LiveEpisode, Streams
 
 _summarise = live.summarise
 __all__ = ["LiveEpisode", "Streams", "build_parser", "main", "run"]

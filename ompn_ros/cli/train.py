@@ -28,15 +28,15 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ompn_ros.app import training
+from ompn_ros.app.training import TrainSetupError, apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.experiments import training
-from ompn_ros.experiments.training import TrainSetupError, apply_overrides, load_config
 from ompn_ros.train.device import resolve_device
 from ompn_ros.train.distributed import DistributedError
 from ompn_ros.train.state import TrainStateError
 
 TrainCliError = TrainSetupError
-"""Former name of :class:`ompn_ros.experiments.training.TrainSetupError`."""
+"""Former name of :class:`ompn_ros.app.training.TrainSetupError`."""
 
 __all__ = ["TrainCliError", "apply_overrides", "build_parser", "load_config", "main"]
 

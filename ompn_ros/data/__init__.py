@@ -1,7 +1,5 @@
 """Episodes and their rosbag2 storage: writer, reader (with alignment report), cache, errors."""
 
-from .bag_reader import BagReport, ReaderSpec, ReadReport, ReadResult, VectorSource, read_episodes
-from .bag_writer import EpisodeBagWriter, write_episodes
 from .cache import EpisodeArrays, load_arrays
 from .episode import Episode
 from .errors import (
@@ -18,6 +16,8 @@ from .errors import (
     UnknownTypeError,
     VectorLengthError,
 )
+from .reader import BagReport, ReaderSpec, ReadReport, ReadResult, VectorSource, read_episodes
+from .recorder.bag_writer import EpisodeBagWriter, write_episodes
 
 __all__ = [
     "AlignmentError", "BagError", "BagNotFoundError", "BagReport", "CorruptBagError", "Episode",

@@ -1,7 +1,7 @@
 """Fast path for training: bags -> contiguous numpy arrays, cached on disk and memory-mapped.
 
 :func:`load_arrays` reads the bags **one at a time** with
-:func:`~ompn_ros.data.bag_reader.read_episodes` and appends each bag's episodes to the cache entry
+:func:`~ompn_ros.data.reader.read_episodes` and appends each bag's episodes to the cache entry
 on disk before reading the next bag (:class:`~ompn_ros.data.cache_store.EntryWriter`), so building
 the cache holds one bag's parse in memory, never the whole dataset: peak memory is the reader's
 peak on the largest bag plus O(episodes) bookkeeping.  An entry is a directory of uncompressed
@@ -33,7 +33,6 @@ from typing import Any
 
 import numpy as np
 
-from .bag_reader import OnError, ReaderSpec, ReadReport, read_episodes, resolve_bag_paths, storage_files
 from .cache_store import (
     CACHE_FORMAT,
     INDEX,
@@ -47,6 +46,7 @@ from .cache_store import (
     write_entry,
 )
 from .episode import Episode
+from .reader import OnError, ReaderSpec, ReadReport, read_episodes, resolve_bag_paths, storage_files
 
 _CHUNK = 1 << 20
 

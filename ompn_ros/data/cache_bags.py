@@ -20,9 +20,9 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from .bag_reader import OnError, ReaderSpec, resolve_bag_paths
 from .cache import EmptyEntryError, EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit
 from .cache_store import EntryWriter, NpyAppendError
+from .reader import OnError, ReaderSpec, resolve_bag_paths
 
 BAGS_DIR = "bags"
 MAX_REPORT_LINES = 40

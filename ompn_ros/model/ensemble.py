@@ -12,7 +12,7 @@ Member paths are relative to that directory (or absolute); each member is an ord
 One ensemble step feeds the same observation to every member and returns
 
 * ``p_hat`` = the mean of the members' ``p_hat`` (so ``pi_end`` is their mean ``pi_end``) — the
-  quantity the offline ensembles of ``ompn_reproduce --members`` average;
+  quantity the offline ensembles of ``python -m lab.reproduce --members`` average;
 * ``pi`` = the slot part of that ``p_hat`` renormalised (lowest slot first);
 * discrete actions: the argmax of the members' mean action distribution (softmax of each member's
   env-action logits); continuous: the mean of the members' Gaussian means.

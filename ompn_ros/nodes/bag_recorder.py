@@ -26,7 +26,7 @@ Parameters (``-p name:=value``; the positional topics, ``-o`` and ``-s`` set the
         this much (sqlite3 COMMIT; mcap chunk with CRC flushed to the file).  Once half the period
         has passed, the next step's opening message is held back with everything stamped after it
         until every other streaming topic has delivered its messages stamped before it; then the
-        commit is made, so a killed recording ends with whole steps (``ompn_ros.data.step_commits``).
+        commit is made, so a killed recording ends with whole steps (``ompn_ros.data.recorder.step_commits``).
 
 Subscriptions are ``raw=True`` (CDR bytes go to the bag untouched), RELIABLE + VOLATILE (compatible
 with both volatile and transient-local publishers).  Topics are subscribed as they appear
@@ -37,7 +37,7 @@ that rclpy 7.1.6 passes to a two-argument subscription callback (falling back to
 ``received_timestamp`` if a middleware gives none).  Source stamps keep the publish order of the
 step contract across topics, whatever the delivery order.  Under ``use_sim_time`` the stamps are
 moved into the input's (sim) time base: a step is stamped at the sim time its opening message
-arrived, its messages keep their publish order (``ompn_ros.data.sim_stamps``).  Messages taken
+arrived, its messages keep their publish order (``ompn_ros.data.recorder.sim_stamps``).  Messages taken
 before the first ``/clock`` wait for it (up to 20 000, then they are written in system time).
 Loss is detected from ``publication_sequence_number`` jumps per topic (a backwards jump = another
 publisher, not counted).
@@ -45,12 +45,13 @@ publisher, not counted).
 **A full disk** (or any storage error): recording stops at the first failed write or commit, with
 one error line naming the bag and the free space; the recorder then closes the bag properly
 (``metadata.yaml``, the mcap summary and footer, the sqlite3 COMMIT: room for them is kept by
-:class:`ompn_ros.data.disk_guard.DiskGuard`) and exits with status 2, so what was written opens without
+:class:`ompn_ros.data.recorder.disk_guard.DiskGuard`) and exits with status 2, so what was written
+opens without
 ``skip_tail``.  Less than ``min_free_mb`` free at start is refused (exit 2); falling below it while
 recording is warned once.
 
 **Stopping:** SIGINT/SIGTERM do not drop the queue.  The recorder drains what DDS has delivered and
-ends every topic at the same step (``ompn_ros.data.stop_cut``), closes the bag and prints a summary
+ends every topic at the same step (``ompn_ros.data.recorder.stop_cut``), closes the bag and prints a summary
 (messages per topic, sequence jumps, large time gaps, the drain).  A second signal ends the drain
 at once (the bag is still closed properly).
 """
@@ -81,19 +82,19 @@ from rclpy.utilities import remove_ros_args
 from ompn_ros import layout
 from ompn_ros.data import interfaces
 from ompn_ros.data import messages as m
-from ompn_ros.data.bag_writer import STORAGES, storage_plugin
-from ompn_ros.data.disk_guard import DiskGuard
-from ompn_ros.data.sim_stamps import SimStamper
-from ompn_ros.data.step_commits import COMMIT, StepCommits
-from ompn_ros.data.stop_cut import StopCut
-from ompn_ros.data.storage import DurableWriter, offered_qos
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable
+from ompn_ros.data.recorder.bag_writer import STORAGES, storage_plugin
+from ompn_ros.data.recorder.disk_guard import DiskGuard
+from ompn_ros.data.recorder.sim_stamps import SimStamper
+from ompn_ros.data.recorder.step_commits import COMMIT, StepCommits
+from ompn_ros.data.recorder.stop_cut import StopCut
+from ompn_ros.data.recorder.storage import DurableWriter, offered_qos
+from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable
 
 DEFAULT_TOPICS = [
     layout.EPISODE, layout.SKETCH, layout.OBSERVATION, layout.JOINT_STATES, layout.SUBTASK,
     layout.ACTION, layout.RENDER,
 ]
-# The single table behind the declared parameters and --help (ompn_ros.nodes.params).
+# The single table behind the declared parameters and --help (ompn_ros.ros.params).
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("topics", DEFAULT_TOPICS, "topics to record (relative names follow the node's namespace)"),
     ParamSpec("output", "", "bag directory to create ('' = bags/rec_<UTC timestamp>)"),

@@ -29,7 +29,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Float32MultiArray, Int32
 
 from ompn_ros import layout
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
+from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
 
 GRACE_S = 0.5  # wait this long after an end marker for the episode's last per-step messages
 

@@ -127,7 +127,7 @@ from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig,
 from ompn_ros.detect.settings import NODE_PARAMETERS, DetectorSettingsError, node_parameters, resolve_detector
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.config import ConfigError
-from ompn_ros.model.factory import stepper_from_checkpoint
+from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, IdleGate, SilenceWatch
@@ -149,7 +149,7 @@ from ompn_ros.nodes.ompn_node_params import (
     input_qos,
     policy_kind_name,
 )
-from ompn_ros.nodes.params import ParameterError, ParamTable, exit_code_for, help_text, wants_help
+from ompn_ros.ros.params import ParameterError, ParamTable, exit_code_for, help_text, wants_help
 from ompn_ros.segmenter import (
     BadSketch,
     BadStamp,

@@ -1,6 +1,6 @@
-"""The parameters of ``ompn_node`` (one :class:`~ompn_ros.nodes.params.ParamSpec` row each) and its QoS.
+"""The parameters of ``ompn_node`` (one :class:`~ompn_ros.ros.params.ParamSpec` row each) and its QoS.
 
-When a change applies (``ompn_ros.nodes.params``):
+When a change applies (``ompn_ros.ros.params``):
 
 * live, from the next step: ``detector_*``, ``done_threshold``, ``sketch`` (the default sketch),
   ``warn_throttle``, ``max_stamp_lead``, ``clock_jump_back``, ``clock_jump_forward``, ``clock_stall``;
@@ -43,7 +43,7 @@ from ompn_ros import layout
 from ompn_ros.detect.online import ALL_MODES, MAX_LAG
 from ompn_ros.layout import JOINT_FIELDS
 from ompn_ros.nodes.ompn_node_obs import spec_rule
-from ompn_ros.nodes.params import ParamSpec
+from ompn_ros.ros.params import ParamSpec
 
 OBS_SOURCES: Final = ("array", "joint_state")
 EXECUTORS: Final = ("single", "events")

@@ -23,7 +23,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from ompn_ros.nodes.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
+from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
 
 TOPIC = "smoke"
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)

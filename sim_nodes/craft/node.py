@@ -26,7 +26,7 @@ from std_msgs.msg import String
 
 from ompn_ros import layout
 from ompn_ros.data.messages import encode_string
-from ompn_ros.nodes.params import ParamSpec
+from ompn_ros.ros.params import ParamSpec
 from sim_nodes.craft.env import CraftEnv
 from sim_nodes.craft.expert import generate_episode
 from sim_nodes.craft.human import generate_human_episode

@@ -76,7 +76,7 @@ from ompn_ros.data.messages import (
     encode_int32,
     encode_joint_state,
 )
-from ompn_ros.nodes.params import ParameterError, ParamSpec
+from ompn_ros.ros.params import ParameterError, ParamSpec
 from sim_nodes import derive_seed
 from sim_nodes.dial.env import (
     MAX_STEPS_PER_SUBTASK,

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.layout import resolve_topic
 
 from .. import messages as m
-from ..bag_writer import resolve_topic
 from ..errors import MissingTopicError, TopicTypeError, UnknownTypeError
 from ..obs.spec import ObservationSpec, canonical_type
 from .raw import RawBag

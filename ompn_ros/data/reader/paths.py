@@ -8,7 +8,8 @@ from pathlib import Path
 
 import yaml
 
-from ..bag_writer import resolve_topic
+from ompn_ros.layout import resolve_topic
+
 from ..errors import BagNotFoundError
 from .reindex import needs_reindex, split_files
 from .spec import ReaderSpec

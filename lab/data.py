@@ -1,0 +1,92 @@
+"""The reproduction's data: seeded demonstrations in rosbag2 files, read back, split by seed.
+
+The bags go through the same reader (and episode cache) that ``ompn_train`` runs on users' bags;
+the test split is held out before training and never trained on (Lu et al., ICLR 2021, §4 evaluate
+on held-out demonstrations).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lab.spec import CRAFT_TASKS, ReproduceError
+from ompn_ros.app.collect import MANIFEST, collect
+from ompn_ros.data.cache import load_arrays
+from ompn_ros.data.episode import Episode
+from ompn_ros.data.reader import ReaderSpec
+
+
+def collect_bags(domain: str, partial: bool, episodes: int, seed: int, work: Path) -> Path:
+    """Seeded demonstrations into ``work/bags/<domain>_<obs>/`` (reused when already complete).
+
+    ``episodes`` is per task for Craft and in total for Dial.  O(episodes) expert rollouts.
+    """
+    out = work / "bags" / f"{domain}_{'partial' if partial else 'full'}"
+    tasks = list(CRAFT_TASKS) if domain == "craft" else ["dial"]
+    total = episodes * len(tasks) if domain == "craft" else episodes
+    manifest_file = out / MANIFEST
+    if manifest_file.is_file():
+        manifest = json.loads(manifest_file.read_text())
+        if manifest.get("totals", {}).get("episodes") == total and manifest["settings"]["seed"] == seed:
+            print(f"   reusing {out} ({total} episodes)")
+            return out
+    collect(
+        out,
+        domain=domain,
+        tasks=tasks,
+        episodes=total,
+        seed=seed,
+        partial=partial,
+        split_every=max(1, total // 4),
+        overwrite=out.exists(),
+        progress=sys.stderr.isatty(),
+        command=[
+            "ompn_collect",
+            "--domain",
+            domain,
+            "--task",
+            ",".join(tasks),
+            "--episodes",
+            str(total),
+            "--seed",
+            str(seed),
+            *(["--partial"] if partial else []),
+        ],
+    )
+    return out
+
+
+def read_bags(domain: str, bags: Path) -> list[Episode]:
+    """Episodes from the bags, through the cached reader that ``ompn_train`` uses."""
+    arrays = load_arrays(bags, spec=ReaderSpec.for_domain(domain), cache_dir=bags.parent / ".cache")
+    episodes = arrays.episodes()
+    if not episodes:
+        raise ReproduceError(f"read stage: no episodes in {bags}")
+    return episodes
+
+
+def held_out_split(
+    episodes: Sequence[Episode], ratio: float, seed: int
+) -> tuple[list[Episode], list[Episode]]:
+    """Seeded split, stratified by task: (train pool, test).  Test episodes are never trained on.
+
+    ``max(1, round(ratio · n))`` episodes of each task go to the test split.  O(N).
+    """
+    rng = np.random.default_rng([seed, 0x7E57])
+    train: list[Episode] = []
+    test: list[Episode] = []
+    for task in sorted({ep.task for ep in episodes}):
+        group = [ep for ep in episodes if ep.task == task]
+        order = rng.permutation(len(group))
+        n_test = max(1, round(ratio * len(group)))
+        test.extend(group[i] for i in order[:n_test])
+        train.extend(group[i] for i in order[n_test:])
+    overlap = {(ep.task, ep.seed) for ep in train} & {(ep.task, ep.seed) for ep in test}
+    if overlap:
+        raise ReproduceError(f"split stage: {len(overlap)} episodes are in both train and test")
+    return train, test

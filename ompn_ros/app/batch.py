@@ -1,0 +1,264 @@
+"""Batch segmentation: many bags replayed through the online segmenter over a pool of processes.
+
+This is the library behind ``ompn_segment --bags SOURCE --jobs N``.  Every bag is one task
+(:func:`segment_bag`): read it, replay its episodes through the
+:class:`~ompn_ros.segmenter.StreamingSegmenter` the node runs (``experiments/replay.py``), optionally
+write its annotated copy (``data/annotate.py``), then its record (``batch_bags.py``): the segments, the
+per-episode scores when it has labels, or the one-line reason it was refused.  A bag that fails is
+refused and the others go on.  A rerun skips the bags whose record is complete for the same settings
+and bag files and redoes the rest; the run's table and summary are rebuilt from all records
+(``batch_table.py``), so a killed run loses no completed bag.
+
+Cost: one model step per observation (O(Σ T) over all bags), plus one pass over a bag for its
+observation stamps; memory: one bag's episodes per worker.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ompn_ros.app import batch_bags as records
+from ompn_ros.app.annotate import AnnotateError, annotate_bag, observation_stamps
+from ompn_ros.app.batch_bags import BatchBag
+from ompn_ros.app.replay import check_finite, reader_spec, replay_all
+from ompn_ros.data.episode import Episode
+from ompn_ros.data.errors import BagError, ReaderSpecError
+from ompn_ros.data.reader import OnError, read_episodes
+from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.metrics import alignment_counts, f1_with_tolerance
+from ompn_ros.model.checkpoint import CheckpointError
+from ompn_ros.model.load import Stepper, stepper_from_checkpoint
+from ompn_ros.model.streaming import Backend
+from ompn_ros.segmenter import ReplayResult
+
+REFUSED_ERRORS: tuple[type[BaseException], ...] = (BagError, ReaderSpecError, CheckpointError, ValueError,
+                                                    OSError)
+"""What refuses a bag with a one-line reason (the errors ``ompn_*`` commands report as one line);
+anything else is a bug: the bag is refused too, and its traceback printed."""
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    """What every task of a batch shares.
+
+    Attributes:
+        checkpoint: the checkpoint (or ensemble) directory.
+        detector: the online detector (resolved once, ``detect/settings.py``) and its duration model.
+        out: the run's folder (records, table, summary).
+        annotate: the folder of annotated copies (None: none written).
+        reader_config, domain, on_error: how bags are read (``experiments/replay.py``).
+        device: where the policy steps: 'cpu' (the compiled kernel) or 'cuda' (its torch module).
+    """
+
+    checkpoint: str
+    detector: DetectorConfig
+    out: Path
+    duration_model: DurationModel | None = None
+    annotate: Path | None = None
+    reader_config: str | None = None
+    domain: str | None = None
+    on_error: OnError = "raise"
+    device: str = "cpu"
+
+    def fingerprint(self) -> dict[str, Any]:
+        """What a complete record must have been made with (else the bag is redone): the checkpoint's
+        files (size, newest change), the detector, the reader spec, ``on_error``, whether copies are made."""
+        spec = Path(self.reader_config).read_bytes() if self.reader_config else b""
+        doc = {"checkpoint": str(Path(self.checkpoint).resolve()),
+               "checkpoint_stamp": records.bag_stamp(Path(self.checkpoint)),
+               "detector": self.detector.to_dict(),
+               "reader": hashlib.sha256(spec).hexdigest() if spec else self.domain or "",
+               "on_error": self.on_error, "annotate": self.annotate is not None}
+        return dict(json.loads(json.dumps(doc)))  # as read back from a record
+
+
+_STEPPERS: dict[tuple[str, str], Stepper] = {}
+
+
+def _stepper(checkpoint: str, device: str = "cpu") -> Stepper:
+    """One stepper per checkpoint, device and process (loaded by the first task of a worker)."""
+    if (checkpoint, device) not in _STEPPERS:
+        backend: Backend = "jit" if device == "cpu" else "torch"
+        _STEPPERS[checkpoint, device] = stepper_from_checkpoint(checkpoint, backend, device)
+    return _STEPPERS[checkpoint, device]
+
+
+def is_complete(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, Any]) -> bool:
+    """True when ``bag`` has a record of a segmentation with these settings of these bag files."""
+    doc = records.read_record(settings.out, bag.key)
+    if doc is None or bag.path is None or doc.get("status") != "segmented":
+        return False
+    if doc.get("settings") != fingerprint or doc.get("bag_stamp") != records.bag_stamp(bag.path):
+        return False
+    return settings.annotate is None or (settings.annotate / bag.key / "metadata.yaml").is_file()
+
+
+def segment_rows(number: int, ep: Episode, r: ReplayResult, stamps: np.ndarray | None,
+                 detector: str) -> list[dict[str, Any]]:
+    """One row per online segment of episode ``number`` (see ``batch_table.COLUMNS``)."""
+    rows, start = [], 0
+    for b in sorted(r.boundaries, key=lambda e: e.step):
+        sketch = ep.sketch
+        known = int(sketch[b.subtask]) if sketch is not None and 0 <= b.subtask < len(sketch) else None
+        rows.append({
+            "episode": number, "task": ep.task, "start_step": start, "end_step": int(b.step),
+            "start_stamp_ns": int(stamps[start]) if stamps is not None else None,
+            "end_stamp_ns": int(stamps[b.step]) if stamps is not None else None,
+            "subtask": int(b.subtask), "subtask_id": known,
+            "score": float(b.score), "detector": detector,
+        })
+        start = int(b.step) + 1
+    return rows
+
+
+def episode_scores(episodes: Sequence[Episode],
+                   replays: Sequence[ReplayResult]) -> dict[str, list[float]] | None:
+    """Per episode: F1 at tolerance 0 and 1 and the alignment counts (authors', strict) of the online
+    boundaries; None unless every episode has labels.  Summed over bags they give
+    ``detect/tune.score_predictions`` of all episodes."""
+    if not episodes or any(ep.subtask is None for ep in episodes):
+        return None
+    doc: dict[str, list[float]] = {k: [] for k in ("f1_tol0", "f1_tol1", "align", "align_strict", "steps")}
+    for ep, r in zip(episodes, replays, strict=True):
+        pred, labels = r.boundary_steps, np.asarray(ep.subtask)
+        doc["f1_tol0"].append(f1_with_tolerance(pred, ep.boundaries, 0).f1)
+        doc["f1_tol1"].append(f1_with_tolerance(pred, ep.boundaries, 1).f1)
+        doc["align"].append(alignment_counts(pred, labels, "authors")[0])
+        doc["align_strict"].append(alignment_counts(pred, labels, "strict")[0])
+        doc["steps"].append(int(labels.size))
+    return doc
+
+
+def _stamps(settings: BatchSettings, path: Path, episodes: Sequence[Episode]) -> list[np.ndarray] | None:
+    """The observation stamps of ``episodes`` (None when the bag cannot give them and no copy is due)."""
+    spec = reader_spec(settings.reader_config, settings.domain)
+    try:
+        return observation_stamps(path, episodes, topic=spec.observation.topic, namespace=spec.namespace)
+    except AnnotateError:
+        if settings.annotate is not None:
+            raise
+        return None
+
+
+def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, Any]:
+    result = read_episodes(path, spec=reader_spec(settings.reader_config, settings.domain),
+                           on_error=settings.on_error)
+    episodes = list(result.episodes)
+    doc: dict[str, Any] = {"read": True, "read_summary": result.report.summary(), "episodes": len(episodes)}
+    if not episodes:
+        raise BagError("no episodes found", path=path)
+    stepper = _stepper(settings.checkpoint, settings.device)
+    replays = replay_all(stepper, episodes, settings.detector, settings.duration_model)
+    check_finite(replays, episodes)
+    stamps = _stamps(settings, path, episodes)
+    if settings.annotate is not None and stamps is not None:
+        settings.annotate.mkdir(parents=True, exist_ok=True)
+        pairs = list(zip(stamps, replays, strict=True))
+        annotate_bag(path, settings.annotate / bag.key, pairs, overwrite=True)
+    rows = [row for i, (ep, r) in enumerate(zip(episodes, replays, strict=True))
+            for row in segment_rows(i, ep, r, None if stamps is None else stamps[i], settings.detector.mode)]
+    return {**doc, "steps": sum(ep.length for ep in episodes), "rows": rows,
+            "scores": episode_scores(episodes, replays),
+            "annotated": str(settings.annotate / bag.key) if settings.annotate is not None else None}
+
+
+def segment_bag(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, Any]) -> dict[str, Any]:
+    """Segment one bag and write its record; returns the record.  Never raises for a bad bag."""
+    start = time.perf_counter()
+    doc: dict[str, Any] = {"key": bag.key, "bag": str(bag.path or bag.key), "settings": fingerprint}
+    if bag.path is None:
+        return {**doc, "status": "refused", "reason": bag.problem, "read": False}
+    doc["bag_stamp"] = records.bag_stamp(bag.path)
+    doc["bytes"] = doc["bag_stamp"][0]
+    try:
+        doc.update(_segment(settings, bag, bag.path), status="segmented")
+    except REFUSED_ERRORS as exc:
+        doc.update(status="refused", reason=_line(exc))
+    except Exception as exc:  # a bug: refuse this bag, show the traceback, keep going
+        traceback.print_exc(file=sys.stderr)
+        doc.update(status="refused", reason=f"unexpected {type(exc).__name__}: {_line(exc)} (a bug; "
+                   f"rerun this bag alone with ompn_segment --bag ... --debug)")
+    doc.setdefault("read", False)
+    doc["seconds"] = time.perf_counter() - start
+    records.write_record(settings.out, bag.key, doc)
+    return doc
+
+
+def _line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return (text.splitlines()[0] if text else "") or type(exc).__name__
+
+
+def _init_worker() -> None:
+    torch.set_num_threads(1)
+
+
+def _outcomes(settings: BatchSettings, todo: Sequence[BatchBag], jobs: int,
+              fingerprint: dict[str, Any]) -> Iterator[dict[str, Any]]:
+    """Records of ``todo`` as they complete: in this process (``jobs == 1``) or over a process pool."""
+    if jobs <= 1:
+        _init_worker()
+        for bag in todo:
+            yield segment_bag(settings, bag, fingerprint)
+        return
+    context = multiprocessing.get_context("spawn")  # no torch or numba state crosses a fork
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_init_worker) as pool:
+        futures = {pool.submit(segment_bag, settings, bag, fingerprint): bag for bag in todo}
+        for future in as_completed(futures):
+            bag = futures[future]
+            try:
+                yield future.result()
+            except BrokenProcessPool as exc:  # a worker died (killed, out of memory): refuse, not record
+                yield {"key": bag.key, "bag": str(bag.path or bag.key), "status": "refused", "read": False,
+                       "reason": f"the worker process died ({_line(exc)})"}
+
+
+Progress = Callable[[dict[str, Any], int, int], None]
+
+
+def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
+              progress: Progress | None = None) -> list[dict[str, Any]]:
+    """Segment ``bags`` (``jobs`` worker processes) skipping the complete ones; returns every bag's
+    record in the order of ``bags`` (a skipped bag's with ``skipped: True``).  ``progress(record,
+    done, total)`` is called as each bag finishes."""
+    if jobs < 1:
+        raise ValueError(f"--jobs must be at least 1, got {jobs}")
+    records.clean_temporaries(settings.out)
+    fingerprint = settings.fingerprint()
+    found: dict[str, dict[str, Any]] = {}
+    todo = []
+    for bag in bags:
+        if is_complete(settings, bag, fingerprint):
+            found[bag.key] = {**(records.read_record(settings.out, bag.key) or {}), "skipped": True}
+        else:
+            todo.append(bag)
+    done = 0
+    for doc in found.values():
+        done += 1
+        if progress is not None:
+            progress(doc, done, len(bags))
+    for doc in _outcomes(settings, todo, jobs, fingerprint):
+        done += 1
+        found[doc["key"]] = doc
+        if progress is not None:
+            progress(doc, done, len(bags))
+    return [found[bag.key] for bag in bags]
+
+
+__all__ = ["REFUSED_ERRORS", "BatchSettings", "episode_scores", "is_complete", "run_batch", "segment_bag",
+           "segment_rows"]
