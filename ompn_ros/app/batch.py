@@ -2,7 +2,7 @@
 
 This is the library behind ``ompn_segment --bags SOURCE --jobs N``.  Every bag is one task
 (:func:`segment_bag`): read it, replay its episodes through the
-:class:`~ompn_ros.segmenter.StreamingSegmenter` the node runs (``experiments/replay.py``), optionally
+:class:`~ompn_ros.segmenter.StreamingSegmenter` the node runs (``app/replay.py``), optionally
 write its annotated copy (``data/annotate.py``), then its record (``batch_bags.py``): the segments, the
 per-episode scores when it has labels, or the one-line reason it was refused.  A bag that fails is
 refused and the others go on.  A rerun skips the bags whose record is complete for the same settings
@@ -61,7 +61,7 @@ class BatchSettings:
         detector: the online detector (resolved once, ``detect/settings.py``) and its duration model.
         out: the run's folder (records, table, summary).
         annotate: the folder of annotated copies (None: none written).
-        reader_config, domain, on_error: how bags are read (``experiments/replay.py``).
+        reader_config, domain, on_error: how bags are read (``app/replay.py``).
         device: where the policy steps: 'cpu' (the compiled kernel) or 'cuda' (its torch module).
     """
 

@@ -1,7 +1,7 @@
 """``ompn_segment --bags SOURCE --jobs N``: segment many bags over a pool of processes.
 
-The options and the command-line shell of batch mode; the work is ``experiments/batch.py``
-(tasks, resuming) and ``experiments/batch_table.py`` (table, summary, metrics).
+The options and the command-line shell of batch mode; the work is ``app/batch.py``
+(tasks, resuming) and ``app/batch_table.py`` (table, summary, metrics).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ sizes.  ``DistributedDataParallel`` is not used because training calls
 ``OMPNPolicy.forward_sequence`` rather than ``forward``; an explicit all-reduce is simpler and exact.
 Only rank 0 evaluates, logs and writes checkpoints.  The same holds across machines
 (``torchrun --nnodes``): ``RANK`` is the global rank, and rank 0 alone reads the bags into the
-cache, whose entry the other ranks open memory-mapped (``experiments/training.py``), so they read the
+cache, whose entry the other ranks open memory-mapped (``app/training.py``), so they read the
 episodes of their shards only.
 """
 
