@@ -61,6 +61,7 @@ colcon: setup
 
 bench: setup
 	$(PY) bench/run_all.py
+	$(PY) bench/report.py
 
 .PHONY: bench-own-robot
 bench-own-robot: setup

@@ -19,7 +19,8 @@ in the boundaries the online detections are scored against:
   the pooled one on all of them (four label-free runs, Craft and Dial).  Of the rules compared on
   validation labels over 15 checkpoints, the onset and the combined reference came within 2 points
   of the label-tuned detector on 11, the pooled one on 8, and only the combined one on every run
-  trained without labels; ``ompn_train`` uses it (``LABEL_FREE_REFERENCE``; docs/experiments.md §37).
+  trained without labels; ``ompn_train`` uses it (``LABEL_FREE_REFERENCE``;
+  docs/design.md#label-free-calibration).
 
 The grid is evaluated for all settings and episodes at once (:func:`evaluate_grid`, one vectorised
 pass over time; ``O(G·E·T)`` numpy work for G settings, E episodes, T steps), with exactly the
@@ -398,7 +399,7 @@ def agreement(
 
 DURATION_THRESHOLDS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.98, 0.99)
 """The posterior thresholds :func:`calibrate_duration` chooses from: the higher, the later and surer
-the boundaries (docs/experiments.md §39)."""
+the boundaries (docs/design.md#delay-budget)."""
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 The threshold detectors of :mod:`ompn_ros.detect.online` look at one score at a time.  Their online
 alignment lags the offline detectors because one early false alarm shifts every later segment
-(docs/experiments.md §23, §34, §38).  This decoder models an episode as ``K`` segments:
+(docs/design.md#duration-decoder).  This decoder models an episode as ``K`` segments:
 
 * segment ``i`` lasts ``L_i`` steps, ``L_i ~ P_i`` (one length distribution per segment index);
 * the expansion score of step ``t`` (:func:`~ompn_ros.detect.online.expansion_score`, the paper's
@@ -20,7 +20,7 @@ where ``B_i(a)`` is the likelihood of ``s_{a..t}`` when segment ``i`` starts at 
 pass over the later segments, the last one still running at ``t``).  When the probability that
 segment ``j`` ended at or before ``t - lag`` exceeds ``θ``, the most probable such end is published.
 A step that was not published when it was ``lag`` steps old can still be published later, when later
-scores make it likely (docs/experiments.md §39); ``θ`` trades that delay for alignment.  At most one
+scores make it likely (docs/design.md#duration-decoder); ``θ`` trades that delay for alignment.  At most one
 boundary is published per step and at most ``K - 1`` inner ones per episode.  The episode end
 closes the last segment: the remaining segments get their most probable ends (a Viterbi pass).
 
@@ -28,7 +28,7 @@ The decoder takes step ``t`` in when step ``t + 1`` arrives (or the episode is c
 is published at least ``lag + 1`` steps after its step.  An episode's last observation, the 'done'
 step after the last action (its score is high: the memory expands from the top), is then dropped by
 the episode end instead of being read as the end of a subtask, and the node publishes the
-boundaries a replay of the episode's steps gives (docs/experiments.md §40).
+boundaries a replay of the episode's steps gives (docs/design.md#duration-decoder).
 
 Cost per step: O(K · n²) for the ``n`` steps since the last published boundary (at most
 :data:`MAX_SPAN`, a compiled kernel; a boundary is never placed further back); the episode end

@@ -68,7 +68,7 @@ def delay_stats(
     The final boundary (``T - 1``, closed by the episode end) is excluded from all three.  A true
     boundary is detected by the first non-final detection within ``MATCH_TOLERANCE`` steps; a
     detection more than one step from every true boundary is a false alarm.  A detection made at the
-    last step or later (the decoder's episode-end pass, docs/experiments.md §39; every offline
+    last step or later (the decoder's episode-end pass, docs/design.md#duration-decoder; every offline
     detection) counts as published at the end: its delay says when, this share says how often.
     O(B²) per episode for B boundaries.
     """

@@ -4,7 +4,7 @@ Some initialisations find a worse segmentation than others, and which ones canno
 training.  Bags without the observation after the last action (the reader guesses row T) make this
 more likely: on Craft with the ``blank`` row T, 4 of 20 seeds ended below 85 held-out alignment
 (std 6.7 points) against 1 of 20 with complete bags (std 3.3), and the weak runs had the lowest best
-validation alignment (docs/experiments.md §42, §43).  Keeping the better of two runs by that
+validation alignment (docs/design.md#best-of-two).  Keeping the better of two runs by that
 validation criterion avoids most of them.
 
 Layout: candidate ``k`` trains in ``OUT/candidates/<k>/`` with seed ``seed + CANDIDATE_SEED_STRIDE ·
@@ -15,7 +15,7 @@ A resumed run resumes each candidate in its own directory.
 
 Cost: N full training runs (the restart rule of :mod:`ompn_ros.train.restart` still applies to each).
 The comparison uses the run's selection criterion; with the label-free ``agreement`` it is a weak
-guide (it did not flag a collapsed run, docs/experiments.md §33), and the trainer says so.
+guide (it did not flag a collapsed run, docs/design.md#best-of-two), and the trainer says so.
 """
 
 from __future__ import annotations
@@ -93,11 +93,11 @@ def resolve_candidates(cfg: C, final_guessed: bool, labelled: bool) -> C:
     observation (row T) of training episodes and validation labels select the checkpoint.
 
     O(1).  Labels are required because the label-free ``agreement`` does not rank weak runs below good
-    ones (docs/experiments.md §33); without them the extra runs would cost time for nothing shown."""
+    ones (docs/design.md#best-of-two); without them the extra runs would cost time for nothing shown."""
     if not (final_guessed and labelled) or cfg.candidates_no_final <= cfg.candidates:
         return cfg
     LOG.info("the reader guessed the final observation of training episodes: training %d initialisations "
-             "and keeping the best by validation (train.candidates_no_final; docs/experiments.md §43)",
+             "and keeping the best by validation (train.candidates_no_final; docs/design.md#best-of-two)",
              cfg.candidates_no_final)
     return replace(cfg, candidates=cfg.candidates_no_final)  # type: ignore[type-var]
 

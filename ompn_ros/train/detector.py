@@ -20,7 +20,7 @@ targets (the labels, or the pooled constrained Top-K without them) and tune its 
 alignment at ``train.detector_lag``, with a mean delay of at most ``train.detector_delay`` steps; the
 checkpoint keeps the model.  It becomes the online detector
 when its validation alignment beats the threshold detector's by :data:`DURATION_GAIN` with F1@1 at
-most :data:`DURATION_GAIN` lower (docs/experiments.md §38, §39).
+most :data:`DURATION_GAIN` lower (docs/design.md#duration-decoder).
 """
 
 from __future__ import annotations
@@ -52,17 +52,18 @@ from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
 
 LOG = logging.getLogger("ompn_ros.train")
 LABEL_FREE_REFERENCE: Reference = "onset_and_pooled"
-"""The whole-episode detector the label-free calibration agrees with (docs/experiments.md §37)."""
+"""The whole-episode detector the label-free calibration agrees with
+(docs/design.md#label-free-calibration)."""
 LABEL_FREE_REFERENCE_MIN_LENGTH = 3
-"""``min_length`` of its pooled constrained Top-K (docs/experiments.md §37)."""
+"""``min_length`` of its pooled constrained Top-K (docs/design.md#label-free-calibration)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
 DURATION_LAG = 1
 """Default ``train.detector_lag``: the 'hsmm' detector publishes a boundary at least ``lag + 1`` steps
-after its step (docs/experiments.md §39, §40)."""
+after its step (docs/design.md#duration-decoder)."""
 DURATION_DELAY = 6.0
 """Default ``train.detector_delay``: the mean delay in steps the 'hsmm' detector's threshold may cost
-(docs/experiments.md §39)."""
+(docs/design.md#delay-budget)."""
 DURATION_GAIN = 0.01
 """Validation alignment the 'hsmm' detector must gain, and F1@1 it may lose at most, to be chosen."""
 

@@ -1,8 +1,9 @@
 """Distilling an ensemble's expansion distributions into one OMPN (``train.distill_from``).
 
-An ensemble of OMPNs segments better than one (docs/experiments.md §12) because averaging the
-members' ``p_hat`` (the distribution over how deep the memory expands, paper §3.1, ``[pi_end, top,
-..., bottom]``) smooths out each member's misplaced expansions; it also costs one step per member.
+An ensemble of OMPNs segments better than one (docs/design.md#ensembles-and-distillation) because
+averaging the members' ``p_hat`` (the distribution over how deep the memory expands, paper §3.1,
+``[pi_end, top, ..., bottom]``) smooths out each member's misplaced expansions; it also costs one
+step per member.
 Distillation (Hinton et al., 2015, "Distilling the Knowledge in a Neural Network") trains a single
 student to reproduce the teachers' averaged distribution, at single-model cost when it runs:
 

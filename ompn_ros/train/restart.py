@@ -4,7 +4,7 @@ Some initialisations never find the subtask structure. With a sketch, Craft trai
 expands its top slot at the wrong steps (for 36 % of the true boundaries the nearest one Top-K takes
 is 2 or more steps away, against 6 % for a good run) and its validation alignment never rises above
 0.62 (full) / 0.59 (partial), where the other runs stand at 0.75–0.93 by iteration 120
-(docs/experiments.md §33).  The run is decided early: its best validation alignment of the run comes
+(docs/design.md#restart-rule).  The run is decided early: its best validation alignment of the run comes
 at iteration 60 (full) / 80 (partial).
 
 The rule: at its first evaluation at or after iteration ``restart_at``, a run whose best validation

@@ -183,9 +183,9 @@ class TrainConfig:
             this iteration are logged but neither become ``best/`` nor count towards ``patience``
             (the run's last evaluation always may).  A barely trained model can agree with itself on
             a trivial segmentation: on Dial the agreement peaked at iteration 20 (validation
-            alignment 0.27) and early stopping then kept that checkpoint (docs/experiments.md §27,
-            §32).  0 = off (the dataclass default, for the same reason as ``patience``); the shipped
-            configs set 100.
+            alignment 0.27) and early stopping then kept that checkpoint
+            (docs/design.md#agreement-warm-up).  0 = off (the dataclass default, for the same reason as
+            ``patience``); the shipped configs set 100.
         restart_at: the restart rule (:mod:`ompn_ros.train.restart`): at the first evaluation at or
             after this iteration, a run whose best validation criterion so far is below
             ``restart_below`` starts again from a new initialisation on the same split, at most
@@ -197,7 +197,7 @@ class TrainConfig:
         candidates_no_final: ``candidates`` for bags whose final observation the reader guessed (no
             observation after the last action), with validation labels: ``ompn_train`` raises
             ``candidates`` to this (:func:`~ompn_ros.train.candidates.resolve_candidates`).  The Craft
-            config sets 2 (docs/experiments.md §43).
+            config sets 2 (docs/design.md#best-of-two).
         detector_lag: the lag of the 'hsmm' online detector fitted at the end of training (a
             boundary is published at least lag + 1 steps after its step, 0 … 10;
             ``ompn_ros.train.detector``).
@@ -417,7 +417,7 @@ def early_agreement_warning(
     """One line when the label-free ``agreement`` chose a checkpoint from the first fifth of a run
     (at least 5 evaluations) whose validation loss was still falling afterwards: early models can
     agree with themselves trivially (on Dial it chose iteration 20 of 220, validation alignment 0.27
-    against 0.91 for the last checkpoint; docs/experiments.md §27).  ``None`` otherwise."""
+    against 0.91 for the last checkpoint; docs/design.md#agreement-warm-up).  ``None`` otherwise."""
     if selection != "agreement" or len(history) < 5:
         return None
     rank = next((i for i, record in enumerate(history) if record["iteration"] == best_iteration), None)
@@ -429,7 +429,7 @@ def early_agreement_warning(
     return (f"best/ was chosen by the label-free agreement at iteration {best_iteration} of "
             f"{int(history[-1]['iteration'])}, while the validation loss still fell ({best_loss:.4g} -> "
             f"{last_loss:.4g}): early models can agree trivially; compare last/ before using best/ "
-            "(docs/experiments.md §27)")
+            "(docs/design.md#agreement-warm-up)")
 
 
 def selection_key(metrics: dict[str, float], selection: str) -> tuple[float, float]:
@@ -635,7 +635,7 @@ def _train_candidates(
     winner, everyone = best_of(cfg, one, is_main=ctx.is_main)
     if ctx.is_main and winner.selection not in LABELLED_SELECTIONS:
         LOG.warning("candidates compared by %s, which does not rank weak runs below good ones "
-                    "(docs/experiments.md §33)", winner.selection)
+                    "(docs/design.md#best-of-two)", winner.selection)
     return replace(winner, out_dir=cfg.out_dir, candidates=candidate_rows(everyone),
                    train_seconds=sum(c.result.train_seconds for c in everyone),
                    frames=sum(c.result.frames for c in everyone))

@@ -24,7 +24,7 @@ Split = Literal["auto", "markers", "gaps", "topic", "idle", "bag"]
 FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require")
 PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
-there (docs/experiments.md §28, §31 and §36)."""
+there (docs/design.md#final-observation)."""
 SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
@@ -139,8 +139,8 @@ class ReaderSpec:
               final ``use`` does, the model learns to stop early).
             * ``require``: such an episode is an :class:`AlignmentError` (``strict``) or dropped.
 
-            Trained on our data with that observation removed (docs/experiments.md §28, §31, §42
-            and §43, held out, against complete bags of the same seed): ``extrapolate`` on Dial is
+            Trained on our data with that observation removed (docs/design.md#final-observation,
+            held out, against complete bags of the same seed): ``extrapolate`` on Dial is
             within a point on online and offline F1@1 and alignment, or better (10 seeds);
             ``blank`` on Craft is within a point or better on all four (20 seeds; offline
             alignment +0.5), but gives more weak runs (4 of 20 below 85 alignment, against 1),
