@@ -376,8 +376,8 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
     return target
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m lab.own_data {collect,strip,run,collate} ...`` (see ``--help``)."""
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`: one sub-command per step of the study."""
     parser = argparse.ArgumentParser(
         prog="python -m lab.own_data", description=__doc__.split("\n\n")[0]
     )
@@ -408,32 +408,33 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("collate", help="write results/own_data.json and results/README.md")
     p.add_argument("--results", type=Path, default=Path("results"))
     p.add_argument("--note", action="append", default=[], help="a sentence printed under the tables")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str:
+    """Run the sub-command ``args.command``; return what it prints."""
+    if args.command == "collect":
+        domain, obs = args.data.split("_")
+        episodes = args.episodes or DEFAULT_EPISODES[domain]
+        return collect_bags(domain, obs == "partial", episodes, DATA_SEED, args.work)
+    if args.command == "strip":
+        return strip_arm_bags(args.work, args.data)
+    if args.command == "run":
+        row = run_arm(
+            arm_by_name(args.arm), args.work, args.threads, args.checkpoint, args.resume_from, args.resume
+        )
+        return json.dumps(row, indent=1)
+    given = list(argv if argv is not None else sys.argv[1:])
+    kept = [a for k, a in enumerate(given) if a != "--note" and (k == 0 or given[k - 1] != "--note")]
+    command = ["python", "-m", "lab.own_data", *kept]  # notes are stored apart
+    return collate(args.work, args.results, command, args.note)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m lab.own_data {collect,strip,run,collate} ...`` (see ``--help``)."""
+    args = _parser().parse_args(argv)
     try:
-        if args.command == "collect":
-            domain, obs = args.data.split("_")
-            print(
-                collect_bags(
-                    domain, obs == "partial", args.episodes or DEFAULT_EPISODES[domain], DATA_SEED, args.work
-                )
-            )
-        elif args.command == "strip":
-            print(strip_arm_bags(args.work, args.data))
-        elif args.command == "run":
-            print(
-                json.dumps(
-                    run_arm(
-                        arm_by_name(args.arm), args.work, args.threads, args.checkpoint, args.resume_from,
-                        args.resume,
-                    ),
-                    indent=1,
-                )
-            )
-        else:
-            given = list(argv if argv is not None else sys.argv[1:])
-            kept = [a for k, a in enumerate(given) if a != "--note" and (k == 0 or given[k - 1] != "--note")]
-            command = ["python", "-m", "lab.own_data", *kept]  # notes are stored apart
-            print(collate(args.work, args.results, command, args.note))
+        print(_run_command(args, argv))
     except (ReproduceError, BagError, OSError) as exc:
         print(f"own_data: error: {exc}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ Metrics are fractions in the files and percentages in the tables.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypedDict
 
@@ -116,12 +117,25 @@ def _iterations(row: OwnDataRow) -> str:
     return f"{row['iterations']} ({row['best_iteration']})"
 
 
+def _head(*columns: str) -> list[str]:
+    """A markdown table's header row and separator."""
+    return ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
+def _scores(row: Mapping[str, Any], kind: str) -> str:
+    """``F1@1 / alignment`` in % of one detector: ``online``, ``offline`` or ``live``."""
+    return pair(row[f"{kind}_f1_1"], row[f"{kind}_align"])
+
+
+_DELTA_COLUMNS = (
+    "online F1@1 / align", "Δ online vs complete", "offline F1@1 / align", "Δ offline vs complete"
+)
+"""The score and gap columns of the final-observation table and of its means."""
+
+
 def _labels_table(rows: list[OwnDataRow]) -> list[str]:
-    lines = [
-        "| setting | iterations (best) | online, label-tuned det. | online, label-free det. | gap F1 / align "
-        "| offline |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = _head("setting", "iterations (best)", "online, label-tuned det.", "online, label-free det.",
+                  "gap F1 / align", "offline")
     for r in rows:
         tuned, free = (
             (r["online_f1_1"], r["online_align"]),
@@ -129,18 +143,13 @@ def _labels_table(rows: list[OwnDataRow]) -> list[str]:
         )
         lines.append(
             f"| {_setting(r)} | {_iterations(r)} | {pair(*tuned)} | {pair(*free)} | "
-            f"{gaps(free, tuned)} | "
-            f"{pair(r['offline_f1_1'], r['offline_align'])} |"
+            f"{gaps(free, tuned)} | {_scores(r, 'offline')} |"
         )
     return lines
 
 
 def _final_table(rows: list[OwnDataRow]) -> list[str]:
-    lines = [
-        "| setting | training bags | online F1@1 / align | Δ online vs complete | offline F1@1 / align "
-        "| Δ offline vs complete |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = _head("setting", "training bags", *_DELTA_COLUMNS)
     complete = {_twin(r): r for r in rows if r["bags"] == "complete"}
     for r in rows:
         ref = complete.get(_twin(r))
@@ -151,8 +160,8 @@ def _final_table(rows: list[OwnDataRow]) -> list[str]:
                 for k in ("online", "offline")
             )
         lines.append(
-            f"| {_setting(r)} | {r['bags']} | {pair(r['online_f1_1'], r['online_align'])} | {d_on} | "
-            f"{pair(r['offline_f1_1'], r['offline_align'])} | {d_off} |"
+            f"| {_setting(r)} | {r['bags']} | {_scores(r, 'online')} | {d_on} | "
+            f"{_scores(r, 'offline')} | {d_off} |"
         )
     return lines + _final_means(rows)
 
@@ -199,20 +208,16 @@ def _final_means(rows: list[OwnDataRow]) -> list[str]:
     if not means:
         return []
     return ["", "Means over seeds (each against the complete arm of the same seed):", "",
-            "| setting | online F1@1 / align | Δ online vs complete | offline F1@1 / align "
-            "| Δ offline vs complete |", "|---|---|---|---|---|", *means]
+            *_head("setting", *_DELTA_COLUMNS), *means]
 
 
 def _length_table(rows: list[OwnDataRow]) -> list[str]:
-    lines = [
-        "| setting | length | iterations reached | best iteration | online F1@1 / align "
-        "| offline F1@1 / align |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = _head("setting", "length", "iterations reached", "best iteration", "online F1@1 / align",
+                  "offline F1@1 / align")
     for r in rows:
         lines.append(
             f"| {_setting(r)} | {r['length']} | {r['iterations']} | {r['best_iteration']} | "
-            f"{pair(r['online_f1_1'], r['online_align'])} | {pair(r['offline_f1_1'], r['offline_align'])} |"
+            f"{_scores(r, 'online')} | {_scores(r, 'offline')} |"
         )
     return lines
 
@@ -276,16 +281,11 @@ def own_robot_markdown(doc: OwnRobotDoc, level: int = 2) -> str:
     ]
     if command:
         lines[-1] += f" Made by `{' '.join(command) if isinstance(command, list) else command}`."
-    lines += [
-        "",
-        "| observation | obs dim | train / test episodes | online | offline | live |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines += ["", *_head("observation", "obs dim", "train / test episodes", "online", "offline", "live")]
     for r in doc["rows"]:
         lines.append(
             f"| {r['observation']} | {r['obs_dim']} | {r['train_episodes']} / {r['test_episodes']} | "
-            f"{pair(r['online_f1_1'], r['online_align'])} | {pair(r['offline_f1_1'], r['offline_align'])} | "
-            f"{pair(r['live_f1_1'], r['live_align'])} |"
+            f"{_scores(r, 'online')} | {_scores(r, 'offline')} | {_scores(r, 'live')} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -33,6 +33,11 @@ INT32: Final = "std_msgs/msg/Int32"
 STRING: Final = "std_msgs/msg/String"
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
 DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
+FLOAT64_ARRAY: Final = "std_msgs/msg/Float64MultiArray"  # with the next four: a user's observation topics
+FLOAT32: Final = "std_msgs/msg/Float32"
+FLOAT64: Final = "std_msgs/msg/Float64"
+WRENCH_STAMPED: Final = "geometry_msgs/msg/WrenchStamped"
+POSE_STAMPED: Final = "geometry_msgs/msg/PoseStamped"
 
 # --- topics published by both sims (relative names: they follow the node's namespace) ------------
 OBSERVATION: Final = "observation"  # Float32MultiArray, dim label 'obs', the policy input

@@ -13,6 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
 
 from ompn_ros.model.atomic import atomic_write
 
@@ -40,20 +41,11 @@ def plot_episode(
     pi = np.asarray(pi, dtype=np.float64)
     pi_end = np.asarray(pi_end, dtype=np.float64).reshape(-1)
     scores = np.asarray(scores, dtype=np.float64).reshape(-1)
-    T, n = pi.shape
+    T = pi.shape[0]
     t = np.arange(T)
     fig, (ax_pi, ax_s) = plt.subplots(2, 1, figsize=(max(6.0, min(18.0, T / 8)), 5.0), sharex=True)
-    layers = [pi[:, i] * (1.0 - pi_end) for i in range(n)] + [pi_end]
-    labels = [f"slot {i + 1}" for i in range(n)] + ["π_end"]
-    ax_pi.stackplot(t, *layers, labels=labels, step="mid", alpha=0.85)
-    ax_pi.set_ylim(0, 1)
-    ax_pi.set_ylabel("p̂ (expansion)")
-    ax_pi.legend(loc="upper left", fontsize=7, ncol=n + 1)
-    ax_s.plot(t, scores, color="black", lw=1.2, label="score")
-    if high is not None:
-        ax_s.axhline(high, color="gray", ls="--", lw=0.8, label="high")
-    if low is not None and high is not None and low != high:
-        ax_s.axhline(low, color="gray", ls=":", lw=0.8, label="low")
+    _draw_expansion(ax_pi, t, pi, pi_end)
+    _draw_score(ax_s, t, scores, high, low)
     for ax in (ax_pi, ax_s):
         for b in true_boundaries or []:
             ax.axvline(b, color="green", ls="--", lw=1.0)
@@ -61,16 +53,7 @@ def plot_episode(
             ax.axvline(b, color="red", lw=1.0, alpha=0.8)
         for b in offline_boundaries or []:
             ax.axvline(b, color="blue", ls=":", lw=1.0)
-    ax_s.set_ylim(-0.02, 1.02)
-    ax_s.set_xlabel("step")
-    ax_s.set_ylabel("score")
-    handles = [
-        plt.Line2D([], [], color="green", ls="--", label="true"),
-        plt.Line2D([], [], color="red", label="online"),
-    ]
-    if offline_boundaries is not None:
-        handles.append(plt.Line2D([], [], color="blue", ls=":", label="offline"))
-    ax_s.legend(handles=handles + ax_s.get_legend_handles_labels()[0], loc="upper left", fontsize=7)
+    _label_score_axis(ax_s, offline=offline_boundaries is not None)
     if title:
         ax_pi.set_title(title)
     fig.tight_layout()
@@ -81,3 +64,37 @@ def plot_episode(
     finally:
         plt.close(fig)
     return out
+
+
+def _draw_expansion(ax: Axes, t: np.ndarray, pi: np.ndarray, pi_end: np.ndarray) -> None:
+    """The top panel: ``p_hat`` stacked, slot 1 at the bottom and ``pi_end`` on top."""
+    n = pi.shape[1]
+    layers = [pi[:, i] * (1.0 - pi_end) for i in range(n)] + [pi_end]
+    labels = [f"slot {i + 1}" for i in range(n)] + ["π_end"]
+    ax.stackplot(t, *layers, labels=labels, step="mid", alpha=0.85)
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("p̂ (expansion)")
+    ax.legend(loc="upper left", fontsize=7, ncol=n + 1)
+
+
+def _draw_score(ax: Axes, t: np.ndarray, scores: np.ndarray, high: float | None, low: float | None) -> None:
+    """The bottom panel's score curve and the detector's thresholds."""
+    ax.plot(t, scores, color="black", lw=1.2, label="score")
+    if high is not None:
+        ax.axhline(high, color="gray", ls="--", lw=0.8, label="high")
+    if low is not None and high is not None and low != high:
+        ax.axhline(low, color="gray", ls=":", lw=0.8, label="low")
+
+
+def _label_score_axis(ax: Axes, *, offline: bool) -> None:
+    """The bottom panel's limits, labels and legend (boundary line styles, then score and thresholds)."""
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("step")
+    ax.set_ylabel("score")
+    handles = [
+        plt.Line2D([], [], color="green", ls="--", label="true"),
+        plt.Line2D([], [], color="red", label="online"),
+    ]
+    if offline:
+        handles.append(plt.Line2D([], [], color="blue", ls=":", label="offline"))
+    ax.legend(handles=handles + ax.get_legend_handles_labels()[0], loc="upper left", fontsize=7)

@@ -53,6 +53,14 @@ from ompn_ros.train.device import DEVICES, resolve_device
 
 def build_parser() -> argparse.ArgumentParser:
     p = make_parser("ompn_segment", __doc__)
+    _add_input_arguments(p)
+    _add_replay_arguments(p)
+    _add_tune_arguments(p)
+    return p
+
+
+def _add_input_arguments(p: argparse.ArgumentParser) -> None:
+    """What is replayed and how: the bag or bags, the checkpoint, the reader, the detector, the device."""
     p.add_argument("--bag", help="bag file/directory/glob to replay (none: give --bags or --generate)")
     add_batch_arguments(p)
     p.add_argument(
@@ -85,6 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="replay: cpu steps the compiled kernel; cuda steps the policy's torch module on the GPU; "
         "auto is cpu (a batch-1 replay is faster on the CPU than on a GPU)",
     )
+
+
+def _add_replay_arguments(p: argparse.ArgumentParser) -> None:
+    """What a replay writes: the output folder, an annotated copy, the plots."""
     p.add_argument("--out", default="segment_out", help="output directory (replay mode)")
     p.add_argument(
         "--annotate",
@@ -94,6 +106,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--overwrite", action="store_true", help="with --annotate: replace an existing OUT")
     p.add_argument("--plot-episodes", type=int, default=3, help="number of episodes to plot")
+
+
+def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
+    """--tune, its grid and objective, and the generated episodes a tuning or a replay may run on."""
     p.add_argument("--tune", action="store_true", help="grid-search the online detector instead of replaying")
     p.add_argument(
         "--generate", type=int, default=0, help="tune/replay on N freshly generated expert episodes"
@@ -121,7 +137,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --tune: maximise boundary F1 (tol 1) or alignment first "
         f"(none: per domain, {DEFAULT_OBJECTIVE}; f1 without --domain)",
     )
-    return p
 
 
 def _episodes(args: argparse.Namespace) -> list[Episode]:

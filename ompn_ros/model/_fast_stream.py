@@ -22,11 +22,12 @@ Agreement with the torch reference is float32 rounding (tests hold it to 1e-5).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 
-from ompn_ros.model.cells import LN_EPS
+from ompn_ros.model.cells import LN_EPS, ComCell, DecomCell
 from ompn_ros.model.policy import OMPNPolicy
 
 SPARSE_FRACTION = 0.25
@@ -57,19 +58,57 @@ class _CellViews:
         self.inv_gates = 1.0 / (k * h)
 
 
+def _cell_weights(
+    cells: Sequence[ComCell | DecomCell], k: int, h: int, x_rows: list, e_rows: list, biases: list
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """``(w1, w2, b2, gamma, beta)`` per cell of k gated inputs; the x and e columns go to the stacks.
+
+    The first layer reads ``[rec ((k-1)H); x; e]`` (ComCell k = 3: ``[v; h; x; e]``, DecomCell k = 2:
+    ``[p; x; e]``); the second layer's rows ``[g (kH); c (H)]`` are permuted to ``[c; g]``.
+    """
+    rec, g = (k - 1) * h, k * h
+    w1s, w2s, b2s, gammas, betas = [], [], [], [], []
+    for cell in cells:
+        w1 = _np(cell.fc1.weight)
+        w1s.append(_f32(w1[:, :rec]))
+        x_rows.append(w1[:, rec : rec + h])
+        e_rows.append(w1[:, rec + h :])
+        biases.append(_np(cell.fc1.bias))
+        w2, b2 = _np(cell.fc2.weight), _np(cell.fc2.bias)
+        w2s.append(_f32(np.concatenate([w2[g:], w2[:g]])))
+        b2s.append(_f32(np.concatenate([b2[g:], b2[:g]])))
+        gammas.append(_f32(0.5 * _np(cell.gate_norm.weight)))
+        betas.append(_f32(0.5 * _np(cell.gate_norm.bias)))
+    return w1s, w2s, b2s, gammas, betas
+
+
 class NumpyStepper:
     """Weights, buffers and memory of one batch-1 numpy stepper (see the module docstring)."""
 
     def __init__(self, policy: OMPNPolicy) -> None:
         cfg = policy.config
-        n, h, a = cfg.n_slots, cfg.slot_size, cfg.action_dim
-        self.n, self.h, self.a = n, h, a
+        self.n, self.h, self.a = cfg.n_slots, cfg.slot_size, cfg.action_dim
         self.paper_update = cfg.memory_update == "paper"
         self.no_bottom_up = cfg.no_bottom_up
         self.no_top_down = cfg.no_top_down
         self.no_recurrence = cfg.no_bottom_up_recurrence
         self.discrete = cfg.action_type == "discrete"
+        self._load_encoder(policy)
+        x_rows: list[np.ndarray] = []
+        e_rows: list[np.ndarray] = []
+        biases: list[np.ndarray] = []
+        self.com_w1, self.com_w2, self.com_b2, self.com_gamma, self.com_beta = _cell_weights(
+            policy.com_list, 3, self.h, x_rows, e_rows, biases
+        )
+        self.dec_w1, self.dec_w2, self.dec_b2, self.dec_gamma, self.dec_beta = _cell_weights(
+            policy.decom_list, 2, self.h, x_rows, e_rows, biases
+        )
+        self._load_score_and_head(policy, x_rows, e_rows, biases)
+        self._stack_projections(cfg.obs_dim, x_rows, e_rows, biases)
+        self._allocate_buffers()
 
+    def _load_encoder(self, policy: OMPNPolicy) -> None:
+        """The encoder with the observation normalisation folded in: ``x = enc_w s + enc_b``."""
         w_in, b_in = _np(policy.encoder.weight), _np(policy.encoder.bias)
         mean, scale = _np(policy.obs_mean), _np(policy.obs_scale)
         enc_w = w_in / scale[None, :]
@@ -78,31 +117,9 @@ class NumpyStepper:
         self.enc_b = _f32(b_in - enc_w @ mean)
         self.mean_is_zero = not mean.any()  # sparse gather needs (s - mean) sparse, i.e. mean = 0
 
-        x_rows, e_rows, biases = [], [], []
-        self.com_w1, self.com_w2, self.com_b2, self.com_gamma, self.com_beta = [], [], [], [], []
-        for cell in policy.com_list:
-            w1 = _np(cell.fc1.weight)  # [4H, 4H] on [v; h; x; e]
-            self.com_w1.append(_f32(w1[:, : 2 * h]))
-            x_rows.append(w1[:, 2 * h : 3 * h])
-            e_rows.append(w1[:, 3 * h :])
-            biases.append(_np(cell.fc1.bias))
-            w2, b2 = _np(cell.fc2.weight), _np(cell.fc2.bias)  # rows [g (3H); c (H)] -> [c; g]
-            self.com_w2.append(_f32(np.concatenate([w2[3 * h :], w2[: 3 * h]])))
-            self.com_b2.append(_f32(np.concatenate([b2[3 * h :], b2[: 3 * h]])))
-            self.com_gamma.append(_f32(0.5 * _np(cell.gate_norm.weight)))
-            self.com_beta.append(_f32(0.5 * _np(cell.gate_norm.bias)))
-        self.dec_w1, self.dec_w2, self.dec_b2, self.dec_gamma, self.dec_beta = [], [], [], [], []
-        for dcell in policy.decom_list:
-            w1 = _np(dcell.fc1.weight)  # [4H, 3H] on [p; x; e]
-            self.dec_w1.append(_f32(w1[:, :h]))
-            x_rows.append(w1[:, h : 2 * h])
-            e_rows.append(w1[:, 2 * h :])
-            biases.append(_np(dcell.fc1.bias))
-            w2, b2 = _np(dcell.fc2.weight), _np(dcell.fc2.bias)  # rows [g (2H); c (H)] -> [c; g]
-            self.dec_w2.append(_f32(np.concatenate([w2[2 * h :], w2[: 2 * h]])))
-            self.dec_b2.append(_f32(np.concatenate([b2[2 * h :], b2[: 2 * h]])))
-            self.dec_gamma.append(_f32(0.5 * _np(dcell.gate_norm.weight)))
-            self.dec_beta.append(_f32(0.5 * _np(dcell.gate_norm.bias)))
+    def _load_score_and_head(self, policy: OMPNPolicy, x_rows: list, e_rows: list, biases: list) -> None:
+        """The score MLP's and the action head's own columns; their x and e columns go to the stacks."""
+        h = self.h
         s1 = _np(policy.score.fc1.weight)  # [H, 4H] on [x; e; m; c]
         x_rows.append(s1[:, :h])
         e_rows.append(s1[:, h : 2 * h])
@@ -115,22 +132,25 @@ class NumpyStepper:
         x_rows.append(wa[:, 2 * h :])
         e_rows.append(wa[:, h : 2 * h])
         biases.append(ba)
+
+    def _stack_projections(self, obs_dim: int, x_rows: list, e_rows: list, biases: list) -> None:
+        """One matrix for every x-column block (``x_proj``), one for the e columns, one bias."""
         self.x_proj = _f32(np.concatenate(x_rows, axis=0))  # [R, H]
         self.e_proj = _f32(np.concatenate(e_rows, axis=0))
         self.bias = _f32(np.concatenate(biases))
         # Small observations (Dial: 39 < m): project s directly with x_proj @ W_in (R x D instead of
         # R x m), composed in float64 to keep the rounding of one product.
         self.obs_proj: np.ndarray | None = None
-        if cfg.obs_dim < h:
+        if obs_dim < self.h:
             x_proj64 = self.x_proj.astype(np.float64)
             self.obs_proj = _f32(x_proj64 @ self.enc_w.astype(np.float64))
             self.bias = _f32(self.bias + x_proj64 @ self.enc_b)
-        rows = self.x_proj.shape[0]
-        self.ones = {k: np.ones(k * h, dtype=np.float32) for k in (1, 2, 3)}
 
-        # buffers; views are created once here, so a step only calls numpy kernels
+    def _allocate_buffers(self) -> None:
+        """Buffers and memory; views are created once here, so a step only calls numpy kernels."""
+        n, h, a = self.n, self.h, self.a
         self.x = np.empty(h, np.float32)
-        self.proj = np.empty(rows, np.float32)
+        self.proj = np.empty(self.x_proj.shape[0], np.float32)
         self.const = self.bias.copy()
         self.com_pre = [self.proj[4 * h * i : 4 * h * (i + 1)] for i in range(n)]
         self.dec_pre = [self.proj[4 * h * (n + k) : 4 * h * (n + k + 1)] for k in range(n - 1)]
@@ -140,7 +160,7 @@ class NumpyStepper:
         self.hidden = np.empty(4 * h, np.float32)
         self.com_views = _CellViews(h, 3)  # [v; h; c; g_v g_h g_c]
         self.dec_views = _CellViews(h, 2)  # [p; c; g_p g_c]
-        self.ones1 = self.ones[1]
+        self.ones1 = np.ones(h, np.float32)
         self.inv_h = 1.0 / h
         self.score_in = np.empty((n, 2 * h), np.float32)  # rows [M^{t-1}_i; C_i]
         self.score_hidden = np.empty((n, h), np.float32)

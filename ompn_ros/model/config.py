@@ -15,6 +15,8 @@ MemoryUpdate = Literal["paper", "code"]
 Arch = Literal["ompn", "lstm"]
 ActionNorm = Literal["none", "standard"]
 ACTION_NORMS: tuple[ActionNorm, ...] = ("none", "standard")
+ABLATIONS = ("no_bottom_up", "no_top_down", "no_bottom_up_recurrence")
+"""The OMPN ablation flags (paper §4.4)."""
 
 
 class ConfigError(ValueError):
@@ -70,20 +72,36 @@ class OMPNConfig:
     action_norm: ActionNorm = "none"
 
     def __post_init__(self) -> None:
-        def positive_int(name: str, value: Any) -> None:
+        for name in ("obs_dim", "action_dim", "n_slots", "slot_size"):
+            value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
                 raise ConfigError(f"OMPNConfig.{name} must be a positive int, got {value!r}")
-
-        positive_int("obs_dim", self.obs_dim)
-        positive_int("action_dim", self.action_dim)
-        positive_int("n_slots", self.n_slots)
-        positive_int("slot_size", self.slot_size)
-        if self.action_type not in ("discrete", "continuous"):
+        self._check_choice("action_type", ("discrete", "continuous"))
+        self._check_sketch()
+        self._check_choice("memory_update", ("paper", "code"))
+        for name in ABLATIONS:
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"OMPNConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if isinstance(self.action_variance, bool) or not isinstance(self.action_variance, int | float):
+            raise ConfigError(f"OMPNConfig.action_variance must be a number, got {self.action_variance!r}")
+        if not self.action_variance > 0:
+            raise ConfigError(f"OMPNConfig.action_variance must be > 0, got {self.action_variance!r}")
+        self.action_variance = float(self.action_variance)
+        self._check_arch()
+        self._check_action_norm()
+        if self.version != CONFIG_VERSION:
             raise ConfigError(
-                f"OMPNConfig.action_type must be 'discrete' or 'continuous', got {self.action_type!r}"
+                f"OMPNConfig.version {self.version!r} is not supported (this code reads version "
+                f"{CONFIG_VERSION}); retrain or convert the checkpoint"
             )
-        if self.sketch_mode not in ("none", "sum"):
-            raise ConfigError(f"OMPNConfig.sketch_mode must be 'none' or 'sum', got {self.sketch_mode!r}")
+
+    def _check_choice(self, name: str, allowed: tuple[str, str]) -> None:
+        value = getattr(self, name)
+        if value not in allowed:
+            raise ConfigError(f"OMPNConfig.{name} must be {allowed[0]!r} or {allowed[1]!r}, got {value!r}")
+
+    def _check_sketch(self) -> None:
+        self._check_choice("sketch_mode", ("none", "sum"))
         if isinstance(self.sketch_vocab, bool) or not isinstance(self.sketch_vocab, int):
             raise ConfigError(f"OMPNConfig.sketch_vocab must be an int, got {self.sketch_vocab!r}")
         if self.sketch_mode == "sum" and self.sketch_vocab <= 0:
@@ -96,27 +114,17 @@ class OMPNConfig:
                 f"OMPNConfig.sketch_vocab={self.sketch_vocab} is only meaningful with sketch_mode='sum'; "
                 "set sketch_vocab=0 or sketch_mode='sum'"
             )
-        if self.memory_update not in ("paper", "code"):
-            raise ConfigError(
-                f"OMPNConfig.memory_update must be 'paper' or 'code', got {self.memory_update!r}"
-            )
-        for name in ("no_bottom_up", "no_top_down", "no_bottom_up_recurrence"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"OMPNConfig.{name} must be a bool, got {getattr(self, name)!r}")
-        if isinstance(self.action_variance, bool) or not isinstance(self.action_variance, int | float):
-            raise ConfigError(f"OMPNConfig.action_variance must be a number, got {self.action_variance!r}")
-        if not self.action_variance > 0:
-            raise ConfigError(f"OMPNConfig.action_variance must be > 0, got {self.action_variance!r}")
-        self.action_variance = float(self.action_variance)
-        if self.arch not in ("ompn", "lstm"):
-            raise ConfigError(f"OMPNConfig.arch must be 'ompn' or 'lstm', got {self.arch!r}")
+
+    def _check_arch(self) -> None:
+        self._check_choice("arch", ("ompn", "lstm"))
         if self.arch == "lstm":
-            flags = ("no_bottom_up", "no_top_down", "no_bottom_up_recurrence")
-            ablations = [name for name in flags if getattr(self, name)]
+            ablations = [name for name in ABLATIONS if getattr(self, name)]
             if ablations:
                 raise ConfigError(
                     f"OMPNConfig.arch='lstm' has no ordered memory; unset the OMPN ablations {ablations}"
                 )
+
+    def _check_action_norm(self) -> None:
         if self.action_norm not in ACTION_NORMS:
             raise ConfigError(
                 f"OMPNConfig.action_norm must be one of {ACTION_NORMS}, got {self.action_norm!r}"
@@ -125,11 +133,6 @@ class OMPNConfig:
             raise ConfigError(
                 f"OMPNConfig.action_norm={self.action_norm!r} needs continuous actions (discrete actions "
                 "are class indices)"
-            )
-        if self.version != CONFIG_VERSION:
-            raise ConfigError(
-                f"OMPNConfig.version {self.version!r} is not supported (this code reads version "
-                f"{CONFIG_VERSION}); retrain or convert the checkpoint"
             )
 
     @property

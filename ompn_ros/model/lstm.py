@@ -30,7 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from ompn_ros.model.config import ConfigError, OMPNConfig
-from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput, lengths_from_mask
+from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput
 from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation, sketch_tensor
 
 LSTMState = tuple[Tensor, Tensor]
@@ -111,13 +111,7 @@ class LSTMPolicy(PolicyInputs, nn.Module):
         self._check_obs(obs, 3)
         if impl not in ("fused", "reference"):
             raise ModelInputError(f"impl must be 'fused' or 'reference', got {impl!r}")
-        if mask.shape != obs.shape[:2]:
-            raise ModelInputError(
-                f"mask shape {tuple(mask.shape)} does not match obs [B, T] {tuple(obs.shape[:2])}"
-            )
-        if bptt <= 0:
-            raise ModelInputError(f"bptt must be a positive number of steps, got {bptt}")
-        lengths_from_mask(mask)  # validates the prefix layout; padding follows valid steps, so causality
+        self._check_sequence(obs, mask, bptt)  # the prefix layout: padding follows valid steps, so causality
         obs = obs.to(self.encoder.weight.dtype)  # keeps padded steps from affecting valid ones
         batch, steps = mask.shape
         e = self.embed_sketch(sketch, batch)

@@ -220,6 +220,17 @@ class PolicyInputs:
         if not obs.is_floating_point():
             raise ModelInputError(f"obs must be a float tensor, got {obs.dtype}")
 
+    @staticmethod
+    def _check_sequence(obs: Tensor, mask: Tensor, bptt: int) -> Tensor:
+        """The episode lengths ``[B]`` of a ``forward_sequence`` call, its mask and bptt checked."""
+        if mask.shape != obs.shape[:2]:
+            raise ModelInputError(
+                f"mask shape {tuple(mask.shape)} does not match obs [B, T] {tuple(obs.shape[:2])}"
+            )
+        if bptt <= 0:
+            raise ModelInputError(f"bptt must be a positive number of steps, got {bptt}")
+        return lengths_from_mask(mask)
+
 
 class OMPNPolicy(PolicyInputs, nn.Module):
     """The OMPN policy; see the module docstring for the equations."""
@@ -282,23 +293,14 @@ class OMPNPolicy(PolicyInputs, nn.Module):
         """
         self._check_obs(obs, 2)
         obs = obs.to(self.encoder.weight.dtype)
-        cfg = self.config
-        n = cfg.n_slots
+        n = self.config.n_slots
         e = state.task_emb if sketch_emb is None else sketch_emb
         x = self.encode_obs(obs)
         u = torch.cat([x, e], dim=-1)
         m_prev = [state.memory[:, i] for i in range(n)]
         first = state.first.unsqueeze(-1)
 
-        # bottom-up (skipped on the first step: C := M^0)
-        if cfg.no_bottom_up:
-            cand = list(m_prev)
-        else:
-            cand, below = [], x
-            for i, cell in enumerate(self.com_cells):
-                v = torch.zeros_like(below) if cfg.no_bottom_up_recurrence else below
-                below = cell(v, m_prev[i], u)
-                cand.append(torch.where(first, m_prev[i], below))
+        cand = self._bottom_up(x, u, m_prev, first)  # skipped on the first step: C := M^0
 
         # scores and stick-breaking (first step: expand from the top, pi_end = 0)
         logits = torch.cat([self.score(u, m_prev[i], cand[i]) for i in range(n)], dim=-1)
@@ -309,25 +311,48 @@ class OMPNPolicy(PolicyInputs, nn.Module):
         pi_end = torch.where(state.first, torch.zeros_like(pi_end), pi_end)
         pi, rcp, cp = expansion_sums(pi_hat)
 
-        # top-down
-        m_hat = [torch.zeros_like(x) for _ in range(n)]
-        if not cfg.no_top_down:
-            for i in range(n - 1, 0, -1):
-                parent = rcp[:, i : i + 1] * cand[i] + (1 - rcp[:, i : i + 1]) * m_hat[i]
-                m_hat[i - 1] = self.decom_cells[i - 1](parent, u)
-
-        new_slots = []
-        for i in range(n):
-            r, c = rcp[:, i : i + 1], cp[:, i : i + 1]
-            if cfg.memory_update == "paper":
-                new_slots.append(m_prev[i] * (1 - c) + cand[i] * pi[:, i : i + 1] + m_hat[i] * (1 - r))
-            else:
-                new_slots.append(r * cand[i] + (1 - r) * m_hat[i])
+        m_hat = self._top_down(x, u, cand, rcp)
+        new_slots = self._new_slots(m_prev, cand, m_hat, pi, rcp, cp)
         memory = torch.stack(new_slots, dim=1)
         action_out = self.denormalize_action(self.head(torch.cat([new_slots[0], e, x], dim=-1)))
         out = StepTensors(action_out=action_out, p_hat=to_p_hat(pi_hat, pi_end), pi=pi, pi_end=pi_end)
         new_state = MemoryState(memory=memory, first=torch.zeros_like(state.first), task_emb=state.task_emb)
         return out, new_state
+
+    def _bottom_up(self, x: Tensor, u: Tensor, m_prev: list[Tensor], first: Tensor) -> list[Tensor]:
+        """``C_1 .. C_n`` from ``C_0 = x`` (rows on their first step keep ``C := M^0``)."""
+        if self.config.no_bottom_up:
+            return list(m_prev)
+        cand, below = [], x
+        for i, cell in enumerate(self.com_cells):
+            v = torch.zeros_like(below) if self.config.no_bottom_up_recurrence else below
+            below = cell(v, m_prev[i], u)
+            cand.append(torch.where(first, m_prev[i], below))
+        return cand
+
+    def _top_down(self, x: Tensor, u: Tensor, cand: list[Tensor], rcp: Tensor) -> list[Tensor]:
+        """``M_hat_1 .. M_hat_n`` from ``M_hat_n = 0`` downwards (all zero for ``no_top_down``)."""
+        n = self.config.n_slots
+        m_hat = [torch.zeros_like(x) for _ in range(n)]
+        if not self.config.no_top_down:
+            for i in range(n - 1, 0, -1):
+                parent = rcp[:, i : i + 1] * cand[i] + (1 - rcp[:, i : i + 1]) * m_hat[i]
+                m_hat[i - 1] = self.decom_cells[i - 1](parent, u)
+        return m_hat
+
+    def _new_slots(
+        self, m_prev: list[Tensor], cand: list[Tensor], m_hat: list[Tensor], pi: Tensor, rcp: Tensor,
+        cp: Tensor,
+    ) -> list[Tensor]:
+        """``M^t`` slot by slot, by the configured ``memory_update`` rule (module docstring, step 5)."""
+        new_slots = []
+        for i in range(self.config.n_slots):
+            r, c = rcp[:, i : i + 1], cp[:, i : i + 1]
+            if self.config.memory_update == "paper":
+                new_slots.append(m_prev[i] * (1 - c) + cand[i] * pi[:, i : i + 1] + m_hat[i] * (1 - r))
+            else:
+                new_slots.append(r * cand[i] + (1 - r) * m_hat[i])
+        return new_slots
 
     def forward_sequence(
         self,
@@ -351,13 +376,7 @@ class OMPNPolicy(PolicyInputs, nn.Module):
         """
         self._check_obs(obs, 3)
         obs = obs.to(self.encoder.weight.dtype)
-        if mask.shape != obs.shape[:2]:
-            raise ModelInputError(
-                f"mask shape {tuple(mask.shape)} does not match obs [B, T] {tuple(obs.shape[:2])}"
-            )
-        if bptt <= 0:
-            raise ModelInputError(f"bptt must be a positive number of steps, got {bptt}")
-        lengths = lengths_from_mask(mask)
+        lengths = self._check_sequence(obs, mask, bptt)
         if impl == "fused":
             return fused_forward_sequence(self, obs, mask, lengths, sketch, bptt, bf16=bf16)
         if impl != "reference":

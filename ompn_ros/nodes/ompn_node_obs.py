@@ -24,7 +24,7 @@ from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
 
 from ompn_ros.data.joint_merge import JointMerger, field_width_line
 from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec, ObservationSpecError
-from ompn_ros.data.obs.spec import (
+from ompn_ros.layout import (
     FLOAT32,
     FLOAT32_ARRAY,
     FLOAT64,

@@ -115,6 +115,39 @@ def landmarks() -> np.ndarray:
     return (LANDMARK_RADIUS * np.stack([np.cos(angles), np.sin(angles)], axis=1)).astype(np.float32)
 
 
+def _landmark_sequence(rng: np.random.Generator, n_goals: int) -> list[int]:
+    """``n_goals`` landmark ids, consecutive ones at least two places apart on the circle (so
+    subtasks take several steps)."""
+    ids: list[int] = []
+    previous = -1
+    for _ in range(n_goals):
+        choices = [
+            j
+            for j in range(N_LANDMARKS)
+            if previous < 0 or min((j - previous) % N_LANDMARKS, (previous - j) % N_LANDMARKS) >= 2
+        ]
+        previous = int(rng.choice(choices))
+        ids.append(previous)
+    return ids
+
+
+def _continuous_obs(pos: np.ndarray, goal: np.ndarray | None, reached: int, n_goals: int) -> np.ndarray:
+    flags = np.zeros(n_goals, dtype=np.float32)
+    flags[:reached] = 1.0
+    g = np.zeros(2, dtype=np.float32) if goal is None else goal
+    return np.concatenate([pos, g, flags]).astype(np.float32)
+
+
+def _reach_action(
+    goal: np.ndarray, pos: np.ndarray, max_speed: float, noise: float, rng: np.random.Generator
+) -> np.ndarray:
+    """The saturated proportional controller's velocity towards ``goal``, plus noise."""
+    delta = goal - pos
+    dist = float(np.linalg.norm(delta))
+    action = delta if dist <= max_speed else delta * (max_speed / dist)
+    return (action + rng.normal(0.0, noise, size=2)).astype(np.float32)
+
+
 def generate_continuous_episode(
     seed: int,
     *,
@@ -136,46 +169,26 @@ def generate_continuous_episode(
         raise SyntheticError(f"n_goals={n_goals}, max_speed={max_speed}, radius={radius} must be positive")
     rng = np.random.default_rng(seed)
     points = landmarks()
-    ids: list[int] = []
-    previous = -1
-    for _ in range(n_goals):
-        # consecutive landmarks at least two places apart on the circle, so subtasks take several steps
-        choices = [
-            j
-            for j in range(N_LANDMARKS)
-            if previous < 0 or min((j - previous) % N_LANDMARKS, (previous - j) % N_LANDMARKS) >= 2
-        ]
-        previous = int(rng.choice(choices))
-        ids.append(previous)
+    ids = _landmark_sequence(rng, n_goals)
     pos = rng.uniform(-1.0, 1.0, size=2).astype(np.float32)
     observations: list[np.ndarray] = []
     actions: list[np.ndarray] = []
     labels: list[int] = []
-
-    def obs_of(goal: np.ndarray | None, reached: int) -> np.ndarray:
-        flags = np.zeros(n_goals, dtype=np.float32)
-        flags[:reached] = 1.0
-        g = np.zeros(2, dtype=np.float32) if goal is None else goal
-        return np.concatenate([pos, g, flags]).astype(np.float32)
-
     for i, landmark in enumerate(ids):
         goal = points[landmark]
         while float(np.linalg.norm(goal - pos)) >= radius:
             if len(actions) >= max_steps:
                 raise SyntheticError(f"continuous episode (seed {seed}) exceeded {max_steps} steps")
-            observations.append(obs_of(goal, i))
+            observations.append(_continuous_obs(pos, goal, i, n_goals))
             labels.append(i)
-            delta = goal - pos
-            dist = float(np.linalg.norm(delta))
-            action = delta if dist <= max_speed else delta * (max_speed / dist)
-            action = (action + rng.normal(0.0, noise, size=2)).astype(np.float32)
+            action = _reach_action(goal, pos, max_speed, noise, rng)
             actions.append(action)
             pos = (pos + action).astype(np.float32)
         upcoming = points[ids[i + 1]] if i + 1 < n_goals else None
-        observations.append(obs_of(upcoming, i + 1))
+        observations.append(_continuous_obs(pos, upcoming, i + 1, n_goals))
         labels.append(i)
         actions.append(rng.normal(0.0, noise, size=2).astype(np.float32))
-    observations.append(obs_of(None, n_goals))
+    observations.append(_continuous_obs(pos, None, n_goals, n_goals))
     return Episode(
         observations=np.stack(observations),
         actions=np.stack(actions).astype(np.float32),

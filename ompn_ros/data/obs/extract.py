@@ -18,9 +18,7 @@ from typing import Literal
 import numpy as np
 
 from ompn_ros.data import messages as m
-
-from . import cdr
-from .spec import (
+from ompn_ros.layout import (
     FLOAT32,
     FLOAT32_ARRAY,
     FLOAT64,
@@ -28,9 +26,10 @@ from .spec import (
     JOINT_STATE,
     POSE_STAMPED,
     WRENCH_STAMPED,
-    FieldSpec,
-    ObservationSpec,
 )
+
+from . import cdr
+from .spec import FieldSpec, ObservationSpec
 
 ExtractReason = Literal["malformed", "wrong_size"]
 Parsed = tuple[int | None, dict[str, np.ndarray], tuple[str, ...] | None]

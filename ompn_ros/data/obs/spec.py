@@ -25,18 +25,21 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Final, Literal
 
+from ompn_ros.layout import (
+    FLOAT32,
+    FLOAT32_ARRAY,
+    FLOAT64,
+    FLOAT64_ARRAY,
+    JOINT_FIELDS,
+    JOINT_STATE,
+    POSE_STAMPED,
+    WRENCH_STAMPED,
+)
+
 StampSource = Literal["header", "receive"]
 
-JOINT_STATE: Final = "sensor_msgs/msg/JointState"
-FLOAT32_ARRAY: Final = "std_msgs/msg/Float32MultiArray"
-FLOAT64_ARRAY: Final = "std_msgs/msg/Float64MultiArray"
-FLOAT32: Final = "std_msgs/msg/Float32"
-FLOAT64: Final = "std_msgs/msg/Float64"
-WRENCH_STAMPED: Final = "geometry_msgs/msg/WrenchStamped"
-POSE_STAMPED: Final = "geometry_msgs/msg/PoseStamped"
-
 FIELDS: Final[dict[str, tuple[str, ...]]] = {
-    JOINT_STATE: ("position", "velocity", "effort"),
+    JOINT_STATE: JOINT_FIELDS,
     FLOAT32_ARRAY: ("data",),
     FLOAT64_ARRAY: ("data",),
     FLOAT32: ("data",),

@@ -25,7 +25,6 @@ from ompn_ros import layout
 
 from .. import messages as m
 from ..errors import AlignmentError, BagError, CorruptBagError, NonFiniteValueError
-from ..obs.spec import FLOAT64_ARRAY
 from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors, merge_publishers
 from .observe import AssembledRows, assembled_rows
@@ -205,7 +204,7 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
     if msgtype == layout.FLOAT32_ARRAY:
         values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
         return values, stamps, None, stamps
-    if msgtype == FLOAT64_ARRAY:
+    if msgtype == layout.FLOAT64_ARRAY:
         return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps), stamps, None, stamps
     header = ctx.clock(topic) == "header"
     if src.merge_s is not None:

@@ -15,7 +15,7 @@ import yaml
 from ompn_ros import layout
 
 from ..errors import ReaderSpecError
-from ..obs.spec import FLOAT64_ARRAY, ObservationSpec, ObservationSpecError
+from ..obs.spec import ObservationSpec, ObservationSpecError
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
@@ -26,8 +26,8 @@ PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapol
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
 there (docs/design.md#final-observation)."""
 SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
-VECTOR_TYPES = (layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
-ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, FLOAT64_ARRAY, layout.JOINT_STATE)
+VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
+ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
 
 
 @dataclass(frozen=True)
