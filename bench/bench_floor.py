@@ -56,7 +56,7 @@ def echo_node() -> None:
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Float32MultiArray
 
-    from ompn_ros.nodes.ompn_node import make_executor
+    from ompn_ros.ros.run import make_executor
 
     rclpy.init()
     stop = []
@@ -103,7 +103,7 @@ def bench_echo(count: int) -> Result:
     from std_msgs.msg import Float32MultiArray
 
     from ompn_ros.data.messages import encode_float32_array
-    from ompn_ros.nodes.ompn_node import make_executor
+    from ompn_ros.ros.run import make_executor
 
     proc = subprocess.Popen([sys.executable, __file__, "--echo-node"], env=dict(os.environ), cwd=str(ROOT))
     ctx = rclpy.context.Context()

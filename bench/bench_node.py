@@ -239,7 +239,7 @@ class _Client:
             depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
         )
         self.node = rclpy.create_node("bench_client", context=ctx)
-        from ompn_ros.nodes.ompn_node import make_executor
+        from ompn_ros.ros.run import make_executor
 
         self.executor = make_executor(executor, context=ctx)
         self.executor.add_node(self.node)

@@ -8,7 +8,10 @@ The two packages meet at two small interfaces (``test/test_import_graph.py`` che
 
   - ``ompn_ros.layout``: topic names, types and sizes, the step contract, sketch vocabularies;
   - ``ompn_ros.data.episode``: the :class:`~ompn_ros.data.episode.Episode` the experts return;
-  - ``ompn_ros.data.messages``: the ROS-free CDR message codec.
+  - ``ompn_ros.data.messages``: the ROS-free CDR message codec;
+  - ``ompn_ros.validate``: the sketch validator (Dial's ``sketch`` parameter);
+  - ``ompn_ros.ros.params`` and ``ompn_ros.ros.run`` (sim nodes only): the parameter helper and the
+    one ``main()`` of every node, :func:`~ompn_ros.ros.run.run_node`.
 
 * **ompn_ros -> sim_nodes**: ``ompn_ros`` imports only :mod:`sim_nodes.registry` (expert episodes
   by domain name, the envs, task lists, :func:`derive_seed`); the sim nodes themselves are started

@@ -25,8 +25,8 @@ Modes:
   the command arrived), so a DONE leaves no dangling subtask message.
 
 ``rate`` = 0 means as fast as possible (expert: a batch of steps per 1 ms tick; policy: the step runs
-in the ``cmd_action`` callback).  ``episodes`` = 0 means forever; otherwise the node returns from
-:func:`run_sim_node` after the last episode.  Episode ``i`` uses ``derive_seed(seed, i)``.
+in the ``cmd_action`` callback).  ``episodes`` = 0 means forever; otherwise the process ends (exit code 0,
+:func:`serve_sim`) after the last episode.  Episode ``i`` uses ``derive_seed(seed, i)``.
 ``episode_pause`` holds the node that many (wall-clock) seconds between episodes.
 
 **Time.**  A sim keeps its own *simulated time*: it advances by ``step_ns`` (40 ms, 25 Hz, unless the
@@ -51,24 +51,21 @@ clock subscribers receive it.
 ``wait_for_subscribers`` = N (> 0) holds the first episode until every topic in ``wait_topics``
 (default ``['*']``: all topics of the sim, the recorder case; an ``ompn_node`` in policy mode only needs
 ``['observation']``) has N matched subscribers (a subscriber whose QoS does not match is not counted),
-then waits 0.5 s more.  Invalid parameters raise :class:`ParameterError` at startup; :func:`run_sim_node`
-prints it and returns exit code 2.
+then waits 0.5 s more.  Invalid parameters raise :class:`ParameterError` at startup; the node's ``main()``
+(:func:`ompn_ros.ros.run.run_node`) prints it in one line and exits with code 2.
 """
 
 from __future__ import annotations
 
-import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -79,7 +76,8 @@ from ompn_ros import layout
 from ompn_ros.data import messages
 from ompn_ros.data.episode import Episode, observation_copies
 from ompn_ros.layout import DomainLayout
-from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable, help_text, wants_help
+from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable
+from ompn_ros.ros.run import NodeProcess
 from sim_nodes import SEED_MAX, derive_seed
 from sim_nodes.human import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 
@@ -296,8 +294,7 @@ class SimNode(Node):
     def __init__(self, node_name: str, domain: DomainLayout, domain_params: Sequence[ParamSpec] = ()) -> None:
         super().__init__(node_name)
         self.domain = domain
-        # A domain may override a common parameter (dial_sim's real-time rate): the last row wins.
-        self.param_table = ParamTable({s.name: s for s in (*COMMON_PARAMS, *domain_params)}.values())
+        self.param_table = ParamTable(sim_params(domain_params))
         self.params = self.param_table.declare(self)
         self.mode: str = self.params["mode"]
         self.rate: float = float(self.params["rate"])
@@ -518,31 +515,15 @@ class SimNode(Node):
             self._policy_step()
 
 
-def run_sim_node(factory: Callable[[], SimNode], args: list[str] | None = None, name: str = "sim",
-                 params: Sequence[ParamSpec] = ()) -> int:
-    """The ``main()`` idiom: ``--help`` (no side effects), else init, spin until finished or shut down;
-    exit code 2 on bad parameters.  ``params`` are the domain's own rows (after the common ones)."""
-    if wants_help(args):
-        table = {s.name: s for s in (*COMMON_PARAMS, *params)}.values()
-        print(help_text(name, f"{name}: a simulator publishing the ompn_ros topic layout.", table))
-        return 0
-    rclpy.init(args=args)
-    node: SimNode | None = None
-    code = 0
-    try:
-        node = factory()
-        while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.1)
-        deadline = time.monotonic() + _LINGER_S
-        while rclpy.ok() and time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.05)
-    except ParameterError as exc:
-        print(f"{name}: {exc}", file=sys.stderr, flush=True)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+def sim_params(domain_params: Sequence[ParamSpec]) -> list[ParamSpec]:
+    """The parameter table of a sim: the common rows, then the domain's own; a domain row overrides the
+    common row of its name (dial_sim's real-time ``rate``)."""
+    return list({s.name: s for s in (*COMMON_PARAMS, *domain_params)}.values())
+
+
+def serve_sim(node: SimNode, process: NodeProcess) -> int:
+    """The serve function of a sim (:func:`ompn_ros.ros.run.run_node`): until its last episode ended
+    (exit 0) or a signal, then a moment more so that reliable messages still in flight get delivered."""
+    code = process.serve(lambda: 0 if node.finished else None)
+    process.linger(_LINGER_S)
     return code

@@ -29,7 +29,7 @@ MAX_ENTRY_POINT_LOCAL_IMPORTS = 57
 """A ratchet for ``cli/`` and ``nodes/``: lower it whenever one of their local imports goes."""
 SIM_NODES_MAY_IMPORT = (
     "ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages", "ompn_ros.ros.params",
-    "ompn_ros.validate",
+    "ompn_ros.ros.run", "ompn_ros.validate",
 )
 """The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""
 OMPN_ROS_MAY_IMPORT = ("sim_nodes.registry",)

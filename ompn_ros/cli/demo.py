@@ -12,8 +12,7 @@ import subprocess
 import sys
 import time
 
-from ompn_ros.app import live
-from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.cli import live_demo
 from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
 from ompn_ros.ros.env import child_env
 
@@ -52,11 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if args.smoke:
-        return run_smoke()
-    checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
-    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout,
-                         params_file=args.params_file, sim_params=args.sim_param)
+    return run_smoke() if args.smoke else live_demo.run(args)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -61,22 +61,17 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import importlib
-import signal
 import sqlite3
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from ompn_ros import layout
@@ -88,8 +83,11 @@ from ompn_ros.data.recorder.sim_stamps import SimStamper
 from ompn_ros.data.recorder.step_commits import COMMIT, StepCommits
 from ompn_ros.data.recorder.stop_cut import StopCut
 from ompn_ros.data.recorder.storage import DurableWriter, offered_qos
-from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable
+from ompn_ros.ros.params import ParamSpec, ParamTable
+from ompn_ros.ros.run import NodeProcess, run_node
 
+NODE_NAME = "bag_recorder"
+USAGE = "[TOPIC ...] [-o OUTPUT] [-s {mcap,sqlite3}]"
 DEFAULT_TOPICS = [
     layout.EPISODE, layout.SKETCH, layout.OBSERVATION, layout.JOINT_STATES, layout.SUBTASK,
     layout.ACTION, layout.RENDER,
@@ -115,6 +113,9 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("min_free_mb", 64.0, "free disk space (MB) needed to start; less while recording is "
               "warned once (0 = no check)", float_range=(0.0, 1e9)),
 )
+ABOUT = ("Record the sim topics to a rosbag2 (v9) without decoding; SIGINT/SIGTERM drain and close the bag.\n"
+         "TOPIC ... sets 'topics', -o/--output sets 'output', -s/--storage sets 'storage'; use_sim_time "
+         "(default False) stamps in sim time (/clock), keeping the publish order.")
 RESERVE_BYTES = 2 * 1024 * 1024  # kept free beside the bag so that a full disk still lets it close
 
 
@@ -168,28 +169,11 @@ class _Topic:
     sub: Any = None
 
 
-@dataclass
-class StopRequest:
-    """SIGINT/SIGTERM handler state: the first signal's system time and the number of signals."""
-
-    signal_ns: int | None = None
-    count: int = 0
-
-    def __call__(self, signum: int, frame: FrameType | None) -> None:
-        if self.signal_ns is None:
-            self.signal_ns = time.time_ns()
-        self.count += 1
-
-    def install(self) -> None:
-        signal.signal(signal.SIGINT, self)
-        signal.signal(signal.SIGTERM, self)
-
-
 class BagRecorder(Node):
     """Raw recorder of the sim topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("bag_recorder", **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = ParamTable(PARAMS).declare(self)
         storage = p["storage"]
         self.qos_depth = int(p["qos_depth"])
@@ -391,6 +375,13 @@ class BagRecorder(Node):
             stats.time_gaps.append((stamp - stats.last_stamp) / 1e9)
         stats.last_stamp = stamp
 
+    def work(self) -> int | None:
+        """After every wait: take what is queued, make the commits that are due; exit code 2 once the
+        storage failed (the bag is then closed), else ``None``."""
+        self.pump()
+        self.tick()
+        return 2 if self.failed else None
+
     def tick(self) -> None:
         """Periodic: a pending commit a whole period old is made anyway; with none pending and a
         period over (no step opened in half of one), the storage is committed."""
@@ -407,20 +398,21 @@ class BagRecorder(Node):
                 self.get_logger().warning(low)
 
     # --- stop ---------------------------------------------------------------------------------------
-    def drain(self, executor: Any, stop: StopRequest) -> None:
+    def drain(self, process: NodeProcess) -> None:
         """Take what DDS delivers until the streams reached the cut, or idle/timeout (module docstring)."""
+        stop = process.stop
         assert stop.signal_ns is not None
         self.cut.request(stop.signal_ns)
         streams = {t.name: t for t in self.topics.values() if t.stats.streaming(stop.signal_ns)}
         start = last = time.monotonic()
         while True:
             before = sum(t.stats.count for t in self.topics.values())
-            executor.spin_once(timeout_sec=0.01)
+            process.spin_once(0.01)
             self.pump()
             now = time.monotonic()
             if sum(t.stats.count for t in self.topics.values()) != before:
                 last = now
-            end = self._drain_over(streams, now - last, now - start, stop.count)
+            end = self._drain_over(streams, now - last, now - start, stop.signals)
             if end:
                 self.drain_end = end
                 break
@@ -462,7 +454,7 @@ class BagRecorder(Node):
 
     def summary(self) -> str:
         written = sum(s.count for s in self.stats.values())
-        lines = [f"bag_recorder: wrote {written} messages to {self.output}"]
+        lines = [f"{NODE_NAME}: wrote {written} messages to {self.output}"]
         for name in sorted(self.topics):
             s = self.topics[name].stats
             line = f"  {name} [{s.msgtype}]: {s.count} messages"
@@ -497,17 +489,12 @@ def _step_topic(step: str, wanted: set[str]) -> str | None:
 
 
 def parse_cli(argv: list[str]) -> argparse.Namespace:
-    """The non-ROS command line (``--help`` prints every parameter with its default and exits)."""
-    table = "\n".join(f"  {spec.name} (default {spec.default!r}): {spec.description}" for spec in PARAMS)
-    table += "\n  use_sim_time (default False): stamp in sim time (/clock), keeping the publish order"
-    parser = argparse.ArgumentParser(
-        prog="bag_recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Record the sim topics to a rosbag2 (v9) without decoding; SIGINT/SIGTERM drain "
-                    "and close the bag.",
-        epilog=f"ROS parameters (--ros-args -p name:=value):\n{table}")
-    parser.add_argument("topics", nargs="*", help=f"topics to record (default: {' '.join(DEFAULT_TOPICS)})")
-    parser.add_argument("-o", "--output", help="bag directory to create (default: bags/rec_<UTC timestamp>)")
-    parser.add_argument("-s", "--storage", choices=STORAGES, help="storage plugin (default: mcap)")
+    """The recorder's own arguments (``-h``/``--help`` is left to :func:`ompn_ros.ros.run.run_node`)."""
+    parser = argparse.ArgumentParser(prog=NODE_NAME, usage=f"{NODE_NAME} {USAGE}", add_help=False)
+    parser.add_argument("-h", "--help", action="store_true")
+    parser.add_argument("topics", nargs="*")
+    parser.add_argument("-o", "--output")
+    parser.add_argument("-s", "--storage", choices=STORAGES)
     return parser.parse_args(argv)
 
 
@@ -522,33 +509,26 @@ def _overrides(opts: argparse.Namespace) -> list[Parameter]:
     return out
 
 
-def main(args: list[str] | None = None) -> int:
-    argv = list(sys.argv if args is None else args)
-    opts = parse_cli(remove_ros_args(argv)[1:])  # --help / bad flags exit here, before any side effect
-    stop = StopRequest()
-    stop.install()
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+def _serve(node: BagRecorder, process: NodeProcess) -> int:
+    """Record until a signal (then drain) or a storage failure; the bag is closed and its summary
+    printed however the recording ends."""
     try:
-        node = BagRecorder(parameter_overrides=_overrides(opts))
-    except (RecorderError, ParameterError, OSError) as err:
-        print(f"bag_recorder: error: {err}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        while stop.signal_ns is None and rclpy.ok() and not node.failed:
-            executor.spin_once(timeout_sec=0.05)
-            node.pump()
-            node.tick()
-        if stop.signal_ns is not None and not node.failed:
-            node.drain(executor, stop)
+        code = process.serve(node.work, period=0.05)
+        if process.stop.signal_ns is not None and not node.failed:
+            node.drain(process)
     finally:
         print(node.close(), flush=True)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 2 if node.failed else 0
+    return 2 if node.failed else code
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``bag_recorder``: exit 0 after SIGINT/SIGTERM (the bag drained and closed), 2 on a
+    bad parameter, output or too little space (one line), or when the storage failed while recording."""
+    argv = list(sys.argv if args is None else args)
+    opts = parse_cli(remove_ros_args(argv)[1:])  # bad flags exit 2 here, before any side effect
+    return run_node(NODE_NAME, lambda: BagRecorder(parameter_overrides=_overrides(opts)), argv,
+                    about=ABOUT, params=PARAMS, usage=USAGE, serve=_serve, errors=(RecorderError, OSError),
+                    label="error: ")
 
 
 if __name__ == "__main__":

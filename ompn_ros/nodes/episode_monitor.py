@@ -21,16 +21,16 @@ import sys
 import time
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32MultiArray, Int32
 
 from ompn_ros import layout
-from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
+from ompn_ros.ros.params import ParamSpec, ParamTable
+from ompn_ros.ros.run import run_node
 
+NODE_NAME = "episode_monitor"
 GRACE_S = 0.5  # wait this long after an end marker for the episode's last per-step messages
 
 QOS = QoSProfile(
@@ -52,7 +52,7 @@ class EpisodeMonitor(Node):
     """Collects per-episode outcomes from a sim's markers and subtask topic."""
 
     def __init__(self) -> None:
-        super().__init__("episode_monitor")
+        super().__init__(NODE_NAME)
         values = PARAMS.declare(self)  # ParameterError on an invalid value
         self.episodes = int(values["episodes"])
         self.timeout = float(values["timeout"])
@@ -122,34 +122,20 @@ class EpisodeMonitor(Node):
     def done(self) -> bool:
         return bool(self.episodes) and self.finished_count >= self.episodes
 
+    def poll(self) -> int | None:
+        """After every wait: print the pending record when due; exit code 0 after ``episodes`` records,
+        3 (with a timeout line) once ``timeout`` has passed, else ``None``."""
+        self.flush()
+        if time.monotonic() > self.deadline:
+            print(json.dumps({"event": "timeout", "finished": self.finished_count}), flush=True)
+            return 3
+        return 0 if self.done else None
+
 
 def main(args: list[str] | None = None) -> int:
     """Exit codes: 0 done or interrupted, 2 invalid parameter (one line), 3 timeout."""
-    if wants_help(args):
-        print(help_text("episode_monitor", "Prints one JSON line per finished sim episode.",
-                        PARAMS.specs.values()))
-        return 0
-    rclpy.init(args=args)
-    node: EpisodeMonitor | None = None
-    code = 0
-    try:
-        node = EpisodeMonitor()
-        while rclpy.ok() and not node.done:
-            rclpy.spin_once(node, timeout_sec=0.1)
-            node.flush()
-            if time.monotonic() > node.deadline:
-                print(json.dumps({"event": "timeout", "finished": node.finished_count}), flush=True)
-                code = 3
-                break
-    except ParameterError as exc:
-        code = exit_code_for("episode_monitor", exc)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(NODE_NAME, EpisodeMonitor, args, about="Prints one JSON line per finished sim episode.",
+                    params=PARAMS.specs.values(), serve=lambda node, process: process.serve(node.poll))
 
 
 if __name__ == "__main__":

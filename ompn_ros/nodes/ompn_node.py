@@ -75,34 +75,29 @@ starts, counted (``clock_jumps``) with a warning.
 
 Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured to cut the
 observation -> boundary latency by ~0.4-0.5 ms against ``'single'`` = ``SingleThreadedExecutor``
-(BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so :func:`spin_until_shutdown` drives it
-with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_node_params`.
+(BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so :func:`ompn_ros.ros.run.run_node`
+drives it with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_node_params`.
 """
 
 from __future__ import annotations
 
 import array
 import gc
-import signal
 import sys
 import threading
 import time
-import traceback
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray
 from std_srvs.srv import Trigger
@@ -149,7 +144,8 @@ from ompn_ros.nodes.ompn_node_params import (
     input_qos,
     policy_kind_name,
 )
-from ompn_ros.ros.params import ParameterError, ParamTable, exit_code_for, help_text, wants_help
+from ompn_ros.ros.params import ParameterError, ParamTable
+from ompn_ros.ros.run import NodeProcess, run_node
 from ompn_ros.segmenter import (
     BadSketch,
     BadStamp,
@@ -1099,53 +1095,44 @@ def _int_or_none(text: str) -> int | None:
         return None
 
 
-def make_executor(kind: str, context: Any = None) -> Any:
-    """``'events'``: the C++ ``rclpy.experimental.EventsExecutor``; ``'single'``: SingleThreadedExecutor."""
-    if kind == "events":
-        from rclpy.experimental import EventsExecutor
-
-        return EventsExecutor(context=context)
-    return SingleThreadedExecutor(context=context)
-
-
-def spin_until_shutdown(executor: Any, context: Any = None, period: float = 0.1,
-                        stop: threading.Event | None = None) -> None:
-    """Serve callbacks until ``stop`` is set (SIGINT/SIGTERM in :func:`main`) or the context shuts
-    down (``rclpy.shutdown``).
-
-    A ``spin_once`` loop rather than ``spin()``: the EventsExecutor's ``spin()`` in rclpy 7.1.6
-    serves no callback and ignores SIGINT, while its ``spin_once`` works (module docstring).
-    """
-    while rclpy.ok(context=context) and not (stop is not None and stop.is_set()):
-        executor.spin_once(timeout_sec=period)
-
-
-def _stop_on_signals() -> threading.Event:
-    """An event set by SIGINT and SIGTERM.  rclpy's own handlers would shut the context down while a
-    callback (e.g. the diagnostics timer) is under way, which then fails with a FATAL line; with
-    this one the spin loop ends first and the context is shut down after the executor."""
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
-
-
 KNOWN_CONFIGURE_ERRORS = (NodeConfigError, CheckpointError, ConfigError, DetectorConfigError,
                           DetectorSettingsError, ObservationSpecError, FileNotFoundError)
 """Configure failures caused by the parameters or the checkpoint (not by a bug in this package)."""
 
 
-def _cannot_start(node: OMPNNode) -> int:
-    """The auto-start configure failed: a known cause is one line and exit code 2 (README), anything
-    else a bug: its traceback and exit code 1."""
+def _cannot_start(node: OMPNNode) -> Exception:
+    """Why the auto-start configure failed: a known cause as :class:`NodeConfigError` ('cannot start:
+    ...': one line, exit code 2); anything else is a bug, logged as FATAL and raised again with its
+    traceback (exit code 1)."""
     exc = node.configure_error
     if isinstance(exc, KNOWN_CONFIGURE_ERRORS):
-        print(f"{NODE_NAME}: cannot start: {exc}", file=sys.stderr)
-        return 2
-    if exc is not None:
-        traceback.print_exception(exc)
+        return NodeConfigError(f"cannot start: {exc}")
     node.get_logger().fatal(f"cannot start: {node.last_error}")
-    return 1
+    return exc if exc is not None else RuntimeError(f"cannot start: {node.last_error}")
+
+
+def _started_node() -> OMPNNode:
+    """The node, configured and activated when ``auto_start`` is set; a detector parameter that does
+    not fit the others is a parameter error (``detector_*``)."""
+    try:
+        node = OMPNNode()
+    except DetectorConfigError as exc:
+        raise ParameterError("detector_*", str(exc)) from None
+    if node.values["auto_start"]:
+        node.quiet_configure = True
+        node.trigger_configure()
+        node.quiet_configure = False
+        if node.segmenter is None:
+            error = _cannot_start(node)
+            node.destroy_node()
+            raise error
+        node.trigger_activate()
+    return node
+
+
+def _serve(node: OMPNNode, process: NodeProcess) -> int:
+    """Serve until a signal or the shutdown transition (both exit 0)."""
+    return process.serve(lambda: 0 if node.finished.is_set() else None)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -1157,43 +1144,10 @@ def main(args: list[str] | None = None) -> int:
     (one line naming it and the allowed values) or unparsable ROS arguments (rcl's reason, e.g. an
     unquoted YAML mapping given to ``-p observation_spec:=``: pass a file path or quote the mapping as
     a YAML string)."""
-    if wants_help(args):
-        print(help_text(NODE_NAME, "Online subtask segmentation: steps the OMPN on every observation and "
-                        "publishes the action, ~/pi and ~/boundary events.", SPECS))
-        return 0
-    try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except Exception as exc:  # rcl rejects the command line (RCLError): one line, no traceback
-        print(f"{NODE_NAME}: invalid ROS arguments: {str(exc).split(', at ')[0]}", file=sys.stderr)
-        return 2
-    stop = _stop_on_signals()
-    node: OMPNNode | None = None
-    executor = None
-    try:
-        node = OMPNNode()
-        if node.values["auto_start"]:
-            node.quiet_configure = True
-            node.trigger_configure()
-            node.quiet_configure = False
-            if node.segmenter is None:
-                return _cannot_start(node)
-            node.trigger_activate()
-        executor = make_executor(str(node.values["executor"]))
-        executor.add_node(node)
-        node.finished = stop  # the shutdown transition ends the process as a signal does
-        spin_until_shutdown(executor, stop=stop)
-    except (ParameterError, DetectorConfigError) as exc:  # observation_spec errors are ParameterErrors
-        error = exc if isinstance(exc, ParameterError) else ParameterError("detector_*", str(exc))
-        return exit_code_for(NODE_NAME, error)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(NODE_NAME, _started_node, args, serve=_serve, errors=(NodeConfigError,),
+                    executor=lambda node: str(node.values["executor"]), params=SPECS,
+                    about="Online subtask segmentation: steps the OMPN on every observation and "
+                    "publishes the action, ~/pi and ~/boundary events.")
 
 
 if __name__ == "__main__":

@@ -14,16 +14,17 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections.abc import Callable
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from ompn_ros.ros.params import ParameterError, ParamSpec, ParamTable, exit_code_for, help_text, wants_help
+from ompn_ros.ros.params import ParamSpec, ParamTable
+from ompn_ros.ros.run import NodeProcess, run_node
 
 TOPIC = "smoke"
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -58,30 +59,32 @@ class SmokeTalker(Node):
         self.acked = False
         self.matched = 0
 
-    def run(self) -> None:
-        """Wait for a subscriber, publish, wait for the acks; the summary line is printed however the
-        run ends (SIGINT shuts the context down at any point of it: rclpy's signal handler)."""
+    def run(self, live: Callable[[], bool] = rclpy.ok) -> int:
+        """Wait for a subscriber, publish, wait for the acks, while ``live()`` (the context is up; under
+        :func:`talker_main`: and no signal came); the summary line is printed however the run ends.
+        Exit code 0."""
         try:
             deadline = time.monotonic() + float(self.values["wait_for_subscriber"])
-            while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
-                rclpy.spin_once(self, timeout_sec=0.05)
+            while self.publisher.get_subscription_count() == 0 and time.monotonic() < deadline and live():
+                time.sleep(0.05)
             self.matched = self.publisher.get_subscription_count()
-            self._publish_all()
+            self._publish_all(live)
             # A subscriber the talker has matched may not have matched the talker yet (discovery is
             # not symmetric, and slow under load): the writer must outlive its samples' delivery.
             ack_timeout = Duration(seconds=float(self.values["ack_timeout"]))
-            self.acked = rclpy.ok() and self.publisher.wait_for_all_acked(ack_timeout)
+            self.acked = live() and self.publisher.wait_for_all_acked(ack_timeout)
         except _rclpy.RCLError:
             if rclpy.ok():
                 raise
         finally:
             summary = {"published": self.sent, "matched": self.matched, "acked": self.acked}
             print(json.dumps({**summary, "topic": self.publisher.topic_name}), flush=True)
+        return 0
 
-    def _publish_all(self) -> None:
-        """Publish ``count`` messages at ``rate`` Hz, or until the context is shut down."""
+    def _publish_all(self, live: Callable[[], bool]) -> None:
+        """Publish ``count`` messages at ``rate`` Hz, or until ``live()`` turns false."""
         next_due = time.monotonic()
-        while self.sent < self.count and rclpy.ok():
+        while self.sent < self.count and live():
             msg = JointState()
             msg.header.stamp = self.get_clock().now().to_msg()
             msg.name = ["seq"]
@@ -102,6 +105,8 @@ class SmokeListener(Node):
         self.timeout = float(self.values["timeout"])
         self.seen: set[int] = set()
         self.latencies_ms: list[float] = []
+        self._received = 0  # messages seen at the last progress
+        self._last_progress = time.monotonic()
         self.create_subscription(JointState, TOPIC, self._on_message, QOS)
 
     def _on_message(self, msg: JointState) -> None:
@@ -110,17 +115,21 @@ class SmokeListener(Node):
         self.latencies_ms.append((now - sent) / 1e6)
         self.seen.add(int(msg.position[0]))
 
-    def run(self) -> dict:
-        last_progress = time.monotonic()
-        received = 0
-        while len(self.seen) < self.count and rclpy.ok():
-            rclpy.spin_once(self, timeout_sec=0.1)
-            if len(self.seen) != received:
-                received = len(self.seen)
-                last_progress = time.monotonic()
-            elif time.monotonic() - last_progress > self.timeout:
-                break
-        return self.summary()
+    def poll(self) -> int | None:
+        """After every wait: once ``count`` messages arrived or ``timeout`` seconds passed without a new
+        one, print the summary and return the exit code (0: none lost, 1: some lost), else ``None``."""
+        now = time.monotonic()
+        if len(self.seen) != self._received:
+            self._received = len(self.seen)
+            self._last_progress = now
+        elif now - self._last_progress > self.timeout:
+            return self._finish()
+        return self._finish() if len(self.seen) >= self.count else None
+
+    def _finish(self) -> int:
+        result = self.summary()
+        print(json.dumps(result), flush=True)
+        return 0 if result["lost"] == 0 else 1
 
     def summary(self) -> dict:
         lat = sorted(self.latencies_ms)
@@ -137,43 +146,27 @@ class SmokeListener(Node):
         }
 
 
-def _main(node_cls: type[SmokeTalker] | type[SmokeListener], args: list[str] | None) -> int:
-    """Run one role; exit 0 (all delivered), 1 (messages lost) or 2 (invalid parameter, one line)."""
-    prog = "smoke_listener" if node_cls is SmokeListener else "smoke_talker"
-    if wants_help(args):
-        table = LISTENER_PARAMS if node_cls is SmokeListener else TALKER_PARAMS
-        about = "DDS self-check: a talker and a listener count what arrives."
-        print(help_text(prog, about, table.specs.values()))
-        return 0
-    rclpy.init(args=args)
-    node: SmokeTalker | SmokeListener | None = None
-    code = 0
-    try:
-        node = node_cls()
-        result = node.run()
-        if isinstance(result, dict):
-            print(json.dumps(result), flush=True)
-            code = 0 if result["lost"] == 0 else 1
-    except ParameterError as exc:
-        code = exit_code_for(prog, exc)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+ABOUT = "DDS self-check: a talker and a listener count what arrives."
 
 
 def talker_main(args: list[str] | None = None) -> None:
-    sys.exit(_main(SmokeTalker, args))
+    """Console script ``smoke_talker``: exit 0, 2 on an invalid parameter (one line)."""
+    sys.exit(run_node("smoke_talker", SmokeTalker, args, about=ABOUT, params=TALKER_PARAMS.specs.values(),
+                      serve=lambda node, process: node.run(process.running)))
+
+
+def _serve_listener(node: SmokeListener, process: NodeProcess) -> int:
+    return process.serve(node.poll)
 
 
 def listener_main(args: list[str] | None = None) -> None:
-    sys.exit(_main(SmokeListener, args))
+    """Console script ``smoke_listener``: exit 0 (all delivered), 1 (messages lost), 2 (invalid parameter,
+    one line)."""
+    sys.exit(run_node("smoke_listener", SmokeListener, args, about=ABOUT,
+                      params=LISTENER_PARAMS.specs.values(), serve=_serve_listener))
 
 
 if __name__ == "__main__":
     role = sys.argv[1] if len(sys.argv) > 1 and sys.argv[1] in ("talker", "listener") else "talker"
     rest = [sys.argv[0], *sys.argv[2:]] if len(sys.argv) > 1 and sys.argv[1] == role else sys.argv
-    sys.exit(_main(SmokeTalker if role == "talker" else SmokeListener, rest))
+    (talker_main if role == "talker" else listener_main)(rest)

@@ -10,7 +10,7 @@ validation and *when* a change takes effect:
 * ``"startup"``: read-only after start-up (a ROS read-only descriptor).
 
 Start-up values that break a rule raise :class:`ParameterError`, whose one-line message names the
-parameter and the allowed values; :func:`exit_code_for` turns it into exit code 2 in ``main()``.
+parameter and the allowed values; :func:`ompn_ros.ros.run.run_node` prints it and exits 2.
 Changes at run time go through :meth:`ParamTable.check_changes`, for a node's
 ``add_on_set_parameters_callback``.
 """
@@ -147,9 +147,11 @@ def markdown_table(specs: Iterable[ParamSpec]) -> str:
     return "\n".join(rows)
 
 
-def help_text(prog: str, description: str, specs: Iterable[ParamSpec]) -> str:
-    """``--help`` of a node: usage, what it does, and every parameter with its default and rules."""
-    lines = [f"usage: {prog} [--ros-args -p NAME:=VALUE ... | --params-file FILE | -r FROM:=TO ...]", "",
+def help_text(prog: str, description: str, specs: Iterable[ParamSpec], usage: str = "") -> str:
+    """``--help`` of a node: usage (``usage``: the node's own arguments), what it does, and every parameter
+    with its default and rules."""
+    own = f" {usage}" if usage else ""
+    lines = [f"usage: {prog}{own} [--ros-args -p NAME:=VALUE ... | --params-file FILE | -r FROM:=TO ...]", "",
              description, "", "parameters (when a change applies: live | configure | startup):"]
     for spec in specs:
         bounds = spec.int_range or spec.float_range
@@ -165,9 +167,3 @@ def wants_help(args: Sequence[str] | None) -> bool:
     argv = list(sys.argv if args is None else args)
     cut = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     return any(a in ("-h", "--help") for a in argv[1:cut])
-
-
-def exit_code_for(prog: str, exc: ParameterError) -> int:
-    """Print ``exc`` as one line naming ``prog`` and return exit code 2 (for a node's ``main()``)."""
-    print(f"{prog}: {exc}", file=sys.stderr)
-    return 2

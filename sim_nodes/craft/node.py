@@ -27,14 +27,16 @@ from std_msgs.msg import String
 from ompn_ros import layout
 from ompn_ros.data.messages import encode_string
 from ompn_ros.ros.params import ParamSpec
+from ompn_ros.ros.run import run_node
 from sim_nodes.craft.env import CraftEnv
 from sim_nodes.craft.expert import generate_episode
 from sim_nodes.craft.human import generate_human_episode
 from sim_nodes.craft.render import render_ansi
 from sim_nodes.craft.world import TASKS
-from sim_nodes.ros_common import SIM_QOS, EpisodeStart, SimNode, run_sim_node
+from sim_nodes.ros_common import SIM_QOS, EpisodeStart, SimNode, serve_sim, sim_params
 
 NODE_NAME = "craft_sim"
+ABOUT = f"{NODE_NAME}: a simulator publishing the ompn_ros topic layout."
 CRAFT_PARAMS = (
     ParamSpec("task", "makebed", "Craft task name", choices=tuple(TASKS)),
     ParamSpec("full_obs", True, "full observation (global view) instead of the 5x5 window only"),
@@ -94,7 +96,8 @@ class CraftSim(SimNode):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_sim_node(CraftSim, args=args, name=NODE_NAME, params=CRAFT_PARAMS)
+    """Console script ``craft_sim``."""
+    return run_node(NODE_NAME, CraftSim, args, about=ABOUT, params=sim_params(CRAFT_PARAMS), serve=serve_sim)
 
 
 if __name__ == "__main__":

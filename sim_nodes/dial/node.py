@@ -77,6 +77,7 @@ from ompn_ros.data.messages import (
     encode_joint_state,
 )
 from ompn_ros.ros.params import ParameterError, ParamSpec
+from ompn_ros.ros.run import run_node
 from sim_nodes import derive_seed
 from sim_nodes.dial.env import (
     MAX_STEPS_PER_SUBTASK,
@@ -95,9 +96,10 @@ from sim_nodes.dial.expert import (
 )
 from sim_nodes.dial.human import HumanDialFactory, generate_human_episode
 from sim_nodes.dial.scene import FRAME_SKIP
-from sim_nodes.ros_common import SENSOR_QOS, SIM_QOS, EpisodeStart, SimNode, Streams, run_sim_node
+from sim_nodes.ros_common import SENSOR_QOS, SIM_QOS, EpisodeStart, SimNode, Streams, serve_sim, sim_params
 
 NODE_NAME = "dial_sim"
+ABOUT = f"{NODE_NAME}: a simulator publishing the ompn_ros topic layout."
 PROFILES = ("ompn", "robot")
 JOINT_STATES_QOS = {"sensor_data": SENSOR_QOS, "reliable": SIM_QOS}
 ROBOT_JOINT_STATES = "jaco/joint_states"
@@ -266,7 +268,7 @@ class DialSim(SimNode):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``dial_sim``."""
-    return run_sim_node(DialSim, args, NODE_NAME, params=DIAL_PARAMS)
+    return run_node(NODE_NAME, DialSim, args, about=ABOUT, params=sim_params(DIAL_PARAMS), serve=serve_sim)
 
 
 if __name__ == "__main__":
