@@ -71,7 +71,7 @@ if str(ROOT) not in sys.path:
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
 from ompn_ros.data.episode import Episode  # noqa: E402
-from ompn_ros.data.interfaces import decode_subtask_boundary  # noqa: E402
+from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
 from ompn_ros.detect.tune import score_predictions  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402
 

@@ -28,10 +28,9 @@ from ompn_ros.app.annotate import (  # noqa: E402
     observation_stamps,
 )
 from ompn_ros.data import messages as m  # noqa: E402
-from ompn_ros.data.interfaces import with_final  # noqa: E402
 from ompn_ros.data.reader import read_episodes  # noqa: E402
 from ompn_ros.data.recorder.bag_writer import write_episodes  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402

@@ -14,7 +14,7 @@ from ompn_ros.app.annotate import (
     segment_labels,
 )
 from ompn_ros.data import messages as m
-from ompn_ros.data.interfaces import SubtaskBoundary, decode_subtask_boundary
+from ompn_ros.data.messages import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import ReplayResult
 

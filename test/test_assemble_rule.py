@@ -300,7 +300,7 @@ def test_assemble_stream_is_the_assembler_in_record_order() -> None:
 
 
 def test_joint_state_parser_relearns_when_the_layout_changes() -> None:
-    from ompn_ros.data.obs.cdr import JointStateParser
+    from ompn_ros.data.messages import JointStateParser
 
     parser = JointStateParser()
     rng = np.random.default_rng(1)

@@ -22,8 +22,8 @@ from rclpy.parameter import Parameter  # noqa: E402
 from test_node_poison import active_node as poison_active_node  # noqa: E402 (publishers that record)
 
 from ompn_ros.data import messages as m  # noqa: E402
-from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402

@@ -6,7 +6,7 @@ import numpy as np
 
 from ompn_ros import layout
 from ompn_ros.cli.live_demo import Streams, _summarise
-from ompn_ros.data.interfaces import SubtaskBoundary, encode_subtask_boundary
+from ompn_ros.data.messages import SubtaskBoundary, encode_subtask_boundary
 
 
 def _streams(boundary_steps: list[tuple[int, int]], steps: int = 6) -> Streams:

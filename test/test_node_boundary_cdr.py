@@ -1,4 +1,4 @@
-"""The typed outputs' CDR (ompn_ros.data.interfaces): what the node publishes and annotated bags hold
+"""The typed outputs' CDR (ompn_ros.data.messages): what the node publishes and annotated bags hold
 decodes, with rclpy and with the rosbags typestore, to the fields it was built from."""
 
 from __future__ import annotations
@@ -11,16 +11,16 @@ from rclpy.serialization import deserialize_message
 
 from ompn_interfaces.msg import SubtaskBoundary as RosBoundary
 from ompn_interfaces.msg import SubtaskState as RosState
-from ompn_ros.data.interfaces import (
+from ompn_ros.data.messages import (
     SUBTASK_ID_UNKNOWN,
+    StampRangeError,
     SubtaskBoundary,
     decode_subtask_boundary,
+    encode_subtask_boundary,
     encode_subtask_state,
-    with_final,
+    join_stamp,
 )
-from ompn_ros.data.messages import StampRangeError, join_stamp
-from ompn_ros.detect.online import BoundaryEvent
-from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
+from ompn_ros.detect.online import BoundaryEvent, with_final
 
 
 def _random_event(rng: np.random.Generator) -> BoundaryEvent:
@@ -35,13 +35,12 @@ def _random_event(rng: np.random.Generator) -> BoundaryEvent:
 def test_rclpy_and_rosbags_decode_the_fields_of_many_events() -> None:
     rng = np.random.default_rng(3)
     for node, frame in (("/ompn_node", ""), ("/a/b/ompn_node", "base_link"), ("/x", "odd"), ("/n", "abcd")):
-        enc = BoundaryEncoder(node)
         for _ in range(200):
             event = _random_event(rng)
             sketch = rng.integers(0, 20, size=int(rng.integers(0, 6)))
             episode, decided = int(rng.integers(1, 10**5)), int(rng.integers(0, 2**31 * 10**9))
-            raw = enc.encode(event, stamp_ns=event.stamp_ns, episode=episode, frame_id=frame, sketch=sketch,
-                             decided_stamp_ns=decided)
+            raw = encode_subtask_boundary(SubtaskBoundary.from_event(
+                event, node=node, episode=episode, frame_id=frame, sketch=sketch, decided_stamp_ns=decided))
             want_id = int(sketch[event.subtask]) if event.subtask < len(sketch) else SUBTASK_ID_UNKNOWN
             msg = deserialize_message(raw, RosBoundary)
             got = (join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec), msg.header.frame_id, msg.node,
@@ -68,8 +67,8 @@ def test_the_state_decodes_with_named_fields() -> None:
 def test_a_stamp_out_of_range_raises() -> None:
     event = BoundaryEvent(step=1, detected_at=2, subtask=0, score=0.5, level=1, stamp_ns=0)
     with pytest.raises(StampRangeError):
-        BoundaryEncoder("/n").encode(event, stamp_ns=2**31 * 10**9, episode=1, frame_id="", sketch=None,
-                                     decided_stamp_ns=0)
+        encode_subtask_boundary(SubtaskBoundary.from_event(event, node="/n", episode=1,
+                                                           stamp_ns=2**31 * 10**9))
 
 
 def test_every_episode_ends_with_one_final_boundary() -> None:

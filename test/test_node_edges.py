@@ -63,7 +63,7 @@ def test_an_episode_whose_last_boundary_came_early_still_ends_with_a_final_one(c
     """The detector published the boundary at the episode's last step before the end marker, so
     closing the episode adds nothing: the node repeats that boundary with final set (issue: 'final'
     came with the end of only some episodes)."""
-    from ompn_ros.data.interfaces import decode_subtask_boundary
+    from ompn_ros.data.messages import decode_subtask_boundary
     from ompn_ros.detect.online import BoundaryEvent
 
     overrides = [Parameter("checkpoint", value=str(ckpt)), Parameter("max_stamp_lead", value=0.0)]

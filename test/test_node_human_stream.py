@@ -21,7 +21,8 @@ from rclpy.parameter import Parameter  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.episode import Episode, observation_copies  # noqa: E402
-from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
+from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
+from ompn_ros.detect.online import with_final  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
 from sim_nodes import derive_seed  # noqa: E402

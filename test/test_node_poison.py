@@ -27,8 +27,8 @@ from std_msgs.msg import Int32MultiArray  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
-from ompn_ros.data.interfaces import decode_subtask_boundary, with_final  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402

@@ -31,9 +31,8 @@ from std_msgs.msg import Float32MultiArray  # noqa: E402
 
 from ompn_interfaces.msg import SubtaskBoundary, SubtaskState  # noqa: E402
 from ompn_ros import layout  # noqa: E402
-from ompn_ros.data.interfaces import with_final  # noqa: E402
 from ompn_ros.data.messages import stamp_to_ns  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402

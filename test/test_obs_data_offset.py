@@ -8,8 +8,8 @@ import pytest
 from test_bag_compat import _padded
 
 from ompn_ros import layout
+from ompn_ros.data.messages import parse_float64_array
 from ompn_ros.data.obs import ObservationSpec, assemble_stream
-from ompn_ros.data.obs.cdr import parse_float64_array
 from ompn_ros.data.reader.vectors import stack_float64_arrays
 
 F64 = "std_msgs/msg/Float64MultiArray"

@@ -11,7 +11,7 @@ published while that recording played:
   at the step's observation stamp;
 * ``<ns>/segment`` (``std_msgs/Int32``): the segment ordinal of the step (see :data:`SegmentLabels`);
 * ``<ns>/boundary`` (``ompn_interfaces/msg/SubtaskBoundary``, the node's ``~/boundary`` event, built by
-  :mod:`ompn_ros.data.interfaces`: node = ``<ns>``, episode = the episode's number from 1,
+  :mod:`ompn_ros.data.messages`: node = ``<ns>``, episode = the episode's number from 1,
   ``subtask_id`` from the episode's sketch when it has one, the last boundary ``final``) logged at
   the stamp of the step where the online detector committed it (``decided_step``; a boundary
   committed on the done step is logged at the final observation's stamp when the episode's stamps
@@ -47,12 +47,11 @@ from typing import Any, Literal
 import numpy as np
 
 from ompn_ros import layout
-from ompn_ros.data import interfaces
 from ompn_ros.data import messages as m
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.recorder.bag_writer import storage_plugin
-from ompn_ros.detect.online import BoundaryEvent
+from ompn_ros.detect.online import BoundaryEvent, with_final
 from ompn_ros.layout import resolve_topic
 from ompn_ros.segmenter import ReplayResult
 
@@ -162,7 +161,7 @@ def pi_rows(result: ReplayResult) -> np.ndarray:
 def boundary_message(event: BoundaryEvent, stamp_ns: int, node: str, episode: int,
                      sketch: np.ndarray | None, decided_stamp_ns: int) -> bytes:
     """CDR of the node's ``~/boundary`` event for ``event`` (``header.stamp`` = ``stamp_ns``)."""
-    return interfaces.encode_subtask_boundary(interfaces.SubtaskBoundary.from_event(
+    return m.encode_subtask_boundary(m.SubtaskBoundary.from_event(
         event, node=node, episode=episode, sketch=sketch, decided_stamp_ns=decided_stamp_ns,
         stamp_ns=stamp_ns))
 
@@ -182,7 +181,7 @@ def episode_messages(stamps: np.ndarray, result: ReplayResult, number: int, topi
                             f"steps (expected {steps} or {steps + 1} with the final observation)")
     out: list[_Message] = []
     n_slots = rows.shape[1] - 2
-    for b in interfaces.with_final(result.boundaries):
+    for b in with_final(result.boundaries):
         if not 0 <= b.step <= b.detected_at or b.step >= steps or b.detected_at > steps:
             raise AnnotateError(f"episode #{number}: boundary at step {b.step} detected at "
                                 f"{b.detected_at} lies outside its {steps} steps")
@@ -192,7 +191,7 @@ def episode_messages(stamps: np.ndarray, result: ReplayResult, number: int, topi
     segments = segment_labels(result.boundaries, steps, labels)
     for t in range(steps):
         stamp = int(stamps[t])
-        state = interfaces.encode_subtask_state(stamp, "", number + 1, t, rows[t, :n_slots],
+        state = m.encode_subtask_state(stamp, "", number + 1, t, rows[t, :n_slots],
                                                 float(rows[t, n_slots]), float(rows[t, n_slots + 1]))
         out.append(_Message(stamp, _RANK["state"], topics["state"], state))
         pi_cdr = m.encode_float32_array(rows[t], layout.PI_LABEL)
@@ -454,9 +453,9 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
     writer.open()
     try:
         mapping = _copy_connections(reader, writer, src)
-        ts = interfaces.register()
-        types = {"state": interfaces.SUBTASK_STATE, "pi": layout.FLOAT32_ARRAY, "segment": layout.INT32,
-                 "boundary": interfaces.SUBTASK_BOUNDARY}
+        ts = m.register_interfaces()
+        types = {"state": m.SUBTASK_STATE, "pi": layout.FLOAT32_ARRAY, "segment": layout.INT32,
+                 "boundary": m.SUBTASK_BOUNDARY}
         out_conns = {topic: writer.add_connection(topic, types[key], typestore=ts)
                      for key, topic in topics.items()}
         copied = 0

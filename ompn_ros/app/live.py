@@ -21,7 +21,7 @@ import numpy as np
 
 from ompn_ros import layout
 from ompn_ros.data.episode import boundaries_from_labels
-from ompn_ros.data.interfaces import SubtaskBoundary, decode_subtask_boundary
+from ompn_ros.data.messages import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import expansion_scores
 from ompn_ros.metrics import alignment_accuracy, f1_with_tolerance
 from ompn_ros.paths import config_file

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -142,6 +142,16 @@ class BoundaryEvent:
     level: int
     stamp_ns: int
     final: bool = False
+
+
+def with_final(events: list[BoundaryEvent]) -> list[BoundaryEvent]:
+    """An episode's boundaries with the last one ``final``: when the detector published the boundary
+    at the episode's end before the episode closed (``StreamingSegmenter.end_episode`` then has
+    nothing to add), that boundary comes again with ``final`` set (same step, subtask and decision).
+    Every episode with a boundary thus ends with exactly one ``final`` boundary, live and offline."""
+    if not events or events[-1].final:
+        return events
+    return [*events, replace(events[-1], final=True)]
 
 
 def expansion_score(p_hat: np.ndarray | Sequence[float]) -> float:

@@ -75,7 +75,6 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from ompn_ros import layout
-from ompn_ros.data import interfaces
 from ompn_ros.data import messages as m
 from ompn_ros.data.recorder.bag_writer import STORAGES, storage_plugin
 from ompn_ros.data.recorder.disk_guard import DiskGuard
@@ -232,8 +231,8 @@ class BagRecorder(Node):
                 self.get_logger().warning(f"topic {name} has several types {types}; not recorded")
                 continue
             msgtype = types[0]
-            if msgtype.startswith(f"{interfaces.PACKAGE}/"):  # ompn_node's typed outputs
-                interfaces.register()
+            if msgtype.startswith(f"{m.INTERFACES_PACKAGE}/"):  # ompn_node's typed outputs
+                m.register_interfaces()
             if msgtype not in m.typestore().types:
                 self.get_logger().warning(f"topic {name}: type {msgtype} unknown to the Jazzy typestore")
                 continue

@@ -40,8 +40,8 @@ Lifecycle: every transition is logged; a request the current state does not offe
 ``success: false`` and one line (:mod:`ompn_ros.nodes.lifecycle_guard`), and the shutdown transition ends
 the process (exit 0).
 
-Publications (per accepted observation; built by :mod:`ompn_ros.data.messages` and, for the
-``ompn_interfaces`` types, :mod:`ompn_ros.data.interfaces`):
+Publications (per accepted observation; built by :mod:`ompn_ros.data.messages`, the
+``ompn_interfaces`` types included):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).
     ``~/state``       ompn_interfaces/msg/SubtaskState: header (the observation's stamp and frame_id),
@@ -53,7 +53,7 @@ Publications (per accepted observation; built by :mod:`ompn_ros.data.messages` a
                       stamp, frame_id = the observation's), node, episode, step, subtask, subtask_id (from
                       the sketch, -1 unknown), score, memory_level, decided_step and decided_stamp, final
                       (every episode's last boundary; when the detector published it before the episode
-                      ended, it comes again with final set: :func:`ompn_ros.data.interfaces.with_final`).
+                      ended, it comes again with final set: :func:`ompn_ros.detect.online.with_final`).
                       RELIABLE; a late subscriber gets the last event only
                       (``boundary_replay='last'``, TRANSIENT_LOCAL depth 1) or nothing old ('none').
     ``/diagnostics``  periodic DiagnosticArray, one status named '<fully qualified node name>: segmenter'
@@ -105,20 +105,28 @@ from std_srvs.srv import Trigger
 from ompn_interfaces.msg import SubtaskBoundary, SubtaskState
 from ompn_ros import layout
 from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
-from ompn_ros.data.interfaces import encode_subtask_state, with_final
 from ompn_ros.data.messages import (
     StampRangeError,
     encode_diagnostic_status,
     encode_float32_array,
     encode_int32,
+    encode_subtask_boundary,
+    encode_subtask_state,
     join_stamp,
     parse_float32_array,
     parse_sketch_value,
 )
+from ompn_ros.data.messages import SubtaskBoundary as BoundaryFields
 from ompn_ros.data.obs import Decided, Drop, ObservationSpecError
 from ompn_ros.data.repeats import Repeats
 from ompn_ros.detect.duration import DurationModel
-from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, DetectorConfigError
+from ompn_ros.detect.online import (
+    DURATION_MODE,
+    BoundaryEvent,
+    DetectorConfig,
+    DetectorConfigError,
+    with_final,
+)
 from ompn_ros.detect.settings import NODE_PARAMETERS, DetectorSettingsError, node_parameters, resolve_detector
 from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.config import ConfigError
@@ -127,7 +135,6 @@ from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.episode_gap import GAP_TIMER_FRACTION, IdleGate, SilenceWatch
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
-from ompn_ros.nodes.ompn_node_boundary import BoundaryEncoder
 from ompn_ros.nodes.ompn_node_obs import (
     MESSAGE_CLASSES,
     AssembledInput,
@@ -244,7 +251,7 @@ class OMPNNode(LifecycleNode):
         self._latest_sketch: np.ndarray | None = None
         self._episode_sketch: np.ndarray | None = None
         self._last_warn = -float("inf")
-        self._boundary_cdr = BoundaryEncoder(self.get_fully_qualified_name())
+        self._fq_name = self.get_fully_qualified_name()  # the node field of ~/boundary
         self._frame_id = ""  # the observation's header.frame_id (JointState input)
         self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
         self._last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
@@ -820,13 +827,13 @@ class OMPNNode(LifecycleNode):
 
     # --- outputs -------------------------------------------------------------------------------
     def publish_boundary(self, event: BoundaryEvent, log: bool = True, decided_ns: int | None = None) -> None:
-        """Publish ``event`` on ``~/boundary`` (:class:`BoundaryEncoder`: the codec's bytes, the constant
-        part encoded once) and, with ``log``, log it."""
+        """Publish ``event`` on ``~/boundary`` (the codec's bytes, the node name and frame id encoded
+        once) and, with ``log``, log it."""
         stamp = event.stamp_ns or self.get_clock().now().nanoseconds
         decided = self.last_stamp_ns if decided_ns is None else decided_ns
-        self._pubs["boundary"].publish(self._boundary_cdr.encode(
-            event, stamp_ns=stamp, episode=self.events["episodes"], frame_id=self._frame_id,
-            sketch=self._episode_sketch, decided_stamp_ns=decided))
+        self._pubs["boundary"].publish(encode_subtask_boundary(BoundaryFields.from_event(
+            event, node=self._fq_name, episode=self.events["episodes"], frame_id=self._frame_id,
+            sketch=self._episode_sketch, decided_stamp_ns=decided, stamp_ns=stamp)))
         self._last_boundary = (event, decided)
         self.events["boundaries"] += 1
         if log:

@@ -28,7 +28,6 @@ from ompn_ros.layout import (
     WRENCH_STAMPED,
 )
 
-from . import cdr
 from .spec import FieldSpec, ObservationSpec
 
 ExtractReason = Literal["malformed", "wrong_size"]
@@ -54,7 +53,7 @@ class ExtractError(Exception):
 
 def _parse_stamped(typename: str, count: int) -> Callable[[bytes | memoryview], Parsed]:
     def parse(raw: bytes | memoryview) -> Parsed:
-        stamp, values = cdr.parse_stamped_doubles(raw, count, typename)
+        stamp, values = m.parse_stamped_doubles(raw, count, typename)
         return stamp, {"all": values}, None
 
     return parse
@@ -76,14 +75,14 @@ def _parse_scalar(fn: Callable[[bytes | memoryview], float]) -> Callable[[bytes 
 
 PARSERS: Mapping[str, Callable[[bytes | memoryview], Parsed]] = {
     FLOAT32_ARRAY: _parse_vector(m.parse_float32_array),
-    FLOAT64_ARRAY: _parse_vector(cdr.parse_float64_array),
-    FLOAT32: _parse_scalar(cdr.parse_float32),
-    FLOAT64: _parse_scalar(cdr.parse_float64),
+    FLOAT64_ARRAY: _parse_vector(m.parse_float64_array),
+    FLOAT32: _parse_scalar(m.parse_float32),
+    FLOAT64: _parse_scalar(m.parse_float64),
     WRENCH_STAMPED: _parse_stamped(WRENCH_STAMPED, 6),
     POSE_STAMPED: _parse_stamped(POSE_STAMPED, 7),
 }
 """Parser of each supported type but JointState (raw CDR -> :data:`Parsed`); JointState uses a
-:class:`~ompn_ros.data.obs.cdr.JointStateParser` per extractor (it keeps the last layout)."""
+:class:`~ompn_ros.data.messages.JointStateParser` per extractor (it keeps the last layout)."""
 
 
 @dataclass
@@ -106,7 +105,7 @@ class TopicExtractor:
         self.topic = topic
         self.type = fields[0].type
         self.has_header = self.type in (JOINT_STATE, WRENCH_STAMPED, POSE_STAMPED)
-        self._parse = cdr.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]
+        self._parse = m.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]
         self._fields = [_FieldState(f, f.declared_size, f.names) for f in fields]
         for state in self._fields:
             if state.size is not None:

@@ -20,9 +20,9 @@ the index undercounts), no raw bytes.  Time: O(bytes) per message, as the batch 
 
 from __future__ import annotations
 
-import struct
-
 import numpy as np
+
+from ompn_ros import layout
 
 from .. import messages as m
 from ..obs import Drop, ObservationAssembler, ObservationSpec
@@ -61,11 +61,14 @@ class Float32Column:
         return True
 
     def _first(self, raw: bytes | memoryview) -> bool:
-        try:
-            start, dim = m.multiarray_data_start(raw)
-        except (ValueError, struct.error):
+        if not m.little_endian(raw):
             return False
-        if (self.expected_dim is not None and dim != self.expected_dim) or start % 4:
+        try:
+            start, dim = m.multiarray_data(raw, 4, layout.FLOAT32_ARRAY)
+        except m.CdrError:
+            return False
+        if ((self.expected_dim is not None and dim != self.expected_dim) or start % 4
+                or start + 4 * dim != len(raw)):  # trailing bytes: the rows could not give them back
             return False
         self._prefix, self._size = bytes(raw[:start]), len(raw)
         self._values = np.empty((self.capacity, dim), dtype=np.float32)

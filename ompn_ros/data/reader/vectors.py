@@ -1,6 +1,6 @@
 """``std_msgs/Float64MultiArray`` topics as float32 vectors (e.g. ros2_control effort commands).
 
-Each message is parsed without building a message object (:func:`ompn_ros.data.obs.cdr.parse_float64_array`).
+Each message is parsed without building a message object (:func:`ompn_ros.data.messages.parse_float64_array`).
 Cost: O(N · D) for N messages of D elements.
 """
 
@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import CorruptBagError, VectorLengthError
-from ..obs.cdr import parse_float64_array
+from ..messages import parse_float64_array
 
 
 def stack_float64_arrays(raws: Sequence[bytes], expected_dim: int | None, path: str, topic: str,

@@ -7,38 +7,54 @@ here, so a consumer reads live and recorded events alike.  The encoders write th
 layout of the ``.msg`` files directly (the boundary is the node's latency-critical output); rclpy and
 the ``rosbags`` typestore decode their bytes to the fields they were built from (tested).  Decoding
 here goes through the ``rosbags`` typestore, with the definitions read from the package's ``.msg``
-files (:func:`register`).
+files (:func:`register_interfaces`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import struct
 import sys
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import numpy as np
 
-from ompn_ros.detect.online import BoundaryEvent
+from .cdr import CDR_LE_HEADER, STAMP, U32, deserialize, split_stamp, stamp_to_ns, typestore
 
-from .messages import CDR_LE_HEADER, split_stamp, stamp_to_ns, typestore
-
-PACKAGE: Final = "ompn_interfaces"
-SUBTASK_BOUNDARY: Final = f"{PACKAGE}/msg/SubtaskBoundary"
-SUBTASK_STATE: Final = f"{PACKAGE}/msg/SubtaskState"
-MESSAGES: Final = (SUBTASK_BOUNDARY, SUBTASK_STATE)
+INTERFACES_PACKAGE: Final = "ompn_interfaces"
+SUBTASK_BOUNDARY: Final = f"{INTERFACES_PACKAGE}/msg/SubtaskBoundary"
+SUBTASK_STATE: Final = f"{INTERFACES_PACKAGE}/msg/SubtaskState"
+INTERFACE_MESSAGES: Final = (SUBTASK_BOUNDARY, SUBTASK_STATE)
 SUBTASK_ID_UNKNOWN: Final = -1
 
-_STAMP = struct.Struct("<iI")
-_U32 = struct.Struct("<I")
 _BOUNDARY_MIDDLE = struct.Struct("<IIIifB3x")  # episode, step, subtask, subtask_id, score, level, pad
 _BOUNDARY_TAIL = struct.Struct("<IiIB")  # decided_step, decided_stamp, final
 _STATE_COUNTS = struct.Struct("<III")  # episode, step, len(pi)
 _ZEROS = (b"", b"\0", b"\0\0", b"\0\0\0")
+
+
+class DetectedBoundary(Protocol):
+    """What a boundary message takes from a detector's event (``ompn_ros.detect.online.BoundaryEvent``):
+    the boundary's step, the step it was decided at, the subtask it ends, its score and memory level,
+    the step's stamp and whether it closes the episode."""
+
+    @property
+    def step(self) -> int: ...
+    @property
+    def detected_at(self) -> int: ...
+    @property
+    def subtask(self) -> int: ...
+    @property
+    def score(self) -> float: ...
+    @property
+    def level(self) -> int: ...
+    @property
+    def stamp_ns(self) -> int: ...
+    @property
+    def final(self) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -59,7 +75,7 @@ class SubtaskBoundary:
     final: bool
 
     @classmethod
-    def from_event(cls, event: BoundaryEvent, *, node: str, episode: int, frame_id: str = "",
+    def from_event(cls, event: DetectedBoundary, *, node: str, episode: int, frame_id: str = "",
                    sketch: np.ndarray | None = None, decided_stamp_ns: int = 0,
                    stamp_ns: int | None = None) -> SubtaskBoundary:
         """The message of ``event``: ``stamp_ns`` defaults to the event's, ``subtask_id`` is
@@ -74,22 +90,12 @@ class SubtaskBoundary:
         )  # fmt: skip
 
 
-def with_final(events: list[BoundaryEvent]) -> list[BoundaryEvent]:
-    """An episode's boundaries with the last one ``final``: when the detector published the boundary
-    at the episode's end before the episode closed (``StreamingSegmenter.end_episode`` then has
-    nothing to add), that boundary comes again with ``final`` set (same step, subtask and decision).
-    Every episode with a boundary thus ends with exactly one ``final`` boundary, live and offline."""
-    if not events or events[-1].final:
-        return events
-    return [*events, dataclasses.replace(events[-1], final=True)]
-
-
 def _string(text: str, size: int) -> tuple[bytes, int]:
     """CDR of a string starting at body offset ``size`` (already 4-aligned); the new offset."""
     data = text.encode() + b"\0"
     end = size + 4 + len(data)
     pad = -end % 4
-    return _U32.pack(len(data)) + data + _ZEROS[pad], end + pad
+    return U32.pack(len(data)) + data + _ZEROS[pad], end + pad
 
 
 @lru_cache(maxsize=64)
@@ -101,10 +107,10 @@ def _boundary_strings(frame_id: str, node: str) -> bytes:
 
 
 def encode_subtask_boundary(msg: SubtaskBoundary) -> bytes:
-    """CDR of ``msg``; raises :class:`~ompn_ros.data.messages.StampRangeError` for a stamp out of
+    """CDR of ``msg``; raises :class:`~.cdr.StampRangeError` for a stamp out of
     range.  O(1) beyond the two strings (encoded once per frame id and node)."""
     return b"".join((
-        CDR_LE_HEADER, _STAMP.pack(*split_stamp(msg.stamp_ns)), _boundary_strings(msg.frame_id, msg.node),
+        CDR_LE_HEADER, STAMP.pack(*split_stamp(msg.stamp_ns)), _boundary_strings(msg.frame_id, msg.node),
         _BOUNDARY_MIDDLE.pack(msg.episode, msg.step, msg.subtask, msg.subtask_id, msg.score,
                               msg.memory_level),
         _BOUNDARY_TAIL.pack(msg.decided_step, *split_stamp(msg.decided_stamp_ns), msg.final),
@@ -117,45 +123,48 @@ def encode_subtask_state(stamp_ns: int, frame_id: str, episode: int, step: int, 
     head, _ = _string(frame_id, 8)
     values = np.ascontiguousarray(pi, dtype="<f4").reshape(-1)
     return b"".join((
-        CDR_LE_HEADER, _STAMP.pack(*split_stamp(stamp_ns)), head,
+        CDR_LE_HEADER, STAMP.pack(*split_stamp(stamp_ns)), head,
         _STATE_COUNTS.pack(episode, step, values.size), values.tobytes(),
         struct.pack("<ff", expected_position, pi_end),
     ))  # fmt: skip
 
 
 # --- the typestore entry --------------------------------------------------------------------------
-def msg_dirs() -> list[Path]:
+def _msg_dirs() -> list[Path]:
     """Where the ``.msg`` files may be: this repository's ``ompn_interfaces/msg``, then
     ``share/ompn_interfaces/msg`` under ``sys.prefix`` and every ``AMENT_PREFIX_PATH`` entry."""
     prefixes = [sys.prefix, *os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)]
-    return [Path(__file__).resolve().parents[2] / PACKAGE / "msg",
-            *(Path(p) / "share" / PACKAGE / "msg" for p in prefixes if p)]
+    return [Path(__file__).resolve().parents[3] / INTERFACES_PACKAGE / "msg",
+            *(Path(p) / "share" / INTERFACES_PACKAGE / "msg" for p in prefixes if p)]
 
 
-def register(store: Any | None = None) -> Any:
+def register_interfaces(store: Any | None = None) -> Any:
     """Register the ``ompn_interfaces`` messages with ``store`` (default: the shared Jazzy typestore
-    of :func:`ompn_ros.data.messages.typestore`) once; returns the store.  ``FileNotFoundError``
+    of :func:`~.cdr.typestore`) once; returns the store.  ``FileNotFoundError``
     names the places searched when no ``.msg`` file is found."""
     from rosbags.typesys import get_types_from_msg
 
     store = typestore() if store is None else store
-    if all(name in store.types for name in MESSAGES):
+    if all(name in store.types for name in INTERFACE_MESSAGES):
         return store
-    for folder in msg_dirs():
-        if all((folder / f"{name.rsplit('/', 1)[1]}.msg").is_file() for name in MESSAGES):
+    for folder in _msg_dirs():
+        if all((folder / f"{name.rsplit('/', 1)[1]}.msg").is_file() for name in INTERFACE_MESSAGES):
             types: dict[str, Any] = {}
-            for name in MESSAGES:
+            for name in INTERFACE_MESSAGES:
                 text = (folder / f"{name.rsplit('/', 1)[1]}.msg").read_text()
                 types.update(get_types_from_msg(text, name))
             store.register(types)
             return store
-    raise FileNotFoundError(f"the {PACKAGE} message definitions are in none of "
-                            f"{[str(d) for d in msg_dirs()]}; build and install {PACKAGE} (make setup)")
+    raise FileNotFoundError(f"the {INTERFACES_PACKAGE} message definitions are in none of "
+                            f"{[str(d) for d in _msg_dirs()]}; build and install {INTERFACES_PACKAGE} "
+                            "(make setup)")
 
 
 def decode_subtask_boundary(raw: bytes | memoryview) -> SubtaskBoundary:
-    """The fields of a ``SubtaskBoundary`` CDR (through the typestore: exact)."""
-    msg = register().deserialize_cdr(bytes(raw), SUBTASK_BOUNDARY)
+    """The fields of a ``SubtaskBoundary`` CDR (through the typestore: exact; :class:`~.cdr.CdrError`
+    on bytes that are not one)."""
+    register_interfaces()
+    msg = deserialize(raw, SUBTASK_BOUNDARY)
     return SubtaskBoundary(
         stamp_ns=stamp_to_ns(msg.header.stamp), frame_id=msg.header.frame_id, node=msg.node,
         episode=msg.episode, step=msg.step, subtask=msg.subtask, subtask_id=msg.subtask_id,
