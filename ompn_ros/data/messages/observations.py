@@ -216,7 +216,7 @@ def joint_state_layout(raw: bytes | memoryview) -> JointStateLayout:
         structure.append((pos, pos + 4))
         pos += 4
         for i in range(count):
-            pos = align(pos, 4)
+            pos = (pos + 3) & ~3  # 4-byte alignment (the header is 4 bytes long)
             (slen,) = U32.unpack_from(raw, pos)
             if slen == 0 or pos + 4 + slen > size:
                 raise too_short("JointState", f"name[{i}]", size)
@@ -225,7 +225,7 @@ def joint_state_layout(raw: bytes | memoryview) -> JointStateLayout:
             pos += 4 + slen
         key_end, counts, fields, field = pos, [], {}, "position"
         for field in layout.JOINT_FIELDS:
-            pos = align(pos, 4)
+            pos = (pos + 3) & ~3
             (n,) = U32.unpack_from(raw, pos)
             counts.append((pos, n))
             structure.append((pos, pos + 4))
