@@ -29,7 +29,8 @@ from lab.pipeline import State, online_lag_rows, prepare
 from lab.runs import build_configs
 from lab.scoring import aggregate, evaluate_policy
 from lab.spec import DISTILL_WEIGHT, SETTINGS, ReproduceError, ReproduceSpec
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
+from ompn_ros.model.checkpoint import load_checkpoint
+from ompn_ros.model.errors import CheckpointError
 from ompn_ros.train.trainer import train_val_episodes
 
 

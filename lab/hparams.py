@@ -306,7 +306,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return write_report(sweep) if args.report else run_sweep(sweep)
 
-    return run_cli(build_parser(), body, argv, extra_errors=(ReproduceError,))
+    return run_cli(build_parser(), body, argv)
 
 
 if __name__ == "__main__":

@@ -38,7 +38,8 @@ from lab.spec import (
 )
 from lab.sweeps import k_sweep, threshold_sweep
 from ompn_ros.data.episode import Episode
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
+from ompn_ros.model.checkpoint import load_checkpoint
+from ompn_ros.model.errors import CheckpointError
 
 T = TypeVar("T")
 Split = tuple[list[Episode], list[Episode]]

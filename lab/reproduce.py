@@ -171,7 +171,7 @@ def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_cli(build_parser(), _body(argv), argv, extra_errors=(ReproduceError,))
+    return run_cli(build_parser(), _body(argv), argv)
 
 
 if __name__ == "__main__":

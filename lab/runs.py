@@ -16,8 +16,9 @@ from lab.spec import REPRODUCTION_ITERATIONS, ReproduceError, RunSpec
 from ompn_ros import layout
 from ompn_ros.app.training import load_config
 from ompn_ros.data.episode import Episode
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
+from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import CheckpointError
 from ompn_ros.paths import config_file
 from ompn_ros.train.restart import attempt_config, read_attempt
 from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from ompn_ros.errors import OMPNError
+
 Domain = Literal["craft", "dial"]
 CRAFT_TASKS = ("makebed", "makeaxe", "makeshears")
 EXTRAS = ("ksweep", "thresholds", "ablations", "ensemble", "distill", "online_lag")
@@ -28,7 +30,7 @@ MEMBER_SEED_STRIDE = 1000
 the seed's own run)."""
 
 
-class ReproduceError(RuntimeError):
+class ReproduceError(OMPNError, RuntimeError):
     """A stage of the reproduction cannot run (names the stage or the option and the cause)."""
 
 

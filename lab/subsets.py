@@ -23,11 +23,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ompn_ros.errors import OMPNError
+
 FIGURES = ("online_f1_1", "online_align", "offline_f1_1", "offline_align")
 CRITERION = "align"
 
 
-class SubsetError(ValueError):
+class SubsetError(OMPNError, ValueError):
     """A run or arm file is missing or holds no validation criterion; the message names it."""
 
 

@@ -276,7 +276,7 @@ class StreamingSegmenter:
     def set_detector(self, config: DetectorConfig) -> str:
         """Run ``config``: from the next step, or from the next episode when it changes the decoder
         (mode 'hsmm' on or off, or its lag) in the middle of one.  Returns which; raises
-        :class:`~ompn_ros.detect.duration.DurationModelError` (nothing changed) for 'hsmm' without a
+        :class:`~ompn_ros.detect.errors.DurationModelError` (nothing changed) for 'hsmm' without a
         duration model."""
         fresh = make_detector(config, self.duration_model)
         self.detector_config, running = config, self.detector

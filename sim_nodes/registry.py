@@ -52,15 +52,22 @@ def expert_episode(
     (``sim_nodes/human.py``) instead of the scripted expert.
     """
     name = task if task is not None else default_tasks(domain)[0]
+    check_task(domain, name)
     if domain == "craft":
-        if name not in CRAFT_TASKS:
-            raise UnknownDomainError(f"unknown Craft task '{name}'; known: {sorted(CRAFT_TASKS)}")
         if human is not None:
             return craft_human_episode(seed, human, task=name, full_obs=not partial)
         return craft_episode(seed, task=name, full_obs=not partial)
-    if name != DIAL_TASK:
-        raise UnknownDomainError(f"unknown Dial task '{name}'; Dial has the one task '{DIAL_TASK}'")
     return dial_episode(seed) if human is None else dial_human_episode(seed, human)
+
+
+def check_task(domain: str, task: str) -> None:
+    """Raise :class:`UnknownDomainError` unless ``task`` is a Craft task (``domain`` 'craft') or Dial's
+    one task (any other domain)."""
+    if domain == "craft":
+        if task not in CRAFT_TASKS:
+            raise UnknownDomainError(f"unknown Craft task '{task}'; known: {sorted(CRAFT_TASKS)}")
+    elif task != DIAL_TASK:
+        raise UnknownDomainError(f"unknown Dial task '{task}'; Dial has the one task '{DIAL_TASK}'")
 
 
 __all__ = [
@@ -75,6 +82,7 @@ __all__ = [
     "HumanLike",
     "HumanLikeError",
     "UnknownDomainError",
+    "check_task",
     "default_tasks",
     "derive_seed",
     "dial_episode_sketch",

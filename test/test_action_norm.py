@@ -13,13 +13,15 @@ import torch
 
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
-from ompn_ros.model.config import ConfigError, OMPNConfig
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import ConfigError, ModelInputError
 from ompn_ros.model.loss import bc_loss
-from ompn_ros.model.policy import ModelInputError, OMPNPolicy, gaussian_log_prob
+from ompn_ros.model.policy import OMPNPolicy, gaussian_log_prob
 from ompn_ros.model.streaming import StreamingPolicy
 from ompn_ros.train.batching import action_normalization, collate
+from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, TrainConfigError, train, train_val_episodes
+from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
 
 torch.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]

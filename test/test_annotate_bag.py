@@ -22,11 +22,11 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.app.annotate import (  # noqa: E402
     CUSTOM_DATA_KEY,
     STAMPS_KEY,
-    AnnotateError,
     annotate_bag,
     match_observation_stamps,
     observation_stamps,
 )
+from ompn_ros.app.errors import AnnotateError  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.reader import read_episodes  # noqa: E402
 from ompn_ros.data.recorder.bag_writer import write_episodes  # noqa: E402

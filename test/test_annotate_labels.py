@@ -5,14 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ompn_ros.app.annotate import (
-    AnnotateError,
-    boundary_message,
-    episode_messages,
-    output_topics,
-    pi_rows,
-    segment_labels,
-)
+from ompn_ros.app.annotate import boundary_message, episode_messages, output_topics, pi_rows, segment_labels
+from ompn_ros.app.errors import AnnotateError
 from ompn_ros.data import messages as m
 from ompn_ros.data.messages import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import BoundaryEvent

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ompn_ros.data import messages as m
-from ompn_ros.data.obs import FieldSpec, ObservationSpec, ObservationSpecError, observation_layout
+from ompn_ros.data.errors import ObservationSpecError
+from ompn_ros.data.obs import FieldSpec, ObservationSpec, observation_layout
 
 JS = "sensor_msgs/msg/JointState"
 ARM = {

@@ -12,8 +12,9 @@ from test_data_common import assert_same_episode, make_episodes
 from ompn_ros.data import ReaderSpec, load_arrays, read_episodes, write_episodes
 from ompn_ros.data import cache as cache_mod
 from ompn_ros.data.cache import EpisodeArrays
-from ompn_ros.data.cache_store import CACHE_FORMAT, INDEX, CacheFormatError, EntryWriter
-from ompn_ros.data.npy_append import NpyAppender, NpyAppendError
+from ompn_ros.data.cache_store import CACHE_FORMAT, INDEX, EntryWriter
+from ompn_ros.data.errors import CacheFormatError, NpyAppendError
+from ompn_ros.data.npy_append import NpyAppender
 
 
 def _bags(tmp_path: Path) -> tuple[Path, list]:  # type: ignore[type-arg]

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from ompn_ros.detect.calibrate import (
-    CalibrationError,
     agreement,
     calibrate_label_free,
     default_grid,
@@ -19,6 +18,7 @@ from ompn_ros.detect.calibrate import (
     scores_from_p_hats,
     tune_on_labels,
 )
+from ompn_ros.detect.errors import CalibrationError
 from ompn_ros.detect.online import DetectorConfig, detect_sequence
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 

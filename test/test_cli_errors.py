@@ -145,6 +145,40 @@ def test_an_invalid_config_is_one_line_and_debug_shows_the_traceback(
     assert not (tmp_path / "w").exists()
 
 
+BUG_OR_KNOWN = """
+import sys
+from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.cli import train
+
+def load_config(path):
+    raise {error}("load_config failed")
+
+train.load_config = load_config
+sys.exit(train.main(["--synthetic", "discrete", "--out", sys.argv[1]]))
+"""
+
+
+@pytest.mark.parametrize(("error", "code"), [("ValueError", 1), ("TrainSetupError", 2)])
+def test_a_bug_keeps_its_traceback_and_a_known_error_is_one_line(
+    error: str, code: int, tmp_path: Path, ros_env: dict[str, str]
+):
+    result = subprocess.run(
+        [sys.executable, "-c", BUG_OR_KNOWN.format(error=error), str(tmp_path / "out")],
+        env=ros_env, capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )
+    assert result.returncode == code, result.stderr
+    if error == "ValueError":  # a plain ValueError is a bug, not a user's mistake
+        assert "Traceback" in result.stderr and "ValueError: load_config failed" in result.stderr
+    else:
+        _one_line_error(result.stderr, "ompn_train", "load_config failed")
+
+
+def test_a_bad_data_entry_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    args = ["--synthetic", "discrete", "--out", str(tmp_path / "o"), "--set", "data.synthetic_seed=abc"]
+    assert train.main(args) == 2
+    _one_line_error(capsys.readouterr().err, "ompn_train", "data.synthetic_seed", "'abc'")
+
+
 @pytest.mark.parametrize("prog", sorted(CLIS))
 def test_every_flag_has_help_with_its_default_and_no_markup(prog: str):
     parser = CLIS[prog].build_parser()

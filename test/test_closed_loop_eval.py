@@ -10,7 +10,6 @@ import torch
 
 from ompn_ros.app.closed_loop import (
     EVAL_SEED_BASE,
-    ClosedLoopError,
     RandomAgent,
     ReplayAgent,
     eval_seeds,
@@ -18,6 +17,7 @@ from ompn_ros.app.closed_loop import (
     run_craft,
     run_dial,
 )
+from ompn_ros.app.errors import ClosedLoopError
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig

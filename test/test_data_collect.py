@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from test_data_common import assert_same_episode, dial_episode
 
+from ompn_ros.app.collect import collect, episode_seed
+from ompn_ros.app.errors import CollectError
 from ompn_ros.cli import collect as collect_mod
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data.episode import Episode
@@ -50,7 +52,7 @@ def test_split_and_manifest(tmp_path: Path, fake: FakeDial) -> None:
     assert manifest["totals"]["episodes"] == 7 and manifest["totals"]["parts"] == 3
     assert [p["episodes"] for p in manifest["parts"]] == [[0, 1, 2], [3, 4, 5], [6]]
     seeds = [s for p in manifest["parts"] for s in p["seeds"]]
-    assert seeds == [collect_mod.episode_seed(11, i) for i in range(7)]
+    assert seeds == [episode_seed(11, i) for i in range(7)]
     assert manifest["command"][0] == "ompn_collect" and "--split-every" in manifest["command"]
     # the storage file is named after its part (not hidden, found without metadata.yaml)
     assert [p.name for p in out.glob("part_000/*.db3")] == ["part_000.db3"]
@@ -95,12 +97,12 @@ def test_resume_after_interruption(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     assert resumed.calls == 4  # parts 1 and 2 only
     assert not (out / ".part_001.tmp").exists()
     result = read_episodes(out, spec=ReaderSpec.for_domain("dial"))
-    seeds = [collect_mod.episode_seed(11, i) for i in range(7)]
+    seeds = [episode_seed(11, i) for i in range(7)]
     assert [e.seed for e in result.episodes] == seeds
     assert json.loads((out / "collect.json").read_text())["totals"]["episodes"] == 7
 
-    with pytest.raises(collect_mod.CollectError, match="settings differ"):
-        collect_mod.collect(out, domain="dial", tasks=["dial"], episodes=7, seed=99, split_every=3,
+    with pytest.raises(CollectError, match="settings differ"):
+        collect(out, domain="dial", tasks=["dial"], episodes=7, seed=99, split_every=3,
                             resume=True, progress=False)
 
 
@@ -113,5 +115,5 @@ def test_real_craft_collect(tmp_path: Path) -> None:
     result = read_episodes(out, spec=ReaderSpec.for_domain("craft"))
     assert [e.task for e in result.episodes] == ["makebed", "makeaxe"]
     for i, ep in enumerate(result.episodes):
-        expected = craft.generate_episode(collect_mod.episode_seed(0, i), task=ep.task, full_obs=True)
+        expected = craft.generate_episode(episode_seed(0, i), task=ep.task, full_obs=True)
         assert_same_episode(expected, ep)

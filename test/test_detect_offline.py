@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ompn_ros.detect.errors import DetectorError
 from ompn_ros.detect.offline import (
     FALLBACK_THRESHOLD,
-    DetectorError,
     auto_threshold,
     auto_threshold_boundaries,
     boundaries_from_threshold,

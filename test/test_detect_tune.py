@@ -11,6 +11,7 @@ import yaml
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import tune
+from ompn_ros.detect.errors import TuneError
 from ompn_ros.detect.online import DetectorConfig
 
 
@@ -64,14 +65,14 @@ def test_the_grid_search_finds_a_threshold_below_the_peaks():
 
 def test_tuning_needs_labels_a_known_objective_and_matching_replays():
     replay = _replay([3, 7], 12, 0.3)
-    with pytest.raises(tune.TuneError, match="objective"):
+    with pytest.raises(TuneError, match="objective"):
         tune.choose_on_replays([replay], [EPISODE], objective="recall")
     unlabelled = Episode(
         observations=np.zeros((3, 2), np.float32), actions=np.zeros(2, np.int64), task="t", seed=0
     )
-    with pytest.raises(tune.TuneError, match="subtask labels"):
+    with pytest.raises(TuneError, match="subtask labels"):
         tune.compare_on_replays([replay], [unlabelled], {"online": DetectorConfig()})
-    with pytest.raises(tune.TuneError, match="2 replays for 1 episodes"):
+    with pytest.raises(TuneError, match="2 replays for 1 episodes"):
         tune.compare_on_replays([replay, replay], [EPISODE], {"online": DetectorConfig()})
 
 
@@ -118,5 +119,5 @@ def test_node_config_of_a_users_own_data_sets_no_empty_domain(tmp_path: Path):
 
 
 def test_a_missing_detector_file_is_named(tmp_path: Path):
-    with pytest.raises(tune.TuneError, match=r"nope\.yaml"):
+    with pytest.raises(TuneError, match=r"nope\.yaml"):
         tune.load_detector_yaml(tmp_path / "nope.yaml")

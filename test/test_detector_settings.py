@@ -8,11 +8,11 @@ from pathlib import Path
 import pytest
 
 from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.detect.errors import DetectorSettingsError
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import (
     DETECTOR_FILE,
     DetectorSettings,
-    DetectorSettingsError,
     load_detector_settings,
     node_parameters,
     resolve_detector,

@@ -11,25 +11,24 @@ import numpy as np
 import pytest
 
 from ompn_ros.checkpoints import shipped_checkpoint
-from ompn_ros.detect.calibrate import DURATION_THRESHOLDS, CalibrationError, calibrate_duration
+from ompn_ros.detect.calibrate import DURATION_THRESHOLDS, calibrate_duration
 from ompn_ros.detect.duration import (
     DurationDetector,
     DurationModel,
-    DurationModelError,
     _closing_path,
     _end_posterior,
     decode_episode,
     fit_duration_model,
     make_detector,
 )
-from ompn_ros.detect.online import (
-    DetectorConfig,
+from ompn_ros.detect.errors import (
+    CalibrationError,
     DetectorConfigError,
-    OnlineDetector,
-    detect_sequence,
-    run_detector,
+    DetectorSettingsError,
+    DurationModelError,
 )
-from ompn_ros.detect.settings import DetectorSettings, DetectorSettingsError, load_detector_settings
+from ompn_ros.detect.online import DetectorConfig, OnlineDetector, detect_sequence, run_detector
+from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries
 
 K, LENGTHS = 4, (5, 6, 7)

@@ -16,8 +16,9 @@ from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
 from ompn_ros.model import checkpoint
 from ompn_ros.model.atomic import remove_stale_temps
 from ompn_ros.model.build import build_policy, check_model_size, expected_tensors
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
+from ompn_ros.model.checkpoint import load_checkpoint, load_config, save_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import CheckpointError
 from ompn_ros.model.load import shipped_stepper
 from ompn_ros.model.lstm import LSTMPolicy
 from ompn_ros.model.policy import OMPNPolicy

@@ -6,7 +6,8 @@ import json
 
 import pytest
 
-from ompn_ros.model.config import CONFIG_VERSION, ConfigError, OMPNConfig
+from ompn_ros.model.config import CONFIG_VERSION, OMPNConfig
+from ompn_ros.model.errors import ConfigError
 
 
 def test_round_trip_dict_and_json() -> None:

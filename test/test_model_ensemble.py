@@ -9,15 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from ompn_ros.model.checkpoint import CheckpointError, save_checkpoint
+from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.ensemble import (
-    ENSEMBLE_FILE,
-    EnsembleError,
-    EnsembleStepper,
-    read_ensemble,
-    write_ensemble,
-)
+from ompn_ros.model.ensemble import ENSEMBLE_FILE, EnsembleStepper, read_ensemble, write_ensemble
+from ompn_ros.model.errors import CheckpointError, EnsembleError
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.model.streaming import StreamingPolicy

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.loss import LossInputError, bc_loss
+from ompn_ros.model.errors import LossInputError
+from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy, SequenceOutput
 
 

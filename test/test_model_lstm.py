@@ -10,12 +10,13 @@ import torch
 
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
-from ompn_ros.model.config import ConfigError, OMPNConfig
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import ConfigError, ModelInputError, StreamingInputError
 from ompn_ros.model.load import build_stepper, stepper_from_checkpoint
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.lstm import LSTMPolicy, LSTMStreamingPolicy
-from ompn_ros.model.policy import ModelInputError, OMPNPolicy
-from ompn_ros.model.streaming import StreamingInputError, StreamingPolicy
+from ompn_ros.model.policy import OMPNPolicy
+from ompn_ros.model.streaming import StreamingPolicy
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import TrainConfig, train
 

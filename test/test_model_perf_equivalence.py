@@ -8,8 +8,9 @@ import torch
 
 from ompn_ros.model import _fast_stream
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import ModelInputError
 from ompn_ros.model.loss import bc_loss
-from ompn_ros.model.policy import ModelInputError, OMPNPolicy
+from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.model.streaming import StreamingPolicy
 
 torch.set_num_threads(1)
@@ -154,7 +155,8 @@ def test_trainer_bf16_option_trains(kind: str) -> None:
 
 
 def test_trainer_bf16_option_is_validated() -> None:
-    from ompn_ros.train.trainer import TrainConfig, TrainConfigError
+    from ompn_ros.train.errors import TrainConfigError
+    from ompn_ros.train.trainer import TrainConfig
 
     with pytest.raises(TrainConfigError, match="bf16"):
         TrainConfig(bf16="yes")  # type: ignore[arg-type]

@@ -9,7 +9,8 @@ import torch
 from torch import Tensor, nn
 
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.policy import ModelInputError, OMPNPolicy
+from ompn_ros.model.errors import ModelInputError
+from ompn_ros.model.policy import OMPNPolicy
 
 torch.set_num_threads(1)
 

@@ -10,8 +10,9 @@ import torch
 
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import StreamingInputError
 from ompn_ros.model.policy import OMPNPolicy
-from ompn_ros.model.streaming import StreamingInputError, StreamingPolicy
+from ompn_ros.model.streaming import StreamingPolicy
 
 torch.set_num_threads(1)
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ompn_ros.detect.errors import DetectorConfigError
 from ompn_ros.detect.online import (
     BoundaryEvent,
     DetectorConfig,
-    DetectorConfigError,
     OnlineDetector,
     detect_sequence,
     expansion_level,

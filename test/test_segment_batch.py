@@ -18,10 +18,8 @@ import pytest
 import yaml
 
 from ompn_ros import layout
-from ompn_ros.app.batch import REFUSED_ERRORS
 from ompn_ros.app.batch_bags import bag_keys, list_bags
 from ompn_ros.app.replay import replay_all
-from ompn_ros.cli._common import KNOWN_ERRORS
 from ompn_ros.cli.segment import main
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
@@ -217,10 +215,6 @@ def test_keys_are_unique_and_safe(tmp_path: Path) -> None:
     paths = [tmp_path / "x" / "a.mcap", tmp_path / "x" / "a", tmp_path / "y z" / "a.db3"]
     keys = bag_keys(paths)
     assert list(keys.values()) == ["x__a", "x__a-2", "y_z__a"]
-
-
-def test_batch_refuses_what_the_commands_report_as_one_line() -> None:
-    assert set(REFUSED_ERRORS) == set(KNOWN_ERRORS)
 
 
 def test_rows_name_the_sketch_id_of_each_segment() -> None:

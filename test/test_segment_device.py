@@ -18,8 +18,8 @@ from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import StreamingInputError
 from ompn_ros.model.load import build_stepper, stepper_from_checkpoint
-from ompn_ros.model.streaming import StreamingInputError
 from ompn_ros.train.device import stray_tensors
 
 CONFIG = OMPNConfig(obs_dim=4, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.duration import DurationDetector, DurationModelError, fit_duration_model
+from ompn_ros.detect.duration import DurationDetector, fit_duration_model
+from ompn_ros.detect.errors import DurationModelError
 from ompn_ros.detect.online import DetectorConfig, OnlineDetector
 from ompn_ros.segmenter import (
     EmptyObservation,

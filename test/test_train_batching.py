@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.train.batching import BatchError, collate, epoch_batches, obs_normalization, split_train_val
+from ompn_ros.train.batching import collate, epoch_batches, obs_normalization, split_train_val
+from ompn_ros.train.errors import BatchError
 
 
 def _discrete(length: int, dim: int = 3, sketch: list[int] | None = None) -> Episode:

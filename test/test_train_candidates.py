@@ -20,8 +20,9 @@ from ompn_ros.train.candidates import (
     candidate_config,
     resolve_candidates,
 )
+from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, TrainConfigError, train, train_val_episodes
+from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
 
 torch.set_num_threads(1)
 

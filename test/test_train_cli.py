@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from ompn_ros.cli.train import TrainCliError, apply_overrides, load_config, main
+from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.app.training import apply_overrides, load_config
+from ompn_ros.cli.train import main
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.trainer import TrainConfig
@@ -55,9 +57,9 @@ def test_overrides_parse_yaml_values() -> None:
     config = load_config(None)
     apply_overrides(config, ["train.lr=5e-4", "model.no_top_down=true", "data.domain=dial"])
     assert config["train"]["lr"] == 5e-4 and config["model"]["no_top_down"] is True
-    with pytest.raises(TrainCliError, match="section"):
+    with pytest.raises(TrainSetupError, match="section"):
         apply_overrides(config, ["optim.lr=1"])
-    with pytest.raises(TrainCliError, match=r"section\.key=value"):
+    with pytest.raises(TrainSetupError, match=r"section\.key=value"):
         apply_overrides(config, ["lr"])
 
 

@@ -17,7 +17,8 @@ from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train import evaluation, synthetic, trainer
 from ompn_ros.train.averaging import WeightAverage
 from ompn_ros.train.batching import collate
-from ompn_ros.train.device import DeviceError, batch_to, resolve_device, stray_tensors
+from ompn_ros.train.device import batch_to, resolve_device, stray_tensors
+from ompn_ros.train.errors import DeviceError, TrainConfigError
 
 GPU = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 
@@ -37,7 +38,7 @@ def test_auto_is_the_gpu_when_there_is_one(monkeypatch: pytest.MonkeyPatch) -> N
         resolve_device("gpu")
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     assert resolve_device("auto") == torch.device("cuda")
-    with pytest.raises(trainer.TrainConfigError, match="device"):
+    with pytest.raises(TrainConfigError, match="device"):
         trainer.TrainConfig(device="tpu")  # type: ignore[arg-type]
 
 

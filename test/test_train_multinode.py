@@ -15,6 +15,7 @@ import yaml
 from test_segment_batch import SPEC, write_lab_bag
 
 from ompn_ros.app import training
+from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.data import ReaderSpec
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.train.distributed import DistContext
@@ -106,5 +107,5 @@ def test_the_other_ranks_open_the_cache_entry_rank_0_built(tmp_path: Path) -> No
     assert loads == [] and got.cache_path == arrays.cache_path and len(got) == len(arrays) == 2
     assert training.shared_arrays(load, DistContext(rank=0, world_size=2), share) is arrays
     assert loads == [1] and shared == ["", str(arrays.cache_path)]
-    with pytest.raises(training.TrainSetupError, match=r"rank 1 cannot open the cache entry .*OMPN_CACHE"):
+    with pytest.raises(TrainSetupError, match=r"rank 1 cannot open the cache entry .*OMPN_CACHE"):
         training.shared_arrays(load, DistContext(rank=1, world_size=2), lambda text, ctx: str(tmp_path / "x"))

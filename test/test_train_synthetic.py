@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ompn_ros.train.errors import SyntheticError
 from ompn_ros.train.synthetic import (
     CRAFT_OBS_DIM,
     USE,
-    SyntheticError,
     generate_continuous_episode,
     generate_discrete_episode,
     make_dataset,

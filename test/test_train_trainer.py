@@ -17,12 +17,10 @@ from ompn_ros.metrics import mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.averaging import WeightAverage
-from ompn_ros.train.state import TrainStateError
+from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
     TrainConfig,
-    TrainConfigError,
-    TrainDataError,
     dropout_inputs,
     early_agreement_warning,
     evaluate,
@@ -376,7 +374,8 @@ def test_train_rejects_mismatched_episodes() -> None:
 
 
 def test_decomposition_metrics_with_fixed_thresholds_and_k() -> None:
-    from ompn_ros.train.evaluation import EvaluationError, decomposition_metrics
+    from ompn_ros.train.errors import EvaluationError
+    from ompn_ros.train.evaluation import decomposition_metrics
 
     ep = make_dataset("discrete", 1, seed=2)[0]
     # a perfect detector: p_hat expands to pi_end exactly at the ground-truth boundaries
@@ -395,7 +394,8 @@ def test_decomposition_metrics_with_fixed_thresholds_and_k() -> None:
 
 def test_constrained_top_k_metrics_and_min_length_tuning() -> None:
     from ompn_ros.data.episode import Episode
-    from ompn_ros.train.evaluation import EvaluationError, decomposition_metrics, tune_min_length
+    from ompn_ros.train.errors import EvaluationError
+    from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
 
     # subtasks of 4, 4 and 2 steps; the model expands over two neighbouring steps at the first boundary
     labels = np.array([0, 0, 0, 0, 1, 1, 1, 1, 2, 2])

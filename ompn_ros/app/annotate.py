@@ -47,9 +47,9 @@ from typing import Any, Literal
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.app.errors import AnnotateError
 from ompn_ros.data import messages as m
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.errors import BagError
 from ompn_ros.data.recorder.bag_writer import storage_plugin
 from ompn_ros.detect.online import BoundaryEvent, with_final
 from ompn_ros.layout import resolve_topic
@@ -75,10 +75,6 @@ STORAGES: tuple[Storage, ...] = ("mcap", "sqlite3")
 _ROS_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # order at one stamp: the node publishes events first
 _RANK = {"boundary": 1, "state": 2, "pi": 3, "segment": 4}
-
-
-class AnnotateError(BagError):
-    """The input bag, the output path or the replay outputs cannot make an annotated bag."""
 
 
 @dataclass(frozen=True)
@@ -476,7 +472,6 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
 __all__ = [
     "CUSTOM_DATA_KEY",
     "STAMPS_KEY",
-    "AnnotateError",
     "AnnotateReport",
     "SegmentLabels",
     "annotate_bag",

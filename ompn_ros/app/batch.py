@@ -32,24 +32,20 @@ import numpy as np
 import torch
 
 from ompn_ros.app import batch_bags as records
-from ompn_ros.app.annotate import AnnotateError, annotate_bag, observation_stamps
+from ompn_ros.app.annotate import annotate_bag, observation_stamps
 from ompn_ros.app.batch_bags import BatchBag
+from ompn_ros.app.errors import AnnotateError, ReplayError
 from ompn_ros.app.replay import check_finite, reader_spec, replay_all
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.errors import BagError, ReaderSpecError
+from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import OnError, read_episodes
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.errors import KNOWN_ERRORS
 from ompn_ros.metrics import alignment_counts, f1_with_tolerance
-from ompn_ros.model.checkpoint import CheckpointError
 from ompn_ros.model.load import Stepper, stepper_from_checkpoint
 from ompn_ros.model.streaming import Backend
 from ompn_ros.segmenter import ReplayResult
-
-REFUSED_ERRORS: tuple[type[BaseException], ...] = (BagError, ReaderSpecError, CheckpointError, ValueError,
-                                                    OSError)
-"""What refuses a bag with a one-line reason (the errors ``ompn_*`` commands report as one line);
-anything else is a bug: the bag is refused too, and its traceback printed."""
 
 
 @dataclass(frozen=True)
@@ -187,7 +183,7 @@ def segment_bag(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, A
     doc["bytes"] = doc["bag_stamp"][0]
     try:
         doc.update(_segment(settings, bag, bag.path), status="segmented")
-    except REFUSED_ERRORS as exc:
+    except KNOWN_ERRORS as exc:  # a bad bag: the one-line reason of the commands
         doc.update(status="refused", reason=_line(exc))
     except Exception as exc:  # a bug: refuse this bag, show the traceback, keep going
         traceback.print_exc(file=sys.stderr)
@@ -237,7 +233,7 @@ def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
     record in the order of ``bags`` (a skipped bag's with ``skipped: True``).  ``progress(record,
     done, total)`` is called as each bag finishes."""
     if jobs < 1:
-        raise ValueError(f"--jobs must be at least 1, got {jobs}")
+        raise ReplayError(f"--jobs must be at least 1, got {jobs}")
     records.clean_temporaries(settings.out)
     fingerprint = settings.fingerprint()
     found: dict[str, dict[str, Any]] = {}
@@ -260,5 +256,5 @@ def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
     return [found[bag.key] for bag in bags]
 
 
-__all__ = ["REFUSED_ERRORS", "BatchSettings", "episode_scores", "is_complete", "run_batch", "segment_bag",
+__all__ = ["BatchSettings", "episode_scores", "is_complete", "run_batch", "segment_bag",
            "segment_rows"]

@@ -30,15 +30,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ompn_ros.app.errors import ClosedLoopError
 from sim_nodes.registry import CRAFT_TASKS, CraftEnv, DialEnv, dial_episode_sketch
 
 EVAL_SEED_BASE = 10_000
 """First evaluation seed; see the module docstring."""
 CRAFT_EVAL_TASKS: tuple[str, ...] = ("makebed", "makeaxe", "makeshears")
-
-
-class ClosedLoopError(ValueError):
-    """Bad arguments to a closed-loop evaluation (unknown domain or task, wrong counts, ...)."""
 
 
 class Agent(Protocol):

@@ -43,21 +43,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ompn_ros.app.closed_loop import (
-    CRAFT_EVAL_TASKS,
-    EVAL_SEED_BASE,
-    ClosedLoopError,
-    ClosedLoopReport,
-    EpisodeResult,
-)
+from ompn_ros.app.closed_loop import CRAFT_EVAL_TASKS, EVAL_SEED_BASE, ClosedLoopReport, EpisodeResult
+from ompn_ros.app.errors import ClosedLoopError, RosEvalError
 from ompn_ros.ros.env import child_env
 from sim_nodes.registry import derive_seed
 
 SIM_MODULES = {"craft": "sim_nodes.craft.node", "dial": "sim_nodes.dial.node"}
-
-
-class RosEvalError(RuntimeError):
-    """A child process failed or the evaluation timed out; the message carries the children's stderr."""
 
 
 def ros_eval_seeds(n: int, base: int = EVAL_SEED_BASE) -> list[int]:

@@ -22,16 +22,13 @@ from typing import Any
 from tqdm import tqdm
 
 from ompn_ros import layout
+from ompn_ros.app.errors import CollectError
 from ompn_ros.data.episode import Episode, observation_copies
 from ompn_ros.data.recorder.bag_writer import STORAGES, EpisodeBagWriter
-from sim_nodes.registry import DOMAINS, HumanLike, derive_seed, expert_episode
+from sim_nodes.registry import DOMAINS, HumanLike, UnknownDomainError, check_task, derive_seed, expert_episode
 
 MANIFEST = "collect.json"
 Generator = Callable[[int, str, bool], Episode]
-
-
-class CollectError(RuntimeError):
-    """The collection cannot start or continue (existing output, mismatched resume, ...)."""
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -107,7 +104,10 @@ def _prepare_output(out: Path, settings: dict[str, Any], resume: bool, overwrite
         )
     if not manifest_file.is_file():
         raise CollectError(f"cannot resume: '{manifest_file}' is missing")
-    manifest = json.loads(manifest_file.read_text(encoding="utf-8"))
+    try:
+        manifest = json.loads(manifest_file.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise CollectError(f"cannot resume: '{manifest_file}' is not valid JSON ({exc})") from exc
     old = manifest.get("settings", {})
     if old != settings:
         diff = {k: (old.get(k), v) for k, v in settings.items() if old.get(k) != v}
@@ -162,6 +162,11 @@ def _check(
         raise CollectError(f"--split-every must be >= 1, got {split_every}")
     if not tasks:
         raise CollectError("--task needs at least one task name")
+    for task in tasks:
+        try:
+            check_task(domain, task)
+        except UnknownDomainError as exc:
+            raise CollectError(str(exc)) from exc
     if partial and domain != "craft":
         raise CollectError("--partial (egocentric observations) applies to --domain craft only")
     if resume and overwrite:

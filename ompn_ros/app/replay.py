@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.app.annotate import AnnotateReport, annotate_bag, observation_stamps
+from ompn_ros.app.errors import ReplayError
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
 from ompn_ros.detect import offline
@@ -30,10 +31,6 @@ from ompn_ros.model.atomic import atomic_write, atomic_write_text
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
 from sim_nodes.registry import DOMAINS, default_tasks, expert_episode
-
-
-class ReplayError(ValueError):
-    """A replay cannot be scored (names the episode at fault)."""
 
 
 def reader_spec(reader_config: str | None, domain: str | None) -> ReaderSpec:

@@ -20,6 +20,7 @@ from typing import Any
 
 import yaml
 
+from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.data.cache import EpisodeArrays, load_arrays
 from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
@@ -45,10 +46,6 @@ RUN_OUTPUTS = (
     "candidates.json",
 )
 """What ``ompn_train`` writes into its output directory (``--overwrite`` removes exactly these)."""
-
-
-class TrainSetupError(ValueError):
-    """A bad config file, override, data section or output directory (names the thing at fault)."""
 
 
 def _number_or_text(value: Any) -> Any:
@@ -122,6 +119,15 @@ def prepare_out_dir(out: Path, resume: bool, overwrite: bool) -> None:
             target.unlink()
 
 
+def _data_int(data: dict[str, Any], key: str, default: int | None) -> int:
+    """``data[key]`` (or ``default``) as an int; :class:`TrainSetupError` naming ``data.key`` otherwise."""
+    value = data.get(key, default)
+    try:
+        return int(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
+        raise TrainSetupError(f"data.{key} must be an integer, got {value!r}") from exc
+
+
 @dataclass
 class TrainingData:
     """Episodes to train on, the model fields they fix, and the bag reader's report (bags only)."""
@@ -134,7 +140,7 @@ class TrainingData:
 
 def synthetic_data(task: SyntheticKind, episodes: int, data: dict[str, Any]) -> TrainingData:
     """A synthetic task (smoke runs): episodes and the task's sizes."""
-    found = make_dataset(task, episodes, seed=int(data.get("synthetic_seed", 0)))
+    found = make_dataset(task, episodes, seed=_data_int(data, "synthetic_seed", 0))
     obs_dim, action_type, action_dim, vocab = synthetic_spec(task)
     return TrainingData(
         found, {"obs_dim": obs_dim, "action_type": action_type, "action_dim": action_dim}, vocab
@@ -175,7 +181,9 @@ def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
             f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
         )
     on_error = data.get("on_error", "raise")
-    workers, cached = int(data.get("cache_workers", 0)), bool(data.get("cache", True))
+    workers, cached = _data_int(data, "cache_workers", 0), bool(data.get("cache", True))
+    if workers < 0:
+        raise TrainSetupError(f"data.cache_workers must be >= 0 (0: one entry for all bags), got {workers}")
     if workers and cached:  # per-bag entries: parallel, reused when bags are added
         arrays = shared_arrays(lambda: load_arrays_per_bag(bags, spec=spec, on_error=on_error,
                                                            workers=workers))
@@ -205,7 +213,7 @@ def fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str,
     if continuous:
         action_dim = int(first.actions.shape[1])
     elif "action_dim" in data:
-        action_dim = int(data["action_dim"])
+        action_dim = _data_int(data, "action_dim", None)
     else:
         raise TrainSetupError(
             "discrete actions from your own bags need data.action_dim (the number of actions, without 'done')"

@@ -15,9 +15,10 @@ from pathlib import Path
 from ompn_ros.app import batch_table
 from ompn_ros.app.batch import BatchSettings, run_batch
 from ompn_ros.app.batch_bags import BatchBag, list_bags
+from ompn_ros.app.errors import ReplayError
 from ompn_ros.detect.settings import resolve_detector
 from ompn_ros.detect.tune import load_detector_yaml
-from ompn_ros.model.checkpoint import CheckpointError
+from ompn_ros.model.errors import CheckpointError
 from ompn_ros.model.load import stepper_from_checkpoint
 
 SOME_REFUSED = 1
@@ -36,9 +37,9 @@ def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
 def check_batch_arguments(args: argparse.Namespace) -> None:
     """Refuse option combinations batch mode does not take (one line naming the option)."""
     if args.bags and (args.bag or args.tune or args.generate):
-        raise ValueError("--bags replays many bags: give it without --bag, --tune and --generate")
+        raise ReplayError("--bags replays many bags: give it without --bag, --tune and --generate")
     if args.jobs < 1:
-        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+        raise ReplayError(f"--jobs must be at least 1, got {args.jobs}")
 
 
 def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
@@ -48,7 +49,7 @@ def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
     folder = annotate.resolve()
     inside = [b.path for b in bags if b.path is not None and folder in b.path.resolve().parents]
     if inside:
-        raise ValueError(f"--annotate {annotate} holds bags that --bags lists ({inside[0]}): a rerun would "
+        raise ReplayError(f"--annotate {annotate} holds bags that --bags lists ({inside[0]}): a rerun would "
                          "segment the copies; write them elsewhere")
 
 
@@ -58,7 +59,7 @@ def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     try:  # a bad checkpoint refuses the run, not every bag
         stepper_from_checkpoint(args.checkpoint, "jit" if device == "cpu" else "torch", device)
     except CheckpointError as exc:
-        raise ValueError(f"--checkpoint: {exc}") from exc
+        raise ReplayError(f"--checkpoint: {exc}") from exc
     explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
     detector, line = resolve_detector(args.checkpoint, explicit, f"--detector-config {args.detector_config}")
     print(f"ompn_segment: {line}", file=sys.stderr)

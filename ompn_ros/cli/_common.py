@@ -1,8 +1,9 @@
 """What every ``ompn_*`` command shares: the parser style and one way of reporting known errors.
 
-A known error (a bad bag, checkpoint, config or option: :data:`KNOWN_ERRORS`) is printed as one line
-``<prog>: error: <message>`` on stderr and the command exits with code 2; ``--debug`` shows the
-traceback instead.  Anything else is a bug and keeps its traceback.
+A known error (:data:`ompn_ros.errors.KNOWN_ERRORS`: the package's own errors, ``OMPNError``, and the
+``OSError`` s a path given by the user raises) is printed as one line ``<prog>: error: <message>``
+on stderr and the command exits with code 2; ``--debug`` shows the traceback instead.  Anything
+else, a plain ``ValueError`` included, is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -14,18 +15,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ompn_ros import layout
-from ompn_ros.data.errors import BagError, ReaderSpecError
-from ompn_ros.model.checkpoint import CheckpointError
-
-KNOWN_ERRORS: tuple[type[BaseException], ...] = (
-    BagError,
-    ReaderSpecError,
-    CheckpointError,
-    ValueError,
-    OSError,
-)
-"""Errors a user can fix: bags, reader specs, checkpoints, validated configs (every config and
-detector error class of the package derives from ``ValueError``), files."""
+from ompn_ros.errors import KNOWN_ERRORS
 
 Body = Callable[[argparse.Namespace], int]
 
@@ -84,13 +74,12 @@ def run_cli(
     parser: argparse.ArgumentParser,
     body: Body,
     argv: Sequence[str] | None = None,
-    extra_errors: tuple[type[BaseException], ...] = (),
 ) -> int:
     """Parse ``argv``, run ``body(args)`` and turn a known error into one line on stderr and exit code 2."""
     args = parser.parse_args(None if argv is None else list(argv))
     try:
         return body(args)
-    except (*KNOWN_ERRORS, *extra_errors) as exc:
+    except KNOWN_ERRORS as exc:
         if getattr(args, "debug", False):
             raise
         print(f"{parser.prog}: error: {error_line(exc)}", file=sys.stderr)

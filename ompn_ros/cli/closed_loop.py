@@ -25,14 +25,14 @@ import torch
 
 from ompn_ros.app.closed_loop import (
     CRAFT_EVAL_TASKS,
-    ClosedLoopError,
     ClosedLoopReport,
     RandomAgent,
     eval_seeds,
     format_table,
     run_closed_loop,
 )
-from ompn_ros.app.closed_loop_ros import RosEvalError, ros_eval_seeds, run_ros_closed_loop
+from ompn_ros.app.closed_loop_ros import ros_eval_seeds, run_ros_closed_loop
+from ompn_ros.app.errors import ClosedLoopError, RosEvalError
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import build_stepper

@@ -20,30 +20,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ompn_ros import layout
-from ompn_ros.app.collect import (
-    MANIFEST,
-    CollectError,
-    Generator,
-    collect,
-    default_generator,
-    episode_seed,
-    part_name,
-)
+from ompn_ros.app.collect import collect, default_generator
+from ompn_ros.app.errors import CollectError
 from ompn_ros.cli._common import command_line, make_parser, run_cli
 from ompn_ros.data.recorder.bag_writer import STORAGES
-from sim_nodes.registry import DEMONSTRATORS, parse_human
+from sim_nodes.registry import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 
-__all__ = [
-    "MANIFEST",
-    "CollectError",
-    "Generator",
-    "build_parser",
-    "collect",
-    "default_generator",
-    "episode_seed",
-    "main",
-    "part_name",
-]
+__all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -94,6 +77,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _human(args: argparse.Namespace) -> HumanLike:
+    """The human-like parameters of ``--human`` (a bad one: :class:`CollectError` naming it)."""
+    try:
+        return parse_human(args.domain, args.human)
+    except HumanLikeError as exc:
+        raise CollectError(str(exc)) from exc
+
+
 def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
     def body(args: argparse.Namespace) -> int:
         if args.task:
@@ -104,7 +95,7 @@ def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
             raise CollectError("--task is required for craft")
         if args.human and args.demonstrator != "human":
             raise CollectError("--human sets human-like parameters: add --demonstrator human")
-        human = parse_human(args.domain, args.human) if args.demonstrator == "human" else None
+        human = _human(args) if args.demonstrator == "human" else None
         # looked up here, so a test can replace this module's default_generator
         manifest = collect(
             args.out,
@@ -142,7 +133,7 @@ def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point; returns the exit status (2 on a usage/output problem)."""
-    return run_cli(build_parser(), _body(argv), argv, extra_errors=(CollectError,))
+    return run_cli(build_parser(), _body(argv), argv)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,8 @@ from pathlib import Path
 import torch
 
 from ompn_ros.app import replay
-from ompn_ros.app.replay import ReplayError, replay_all
+from ompn_ros.app.errors import ReplayError
+from ompn_ros.app.replay import replay_all
 from ompn_ros.cli._batch import add_batch_arguments, check_batch_arguments, run_batch_cli
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.data.episode import Episode
@@ -45,7 +46,7 @@ from ompn_ros.detect.tune import (
     score_online,
     write_node_config,
 )
-from ompn_ros.model.checkpoint import CheckpointError
+from ompn_ros.model.errors import CheckpointError
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG, duration_detector, pick_online
 from ompn_ros.train.device import DEVICES, resolve_device

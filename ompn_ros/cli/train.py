@@ -29,16 +29,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ompn_ros.app import training
-from ompn_ros.app.training import TrainSetupError, apply_overrides, load_config
+from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.train.device import resolve_device
-from ompn_ros.train.distributed import DistributedError
-from ompn_ros.train.state import TrainStateError
 
-TrainCliError = TrainSetupError
-"""Former name of :class:`ompn_ros.app.training.TrainSetupError`."""
-
-__all__ = ["TrainCliError", "apply_overrides", "build_parser", "load_config", "main"]
+__all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -99,7 +94,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ompn_train console script; returns the process exit code."""
-    return run_cli(build_parser(), _run, argv, extra_errors=(DistributedError, TrainStateError))
+    return run_cli(build_parser(), _run, argv)
 
 
 if __name__ == "__main__":

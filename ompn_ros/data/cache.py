@@ -33,14 +33,14 @@ from typing import Any
 
 import numpy as np
 
+from ompn_ros.data.errors import CacheFormatError, EmptyEntryError, MixedBagsError, NpyAppendError
+
 from .cache_store import (
     CACHE_FORMAT,
     INDEX,
     JOINT_KEYS,
     STEP_KEYS,
-    CacheFormatError,
     EntryWriter,
-    NpyAppendError,
     common_obs_names,
     open_entry,
     write_entry,
@@ -182,7 +182,7 @@ class EpisodeArrays:
     def load(cls, path: Path) -> EpisodeArrays:
         """Open an entry written by :meth:`save` or :func:`load_arrays`, step arrays memory-mapped.
 
-        Raises :class:`~ompn_ros.data.cache_store.CacheFormatError` (a ``ValueError``) for an entry
+        Raises :class:`~ompn_ros.data.errors.CacheFormatError` (a ``ValueError``) for an entry
         of another format version and ``OSError`` when it is missing.
         """
         arrays, report = open_entry(path)
@@ -270,10 +270,6 @@ def _prune_legacy(root: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
-class EmptyEntryError(ValueError):
-    """No episode could be read from the bags of an entry (the message names them and says why)."""
-
-
 def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path) -> None:
     """Parse ``bags`` one at a time into the entry at ``entry`` (memory: one bag's parse)."""
     report = ReadReport()
@@ -285,7 +281,7 @@ def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry
             try:
                 writer.add(result.episodes)
             except NpyAppendError as err:
-                raise ValueError(f"bag {bag} does not fit the bags before it: {err}") from err
+                raise MixedBagsError(f"bag {bag} does not fit the bags before it: {err}") from err
             del result  # release this bag's parse before reading the next one
             _release_freed_memory()
         if len(writer) == 0:
@@ -311,12 +307,12 @@ def _release_freed_memory() -> None:
 def _in_memory(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError) -> EpisodeArrays:
     result = read_episodes(bags, spec=spec, on_error=on_error)
     if not result.episodes:
-        raise ValueError(f"no episodes could be read from {[str(b) for b in bags]}:\n"
+        raise EmptyEntryError(f"no episodes could be read from {[str(b) for b in bags]}:\n"
                          f"{result.report.summary()}")
     arrays = EpisodeArrays.from_episodes(result.episodes)
     arrays.report = result.report.summary()
     return arrays
 
 
-__all__ = ["CACHE_FORMAT", "CacheFormatError", "EmptyEntryError", "EpisodeArrays", "build_entry",
+__all__ = ["CACHE_FORMAT", "CacheFormatError", "EpisodeArrays", "build_entry",
            "content_key", "default_cache_dir", "load_arrays", "open_hit"]

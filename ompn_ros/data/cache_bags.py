@@ -20,8 +20,10 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from .cache import EmptyEntryError, EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit
-from .cache_store import EntryWriter, NpyAppendError
+from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
+
+from .cache import EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit
+from .cache_store import EntryWriter
 from .reader import OnError, ReaderSpec, resolve_bag_paths
 
 BAGS_DIR = "bags"
@@ -87,7 +89,7 @@ def assemble(entries: Sequence[Path], target: Path) -> None:
             try:
                 writer.add(part.episodes())
             except NpyAppendError as err:
-                raise ValueError(f"cache entry {entry} does not fit the bags before it: {err}") from err
+                raise MixedBagsError(f"cache entry {entry} does not fit the bags before it: {err}") from err
             del part
         writer.finish(merged_report(reports, len(writer), len(entries)))
     except BaseException:

@@ -24,18 +24,16 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ompn_ros.data.errors import CacheFormatError, NpyAppendError
+
 from .episode import Episode
-from .npy_append import NpyAppender, NpyAppendError
+from .npy_append import NpyAppender
 
 CACHE_FORMAT = 4  # 4: + obs_names; 3: a directory of .npy files, memory-mapped (2: one .npz in memory)
 INDEX = "index.json"
 JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")  # [T + 1] extras
 STEP_KEYS = ("subtask_id",)  # per-step extras [T] (labels: id)
 STEP_ARRAYS = ("observations", "actions", "subtask", "sketch")  # memory-mapped (with the extras)
-
-
-class CacheFormatError(ValueError):
-    """A cache entry that cannot be used (another format version, or missing/short files)."""
 
 
 def _mapped(name: str) -> bool:
@@ -208,6 +206,6 @@ def _extra(ep: Episode, name: str) -> Any:
     return ep.extras.get(name.split("__", 1)[1])
 
 
-__all__ = ["CACHE_FORMAT", "CacheFormatError", "EntryWriter", "NpyAppendError", "common_obs_names",
+__all__ = ["CACHE_FORMAT", "EntryWriter", "NpyAppendError", "common_obs_names",
            "open_entry",
            "write_entry"]

@@ -1,15 +1,19 @@
-"""Errors raised while reading or writing rosbag2 files.
+"""Errors of the data package: reading and writing rosbag2 files, reader and observation specs, the
+episode cache and the recorder.
 
-Every error names what is at fault: the bag file, the topic and the message index (0-based,
-counted per topic in stamp order), so a bad recording can be found and fixed.
+Every class derives from :class:`ompn_ros.errors.OMPNError`.  A bag error names what is at fault: the
+bag file, the topic and the message index (0-based, counted per topic in stamp order), so a bad
+recording can be found and fixed.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from ompn_ros.errors import OMPNError
 
-class BagError(Exception):
+
+class BagError(OMPNError):
     """Base class of every bag reading/writing error."""
 
     def __init__(
@@ -80,5 +84,30 @@ class NoEpisodeError(BagError):
     """A bag holds no complete episode under the reader spec."""
 
 
-class ReaderSpecError(ValueError):
+class ReaderSpecError(OMPNError, ValueError):
     """A reader spec (YAML or dataclass) is invalid."""
+
+
+class CacheFormatError(OMPNError, ValueError):
+    """A cache entry that cannot be used (another format version, or missing/short files)."""
+
+
+class NpyAppendError(OMPNError, ValueError):
+    """Rows that do not fit the file (another row shape, or a dtype that cannot be cast safely)."""
+
+
+class EmptyEntryError(OMPNError, ValueError):
+    """No episode could be read from the bags given (the message names them and says why)."""
+
+
+class MixedBagsError(OMPNError, ValueError):
+    """Bags whose episodes cannot share one cache entry (another observation size, action kind or
+    extras than the bags before them); the message names the bag or entry."""
+
+
+class ObservationSpecError(OMPNError, ValueError):
+    """An invalid observation spec (the message names the entry at fault)."""
+
+
+class NotEnoughSpace(OMPNError, OSError):
+    """Too little free space to start recording (the message names the path and the space)."""

@@ -14,13 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ompn_ros.data.errors import NpyAppendError
+
 _MAGIC = b"\x93NUMPY\x01\x00"
 _PLACEHOLDER_ROWS = 10**17  # widest row count the placeholder header leaves room for
 _ALIGN = 64  # NumPy aligns the data to 64 bytes
-
-
-class NpyAppendError(ValueError):
-    """Rows that do not fit the file (another row shape, or a dtype that cannot be cast safely)."""
 
 
 def npy_header(dtype: np.dtype, shape: tuple[int, ...], length: int | None = None) -> bytes:

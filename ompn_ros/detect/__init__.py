@@ -1,10 +1,10 @@
 """Subtask-boundary detectors over expansion distributions (offline; the online ones live in
 ``ompn_ros.detect.online``) and the scoring and tuning of the online detector (``ompn_ros.detect.tune``)."""
 
+from ompn_ros.detect.errors import DetectorError, TuneError
 from ompn_ros.detect.offline import (
     FALLBACK_THRESHOLD,
     AutoThreshold,
-    DetectorError,
     auto_threshold,
     auto_threshold_boundaries,
     boundaries_from_threshold,
@@ -18,7 +18,6 @@ from ompn_ros.detect.offline import (
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
     OBJECTIVES,
-    TuneError,
     choose_on_replays,
     compare_on_replays,
     default_grid,

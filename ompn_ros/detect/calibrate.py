@@ -40,6 +40,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from ompn_ros.detect.duration import DurationDetector, DurationModel, fit_duration_model
+from ompn_ros.detect.errors import CalibrationError
 from ompn_ros.detect.offline import (
     auto_threshold,
     constrained_top_k_boundaries,
@@ -58,10 +59,6 @@ COMBINED: dict[str, tuple[Reference, ...]] = {"onset_and_pooled": ("auto_thresho
 """References made of others: the calibration maximises the mean of the parts' metrics."""
 LAG = {"falling_edge": 1, "peak": 1, "rising_edge": 0}
 """Steps between a boundary and its emission, per mode (see :mod:`ompn_ros.detect.online`)."""
-
-
-class CalibrationError(ValueError):
-    """Input that cannot be calibrated on (names the argument at fault)."""
 
 
 @dataclass(frozen=True)
@@ -460,7 +457,6 @@ __all__ = [
     "OBJECTIVES",
     "REFERENCES",
     "Calibration",
-    "CalibrationError",
     "DurationCalibration",
     "Objective",
     "Reference",

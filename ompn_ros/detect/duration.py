@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from ompn_ros.detect.errors import DurationModelError
 from ompn_ros.detect.online import (
     DURATION_MODE,
     MAX_LAG,
@@ -64,10 +65,6 @@ MAX_SPAN = 64
 """The most recent steps the decoder weighs (>= MAX_DURATION): a boundary is never placed further
 back, and the current segment's steps before them only count towards its length."""
 _NEG = -1.0e300
-
-
-class DurationModelError(ValueError):
-    """An invalid duration model, or episodes a model cannot be fitted on; the message says which."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -435,6 +432,6 @@ def make_detector(config: DetectorConfig, model: DurationModel | None) -> Detect
 
 
 __all__ = [
-    "Detector", "DurationDetector", "DurationModel", "DurationModelError", "decode_episode",
+    "Detector", "DurationDetector", "DurationModel", "decode_episode",
     "fit_duration_model", "make_detector",
 ]

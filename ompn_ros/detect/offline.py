@@ -24,15 +24,13 @@ from typing import Literal
 
 import numpy as np
 
+from ompn_ros.detect.errors import DetectorError
+
 Weighting = Literal["code", "paper"]
 Standardisation = Literal["code", "minmax"]
 
 FALLBACK_THRESHOLD = 0.5
 """Threshold used by :func:`auto_threshold` when the score curve has no peak or no valley."""
-
-
-class DetectorError(ValueError):
-    """Invalid input to an offline detector (names the argument at fault)."""
 
 
 @dataclass(frozen=True)

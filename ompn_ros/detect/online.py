@@ -41,6 +41,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ompn_ros.detect.errors import DetectorConfigError
+
 MODES = ("falling_edge", "peak", "rising_edge")
 """The threshold detectors' commit rules (the grids of ``ompn_segment --tune`` and the calibration)."""
 DURATION_MODE = "hsmm"
@@ -49,10 +51,6 @@ ALL_MODES = (*MODES, DURATION_MODE)
 MAX_LAG = 10
 """The longest lag of the duration decoder (the fewest steps a boundary waits; see
 :mod:`ompn_ros.detect.duration` for its cost per step)."""
-
-
-class DetectorConfigError(ValueError):
-    """A detector parameter is out of range; the message names the parameter."""
 
 
 @dataclass(frozen=True)

@@ -32,8 +32,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from ompn_ros.detect.duration import DurationModel, DurationModelError
-from ompn_ros.detect.online import DURATION_MODE, DetectorConfig, DetectorConfigError
+from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError, DurationModelError
+from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
 from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
 
 DETECTOR_FILE = "detector.json"
@@ -45,10 +46,6 @@ OFFLINE_DETECTORS: tuple[OfflineDetector, ...] = get_args(OfflineDetector)
 SOURCES: tuple[SettingsSource, ...] = get_args(SettingsSource)
 DEFAULT_DONE_THRESHOLD = 0.5
 DEFAULT_MIN_LENGTH = 2
-
-
-class DetectorSettingsError(ValueError):
-    """An invalid ``detector.json`` or settings value; the message names the file and the key."""
 
 
 def _where(origin: str, key: str) -> str:
@@ -321,7 +318,6 @@ __all__ = [
     "OFFLINE_DETECTORS",
     "SOURCES",
     "DetectorSettings",
-    "DetectorSettingsError",
     "OfflineDetector",
     "SettingsSource",
     "detector_file",

@@ -29,6 +29,7 @@ import yaml
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel, make_detector
+from ompn_ros.detect.errors import TuneError
 from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, run_detector
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
@@ -41,10 +42,6 @@ MATCH_TOLERANCE = 2
 """A detection within this many steps of a true boundary counts as that boundary (for delays)."""
 
 Metrics = dict[str, float]
-
-
-class TuneError(ValueError):
-    """Bad input to detector scoring or tuning (names the argument at fault)."""
 
 
 class Replayed(Protocol):

@@ -5,18 +5,19 @@ Loading has one path: ``build.py`` (config -> model), ``checkpoint.py`` (files <
 """
 
 from ompn_ros.model.build import build_policy
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from ompn_ros.model.config import ConfigError, OMPNConfig
-from ompn_ros.model.load import Stepper, build_stepper, shipped_stepper, stepper_from_checkpoint
-from ompn_ros.model.loss import LossInputError, bc_loss
-from ompn_ros.model.policy import (
-    MemoryState,
+from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import (
+    CheckpointError,
+    ConfigError,
+    LossInputError,
     ModelInputError,
-    OMPNPolicy,
-    SequenceOutput,
-    StepTensors,
+    StreamingInputError,
 )
-from ompn_ros.model.streaming import StepOutput, StreamingInputError, StreamingPolicy
+from ompn_ros.model.load import Stepper, build_stepper, shipped_stepper, stepper_from_checkpoint
+from ompn_ros.model.loss import bc_loss
+from ompn_ros.model.policy import MemoryState, OMPNPolicy, SequenceOutput, StepTensors
+from ompn_ros.model.streaming import StepOutput, StreamingPolicy
 
 __all__ = [
     "CheckpointError",

@@ -23,6 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO, Literal
 
+from ompn_ros.model.errors import WriteFailure
+
 TempKind = Literal["tmp", "old"]
 TAGGED = re.compile(r"^\.(?P<stem>.+)\.(?:tmp|old)-(?P<pid>\d+)-[^/]+$")
 LEGACY = re.compile(r"^\.(?P<stem>.+)\.(?:(?:tmp|old)-[A-Za-z0-9_]+|[A-Za-z0-9_]{8}(?:\.tmp)?)$")
@@ -85,10 +87,6 @@ def remove_stale_temps(parent: Path, stem: str | None = None) -> list[Path]:
     return removed
 
 
-class WriteFailure(OSError):
-    """A file could not be written (full or read-only filesystem...): the message names it."""
-
-
 def free_space(path: Path) -> str:
     """The space left on the filesystem that holds ``path`` (its nearest existing parent)."""
     probe = Path(path).absolute()
@@ -138,7 +136,6 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 __all__ = [
     "LEGACY_STALE_SECONDS",
-    "WriteFailure",
     "atomic_write",
     "atomic_write_text",
     "free_space",

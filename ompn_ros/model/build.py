@@ -12,7 +12,8 @@ from typing import TypeAlias
 
 import torch
 
-from ompn_ros.model.config import ConfigError, OMPNConfig
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import ConfigError, ModelSizeError
 from ompn_ros.model.lstm import LSTMPolicy
 from ompn_ros.model.policy import OMPNPolicy
 
@@ -20,10 +21,6 @@ PolicyModule: TypeAlias = OMPNPolicy | LSTMPolicy
 """Any trainable policy: ``forward_sequence``, ``set_obs_normalization``, ``config``."""
 MAX_ELEMENTS = 1 << 28
 """Largest model we build (2^28 values, 1 GiB in float32; the paper's Craft model has 2.8 M)."""
-
-
-class ModelSizeError(ConfigError):
-    """A config asks for a model larger than :data:`MAX_ELEMENTS` values."""
 
 
 def build_policy(config: OMPNConfig) -> PolicyModule:
@@ -66,7 +63,6 @@ def check_model_size(config: OMPNConfig) -> int:
 
 __all__ = [
     "MAX_ELEMENTS",
-    "ModelSizeError",
     "PolicyModule",
     "build_policy",
     "check_model_size",

@@ -29,7 +29,8 @@ from safetensors.torch import load_file, save_file
 
 from ompn_ros.model.atomic import free_space, make_temp_dir, remove_stale_temps
 from ompn_ros.model.build import PolicyModule, build_policy, check_model_size, expected_tensors
-from ompn_ros.model.config import ConfigError, OMPNConfig
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import CheckpointError, ConfigError
 
 CHECKPOINT_FORMAT_VERSION = 1
 STORED_DTYPES = {"float32": torch.float32, "float16": torch.float16}
@@ -42,10 +43,6 @@ SAFETENSORS_DTYPES = {
     "BOOL": torch.bool,
 }
 """safetensors header dtype names -> torch dtypes."""
-
-
-class CheckpointError(RuntimeError):
-    """A checkpoint cannot be written or read; the message names the file and the problem."""
 
 
 def save_checkpoint(
@@ -201,7 +198,6 @@ def load_checkpoint(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
 
 __all__ = [
     "CHECKPOINT_FORMAT_VERSION",
-    "CheckpointError",
     "load_checkpoint",
     "load_config",
     "save_checkpoint",

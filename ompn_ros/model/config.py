@@ -6,6 +6,8 @@ import json
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
+from ompn_ros.model.errors import ConfigError
+
 CONFIG_VERSION = 1
 """Format version of :class:`OMPNConfig` (stored in every checkpoint's ``config.json``)."""
 
@@ -17,10 +19,6 @@ ActionNorm = Literal["none", "standard"]
 ACTION_NORMS: tuple[ActionNorm, ...] = ("none", "standard")
 ABLATIONS = ("no_bottom_up", "no_top_down", "no_bottom_up_recurrence")
 """The OMPN ablation flags (paper §4.4)."""
-
-
-class ConfigError(ValueError):
-    """An invalid :class:`OMPNConfig` field or an unreadable serialized config."""
 
 
 @dataclass

@@ -31,18 +31,15 @@ from typing import Any
 
 import numpy as np
 
-from ompn_ros.model.checkpoint import CheckpointError, load_config
-from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation
+from ompn_ros.model.checkpoint import load_config
+from ompn_ros.model.errors import EnsembleError, StreamingInputError
+from ompn_ros.model.step_output import StepOutput, checked_observation
 
 ENSEMBLE_FILE = "ensemble.json"
 ENSEMBLE_FORMAT = "ompn_ros.ensemble"
 ENSEMBLE_FORMAT_VERSION = 1
 SHARED_FIELDS = ("obs_dim", "n_slots", "action_type", "action_dim", "sketch_mode", "sketch_vocab")
 """Config fields every member of an ensemble must share."""
-
-
-class EnsembleError(CheckpointError):
-    """An ensemble manifest or its members cannot be used (names the file or member at fault)."""
 
 
 def is_ensemble(path: str | Path) -> bool:
@@ -183,7 +180,6 @@ class EnsembleStepper:
 
 __all__ = [
     "ENSEMBLE_FILE",
-    "EnsembleError",
     "EnsembleStepper",
     "is_ensemble",
     "read_ensemble",

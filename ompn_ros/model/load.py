@@ -22,8 +22,9 @@ from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.model.build import PolicyModule
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.ensemble import EnsembleStepper, is_ensemble, read_ensemble
+from ompn_ros.model.errors import StreamingInputError
 from ompn_ros.model.lstm import LSTMPolicy, LSTMStreamingPolicy
-from ompn_ros.model.streaming import Backend, StreamingInputError, StreamingPolicy
+from ompn_ros.model.streaming import Backend, StreamingPolicy
 
 Stepper: TypeAlias = StreamingPolicy | LSTMStreamingPolicy | EnsembleStepper
 """Any batch-1 stepper: ``reset(sketch)``, ``step(obs) -> StepOutput``, ``config``."""
@@ -49,7 +50,7 @@ def stepper_from_checkpoint(
 ) -> Stepper:
     """Load a checkpoint of either architecture, or an ensemble directory, and wrap it in its stepper.
 
-    Raises :class:`~ompn_ros.model.checkpoint.CheckpointError` (or its subclass ``EnsembleError``)
+    Raises :class:`~ompn_ros.model.errors.CheckpointError` (or its subclass ``EnsembleError``)
     naming the file at fault.
     """
     if is_ensemble(path):

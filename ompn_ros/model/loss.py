@@ -14,13 +14,10 @@ import torch
 from torch import Tensor
 
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import LossInputError
 from ompn_ros.model.policy import SequenceOutput, gaussian_log_prob
 
 PI_END_CLAMP = 1e-9
-
-
-class LossInputError(ValueError):
-    """Targets or masks passed to :func:`bc_loss` do not match the model outputs."""
 
 
 def done_log_probs(pi_end: Tensor) -> tuple[Tensor, Tensor]:

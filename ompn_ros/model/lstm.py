@@ -29,9 +29,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ompn_ros.model.config import ConfigError, OMPNConfig
-from ompn_ros.model.policy import ModelInputError, PolicyInputs, SequenceOutput
-from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation, sketch_tensor
+from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import ConfigError, ModelInputError, StreamingInputError
+from ompn_ros.model.policy import PolicyInputs, SequenceOutput
+from ompn_ros.model.step_output import StepOutput, checked_observation, sketch_tensor
 
 LSTMState = tuple[Tensor, Tensor]
 

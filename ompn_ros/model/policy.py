@@ -52,12 +52,9 @@ from torch import Tensor, nn
 
 from ompn_ros.model.cells import ComCell, DecomCell, ScoreMLP, plain_layer_norm
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import ModelInputError
 from ompn_ros.model.expansion import SequenceOutput, expansion_sums, stick_breaking, to_p_hat
 from ompn_ros.model.fused import fused_forward_sequence
-
-
-class ModelInputError(ValueError):
-    """A tensor handed to the model has the wrong shape, dtype or content."""
 
 
 @dataclass
@@ -414,7 +411,6 @@ def gaussian_log_prob(actions: Tensor, mean: Tensor, variance: float) -> Tensor:
 
 __all__ = [
     "MemoryState",
-    "ModelInputError",
     "OMPNPolicy",
     "SequenceOutput",
     "StepTensors",

@@ -11,12 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ompn_ros.model.policy import ModelInputError
+from ompn_ros.model.errors import StreamingInputError
 from ompn_ros.validate import InvalidInput, validate_observation
-
-
-class StreamingInputError(ModelInputError):
-    """Bad input to :class:`StreamingPolicy` (wrong observation size, missing sketch, ...)."""
 
 
 @dataclass(frozen=True)
@@ -64,4 +60,4 @@ def sketch_tensor(sketch: np.ndarray | None) -> torch.Tensor | None:
     return torch.as_tensor(arr.astype(np.int64)).unsqueeze(0)
 
 
-__all__ = ["StepOutput", "StreamingInputError", "checked_observation", "sketch_tensor"]
+__all__ = ["StepOutput", "checked_observation", "sketch_tensor"]

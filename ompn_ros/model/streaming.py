@@ -31,8 +31,9 @@ import torch
 from ompn_ros.model._fast_stream import NumpyStepper
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.model.errors import StreamingInputError
 from ompn_ros.model.policy import MemoryState, OMPNPolicy
-from ompn_ros.model.step_output import StepOutput, StreamingInputError, checked_observation, sketch_tensor
+from ompn_ros.model.step_output import StepOutput, checked_observation, sketch_tensor
 
 Backend = Literal["jit", "numpy", "torch"]
 BACKENDS: tuple[Backend, ...] = ("jit", "numpy", "torch")

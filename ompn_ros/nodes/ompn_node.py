@@ -120,16 +120,11 @@ from ompn_ros.data.messages import SubtaskBoundary as BoundaryFields
 from ompn_ros.data.obs import Decided, Drop, ObservationSpecError
 from ompn_ros.data.repeats import Repeats
 from ompn_ros.detect.duration import DurationModel
-from ompn_ros.detect.online import (
-    DURATION_MODE,
-    BoundaryEvent,
-    DetectorConfig,
-    DetectorConfigError,
-    with_final,
-)
-from ompn_ros.detect.settings import NODE_PARAMETERS, DetectorSettingsError, node_parameters, resolve_detector
-from ompn_ros.model.checkpoint import CheckpointError
-from ompn_ros.model.config import ConfigError
+from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError
+from ompn_ros.detect.online import DURATION_MODE, BoundaryEvent, DetectorConfig, with_final
+from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters, resolve_detector
+from ompn_ros.errors import OMPNError
+from ompn_ros.model.errors import CheckpointError, ConfigError
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
@@ -175,7 +170,7 @@ LIVE_DETECTOR_KEYS = frozenset(
 __all__ = ["EXECUTORS", "NODE_NAME", "OBS_SOURCES", "NodeConfigError", "OMPNNode", "main"]
 
 
-class NodeConfigError(ValueError):
+class NodeConfigError(OMPNError, ValueError):
     """A parameter or the checkpoint does not fit; the message is the transition's failure reason."""
 
 

@@ -1,7 +1,8 @@
 """Offline behaviour-cloning training of the OMPN (single process or DDP under torchrun)."""
 
+from ompn_ros.train.errors import TrainConfigError, TrainDataError
 from ompn_ros.train.evaluation import decomposition_metrics, evaluate
-from ompn_ros.train.trainer import TrainConfig, TrainConfigError, TrainDataError, TrainResult, train
+from ompn_ros.train.trainer import TrainConfig, TrainResult, train
 
 __all__ = [
     "TrainConfig",

@@ -17,14 +17,11 @@ import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.train.errors import BatchError
 
 ObsNormMode = Literal["none", "maxabs"]
 TEACHER_P_HAT = "teacher_p_hat"
 """``Episode.extras`` key of a distillation target ``[T, n+1]`` (:mod:`ompn_ros.train.distill`)."""
-
-
-class BatchError(ValueError):
-    """Episodes that cannot be collated (names the episode at fault)."""
 
 
 @dataclass(frozen=True)

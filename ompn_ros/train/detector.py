@@ -45,7 +45,7 @@ from ompn_ros.detect.calibrate import (
     scores_from_p_hats,
     tune_on_labels,
 )
-from ompn_ros.detect.duration import DurationModelError
+from ompn_ros.detect.errors import DurationModelError
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
 from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length

@@ -18,13 +18,11 @@ from typing import Literal, TypeVar, get_args
 
 import torch
 
+from ompn_ros.train.errors import DeviceError
+
 Device = Literal["auto", "cpu", "cuda"]
 DEVICES: tuple[Device, ...] = get_args(Device)
 T = TypeVar("T")
-
-
-class DeviceError(ValueError):
-    """A device that does not exist here (one line naming the setting and the fix)."""
 
 
 def resolve_device(name: str, setting: str = "train.device") -> torch.device:
@@ -63,4 +61,4 @@ def stray_tensors(module: torch.nn.Module, device: torch.device) -> list[str]:
     return stray
 
 
-__all__ = ["DEVICES", "Device", "DeviceError", "batch_to", "device_of", "resolve_device", "stray_tensors"]
+__all__ = ["DEVICES", "Device", "batch_to", "device_of", "resolve_device", "stray_tensors"]

@@ -28,19 +28,17 @@ import torch
 from torch import Tensor
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.model.checkpoint import CheckpointError, load_checkpoint
+from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.ensemble import EnsembleError, is_ensemble, read_ensemble
+from ompn_ros.model.ensemble import is_ensemble, read_ensemble
+from ompn_ros.model.errors import CheckpointError, EnsembleError
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.batching import TEACHER_P_HAT
+from ompn_ros.train.errors import DistillError
 from ompn_ros.train.evaluation import teacher_forced_p_hat
 
 P_HAT_FLOOR = 1e-8
 """Smallest probability inside the logarithms of :func:`distill_loss` (keeps them finite)."""
-
-
-class DistillError(ValueError):
-    """A teacher that cannot be used (names the checkpoint at fault)."""
 
 
 def teacher_paths(sources: Sequence[str]) -> list[Path]:
@@ -95,5 +93,5 @@ def distill_loss(student_p_hat: Tensor, target: Tensor, mask: Tensor) -> Tensor:
     return torch.where(mask, kl, 0.0).sum() / mask.sum().clamp_min(1)
 
 
-__all__ = ["DistillError", "distill_loss", "teacher_p_hats", "teacher_paths",
+__all__ = ["distill_loss", "teacher_p_hats", "teacher_paths",
            "with_teacher_targets"]

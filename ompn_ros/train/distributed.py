@@ -23,9 +23,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-
-class DistributedError(RuntimeError):
-    """The torchrun environment is inconsistent or the process group failed."""
+from ompn_ros.train.errors import DistributedError
 
 
 @dataclass(frozen=True)

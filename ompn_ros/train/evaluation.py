@@ -25,10 +25,7 @@ from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.batching import collate
 from ompn_ros.train.device import batch_to, device_of
-
-
-class EvaluationError(ValueError):
-    """Episodes or p_hat sequences that cannot be evaluated."""
+from ompn_ros.train.errors import EvaluationError
 
 
 def _scores(prefix: str, preds: list[np.ndarray], episodes: Sequence[Episode]) -> dict[str, float]:

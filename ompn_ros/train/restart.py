@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Protocol, TypeVar
 
 from ompn_ros.model.atomic import atomic_write_text
-from ompn_ros.train.state import TrainStateError
+from ompn_ros.train.errors import TrainStateError
 
 
 class RestartConfig(Protocol):

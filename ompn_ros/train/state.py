@@ -27,13 +27,10 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from ompn_ros.model.atomic import atomic_write_text, make_temp_dir, remove_stale_temps, write_failure
+from ompn_ros.train.errors import TrainStateError
 
 POINTER = "LATEST"
 STATE_FORMAT = 1
-
-
-class TrainStateError(RuntimeError):
-    """A training state on disk is missing, incomplete or incompatible."""
 
 
 def optimizer_to_files(
@@ -125,7 +122,10 @@ def latest_state_dir(root: Path) -> Path | None:
 
 def read_state(path: Path) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
     """``(state.json document, optimizer tensors)`` of a state directory."""
-    doc = json.loads((path / "state.json").read_text(encoding="utf-8"))
+    try:
+        doc = json.loads((path / "state.json").read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise TrainStateError(f"{path}/state.json is not valid JSON ({exc})") from exc
     if doc.get("format") != STATE_FORMAT:
         raise TrainStateError(f"{path}/state.json has format {doc.get('format')!r}, expected {STATE_FORMAT}")
     return doc, load_file(str(path / "optimizer.safetensors"))

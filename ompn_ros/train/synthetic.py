@@ -27,6 +27,7 @@ from typing import Literal
 import numpy as np
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.train.errors import SyntheticError
 
 DISCRETE_ACTION_DIM = 3
 LEFT, RIGHT, USE = 0, 1, 2
@@ -37,10 +38,6 @@ CRAFT_OBS_DIM = 1075
 CRAFT_ACTION_DIM = 5
 
 SyntheticKind = Literal["discrete", "continuous", "craft_shaped"]
-
-
-class SyntheticError(ValueError):
-    """Invalid parameters for a synthetic task generator."""
 
 
 def discrete_obs_dim(corridor: int, n_goals: int) -> int:

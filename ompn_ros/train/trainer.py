@@ -51,7 +51,8 @@ from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.atomic import write_failure
 from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
-from ompn_ros.model.config import ACTION_NORMS, ActionNorm, ConfigError, OMPNConfig
+from ompn_ros.model.config import ACTION_NORMS, ActionNorm, OMPNConfig
+from ompn_ros.model.errors import ConfigError
 from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.averaging import WeightAverage
@@ -75,6 +76,7 @@ from ompn_ros.train.distributed import (
     all_reduce_sum,
     broadcast_module,
 )
+from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateError
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
 from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.restart import (
@@ -87,7 +89,6 @@ from ompn_ros.train.restart import (
     start_attempt,
 )
 from ompn_ros.train.state import (
-    TrainStateError,
     clean_state_root,
     latest_state_dir,
     optimizer_from_files,
@@ -136,14 +137,6 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "lr_schedule": LR_SCHEDULES, "selection": SELECTIONS, "labels": LABEL_MODES, "obs_norm": OBS_NORMS,
     "action_norm": ACTION_NORMS, "device": DEVICES,
 }
-
-
-class TrainConfigError(ValueError):
-    """An invalid :class:`TrainConfig` field."""
-
-
-class TrainDataError(ValueError):
-    """The episodes given to :func:`train` cannot be trained on."""
 
 
 @dataclass

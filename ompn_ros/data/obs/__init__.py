@@ -8,9 +8,11 @@
 * :mod:`.stream`: :func:`assemble_stream`, the same assembler over recorded messages.
 """
 
+from ompn_ros.data.errors import ObservationSpecError
+
 from .assembler import DROP_REASONS, AssemblerStats, Decided, Drop, DropReason, ObservationAssembler
 from .extract import ExtractError, TopicExtractor, observation_layout
-from .spec import FIELDS, FieldSpec, ObservationSpec, ObservationSpecError, StampSource
+from .spec import FIELDS, FieldSpec, ObservationSpec, StampSource
 from .stream import AssembledStream, assemble_stream
 
 __all__ = [

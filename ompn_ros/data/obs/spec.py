@@ -25,6 +25,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Final, Literal
 
+from ompn_ros.data.errors import ObservationSpecError
 from ompn_ros.layout import (
     FLOAT32,
     FLOAT32_ARRAY,
@@ -65,10 +66,6 @@ FIXED_LABELS: Final[dict[tuple[str, str], tuple[str, ...]]] = {
                              "orientation.x", "orientation.y", "orientation.z", "orientation.w"),
 }
 """Element labels of the fixed-size fields (their size is the number of labels)."""
-
-
-class ObservationSpecError(ValueError):
-    """An invalid observation spec (the message names the entry at fault)."""
 
 
 def canonical_type(name: str) -> str | None:

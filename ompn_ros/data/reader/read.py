@@ -9,7 +9,7 @@ from typing import TypeVar
 from rosbags.rosbag2 import Reader
 
 from ..episode import Episode
-from ..errors import BagError, CorruptBagError, NoEpisodeError
+from ..errors import BagError, CorruptBagError, NoEpisodeError, ReaderSpecError
 from .assemble import bag_episodes
 from .context import BagContext
 from .decode import decode_bag
@@ -166,7 +166,7 @@ def read_episodes(
         ``ReadResult(episodes, report)``.
     """
     if on_error not in ("raise", "skip_tail"):
-        raise ValueError(f"on_error must be 'raise' or 'skip_tail', got '{on_error}'")
+        raise ReaderSpecError(f"on_error must be 'raise' or 'skip_tail', got '{on_error}'")
     spec = spec or ReaderSpec()
     report = ReadReport()
     episodes: list[Episode] = []

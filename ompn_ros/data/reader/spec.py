@@ -14,8 +14,8 @@ import yaml
 
 from ompn_ros import layout
 
-from ..errors import ReaderSpecError
-from ..obs.spec import ObservationSpec, ObservationSpecError
+from ..errors import ObservationSpecError, ReaderSpecError
+from ..obs.spec import ObservationSpec
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
@@ -282,7 +282,10 @@ class ReaderSpec:
     def from_yaml(cls, path: str | Path) -> ReaderSpec:
         """Load a spec from a YAML file (see ``config/reader_*.yaml``)."""
         with open(path, encoding="utf-8") as fh:
-            data = yaml.safe_load(fh)
+            try:
+                data = yaml.safe_load(fh)
+            except yaml.YAMLError as err:
+                raise ReaderSpecError(f"reader spec file '{path}' is not valid YAML: {err}") from err
         if not isinstance(data, dict):
             raise ReaderSpecError(f"reader spec file '{path}' must hold a mapping")
         try:

@@ -15,13 +15,10 @@ import os
 import shutil
 from pathlib import Path
 
+from ompn_ros.data.errors import NotEnoughSpace
 from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
 
-__all__ = ["DiskGuard", "NotEnoughSpace", "free_bytes"]
-
-
-class NotEnoughSpace(OSError):
-    """Too little free space to start recording (the message names the path and the space)."""
+__all__ = ["DiskGuard", "free_bytes"]
 
 
 def free_bytes(path: Path) -> int:
