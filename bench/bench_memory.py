@@ -113,7 +113,7 @@ def _train_setup(entry: str) -> tuple[Any, Any, Any, Any, Any]:
     from ompn_ros.data.cache import EpisodeArrays
     from ompn_ros.model.config import OMPNConfig
     from ompn_ros.model.policy import OMPNPolicy
-    from ompn_ros.train.trainer import TrainConfig
+    from ompn_ros.train.config import TrainConfig
 
     torch.set_num_threads(1)
     torch.manual_seed(0)

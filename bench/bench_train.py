@@ -20,8 +20,9 @@ def _measure(threads: int, iterations: int, batch_size: int = 256) -> tuple[floa
     from ompn_ros.model.config import OMPNConfig
     from ompn_ros.model.policy import OMPNPolicy
     from ompn_ros.train.batching import collate
+    from ompn_ros.train.config import TrainConfig
     from ompn_ros.train.synthetic import CRAFT_ACTION_DIM, CRAFT_OBS_DIM, make_dataset
-    from ompn_ros.train.trainer import TrainConfig, train_step
+    from ompn_ros.train.trainer import train_step
 
     torch.set_num_threads(threads)
     torch.manual_seed(0)

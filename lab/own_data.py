@@ -49,13 +49,14 @@ from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import FinalObservation, ReaderSpec
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import build_stepper
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.detector import (
     LABEL_FREE_REFERENCE,
     LABEL_FREE_REFERENCE_MIN_LENGTH,
     calibrate_without_labels,
 )
 from ompn_ros.train.precision import cpu_model
-from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
+from ompn_ros.train.trainer import train, train_val_episodes
 
 from .data import collect_bags, held_out_split
 from .report import write_readme

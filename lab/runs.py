@@ -20,8 +20,9 @@ from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.errors import CheckpointError
 from ompn_ros.paths import config_file
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.restart import attempt_config, read_attempt
-from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
+from ompn_ros.train.trainer import train, train_val_episodes
 
 BaseConfig = dict[str, dict[str, Any]]
 RUNTIME_FIELDS = ("out_dir", "resume", "tensorboard", "threads", "progress", "eval_batch_size")

@@ -51,13 +51,14 @@ def synthetic_checkpoint(tmp_path_factory: pytest.TempPathFactory):
     """A small OMPN trained on the synthetic corridor task (~10 s), shared by the whole session."""
     from ompn_ros.model.config import OMPNConfig
     from ompn_ros.train import synthetic, trainer
+    from ompn_ros.train.config import TrainConfig
 
     path = tmp_path_factory.getbasetemp() / "synthetic_discrete_ckpt"
     if not (path / "best").is_dir():
         obs_dim, action_type, action_dim, _ = synthetic.synthetic_spec("discrete")
         cfg = OMPNConfig(obs_dim=obs_dim, action_type=action_type, action_dim=action_dim,
                          n_slots=3, slot_size=32)
-        train_cfg = trainer.TrainConfig(iterations=120, batch_size=32, eval_every=40, out_dir=str(path),
+        train_cfg = TrainConfig(iterations=120, batch_size=32, eval_every=40, out_dir=str(path),
                                         lr=3e-3, progress=False)
         trainer.train(synthetic.make_dataset("discrete", 64, seed=0), cfg, train_cfg)
     return path / "best"

@@ -19,9 +19,10 @@ from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.policy import OMPNPolicy, gaussian_log_prob
 from ompn_ros.model.streaming import StreamingPolicy
 from ompn_ros.train.batching import action_normalization, collate
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
+from ompn_ros.train.trainer import train, train_val_episodes
 
 torch.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]

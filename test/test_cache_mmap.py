@@ -53,13 +53,11 @@ def test_in_memory_path_matches_the_cache(tmp_path: Path) -> None:
         assert_same_episode(a, b)
 
 
-def test_stale_format_and_legacy_npz_are_rebuilt(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_stale_format_is_rebuilt(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     bags, episodes = _bags(tmp_path)
     spec = ReaderSpec.for_domain("dial")
     first = load_arrays(bags, spec=spec, cache_dir=tmp_path / "cache")
     assert first.cache_path is not None
-    legacy = tmp_path / "cache" / "episodes_0123.npz"
-    legacy.write_bytes(b"format 2")
     index = first.cache_path / INDEX
     meta = json.loads(index.read_text())
     meta["format"] = CACHE_FORMAT - 1
@@ -75,7 +73,7 @@ def test_stale_format_and_legacy_npz_are_rebuilt(tmp_path: Path, monkeypatch: py
 
     monkeypatch.setattr(cache_mod, "read_episodes", counting)
     again = load_arrays(bags, spec=spec, cache_dir=tmp_path / "cache")
-    assert not again.cache_hit and calls["n"] == 2 and not legacy.exists()
+    assert not again.cache_hit and calls["n"] == 2
     assert json.loads(index.read_text())["format"] == CACHE_FORMAT
     for a, b in zip(episodes, again.episodes()):
         assert_same_episode(a, b)

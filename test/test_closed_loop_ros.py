@@ -12,7 +12,8 @@ from ompn_ros.app.closed_loop_ros import ros_available, ros_eval_seeds, run_ros_
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.load import stepper_from_checkpoint
-from ompn_ros.train.trainer import TrainConfig, train
+from ompn_ros.train.config import TrainConfig
+from ompn_ros.train.trainer import train
 
 torch.set_num_threads(1)
 

@@ -11,7 +11,7 @@ import pytest
 from lab import own_data, report, report_own
 from lab.runs import load_train_config, pin_fixed_length
 from lab.spec import REPRODUCTION_ITERATIONS
-from ompn_ros.train.trainer import TrainConfig
+from ompn_ros.train.config import TrainConfig
 
 
 def _row(arm: str, **scores: float) -> dict[str, Any]:

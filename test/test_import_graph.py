@@ -8,10 +8,8 @@ Python initialises on the way are not edges (a package ``__init__`` re-exporting
 not a circle).
 
 Function-local imports of project modules are counted as well: they are how circles used to be
-hidden.  Library modules have one, listed in ``LIBRARY_LOCAL_IMPORTS`` (an optional heavy
-dependency loaded only when its feature is used).  Command-line entry points and nodes may defer a
-heavy subcommand (torch, MuJoCo, matplotlib) so that ``--help`` and the other subcommands start
-fast; their count is bounded by a ratchet.
+hidden.  There is one, listed in ``LOCAL_IMPORTS`` (an optional heavy dependency loaded only when its
+feature is used); command-line entry points and nodes import at module level too.
 """
 
 from __future__ import annotations
@@ -22,11 +20,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("ompn_ros", "sim_nodes")
-LIBRARY_LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backend only"}
-"""The function-local project imports allowed outside the command-line and ROS node packages."""
-ENTRY_POINT_PACKAGES = ("ompn_ros.cli", "ompn_ros.nodes")
-MAX_ENTRY_POINT_LOCAL_IMPORTS = 57
-"""A ratchet for ``cli/`` and ``nodes/``: lower it whenever one of their local imports goes."""
+LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backend only"}
+"""The function-local project imports allowed (module -> why)."""
 SIM_NODES_MAY_IMPORT = (
     "ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages", "ompn_ros.ros.params",
     "ompn_ros.ros.run", "ompn_ros.validate",
@@ -34,11 +29,6 @@ SIM_NODES_MAY_IMPORT = (
 """The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""
 OMPN_ROS_MAY_IMPORT = ("sim_nodes.registry",)
 """The sim_nodes module ompn_ros uses (see ``sim_nodes/__init__.py``)."""
-PENDING_DOMAIN_IMPORTS = {
-    "ompn_ros.cli.collect": {"sim_nodes", "sim_nodes.craft", "sim_nodes.dial"},
-    "ompn_ros.cli.segment": {"sim_nodes.craft", "sim_nodes.dial"},
-}
-"""Imports that bypass the registry and are still to move to it; the list may only shrink."""
 
 
 def _modules() -> dict[str, Path]:
@@ -174,21 +164,11 @@ def test_no_import_cycles():
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
-def test_library_modules_import_at_top_level():
+def test_modules_import_at_top_level():
     _, local = _graph()
-    library = [entry for entry in local if not entry.startswith(ENTRY_POINT_PACKAGES)]
-    unexpected = [entry for entry in library if entry.split(":")[0] not in LIBRARY_LOCAL_IMPORTS]
+    unexpected = [entry for entry in local if entry.split(":")[0] not in LOCAL_IMPORTS]
     assert not unexpected, "function-local imports of project modules:\n" + "\n".join(unexpected)
-    assert len(library) <= len(LIBRARY_LOCAL_IMPORTS)
-
-
-def test_entry_point_local_imports_stay_few():
-    _, local = _graph()
-    entry_points = [entry for entry in local if entry.startswith(ENTRY_POINT_PACKAGES)]
-    assert len(entry_points) <= MAX_ENTRY_POINT_LOCAL_IMPORTS, (
-        f"{len(entry_points)} function-local imports of project modules in {ENTRY_POINT_PACKAGES} "
-        f"(bound {MAX_ENTRY_POINT_LOCAL_IMPORTS}):\n" + "\n".join(entry_points)
-    )
+    assert len(local) <= len(LOCAL_IMPORTS)
 
 
 def test_sim_nodes_use_only_the_public_api():
@@ -211,6 +191,5 @@ def test_ompn_ros_reaches_the_domains_through_the_registry():
         if name.startswith("ompn_ros")
         for target in targets
         if target.startswith("sim_nodes") and target not in OMPN_ROS_MAY_IMPORT
-        and target not in PENDING_DOMAIN_IMPORTS.get(name, set())
     ]
     assert not offenders, "ompn_ros imports sim_nodes around sim_nodes.registry:\n" + "\n".join(offenders)

@@ -165,13 +165,11 @@ def test_save_removes_temporaries_of_killed_writers_only(tmp_path: Path) -> None
     stale = tmp_path / f".ckpt.tmp-{dead_pid}-abc123"
     live = tmp_path / f".ckpt.tmp-{os.getppid()}-def456"  # a running process (pytest's parent)
     other = tmp_path / f".other.tmp-{dead_pid}-abc123"  # another checkpoint's: left alone
-    legacy_old, legacy_new = tmp_path / ".ckpt.tmp-k2j4h5g6", tmp_path / ".ckpt.old-q1w2e3r4"
-    for d in (stale, live, other, legacy_old, legacy_new):
+    for d in (stale, live, other):
         d.mkdir()
-    os.utime(legacy_old, (0, 0))
     save_checkpoint(tmp_path / "ckpt", policy())
     left = sorted(p.name for p in tmp_path.iterdir())
-    assert left == sorted(["ckpt", live.name, other.name, legacy_new.name])
+    assert left == sorted(["ckpt", live.name, other.name])
     assert remove_stale_temps(tmp_path) == [other]
 
 

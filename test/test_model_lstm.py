@@ -17,8 +17,9 @@ from ompn_ros.model.loss import bc_loss
 from ompn_ros.model.lstm import LSTMPolicy, LSTMStreamingPolicy
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.model.streaming import StreamingPolicy
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, train
+from ompn_ros.train.trainer import train
 
 torch.set_num_threads(1)
 

@@ -137,8 +137,9 @@ def test_bf16_needs_the_fused_path() -> None:
 @pytest.mark.parametrize("kind", ["discrete", "continuous"])
 def test_trainer_bf16_option_trains(kind: str) -> None:
     """``TrainConfig(bf16=True)`` reaches the fused bf16 path and updates the weights."""
+    from ompn_ros.train.config import TrainConfig
     from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-    from ompn_ros.train.trainer import TrainConfig, train
+    from ompn_ros.train.trainer import train
 
     obs_dim, action_type, action_dim, _ = synthetic_spec(kind)  # type: ignore[arg-type]
     config = OMPNConfig(
@@ -155,8 +156,8 @@ def test_trainer_bf16_option_trains(kind: str) -> None:
 
 
 def test_trainer_bf16_option_is_validated() -> None:
+    from ompn_ros.train.config import TrainConfig
     from ompn_ros.train.errors import TrainConfigError
-    from ompn_ros.train.trainer import TrainConfig
 
     with pytest.raises(TrainConfigError, match="bf16"):
         TrainConfig(bf16="yes")  # type: ignore[arg-type]

@@ -229,7 +229,8 @@ def test_ensemble_with_one_seed_is_skipped_with_a_message(tmp_path: Path, capsys
 
 def test_ensemble_members_share_the_seed_split_and_are_scored_together(tmp_path: Path):
     from ompn_ros.model.checkpoint import load_checkpoint
-    from ompn_ros.train.trainer import TrainConfig, train_val_episodes
+    from ompn_ros.train.config import TrainConfig
+    from ompn_ros.train.trainer import train_val_episodes
 
     assert _tiny_craft(tmp_path, "--members", "2") == 0
     runs = tmp_path / "work" / "runs"
@@ -303,7 +304,7 @@ def test_distill_extra_trains_a_student_on_each_seeds_members(
 ) -> None:
     from lab import pipeline
     from ompn_ros.model.checkpoint import load_checkpoint
-    from ompn_ros.train.trainer import TrainConfig
+    from ompn_ros.train.config import TrainConfig
 
     shipped: list[tuple[Path, dict]] = []
     monkeypatch.setattr(pipeline, "ship", lambda domain, checkpoint, provenance: shipped.append(

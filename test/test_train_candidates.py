@@ -20,9 +20,10 @@ from ompn_ros.train.candidates import (
     candidate_config,
     resolve_candidates,
 )
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
+from ompn_ros.train.trainer import train, train_val_episodes
 
 torch.set_num_threads(1)
 

@@ -12,7 +12,7 @@ from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli.train import main
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
-from ompn_ros.train.trainer import TrainConfig
+from ompn_ros.train.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = [
@@ -198,3 +198,16 @@ def test_bags_without_their_final_observation_train_two_candidates(
     assert main(["--bags", str(tmp_path / "stripped"), "--out", str(tmp_path / "a"), "--overwrite", *args,
                  "--set", "train.candidates_no_final=1"]) == 0
     assert not (tmp_path / "a" / "candidates").exists()  # --overwrite removed the earlier candidates
+
+
+def test_train_config_keeps_its_recorded_key_order() -> None:
+    from dataclasses import fields
+
+    from ompn_ros.train.config import RECORDED_ORDER
+
+    names = {f.name for f in fields(TrainConfig)}
+    assert set(RECORDED_ORDER) == names, "a new TrainConfig field is missing from RECORDED_ORDER"
+    config = TrainConfig(restart_at=40, ema_decay=0.5, obs_dropout_range=[1, 3])
+    stored = config.to_dict()
+    assert list(stored) == list(RECORDED_ORDER)  # the key order of meta.json's train_config
+    assert TrainConfig.from_dict(stored) == config

@@ -17,12 +17,12 @@ from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.detector import DURATION_GAIN, DURATION_LAG, pick_online
 from ompn_ros.train.errors import TrainConfigError, TrainStateError
 from ompn_ros.train.restart import RESTART_SEED_STRIDE, attempt_config, collapsed, read_attempt, rule_applies
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
-    TrainConfig,
     _patience_exhausted,
     effective_selection,
     eligible,

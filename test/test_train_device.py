@@ -17,6 +17,7 @@ from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train import evaluation, synthetic, trainer
 from ompn_ros.train.averaging import WeightAverage
 from ompn_ros.train.batching import collate
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.device import batch_to, resolve_device, stray_tensors
 from ompn_ros.train.errors import DeviceError, TrainConfigError
 
@@ -39,7 +40,7 @@ def test_auto_is_the_gpu_when_there_is_one(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     assert resolve_device("auto") == torch.device("cuda")
     with pytest.raises(TrainConfigError, match="device"):
-        trainer.TrainConfig(device="tpu")  # type: ignore[arg-type]
+        TrainConfig(device="tpu")  # type: ignore[arg-type]
 
 
 def test_ompn_train_on_cuda_without_a_gpu_is_one_line(
@@ -69,7 +70,7 @@ def test_batch_to_moves_every_tensor_of_a_batch() -> None:
 def test_the_policy_and_its_average_move_whole(kw: dict) -> None:
     """Parameters, buffers (observation normalisation) and any plain tensor attribute follow ``.to``."""
     episodes = synthetic.make_dataset("discrete", 4, seed=2)
-    cfg = trainer.TrainConfig(iterations=1, batch_size=2, eval_every=1, progress=False, ema_decay=0.9,
+    cfg = TrainConfig(iterations=1, batch_size=2, eval_every=1, progress=False, ema_decay=0.9,
                               device="cpu")
     meta = torch.device("meta")
     models = trainer._models(_config(**kw), cfg, episodes, trainer.DistContext(), meta)
@@ -91,7 +92,7 @@ def test_training_sends_every_batch_to_the_policy_device(monkeypatch: pytest.Mon
 
     monkeypatch.setattr(trainer, "batch_to", spy("train"))
     monkeypatch.setattr(evaluation, "batch_to", spy("eval"))
-    cfg = trainer.TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False, device="cpu",
+    cfg = TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False, device="cpu",
                               val_ratio=0.25)
     trainer.train(synthetic.make_dataset("discrete", 8, seed=3), _config(), cfg)
     assert [w for w, _, _ in seen].count("train") == 2 and "eval" in [w for w, _, _ in seen]
@@ -104,7 +105,7 @@ Weights = dict[str, torch.Tensor]
 def _one_step(policy: torch.nn.Module, device: torch.device) -> tuple[dict[str, float], Weights]:
     episodes = synthetic.make_dataset("discrete", 6, seed=4)
     policy = copy.deepcopy(policy).to(device)
-    cfg = trainer.TrainConfig(batch_size=6, progress=False, device=device.type)
+    cfg = TrainConfig(batch_size=6, progress=False, device=device.type)
     optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
     stats = trainer.train_step(policy, optimizer, episodes, policy.config, cfg)  # type: ignore[arg-type]
     return stats, {k: v.detach().cpu() for k, v in policy.state_dict().items()}
@@ -120,7 +121,7 @@ def test_one_training_step_on_the_gpu_matches_the_cpu(tmp_path: Path) -> None:
     for name, value in cpu_weights.items():
         np.testing.assert_allclose(gpu_weights[name].numpy(), value.numpy(), rtol=1e-4, atol=1e-5)
     trained = trainer.train(synthetic.make_dataset("discrete", 8, seed=5), _config(),
-                            trainer.TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False,
+                            TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False,
                                                 device="cuda", out_dir=str(tmp_path / "run")))
     assert trained.policy is not None
     loaded, _ = load_checkpoint(tmp_path / "run" / "best")  # written on the GPU, read on the CPU
@@ -129,7 +130,7 @@ def test_one_training_step_on_the_gpu_matches_the_cpu(tmp_path: Path) -> None:
 
 
 def test_checkpoints_of_a_run_load_on_the_cpu(tmp_path: Path) -> None:
-    cfg = trainer.TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False, device="auto",
+    cfg = TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False, device="auto",
                               out_dir=str(tmp_path / "run"), ema_decay=0.5)
     trainer.train(synthetic.make_dataset("discrete", 8, seed=6), _config(), cfg)
     for name in ("best", "last", "train_state/LATEST"):

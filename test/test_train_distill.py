@@ -13,11 +13,12 @@ from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.ensemble import write_ensemble
 from ompn_ros.train.batching import TEACHER_P_HAT, collate
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
 from ompn_ros.train.errors import BatchError, DistillError, TrainConfigError
 from ompn_ros.train.evaluation import teacher_forced_p_hat
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, train, train_val_episodes
+from ompn_ros.train.trainer import train, train_val_episodes
 
 torch.set_num_threads(1)
 

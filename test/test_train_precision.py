@@ -12,9 +12,10 @@ from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train import precision
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, train
+from ompn_ros.train.trainer import train
 
 AVX2_ONLY = "processor\t: 0\nmodel name\t: Test CPU 1\nflags\t\t: fpu sse2 avx avx2 fma\n\nprocessor\t: 1\n"
 ZEN4 = "processor\t: 0\nmodel name\t: Test CPU 2\nflags\t\t: avx2 avx512f avx512_bf16 avx512_vnni\n"

@@ -17,10 +17,10 @@ from ompn_ros.metrics import mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.averaging import WeightAverage
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
-    TrainConfig,
     dropout_inputs,
     early_agreement_warning,
     evaluate,

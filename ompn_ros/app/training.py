@@ -1,7 +1,7 @@
 """Behaviour cloning from a YAML config and bags (or synthetic data): the library of ``ompn_train``.
 
 The config has three sections (``model``: :class:`~ompn_ros.model.config.OMPNConfig`, ``train``:
-:class:`~ompn_ros.train.trainer.TrainConfig`, ``data``: ``domain``, ``reader_spec``, ``on_error``,
+:class:`~ompn_ros.train.config.TrainConfig`, ``data``: ``domain``, ``reader_spec``, ``on_error``,
 ``cache``, ``cache_workers``: per-bag cache entries built in parallel, ``action_dim``);
 ``section.key=value`` overrides are parsed as YAML.  What the bag reader used and dropped is printed
 and stored with the run (``read_report.json`` / ``.txt``).
@@ -28,9 +28,10 @@ from ompn_ros.layout import DOMAINS
 from ompn_ros.model.atomic import atomic_write_text
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.distributed import DistContext, broadcast_text, init_distributed, shutdown
 from ompn_ros.train.synthetic import SyntheticKind, make_dataset, synthetic_spec
-from ompn_ros.train.trainer import TrainConfig, train
+from ompn_ros.train.trainer import train
 
 SECTIONS = ("model", "train", "data")
 RUN_OUTPUTS = (

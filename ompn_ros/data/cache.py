@@ -14,9 +14,9 @@ larger than the process's memory can be trained on.
 The cache key is a BLAKE2b hash of the bag files' **bytes** (plus their relative names, the reader
 spec and the format version), so editing or re-recording a bag always misses, whatever its size or
 mtime.  Entries of another format version (``CACHE_FORMAT``) are never hit: a stale entry found
-under the key is deleted and rebuilt, and entries of other formats (the single-file
-``episodes_*.npz`` of format 2, directories of format 3 without ``obs_names``) are deleted from
-``cache_dir`` when a new entry is built there.  Nothing is pickled.
+under the key is deleted and rebuilt, and entries of other formats (directories whose
+``index.json`` names another version) are deleted from ``cache_dir`` when a new entry is built
+there.  Nothing is pickled.
 """
 
 from __future__ import annotations
@@ -60,7 +60,6 @@ def _load_libc() -> ctypes.CDLL | None:
 
 
 _LIBC = _load_libc()
-_LEGACY_GLOB = "episodes_*.npz"  # format 2 entries
 
 
 def default_cache_dir() -> Path:
@@ -234,7 +233,7 @@ def load_arrays(
     entry = root / f"episodes_{key}"
     hit = open_hit(entry)
     if hit is None:
-        _prune_legacy(root)
+        _prune_other_formats(root)
         build_entry(bags, spec, on_error, entry)
         hit = EpisodeArrays.load(entry)
     else:
@@ -254,13 +253,11 @@ def open_hit(entry: Path) -> EpisodeArrays | None:
         return None
 
 
-def _prune_legacy(root: Path) -> None:
-    """Delete entries of other formats (format-2 ``.npz`` files, directories whose ``index.json``
-    names another version); their keys can never be hit again."""
+def _prune_other_formats(root: Path) -> None:
+    """Delete entries of other formats (directories whose ``index.json`` names another version); their
+    keys can never be hit again."""
     if not root.is_dir():
         return
-    for old in root.glob(_LEGACY_GLOB):
-        old.unlink(missing_ok=True)
     for entry in root.glob("episodes_*"):
         try:
             stale = entry.is_dir() and json.loads((entry / INDEX).read_text()).get("format") != CACHE_FORMAT

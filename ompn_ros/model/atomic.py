@@ -2,8 +2,7 @@
 
 A writer creates ``.<stem>.tmp-<pid>-<random>`` (or ``.old-``; a directory or a file) next to its
 target and renames it into place.  A process killed in between leaves it behind;
-:func:`remove_stale_temps` deletes such entries when their process no longer runs (names without a
-process id, written by older versions, once they are older than :data:`LEGACY_STALE_SECONDS`).
+:func:`remove_stale_temps` deletes such entries when their process no longer runs.
 Checkpoint saving and the training state call it on every save and when a run starts, so nothing
 piles up under ``train_state/``.
 
@@ -18,7 +17,6 @@ import os
 import re
 import shutil
 import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO, Literal
@@ -27,8 +25,6 @@ from ompn_ros.model.errors import WriteFailure
 
 TempKind = Literal["tmp", "old"]
 TAGGED = re.compile(r"^\.(?P<stem>.+)\.(?:tmp|old)-(?P<pid>\d+)-[^/]+$")
-LEGACY = re.compile(r"^\.(?P<stem>.+)\.(?:(?:tmp|old)-[A-Za-z0-9_]+|[A-Za-z0-9_]{8}(?:\.tmp)?)$")
-LEGACY_STALE_SECONDS = 3600.0
 
 
 def temp_prefix(stem: str, kind: TempKind = "tmp") -> str:
@@ -54,15 +50,10 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def is_stale(entry: Path, now: float | None = None) -> bool:
+def is_stale(entry: Path) -> bool:
     """True for a leftover temporary (directory or file) of a writer that no longer runs."""
     tagged = TAGGED.match(entry.name)
-    if tagged:
-        return not _alive(int(tagged.group("pid")))
-    if LEGACY.match(entry.name):
-        age = (time.time() if now is None else now) - entry.stat().st_mtime
-        return age > LEGACY_STALE_SECONDS
-    return False
+    return tagged is not None and not _alive(int(tagged.group("pid")))
 
 
 def remove_stale_temps(parent: Path, stem: str | None = None) -> list[Path]:
@@ -135,7 +126,6 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 __all__ = [
-    "LEGACY_STALE_SECONDS",
     "atomic_write",
     "atomic_write_text",
     "free_space",

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
 from ompn_ros.model.atomic import atomic_write_text
+from ompn_ros.train.config import TrainConfig
 
 LOG = logging.getLogger(__name__)
 
@@ -41,18 +42,6 @@ COPIED = ("best", "last", "log.jsonl")
 """What the winner contributes to the run directory."""
 
 
-class CandidateConfig(Protocol):
-    """The fields of :class:`~ompn_ros.train.trainer.TrainConfig` this module reads (a Protocol, so that
-    it does not import the trainer that imports it)."""
-
-    seed: int
-    split_seed: int | None
-    out_dir: str | None
-    candidates: int
-    candidates_no_final: int
-
-
-C = TypeVar("C", bound=CandidateConfig)
 
 
 class CandidateResult(Protocol):
@@ -78,7 +67,7 @@ class Candidate:
     result: Any
 
 
-def candidate_config(cfg: C, index: int) -> C:
+def candidate_config(cfg: TrainConfig, index: int) -> TrainConfig:
     """The config of candidate ``index``: a new initialisation and batch order, the split of ``cfg.seed``,
     its own directory under ``OUT/candidates/``, and ``candidates = 1`` (it trains once)."""
     split = cfg.seed if cfg.split_seed is None else cfg.split_seed
@@ -88,7 +77,7 @@ def candidate_config(cfg: C, index: int) -> C:
     )
 
 
-def resolve_candidates(cfg: C, final_guessed: bool, labelled: bool) -> C:
+def resolve_candidates(cfg: TrainConfig, final_guessed: bool, labelled: bool) -> TrainConfig:
     """``cfg`` with ``candidates`` raised to ``candidates_no_final`` when the reader guessed the final
     observation (row T) of training episodes and validation labels select the checkpoint.
 
@@ -136,7 +125,8 @@ def _publish(out_dir: Path, winner: Candidate, everyone: Sequence[Candidate], se
     atomic_write_text(out_dir / CANDIDATES_FILE, json.dumps(doc, indent=1) + "\n")
 
 
-def best_of(cfg: C, train_one: Callable[[C], R], is_main: bool = True) -> tuple[R, list[Candidate]]:
+def best_of(cfg: TrainConfig, train_one: Callable[[TrainConfig], R],
+            is_main: bool = True) -> tuple[R, list[Candidate]]:
     """Train ``cfg.candidates`` initialisations with ``train_one`` and return the winner's result and
     every candidate, in order.  The winner has the highest best validation criterion (the first on
     ties, so candidate 0 unless another one is strictly better).
@@ -164,7 +154,6 @@ __all__ = [
     "CANDIDATES_FILE",
     "CANDIDATE_SEED_STRIDE",
     "Candidate",
-    "CandidateConfig",
     "best_of",
     "candidate_config",
     "candidate_rows",

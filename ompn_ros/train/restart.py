@@ -26,25 +26,10 @@ import math
 import shutil
 from dataclasses import replace
 from pathlib import Path
-from typing import Protocol, TypeVar
 
 from ompn_ros.model.atomic import atomic_write_text
+from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainStateError
-
-
-class RestartConfig(Protocol):
-    """The fields of :class:`~ompn_ros.train.trainer.TrainConfig` the rule reads (a Protocol, so that
-    this module does not import the trainer that imports it)."""
-
-    seed: int
-    split_seed: int | None
-    eval_every: int
-    restart_at: int
-    restart_below: float
-    restarts: int
-
-
-C = TypeVar("C", bound=RestartConfig)
 
 RESTART_SEED_STRIDE = 100_003
 """Attempt ``k`` of seed ``s`` initialises with seed ``s + RESTART_SEED_STRIDE · k`` (a prime above
@@ -52,7 +37,7 @@ the ensemble members' ``s + 1000 · j``, so the two never share an initialisatio
 ATTEMPT_FILE = "attempt.json"
 
 
-def attempt_config(cfg: C, attempt: int) -> C:
+def attempt_config(cfg: TrainConfig, attempt: int) -> TrainConfig:
     """The config of attempt ``attempt``: a new initialisation and batch order, the same split."""
     if attempt == 0:
         return cfg
@@ -60,13 +45,13 @@ def attempt_config(cfg: C, attempt: int) -> C:
     return replace(cfg, seed=cfg.seed + RESTART_SEED_STRIDE * attempt, split_seed=split)  # type: ignore[type-var]
 
 
-def rule_applies(cfg: RestartConfig, labelled: bool, attempt: int) -> bool:
+def rule_applies(cfg: TrainConfig, labelled: bool, attempt: int) -> bool:
     """Whether this attempt checks the rule at ``restart_at``: on, a ``labelled`` selection (the
     label-free agreement does not flag a collapse), restarts left."""
     return bool(cfg.restart_at) and labelled and attempt < cfg.restarts
 
 
-def collapsed(cfg: RestartConfig, iteration: int, best_score: float) -> bool:
+def collapsed(cfg: TrainConfig, iteration: int, best_score: float) -> bool:
     """Whether the run is to restart at this evaluation: the first one at or after ``restart_at``,
     with the best score so far below the bound."""
     first = iteration >= cfg.restart_at > iteration - cfg.eval_every
@@ -102,7 +87,7 @@ def start_attempt(out_dir: Path | None, attempt: int, seed: int, reason: str) ->
     atomic_write_text(out_dir / ATTEMPT_FILE, json.dumps(doc, indent=1) + "\n")
 
 
-def restart_reason(cfg: RestartConfig, selection: str, best_score: float, best_iteration: int) -> str:
+def restart_reason(cfg: TrainConfig, selection: str, best_score: float, best_iteration: int) -> str:
     """The one log line of a restart."""
     score = "none" if math.isinf(best_score) else f"{best_score:.3f} (iteration {best_iteration})"
     return (f"restart rule: best validation {selection} by iteration {cfg.restart_at} is {score}, "
@@ -113,7 +98,6 @@ def restart_reason(cfg: RestartConfig, selection: str, best_score: float, best_i
 __all__ = [
     "ATTEMPT_FILE",
     "RESTART_SEED_STRIDE",
-    "RestartConfig",
     "attempt_config",
     "collapsed",
     "read_attempt",
