@@ -16,6 +16,7 @@ from test_segment_batch import SPEC, write_lab_bag
 
 from ompn_ros.app import training
 from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.app.read_report import write_read_report
 from ompn_ros.data import ReaderSpec
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.train.distributed import DistContext
@@ -81,11 +82,11 @@ def test_only_rank_0_writes_the_read_report(tmp_path: Path, monkeypatch: pytest.
     """Under torchrun rank 0 refuses a non-empty output directory: another rank writing the read report
     first made a fresh run fail now and then ("output directory ... is not empty")."""
     monkeypatch.setenv("RANK", "1")
-    training.write_read_report(tmp_path / "run", {"summary": "read 1 bag(s)"})
+    write_read_report(tmp_path / "run", {"summary": "read 1 bag(s)"})
     assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
     monkeypatch.setenv("RANK", "0")
     training.prepare_out_dir(tmp_path / "run", resume=False, overwrite=False)
-    training.write_read_report(tmp_path / "run", {"summary": "read 1 bag(s)"})
+    write_read_report(tmp_path / "run", {"summary": "read 1 bag(s)"})
     assert (tmp_path / "run" / "read_report.txt").read_text() == "read 1 bag(s)\n"
 
 

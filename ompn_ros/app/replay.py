@@ -56,18 +56,15 @@ def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:
     return [expert_episode(domain, seed + i, task=tasks[i % len(tasks)]) for i in range(count)]
 
 
-def write_read_report(out: Path, result: ReadResult, on_error: str) -> None:
-    """Store what the bag reader kept and dropped beside the replay (``read_report.json`` / ``.txt``)."""
-    out.mkdir(parents=True, exist_ok=True)
-    summary = result.report.summary()
-    doc = {
+def read_report_doc(result: ReadResult, on_error: str) -> dict[str, Any]:
+    """The read report of a replayed bag (:func:`~ompn_ros.app.read_report.write_read_report`): the
+    episodes kept, the errors met and the reader's summary."""
+    return {
         "on_error": on_error,
         "episodes": len(result.episodes),
         "errors": result.report.errors,
-        "summary": summary,
+        "summary": result.report.summary(),
     }
-    atomic_write_text(out / "read_report.json", json.dumps(doc, indent=1) + "\n")
-    atomic_write_text(out / "read_report.txt", summary + "\n")
 
 
 def replay_all(policy: Any, episodes: Sequence[Episode], config: DetectorConfig,

@@ -226,16 +226,6 @@ def fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str,
     }
 
 
-def write_read_report(out: Path, report: dict[str, Any]) -> None:
-    """Store the bag reader's report with the run (``read_report.json`` and ``read_report.txt``); under
-    ``torchrun`` rank 0 alone writes it (it checks that the output directory is empty first)."""
-    if int(os.environ.get("RANK", "0")) != 0:
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "read_report.json", json.dumps(report, indent=1) + "\n")
-    atomic_write_text(out / "read_report.txt", str(report.get("summary", "")) + "\n")
-
-
 def weights_hash(policy: Any) -> str:
     """SHA-256 over the policy's state dict (names, shapes and raw bytes), for cross-rank checks."""
     digest = hashlib.sha256()

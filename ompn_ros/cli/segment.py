@@ -31,6 +31,7 @@ import torch
 
 from ompn_ros.app import replay
 from ompn_ros.app.errors import ReplayError
+from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.replay import replay_all
 from ompn_ros.cli._batch import add_batch_arguments, check_batch_arguments, run_batch_cli
 from ompn_ros.cli._common import make_parser, run_cli
@@ -145,7 +146,7 @@ def _episodes(args: argparse.Namespace) -> list[Episode]:
         result = replay.read_bag_episodes(args.bag, args.reader_config, args.domain, args.on_error)
         print(result.report.summary(), file=sys.stderr)
         if not args.tune:
-            replay.write_read_report(Path(args.out), result, args.on_error)
+            write_read_report(Path(args.out), replay.read_report_doc(result, args.on_error))
         return list(result.episodes)
     if args.generate:
         return replay.generate_episodes(args.domain or "", args.generate, args.seed)

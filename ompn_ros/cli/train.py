@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ompn_ros.app import training
+from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.train.device import resolve_device
@@ -83,7 +84,7 @@ def _run(args: argparse.Namespace) -> int:
         print(data.report["summary"], file=sys.stderr)
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)
     if data.report:
-        training.write_read_report(args.out, data.report)
+        write_read_report(args.out, data.report)
     summary = training.run_training(data, model_config, train_config, args.out)
     if summary is not None:
         shown = {k: summary[k] for k in ("iterations", "best_iteration", "restarts", "frames")}
