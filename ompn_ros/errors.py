@@ -31,3 +31,10 @@ KNOWN_ERRORS: tuple[type[BaseException], ...] = (
 given by the user raises (a missing or existing file, a file where a folder belongs or the other way
 round, no permission).  Other ``OSError`` s (a full disk while writing) reach the user as a package
 error naming the file (``model/errors.py``: ``WriteFailure``) or, unexpected, with their traceback."""
+
+
+def error_line(exc: BaseException) -> str:
+    """The first line of an error's message (its type name when the message is empty): what a command
+    prints after ``error:`` and what a batch run records as the reason a bag was refused."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__

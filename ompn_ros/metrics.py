@@ -13,10 +13,12 @@ from typing import Literal
 
 import numpy as np
 
+from ompn_ros.errors import OMPNError
+
 AlignVariant = Literal["authors", "strict"]
 
 
-class MetricError(ValueError):
+class MetricError(OMPNError, ValueError):
     """Invalid input to a metric (names the argument at fault)."""
 
 

@@ -16,14 +16,16 @@ from typing import Any
 
 import numpy as np
 
+from ompn_ros.errors import OMPNError
+
 INT32_MAX = 2**31 - 1
 
 
-class SketchError(ValueError):
+class SketchError(OMPNError, ValueError):
     """A sketch is malformed or does not fit the vocabulary; the message says why."""
 
 
-class InvalidInput(ValueError):
+class InvalidInput(OMPNError, ValueError):
     """An observation was rejected without stepping the model. ``reason`` is the counter key."""
 
     reason = "invalid"

@@ -41,7 +41,7 @@ from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import OnError, read_episodes
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DetectorConfig
-from ompn_ros.errors import KNOWN_ERRORS
+from ompn_ros.errors import KNOWN_ERRORS, error_line
 from ompn_ros.metrics import alignment_counts, f1_with_tolerance
 from ompn_ros.model.load import Stepper, stepper_from_checkpoint
 from ompn_ros.model.streaming import Backend
@@ -184,20 +184,15 @@ def segment_bag(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, A
     try:
         doc.update(_segment(settings, bag, bag.path), status="segmented")
     except KNOWN_ERRORS as exc:  # a bad bag: the one-line reason of the commands
-        doc.update(status="refused", reason=_line(exc))
+        doc.update(status="refused", reason=error_line(exc))
     except Exception as exc:  # a bug: refuse this bag, show the traceback, keep going
         traceback.print_exc(file=sys.stderr)
-        doc.update(status="refused", reason=f"unexpected {type(exc).__name__}: {_line(exc)} (a bug; "
+        doc.update(status="refused", reason=f"unexpected {type(exc).__name__}: {error_line(exc)} (a bug; "
                    f"rerun this bag alone with ompn_segment --bag ... --debug)")
     doc.setdefault("read", False)
     doc["seconds"] = time.perf_counter() - start
     records.write_record(settings.out, bag.key, doc)
     return doc
-
-
-def _line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return (text.splitlines()[0] if text else "") or type(exc).__name__
 
 
 def _init_worker() -> None:
@@ -221,7 +216,7 @@ def _outcomes(settings: BatchSettings, todo: Sequence[BatchBag], jobs: int,
                 yield future.result()
             except BrokenProcessPool as exc:  # a worker died (killed, out of memory): refuse, not record
                 yield {"key": bag.key, "bag": str(bag.path or bag.key), "status": "refused", "read": False,
-                       "reason": f"the worker process died ({_line(exc)})"}
+                       "reason": f"the worker process died ({error_line(exc)})"}
 
 
 Progress = Callable[[dict[str, Any], int, int], None]

@@ -145,6 +145,7 @@ def _check(
     domain: str,
     tasks: Sequence[str],
     episodes: int,
+    seed: int,
     storage: str,
     split_every: int | None,
     partial: bool,
@@ -154,6 +155,8 @@ def _check(
     """Raise :class:`CollectError` naming the first bad option."""
     if domain not in layout.DOMAINS:
         raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
+    if seed < 0:
+        raise CollectError(f"--seed must be >= 0, got {seed}")
     if storage not in STORAGES:
         raise CollectError(f"unknown storage '{storage}', expected one of {STORAGES}")
     if episodes < 1:
@@ -248,7 +251,7 @@ def collect(
     observation messages are absent from the bag, its duplicated ones written twice).  Returns the
     manifest (also written to ``out/collect.json``).
     """
-    _check(domain, tasks, episodes, storage, split_every, partial, resume, overwrite)
+    _check(domain, tasks, episodes, seed, storage, split_every, partial, resume, overwrite)
     out = Path(out)
     settings = _settings(domain, tasks, episodes, seed, storage, split_every, partial, human)
     manifest = _prepare_output(out, settings, resume, overwrite)

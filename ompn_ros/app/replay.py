@@ -52,6 +52,8 @@ def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:
     paper's tasks in turn, as in the training data)."""
     if domain not in DOMAINS:
         raise ReplayError(f"--generate needs --domain craft|dial, got {domain!r}")
+    if seed < 0:
+        raise ReplayError(f"--seed must be >= 0, got {seed}")
     tasks = default_tasks(domain)
     return [expert_episode(domain, seed + i, task=tasks[i % len(tasks)]) for i in range(count)]
 

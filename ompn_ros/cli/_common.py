@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ompn_ros import layout
-from ompn_ros.errors import KNOWN_ERRORS
+from ompn_ros.errors import KNOWN_ERRORS, error_line
 
 Body = Callable[[argparse.Namespace], int]
 
@@ -60,14 +60,6 @@ def make_parser(prog: str, description: str | None) -> argparse.ArgumentParser:
 def _plain(text: str) -> str:
     """Docstring text without reStructuredText markup (double backquotes, ``::``)."""
     return text.replace("``", "").replace("::", ":")
-
-
-def error_line(exc: BaseException) -> str:
-    """The first line of an error message (the type name when the message is empty)."""
-    text = str(exc).strip()
-    if isinstance(exc, KeyError) or not text:
-        text = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-    return text.splitlines()[0]
 
 
 def run_cli(
