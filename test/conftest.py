@@ -59,7 +59,7 @@ def synthetic_checkpoint(tmp_path_factory: pytest.TempPathFactory):
         cfg = OMPNConfig(obs_dim=obs_dim, action_type=action_type, action_dim=action_dim,
                          n_slots=3, slot_size=32)
         train_cfg = TrainConfig(iterations=120, batch_size=32, eval_every=40, out_dir=str(path),
-                                        lr=3e-3, progress=False)
+                                lr=3e-3, progress=False)
         trainer.train(synthetic.make_dataset("discrete", 64, seed=0), cfg, train_cfg)
     return path / "best"
 

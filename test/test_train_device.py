@@ -71,7 +71,7 @@ def test_the_policy_and_its_average_move_whole(kw: dict) -> None:
     """Parameters, buffers (observation normalisation) and any plain tensor attribute follow ``.to``."""
     episodes = synthetic.make_dataset("discrete", 4, seed=2)
     cfg = TrainConfig(iterations=1, batch_size=2, eval_every=1, progress=False, ema_decay=0.9,
-                              device="cpu")
+                      device="cpu")
     meta = torch.device("meta")
     models = trainer._models(_config(**kw), cfg, episodes, trainer.DistContext(), meta)
     assert stray_tensors(models.policy, meta) == []
@@ -93,7 +93,7 @@ def test_training_sends_every_batch_to_the_policy_device(monkeypatch: pytest.Mon
     monkeypatch.setattr(trainer, "batch_to", spy("train"))
     monkeypatch.setattr(evaluation, "batch_to", spy("eval"))
     cfg = TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False, device="cpu",
-                              val_ratio=0.25)
+                      val_ratio=0.25)
     trainer.train(synthetic.make_dataset("discrete", 8, seed=3), _config(), cfg)
     assert [w for w, _, _ in seen].count("train") == 2 and "eval" in [w for w, _, _ in seen]
     assert {d for _, d, _ in seen} == {torch.device("cpu")}
@@ -122,7 +122,7 @@ def test_one_training_step_on_the_gpu_matches_the_cpu(tmp_path: Path) -> None:
         np.testing.assert_allclose(gpu_weights[name].numpy(), value.numpy(), rtol=1e-4, atol=1e-5)
     trained = trainer.train(synthetic.make_dataset("discrete", 8, seed=5), _config(),
                             TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False,
-                                                device="cuda", out_dir=str(tmp_path / "run")))
+                                        device="cuda", out_dir=str(tmp_path / "run")))
     assert trained.policy is not None
     loaded, _ = load_checkpoint(tmp_path / "run" / "best")  # written on the GPU, read on the CPU
     assert {t.device.type for t in loaded.state_dict().values()} == {"cpu"}
@@ -131,7 +131,7 @@ def test_one_training_step_on_the_gpu_matches_the_cpu(tmp_path: Path) -> None:
 
 def test_checkpoints_of_a_run_load_on_the_cpu(tmp_path: Path) -> None:
     cfg = TrainConfig(iterations=2, batch_size=4, eval_every=1, progress=False, device="auto",
-                              out_dir=str(tmp_path / "run"), ema_decay=0.5)
+                      out_dir=str(tmp_path / "run"), ema_decay=0.5)
     trainer.train(synthetic.make_dataset("discrete", 8, seed=6), _config(), cfg)
     for name in ("best", "last", "train_state/LATEST"):
         assert (tmp_path / "run" / name).exists(), name

@@ -66,7 +66,7 @@ def load_config(path: str | None) -> dict[str, dict[str, Any]]:
         return config
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
-    except OSError as exc:
+    except (OSError, UnicodeDecodeError) as exc:
         raise TrainSetupError(f"cannot read config file {path}: {exc}") from exc
     except yaml.YAMLError as exc:
         raise TrainSetupError(f"config file {path} is not valid YAML: {exc}") from exc

@@ -236,7 +236,7 @@ def load_detector_yaml(path: str | Path) -> DetectorConfig:
     """Detector settings from an ompn_node params file (``detector_*`` keys) or a plain mapping."""
     try:
         data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise TuneError(f"detector config {path}: {str(exc).splitlines()[0]}") from exc
     for _ in range(3):  # unwrap '/**' / node name / 'ros__parameters'
         if isinstance(data, dict) and len(data) == 1 and not any(str(k).startswith("detector") for k in data):

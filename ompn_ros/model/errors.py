@@ -18,11 +18,11 @@ class EnsembleError(CheckpointError):
 
 
 class ConfigError(OMPNError, ValueError):
-    """An invalid :class:`OMPNConfig` field or an unreadable serialized config."""
+    """An invalid :class:`~ompn_ros.model.config.OMPNConfig` field or an unreadable serialized config."""
 
 
 class ModelSizeError(ConfigError):
-    """A config asks for a model larger than :data:`MAX_ELEMENTS` values."""
+    """A config asks for a model larger than :data:`~ompn_ros.model.build.MAX_ELEMENTS` values."""
 
 
 class ModelInputError(OMPNError, ValueError):
@@ -30,11 +30,12 @@ class ModelInputError(OMPNError, ValueError):
 
 
 class StreamingInputError(ModelInputError):
-    """Bad input to :class:`StreamingPolicy` (wrong observation size, missing sketch, ...)."""
+    """Bad input to :class:`~ompn_ros.model.streaming.StreamingPolicy` (wrong observation size,
+    missing sketch, ...)."""
 
 
 class LossInputError(OMPNError, ValueError):
-    """Targets or masks passed to :func:`bc_loss` do not match the model outputs."""
+    """Targets or masks passed to :func:`~ompn_ros.model.loss.bc_loss` do not match the model outputs."""
 
 
 class WriteFailure(OMPNError, OSError):

@@ -10,11 +10,11 @@ from ompn_ros.errors import OMPNError
 
 
 class TrainConfigError(OMPNError, ValueError):
-    """An invalid :class:`TrainConfig` field."""
+    """An invalid :class:`~ompn_ros.train.config.TrainConfig` field."""
 
 
 class TrainDataError(OMPNError, ValueError):
-    """The episodes given to :func:`train` cannot be trained on."""
+    """The episodes given to :func:`~ompn_ros.train.trainer.train` cannot be trained on."""
 
 
 class BatchError(OMPNError, ValueError):

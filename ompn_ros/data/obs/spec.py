@@ -294,7 +294,7 @@ class ObservationSpec:
         try:
             with open(path, encoding="utf-8") as fh:
                 data = yaml.safe_load(fh)
-        except (OSError, yaml.YAMLError) as err:
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
             raise ObservationSpecError(f"cannot read observation spec '{path}': {err}") from err
         try:
             return cls.from_dict(_observation_block(data))

@@ -284,7 +284,7 @@ class ReaderSpec:
         with open(path, encoding="utf-8") as fh:
             try:
                 data = yaml.safe_load(fh)
-            except yaml.YAMLError as err:
+            except (UnicodeDecodeError, yaml.YAMLError) as err:
                 raise ReaderSpecError(f"reader spec file '{path}' is not valid YAML: {err}") from err
         if not isinstance(data, dict):
             raise ReaderSpecError(f"reader spec file '{path}' must hold a mapping")
