@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ompn_ros import layout
-from ompn_ros.cli.live_demo import Streams, _summarise
+from ompn_ros.app.live import Streams, summarise
 from ompn_ros.data.messages import SubtaskBoundary, encode_subtask_boundary
 
 
@@ -29,11 +29,11 @@ def test_boundary_on_the_done_observation_closes_the_last_real_step(tmp_path) ->
     episode = _streams([(2, 3), (6, 6)]).episodes()[0]
     assert episode.boundaries == [2, 5]
     assert episode.latencies_ms == [0.5, 0.5]
-    summary = _summarise([episode], tmp_path)
+    summary = summarise([episode], tmp_path)
     assert summary["f1_tol0"] == 1.0 and summary["align_acc"] == 1.0
 
 
 def test_done_step_boundary_and_final_boundary_are_not_counted_twice(tmp_path) -> None:
     episode = _streams([(2, 3), (5, 6), (6, 6)]).episodes()[0]
     assert episode.boundaries == [2, 5]
-    assert np.isfinite(_summarise([episode], tmp_path)["latency_ms_p50"])
+    assert np.isfinite(summarise([episode], tmp_path)["latency_ms_p50"])

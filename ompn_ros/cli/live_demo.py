@@ -13,12 +13,10 @@ import sys
 from collections.abc import Sequence
 
 from ompn_ros.app import live
-from ompn_ros.app.live import LiveEpisode, Streams
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
 
-_summarise = live.summarise
-__all__ = ["LiveEpisode", "Streams", "build_parser", "main", "run"]
+__all__ = ["build_parser", "main", "run"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ompn_ros.data.errors import CacheFormatError, EmptyEntryError, MixedBagsError, NpyAppendError
+from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
 
 from .cache_store import (
     CACHE_FORMAT,
@@ -311,5 +311,5 @@ def _in_memory(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError) -> Epi
     return arrays
 
 
-__all__ = ["CACHE_FORMAT", "CacheFormatError", "EpisodeArrays", "build_entry",
+__all__ = ["EpisodeArrays", "build_entry",
            "content_key", "default_cache_dir", "load_arrays", "open_hit"]

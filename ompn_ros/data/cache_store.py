@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ompn_ros.data.errors import CacheFormatError, NpyAppendError
+from ompn_ros.data.errors import CacheFormatError
 
 from .episode import Episode
 from .npy_append import NpyAppender
@@ -206,6 +206,6 @@ def _extra(ep: Episode, name: str) -> Any:
     return ep.extras.get(name.split("__", 1)[1])
 
 
-__all__ = ["CACHE_FORMAT", "EntryWriter", "NpyAppendError", "common_obs_names",
+__all__ = ["CACHE_FORMAT", "EntryWriter", "common_obs_names",
            "open_entry",
            "write_entry"]

@@ -158,7 +158,6 @@ __all__ = [
     "BACKENDS",
     "Backend",
     "StepOutput",
-    "StreamingInputError",
     "StreamingPolicy",
     "checked_observation",
     "sketch_tensor",
