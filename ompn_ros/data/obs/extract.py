@@ -28,6 +28,7 @@ from ompn_ros.layout import (
     WRENCH_STAMPED,
 )
 
+from ..errors import ObservationSpecError
 from .spec import FieldSpec, ObservationSpec
 
 ExtractReason = Literal["malformed", "wrong_size"]
@@ -194,7 +195,8 @@ def observation_layout(
     """``(dim, names)`` of the observation: from the declared sizes, else from one message per topic.
 
     Names are ``<topic without leading '/'>/<field>/<label>``, e.g. ``arm1/joint_states/position/j1``.
-    Raises ``ValueError`` naming the topic whose message is needed and missing or unusable.
+    Raises :class:`~ompn_ros.data.errors.ObservationSpecError` naming the topic whose message is needed
+    and missing or unusable.
     """
     given = dict(first_messages or {})
     by_topic = extractors(spec)
@@ -202,16 +204,18 @@ def observation_layout(
         if all(s is not None for s in ex.sizes) and all(lab is not None for lab in ex.labels):
             continue
         if topic not in given:
-            raise ValueError(f"the size of topic '{topic}' is not declared: a first message of it is needed")
+            raise ObservationSpecError(
+                f"the size of topic '{topic}' is not declared: a first message of it is needed")
         try:
             ex.extract(given[topic])
         except ExtractError as err:
-            raise ValueError(f"topic '{topic}': first message unusable: {err}") from err
+            raise ObservationSpecError(f"topic '{topic}': first message unusable: {err}") from err
     return layout_of(spec, by_topic)
 
 
 def layout_of(spec: ObservationSpec, by_topic: Mapping[str, TopicExtractor]) -> tuple[int, tuple[str, ...]]:
-    """``(dim, names)`` from extractors whose sizes are known (``ValueError`` names the first unknown)."""
+    """``(dim, names)`` from extractors whose sizes are known (``ObservationSpecError`` names the first
+    unknown)."""
     names: list[str] = []
     position = {topic: 0 for topic in by_topic}
     for f in spec.fields:
@@ -219,6 +223,6 @@ def layout_of(spec: ObservationSpec, by_topic: Mapping[str, TopicExtractor]) -> 
         position[f.topic] += 1
         labels = by_topic[f.topic].labels[k]
         if labels is None:
-            raise ValueError(f"the size of field '{f.field}' of topic '{f.topic}' is not known yet")
+            raise ObservationSpecError(f"the size of field '{f.field}' of topic '{f.topic}' is not known yet")
         names.extend(f"{f.topic.lstrip('/')}/{f.field}/{label}" for label in labels)
     return len(names), tuple(names)
