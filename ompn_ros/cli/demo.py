@@ -12,8 +12,8 @@ import subprocess
 import sys
 import time
 
-from ompn_ros.cli import live_demo
 from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
+from ompn_ros.cli._live import run_live_demo
 from ompn_ros.ros.env import child_env
 
 
@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    return run_smoke() if args.smoke else live_demo.run(args)
+    return run_smoke() if args.smoke else run_live_demo(args)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,26 +12,18 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from ompn_ros.app import live
-from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
+from ompn_ros.cli._live import run_live_demo
 
-__all__ = ["build_parser", "main", "run"]
+__all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
     return add_live_demo_arguments(make_parser("ompn_live_demo", __doc__.splitlines()[0]))
 
 
-def run(args: argparse.Namespace) -> int:
-    """The live demo for parsed arguments (see :func:`ompn_ros.cli._common.add_live_demo_arguments`)."""
-    checkpoint = args.checkpoint or shipped_checkpoint(args.domain)
-    return live.run_demo(args.domain, checkpoint, args.episodes, args.rate, args.seed, args.out, args.timeout,
-                         params_file=args.params_file, sim_params=args.sim_param)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_cli(build_parser(), run, argv)
+    return run_cli(build_parser(), run_live_demo, argv)
 
 
 if __name__ == "__main__":
