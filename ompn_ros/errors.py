@@ -3,9 +3,9 @@
 Every error a user can cause and fix (a bad bag, reader spec, checkpoint, config value, option,
 detector setting, output directory, a full disk) derives from :class:`OMPNError`, through the
 ``errors.py`` of its sub-package (``data/errors.py``, ``model/errors.py``, ``detect/errors.py``,
-``train/errors.py``, ``app/errors.py``).  Classes that were ``ValueError``, ``RuntimeError`` or
-``OSError`` before the tree existed keep that base as their second one, so a library caller's
-``except ValueError`` still catches them.
+``train/errors.py``, ``app/errors.py``; the sims' own in ``sim_nodes``).  Most also derive from the
+builtin they stand for (``ValueError``, ``RuntimeError``, ``OSError``), as their second base, so a
+library caller's ``except ValueError`` catches them too.
 
 :data:`KNOWN_ERRORS` is what ``ompn_*`` commands print as one line and exit 2 on
 (``cli/_common.py``), and what batch segmentation refuses a bag with (``app/batch.py``).  Any other
@@ -30,7 +30,7 @@ KNOWN_ERRORS: tuple[type[BaseException], ...] = (
 """Errors a user fixes: the package's own (:class:`OMPNError`) and the ``OSError`` subclasses a path
 given by the user raises (a missing or existing file, a file where a folder belongs or the other way
 round, no permission).  Other ``OSError`` s (a full disk while writing) reach the user as a package
-error naming the file (``model/errors.py``: ``WriteFailure``) or, unexpected, with their traceback."""
+error naming the file (:class:`WriteFailure`) or, unexpected, with their traceback."""
 
 
 def error_line(exc: BaseException) -> str:
@@ -38,3 +38,7 @@ def error_line(exc: BaseException) -> str:
     prints after ``error:`` and what a batch run records as the reason a bag was refused."""
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
+
+
+class WriteFailure(OMPNError, OSError):
+    """A file could not be written (full or read-only filesystem...): the message names it."""

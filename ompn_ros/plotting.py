@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 
-from ompn_ros.model.atomic import atomic_write
+from ompn_ros.atomic import atomic_write
 
 
 def plot_episode(

@@ -7,6 +7,7 @@ The two packages meet at two small interfaces (``test/test_import_graph.py`` che
 * **sim_nodes -> ompn_ros**: only these public modules of ``ompn_ros`` are imported here:
 
   - ``ompn_ros.layout``: topic names, types and sizes, the step contract, sketch vocabularies;
+  - ``ompn_ros.errors``: the root of the error tree (a bad task or Dial setting is a user's error);
   - ``ompn_ros.data.episode``: the :class:`~ompn_ros.data.episode.Episode` the experts return;
   - ``ompn_ros.data.messages``: the ROS-free CDR message codec;
   - ``ompn_ros.validate``: the sketch validator (Dial's ``sketch`` parameter);

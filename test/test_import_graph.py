@@ -23,8 +23,8 @@ PACKAGES = ("ompn_ros", "sim_nodes")
 LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backend only"}
 """The function-local project imports allowed (module -> why)."""
 SIM_NODES_MAY_IMPORT = (
-    "ompn_ros.layout", "ompn_ros.data.episode", "ompn_ros.data.messages", "ompn_ros.ros.params",
-    "ompn_ros.ros.run", "ompn_ros.validate",
+    "ompn_ros.layout", "ompn_ros.errors", "ompn_ros.data.episode", "ompn_ros.data.messages",
+    "ompn_ros.ros.params", "ompn_ros.ros.run", "ompn_ros.validate",
 )
 """The public ompn_ros API sim_nodes uses (see ``sim_nodes/__init__.py``)."""
 OMPN_ROS_MAY_IMPORT = ("sim_nodes.registry",)
@@ -193,3 +193,65 @@ def test_ompn_ros_reaches_the_domains_through_the_registry():
         if target.startswith("sim_nodes") and target not in OMPN_ROS_MAY_IMPORT
     ]
     assert not offenders, "ompn_ros imports sim_nodes around sim_nodes.registry:\n" + "\n".join(offenders)
+
+
+FLOORS: dict[str, int] = {
+    # the base: names, rules and errors every layer uses
+    "ompn_ros": 0, "ompn_ros.errors": 0, "ompn_ros.layout": 0, "ompn_ros.paths": 0,
+    "ompn_ros.validate": 0, "ompn_ros.metrics": 0, "ompn_ros.checkpoints": 0, "ompn_ros.atomic": 0,
+    "ompn_ros.data": 1,  # episodes, the codec, bags in and out, the cache
+    "ompn_ros.model": 2,
+    "ompn_ros.detect": 3,
+    "ompn_ros.segmenter": 4, "ompn_ros.stream": 4, "ompn_ros.plotting": 4,
+    "ompn_ros.train": 5,
+    "ompn_ros.ros": 6,  # parameters, containment, run_node, launch description
+    "sim_nodes": 7,
+    "ompn_ros.app": 8,  # the services of the commands
+    "ompn_ros.nodes": 9, "ompn_ros.cli": 9,
+}
+"""The floors of the package, lowest first: a module imports only its own room or lower floors.
+A room is the longest prefix of a module's name listed here."""
+
+
+def _room(module: str) -> str:
+    return max((p for p in FLOORS if module == p or module.startswith(p + ".")), key=len)
+
+
+def test_every_module_has_a_floor():
+    edges, _ = _graph()
+    assert {_room(name) for name in edges} >= {"ompn_ros.data", "ompn_ros.app", "ompn_ros.ros", "sim_nodes"}
+
+
+def test_no_import_runs_back_up():
+    edges, _ = _graph()
+    upward = [
+        f"{name} (floor {FLOORS[_room(name)]}) -> {target} (floor {FLOORS[_room(target)]})"
+        for name, targets in sorted(edges.items())
+        for target in sorted(targets)
+        if FLOORS[_room(target)] > FLOORS[_room(name)]
+    ]
+    assert not upward, "imports that run back up:\n" + "\n".join(upward)
+
+
+def test_floor_check_sees_an_upward_import():
+    assert FLOORS[_room("ompn_ros.data.reader.read")] < FLOORS[_room("ompn_ros.segmenter")]
+    assert _room("ompn_ros.app.replay") == "ompn_ros.app"
+
+
+def _imported_roots(node: ast.AST) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [alias.name.split(".")[0] for alias in node.names]
+    if isinstance(node, ast.ImportFrom) and not node.level:
+        return [(node.module or "").split(".")[0]]
+    return []
+
+
+def test_the_product_never_imports_the_lab():
+    offenders = [
+        f"{name}:{node.lineno}"
+        for name, path in MODULES.items()
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if "lab" in _imported_roots(node)
+    ]
+    assert not offenders, "product modules importing lab/: " + ", ".join(offenders)
+    assert (ROOT / "lab" / "pipeline.py").is_file() and not (ROOT / "ompn_ros" / "experiments").exists()

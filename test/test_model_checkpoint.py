@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
+from ompn_ros.atomic import remove_stale_temps
 from ompn_ros.checkpoints import MissingCheckpointError, shipped_checkpoint
 from ompn_ros.model import checkpoint
-from ompn_ros.model.atomic import remove_stale_temps
 from ompn_ros.model.build import build_policy, check_model_size, expected_tensors
 from ompn_ros.model.checkpoint import load_checkpoint, load_config, save_checkpoint
 from ompn_ros.model.config import OMPNConfig

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ompn_ros.atomic import atomic_write_text, remove_stale_temps
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import STORAGE_SUFFIXES, resolve_bag_paths
-from ompn_ros.model.atomic import atomic_write_text, remove_stale_temps
 
 RECORDS = "bags"
 RECORD_FORMAT = "ompn_ros.batch_bag"

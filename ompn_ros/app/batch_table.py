@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ompn_ros.model.atomic import atomic_write
+from ompn_ros.atomic import atomic_write
 
 COLUMNS = ("bag", "episode", "task", "start_step", "end_step", "start_stamp_ns", "end_stamp_ns", "subtask",
            "subtask_id", "score", "detector")

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from ompn_ros.model.atomic import atomic_write_text
+from ompn_ros.atomic import atomic_write_text
 
 
 def write_read_report(out: Path, doc: dict[str, Any]) -> None:

@@ -20,6 +20,7 @@ import numpy as np
 
 from ompn_ros.app.annotate import AnnotateReport, annotate_bag, observation_stamps
 from ompn_ros.app.errors import ReplayError
+from ompn_ros.atomic import atomic_write, atomic_write_text
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
 from ompn_ros.detect import offline
@@ -27,7 +28,6 @@ from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
-from ompn_ros.model.atomic import atomic_write, atomic_write_text
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
 from sim_nodes.registry import DOMAINS, default_tasks, expert_episode

@@ -21,11 +21,11 @@ from typing import Any
 import yaml
 
 from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.cache import EpisodeArrays, load_arrays
 from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
 from ompn_ros.layout import DOMAINS
-from ompn_ros.model.atomic import atomic_write_text
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
 from ompn_ros.train.config import TrainConfig

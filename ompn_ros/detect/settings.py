@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
 
+from ompn_ros.atomic import remove_stale_temps, temp_prefix
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError, DurationModelError
 from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
-from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
 
 DETECTOR_FILE = "detector.json"
 FORMAT = "ompn_ros.detector"

@@ -27,7 +27,7 @@ import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 
-from ompn_ros.model.atomic import free_space, make_temp_dir, remove_stale_temps
+from ompn_ros.atomic import free_space, make_temp_dir, remove_stale_temps
 from ompn_ros.model.build import PolicyModule, build_policy, check_model_size, expected_tensors
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.errors import CheckpointError, ConfigError

@@ -36,7 +36,3 @@ class StreamingInputError(ModelInputError):
 
 class LossInputError(OMPNError, ValueError):
     """Targets or masks passed to :func:`~ompn_ros.model.loss.bc_loss` do not match the model outputs."""
-
-
-class WriteFailure(OMPNError, OSError):
-    """A file could not be written (full or read-only filesystem...): the message names it."""

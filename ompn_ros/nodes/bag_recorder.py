@@ -82,6 +82,7 @@ from ompn_ros.data.recorder.sim_stamps import SimStamper
 from ompn_ros.data.recorder.step_commits import COMMIT, StepCommits
 from ompn_ros.data.recorder.stop_cut import StopCut
 from ompn_ros.data.recorder.storage import DurableWriter, offered_qos
+from ompn_ros.errors import OMPNError
 from ompn_ros.ros.params import ParamSpec, ParamTable
 from ompn_ros.ros.run import NodeProcess, run_node
 
@@ -122,7 +123,7 @@ STREAM_PERIOD_S = 0.5  # a topic publishing at least every 0.5 s is a stream the
 PRECLOCK_LIMIT = 20_000  # under use_sim_time, messages held until the first /clock (then system time)
 
 
-class RecorderError(ValueError):
+class RecorderError(OMPNError, ValueError):
     """A bad parameter or output path (one line, names the parameter or path)."""
 
 

@@ -26,10 +26,12 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
+from ompn_ros.errors import OMPNError
+
 Apply = Literal["live", "configure", "startup"]
 
 
-class ParameterError(ValueError):
+class ParameterError(OMPNError, ValueError):
     """A parameter value is invalid; the message names the parameter and what is allowed."""
 
     def __init__(self, name: str, reason: str) -> None:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from ompn_ros.model.atomic import atomic_write_text
+from ompn_ros.atomic import atomic_write_text
 from ompn_ros.train.config import TrainConfig
 
 LOG = logging.getLogger(__name__)

@@ -27,7 +27,7 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
-from ompn_ros.model.atomic import atomic_write_text
+from ompn_ros.atomic import atomic_write_text
 from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainStateError
 

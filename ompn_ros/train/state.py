@@ -26,7 +26,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from ompn_ros.model.atomic import atomic_write_text, make_temp_dir, remove_stale_temps, write_failure
+from ompn_ros.atomic import atomic_write_text, make_temp_dir, remove_stale_temps, write_failure
 from ompn_ros.train.errors import TrainStateError
 
 POINTER = "LATEST"
@@ -101,7 +101,7 @@ def save_state(
 
 
 def clean_state_root(root: Path) -> list[Path]:
-    """Remove the temporaries a killed run left in ``root`` (see :mod:`ompn_ros.model.atomic`)."""
+    """Remove the temporaries a killed run left in ``root`` (see :mod:`ompn_ros.atomic`)."""
     return remove_stale_temps(root)
 
 

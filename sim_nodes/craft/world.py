@@ -12,6 +12,8 @@ from typing import Final
 
 import numpy as np
 
+from ompn_ros.errors import OMPNError
+
 WIDTH: Final = 10
 HEIGHT: Final = 10
 MAX_STEPS: Final = 64  # the authors' TimeLimit wrapper (docs/craft.md §1.5)
@@ -105,7 +107,7 @@ TASKS: Final = {
 PAPER_TASKS: Final = ("makebed", "makeaxe", "makeshears")
 
 
-class CraftError(ValueError):
+class CraftError(OMPNError, ValueError):
     """Base class of Craft input errors."""
 
 

@@ -43,6 +43,7 @@ import mujoco
 import numpy as np
 
 from ompn_ros import validate
+from ompn_ros.errors import OMPNError
 from sim_nodes.dial.render import make_renderer, render_frame
 from sim_nodes.dial.scene import FRAME_SKIP, N_KEYS, TORQUE_SCALE, DialModel, shared_model
 from sim_nodes.dial.targets import Targets, shared_targets
@@ -56,7 +57,7 @@ ORIGINAL_GYM_TOLERANCE = 0.1
 MAX_STEPS_PER_SUBTASK = 500
 
 
-class DialConfigError(ValueError):
+class DialConfigError(OMPNError, ValueError):
     """A bad Dial environment/expert argument (the message names it)."""
 
 

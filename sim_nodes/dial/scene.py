@@ -40,6 +40,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from ompn_ros.errors import OMPNError
+
 N_KEYS = 10
 TIMESTEP = 0.002
 FRAME_SKIP = 20
@@ -78,7 +80,7 @@ APPROACH_HEIGHT = 0.04  # approach point above the press point
 HOME_XYZ = (0.57, -0.33, 0.28)  # reference-point home, near the original's (0.568, -0.331, 0.275)
 
 
-class DialAssetError(RuntimeError):
+class DialAssetError(OMPNError, RuntimeError):
     """The dm_control Kinova JACO assets could not be found or loaded."""
 
 

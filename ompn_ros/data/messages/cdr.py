@@ -23,6 +23,8 @@ from typing import Any, Final
 
 import numpy as np
 
+from ompn_ros.errors import OMPNError
+
 CDR_LE_HEADER: Final = b"\x00\x01\x00\x00"
 LITTLE_ENDIAN: Final = CDR_LE_HEADER[:2]
 """The representation bytes of little-endian CDR (the options after them are ignored)."""
@@ -40,11 +42,11 @@ STAMP_NS_MIN: Final = INT32_MIN * 1_000_000_000
 STAMP_NS_MAX: Final = INT32_MAX * 1_000_000_000 + 999_999_999
 
 
-class CdrError(ValueError):
+class CdrError(OMPNError, ValueError):
     """Bytes that are not a message of the expected type: one line naming the type and the field."""
 
 
-class StampRangeError(ValueError):
+class StampRangeError(OMPNError, ValueError):
     """A stamp does not fit ``builtin_interfaces/Time`` (int32 seconds, nanoseconds below 1e9)."""
 
 

@@ -4,7 +4,7 @@ that lets a recorder close its bag properly on a disk that filled up.
 Closing a bag writes more bytes: the pending mcap chunk, the summary section and footer, or the last
 sqlite3 COMMIT, and ``metadata.yaml``.  On a full disk those writes fail too and the bag then opens
 only with ``skip_tail`` (or not at all).  :class:`DiskGuard` keeps a reserve file of
-``reserve_bytes`` beside the bag (named like a temporary of :mod:`ompn_ros.model.atomic`, so one left
+``reserve_bytes`` beside the bag (named like a temporary of :mod:`ompn_ros.atomic`, so one left
 by a killed recorder is removed by the next start); :meth:`DiskGuard.release` deletes it when a write
 fails, which gives the close the room it needs.  ROS-free; O(1) per call (one ``statvfs``).
 """
@@ -15,8 +15,8 @@ import os
 import shutil
 from pathlib import Path
 
+from ompn_ros.atomic import remove_stale_temps, temp_prefix
 from ompn_ros.data.errors import NotEnoughSpace
-from ompn_ros.model.atomic import remove_stale_temps, temp_prefix
 
 __all__ = ["DiskGuard", "free_bytes"]
 

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO, Literal
 
-from ompn_ros.model.errors import WriteFailure
+from ompn_ros.errors import WriteFailure
 
 TempKind = Literal["tmp", "old"]
 TAGGED = re.compile(r"^\.(?P<stem>.+)\.(?:tmp|old)-(?P<pid>\d+)-[^/]+$")
