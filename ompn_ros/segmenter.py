@@ -1,7 +1,8 @@
 """StreamingSegmenter: a StreamingPolicy plus a causal boundary detector, one step per observation.
 
-This is the only object ``ompn_node`` calls, and ``ompn_segment`` (offline bag replay) drives the
-very same class, so live and offline segmentation cannot drift apart.
+The stream rule (:mod:`ompn_ros.stream`: stamps, episode cuts, markers) drives this class for
+``ompn_node`` and for the offline replay (``ompn_segment``) alike, so live and offline segmentation
+cannot drift apart.
 
 Input validation happens *before* the model is touched: a rejected observation raises a subclass
 of :class:`InvalidInput` and leaves the ordered memory, the step counter, the detector and the
@@ -14,12 +15,11 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numba import njit
 
-from ompn_ros.data.episode import Episode
 from ompn_ros.detect.duration import Detector, DurationModel, make_detector
 from ompn_ros.detect.online import (
     BoundaryEvent,
@@ -72,27 +72,6 @@ class BadSketch(InvalidInput):
     """An episode start or sketch message carried a sketch the model cannot use (counted by callers)."""
 
     reason = "bad_sketch"
-
-
-StampClass = Literal["ok", "future", "jump_back"]
-
-
-def classify_stamp(
-    stamp_ns: int, last_ns: int | None, now_ns: int, *, jump_back_ns: int, max_lead_ns: int
-) -> StampClass:
-    """Where ``stamp_ns`` lies against the last accepted stamp and the receiver's clock (O(1)).
-
-    ``'future'``: more than ``max_lead_ns`` ahead of ``now_ns`` (checked when both are > 0; a clock at 0
-    is sim time before the first ``/clock``).  ``'jump_back'``: more than ``jump_back_ns`` before
-    ``last_ns``: the source's clock restarted (a sim restart, a bag replayed in a loop), so a new
-    episode begins.  ``'ok'`` otherwise; a small step back stays an out-of-order rejection of
-    :meth:`StreamingSegmenter.step`.  Together these make a single stamp unable to wedge a stream.
-    """
-    if max_lead_ns > 0 and now_ns > 0 and stamp_ns - now_ns > max_lead_ns:
-        return "future"
-    if last_ns is not None and last_ns - stamp_ns > jump_back_ns:
-        return "jump_back"
-    return "ok"
 
 
 REJECT_REASONS = (
@@ -312,7 +291,8 @@ class StreamingSegmenter:
 
 @dataclass
 class ReplayResult:
-    """Per-step outputs of one episode replayed through a :class:`StreamingSegmenter`."""
+    """Per-step outputs of one episode replayed through a :class:`StreamingSegmenter`
+    (:func:`ompn_ros.stream.replay.replay_episode`)."""
 
     p_hat: np.ndarray  # [T, n+1]
     pi: np.ndarray  # [T, n] lowest slot first
@@ -325,48 +305,3 @@ class ReplayResult:
     @property
     def boundary_steps(self) -> np.ndarray:
         return np.array([b.step for b in self.boundaries], dtype=np.int64)
-
-
-def replay_episode(
-    segmenter: StreamingSegmenter,
-    episode: Episode,
-    *,
-    include_done_step: bool = False,
-    stamps_ns: np.ndarray | None = None,
-) -> ReplayResult:
-    """Feed ``episode``'s observations through ``segmenter`` exactly as the node would.
-
-    With ``include_done_step`` the final observation (row T) is stepped too, as in a live stream;
-    the last segment is closed at ``T - 1`` either way, and the returned arrays cover the
-    ``T`` real steps only (the offline evaluation drops the done step, ``docs/craft.md`` §5.2).
-    """
-    sketch = episode.sketch if getattr(segmenter.policy.config, "sketch_mode", "none") != "none" else None
-    segmenter.reset(sketch)
-    T = episode.length
-    n_obs = T + 1 if include_done_step else T
-    p_hats, pis, pi_ends, positions, scores = [], [], [], [], []
-    boundaries: list[BoundaryEvent] = []
-    actions: list[Any] = []
-    for t in range(n_obs):
-        stamp = None if stamps_ns is None else int(stamps_ns[t])
-        result = segmenter.step(episode.observations[t], stamp)
-        if t < T:
-            so = result.step_output
-            p_hats.append(np.asarray(so.p_hat, dtype=np.float64))
-            pis.append(np.asarray(so.pi, dtype=np.float64))
-            pi_ends.append(float(so.pi_end))
-            positions.append(float(so.expected_position))
-            scores.append(result.score)
-            actions.append(so.action)
-        if result.boundary is not None and result.boundary.step <= T - 1:
-            boundaries.append(result.boundary)
-    boundaries.extend(segmenter.end_episode(T - 1))
-    return ReplayResult(
-        p_hat=np.array(p_hats),
-        pi=np.array(pis),
-        pi_end=np.array(pi_ends),
-        expected_position=np.array(positions),
-        scores=np.array(scores),
-        boundaries=boundaries,
-        actions=actions,
-    )

@@ -34,7 +34,8 @@ from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
-from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
+from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
+from ompn_ros.stream.replay import replay_episode  # noqa: E402
 from ompn_ros.train import synthetic  # noqa: E402
 
 torch.set_num_threads(1)

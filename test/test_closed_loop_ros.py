@@ -50,13 +50,13 @@ def test_ros_closed_loop_matches_in_process(tiny_checkpoint: Path) -> None:
 
 def test_ros_closed_loop_lstm_checkpoint(tmp_path: Path) -> None:
     from ompn_ros.model.build import build_policy
-    from ompn_ros.nodes.ompn_node import load_policy
+    from ompn_ros.model.load import stepper_from_checkpoint
 
     cfg = OMPNConfig(obs_dim=1075, action_type="discrete", action_dim=5, n_slots=2, slot_size=16,
                      sketch_mode="sum", sketch_vocab=9, arch="lstm")  # fmt: skip
     save_checkpoint(tmp_path / "lstm", build_policy(cfg))
     try:
-        load_policy(str(tmp_path / "lstm"))
+        stepper_from_checkpoint(str(tmp_path / "lstm"))
     except ValueError as exc:  # StreamingInputError
         pytest.skip(f"ompn_node cannot load arch='lstm' checkpoints yet: {exc}")
     ros = run_ros_closed_loop("craft", tmp_path / "lstm", episodes=1, tasks=["makebed"], timeout=60.0,

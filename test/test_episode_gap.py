@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ompn_ros.data.reader.align import windows_from_gaps
-from ompn_ros.nodes.episode_gap import SilenceWatch, gap_ends_episode
+from ompn_ros.stream.gap import SilenceWatch, gap_ends_episode
 
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")

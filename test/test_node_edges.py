@@ -78,10 +78,10 @@ def test_an_episode_whose_last_boundary_came_early_still_ends_with_a_final_one(c
     early = BoundaryEvent(step=2, detected_at=2, subtask=0, score=0.9, level=1, stamp_ns=3 * 10**9)
     node.publish_boundary(early)  # as the detector does at the done step
     node.segmenter.end_episode = lambda last_step=None: []  # nothing left to close
-    node._close_episode(None)
+    node.stream.close_episode(None)
     got = [decode_subtask_boundary(raw) for raw in sent]
     assert [(b.step, b.subtask, b.final, b.decided_stamp_ns) for b in got] == [
         (2, 0, False, 3 * 10**9), (2, 0, True, 3 * 10**9)]
-    node._close_episode(None)  # a second close adds no second final boundary
+    node.stream.close_episode(None)  # a second close adds no second final boundary
     assert len(sent) == 2
     node.destroy_node()

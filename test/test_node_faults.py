@@ -23,7 +23,7 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
-from ompn_ros.nodes import ompn_node  # noqa: E402
+from ompn_ros.nodes import ompn_node_inputs  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 
 OBS_DIM = 4
@@ -277,8 +277,8 @@ def test_a_deep_queued_marker_flood_is_processed_or_counted(
     from another process: every one is handled or counted as lost, and the counters agree.  A KEEP_LAST
     marker queue (5 000, or 1 000 in the short variant) overwrote the unread ones without a count; read
     KEEP_ALL, a full queue holds the publisher back, and the short variant's depth no longer matters."""
-    if n < ompn_node.MARKER_QUEUE:  # the short variant: a node queue below the flood, as the long one
-        monkeypatch.setattr(ompn_node, "MARKER_QUEUE", n // 2)
+    if n < ompn_node_inputs.MARKER_QUEUE:  # the short variant: a node queue below the flood, as the long one
+        monkeypatch.setattr(ompn_node_inputs, "MARKER_QUEUE", n // 2)
     c, out = flood_from_another_process(ctx, ckpt, ros_env, n, n)
     assert out.startswith("rc 0:"), out
     assert c["markers"] + c["markers_lost"] == n, (c, out)

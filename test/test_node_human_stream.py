@@ -24,7 +24,8 @@ from ompn_ros.data.episode import Episode, observation_copies  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
 from ompn_ros.detect.online import with_final  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
-from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
+from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
+from ompn_ros.stream.replay import replay_episode  # noqa: E402
 from sim_nodes import derive_seed  # noqa: E402
 from sim_nodes.craft.human import generate_human_episode  # noqa: E402
 from sim_nodes.human import parse_human  # noqa: E402

@@ -226,7 +226,7 @@ def test_wrong_type_is_one_line_and_a_counter(ctx, ckpt: Path) -> None:
 def test_reset_forgets_partners_episode_markers_do_not(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
     feed(node, [(GRIP, gripper(0)), (WRENCH, wrench(0, 1000)), (STEP, joint_state(0, 1001))])
-    node._on_start_marker("")  # an episode start marker keeps the partners
+    node.stream.start_marker("")  # an episode start marker keeps the partners
     feed(node, [(STEP, joint_state(1, 0))], start_ms=1010)
     assert node.counters()["obs.kept"] == 2
     assert node._on_reset(Trigger.Request(), Trigger.Response()).success

@@ -169,7 +169,7 @@ def test_empty_velocity_is_one_line_live(ctx, ckpts: dict[int, Path]) -> None:
     node = active_node(ctx, ckpts[3], obs_source="joint_state", joint_fields=["position", "velocity"],
                        max_stamp_lead=0.0)
     warnings: list[str] = []
-    node._warn_throttled = lambda text, with_total=True: warnings.append(text)  # type: ignore[method-assign]
+    node.warn_throttled = lambda text, with_total=True: warnings.append(text)  # type: ignore[method-assign]
     node._on_joint_state(msg(NOW_S * S, ARM[:1] + ARM[1:], [0.1, 0.2, 0.3]))  # positions only
     counters = node.counters()
     assert counters["accepted"] == 0 and counters["rejected_malformed"] == 1

@@ -39,7 +39,7 @@ def test_a_message_sent_twice_is_one_step(ctx, ckpts: dict[int, Path], source: s
     for repeat in (False, True):
         node = active_node(ctx, ckpts[3], obs_source=source, max_stamp_lead=0.0)
         _run(node, source, obs, repeat)
-        node._close_episode(None)
+        node.stream.close_episode(None)
         nodes.append(node)
     clean, repeated = nodes
     assert events(repeated) == events(clean) and events(clean)

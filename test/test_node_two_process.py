@@ -36,7 +36,8 @@ from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402
-from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
+from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
+from ompn_ros.stream.replay import replay_episode  # noqa: E402
 
 torch.set_num_threads(1)
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)

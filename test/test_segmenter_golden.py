@@ -13,7 +13,8 @@ checkpoint = pytest.importorskip("ompn_ros.model.checkpoint")
 from ompn_ros.data.episode import Episode  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig, detect_sequence, expansion_scores  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.segmenter import StreamingSegmenter, replay_episode  # noqa: E402
+from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
+from ompn_ros.stream.replay import replay_episode  # noqa: E402
 
 torch.set_num_threads(1)
 

@@ -21,8 +21,8 @@ from ompn_ros.segmenter import (
     SketchError,
     StreamingSegmenter,
     WrongObservationLength,
-    replay_episode,
 )
+from ompn_ros.stream.replay import replay_episode
 
 
 @dataclass

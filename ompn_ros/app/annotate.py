@@ -18,7 +18,7 @@ published while that recording played:
   include it, else at the last real step's).  ``header.frame_id`` is empty.
 
 Opened in Foxglove or PlotJuggler, π then runs under the robot's own data.  The segmentation is the
-one :func:`ompn_ros.segmenter.replay_episode` computes, i.e. the very segmenter ``ompn_node`` runs.
+one :func:`ompn_ros.stream.replay.replay_episode` computes, i.e. the very segmenter ``ompn_node`` runs.
 
 Stamps.  Each episode needs the bag log stamps of its observations (``T`` real steps, optionally the
 final observation ``T`` too, used when a boundary was committed on the done step).  Pass them as an

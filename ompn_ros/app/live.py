@@ -99,7 +99,7 @@ class Streams:
             for event, received in groups[i] if i < len(groups) else []:
                 step, seen_at = event.step, event.decided_step
                 # A boundary on the final (done) observation closes the last subtask, whose last real
-                # step is T - 1: the same rule as the offline replay (segmenter.replay_episode).
+                # step is T - 1: the same rule as the offline replay (ompn_ros.stream.replay.replay_episode).
                 step = min(step, max(steps - 1, 0))
                 if step in ep.boundaries:
                     continue

@@ -29,7 +29,8 @@ from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
 from ompn_ros.plotting import plot_episode
-from ompn_ros.segmenter import ReplayResult, StreamingSegmenter, replay_episode
+from ompn_ros.segmenter import ReplayResult, StreamingSegmenter
+from ompn_ros.stream.replay import replay_episode
 from sim_nodes.registry import DOMAINS, default_tasks, expert_episode
 
 

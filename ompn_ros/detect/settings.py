@@ -28,6 +28,7 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -201,15 +202,16 @@ class DetectorSettings:
             raise DetectorSettingsError(f"{origin}: {exc}" if origin else str(exc)) from None
 
 
-NODE_PARAMETERS = (
+DETECTOR_PARAMETERS = (
     "detector_high",
     "detector_hysteresis",
     "detector_min_segment_length",
     "detector_mode",
     "detector_force_first_step_low",
     "detector_lag",
-    "done_threshold",
 )
+"""The ``ompn_node`` parameters of the online detector (:func:`detector_config`); they apply live."""
+NODE_PARAMETERS = (*DETECTOR_PARAMETERS, "done_threshold")
 """The ``ompn_node`` parameters that :func:`node_parameters` fills from the settings."""
 
 
@@ -217,7 +219,8 @@ def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
     """``ompn_node`` parameter values (``NODE_PARAMETERS``) equal to ``settings``.
 
     A node that declares these parameters with these values as defaults gets the precedence rule
-    for free: a ``-p`` or ``--params-file`` value overrides the checkpoint's.
+    for free: a ``-p`` or ``--params-file`` value overrides the checkpoint's.  The way back is
+    :func:`detector_config`.
     """
     online = settings.online
     return {
@@ -229,6 +232,27 @@ def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
         "detector_lag": int(online.lag),
         "done_threshold": float(settings.done_threshold),
     }
+
+
+def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
+    """The detector of the ``detector_*`` parameter values (``low = high - hysteresis``).
+
+    Raises :class:`DetectorConfigError` when ``detector_hysteresis`` exceeds ``detector_high`` (the run
+    would end only below a score of 0, so it would never end)."""
+    high, hysteresis = float(values["detector_high"]), float(values["detector_hysteresis"])
+    if hysteresis > high + 1e-9:
+        raise DetectorConfigError(
+            f"detector_hysteresis={hysteresis} exceeds detector_high={high}: a run would end only below a "
+            "score of 0; set detector_hysteresis <= detector_high"
+        )
+    return DetectorConfig(
+        high=high,
+        low=max(0.0, high - hysteresis),
+        min_segment_length=int(values["detector_min_segment_length"]),
+        mode=str(values["detector_mode"]),
+        force_first_step_low=bool(values["detector_force_first_step_low"]),
+        lag=int(values["detector_lag"]),
+    )
 
 
 def _finite_or_none(value: float) -> float | None:
@@ -314,12 +338,14 @@ def resolve_detector(
 
 __all__ = [
     "DETECTOR_FILE",
+    "DETECTOR_PARAMETERS",
     "NODE_PARAMETERS",
     "OFFLINE_DETECTORS",
     "SOURCES",
     "DetectorSettings",
     "OfflineDetector",
     "SettingsSource",
+    "detector_config",
     "detector_file",
     "load_detector_settings",
     "node_parameters",

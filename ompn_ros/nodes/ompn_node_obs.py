@@ -22,26 +22,18 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
 
+from ompn_ros import layout
 from ompn_ros.data.joint_merge import JointMerger, field_width_line
 from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec, ObservationSpecError
-from ompn_ros.layout import (
-    FLOAT32,
-    FLOAT32_ARRAY,
-    FLOAT64,
-    FLOAT64_ARRAY,
-    JOINT_STATE,
-    POSE_STAMPED,
-    WRENCH_STAMPED,
-)
 
 MESSAGE_CLASSES: Final[dict[str, Any]] = {
-    JOINT_STATE: JointState,
-    FLOAT32_ARRAY: Float32MultiArray,
-    FLOAT64_ARRAY: Float64MultiArray,
-    FLOAT32: Float32,
-    FLOAT64: Float64,
-    WRENCH_STAMPED: WrenchStamped,
-    POSE_STAMPED: PoseStamped,
+    layout.JOINT_STATE: JointState,
+    layout.FLOAT32_ARRAY: Float32MultiArray,
+    layout.FLOAT64_ARRAY: Float64MultiArray,
+    layout.FLOAT32: Float32,
+    layout.FLOAT64: Float64,
+    layout.WRENCH_STAMPED: WrenchStamped,
+    layout.POSE_STAMPED: PoseStamped,
 }
 """The rclpy message class of every type an observation spec may name (its canonical spelling)."""
 

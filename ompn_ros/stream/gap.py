@@ -1,5 +1,5 @@
-"""Episodes split by pauses, live: ``ompn_node``'s ``episode_gap`` and ``idle_s`` (ROS-free, so it is
-unit-tested alone).
+"""Episodes split by pauses: the ``episode_gap`` and ``idle_s`` rules of the stream rule
+(:mod:`ompn_ros.stream.rule`), which ``ompn_node`` and the offline stream replay both run.
 
 A robot that publishes no episode markers still pauses between tasks.  The bag reader's ``split: gaps``
 (``time_gap``, :func:`ompn_ros.data.reader.align.windows_from_gaps`) starts an episode wherever two
@@ -8,8 +8,8 @@ incoming step, so the node and the reader cut a stream in the same places.
 
 Waiting for the next episode's first step would delay the end boundary of the last segment by the
 whole pause, so :class:`SilenceWatch` also ends an open episode once no step has been accepted for
-``episode_gap`` seconds of the node's clock (polled by a timer; the clock is simulated time under
-``use_sim_time``, so a paused simulation does not end episodes).  A timer of period ``p`` ends the
+``episode_gap`` seconds of the receiver's clock (the node polls it from a timer; its clock is simulated
+time under ``use_sim_time``, so a paused simulation does not end episodes).  A timer of period ``p`` ends the
 episode between ``gap`` and ``gap + p`` after its last step.  Both are O(1) per call.
 
 A driver that keeps publishing while the robot waits never pauses: :class:`IdleGate` applies the

@@ -1,0 +1,269 @@
+"""``ompn_node``'s inputs: the subscriptions and their callbacks, each surviving any message.
+
+:class:`NodeInputs` turns ROS messages into the stream rule's plain inputs (:mod:`ompn_ros.stream.rule`:
+an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  Topics,
+stamps and QoS: the module docstring of :mod:`ompn_ros.nodes.ompn_node`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float32MultiArray, Int32MultiArray
+
+from ompn_ros import layout
+from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array
+from ompn_ros.data.obs import Decided, Drop
+from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, JointInput, drop_line
+from ompn_ros.nodes.ompn_node_outputs import NodeOutputs
+from ompn_ros.nodes.ompn_node_params import input_qos
+from ompn_ros.segmenter import BadStamp, MalformedMessage
+from ompn_ros.validate import InvalidInput, WrongObservationLength
+
+MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
+
+
+class NodeInputs(NodeOutputs):
+    """The subscribing part of ``OMPNNode`` (its base class; ``OMPNNode.__init__`` sets the attributes)."""
+
+    _active: bool
+    _subs: list[Any]
+    _graph_timer: Any
+    _hold_timer: Any
+    _sizes_reported: set[str]
+
+    def subscribe_inputs(self) -> None:
+        """The subscriptions of the configured input (on activation)."""
+        inputs = input_qos(str(self.values["obs_qos"]), int(self.values["qos_depth"]))
+        # KEEP_ALL: a full queue refuses new markers, and the reliable publisher resends them once the
+        # node has read some, rather than the queue overwriting unread ones; what the middleware still
+        # loses (a best-effort or shallow publisher) is counted (markers_lost)
+        markers = QoSProfile(
+            depth=MARKER_QUEUE, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL
+        )
+        # Markers first: when a marker and an observation are both ready, the executor serves the
+        # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
+        self._subscribe(DiagnosticArray, layout.EPISODE, self._on_episode, markers, None)
+        self._subscribe(Int32MultiArray, layout.SKETCH, self._on_sketch, markers, None)
+        if self.assembled is not None:
+            self._subscribe_spec(self.assembled, inputs)
+        elif self.values["obs_source"] == "joint_state":
+            self._subscribe(JointState, layout.JOINT_STATES, self._on_joint_state, inputs, "obs_qos")
+        else:  # raw CDR: the float32 data is read in place, no message object is built
+            callback = self._on_array_info if self.uses_message_info else self._on_array
+            self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
+
+    def _subscribe_spec(self, assembled: AssembledInput, qos: QoSProfile) -> None:
+        """One raw subscription per spec topic, the publishers' types checked ~1/s.  Partners first: when
+        a partner and a step message are both ready, a wait-set executor serves them in creation order,
+        and the partner message, published first, is then fed first (as it arrived)."""
+        spec = assembled.spec
+        for topic in (*spec.partner_topics, spec.step_topic):
+            callback = self._on_spec_step if topic == spec.step_topic else self._partner_callback(topic)
+            msg_class = MESSAGE_CLASSES[spec.type_of(topic)]
+            self._subscribe(msg_class, topic, callback, qos, "obs_qos", raw=True)
+        self._graph_timer = self.create_timer(1.0, self._check_topic_types)
+        self._check_topic_types()
+        if assembled.asm.waited_topics:  # held steps are released on every message, and by this timer
+            period = max(0.005, spec.wait_s / 2)
+            self._hold_timer = self.create_timer(period, lambda: self._release_held(None))
+
+    def _subscribe(
+        self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
+    ) -> None:
+        lost = ("messages_lost", "markers_lost") if topic == layout.EPISODE else ("messages_lost",)
+        events = SubscriptionEventCallbacks(
+            incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
+            message_lost=lambda info: self._count_lost(lost, info),
+        )
+        self._subs.append(
+            self.create_subscription(msg_type, topic, callback, qos, raw=raw, event_callbacks=events)
+        )
+
+    def _count_lost(self, counters: tuple[str, ...], info: Any) -> None:
+        """Messages the middleware reports lost (rmw's ``message_lost`` event)."""
+        self.stream.events.update(dict.fromkeys(counters, info.total_count_change))
+
+    @property
+    def uses_message_info(self) -> bool:
+        """Array input takes its stamp from the DDS source timestamp (needs message info, wall time)."""
+        return (
+            self.values["obs_source"] == "array"
+            and self.values["executor"] != "events"
+            and not self.get_parameter("use_sim_time").value
+        )
+
+    # --- observations ----------------------------------------------------------------------------
+    def _on_array_info(self, raw: bytes, info: dict[str, Any]) -> None:
+        self._on_raw_array(raw, int(info["source_timestamp"]))
+
+    def _on_array(self, raw: bytes) -> None:
+        # Without message info, stamp with the node's clock at reception (the stream rule's receive time)
+        now = self.get_clock().now().nanoseconds
+        self._on_raw_array(raw, self.stream.receive_stamp(now), now)
+
+    def _on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None) -> None:
+        if self.stream.repeats.seen(layout.OBSERVATION, layout.FLOAT32_ARRAY, stamp_ns, raw):
+            return  # the same message sent twice: one step
+        try:
+            data = parse_float32_array(raw)
+        except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
+            self._reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
+            return
+        self.process_observation(data, stamp_ns, now_ns)
+
+    def _on_spec_step(self, raw: bytes) -> None:
+        """A step-topic message: held by the assembler (receive time = the node's clock, strictly
+        increasing) until its partners caught up or ``wait_s`` passed, then stepped like any
+        observation; a dropped step is counted by reason and warned (throttled)."""
+        assembled = self.assembled
+        if assembled is None or self.stream.segmenter is None or not self._active:
+            return
+        now = self.get_clock().now().nanoseconds
+        receive = self.stream.receive_stamp(now)
+        step_topic = assembled.spec.step_topic
+        if self.stream.repeats.seen(step_topic, assembled.spec.type_of(step_topic), receive, raw):
+            return
+        try:
+            assembled.asm.hold(receive, raw)
+        except Exception as exc:  # the assembler counts what it knows; anything else is malformed input
+            self._reject(MalformedMessage(f"step message not assembled: {type(exc).__name__}: {exc}"))
+            return
+        self._release_held(now)
+
+    def _release_held(self, now_ns: int | None, flush: bool = False) -> None:
+        """Step the held steps the assembler can decide now (all of them with ``flush``), in order."""
+        assembled = self.assembled
+        if assembled is None or not assembled.asm.held:
+            return
+        now = self.get_clock().now().nanoseconds if now_ns is None else now_ns
+        try:
+            decided = assembled.asm.release(now, flush)
+        except Exception as exc:  # never fatal: counted as malformed input, warned
+            self._reject(MalformedMessage(f"held steps not assembled: {type(exc).__name__}: {exc}"))
+            return
+        self._step_decided(assembled, decided, now)
+
+    def _step_decided(self, assembled: AssembledInput, decided: list[Decided], now: int) -> None:
+        for d in decided:
+            if isinstance(d.result, Drop):
+                self.warn_throttled(drop_line(d.result, assembled.dropped_total), with_total=False)
+                continue
+            problem = assembled.first_size_problem(d.result)
+            if problem is not None:
+                self.stream.events["obs_size_mismatch"] += 1
+                self.get_logger().error(problem)
+            self.process_observation(d.result, d.stamp_ns, now)
+
+    def _partner_callback(self, topic: str) -> Any:
+        def on_partner(raw: bytes) -> None:
+            assembled = self.assembled
+            if assembled is None or not self._active:
+                return
+            now = self.get_clock().now().nanoseconds
+            if self.stream.repeats.seen(topic, assembled.spec.type_of(topic), now, raw):
+                return
+            try:
+                rejected = assembled.asm.offer(topic, now, raw)
+            except Exception as exc:  # never fatal: counted as a node event, warned
+                self.stream.events["obs_partner_errors"] += 1
+                self.warn_throttled(f"message on '{topic}' not used: {type(exc).__name__}: {exc}")
+                return
+            if rejected is not None:
+                self.warn_throttled(f"message rejected: {rejected}", with_total=False)
+            self._release_held(now)
+
+        return on_partner
+
+    def _check_topic_types(self) -> None:
+        """Compare the spec topics' advertised types with the spec (timer, ~1 s): one line per change."""
+        if self.assembled is None:
+            return
+        try:
+            graph = {t: [p.topic_type for p in self.get_publishers_info_by_topic(t)]
+                     for t in self.assembled.spec.topics}
+        except Exception as exc:  # the graph may be unavailable while the context shuts down
+            if "context" not in str(exc):
+                self.warn_throttled(f"ROS graph not readable: {exc}")
+            return
+        for line in self.assembled.check_graph(graph):
+            if "expects" in line:
+                self.get_logger().error(line)
+            else:
+                self.get_logger().info(line)
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        try:
+            stamp = join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        except StampRangeError as exc:
+            self._reject(BadStamp(str(exc)))
+            return
+        fields = {f: np.asarray(getattr(msg, f)) for f in layout.JOINT_FIELDS}
+        payload = "\0".join(msg.name).encode() + b"".join(v.tobytes() + b"|" for v in fields.values())
+        if self.stream.repeats.seen_sample(layout.JOINT_STATES, stamp, payload):
+            return  # the same sample sent twice (same header stamp and data): one step
+        joints = self._joints or JointInput(self.values["joint_fields"], None, None)
+        got = joints.observation(stamp, msg.name, fields)
+        if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
+            return
+        if isinstance(got, str):
+            self._reject(MalformedMessage(got))
+            return
+        self._frame_id = msg.header.frame_id
+        with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
+            self.process_observation(got.astype(np.float32), stamp)
+
+    def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
+        """Step the segmenter on one observation and publish its outputs (or count a rejection).
+
+        ``now_ns``: the node's clock at reception when the caller read it already."""
+        if self.stream.segmenter is not None and self._active:
+            self.stream.observe(data, stamp_ns, now_ns)
+
+    def _reject(self, error: InvalidInput) -> None:
+        if self.stream.segmenter is not None and self._active:
+            self.stream.reject(error)
+
+    def skipped(self, error: InvalidInput, by_segmenter: bool) -> None:
+        """The stream rule's sink: a skipped input, warned (throttled); a size that does not fit the
+        checkpoint is one error line per size instead."""
+        if not by_segmenter:
+            self.warn_throttled(f"skipped input ({error.reason}): {error}")
+        elif isinstance(error, WrongObservationLength):
+            self._report_size_mismatch(error)
+        else:
+            self.warn_throttled(f"skipped observation ({error.reason}): {error}")
+
+    def _report_size_mismatch(self, exc: WrongObservationLength) -> None:
+        """One error line per observed size that does not fit the checkpoint (each such message is
+        still skipped and counted as ``rejected_wrong_length``), naming where the size comes from."""
+        if str(exc) in self._sizes_reported:
+            return
+        self._sizes_reported.add(str(exc))
+        if self.assembled is not None:
+            source = f"observation_spec (step topic {self.assembled.spec.step_topic})"
+        elif self.values["obs_source"] == "joint_state":
+            fields = list(self.values["joint_fields"])
+            source = f"'{layout.JOINT_STATES}' fields {fields} (obs_source=joint_state)"
+        else:
+            source = f"'{layout.OBSERVATION}'"
+        self.get_logger().error(
+            f"{exc} from {source}: every such message is skipped (counted as rejected_wrong_length); "
+            "publish what the model was trained on, or use a checkpoint trained on this robot")
+
+    # --- markers and sketches --------------------------------------------------------------------
+    def _on_episode(self, msg: DiagnosticArray) -> None:
+        self._release_held(None, flush=True)  # held steps belong to the episode before the marker
+        for status in msg.status:
+            if status.name != layout.EPISODE_STATUS_NAME or self.stream.segmenter is None or not self._active:
+                continue
+            self.stream.marker(status.message, {kv.key: kv.value for kv in status.values})
+
+    def _on_sketch(self, msg: Int32MultiArray) -> None:
+        if self.stream.segmenter is not None and self._active and len(msg.data) > 0:
+            self.stream.sketch_message(msg.data)

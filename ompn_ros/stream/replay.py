@@ -1,0 +1,122 @@
+"""Offline replay through the stream rule: recorded observations give what ``ompn_node`` publishes.
+
+:func:`replay_episode` replays one episode (the evaluation's and ``ompn_segment``'s unit);
+:func:`replay_stream` replays a recorded stream with its stamps, episode cuts by the node's rules
+included (:mod:`ompn_ros.stream.rule`).  Both run :class:`~ompn_ros.stream.rule.StreamRule` over a
+:class:`~ompn_ros.segmenter.StreamingSegmenter`, as the node does, so live and offline cannot drift
+apart.  Cost: one model step per observation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect.online import BoundaryEvent
+from ompn_ros.segmenter import ReplayResult, SegmenterOutput, StreamingSegmenter
+from ompn_ros.stream.rule import StreamLimits, StreamRule
+from ompn_ros.validate import InvalidInput
+
+__all__ = ["StreamRecord", "replay_episode", "replay_stream"]
+
+
+@dataclass
+class StreamRecord:
+    """What the stream rule gave out, in order: the steps ``(episode, stamp ns, output)``, the boundaries
+    ``(episode, decided stamp ns, event)``, the rejected inputs and the warning lines."""
+
+    steps: list[tuple[int, int, SegmenterOutput]] = field(default_factory=list)
+    boundaries: list[tuple[int, int, BoundaryEvent]] = field(default_factory=list)
+    rejections: list[InvalidInput] = field(default_factory=list)
+    events: dict[str, int] = field(default_factory=dict)  # the rule's counters at the end (replay_stream)
+    warnings: list[str] = field(default_factory=list)
+    strict: bool = False  # raise at the first rejected input or warning (one recorded episode)
+
+    def step_out(self, out: SegmenterOutput, stamp_ns: int, episode: int) -> None:
+        self.steps.append((episode, stamp_ns, out))
+
+    def boundary_out(self, event: BoundaryEvent, decided_ns: int, episode: int, log: bool) -> None:
+        self.boundaries.append((episode, decided_ns, event))
+
+    def skipped(self, error: InvalidInput, by_segmenter: bool) -> None:
+        if self.strict:
+            raise error
+        self.rejections.append(error)
+
+    def warn_throttled(self, text: str, with_total: bool = True) -> None:
+        self.warning(text)
+
+    def warning(self, text: str) -> None:
+        if self.strict:
+            raise ValueError(text)
+        self.warnings.append(text)
+
+
+def replay_stream(
+    segmenter: StreamingSegmenter,
+    observations: Sequence[Any],
+    stamps_ns: Sequence[int],
+    limits: StreamLimits,
+    sketch: np.ndarray | None = None,
+) -> StreamRecord:
+    """Replay a recorded stream without markers, stamps as recorded: the steps and boundaries the node
+    publishes for it (its clock unknown, so no stamp counts as from the future).  The last episode
+    stays open, as in the node until a marker, a pause or a reset ends it."""
+    record = StreamRecord()
+    rule = StreamRule(record, lambda: 0, limits)
+    rule.segmenter, rule.default_sketch = segmenter, sketch
+    rule.arm()
+    rule.start_episode(sketch)
+    for obs, stamp in zip(observations, stamps_ns, strict=True):
+        rule.observe(obs, int(stamp), 0)
+    record.events = dict(rule.events)
+    return record
+
+
+def replay_episode(
+    segmenter: StreamingSegmenter,
+    episode: Episode,
+    *,
+    include_done_step: bool = False,
+    stamps_ns: np.ndarray | None = None,
+) -> ReplayResult:
+    """Feed ``episode``'s observations through ``segmenter`` exactly as the node would between a
+    'start' and an 'end' marker; an observation the node would skip raises its :class:`InvalidInput`.
+
+    With ``include_done_step`` the final observation (row T) is stepped too, as in a live stream;
+    the last segment is closed at ``T - 1`` either way, and the returned arrays cover the
+    ``T`` real steps only (the offline evaluation drops the done step, ``docs/craft.md`` §5.2).
+    """
+    record = StreamRecord(strict=True)
+    rule = StreamRule(record, lambda: 0)
+    rule.segmenter = segmenter
+    rule.begin_episode(episode.sketch if segmenter.needs_sketch else None)  # SketchError: not usable
+    T = episode.length
+    n_obs = T + 1 if include_done_step else T
+    for t in range(n_obs):
+        rule.observe(episode.observations[t], None if stamps_ns is None else int(stamps_ns[t]), 0)
+    rule.close_episode(T)
+    return _episode_result(record, T)
+
+
+def _episode_result(record: StreamRecord, T: int) -> ReplayResult:
+    """The ``T`` real steps of ``record`` (one episode) as arrays, with its boundaries up to step T - 1."""
+    events = [event for _, _, event in record.boundaries]
+    if len(events) > 1 and not events[-2].final and events[-1] == dataclasses.replace(events[-2], final=True):
+        events.pop()  # the node repeats the last boundary as final (with_final); the episode has it once
+    outs = [out for _, _, out in record.steps[:T]]
+    sos = [out.step_output for out in outs]
+    return ReplayResult(
+        p_hat=np.array([np.asarray(so.p_hat, dtype=np.float64) for so in sos]),
+        pi=np.array([np.asarray(so.pi, dtype=np.float64) for so in sos]),
+        pi_end=np.array([float(so.pi_end) for so in sos]),
+        expected_position=np.array([float(so.expected_position) for so in sos]),
+        scores=np.array([out.score for out in outs]),
+        boundaries=[event for event in events if event.step <= T - 1],
+        actions=[so.action for so in sos],
+    )

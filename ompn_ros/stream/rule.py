@@ -1,0 +1,382 @@
+"""The stream rule: how a stream of stamped observations and episode markers becomes episodes and steps.
+
+:class:`StreamRule` is what ``ompn_node`` and the offline replay (:mod:`ompn_ros.stream.replay`) both
+run, so a recorded stream replayed with its stamps gives the node's output, episode cuts included.  It
+takes plain inputs (stamps in ns, the receiver's clock in ns, observations, marker text), drives one
+:class:`~ompn_ros.segmenter.StreamingSegmenter` (Lu et al., ICLR 2021: one memory step per observation,
+boundaries by the causal detector) and hands what happened to a :class:`StreamSink`: the accepted
+steps, the boundary events, the rejected inputs and the lines worth a warning.
+
+The rules, in the order a stamped observation meets them (``docs/parameters.md``):
+
+* a stamp more than ``max_stamp_lead`` ahead of the receiver's clock is rejected (``future_stamp``);
+* one more than ``clock_jump_back`` behind the last step is a clock restart (a restarted simulation, a
+  bag played in a loop): the open episode is closed and a new one starts (``clock_jumps``);
+* with ``episode_gap``, a step stamped more than that after the previous one ends the episode and
+  starts the next (the bag reader's ``split: gaps``, :mod:`ompn_ros.stream.gap`), as does a silence of
+  that long on the receiver's clock (:meth:`StreamRule.check_silence`);
+* with ``idle_s``, still observations are held until the reader's ``split: idle`` rule decides them;
+* a smaller step back, like any invalid observation, is rejected by the segmenter without a step.
+
+Episode markers ('start' with an optional sketch, 'end' with the step count), sketch messages and
+resets end the held input first (as the end of a bag does) and start the next episode.  Every call is
+O(1) per observation, amortised.
+"""
+
+from __future__ import annotations
+
+import array
+from collections import Counter
+from collections.abc import Callable, Mapping
+from typing import Any, Literal, Protocol
+
+import numpy as np
+
+from ompn_ros import layout
+from ompn_ros.data.messages import parse_sketch_value
+from ompn_ros.data.repeats import Repeats
+from ompn_ros.detect.online import BoundaryEvent, with_final
+from ompn_ros.segmenter import BadSketch, FutureStamp, SegmenterOutput, StreamingSegmenter
+from ompn_ros.stream.gap import IdleGate, SilenceWatch
+from ompn_ros.validate import InvalidInput, SketchError, validate_sketch
+
+__all__ = ["StampClass", "StreamLimits", "StreamRule", "StreamSink", "classify_stamp"]
+
+StampClass = Literal["ok", "future", "jump_back"]
+
+
+def classify_stamp(
+    stamp_ns: int, last_ns: int | None, now_ns: int, *, jump_back_ns: int, max_lead_ns: int
+) -> StampClass:
+    """Where ``stamp_ns`` lies against the last accepted stamp and the receiver's clock (O(1)).
+
+    ``'future'``: more than ``max_lead_ns`` ahead of ``now_ns`` (checked when both are > 0; a clock at 0
+    is sim time before the first ``/clock``).  ``'jump_back'``: more than ``jump_back_ns`` before
+    ``last_ns``: the source's clock restarted (a sim restart, a bag replayed in a loop), so a new
+    episode begins.  ``'ok'`` otherwise; a small step back stays an out-of-order rejection of
+    :meth:`StreamingSegmenter.step`.  Together these make a single stamp unable to wedge a stream.
+    """
+    if max_lead_ns > 0 and now_ns > 0 and stamp_ns - now_ns > max_lead_ns:
+        return "future"
+    if last_ns is not None and last_ns - stamp_ns > jump_back_ns:
+        return "jump_back"
+    return "ok"
+
+
+class StreamLimits:
+    """The stream parameters in seconds (as given: they appear in the warnings) and in ns (per step)."""
+
+    def __init__(self, *, clock_jump_back: float = 1.0, max_stamp_lead: float = 0.0,
+                 episode_gap: float = 0.0, idle_s: float = 0.0, idle_speed: float = 0.01) -> None:
+        self.clock_jump_back, self.max_stamp_lead = clock_jump_back, max_stamp_lead
+        self.episode_gap, self.idle_s, self.idle_speed = episode_gap, idle_s, float(idle_speed)
+        self.jump_back_ns = int(float(clock_jump_back) * 1e9)
+        self.max_lead_ns = int(float(max_stamp_lead) * 1e9)
+        self.gap_ns = round(float(episode_gap) * 1e9)
+        self.idle_ns = round(float(idle_s) * 1e9)
+
+    @classmethod
+    def of(cls, values: Mapping[str, Any]) -> StreamLimits:
+        """The limits of ``ompn_node``'s parameter values."""
+        names = ("clock_jump_back", "max_stamp_lead", "episode_gap", "idle_s", "idle_speed")
+        return cls(**{name: values[name] for name in names})
+
+
+class StreamSink(Protocol):
+    """Where :class:`StreamRule` puts what happened (the node publishes it, the replay collects it)."""
+
+    def step_out(self, out: SegmenterOutput, stamp_ns: int, episode: int) -> None:
+        """An accepted step (its boundary, if any, was given to :meth:`boundary_out` just before)."""
+
+    def boundary_out(self, event: BoundaryEvent, decided_ns: int, episode: int, log: bool) -> None:
+        """A boundary event: at a step (``log`` False: the step logs it), or closing an episode."""
+
+    def skipped(self, error: InvalidInput, by_segmenter: bool) -> None:
+        """An input skipped without a step, counted already; ``by_segmenter``: the observation itself."""
+
+    def warn_throttled(self, text: str, with_total: bool = True) -> None:
+        """A line about bad input, at most one per throttle period."""
+
+    def warning(self, text: str) -> None:
+        """A line about the stream (an episode start refused, a clock restart), every time."""
+
+
+class StreamRule:
+    """The stamp and episode rules over one segmenter, with the counters they keep (:attr:`events`).
+
+    ``clock`` gives the receiver's clock in ns (0: unknown, the future check is off).  The segmenter
+    is set once the model is loaded (:attr:`segmenter`); every entry point but :meth:`reject` and
+    :meth:`receive_stamp` expects it.
+    """
+
+    def __init__(self, sink: StreamSink, clock: Callable[[], int],
+                 limits: StreamLimits | None = None) -> None:
+        self.sink, self.clock = sink, clock
+        self.limits = limits or StreamLimits()
+        self.segmenter: StreamingSegmenter | None = None
+        self.events: Counter[str] = Counter()
+        self.repeats = Repeats()  # messages a driver sent twice: one step (the reader's rule)
+        self.default_sketch: np.ndarray | None = None
+        self.latest_sketch: np.ndarray | None = None
+        self.episode_sketch: np.ndarray | None = None
+        self.last_stamp_ns = 0  # of the last accepted step (0: none in this episode, or no stamp)
+        self.last_receive_ns = 0  # of receive_stamp()
+        self.last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
+        self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
+        self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
+
+    def arm(self) -> None:
+        """Start the pause and idle rules the limits ask for (the node: on activation)."""
+        limits = self.limits
+        self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
+        self.idle = IdleGate(limits.idle_ns, limits.idle_speed) if limits.idle_ns > 0 else None
+
+    def disarm(self) -> None:
+        self.silence = self.idle = None
+
+    def receive_stamp(self, now_ns: int) -> int:
+        """A stamp from the receiver's clock, kept strictly increasing (a clock that stands still, e.g.
+        sim time between ``/clock`` ticks, must not turn into out-of-order rejections); a clock that
+        went back further than ``clock_jump_back`` is taken as it is."""
+        last = self.last_receive_ns
+        stamp = now_ns if (now_ns > last or last - now_ns > self.limits.jump_back_ns) else last + 1
+        self.last_receive_ns = stamp
+        return stamp
+
+    # --- observations ----------------------------------------------------------------------------
+    def observe(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
+        """One observation: judged by its stamp (``now_ns``: the receiver's clock when the caller read
+        it already), held by the idle rule or stepped, its outputs given to the sink."""
+        seg = self.segmenter
+        assert seg is not None
+        if stamp_ns is not None and not self._stamp_usable(seg, stamp_ns, now_ns):
+            return
+        if self.idle is not None and stamp_ns is not None:
+            self._idle_decided(self.idle.push(np.array(data, dtype=np.float32), stamp_ns))
+            return
+        self._step(seg, data, stamp_ns)
+
+    def reject(self, error: InvalidInput) -> None:
+        """Count an input the caller could not use (undecodable, a bad stamp) and tell the sink."""
+        assert self.segmenter is not None
+        self.segmenter.count_rejection(error)
+        self.sink.skipped(error, False)
+
+    def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int, now_ns: int | None) -> bool:
+        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
+        limits = self.limits
+        if now_ns is None:
+            now_ns = self.clock() if limits.max_lead_ns > 0 else 0
+        verdict = classify_stamp(
+            stamp_ns, seg.last_stamp, now_ns, jump_back_ns=limits.jump_back_ns, max_lead_ns=limits.max_lead_ns
+        )
+        if verdict == "future":
+            self.reject(FutureStamp(f"stamp {stamp_ns} ns is more than max_stamp_lead="
+                                    f"{limits.max_stamp_lead} s ahead of the node's clock"))
+            return False
+        if verdict == "jump_back":
+            self.events["clock_jumps"] += 1
+            self.sink.warning(
+                f"input clock jumped back from {seg.last_stamp} to {stamp_ns} ns (more than "
+                f"clock_jump_back={limits.clock_jump_back} s): starting a new episode"
+            )
+            return self.restart_episode()
+        # episode_gap: gap_ends_episode() inlined, so with the split off a step pays one test
+        if limits.gap_ns and seg.last_stamp is not None and stamp_ns - seg.last_stamp > limits.gap_ns:
+            return self.end_at_pause()
+        return True
+
+    def _step(self, seg: StreamingSegmenter, data: Any, stamp_ns: int | None) -> None:
+        try:
+            obs = (
+                np.frombuffer(data, dtype=np.float32)
+                if isinstance(data, array.array) and data.typecode == "f"
+                else data
+            )
+            out = seg.step(obs, stamp_ns)
+        except InvalidInput as exc:
+            self.sink.skipped(exc, True)
+            return
+        self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
+        if out.step_index == 0:
+            self.events["episodes"] += 1
+        # The boundary event goes out first: it is the latency-critical product of the node.
+        if out.boundary is not None:
+            self.emit_boundary(out.boundary, log=False)
+        self.sink.step_out(out, self.last_stamp_ns, self.events["episodes"])
+
+    def _idle_decided(self, decided: list[tuple[str, np.ndarray | None, int]]) -> None:
+        """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``)."""
+        for kind, x, stamp in decided:
+            seg = self.segmenter
+            if seg is None:
+                return
+            if kind == "start":
+                self.start_episode(self.episode_sketch, count_bad=False)
+            if x is not None:
+                self._step(seg, x, stamp)
+            if kind == "end" and seg.step_index >= 0 and not seg.detector.closed:
+                self.close_episode(seg.step_index)  # the final observation (row T) is the last stepped
+
+    def emit_boundary(self, event: BoundaryEvent, decided_ns: int | None = None, log: bool = True) -> None:
+        """Give ``event`` to the sink, decided at ``decided_ns`` (default: the last step's stamp)."""
+        decided = self.last_stamp_ns if decided_ns is None else decided_ns
+        self.sink.boundary_out(event, decided, self.events["episodes"], log)
+        self.last_boundary = (event, decided)
+        self.events["boundaries"] += 1
+
+    # --- episodes --------------------------------------------------------------------------------
+    def start_episode(self, sketch: np.ndarray | None, count_bad: bool = True) -> bool:
+        """Reset the memory and every per-episode state (stamps included) for a new episode; an unusable
+        sketch stops the segmenter until the next start (counted with ``count_bad``, warned)."""
+        seg = self.segmenter
+        if seg is None:
+            return False
+        try:
+            self.begin_episode(sketch)
+        except SketchError as exc:
+            seg.stop()
+            if count_bad:
+                seg.count_rejection(BadSketch(str(exc)))
+            self.sink.warning(f"episode start rejected: {exc}; waiting for the next valid start")
+            return False
+        return True
+
+    def begin_episode(self, sketch: np.ndarray | None) -> None:
+        """:meth:`start_episode` that raises :class:`SketchError` for a sketch the model cannot use
+        (``None`` or empty: the latest sketch message, else the default sketch)."""
+        seg = self.segmenter
+        assert seg is not None
+        if sketch is None or sketch.size == 0:
+            sketch = self.latest_sketch if self.latest_sketch is not None else self.default_sketch
+        seg.reset(sketch)
+        seg.forget_stamps()
+        self.last_boundary = None
+        self.last_receive_ns = 0
+        self.last_stamp_ns = 0
+        self.episode_sketch = sketch
+
+    def close_episode(self, steps: int | None) -> None:
+        """Close the last segment at ``steps - 1`` (the marker's count; the last step seen if unknown).
+        The boundary last given to the sink comes again with ``final`` set when closing adds none."""
+        seg = self.segmenter
+        assert seg is not None
+        last = seg.step_index
+        if steps is not None and steps < last:  # fewer steps than observed: the marker is wrong
+            self.events["bad_end_markers"] += 1
+            self.sink.warning(
+                f"end marker says steps={steps} after {last + 1} observations: closing at the last step seen"
+            )
+            steps = None
+        closing = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
+        self.events["episodes_ended"] += 1
+        for event in closing:
+            self.emit_boundary(event)
+        if self.last_boundary is not None:
+            last_event, decided = self.last_boundary
+            for event in with_final([last_event])[1:]:
+                self.emit_boundary(event, decided_ns=decided)
+
+    def restart_episode(self) -> bool:
+        """A clock restart: close the open episode, start the next (counted); False if it cannot start."""
+        seg = self.segmenter
+        assert seg is not None
+        if seg.detector.steps_seen > 0 and not seg.detector.closed:
+            self.close_episode(None)
+        started = self.start_episode(self.episode_sketch, count_bad=False)
+        self.events["episode_starts"] += int(started)
+        return started
+
+    def end_at_pause(self) -> bool:
+        """``episode_gap``: close the open episode as an end marker would and start the next one."""
+        seg = self.segmenter
+        assert seg is not None
+        if seg.detector.steps_seen > 0 and not seg.detector.closed:
+            self.close_episode(None)
+        self.events["episode_gaps"] += 1
+        if self.silence is not None:
+            self.silence.rearm()
+        if self.idle is not None:
+            self.idle.reset()
+        return self.start_episode(self.episode_sketch, count_bad=False)
+
+    def check_silence(self) -> None:
+        """``episode_gap`` polled by a timer: end an open episode that had no step for that long."""
+        seg, watch = self.segmenter, self.silence
+        if seg is None or watch is None:
+            return
+        open_episode = seg.ready and seg.step_index >= 0 and not seg.detector.closed
+        if watch.quiet(self.clock(), seg.step_index, open_episode):
+            self.end_at_pause()
+
+    # --- markers, sketches, resets ---------------------------------------------------------------
+    def input_ends(self) -> None:
+        """Before an episode marker or a reset: with ``idle_s`` the held still observations end the
+        open episode as at the end of a bag (the first is its final observation, the others trimmed);
+        the next message is never a repeat of one before."""
+        self.repeats.forget()
+        if self.idle is not None:
+            self._idle_decided(self.idle.flush())
+
+    def marker(self, kind: str, values: Mapping[str, str]) -> None:
+        """An episode marker (``layout.EPISODE_START`` / ``EPISODE_END``) with its key-value pairs."""
+        seg = self.segmenter
+        assert seg is not None
+        self.events["markers"] += 1
+        self.input_ends()
+        if kind == layout.EPISODE_START:
+            self.start_marker(values.get(layout.KEY_SKETCH, ""))
+        elif kind == layout.EPISODE_END and seg.ready:
+            steps = _int_or_none(values.get(layout.KEY_STEPS, ""))
+            if not seg.detector.closed:
+                self.close_episode(steps)
+            self.start_episode(self.episode_sketch, count_bad=False)  # steps before the next start
+
+    def start_marker(self, text: str) -> None:
+        """A 'start' marker whose sketch value is ``text`` ('' = none: the latest sketch or the default)."""
+        seg = self.segmenter
+        assert seg is not None
+        vocab = getattr(seg.policy.config, "sketch_vocab", None) if seg.needs_sketch else None
+        try:
+            sketch = parse_sketch_value(text, None if vocab is None else int(vocab))
+        except SketchError as exc:
+            seg.count_rejection(BadSketch(str(exc)))
+            if seg.needs_sketch:
+                seg.stop()
+                self.sink.warning(f"episode start rejected: marker {exc}; waiting for the next valid start")
+                return
+            sketch = None  # this model ignores sketches: the episode starts anyway
+        self.latest_sketch = sketch if sketch is not None and sketch.size else None
+        if self.start_episode(sketch):
+            self.events["episode_starts"] += 1
+
+    def sketch_message(self, values: Any) -> None:
+        """A sketch message (subtask ids) for the coming episode; it restarts one that has no step yet."""
+        seg = self.segmenter
+        assert seg is not None
+        sketch = np.asarray(values, dtype=np.int64)
+        if seg.needs_sketch:
+            vocab = getattr(seg.policy.config, "sketch_vocab", None)
+            try:
+                sketch = validate_sketch(sketch, None if vocab is None else int(vocab))
+            except SketchError as exc:
+                seg.count_rejection(BadSketch(str(exc)))
+                self.sink.warn_throttled(f"sketch message rejected: {exc}")
+                return
+        self.latest_sketch = sketch
+        if not seg.ready or seg.step_index < 0:  # no step yet: the episode starts with this sketch
+            self.start_episode(sketch)
+
+    def reset(self) -> bool:
+        """A reset request: the held input ends, a new episode starts with this episode's sketch."""
+        self.input_ends()
+        started = self.start_episode(self.episode_sketch)
+        self.events["episode_starts"] += int(started)
+        return started
+
+
+def _int_or_none(text: str) -> int | None:
+    try:
+        return int(text)
+    except ValueError:
+        return None
