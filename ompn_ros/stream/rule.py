@@ -105,8 +105,8 @@ class StreamRule:
     """The stamp and episode rules over one segmenter, with the counters they keep (:attr:`events`).
 
     ``clock`` gives the receiver's clock in ns (0: unknown, the future check is off).  The segmenter
-    is set once the model is loaded (:attr:`segmenter`); every entry point but :meth:`reject` and
-    :meth:`receive_stamp` expects it.
+    is set once the model is loaded (:attr:`segmenter`); every entry point but :meth:`receive_stamp`
+    and :meth:`start_episode` expects it.
     """
 
     def __init__(self, sink: StreamSink, clock: Callable[[], int],
@@ -129,7 +129,7 @@ class StreamRule:
         """Start the pause and idle rules the limits ask for (the node: on activation)."""
         limits = self.limits
         self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
-        self.idle = IdleGate(limits.idle_ns, limits.idle_speed) if limits.idle_ns > 0 else None
+        self.idle = IdleGate(limits.idle_ns, limits.idle_speed) if float(limits.idle_s) > 0 else None
 
     def disarm(self) -> None:
         self.silence = self.idle = None
