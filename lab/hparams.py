@@ -34,7 +34,7 @@ from lab.hparams_figure import save_hparams_figure
 from lab.pipeline import State, prepare
 from lab.runs import run_setting
 from lab.spec import SETTINGS, ReproduceError, ReproduceSpec, RunSpec
-from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.cli._common import make_parser, run_cli
 
 SETTING = "full_nosketch"
 ROW_FILE = "hparams_row.json"
@@ -302,7 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             episodes=args.episodes or 0,
             threads=args.threads,
             reuse_runs=args.reuse_runs,
-            command=tuple(command_line("python -m lab.hparams", argv)),
+            command=tuple(args.command_line),
         )
         return write_report(sweep) if args.report else run_sweep(sweep)
 

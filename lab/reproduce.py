@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from lab import report
@@ -33,7 +33,7 @@ from lab.spec import (
     ReproduceError,
     ReproduceSpec,
 )
-from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.cli._common import make_parser, run_cli
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -134,44 +134,41 @@ def _add_modes(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return p
 
 
-def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
-    def body(args: argparse.Namespace) -> int:
-        logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
-        if args.report_only:
-            print(f"wrote {report.write_readme(args.results)}")
-            return 0
-        if args.domain is None:
-            raise ReproduceError("give a domain (craft or dial), or --report-only")
-        spec = ReproduceSpec.build(
-            args.domain,
-            settings=args.settings,
-            extras=args.extras,
-            members=args.members,
-            ablations=args.ablations,
-            seeds=args.seeds,
-            episodes=args.episodes,
-            data_seed=args.data_seed,
-            iterations=args.iterations,
-            test_ratio=args.test_ratio,
-            config=args.config,
-            work=args.work,
-            results=args.results,
-            threads=args.threads,
-            evaluate=args.evaluate,
-            reevaluate=args.reevaluate,
-            skip_trained=args.skip_trained,
-            merge=args.merge,
-            extras_only=args.extras_only,
-            ship=args.ship,
-            command=tuple(command_line("python -m lab.reproduce", argv)),
-        )
-        return reproduce(spec)
-
-    return body
+def _run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
+    if args.report_only:
+        print(f"wrote {report.write_readme(args.results)}")
+        return 0
+    if args.domain is None:
+        raise ReproduceError("give a domain (craft or dial), or --report-only")
+    spec = ReproduceSpec.build(
+        args.domain,
+        settings=args.settings,
+        extras=args.extras,
+        members=args.members,
+        ablations=args.ablations,
+        seeds=args.seeds,
+        episodes=args.episodes,
+        data_seed=args.data_seed,
+        iterations=args.iterations,
+        test_ratio=args.test_ratio,
+        config=args.config,
+        work=args.work,
+        results=args.results,
+        threads=args.threads,
+        evaluate=args.evaluate,
+        reevaluate=args.reevaluate,
+        skip_trained=args.skip_trained,
+        merge=args.merge,
+        extras_only=args.extras_only,
+        ship=args.ship,
+        command=tuple(args.command_line),
+    )
+    return reproduce(spec)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_cli(build_parser(), _body(argv), argv)
+    return run_cli(build_parser(), _run, argv)
 
 
 if __name__ == "__main__":

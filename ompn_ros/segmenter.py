@@ -28,63 +28,14 @@ from ompn_ros.detect.online import (
     expansion_score,
 )
 from ompn_ros.validate import (
-    EmptyObservation,
+    REJECT_REASONS,
+    EpisodeClosed,
     InvalidInput,
-    NonFiniteObservation,
+    MissingSketch,
+    OutOfOrderStamp,
     SketchError,
-    WrongObservationLength,
     validate_observation,
     validate_sketch,
-)
-
-
-class OutOfOrderStamp(InvalidInput):
-    reason = "out_of_order_stamp"
-
-
-class MissingSketch(InvalidInput):
-    reason = "no_sketch"
-
-
-class EpisodeClosed(InvalidInput):
-    reason = "episode_closed"
-
-
-class MalformedMessage(InvalidInput):
-    """The transport delivered bytes that do not decode as the expected message (raised by callers)."""
-
-    reason = "malformed"
-
-
-class BadStamp(InvalidInput):
-    """The stamp is not a valid ``builtin_interfaces/Time`` (raised by callers)."""
-
-    reason = "bad_stamp"
-
-
-class FutureStamp(InvalidInput):
-    """The stamp lies further ahead of the receiver's clock than allowed (raised by callers)."""
-
-    reason = "future_stamp"
-
-
-class BadSketch(InvalidInput):
-    """An episode start or sketch message carried a sketch the model cannot use (counted by callers)."""
-
-    reason = "bad_sketch"
-
-
-REJECT_REASONS = (
-    EmptyObservation.reason,
-    WrongObservationLength.reason,
-    NonFiniteObservation.reason,
-    OutOfOrderStamp.reason,
-    MissingSketch.reason,
-    EpisodeClosed.reason,
-    MalformedMessage.reason,
-    BadStamp.reason,
-    FutureStamp.reason,
-    BadSketch.reason,
 )
 
 

@@ -26,21 +26,61 @@ class SketchError(OMPNError, ValueError):
 
 
 class InvalidInput(OMPNError, ValueError):
-    """An observation was rejected without stepping the model. ``reason`` is the counter key."""
+    """An input was rejected without stepping the model. ``reason`` is the counter key.
+
+    Each kind of rejection is a subclass that names its key as a class keyword:
+    ``class EmptyObservation(InvalidInput, reason="empty")``.
+    """
 
     reason = "invalid"
 
-
-class EmptyObservation(InvalidInput):
-    reason = "empty"
-
-
-class WrongObservationLength(InvalidInput):
-    reason = "wrong_length"
+    def __init_subclass__(cls, *, reason: str, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.reason = reason
 
 
-class NonFiniteObservation(InvalidInput):
-    reason = "non_finite"
+class EmptyObservation(InvalidInput, reason="empty"):
+    """The observation has no values."""
+
+
+class WrongObservationLength(InvalidInput, reason="wrong_length"):
+    """The observation does not have the model's ``obs_dim`` values."""
+
+
+class NonFiniteObservation(InvalidInput, reason="non_finite"):
+    """The observation is not numeric or holds a NaN/Inf value."""
+
+
+class OutOfOrderStamp(InvalidInput, reason="out_of_order_stamp"):
+    """The stamp is not later than the episode's last accepted stamp."""
+
+
+class MissingSketch(InvalidInput, reason="no_sketch"):
+    """The model needs a sketch and no episode was started with one."""
+
+
+class EpisodeClosed(InvalidInput, reason="episode_closed"):
+    """The observation arrived after the episode was ended and before the next one started."""
+
+
+class MalformedMessage(InvalidInput, reason="malformed"):
+    """The transport delivered bytes that do not decode as the expected message (raised by callers)."""
+
+
+class BadStamp(InvalidInput, reason="bad_stamp"):
+    """The stamp is not a valid ``builtin_interfaces/Time`` (raised by callers)."""
+
+
+class FutureStamp(InvalidInput, reason="future_stamp"):
+    """The stamp lies further ahead of the receiver's clock than allowed (raised by callers)."""
+
+
+class BadSketch(InvalidInput, reason="bad_sketch"):
+    """An episode start or sketch message carried a sketch the model cannot use (counted by callers)."""
+
+
+REJECT_REASONS = tuple(kind.reason for kind in InvalidInput.__subclasses__())
+"""Every rejection counter key, in the order the kinds are declared above."""
 
 
 def validate_sketch(

@@ -11,7 +11,9 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.detect.duration import DurationDetector, fit_duration_model
 from ompn_ros.detect.errors import DurationModelError
 from ompn_ros.detect.online import DetectorConfig, OnlineDetector
-from ompn_ros.segmenter import (
+from ompn_ros.segmenter import StreamingSegmenter
+from ompn_ros.stream.replay import replay_episode
+from ompn_ros.validate import (
     EmptyObservation,
     EpisodeClosed,
     InvalidInput,
@@ -19,10 +21,8 @@ from ompn_ros.segmenter import (
     NonFiniteObservation,
     OutOfOrderStamp,
     SketchError,
-    StreamingSegmenter,
     WrongObservationLength,
 )
-from ompn_ros.stream.replay import replay_episode
 
 
 @dataclass

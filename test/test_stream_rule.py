@@ -18,9 +18,10 @@ from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
-from ompn_ros.segmenter import OutOfOrderStamp, StreamingSegmenter  # noqa: E402
+from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 from ompn_ros.stream.replay import StreamRecord, replay_stream  # noqa: E402
 from ompn_ros.stream.rule import StreamLimits  # noqa: E402
+from ompn_ros.validate import OutOfOrderStamp  # noqa: E402
 
 OBS_DIM = 6
 S = 1_000_000_000

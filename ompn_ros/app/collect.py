@@ -53,28 +53,33 @@ def part_name(index: int) -> str:
     return f"part_{index:03d}"
 
 
-def _settings(
-    domain: str,
-    tasks: Sequence[str],
-    episodes: int,
-    seed: int,
-    storage: str,
-    split_every: int | None,
-    partial: bool,
-    human: HumanLike | None,
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class _Plan:
+    """The options of one collection: checked by :func:`_check`, recorded by :func:`_settings`."""
+
+    domain: str
+    tasks: Sequence[str]
+    episodes: int
+    seed: int
+    storage: str
+    split_every: int | None
+    partial: bool
+    human: HumanLike | None
+
+
+def _settings(plan: _Plan) -> dict[str, Any]:
     settings: dict[str, Any] = {
-        "domain": domain,
-        "tasks": list(tasks),
-        "episodes": episodes,
-        "seed": seed,
-        "storage": storage,
-        "split_every": split_every,
-        "partial": partial,
+        "domain": plan.domain,
+        "tasks": list(plan.tasks),
+        "episodes": plan.episodes,
+        "seed": plan.seed,
+        "storage": plan.storage,
+        "split_every": plan.split_every,
+        "partial": plan.partial,
     }
-    if human is not None:  # expert collections keep the settings (and resume) of earlier versions
+    if plan.human is not None:  # expert collections keep the settings (and resume) of earlier versions
         settings["demonstrator"] = "human"
-        settings["human"] = human.as_dict()
+        settings["human"] = plan.human.as_dict()
     return settings
 
 
@@ -127,32 +132,10 @@ def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
     tmp.replace(out / MANIFEST)
 
 
-@dataclass(frozen=True)
-class _Plan:
-    """What one collection writes: the settings and the generator of its episodes."""
-
-    domain: str
-    tasks: Sequence[str]
-    episodes: int
-    seed: int
-    storage: str
-    partial: bool
-    generator: Generator
-    human: bool = False
-
-
-def _check(
-    domain: str,
-    tasks: Sequence[str],
-    episodes: int,
-    seed: int,
-    storage: str,
-    split_every: int | None,
-    partial: bool,
-    resume: bool,
-    overwrite: bool,
-) -> None:
+def _check(plan: _Plan, resume: bool, overwrite: bool) -> None:
     """Raise :class:`CollectError` naming the first bad option."""
+    domain, tasks, episodes, seed = plan.domain, plan.tasks, plan.episodes, plan.seed
+    storage, split_every, partial = plan.storage, plan.split_every, plan.partial
     if domain not in layout.DOMAINS:
         raise CollectError(f"unknown domain '{domain}', expected one of {sorted(layout.DOMAINS)}")
     if seed < 0:
@@ -176,7 +159,9 @@ def _check(
         raise CollectError("--resume and --overwrite exclude each other")
 
 
-def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) -> dict[str, Any]:
+def _write_part(
+    out: Path, k: int, indices: list[int], plan: _Plan, generator: Generator, bar: Any
+) -> dict[str, Any]:
     """Write the episodes ``indices`` as part ``k``: in a temporary directory, moved into place when
     complete.  The bag directory has its final name from the start, because rosbag2 names the storage
     file after it (``part_000/part_000.mcap``)."""
@@ -199,14 +184,14 @@ def _write_part(out: Path, k: int, indices: list[int], plan: _Plan, bar: Any) ->
         for i in indices:
             ep_seed = episode_seed(plan.seed, i)
             task = plan.tasks[i % len(plan.tasks)]
-            episode = plan.generator(ep_seed, task, plan.partial)
+            episode = generator(ep_seed, task, plan.partial)
             writer.write_episode(episode, episode_index=i)
             record["seeds"].append(ep_seed)
             record.setdefault("episode_seeds", []).append(int(episode.seed))
             record["tasks"].append(task)
             record["steps"] += episode.length
             record["successes"] += int(episode.success)
-            if plan.human:
+            if plan.human is not None:
                 copies = observation_copies(episode)
                 for key, count in (("dropped_observations", 0), ("duplicated_observations", 2)):
                     record[key] = record.get(key, 0) + int(sum(copies == count))
@@ -251,13 +236,12 @@ def collect(
     observation messages are absent from the bag, its duplicated ones written twice).  Returns the
     manifest (also written to ``out/collect.json``).
     """
-    _check(domain, tasks, episodes, seed, storage, split_every, partial, resume, overwrite)
+    plan = _Plan(domain, tasks, episodes, seed, storage, split_every, partial, human)
+    _check(plan, resume, overwrite)
     out = Path(out)
-    settings = _settings(domain, tasks, episodes, seed, storage, split_every, partial, human)
-    manifest = _prepare_output(out, settings, resume, overwrite)
+    manifest = _prepare_output(out, _settings(plan), resume, overwrite)
     manifest["command"] = list(command if command is not None else sys.argv)
     generate = generator or default_generator(domain, human)
-    plan = _Plan(domain, tasks, episodes, seed, storage, partial, generate, human is not None)
     per_part = split_every or episodes
     n_parts = (episodes + per_part - 1) // per_part
     done = {p["name"] for p in manifest["parts"]}
@@ -273,7 +257,7 @@ def collect(
     try:
         for k in todo:
             indices = list(range(k * per_part, min((k + 1) * per_part, episodes)))
-            manifest["parts"].append(_write_part(out, k, indices, plan, bar))
+            manifest["parts"].append(_write_part(out, k, indices, plan, generate, bar))
             manifest["parts"].sort(key=lambda p: p["name"])
             _write_manifest(out, manifest)
     finally:

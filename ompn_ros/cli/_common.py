@@ -67,8 +67,13 @@ def run_cli(
     body: Body,
     argv: Sequence[str] | None = None,
 ) -> int:
-    """Parse ``argv``, run ``body(args)`` and turn a known error into one line on stderr and exit code 2."""
+    """Parse ``argv``, run ``body(args)`` and turn a known error into one line on stderr and exit code 2.
+
+    ``args.command_line`` is the command as run (for provenance records): the parser's ``prog`` and
+    its arguments.
+    """
     args = parser.parse_args(None if argv is None else list(argv))
+    args.command_line = [parser.prog, *(sys.argv[1:] if argv is None else argv)]
     try:
         return body(args)
     except KNOWN_ERRORS as exc:
@@ -76,11 +81,6 @@ def run_cli(
             raise
         print(f"{parser.prog}: error: {error_line(exc)}", file=sys.stderr)
         return 2
-
-
-def command_line(prog: str, argv: Sequence[str] | None) -> list[str]:
-    """The command as run (for provenance records): ``prog`` and its arguments."""
-    return [prog, *(sys.argv[1:] if argv is None else argv)]
 
 
 def add_live_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:

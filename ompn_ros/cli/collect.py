@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from ompn_ros import layout
 from ompn_ros.app.collect import collect, default_generator
 from ompn_ros.app.errors import CollectError
-from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.data.recorder.bag_writer import STORAGES
 from sim_nodes.registry import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 
@@ -85,55 +85,52 @@ def _human(args: argparse.Namespace) -> HumanLike:
         raise CollectError(str(exc)) from exc
 
 
-def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
-    def body(args: argparse.Namespace) -> int:
-        if args.task:
-            tasks = [t.strip() for t in args.task.split(",") if t.strip()]
-        elif args.domain == "dial":
-            tasks = ["dial"]
-        else:
-            raise CollectError("--task is required for craft")
-        if args.human and args.demonstrator != "human":
-            raise CollectError("--human sets human-like parameters: add --demonstrator human")
-        human = _human(args) if args.demonstrator == "human" else None
-        # looked up here, so a test can replace this module's default_generator
-        manifest = collect(
-            args.out,
-            domain=args.domain,
-            tasks=tasks,
-            episodes=args.episodes,
-            seed=args.seed,
-            storage=args.storage,
-            split_every=args.split_every,
-            partial=args.partial,
-            resume=args.resume,
-            overwrite=args.overwrite,
-            progress=not args.quiet,
-            generator=default_generator(args.domain, human),
-            human=human,
-            command=command_line("ompn_collect", argv),
-        )
-        t = manifest["totals"]
-        print(
-            f"wrote {t['episodes']} episodes ({t['steps']} steps, {t['successes']} successful, "
-            f"{t['messages']} messages) in {t['parts']} part(s) under {args.out}"
-        )
-        if human is not None:
-            dropped = sum(p.get("dropped_observations", 0) for p in manifest["parts"])
-            doubled = sum(p.get("duplicated_observations", 0) for p in manifest["parts"])
-            how = ("the presets read them (duplicates are read once)" if not dropped else
-                   "read the bags with 'strict: false' in the reader spec (a dropped observation's step "
-                   "is lost)")
-            print(f"human-like: {dropped} observation messages dropped, {doubled} duplicated; {how} "
-                  "(docs/dial.md §3.9)")
-        return 0
-
-    return body
+def _run(args: argparse.Namespace) -> int:
+    if args.task:
+        tasks = [t.strip() for t in args.task.split(",") if t.strip()]
+    elif args.domain == "dial":
+        tasks = ["dial"]
+    else:
+        raise CollectError("--task is required for craft")
+    if args.human and args.demonstrator != "human":
+        raise CollectError("--human sets human-like parameters: add --demonstrator human")
+    human = _human(args) if args.demonstrator == "human" else None
+    # looked up here, so a test can replace this module's default_generator
+    manifest = collect(
+        args.out,
+        domain=args.domain,
+        tasks=tasks,
+        episodes=args.episodes,
+        seed=args.seed,
+        storage=args.storage,
+        split_every=args.split_every,
+        partial=args.partial,
+        resume=args.resume,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        generator=default_generator(args.domain, human),
+        human=human,
+        command=args.command_line,
+    )
+    t = manifest["totals"]
+    print(
+        f"wrote {t['episodes']} episodes ({t['steps']} steps, {t['successes']} successful, "
+        f"{t['messages']} messages) in {t['parts']} part(s) under {args.out}"
+    )
+    if human is not None:
+        dropped = sum(p.get("dropped_observations", 0) for p in manifest["parts"])
+        doubled = sum(p.get("duplicated_observations", 0) for p in manifest["parts"])
+        how = ("the presets read them (duplicates are read once)" if not dropped else
+               "read the bags with 'strict: false' in the reader spec (a dropped observation's step "
+               "is lost)")
+        print(f"human-like: {dropped} observation messages dropped, {doubled} duplicated; {how} "
+              "(docs/dial.md §3.9)")
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point; returns the exit status (2 on a usage/output problem)."""
-    return run_cli(build_parser(), _body(argv), argv)
+    return run_cli(build_parser(), _run, argv)
 
 
 if __name__ == "__main__":

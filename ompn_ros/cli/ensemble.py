@@ -15,10 +15,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
-from ompn_ros.cli._common import command_line, make_parser, run_cli
+from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
 from ompn_ros.model.checkpoint import load_config
 from ompn_ros.model.ensemble import write_ensemble
@@ -31,25 +31,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _body(argv: Sequence[str] | None) -> Callable[[argparse.Namespace], int]:
-    def body(args: argparse.Namespace) -> int:
-        target = write_ensemble(args.out, args.members, {"command": command_line("ompn_ensemble", argv)})
-        first = load_detector_settings(args.members[0])
-        save_detector_settings(args.out, dataclasses.replace(
-            first, provenance=f"first member's settings ({args.members[0]}); tune the ensemble with "
-            "ompn_segment --tune --write-config"))
-        config = load_config(args.members[0])
-        print(
-            f"wrote {target}: {len(args.members)} members, obs_dim={config.obs_dim} n_slots={config.n_slots} "
-            f"action={config.action_type}({config.action_dim}) sketch_mode={config.sketch_mode}"
-        )
-        return 0
-
-    return body
+def _run(args: argparse.Namespace) -> int:
+    target = write_ensemble(args.out, args.members, {"command": args.command_line})
+    first = load_detector_settings(args.members[0])
+    save_detector_settings(args.out, dataclasses.replace(
+        first, provenance=f"first member's settings ({args.members[0]}); tune the ensemble with "
+        "ompn_segment --tune --write-config"))
+    config = load_config(args.members[0])
+    print(
+        f"wrote {target}: {len(args.members)} members, obs_dim={config.obs_dim} n_slots={config.n_slots} "
+        f"action={config.action_type}({config.action_dim}) sketch_mode={config.sketch_mode}"
+    )
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_cli(build_parser(), _body(argv), argv)
+    return run_cli(build_parser(), _run, argv)
 
 
 if __name__ == "__main__":

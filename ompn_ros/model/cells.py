@@ -26,7 +26,20 @@ def plain_layer_norm(x: Tensor) -> Tensor:
     return F.layer_norm(x, (x.shape[-1],), eps=LN_EPS)
 
 
-class ComCell(nn.Module):
+class GatedCell(nn.Module):
+    """The layers of a gated cell with ``gates`` gates over ``inputs`` input blocks of size H:
+    ``fc1``: Linear(inputs·H -> 4H), ``fc2``: Linear(4H -> (gates + 1)·H) -> ``[g (gates·H); c (H)]``,
+    ``gate_norm``: the affine LayerNorm of ``g`` (the layout of the module docstring)."""
+
+    def __init__(self, hidden: int, inputs: int, gates: int) -> None:
+        super().__init__()
+        self.hidden = hidden
+        self.fc1 = nn.Linear(inputs * hidden, 4 * hidden)
+        self.fc2 = nn.Linear(4 * hidden, (gates + 1) * hidden)
+        self.gate_norm = nn.LayerNorm(gates * hidden, eps=LN_EPS)
+
+
+class ComCell(GatedCell):
     """Bottom-up cell C_i = F(C_{i-1}, x, M^{t-1}_i) (paper §3.1).
 
     ``z = W2 ReLU(W1 [v; h; u] + b1) + b2``; ``z = [g (3H), c (H)]``;
@@ -34,11 +47,7 @@ class ComCell(nn.Module):
     """
 
     def __init__(self, hidden: int) -> None:
-        super().__init__()
-        self.hidden = hidden
-        self.fc1 = nn.Linear(4 * hidden, 4 * hidden)
-        self.fc2 = nn.Linear(4 * hidden, 4 * hidden)
-        self.gate_norm = nn.LayerNorm(3 * hidden, eps=LN_EPS)
+        super().__init__(hidden, inputs=4, gates=3)
 
     def forward(self, v: Tensor, h: Tensor, u: Tensor) -> Tensor:
         z = self.fc2(F.relu(self.fc1(torch.cat([v, h, u], dim=-1))))
@@ -47,7 +56,7 @@ class ComCell(nn.Module):
         return plain_layer_norm(g_v * v + g_h * h + g_c * c)
 
 
-class DecomCell(nn.Module):
+class DecomCell(GatedCell):
     """Top-down cell M_hat_{i-1} = h(p, x) with p = rcp_i C_i + (1 - rcp_i) M_hat_i (paper §3.1).
 
     ``z = W2 ReLU(W1 [p; u] + b1) + b2``; ``z = [g (2H), c (H)]``; ``[g_p, g_c] = sigmoid(LN_aff(g))``;
@@ -55,11 +64,7 @@ class DecomCell(nn.Module):
     """
 
     def __init__(self, hidden: int) -> None:
-        super().__init__()
-        self.hidden = hidden
-        self.fc1 = nn.Linear(3 * hidden, 4 * hidden)
-        self.fc2 = nn.Linear(4 * hidden, 3 * hidden)
-        self.gate_norm = nn.LayerNorm(2 * hidden, eps=LN_EPS)
+        super().__init__(hidden, inputs=3, gates=2)
 
     def forward(self, p: Tensor, u: Tensor) -> Tensor:
         z = self.fc2(F.relu(self.fc1(torch.cat([p, u], dim=-1))))

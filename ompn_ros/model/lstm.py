@@ -23,8 +23,6 @@ consumers work for both architectures.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -57,12 +55,7 @@ class LSTMPolicy(PolicyInputs, nn.Module):
         discrete = config.action_type == "discrete"
         self.head = nn.Linear(3 * m, config.action_dim + 1 if discrete else config.action_dim)
         self.done_head: nn.Linear | None = None if discrete else nn.Linear(3 * m, 1)
-        self.sketch_embedding: nn.Embedding | None = None
-        if config.sketch_mode == "sum":
-            self.sketch_embedding = nn.Embedding(config.sketch_vocab + 1, m, padding_idx=0)
-        self.register_buffer("obs_mean", torch.zeros(config.obs_dim))
-        self.register_buffer("obs_scale", torch.ones(config.obs_dim))
-        self.register_action_norm()
+        self.register_inputs()
 
     # --- inputs (same contract as OMPNPolicy) ------------------------------------------------------
     def encode_obs(self, obs: Tensor) -> Tensor:
@@ -94,22 +87,12 @@ class LSTMPolicy(PolicyInputs, nn.Module):
         pi[..., -1] = 1.0
         return p_hat, pi
 
-    def forward_sequence(
-        self,
-        obs: Tensor,
-        mask: Tensor,
-        sketch: Tensor | None = None,
-        bptt: int = 64,
-        impl: Literal["fused", "reference"] = "fused",
-        bf16: bool = False,
+    def _sequence(
+        self, obs: Tensor, mask: Tensor, sketch: Tensor | None, bptt: int, impl: str, bf16: bool
     ) -> SequenceOutput:
-        """Run whole episodes from their first step (teacher forcing); padded steps hold zeros.
-
-        ``impl`` is accepted for interface compatibility (both values run ``nn.LSTM``); ``bf16`` is
-        ignored (the LSTM always runs in float32).  ``(h, c)`` is detached every ``bptt`` steps.
-        """
+        """:meth:`PolicyInputs.forward_sequence` after its obs check; ``(h, c)`` is detached every
+        ``bptt`` steps, ``impl`` only checked and ``bf16`` ignored (both values run ``nn.LSTM``)."""
         del bf16
-        self._check_obs(obs, 3)
         if impl not in ("fused", "reference"):
             raise ModelInputError(f"impl must be 'fused' or 'reference', got {impl!r}")
         self._check_sequence(obs, mask, bptt)  # the prefix layout: padding follows valid steps, so causality

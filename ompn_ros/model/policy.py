@@ -133,12 +133,21 @@ class PolicyInputs:
             self.obs_mean.copy_(mean_t)
             self.obs_scale.copy_(scale_t)
 
-    def register_action_norm(self) -> None:
-        """With ``config.action_norm='standard'``: the buffers ``action_mean`` (zeros) and ``action_std``
-        (ones), size ``action_dim``; nothing otherwise, so older checkpoints keep their tensor set."""
-        if self.config.action_norm == "standard":
-            cast(nn.Module, self).register_buffer("action_mean", torch.zeros(self.config.action_dim))
-            cast(nn.Module, self).register_buffer("action_std", torch.ones(self.config.action_dim))
+    def register_inputs(self) -> None:
+        """The sketch embedding (``sketch_mode='sum'``, else None), the ``obs_mean`` / ``obs_scale``
+        buffers and, with ``config.action_norm='standard'``, the buffers ``action_mean`` (zeros) and
+        ``action_std`` (ones) of size ``action_dim`` (none otherwise, so older checkpoints keep their
+        tensor set).  A policy's ``__init__`` calls it after its layers, so parameters keep their
+        order and initialisation."""
+        config, module = self.config, cast(nn.Module, self)
+        self.sketch_embedding = None
+        if config.sketch_mode == "sum":
+            self.sketch_embedding = nn.Embedding(config.sketch_vocab + 1, config.slot_size, padding_idx=0)
+        module.register_buffer("obs_mean", torch.zeros(config.obs_dim))
+        module.register_buffer("obs_scale", torch.ones(config.obs_dim))
+        if config.action_norm == "standard":
+            module.register_buffer("action_mean", torch.zeros(config.action_dim))
+            module.register_buffer("action_std", torch.ones(config.action_dim))
 
     def set_action_normalization(self, mean: np.ndarray, std: np.ndarray) -> None:
         """Store the action standardisation of ``action_norm='standard'``: the head predicts
@@ -208,6 +217,36 @@ class PolicyInputs:
         # Domain ids start at 0 (Dial digits), so the embedding table reserves row 0 for padding.
         return self.sketch_embedding(sketch.long() + 1).sum(dim=1)
 
+    def forward_sequence(
+        self,
+        obs: Tensor,
+        mask: Tensor,
+        sketch: Tensor | None = None,
+        bptt: int = 64,
+        impl: Literal["fused", "reference"] = "fused",
+        bf16: bool = False,
+    ) -> SequenceOutput:
+        """Run whole episodes from their first step (teacher forcing); padded steps of the output hold zeros.
+
+        Args:
+            obs: ``[B, T, D]`` float; padded steps may hold anything (they never affect valid steps).
+            mask: ``[B, T]`` bool, valid steps; each row must be a prefix (episode starts at t=0).
+            sketch: ``[B, K]`` int64 subtask ids (0 = padding), required iff sketch_mode='sum'.
+            bptt: the memory is detached after every ``bptt`` steps (truncated BPTT).
+            impl: ``'fused'`` (fast, length-sorted, fused matmuls) or ``'reference'`` (loops :meth:`step`);
+                the LSTM accepts both and runs ``nn.LSTM`` for either.
+            bf16: training speed option of the OMPN fused path: run the cell matmuls in bfloat16 autocast
+                (outputs, memory, norms and the loss inputs stay float32; not for inference); the LSTM
+                ignores it (it always runs in float32).
+        """
+        self._check_obs(obs, 3)
+        return self._sequence(obs, mask, sketch, bptt, impl, bf16)
+
+    def _sequence(
+        self, obs: Tensor, mask: Tensor, sketch: Tensor | None, bptt: int, impl: str, bf16: bool
+    ) -> SequenceOutput:
+        raise NotImplementedError
+
     def _check_obs(self, obs: Tensor, ndim: int) -> None:
         if obs.dim() != ndim or obs.shape[-1] != self.config.obs_dim:
             want = "[B, D]" if ndim == 2 else "[B, T, D]"
@@ -244,12 +283,7 @@ class OMPNPolicy(PolicyInputs, nn.Module):
         self.decom_cells = nn.ModuleList([DecomCell(m) for _ in range(n - 1)])  # slots 2..n
         self.score = ScoreMLP(m)
         self.head = nn.Linear(3 * m, config.action_dim)
-        self.sketch_embedding: nn.Embedding | None = None
-        if config.sketch_mode == "sum":
-            self.sketch_embedding = nn.Embedding(config.sketch_vocab + 1, m, padding_idx=0)
-        self.register_buffer("obs_mean", torch.zeros(config.obs_dim))
-        self.register_buffer("obs_scale", torch.ones(config.obs_dim))
-        self.register_action_norm()
+        self.register_inputs()
 
     @property
     def com_list(self) -> list[ComCell]:
@@ -351,27 +385,10 @@ class OMPNPolicy(PolicyInputs, nn.Module):
                 new_slots.append(r * cand[i] + (1 - r) * m_hat[i])
         return new_slots
 
-    def forward_sequence(
-        self,
-        obs: Tensor,
-        mask: Tensor,
-        sketch: Tensor | None = None,
-        bptt: int = 64,
-        impl: Literal["fused", "reference"] = "fused",
-        bf16: bool = False,
+    def _sequence(
+        self, obs: Tensor, mask: Tensor, sketch: Tensor | None, bptt: int, impl: str, bf16: bool
     ) -> SequenceOutput:
-        """Run whole episodes from their first step (teacher forcing).
-
-        Args:
-            obs: ``[B, T, D]`` float; padded steps may hold anything (they never affect valid steps).
-            mask: ``[B, T]`` bool, valid steps; each row must be a prefix (episode starts at t=0).
-            sketch: ``[B, K]`` int64 subtask ids (0 = padding), required iff sketch_mode='sum'.
-            bptt: the memory is detached after every ``bptt`` steps (truncated BPTT).
-            impl: ``'fused'`` (fast, length-sorted, fused matmuls) or ``'reference'`` (loops :meth:`step`).
-            bf16: training speed option of the fused path: run the cell matmuls in bfloat16 autocast
-                (outputs, memory, norms and the loss inputs stay float32; not for inference).
-        """
-        self._check_obs(obs, 3)
+        """:meth:`PolicyInputs.forward_sequence` after its obs check: the fused path or the step loop."""
         obs = obs.to(self.encoder.weight.dtype)
         lengths = self._check_sequence(obs, mask, bptt)
         if impl == "fused":

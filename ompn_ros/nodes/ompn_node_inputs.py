@@ -22,8 +22,7 @@ from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, JointInput, drop_line
 from ompn_ros.nodes.ompn_node_outputs import NodeOutputs
 from ompn_ros.nodes.ompn_node_params import input_qos
-from ompn_ros.segmenter import BadStamp, MalformedMessage
-from ompn_ros.validate import InvalidInput, WrongObservationLength
+from ompn_ros.validate import BadStamp, InvalidInput, MalformedMessage, WrongObservationLength
 
 MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
 

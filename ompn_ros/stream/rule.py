@@ -36,9 +36,9 @@ from ompn_ros import layout
 from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.data.repeats import Repeats
 from ompn_ros.detect.online import BoundaryEvent, with_final
-from ompn_ros.segmenter import BadSketch, FutureStamp, SegmenterOutput, StreamingSegmenter
+from ompn_ros.segmenter import SegmenterOutput, StreamingSegmenter
 from ompn_ros.stream.gap import IdleGate, SilenceWatch
-from ompn_ros.validate import InvalidInput, SketchError, validate_sketch
+from ompn_ros.validate import BadSketch, FutureStamp, InvalidInput, SketchError, validate_sketch
 
 __all__ = ["StampClass", "StreamLimits", "StreamRule", "StreamSink", "classify_stamp"]
 

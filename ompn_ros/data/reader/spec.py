@@ -6,9 +6,10 @@ The YAML form (``config/reader_*.yaml``) holds the same keys under an optional `
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import yaml
 
@@ -16,6 +17,8 @@ from ompn_ros import layout
 
 from ..errors import ObservationSpecError, ReaderSpecError
 from ..obs.spec import ObservationSpec
+
+T = TypeVar("T")
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
@@ -273,10 +276,7 @@ class ReaderSpec:
                 kwargs[key] = _vector_source(key, kwargs[key])
         if kwargs.get("assemble") is not None:
             kwargs["assemble"] = _observation_spec(kwargs["assemble"])
-        try:
-            return cls(**kwargs)
-        except TypeError as err:
-            raise ReaderSpecError(f"bad reader spec: {err}") from err
+        return _build(cls, kwargs, "reader spec")
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> ReaderSpec:
@@ -326,7 +326,12 @@ def _vector_source(key: str, value: Any) -> VectorSource:
         value["fields"] = tuple(value["fields"])
     if value.get("joint_names") is not None:
         value["joint_names"] = tuple(value["joint_names"])
+    return _build(VectorSource, value, f"'{key}' entry")
+
+
+def _build(kind: Callable[..., T], kwargs: dict[str, Any], what: str) -> T:
+    """``kind(**kwargs)``; a missing or unknown key raises :class:`ReaderSpecError` ``bad <what>: ...``."""
     try:
-        return VectorSource(**value)
+        return kind(**kwargs)
     except TypeError as err:
-        raise ReaderSpecError(f"bad '{key}' entry: {err}") from err
+        raise ReaderSpecError(f"bad {what}: {err}") from err
