@@ -26,11 +26,15 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
 from ompn_ros.app.errors import ClosedLoopError
+from ompn_ros.model.build import PolicyModule
+from ompn_ros.model.checkpoint import load_checkpoint
+from ompn_ros.model.load import build_stepper
 from sim_nodes.registry import CRAFT_TASKS, CraftEnv, DialEnv, dial_episode_sketch
 
 EVAL_SEED_BASE = 10_000
@@ -106,6 +110,20 @@ def eval_seeds(n: int, base: int = EVAL_SEED_BASE) -> list[int]:
     if not isinstance(n, int) or n < 1:
         raise ClosedLoopError(f"number of evaluation episodes must be a positive int, got {n!r}")
     return list(range(base, base + n))
+
+
+def load_evaluated(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
+    """The policy of checkpoint ``path`` and its record in the evaluation report (the checkpoint, its
+    model config and the training iteration it was saved at)."""
+    policy, extra = load_checkpoint(path)
+    record = {"checkpoint": str(path), "config": policy.config.to_dict(), "iteration": extra.get("iteration")}
+    return policy, record
+
+
+def policy_agent(policy: PolicyModule) -> Agent:
+    """The in-process agent of ``policy``: its streaming stepper
+    (:func:`ompn_ros.model.load.build_stepper`)."""
+    return build_stepper(policy)
 
 
 def agent_uses_sketch(agent: Any) -> bool:

@@ -25,7 +25,17 @@ from ompn_ros import layout
 from ompn_ros.app.errors import CollectError
 from ompn_ros.data.episode import Episode, observation_copies
 from ompn_ros.data.recorder.bag_writer import STORAGES, EpisodeBagWriter
-from sim_nodes.registry import DOMAINS, HumanLike, UnknownDomainError, check_task, derive_seed, expert_episode
+from sim_nodes.registry import DEMONSTRATORS as DEMONSTRATORS  # ompn_collect's --demonstrator choices
+from sim_nodes.registry import (
+    DOMAINS,
+    HumanLike,
+    HumanLikeError,
+    UnknownDomainError,
+    check_task,
+    derive_seed,
+    expert_episode,
+    parse_human,
+)
 
 MANIFEST = "collect.json"
 Generator = Callable[[int, str, bool], Episode]
@@ -47,6 +57,15 @@ def default_generator(domain: str, human: HumanLike | None = None) -> Generator:
         return expert_episode(domain, seed, task=task, partial=partial, human=human)
 
     return generate
+
+
+def human_settings(domain: str, items: Sequence[str]) -> HumanLike:
+    """The human-like demonstrator's parameters of ``domain`` from ``NAME=VALUE`` items (a bad one:
+    :class:`CollectError` naming it)."""
+    try:
+        return parse_human(domain, items)
+    except HumanLikeError as exc:
+        raise CollectError(str(exc)) from exc
 
 
 def part_name(index: int) -> str:

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import boundaries_from_labels
 from ompn_ros.data.messages import SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import expansion_scores
@@ -27,6 +28,9 @@ from ompn_ros.metrics import alignment_accuracy, f1_with_tolerance
 from ompn_ros.paths import config_file
 from ompn_ros.plotting import plot_episode
 from ompn_ros.ros.env import child_env
+
+DOMAINS = layout.DOMAINS
+"""The simulators the demo runs (the choices of its ``--domain``)."""
 
 
 @dataclass
@@ -307,7 +311,7 @@ def stop(procs: list[subprocess.Popen[bytes]]) -> None:
 
 def run_demo(
     domain: str,
-    checkpoint: Path,
+    checkpoint: Path | None,
     episodes: int,
     rate: float,
     seed: int,
@@ -317,7 +321,9 @@ def run_demo(
     params_file: Path | None = None,
     sim_params: Sequence[str] = (),
 ) -> int:
-    """Launch, monitor and summarise a live run; returns 0, or 1 when no episode was observed."""
+    """Launch, monitor and summarise a live run of ``checkpoint`` (none: the shipped checkpoint of
+    ``domain``); returns 0, or 1 when no episode was observed."""
+    checkpoint = checkpoint or shipped_checkpoint(domain)
     start = time.perf_counter()
     procs, env = launch(domain, checkpoint, rate, seed, episodes, node_name, params_file, sim_params)
     try:

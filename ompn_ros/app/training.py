@@ -29,6 +29,7 @@ from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
 from ompn_ros.train.config import TrainConfig
+from ompn_ros.train.device import resolve_device
 from ompn_ros.train.distributed import DistContext, broadcast_text, init_distributed, shutdown
 from ompn_ros.train.synthetic import SyntheticKind, make_dataset, synthetic_spec
 from ompn_ros.train.trainer import train
@@ -96,6 +97,12 @@ def apply_overrides(config: dict[str, dict[str, Any]], overrides: list[str]) -> 
             config[section][key] = _number_or_text(yaml.safe_load(text))
         except yaml.YAMLError as exc:
             raise TrainSetupError(f"--set {item!r}: value is not valid YAML: {exc}") from exc
+
+
+def check_device(config: dict[str, dict[str, Any]]) -> None:
+    """Refuse the configured ``train.device`` when this machine lacks it ('cuda' without a GPU): one line,
+    before any bag is read."""
+    resolve_device(str(config["train"].get("device", "auto")))
 
 
 def prepare_out_dir(out: Path, resume: bool, overwrite: bool) -> None:

@@ -16,10 +16,7 @@ from ompn_ros.app import batch_table
 from ompn_ros.app.batch import BatchSettings, run_batch
 from ompn_ros.app.batch_bags import BatchBag, list_bags
 from ompn_ros.app.errors import ReplayError
-from ompn_ros.detect.settings import resolve_detector
-from ompn_ros.detect.tune import load_detector_yaml
-from ompn_ros.model.errors import CheckpointError
-from ompn_ros.model.load import stepper_from_checkpoint
+from ompn_ros.app.segment_setup import detector_settings, load_stepper
 
 SOME_REFUSED = 1
 """Exit status of a batch run in which some bags were refused (2: the run itself could not start)."""
@@ -56,12 +53,8 @@ def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
 def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     """Segment the bags of ``--bags`` on ``device`` ('cpu' or 'cuda'); 0 when every bag was segmented,
     :data:`SOME_REFUSED` otherwise."""
-    try:  # a bad checkpoint refuses the run, not every bag
-        stepper_from_checkpoint(args.checkpoint, "jit" if device == "cpu" else "torch", device)
-    except CheckpointError as exc:
-        raise ReplayError(f"--checkpoint: {exc}") from exc
-    explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
-    detector, line = resolve_detector(args.checkpoint, explicit, f"--detector-config {args.detector_config}")
+    load_stepper(args.checkpoint, device)  # a bad checkpoint refuses the run, not every bag
+    detector, line = detector_settings(args.checkpoint, args.detector_config)
     print(f"ompn_segment: {line}", file=sys.stderr)
     settings = BatchSettings(
         checkpoint=args.checkpoint, detector=detector.online, duration_model=detector.duration_model,

@@ -29,13 +29,13 @@ from ompn_ros.app.closed_loop import (
     RandomAgent,
     eval_seeds,
     format_table,
+    load_evaluated,
+    policy_agent,
     run_closed_loop,
 )
 from ompn_ros.app.closed_loop_ros import ros_eval_seeds, run_ros_closed_loop
 from ompn_ros.app.errors import ClosedLoopError, RosEvalError
 from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.model.checkpoint import load_checkpoint
-from ompn_ros.model.load import build_stepper
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,18 +82,17 @@ def _evaluate(args: argparse.Namespace, meta: dict[str, Any]) -> dict[str, Close
     results: dict[str, ClosedLoopReport] = {}
     names: dict[str, str] = {}
     for path in args.checkpoint:
-        policy, extra = load_checkpoint(path)
+        policy, meta_record = load_evaluated(path)
         name = f"{policy.config.arch}:{Path(path).resolve().parent.name}/{Path(path).name}"
         names[path] = name if name not in names.values() else f"{name}#{len(names)}"
-        meta[names[path]] = {"checkpoint": str(path), "config": policy.config.to_dict(),
-                             "iteration": extra.get("iteration")}  # fmt: skip
+        meta[names[path]] = meta_record
         if args.ros:
             results[names[path]] = run_ros_closed_loop(
                 args.domain, path, episodes=args.episodes, timeout=args.timeout, **_ros_options(args)
             )
         else:
             results[names[path]] = run_closed_loop(
-                args.domain, build_stepper(policy), episodes=args.episodes, **_options(args)
+                args.domain, policy_agent(policy), episodes=args.episodes, **_options(args)
             )
     if args.baselines and not args.ros:
         agent = (RandomAgent(n_actions=5, seed=0) if args.domain == "craft"

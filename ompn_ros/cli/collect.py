@@ -19,12 +19,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from ompn_ros import layout
-from ompn_ros.app.collect import collect, default_generator
+from ompn_ros.app.collect import DEMONSTRATORS, DOMAINS, STORAGES, collect, default_generator, human_settings
 from ompn_ros.app.errors import CollectError
 from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.data.recorder.bag_writer import STORAGES
-from sim_nodes.registry import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 
 __all__ = ["build_parser", "main"]
 
@@ -32,7 +29,7 @@ __all__ = ["build_parser", "main"]
 def build_parser() -> argparse.ArgumentParser:
     parser = make_parser("ompn_collect", __doc__.split("\n\n")[0])
     parser.add_argument(
-        "--domain", required=True, choices=sorted(layout.DOMAINS), help="which simulator's expert"
+        "--domain", required=True, choices=sorted(DOMAINS), help="which simulator's expert"
     )
     parser.add_argument(
         "--task",
@@ -77,14 +74,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _human(args: argparse.Namespace) -> HumanLike:
-    """The human-like parameters of ``--human`` (a bad one: :class:`CollectError` naming it)."""
-    try:
-        return parse_human(args.domain, args.human)
-    except HumanLikeError as exc:
-        raise CollectError(str(exc)) from exc
-
-
 def _run(args: argparse.Namespace) -> int:
     if args.task:
         tasks = [t.strip() for t in args.task.split(",") if t.strip()]
@@ -94,7 +83,7 @@ def _run(args: argparse.Namespace) -> int:
         raise CollectError("--task is required for craft")
     if args.human and args.demonstrator != "human":
         raise CollectError("--human sets human-like parameters: add --demonstrator human")
-    human = _human(args) if args.demonstrator == "human" else None
+    human = human_settings(args.domain, args.human) if args.demonstrator == "human" else None
     # looked up here, so a test can replace this module's default_generator
     manifest = collect(
         args.out,

@@ -13,15 +13,12 @@ on labelled episodes none of the members was trained on stores them there.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ompn_ros.app.ensemble import write_ensemble_dir
 from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
-from ompn_ros.model.checkpoint import load_config
-from ompn_ros.model.ensemble import write_ensemble
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,12 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    target = write_ensemble(args.out, args.members, {"command": args.command_line})
-    first = load_detector_settings(args.members[0])
-    save_detector_settings(args.out, dataclasses.replace(
-        first, provenance=f"first member's settings ({args.members[0]}); tune the ensemble with "
-        "ompn_segment --tune --write-config"))
-    config = load_config(args.members[0])
+    target, config = write_ensemble_dir(args.out, args.members, {"command": args.command_line})
     print(
         f"wrote {target}: {len(args.members)} members, obs_dim={config.obs_dim} n_slots={config.n_slots} "
         f"action={config.action_type}({config.action_dim}) sketch_mode={config.sketch_mode}"

@@ -12,8 +12,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from ompn_ros.cli._common import add_live_demo_arguments, make_parser, run_cli
-from ompn_ros.cli._live import run_live_demo
+from ompn_ros.cli._common import make_parser, run_cli
+from ompn_ros.cli._live import add_live_demo_arguments, run_live_demo
 
 __all__ = ["build_parser", "main"]
 

@@ -29,28 +29,21 @@ from pathlib import Path
 
 import torch
 
-from ompn_ros.app import replay
+from ompn_ros.app import replay, segment_setup
+from ompn_ros.app.detector_tuning import Tuned, tune_detector, write_tuned
 from ompn_ros.app.errors import ReplayError
 from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.replay import replay_all
+from ompn_ros.app.segment_setup import (
+    DEFAULT_OBJECTIVE,
+    DEVICES,
+    DURATION_DELAY,
+    DURATION_LAG,
+    MAX_LAG,
+    OBJECTIVES,
+)
 from ompn_ros.cli._batch import add_batch_arguments, check_batch_arguments, run_batch_cli
 from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.data.episode import Episode
-from ompn_ros.detect.online import MAX_LAG
-from ompn_ros.detect.settings import resolve_detector
-from ompn_ros.detect.tune import (
-    DEFAULT_OBJECTIVE,
-    OBJECTIVES,
-    choose_on_replays,
-    default_grid,
-    load_detector_yaml,
-    score_online,
-    write_node_config,
-)
-from ompn_ros.model.errors import CheckpointError
-from ompn_ros.model.load import stepper_from_checkpoint
-from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG, duration_detector, pick_online
-from ompn_ros.train.device import DEVICES, resolve_device
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -141,66 +134,36 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _episodes(args: argparse.Namespace) -> list[Episode]:
-    if args.bag:
-        result = replay.read_bag_episodes(args.bag, args.reader_config, args.domain, args.on_error)
-        print(result.report.summary(), file=sys.stderr)
-        if not args.tune:
-            write_read_report(Path(args.out), replay.read_report_doc(result, args.on_error))
-        return list(result.episodes)
-    if args.generate:
-        return replay.generate_episodes(args.domain or "", args.generate, args.seed)
-    raise ReplayError("give --bag PATH or --generate N --domain D")
-
-
-def _tune(args: argparse.Namespace, policy: object, episodes: list[Episode]) -> int:
-    objective = args.objective or DEFAULT_OBJECTIVE.get(args.domain or "", "f1")
-    replays = replay_all(policy, episodes, default_grid()[0])
-    replay.check_finite(replays, episodes)
-    threshold, metrics, comparison = choose_on_replays(replays, episodes, objective=objective)
-    duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], args.lag,
-                                  args.max_delay)
-    model = None if duration is None else duration.model
-    best, figures = pick_online(threshold, metrics, duration)
-    if best is not threshold:  # 'online' names what runs: the duration decoder
-        metrics = score_online(replays, episodes, best, model)
-        comparison = {"online": metrics, "online_threshold": comparison.pop("online"), **comparison}
-    doc = {"best": best.to_dict(), "metrics": metrics, "comparison": comparison, "choice": figures}
-    print(json.dumps(replay.json_safe(doc), indent=1))
+def _tune(args: argparse.Namespace, tuned: Tuned) -> int:
+    print(json.dumps(replay.json_safe(tuned.doc()), indent=1))
     if args.write_config:
         source = args.bag or f"{args.generate} generated {args.domain} episodes (seeds from {args.seed})"
-        provenance = f"ompn_segment --tune on {source}, objective {objective}, online mode {best.mode}"
-        write_node_config(args.write_config, args.domain or "", best, comparison,
-                          f"{source}, objective {objective}, checkpoint {args.checkpoint}")
-        written = replay.store_tuned(args.checkpoint, best, {**metrics, **figures}, provenance, model)
+        written = write_tuned(tuned, args.write_config, args.domain, args.checkpoint, source)
         print(f"ompn_segment: wrote {args.write_config}, {written}", file=sys.stderr)
     return 0
 
 
-def replay_device(name: str) -> str:
-    """The device ``--device name`` replays on ('cpu' or 'cuda'); ``auto`` is the CPU (batch 1)."""
-    return "cpu" if name == "auto" else resolve_device(name, "--device").type
-
-
 def _run(args: argparse.Namespace) -> int:
-    device = replay_device(args.device)  # before any bag is read
+    device = segment_setup.replay_device(args.device)  # before any bag is read
     check_batch_arguments(args)
     if args.bags:
         return run_batch_cli(args, device)
     if args.annotate and (args.tune or not args.bag):
         raise ReplayError("--annotate copies the replayed bag: it needs --bag and no --tune")
     torch.set_num_threads(1)
-    try:
-        policy = stepper_from_checkpoint(args.checkpoint, "jit" if device == "cpu" else "torch", device)
-    except CheckpointError as exc:
-        raise ReplayError(f"--checkpoint: {exc}") from exc
-    episodes = _episodes(args)
+    policy = segment_setup.load_stepper(args.checkpoint, device)
+    episodes, read = segment_setup.load_episodes(args.bag, args.reader_config, args.domain, args.on_error,
+                                                 args.generate, args.seed)
+    if read is not None:
+        print(read.report.summary(), file=sys.stderr)
+        if not args.tune:
+            write_read_report(Path(args.out), replay.read_report_doc(read, args.on_error))
     if not episodes:
         raise ReplayError(f"no episodes found in {args.bag}")
     if args.tune:
-        return _tune(args, policy, episodes)
-    explicit = load_detector_yaml(args.detector_config) if args.detector_config else None
-    settings, line = resolve_detector(args.checkpoint, explicit, f"--detector-config {args.detector_config}")
+        tuned = tune_detector(policy, episodes, args.objective, args.domain, args.lag, args.max_delay)
+        return _tune(args, tuned)
+    settings, line = segment_setup.detector_settings(args.checkpoint, args.detector_config)
     config, model = settings.online, settings.duration_model
     replays = replay_all(policy, episodes, config, model)
     summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes, replays=replays,

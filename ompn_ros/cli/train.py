@@ -32,7 +32,6 @@ from ompn_ros.app import training
 from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
-from ompn_ros.train.device import resolve_device
 
 __all__ = ["build_parser", "main"]
 
@@ -75,7 +74,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     config = load_config(args.config)
     apply_overrides(config, args.overrides)
-    resolve_device(str(config["train"].get("device", "auto")))  # no GPU for 'cuda': one line before the bags
+    training.check_device(config)
     training.prepare_out_dir(args.out, args.resume, args.overwrite)
     if args.synthetic:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])

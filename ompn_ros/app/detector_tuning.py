@@ -1,0 +1,74 @@
+"""``ompn_segment --tune``: choose the online detector on replayed episodes and store the choice.
+
+The threshold detector is grid-searched (:func:`ompn_ros.detect.tune.choose_on_replays`), the 'hsmm'
+duration detector is fitted beside it (:func:`ompn_ros.train.detector.duration_detector`) and the
+online one picked between them (:func:`ompn_ros.train.detector.pick_online`); see docs/design.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ompn_ros.app import replay
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.tune import (
+    DEFAULT_OBJECTIVE,
+    Metrics,
+    choose_on_replays,
+    default_grid,
+    score_online,
+    write_node_config,
+)
+from ompn_ros.train.detector import duration_detector, pick_online
+
+
+@dataclass
+class Tuned:
+    """The chosen online detector, its metrics, the comparison with the other detectors, both
+    detectors' validation figures and the duration model of an 'hsmm' choice (else None)."""
+
+    objective: str
+    best: DetectorConfig
+    metrics: Metrics
+    comparison: dict[str, Metrics]
+    figures: dict[str, float]
+    model: DurationModel | None
+
+    def doc(self) -> dict[str, Any]:
+        """What ``ompn_segment --tune`` prints."""
+        return {"best": self.best.to_dict(), "metrics": self.metrics, "comparison": self.comparison,
+                "choice": self.figures}
+
+
+def tune_detector(policy: Any, episodes: Sequence[Episode], objective: str | None, domain: str | None,
+                  lag: int, max_delay: float) -> Tuned:
+    """Replay ``episodes`` once and choose the online detector maximising ``objective`` (none: the
+    domain's, F1 without a domain); the 'hsmm' detector of ``lag`` may cost ``max_delay`` mean steps."""
+    objective = objective or DEFAULT_OBJECTIVE.get(domain or "", "f1")
+    replays = replay.replay_all(policy, episodes, default_grid()[0])
+    replay.check_finite(replays, episodes)
+    threshold, metrics, comparison = choose_on_replays(replays, episodes, objective=objective)
+    duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], lag,
+                                 max_delay)
+    model = None if duration is None else duration.model
+    best, figures = pick_online(threshold, metrics, duration)
+    if best is not threshold:  # 'online' names what runs: the duration decoder
+        metrics = score_online(replays, episodes, best, model)
+        comparison = {"online": metrics, "online_threshold": comparison.pop("online"), **comparison}
+    return Tuned(objective, best, metrics, comparison, figures, model)
+
+
+def write_tuned(tuned: Tuned, params_file: str, domain: str | None, checkpoint: str, source: str) -> Path:
+    """Write the choice as an ``ompn_node`` params file and into the checkpoint's detector.json (tuned on
+    ``source``); returns the detector.json written."""
+    objective = tuned.objective
+    provenance = f"ompn_segment --tune on {source}, objective {objective}, online mode {tuned.best.mode}"
+    write_node_config(params_file, domain or "", tuned.best, tuned.comparison,
+                      f"{source}, objective {objective}, checkpoint {checkpoint}")
+    measured = {**tuned.metrics, **tuned.figures}
+    return replay.store_tuned(checkpoint, tuned.best, measured, provenance, tuned.model)
