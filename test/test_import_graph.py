@@ -255,3 +255,19 @@ def test_the_product_never_imports_the_lab():
     ]
     assert not offenders, "product modules importing lab/: " + ", ".join(offenders)
     assert (ROOT / "lab" / "pipeline.py").is_file() and not (ROOT / "ompn_ros" / "experiments").exists()
+
+
+CLI_MAY_IMPORT = ("ompn_ros.app", "ompn_ros.cli")
+"""The rooms a command-line shell imports from (besides :mod:`ompn_ros.errors`): the work is a service."""
+
+
+def test_the_command_lines_import_only_the_app_layer():
+    edges, _ = _graph()
+    offenders = [
+        f"{name} -> {target}"
+        for name, targets in sorted(edges.items())
+        if _room(name) == "ompn_ros.cli"
+        for target in sorted(targets)
+        if target != "ompn_ros.errors" and _room(target) not in CLI_MAY_IMPORT
+    ]
+    assert not offenders, "command-line shells importing below the app layer:\n" + "\n".join(offenders)
