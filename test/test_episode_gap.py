@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from random_checkpoint import random_checkpoint
 
 from ompn_ros.data.reader.align import windows_from_gaps
 from ompn_ros.stream.gap import SilenceWatch, gap_ends_episode
@@ -24,10 +25,7 @@ from test_node_poison import active_node as poison_active_node  # noqa: E402 (pu
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.ros.params import ParameterError  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
@@ -66,11 +64,8 @@ def test_silence_watch_fires_after_the_gap_without_a_new_step() -> None:
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(3)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)
-    path = tmp_path_factory.mktemp("gap") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "gap", seed=3,
+                             obs_dim=OBS_DIM, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)
 
 
 class FakeClock:

@@ -12,13 +12,11 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 
 OBS_DIM = 6
@@ -26,11 +24,8 @@ OBS_DIM = 6
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(3)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
-    path = tmp_path_factory.mktemp("size") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "size", seed=3,
+                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
 
 
 def _joints(n: int, t: int) -> JointState:

@@ -14,15 +14,13 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.nodes import ompn_node_inputs  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 
@@ -32,11 +30,8 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(6)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
-    path = tmp_path_factory.mktemp("faults") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "faults", seed=6,
+                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
 
 
 def make_node(ctx: Any, ckpt: Path, name: str = "ompn_node", **params: Any) -> OMPNNode:

@@ -19,6 +19,7 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
@@ -30,9 +31,6 @@ from std_msgs.msg import Float32MultiArray  # noqa: E402
 from ompn_interfaces.msg import SubtaskBoundary  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 
 OBS_DIM = 6
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,11 +43,8 @@ LATE = QoSProfile(
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(11)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
-    path = tmp_path_factory.mktemp("graph") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "graph", seed=11,
+                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
 
 
 def start_node(ckpt: Path, env: dict[str, str], *params: str, ns: str = "/") -> subprocess.Popen:

@@ -16,6 +16,7 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("ompn_ros.model.streaming")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -43,11 +44,8 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(3)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
-    path = tmp_path_factory.mktemp("node") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "node", seed=3,
+                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
 
 
 class Harness:

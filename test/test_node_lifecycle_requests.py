@@ -19,12 +19,10 @@ rclpy = pytest.importorskip("rclpy")
 from child_process import interrupt  # noqa: E402
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,11 +33,8 @@ IDS = {"configure": Transition.TRANSITION_CONFIGURE, "cleanup": Transition.TRANS
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(5)
-    cfg = OMPNConfig(obs_dim=4, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
-    path = tmp_path_factory.mktemp("life") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "life", seed=5,
+                             obs_dim=4, action_type="discrete", action_dim=3, n_slots=2, slot_size=8)
 
 
 class Caller:

@@ -19,6 +19,7 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -31,10 +32,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from ompn_ros.data.messages import parse_float32_array  # noqa: E402
 from ompn_ros.data.obs import ObservationSpec, assemble_stream  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.ros.params import ParameterError  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
@@ -65,11 +63,8 @@ class FakeClock:
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(4)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
-    path = tmp_path_factory.mktemp("nodeobs") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "nodeobs", seed=4,
+                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
 
 
 def make_node(ctx, ckpt: Path, spec: str = SPEC_TEXT, **params) -> OMPNNode:

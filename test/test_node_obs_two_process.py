@@ -26,6 +26,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -34,10 +35,7 @@ from std_msgs.msg import Float32MultiArray  # noqa: E402
 from ompn_ros.data.messages import parse_float32_array  # noqa: E402
 from ompn_ros.data.obs import ObservationSpec, assemble_stream  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 
 torch.set_num_threads(1)
@@ -99,11 +97,8 @@ DRIVER = textwrap.dedent(f"""
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(5)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
-    path = tmp_path_factory.mktemp("nodeobs2") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "nodeobs2", seed=5,
+                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
 
 
 def replay_pi(ckpt: Path, observations: np.ndarray) -> np.ndarray:

@@ -13,11 +13,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from random_checkpoint import random_checkpoint  # noqa: E402
+
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, with_final  # noqa: E402
-from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
-from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
-from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 from ompn_ros.stream.replay import StreamRecord, replay_stream  # noqa: E402
 from ompn_ros.stream.rule import StreamLimits  # noqa: E402
@@ -33,11 +32,8 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(5)
-    cfg = OMPNConfig(obs_dim=OBS_DIM, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)
-    path = tmp_path_factory.mktemp("stream") / "ckpt"
-    save_checkpoint(path, OMPNPolicy(cfg))
-    return path
+    return random_checkpoint(tmp_path_factory, "stream", seed=5,
+                             obs_dim=OBS_DIM, action_type="continuous", action_dim=2, n_slots=3, slot_size=16)
 
 
 def stream() -> tuple[np.ndarray, list[int], list[list[int]]]:
