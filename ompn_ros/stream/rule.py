@@ -37,7 +37,7 @@ from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.data.repeats import Repeats
 from ompn_ros.detect.online import BoundaryEvent, with_final
 from ompn_ros.segmenter import SegmenterOutput, StreamingSegmenter
-from ompn_ros.stream.gap import IdleGate, SilenceWatch
+from ompn_ros.stream.gap import IdleGate, SilenceWatch, gap_ends_episode
 from ompn_ros.validate import BadSketch, FutureStamp, InvalidInput, SketchError, validate_sketch
 
 __all__ = ["StampClass", "StreamLimits", "StreamRule", "StreamSink", "classify_stamp"]
@@ -181,8 +181,7 @@ class StreamRule:
                 f"clock_jump_back={limits.clock_jump_back} s): starting a new episode"
             )
             return self.restart_episode()
-        # episode_gap: gap_ends_episode() inlined, so with the split off a step pays one test
-        if limits.gap_ns and seg.last_stamp is not None and stamp_ns - seg.last_stamp > limits.gap_ns:
+        if limits.gap_ns and gap_ends_episode(stamp_ns, seg.last_stamp, limits.gap_ns):  # off: one test
             return self.end_at_pause()
         return True
 
