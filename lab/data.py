@@ -15,24 +15,33 @@ from pathlib import Path
 import numpy as np
 
 from lab.spec import CRAFT_TASKS, ReproduceError
-from ompn_ros.app.collect import MANIFEST, collect
+from ompn_ros.app.collect import MANIFEST, collect, human_settings
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import ReaderSpec
 
 
-def collect_bags(domain: str, partial: bool, episodes: int, seed: int, work: Path) -> Path:
-    """Seeded demonstrations into ``work/bags/<domain>_<obs>/`` (reused when already complete).
+def collect_bags(
+    domain: str, partial: bool, episodes: int, seed: int, work: Path, human: bool = False
+) -> Path:
+    """Seeded demonstrations into ``work/bags/<domain>_<obs>[_human]/`` (reused when already complete).
 
-    ``episodes`` is per task for Craft and in total for Dial.  O(episodes) expert rollouts.
+    ``episodes`` is per task for Craft and in total for Dial.  ``human``: the human-like demonstrator
+    at the domain's defaults instead of the expert.  O(episodes) rollouts.
     """
-    out = work / "bags" / f"{domain}_{'partial' if partial else 'full'}"
+    suffix = "_human" if human else ""
+    out = work / "bags" / f"{domain}_{'partial' if partial else 'full'}{suffix}"
     tasks = list(CRAFT_TASKS) if domain == "craft" else ["dial"]
     total = episodes * len(tasks) if domain == "craft" else episodes
     manifest_file = out / MANIFEST
     if manifest_file.is_file():
         manifest = json.loads(manifest_file.read_text())
-        if manifest.get("totals", {}).get("episodes") == total and manifest["settings"]["seed"] == seed:
+        settings = manifest["settings"]
+        if (
+            manifest.get("totals", {}).get("episodes") == total
+            and settings["seed"] == seed
+            and settings.get("demonstrator", "expert") == ("human" if human else "expert")
+        ):
             print(f"   reusing {out} ({total} episodes)")
             return out
     collect(
@@ -45,6 +54,7 @@ def collect_bags(domain: str, partial: bool, episodes: int, seed: int, work: Pat
         split_every=max(1, total // 4),
         overwrite=out.exists(),
         progress=sys.stderr.isatty(),
+        human=human_settings(domain, []) if human else None,
         command=[
             "ompn_collect",
             "--domain",
@@ -56,6 +66,7 @@ def collect_bags(domain: str, partial: bool, episodes: int, seed: int, work: Pat
             "--seed",
             str(seed),
             *(["--partial"] if partial else []),
+            *(["--demonstrator", "human"] if human else []),
         ],
     )
     return out

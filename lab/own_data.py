@@ -11,6 +11,9 @@ held-out test episodes of the reproduction's split, :func:`lab.data.held_out_spl
   (:mod:`lab.strip`), read with ``final_observation: drop_last_step``,
   ``duplicate``, ``blank`` or ``extrapolate``, against the complete bags.  Test episodes stay complete.
 * ``length``: early stopping (``train.patience``) against the fixed length of the reproduction.
+* ``demonstrator``: the same protocols on bags of the human-like demonstrator (docs/craft.md §2.6,
+  docs/dial.md §3.9), a family no default was tuned on: complete bags, and bags without the final
+  observation read with the domain's preset.
 
 Labels are only used for scoring, except by the label-tuned detector.  ``run`` trains and scores
 one arm into ``<work>/arms/<arm>.json``; ``collate`` gathers them into ``results/own_data.json``
@@ -63,7 +66,8 @@ from .report import write_readme
 from .report_own import OWN_DATA
 from .strip import strip_bags
 
-Study = Literal["labels", "final_observation", "length"]
+Study = Literal["labels", "final_observation", "length", "demonstrator"]
+Demonstrator = Literal["expert", "human"]
 Bags = Literal["complete", "drop_last_step", "duplicate", "blank", "extrapolate"]
 Length = Literal["patience", "fixed"]
 DATA_SEED = 0
@@ -86,11 +90,13 @@ class Arm:
     """``train.candidates``: initialisations trained, the best by validation kept (experiments §43)."""
     last_of: str = ""
     """Not trained: the ``last/`` checkpoint of this other arm's run is scored (no selection)."""
+    demonstrator: Demonstrator = "expert"
 
     @property
     def data(self) -> str:
-        """The bag set: ``<domain>_<full|partial>``."""
-        return f"{self.domain}_{'partial' if self.partial else 'full'}"
+        """The bag set: ``<domain>_<full|partial>[_human]``."""
+        suffix = "_human" if self.demonstrator == "human" else ""
+        return f"{self.domain}_{'partial' if self.partial else 'full'}{suffix}"
 
 
 def _arms() -> dict[str, Arm]:
@@ -135,6 +141,21 @@ def _arms() -> dict[str, Arm]:
         for bags in ("complete", "blank"):
             arms.append(Arm(f"final_craft_full_{bags}_best2_seed{seed}", "final_observation", "craft",
                             length="fixed", bags=bags, seed=seed, candidates=2))  # type: ignore[arg-type]
+    # Human-like demonstrations (a family kept out of every tuning), the held-out seeds of §43
+    for seed in range(10, 15):
+        arms += [
+            Arm(f"human_craft_full_complete_seed{seed}", "demonstrator", "craft", length="fixed",
+                seed=seed, demonstrator="human"),
+            Arm(f"human_craft_full_blank_best2_seed{seed}", "demonstrator", "craft", length="fixed",
+                bags="blank", seed=seed, candidates=2, demonstrator="human"),
+        ]
+    for seed in range(5, 10):
+        arms += [
+            Arm(f"human_dial_complete_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
+                demonstrator="human"),
+            Arm(f"human_dial_extrapolate_seed{seed}", "demonstrator", "dial", length="fixed",
+                bags="extrapolate", seed=seed, demonstrator="human"),
+        ]
     return {a.name: a for a in arms}
 
 
@@ -148,16 +169,20 @@ def arm_by_name(name: str) -> Arm:
 
 
 def read_episodes(
-    bags: Path, domain: str, cache: Path, final_observation: FinalObservation | None = None
+    bags: Path, domain: str, cache: Path, final_observation: FinalObservation | None = None,
+    lenient: bool = False,
 ) -> list[Episode]:
     """Episodes of ``bags`` through the cached reader of ``ompn_train`` (cache under ``cache``).
 
-    With ``final_observation`` (stripped bags) the domain's reader spec is made lenient, as a
-    robot's reader config is: an end marker counting one step more than ``drop_last_step`` keeps
-    is then a note of the read report instead of an error."""
+    With ``final_observation`` (stripped bags) or ``lenient`` (human-like bags, whose dropped
+    observation messages leave a command without its partner) the domain's reader spec is made
+    lenient, as a robot's reader config is: an end marker counting one step more than
+    ``drop_last_step`` keeps is then a note of the read report instead of an error."""
     spec = ReaderSpec.for_domain(domain)
     if final_observation is not None:
         spec = replace(spec, final_observation=final_observation, strict=False)
+    elif lenient:
+        spec = replace(spec, strict=False)
     episodes = load_arrays(bags, spec=spec, cache_dir=cache).episodes()
     if not episodes:
         raise ReproduceError(f"no episodes in {bags}")
@@ -171,7 +196,8 @@ def _key(ep: Episode) -> tuple[str, int]:
 def arm_data(arm: Arm, work: Path) -> tuple[list[Episode], list[Episode]]:
     """(train pool, test): the reproduction's split of the complete bags; for stripped arms the
     pool's episodes are taken, in the same order, from the stripped copy read with the arm's option."""
-    complete = read_episodes(work / "bags" / arm.data, arm.domain, work / "cache")
+    human = arm.demonstrator == "human"
+    complete = read_episodes(work / "bags" / arm.data, arm.domain, work / "cache", lenient=human)
     pool, test = held_out_split(complete, DEFAULT_TEST_RATIO, DATA_SEED)
     if arm.bags == "complete":
         return pool, test
@@ -312,6 +338,7 @@ def run_arm(
         "length": arm.length,
         "bags": arm.bags,
         "seed": arm.seed,
+        "demonstrator": arm.demonstrator,
         **({"candidates_trained": arm.candidates} if arm.candidates > 1 else {}),
         **info,
     }
@@ -353,7 +380,8 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
         raise ReproduceError(f"no arm results under {work / 'arms'}")
     episodes: dict[str, dict[str, int]] = {}
     for row in rows:  # one entry per bag set, and one more per other number of episodes read from it
-        data = f"{row['domain']}_{row['observation']}"
+        human = "_human" if row.get("demonstrator") == "human" else ""
+        data = f"{row['domain']}_{row['observation']}{human}"
         split = {"train": row["train_episodes"], "val": row["val_episodes"], "test": row["test_episodes"]}
         first = episodes.setdefault(data, split)
         if first != split:
@@ -392,12 +420,13 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "collect", help="collect the seeded demonstrations of a bag set (reproduction defaults)"
     )
-    p.add_argument("data", choices=["craft_full", "craft_partial", "dial_full"])
+    p.add_argument("data", choices=[f"{d}{h}" for d in ("craft_full", "craft_partial", "dial_full")
+                                    for h in ("", "_human")])
     p.add_argument(
         "--episodes", type=int, default=0, help="per task for Craft, in total for Dial (0 = default)"
     )
     p = sub.add_parser("strip", help="write <work>/stripped/<data>: the bags without final observations")
-    p.add_argument("data", choices=["craft_full", "dial_full"])
+    p.add_argument("data", choices=["craft_full", "dial_full", "craft_full_human", "dial_full_human"])
     p = sub.add_parser("run", help="train and score one arm into <work>/arms/<arm>.json")
     p.add_argument("arm", choices=sorted(ARMS))
     p.add_argument("--threads", type=int, default=1)
@@ -415,9 +444,9 @@ def _parser() -> argparse.ArgumentParser:
 def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str:
     """Run the sub-command ``args.command``; return what it prints."""
     if args.command == "collect":
-        domain, obs = args.data.split("_")
+        domain, obs, *human = args.data.split("_")
         episodes = args.episodes or DEFAULT_EPISODES[domain]
-        return collect_bags(domain, obs == "partial", episodes, DATA_SEED, args.work)
+        return collect_bags(domain, obs == "partial", episodes, DATA_SEED, args.work, bool(human))
     if args.command == "strip":
         return strip_arm_bags(args.work, args.data)
     if args.command == "run":
