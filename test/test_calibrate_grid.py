@@ -3,6 +3,8 @@ OnlineDetector, label tuning finds planted boundaries, the label-free path agree
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -36,6 +38,47 @@ def test_grid_masks_equal_the_online_detector() -> None:
         for e, s in enumerate(scores):
             steps = [ev.step for ev in detect_sequence(s, grid[g])]
             assert np.flatnonzero(marks[g, e]).tolist() == steps, (grid[g], e)
+
+
+def test_grid_masks_with_an_offset_equal_the_online_detector() -> None:
+    scores = _random_scores(7, n=40)
+    grid = [replace(cfg, offset=offset) for cfg in default_grid()[::11] for offset in (1, 3, 10)]
+    marks = detect_grid(scores, grid)
+    for g, cfg in enumerate(grid):
+        for e, s in enumerate(scores):
+            steps = [ev.step for ev in detect_sequence(s, cfg)]
+            assert np.flatnonzero(marks[g, e]).tolist() == steps, (cfg, e)
+
+
+def _late(seed: int, delay: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Planted episodes whose expansion score peaks ``delay`` steps after each inner boundary."""
+    p_hats, labels, bounds = _planted(seed)
+    late = []
+    for p, b in zip(p_hats, bounds, strict=True):
+        q = np.tile(p[0], (len(p), 1))
+        for step in b[:-1]:
+            q[min(step + delay, len(p) - 1)] = p[step]
+        late.append(q)
+    return late, labels
+
+
+@pytest.mark.parametrize("delay", [0, 2, 3])
+def test_label_tuning_calibrates_the_offset_of_late_scores(delay: int) -> None:
+    p_hats, labels = _late(8, delay)
+    scores = scores_from_p_hats(p_hats)
+    without = search_grid_only(scores, labels)
+    result = tune_on_labels(scores, labels, "align")  # the objective of continuous control
+    assert result.config.offset == delay
+    assert result.metrics["f1_tol1"] == 1.0
+    if delay > 1:
+        assert without["f1_tol1"] < 0.9  # a plain threshold misses boundaries this late
+
+
+def search_grid_only(scores: list[np.ndarray], labels: list[np.ndarray]) -> dict[str, float]:
+    """The best grid setting without the offset stage (the tuning before the offset existed)."""
+    gts = [np.append(np.flatnonzero(np.diff(lab)), len(lab) - 1) for lab in labels]
+    rows = evaluate_grid(scores, default_grid(), gts, labels)
+    return max(rows, key=lambda row: (row["f1_tol1"], row["align_strict"]))
 
 
 def test_grid_metrics_equal_the_metric_functions() -> None:

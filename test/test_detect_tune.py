@@ -63,6 +63,16 @@ def test_the_grid_search_finds_a_threshold_below_the_peaks():
     assert comparison["online"] == metrics
 
 
+def test_the_search_moves_late_boundaries_back_and_the_node_file_keeps_the_offset(tmp_path):
+    replay = _replay([5, 9], 12, 0.6)  # each peak 2 steps after its boundary (3, 7)
+    best, metrics, _ = tune.choose_on_replays([replay], [EPISODE], objective="align")
+    assert best.offset == 2 and metrics["f1_tol1"] == 1.0 and metrics["align_strict"] == 1.0
+    on_time, _, _ = tune.choose_on_replays([_replay([3, 7], 12, 0.6)], [EPISODE], objective="align")
+    assert on_time.offset == 0
+    path = tune.write_node_config(tmp_path / "node.yaml", "dial", best, {"online": metrics}, "a test")
+    assert tune.load_detector_yaml(path) == best
+
+
 def test_tuning_needs_labels_a_known_objective_and_matching_replays():
     replay = _replay([3, 7], 12, 0.3)
     with pytest.raises(TuneError, match="objective"):

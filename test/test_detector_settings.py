@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import (
     DETECTOR_FILE,
     DetectorSettings,
+    detector_config,
     load_detector_settings,
     node_parameters,
     resolve_detector,
@@ -23,7 +25,7 @@ from ompn_ros.paths import config_file
 
 def _settings() -> DetectorSettings:
     return DetectorSettings(
-        online=DetectorConfig(high=0.15, low=0.05, min_segment_length=3, mode="peak"),
+        online=DetectorConfig(high=0.15, low=0.05, min_segment_length=3, mode="peak", offset=2),
         done_threshold=0.7,
         offline_detector="constrained_top_k",
         min_length=4,
@@ -113,6 +115,7 @@ def test_shipped_checkpoints_carry_the_shipped_node_settings(domain: str) -> Non
     assert stored.online.min_segment_length == params["detector_min_segment_length"]
     assert stored.online.high - stored.online.low_threshold == pytest.approx(params["detector_hysteresis"])
     assert stored.online.lag == params.get("detector_lag", 0)
+    assert stored.online.offset == params.get("detector_offset", 0)
     assert (stored.duration_model is not None) == (stored.online.mode == "hsmm")  # a model where it runs
 
 
@@ -127,8 +130,20 @@ def test_node_parameters_round_trip_through_the_node_yaml_reader() -> None:
         min_segment_length=params["detector_min_segment_length"],
         mode=params["detector_mode"],
         force_first_step_low=params["detector_force_first_step_low"],
+        offset=params["detector_offset"],
     )
     assert rebuilt == settings.online
+    back = detector_config(params)  # the node's own way back (low = high - hysteresis, in floats)
+    assert back.low_threshold == pytest.approx(settings.online.low_threshold)
+    assert dataclasses.replace(back, low=settings.online.low) == settings.online
+
+
+def test_a_detector_file_written_before_the_offset_reads_as_offset_0(tmp_path: Path) -> None:
+    path = save_detector_settings(tmp_path, _settings())
+    doc = json.loads(path.read_text())
+    del doc["online"]["offset"]
+    path.write_text(json.dumps(doc))
+    assert load_detector_settings(tmp_path).online.offset == 0
 
 
 @pytest.mark.parametrize(

@@ -143,6 +143,10 @@ def test_expansion_score_weights_and_level() -> None:
         ({"high": 0.5, "low": 0.6}, "low"),
         ({"min_segment_length": 0}, "min_segment_length"),
         ({"mode": "edge"}, "mode"),
+        ({"offset": 11}, "offset"),
+        ({"offset": -1}, "offset"),
+        ({"offset": 1.5}, "offset"),
+        ({"mode": "hsmm", "high": 0.5, "offset": 2}, "offset"),
     ],
 )
 def test_config_validation_names_the_parameter(kwargs: dict, name: str) -> None:
@@ -150,3 +154,33 @@ def test_config_validation_names_the_parameter(kwargs: dict, name: str) -> None:
         DetectorConfig(**kwargs)
     with pytest.raises(DetectorConfigError, match="unknown"):
         DetectorConfig.from_dict({"hihg": 0.3})
+
+
+def test_offset_reports_the_boundary_earlier_but_publishes_it_at_the_same_step() -> None:
+    scores = [0.0, 0.1, 0.1, 0.1, 0.9, 0.8, 0.1, 0.1, 0.1, 0.1]
+    stamps = np.arange(10) * 10
+    levels = np.arange(10)
+    plain = detect_sequence(scores, DetectorConfig(high=0.5), levels, stamps)
+    moved = detect_sequence(scores, DetectorConfig(high=0.5, offset=3), levels, stamps)
+    assert [(e.step, e.detected_at) for e in plain] == [(5, 6), (9, 9)]
+    assert [(e.step, e.detected_at) for e in moved] == [(2, 6), (9, 9)]  # the end is not moved
+    # the moved boundary carries the score, level and stamp of the step it now names
+    assert (moved[0].score, moved[0].level, moved[0].stamp_ns) == (0.1, 2, 20)
+
+
+def test_offset_never_reaches_back_to_the_previous_boundary() -> None:
+    scores = [0.0, 0.9, 0.1, 0.9, 0.1, 0.1]
+    events = detect_sequence(scores, DetectorConfig(high=0.5, offset=5))
+    # first run ends at 2 (boundary 1, moved to 0); second ends at 4 (boundary 3, moved to 1)
+    assert [e.step for e in events] == [0, 1, 5]
+    assert [e.subtask for e in events] == [0, 1, 2]
+
+
+def test_offset_raised_inside_an_episode_names_the_oldest_step_kept() -> None:
+    detector = OnlineDetector(DetectorConfig(high=0.5))
+    for score in [0.0] + [0.1] * 10:
+        assert detector.update(score) is None
+    detector.configure(DetectorConfig(high=0.5, offset=10))
+    assert detector.update(0.9) is None
+    event = detector.update(0.1)  # the rule's boundary is 11; 1 is older than the 4 steps kept
+    assert event is not None and event.step == 8 and event.detected_at == 12

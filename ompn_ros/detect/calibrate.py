@@ -5,7 +5,9 @@ with the same objective (:func:`objective_key`: the objective metric, then the o
 shorter detection delay) over per-episode score sequences of validation episodes.  They differ only
 in the boundaries the online detections are scored against:
 
-* :func:`tune_on_labels`: the episodes' true subtask boundaries;
+* :func:`tune_on_labels`: the episodes' true subtask boundaries; then the chosen setting's
+  ``offset`` is searched the same way (:func:`~ompn_ros.detect.tune.offset_grid`,
+  docs/design.md#boundary-offset);
 * :func:`calibrate_label_free`: a whole-episode *reference* computed from the same model's
   expansion distributions, no labels (:func:`reference_boundaries`): the paper's automatic
   threshold (Lu et al., ICLR 2021, Algorithm 2) with the boundary at the onset of each run above
@@ -48,7 +50,14 @@ from ompn_ros.detect.offline import (
     standardise,
 )
 from ompn_ros.detect.online import DURATION_MODE, MODES, DetectorConfig, expansion_scores, run_detector
-from ompn_ros.detect.tune import MATCH_TOLERANCE, OBJECTIVES, Objective, default_grid, objective_key
+from ompn_ros.detect.tune import (
+    MATCH_TOLERANCE,
+    OBJECTIVES,
+    Objective,
+    default_grid,
+    objective_key,
+    offset_grid,
+)
 from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries, mean_f1
 
 Reference = Literal[
@@ -101,6 +110,7 @@ def detect_grid(scores: Sequence[np.ndarray], grid: Sequence[DetectorConfig]) ->
     min_len = np.array([c.min_segment_length for c in grid])[:, None]
     mode = np.array([MODES.index(c.mode) for c in grid])[:, None]
     force = np.array([c.force_first_step_low for c in grid])[:, None]
+    offset = np.array([c.offset for c in grid], dtype=np.int64)[:, None]
     rising, peak = mode == MODES.index("rising_edge"), mode == MODES.index("peak")
     shape = (len(grid), n_eps)
     in_run = np.zeros(shape, bool)
@@ -120,10 +130,11 @@ def detect_grid(scores: Sequence[np.ndarray], grid: Sequence[DetectorConfig]) ->
         at_prev = (ends & ~committed) | peaks
         emit_t = at_t & (t - last >= min_len)
         emit_prev = at_prev & (t - 1 - last >= min_len)
-        if t > 0:
-            marks[:, :, t - 1] |= emit_prev
-        marks[:, :, t] |= emit_t
-        last = np.where(emit_t, t, np.where(emit_prev, t - 1, last))
+        emit = emit_t | emit_prev  # never both: one needs a run to start, the other one to be on
+        moved = np.maximum(np.where(emit_t, t, t - 1) - offset, last + 1)  # the detector's offset
+        g_at, e_at = np.nonzero(emit)
+        marks[g_at, e_at, moved[g_at, e_at]] = True
+        last = np.where(emit, moved, last)
         committed = np.where(starts, rising, committed | peaks)
         in_run = (in_run | starts) & ~ends
         prev = np.where(active, score, prev)
@@ -217,7 +228,7 @@ def evaluate_grid(
             labels[i, : lengths[i]] = lab
     decoded = np.cumsum(marks, -1) - marks
     align = ((decoded == labels[None]) & valid[None]).sum((1, 2)) / lengths.sum()
-    lag = np.array([LAG[c.mode] for c in grid], dtype=np.float64)
+    lag = np.array([LAG[c.mode] + c.offset for c in grid], dtype=np.float64)  # offset: unless clamped
     f1_0, f1_1 = _f1(marks, gt, 0), _f1(marks, gt, 1)
     delay = _delay(marks, gt, lengths, lag)
     return [
@@ -274,7 +285,8 @@ def tune_on_labels(
     labels = [np.asarray(lab, dtype=np.int64) for lab in labels]
     bounds = [np.flatnonzero(np.diff(lab) != 0) if len(lab) else lab for lab in labels]
     bounds = [np.append(b, len(lab) - 1) for b, lab in zip(bounds, labels, strict=True)]
-    return search(scores, bounds, labels, objective, grid, "labels")
+    found = search(scores, bounds, labels, objective, grid, "labels")
+    return search(scores, bounds, labels, objective, offset_grid(found.config), "labels")
 
 
 def estimated_count(p_hat: np.ndarray) -> int:

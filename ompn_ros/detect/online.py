@@ -21,7 +21,11 @@ the threshold"), made causal:
   ``score_t < score_{t-1}``); same lag, but long plateaus (Dial) commit before the run ends;
 * ``mode='rising_edge'``: commit the first in-run step immediately (lag 0);
 * a candidate that would make a segment shorter than ``min_segment_length`` steps is dropped;
-* ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``).
+* ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``);
+* ``offset``: a committed boundary is reported that many steps earlier than its rule places it (never
+  at or before the previous boundary), with that step's score, level and stamp; it is published at
+  the same step as without the offset.  Calibrated on validation episodes when the score's runs end a
+  steady few steps after the true boundaries (docs/design.md#boundary-offset).
 
 ``mode='hsmm'`` is a different decoder with the same step interface: the explicit-duration HSMM of
 :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there ``high`` is
@@ -51,6 +55,11 @@ ALL_MODES = (*MODES, DURATION_MODE)
 MAX_LAG = 10
 """The longest lag of the duration decoder (the fewest steps a boundary waits; see
 :mod:`ompn_ros.detect.duration` for its cost per step)."""
+MAX_OFFSET = 10
+"""The largest ``offset`` of the threshold detectors (steps a boundary is moved back)."""
+KEPT_STEPS = 4
+"""Steps a threshold detector keeps of its episode (to close it at a marker's step a little behind
+the stream), plus its ``offset``."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +77,9 @@ class DetectorConfig:
         lag: the fewest steps the 'hsmm' decoder waits after a step is taken in before it publishes
             it as a boundary, so at least ``lag + 1`` steps after the step (0 … ``MAX_LAG``; the
             threshold modes ignore it).
+        offset: the threshold modes report a boundary this many steps before the step their rule
+            gives, never at or before the previous boundary (0 … ``MAX_OFFSET``; 'hsmm' needs 0).
+            The boundary is still published when the rule commits it.
     """
 
     high: float = 0.5
@@ -76,6 +88,7 @@ class DetectorConfig:
     mode: str = "falling_edge"
     force_first_step_low: bool = True
     lag: int = 0
+    offset: int = 0
 
     def __post_init__(self) -> None:
         if not (isinstance(self.high, (int, float)) and 0.0 <= float(self.high) <= 1.0):
@@ -94,6 +107,16 @@ class DetectorConfig:
         lag = self.lag
         if isinstance(lag, bool) or not isinstance(lag, int | np.integer) or not 0 <= lag <= MAX_LAG:
             raise DetectorConfigError(f"detector 'lag' must be an integer in [0, {MAX_LAG}], got {lag!r}")
+        offset = self.offset
+        if isinstance(offset, bool) or not isinstance(offset, int | np.integer) or not 0 <= offset <= MAX_OFFSET:
+            raise DetectorConfigError(
+                f"detector 'offset' must be an integer in [0, {MAX_OFFSET}], got {offset!r}"
+            )
+        if self.mode == DURATION_MODE and offset:
+            raise DetectorConfigError(
+                f"detector 'offset' applies to the threshold modes {MODES}; mode '{DURATION_MODE}' needs 0, "
+                f"got {offset}"
+            )
         if self.mode == DURATION_MODE and not 0.0 < float(self.high) < 1.0:
             raise DetectorConfigError(
                 f"detector 'high' of mode '{DURATION_MODE}' is a probability in (0, 1), got {self.high!r}"
@@ -259,7 +282,7 @@ class OnlineDetector(EpisodeLog):
 
     def reset(self) -> None:
         """Start a new episode."""
-        self._start(keep=4)
+        self._start(keep=KEPT_STEPS + self.config.offset)
         self._in_run = False
         self._run_committed = False
         self._prev: _StepRecord | None = None
@@ -317,6 +340,11 @@ class OnlineDetector(EpisodeLog):
     def _commit(self, step: int, record: _StepRecord, detected_at: int) -> BoundaryEvent | None:
         if step - self._last_boundary < self.config.min_segment_length:
             return None
+        moved = max(step - self.config.offset, self._last_boundary + 1)
+        if moved != step:
+            kept = [(s, r) for s, r in self._recent if s >= moved]
+            if kept:  # a step older than those kept (offset raised inside the episode): the oldest kept
+                step, record = kept[0]
         return self._emit(step, detected_at, record)
 
 

@@ -209,6 +209,7 @@ DETECTOR_PARAMETERS = (
     "detector_mode",
     "detector_force_first_step_low",
     "detector_lag",
+    "detector_offset",
 )
 """The ``ompn_node`` parameters of the online detector (:func:`detector_config`); they apply live."""
 NODE_PARAMETERS = (*DETECTOR_PARAMETERS, "done_threshold")
@@ -230,6 +231,7 @@ def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
         "detector_mode": str(online.mode),
         "detector_force_first_step_low": bool(online.force_first_step_low),
         "detector_lag": int(online.lag),
+        "detector_offset": int(online.offset),
         "done_threshold": float(settings.done_threshold),
     }
 
@@ -252,6 +254,7 @@ def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
         mode=str(values["detector_mode"]),
         force_first_step_low=bool(values["detector_force_first_step_low"]),
         lag=int(values["detector_lag"]),
+        offset=int(values["detector_offset"]),
     )
 
 

@@ -9,7 +9,8 @@ so everything here is ROS-free and model-free: replaying the model is the caller
   (Top-K, Algorithm 1; automatic threshold, Algorithm 2; Lu et al., ICLR 2021, §3.3) with K = the
   true number of boundaries.
 * :func:`choose_on_replays`: a grid search over :class:`DetectorConfig` maximising boundary F1
-  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2).
+  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2), then over
+  the chosen setting's ``offset`` (:func:`offset_grid`, docs/design.md#boundary-offset).
 * :func:`write_node_config` / :func:`load_detector_yaml`: the chosen settings as an ``ompn_node``
   ``--params-file`` and back.
 
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Literal, Protocol
 
@@ -30,7 +32,7 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel, make_detector
 from ompn_ros.detect.errors import TuneError
-from ompn_ros.detect.online import MODES, BoundaryEvent, DetectorConfig, run_detector
+from ompn_ros.detect.online import MAX_OFFSET, MODES, BoundaryEvent, DetectorConfig, run_detector
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 Objective = Literal["f1", "align"]
@@ -170,6 +172,14 @@ def default_grid() -> list[DetectorConfig]:
     ]
 
 
+def offset_grid(config: DetectorConfig) -> list[DetectorConfig]:
+    """``config`` with every ``offset`` from 0 to ``MAX_OFFSET`` (0 first, so that a tie keeps it); the
+    second stage of every tuning on labelled episodes.  Only ``config`` for mode 'hsmm'."""
+    if config.mode not in MODES:
+        return [config]
+    return [replace(config, offset=offset) for offset in range(MAX_OFFSET + 1)]
+
+
 def objective_key(metrics: Metrics, objective: Objective = "f1") -> tuple[float, float, float]:
     """Sort key of a detector's metrics: the objective, then the other metric, then a short delay."""
     delay = metrics["delay_mean"]
@@ -183,23 +193,34 @@ def choose_on_replays(
     grid: Sequence[DetectorConfig] | None = None,
     objective: str = "f1",
 ) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
-    """Grid-search the online detector, maximising ``objective`` (one of ``OBJECTIVES``).
+    """Grid-search the online detector, maximising ``objective`` (one of ``OBJECTIVES``), then its
+    ``offset`` (:func:`offset_grid`).
 
     The first setting with the best :func:`objective_key` wins.  Returns ``(best config, its
-    metrics, comparison with the offline detectors)``.  O(|grid| · Σ T).
+    metrics, comparison with the offline detectors)``.  O((|grid| + MAX_OFFSET) · Σ T).
     """
     if objective not in OBJECTIVES:
         raise TuneError(f"detector tuning objective must be one of {OBJECTIVES}, got {objective!r}")
     _check_labelled(replays, episodes)
+    grid = list(grid or default_grid())
+    if not grid:
+        raise TuneError("grid: no detector settings to search")
+    config, _ = _search(replays, episodes, grid, objective)
+    config, metrics = _search(replays, episodes, offset_grid(config), objective)
+    return config, metrics, compare_on_replays(replays, episodes, {"online": config})
+
+
+def _search(replays: Sequence[Replayed], episodes: Sequence[Episode], grid: Sequence[DetectorConfig],
+            objective: str) -> tuple[DetectorConfig, Metrics]:
+    """The first setting of ``grid`` with the best :func:`objective_key`, and its metrics."""
     best: tuple[tuple[float, float, float], DetectorConfig, Metrics] | None = None
-    for cfg in list(grid or default_grid()):
+    for cfg in grid:
         metrics = score_online(replays, episodes, cfg)
         key = objective_key(metrics, objective)  # type: ignore[arg-type]
         if best is None or key > best[0]:
             best = (key, cfg, metrics)
-    if best is None:
-        raise TuneError("grid: no detector settings to search")
-    return best[1], best[2], compare_on_replays(replays, episodes, {"online": best[1]})
+    assert best is not None
+    return best[1], best[2]
 
 
 def write_node_config(
@@ -225,6 +246,7 @@ def write_node_config(
         f"    detector_mode: {config.mode}",
         f"    detector_force_first_step_low: {str(config.force_first_step_low).lower()}",
         f"    detector_lag: {config.lag}",
+        f"    detector_offset: {config.offset}",
         "",
     ]
     out = Path(path)

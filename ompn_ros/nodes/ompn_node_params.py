@@ -40,7 +40,7 @@ from rclpy.qos import (
 )
 
 from ompn_ros import layout
-from ompn_ros.detect.online import ALL_MODES, MAX_LAG
+from ompn_ros.detect.online import ALL_MODES, MAX_LAG, MAX_OFFSET
 from ompn_ros.layout import JOINT_FIELDS
 from ompn_ros.nodes.ompn_node_obs import spec_rule
 from ompn_ros.ros.params import ParamSpec
@@ -109,6 +109,9 @@ SPECS: Final = (
     ParamSpec("detector_lag", 0, "hsmm: a boundary is published at least detector_lag + 1 steps after its "
               "step (more when the evidence is weak; changed inside an episode: from the next one)",
               int_range=(0, MAX_LAG), apply="live"),
+    ParamSpec("detector_offset", 0, "threshold modes: report a boundary this many steps before the step the "
+              "rule gives (not before the previous boundary); it is still published when the rule commits it",
+              int_range=(0, MAX_OFFSET), apply="live"),
     ParamSpec("detector_force_first_step_low", True, "treat step 0's score as 0", apply="live"),
     ParamSpec("done_threshold", 0.5, "discrete: publish done (= action_dim) when pi_end exceeds this",
               float_range=(0.0, 1.0), apply="live"),
