@@ -91,6 +91,9 @@ class Arm:
     last_of: str = ""
     """Not trained: the ``last/`` checkpoint of this other arm's run is scored (no selection)."""
     demonstrator: Demonstrator = "expert"
+    restart: bool = True
+    """False: the restart rule off (``train.restart_at: 0``), to see what a restarted run would have
+    become."""
 
     @property
     def data(self) -> str:
@@ -149,6 +152,9 @@ def _arms() -> dict[str, Arm]:
             Arm(f"human_craft_full_blank_best2_seed{seed}", "demonstrator", "craft", length="fixed",
                 bags="blank", seed=seed, candidates=2, demonstrator="human"),
         ]
+    for seed in (11, 12):  # the complete arms whose first initialisation the restart rule abandoned
+        arms.append(Arm(f"human_craft_full_complete_norestart_seed{seed}", "demonstrator", "craft",
+                        length="fixed", seed=seed, demonstrator="human", restart=False))
     for seed in range(5, 10):
         arms += [
             Arm(f"human_dial_complete_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
@@ -222,6 +228,8 @@ def arm_configs(arm: Arm, work: Path, threads: int) -> tuple[Any, TrainConfig]:
         "partial_nosketch" if arm.partial else ("full_nosketch" if arm.domain == "craft" else "nosketch")
     ]
     base["train"]["candidates"] = arm.candidates
+    if not arm.restart:
+        base["train"]["restart_at"] = 0
     spec = RunSpec(domain=arm.domain, setting=setting, seed=arm.seed)
     return build_configs(spec, base, work / "runs" / arm.name)
 
@@ -272,6 +280,16 @@ def _train_seconds(run_dir: Path) -> float:
             if isinstance(value, int | float):
                 return float(value)
     return 0.0
+
+
+def restarts_of(run_dir: Path) -> int:
+    """How many times the restart rule started ``run_dir``'s run, or its candidates, again (from their
+    ``attempt.json`` records; 0 without any)."""
+    total = 0
+    for record in (run_dir / "attempt.json", *sorted(run_dir.glob("candidates/*/attempt.json"))):
+        if record.is_file():
+            total += int(json.loads(record.read_text())["attempt"])
+    return total
 
 
 def score_arm(
@@ -339,10 +357,12 @@ def run_arm(
         "bags": arm.bags,
         "seed": arm.seed,
         "demonstrator": arm.demonstrator,
+        **({} if arm.restart else {"restart": False}),
         **({"candidates_trained": arm.candidates} if arm.candidates > 1 else {}),
         **info,
     }
     row.update(score_arm(arm, checkpoint, pool, test, cfg))
+    row["restarts"] = restarts_of(work / "runs" / (arm.last_of or arm.name))
     out = work / "arms" / f"{arm.name}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(row, indent=1) + "\n")
@@ -376,6 +396,10 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
         ):
             found[name] = {**found[twin], "arm": name, "study": arm.study}
     rows = [found[name] for name in ARMS if name in found]
+    for row in rows:  # arms scored before their rows recorded restarts: read the run directories
+        run_dir = work / "runs" / row["arm"]
+        if "restarts" not in row and run_dir.is_dir():
+            row["restarts"] = restarts_of(run_dir)
     if not rows:
         raise ReproduceError(f"no arm results under {work / 'arms'}")
     episodes: dict[str, dict[str, int]] = {}

@@ -47,6 +47,9 @@ class OwnDataRow(TypedDict, total=False):
     label_free_online_f1_1: float  # the detector calibrated without labels
     label_free_online_align: float
     candidates_trained: int  # train.candidates when > 1: the best of that many initialisations
+    demonstrator: str  # "expert" | "human" (absent: expert)
+    restart: bool  # False: trained with the restart rule off (absent: as the shipped config)
+    restarts: int  # how many times the restart rule started the run (or a candidate) again
 
 
 class OwnDataDoc(TypedDict):
@@ -104,13 +107,17 @@ def _best_of(row: OwnDataRow) -> str:
 def _setting(row: OwnDataRow) -> str:
     name = "Craft" if row["domain"] == "craft" else "Dial"
     obs = f" {row['observation']}" if row["domain"] == "craft" else ""
+    human = ", human-like" if row.get("demonstrator") == "human" else ""
     last = ", last checkpoint" if row.get("checkpoint") == "last" else ""
-    return f"{name}{obs}, seed {row['seed']}{_best_of(row)}{last}"
+    rule = ", no restart rule" if row.get("restart") is False else ""
+    return f"{name}{obs}{human}, seed {row['seed']}{_best_of(row)}{last}{rule}"
 
 
-def _twin(row: OwnDataRow) -> tuple[str, int, int]:
-    """What pairs an arm with its complete-bags arm: domain, seed and the candidates trained."""
-    return (row["domain"], row["seed"], _candidates(row))
+def _twin(row: OwnDataRow) -> tuple[str, int, int, str, bool]:
+    """What pairs an arm with its complete-bags arm: domain, seed, the candidates trained, the
+    demonstrator and the restart rule."""
+    return (row["domain"], row["seed"], _candidates(row), row.get("demonstrator", "expert"),
+            row.get("restart", True))
 
 
 def _iterations(row: OwnDataRow) -> str:
@@ -199,7 +206,8 @@ def _final_means(rows: list[OwnDataRow]) -> list[str]:
     for r in rows:
         ref = complete.get(_twin(r))
         if ref is not None:  # complete arms pair with themselves: their means, no gap
-            groups.setdefault((r["domain"], r["bags"], _best_of(r)), []).append((r, ref))
+            rule = ", no restart rule" if r.get("restart") is False else ""
+            groups.setdefault((r["domain"], r["bags"], _best_of(r) + rule), []).append((r, ref))
     means = [
         _mean_row(f"{'Craft full' if domain == 'craft' else 'Dial'}, {bags}{best}, {len(pairs)} seeds "
                   f"({_seed_span(pairs)})", pairs)
@@ -230,6 +238,8 @@ STUDIES = (
         _final_table,
     ),
     ("length", "Early stopping against the reproduction's fixed length", _length_table),
+    ("demonstrator", "Human-like demonstrations (the same protocols; test episodes human-like too)",
+     _final_table),
 )
 
 

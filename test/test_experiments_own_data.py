@@ -39,6 +39,8 @@ def _row(arm: str, **scores: float) -> dict[str, Any]:
         "label_free_online_f1_1": 0.82,
         "label_free_online_align": 0.77,
         **({"candidates_trained": a.candidates} if a.candidates > 1 else {}),
+        "demonstrator": a.demonstrator,
+        **({} if a.restart else {"restart": False}),
     }
     base.update(scores)
     return base

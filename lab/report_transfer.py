@@ -1,0 +1,55 @@
+"""The "Transfer" section of ``results/README.md``, from ``transfer.json`` (:mod:`lab.transfer`).
+
+Metrics are fractions in the file and percentages in the table; gaps in percentage points.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .report_own import gaps, pair
+
+TRANSFER = "transfer.json"
+
+
+def _seeds(seeds: list[int]) -> str:
+    contiguous = seeds == list(range(seeds[0], seeds[-1] + 1))
+    return f"{seeds[0]}–{seeds[-1]}" if contiguous and len(seeds) > 2 else ", ".join(map(str, seeds))
+
+
+def _line(row: dict[str, Any]) -> str:
+    mine, ref = row["with_default"], row["without"]
+    figures = [(mine[f"{k}_f1_1"], mine[f"{k}_align"]) for k in ("offline", "online")]
+    refs = [(ref[f"{k}_f1_1"], ref[f"{k}_align"]) for k in ("offline", "online")]
+    verdict = "holds" if row["holds"] else "loses more than 2 points"
+    return (f"| {row['default']} | {row['tuned_on']} | {row['family']} | {row['kept_out_of_tuning']} | "
+            f"{_seeds(row['seeds'])} | {row['reference']} | {pair(*figures[0])} | {gaps(figures[0], refs[0])} | "
+            f"{pair(*figures[1])} | {gaps(figures[1], refs[1])} | {verdict} |")
+
+
+def transfer_markdown(results_dir: Path, level: int = 2) -> list[str]:
+    """The transfer table, when ``transfer.json`` exists."""
+    path = results_dir / TRANSFER
+    if not path.is_file():
+        return []
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    meta = doc["meta"]
+    lines = [
+        f"{'#' * level} Transfer: tuned defaults on data they were not tuned on",
+        "",
+        f"Made by `{' '.join(meta['command'])}` on {meta['date']} from `{meta['source']}`: means over the "
+        f"seeds, {meta['held_out']}. F1@1 / alignment in %; Δ = with the default (or on the family) minus "
+        f"the reference, in points. A default holds when no figure loses more than "
+        f"{meta['tolerance_points']:g} points.",
+        "",
+        "| default | tuned on | family | kept out of tuning | seeds | reference | offline | Δ offline | "
+        "online | Δ online | verdict |",
+        "|" + "---|" * 11,
+        *(_line(row) for row in doc["rows"]),
+    ]
+    return ["\n".join(lines) + "\n"]
+
+
+__all__ = ["TRANSFER", "transfer_markdown"]

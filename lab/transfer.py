@@ -1,0 +1,148 @@
+"""The transfer table: each default chosen by tuning, on the data family it was tuned on and on
+families it never saw (``results/transfer.json``, a section of ``results/README.md``).
+
+Built from the arms of :mod:`lab.own_data` already in ``results/own_data.json`` (held-out test
+episodes, one row per training run), so it needs no training of its own.  A *check* compares, over
+the same seeds, the arms run with a default against the arms without it (its reference), on one
+family of data:
+
+* ``final_observation``: bags without the observation after the last command, read with the
+  domain's preset (Craft ``blank`` with the best of two initialisations, Dial ``extrapolate``),
+  against complete bags of the same demonstrations, one run each;
+* ``restart rule``: the same runs with the rule and without it (``train.restart_at: 0``);
+* ``demonstrator``: human-like demonstrations against the expert's, complete bags (not a default:
+  how much a user's teleoperated data costs, goal "human-like within 5 points").
+
+A default *holds* on a family when no figure (offline and online F1@1 and alignment, means over
+the seeds) is more than :data:`TOLERANCE` points below its reference.  The families each default was
+tuned on, and the ones kept out of every tuning, are named in :data:`CHECKS`.  O(rows · checks).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .report import write_readme
+from .report_own import OWN_DATA
+from .report_transfer import TRANSFER
+TOLERANCE = 0.02
+"""The largest loss (a fraction; 2 points) a default may show where it was not tuned."""
+FIGURES = ("offline_f1_1", "offline_align", "online_f1_1", "online_align")
+
+Row = dict[str, Any]
+Select = Callable[[Row], bool]
+
+
+def arm(domain: str, bags: str, demonstrator: str, candidates: int = 1, restart: bool = True) -> Select:
+    """Rows of one kind of arm."""
+    return lambda r: (
+        r["domain"] == domain
+        and r["bags"] == bags
+        and r.get("demonstrator", "expert") == demonstrator
+        and int(r.get("candidates_trained", 1)) == candidates
+        and bool(r.get("restart", True)) == restart
+        and r["study"] in ("final_observation", "demonstrator")
+    )
+
+
+@dataclass(frozen=True)
+class Check:
+    """One default (or family shift) on one family: the arms with it against the arms without."""
+
+    default: str
+    tuned_on: str
+    family: str
+    kept_out: str
+    seeds: tuple[int, ...]
+    with_default: Select
+    reference: Select
+    reference_name: str
+
+
+CRAFT_SEEDS, DIAL_SEEDS = tuple(range(10, 15)), tuple(range(5, 10))
+CHECKS = (
+    Check("final_observation: blank, best of 2 (Craft)", "Craft full, expert, seeds 0–9",
+          "Craft full, expert", "seeds 10–14", CRAFT_SEEDS,
+          arm("craft", "blank", "expert", 2), arm("craft", "complete", "expert"), "complete bags"),
+    Check("final_observation: blank, best of 2 (Craft)", "Craft full, expert, seeds 0–9",
+          "Craft full, human-like", "the family", CRAFT_SEEDS,
+          arm("craft", "blank", "human", 2), arm("craft", "complete", "human"), "complete bags"),
+    Check("final_observation: extrapolate (Dial)", "Dial, expert, seeds 0–4",
+          "Dial, expert", "seeds 5–9", DIAL_SEEDS,
+          arm("dial", "extrapolate", "expert"), arm("dial", "complete", "expert"), "complete bags"),
+    Check("final_observation: extrapolate (Dial)", "Dial, expert, seeds 0–4",
+          "Dial, human-like", "the family", DIAL_SEEDS,
+          arm("dial", "extrapolate", "human"), arm("dial", "complete", "human"), "complete bags"),
+    Check("restart rule: below 0.7 at iteration 120 (Craft)", "Craft with a sketch, expert, seeds 0–4",
+          "Craft full, human-like, the runs it restarted", "the family", (11, 12),
+          arm("craft", "complete", "human"), arm("craft", "complete", "human", restart=False),
+          "the same seeds without the rule"),
+    Check("demonstrator: human-like against expert (Craft)", "–", "Craft full, complete bags",
+          "the family", CRAFT_SEEDS,
+          arm("craft", "complete", "human"), arm("craft", "complete", "expert"), "expert demonstrations"),
+    Check("demonstrator: human-like against expert (Dial)", "–", "Dial, complete bags",
+          "the family", DIAL_SEEDS,
+          arm("dial", "complete", "human"), arm("dial", "complete", "expert"), "expert demonstrations"),
+)
+
+
+def _means(rows: Sequence[Row]) -> dict[str, float]:
+    return {k: sum(float(r[k]) for r in rows) / len(rows) for k in FIGURES}
+
+
+def evaluate(check: Check, rows: Sequence[Row]) -> Row | None:
+    """The check's row: means over the seeds both sides have, the gap per figure, the verdict; None
+    when no seed has both."""
+    mine = {int(r["seed"]): r for r in rows if check.with_default(r) and int(r["seed"]) in check.seeds}
+    ref = {int(r["seed"]): r for r in rows if check.reference(r) and int(r["seed"]) in check.seeds}
+    seeds = sorted(set(mine) & set(ref))
+    if not seeds:
+        return None
+    with_default = _means([mine[s] for s in seeds])
+    reference = _means([ref[s] for s in seeds])
+    gap = {k: with_default[k] - reference[k] for k in FIGURES}
+    worst = min(gap.values())
+    return {
+        "default": check.default, "tuned_on": check.tuned_on, "family": check.family,
+        "kept_out_of_tuning": check.kept_out, "seeds": seeds, "reference": check.reference_name,
+        "with_default": with_default, "without": reference, "gap": gap,
+        "holds": worst >= -TOLERANCE,
+    }
+
+
+def build(results: Path, command: Sequence[str]) -> Path:
+    """Write ``results/transfer.json`` from ``results/own_data.json`` and regenerate the README."""
+    rows = json.loads((results / OWN_DATA).read_text(encoding="utf-8"))["rows"]
+    found = [row for check in CHECKS if (row := evaluate(check, rows)) is not None]
+    meta = {
+        "command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()),
+        "tolerance_points": 100 * TOLERANCE, "source": OWN_DATA,
+        "held_out": "test episodes of each bag set (20 %), never trained on or tuned on; the human-like "
+                    "family was kept out of every tuning",
+    }
+    target = results / TRANSFER
+    target.write_text(json.dumps({"meta": meta, "rows": found}, indent=1) + "\n", encoding="utf-8")
+    write_readme(results)
+    return target
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m lab.transfer [RESULTS_DIR]``: write ``transfer.json`` and the README."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    results = Path(args[0]) if args else Path("results")
+    if not (results / OWN_DATA).is_file():
+        print(f"transfer: error: {results / OWN_DATA} does not exist (python -m lab.own_data collate)",
+              file=sys.stderr)
+        return 2
+    print(f"wrote {build(results, ['python', '-m', 'lab.transfer', *args])}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
