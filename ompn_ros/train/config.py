@@ -42,9 +42,7 @@ def _is_number(value: Any) -> bool:
 
 # TrainConfig's checks, by kind of field (__post_init__); the numbers are stored as floats
 _POSITIVE_INTS = ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size")
-_COUNTS = (
-    "seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts", "restart_stall"
-)
+_COUNTS = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts")
 _AT_LEAST_ONE = ("candidates", "candidates_no_final")
 _FLAGS = ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16")
 _NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
@@ -65,8 +63,8 @@ _CHOICES: dict[str, tuple[str, ...]] = {
 RECORDED_ORDER = (
     "lr", "batch_size", "clip_norm", "bptt", "iterations", "eval_every", "val_ratio", "seed", "split_seed",
     "out_dir", "resume", "tensorboard", "no_done_loss", "threads", "selection", "labels", "patience",
-    "agreement_warmup", "restart_at", "restart_below", "restarts", "restart_stall", "candidates",
-    "candidates_no_final", "detector_lag", "detector_delay", "obs_norm", "eval_episodes", "eval_batch_size", "progress", "bf16",
+    "agreement_warmup", "restart_at", "restart_below", "restarts", "candidates", "candidates_no_final",
+    "detector_lag", "detector_delay", "obs_norm", "eval_episodes", "eval_batch_size", "progress", "bf16",
     "weight_decay", "ema_decay", "lr_schedule", "obs_dropout", "obs_dropout_range", "force_bf16",
     "action_norm", "distill_from", "distill_weight", "device",
 )
@@ -142,9 +140,6 @@ class TrainConfig:
             ``restarts`` times.  Labelled selections only.  0 = off.
         restart_below: the bound of the restart rule (the selection criterion, e.g. alignment).
         restarts: the most restarts one run makes.
-        restart_stall: the rule also needs the best validation criterion to be at least this many
-            iterations old at the check (the curve stopped rising); a run still improving is kept.
-            0 = the bound alone.
         candidates: initialisations trained on the one split; the one with the best validation
             criterion is kept (:mod:`ompn_ros.train.candidates`, ``OUT/candidates.json``).  1 = one run.
         candidates_no_final: ``candidates`` for bags whose final observation the reader guessed (no
@@ -212,7 +207,6 @@ class TrainConfig:
     restart_at: int = 0
     restart_below: float = 0.0
     restarts: int = 1
-    restart_stall: int = 0
     candidates: int = 1
     candidates_no_final: int = 1
     weight_decay: float = 0.0

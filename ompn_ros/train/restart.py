@@ -8,9 +8,7 @@ is 2 or more steps away, against 6 % for a good run) and its validation alignmen
 at iteration 60 (full) / 80 (partial).
 
 The rule: at its first evaluation at or after iteration ``restart_at``, a run whose best validation
-criterion so far is below ``restart_below`` and was reached at least ``restart_stall`` iterations
-before (the curve stopped rising; a run that learns slowly on harder data is still rising there)
-starts again from a new initialisation (seed
+criterion so far is below ``restart_below`` starts again from a new initialisation (seed
 ``seed + RESTART_SEED_STRIDE · k`` for attempt ``k``) on the *same* train/validation split, at most
 ``restarts`` times.  The abandoned attempt's ``log.jsonl`` is kept as ``log_attempt<k>.jsonl``.
 Cost: about ``restart_at`` iterations and their evaluations per restart, paid only by the runs that
@@ -53,13 +51,11 @@ def rule_applies(cfg: TrainConfig, labelled: bool, attempt: int) -> bool:
     return bool(cfg.restart_at) and labelled and attempt < cfg.restarts
 
 
-def collapsed(cfg: TrainConfig, iteration: int, best_score: float, best_iteration: int) -> bool:
+def collapsed(cfg: TrainConfig, iteration: int, best_score: float) -> bool:
     """Whether the run is to restart at this evaluation: the first one at or after ``restart_at``,
-    with the best score so far below the bound and reached at least ``restart_stall`` iterations
-    before."""
+    with the best score so far below the bound."""
     first = iteration >= cfg.restart_at > iteration - cfg.eval_every
-    stalled = iteration - best_iteration >= cfg.restart_stall
-    return first and stalled and not best_score >= cfg.restart_below
+    return first and not best_score >= cfg.restart_below
 
 
 def read_attempt(out_dir: Path | None) -> int:
@@ -94,10 +90,9 @@ def start_attempt(out_dir: Path | None, attempt: int, seed: int, reason: str) ->
 def restart_reason(cfg: TrainConfig, selection: str, best_score: float, best_iteration: int) -> str:
     """The one log line of a restart."""
     score = "none" if math.isinf(best_score) else f"{best_score:.3f} (iteration {best_iteration})"
-    stall = f", not improved for {cfg.restart_stall}+ iterations" if cfg.restart_stall else ""
     return (f"restart rule: best validation {selection} by iteration {cfg.restart_at} is {score}, "
-            f"below restart_below={cfg.restart_below}{stall}: the initialisation collapsed, training "
-            "again from a new one on the same split")
+            f"below restart_below={cfg.restart_below}: the initialisation collapsed, training again "
+            "from a new one on the same split")
 
 
 __all__ = [

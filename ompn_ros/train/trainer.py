@@ -594,7 +594,7 @@ class _Attempt:
                 extra = {**self.extra_base, "iteration": iteration, "metrics": metrics}
                 _save_all(self.out_dir, self.models, done, extra, is_best)
             stopped_early = _patience_exhausted(cfg, self.selection, done.history, done.best_iteration)
-            restart = check_rule and collapsed(cfg, iteration, done.best_key[0], done.best_iteration)
+            restart = check_rule and collapsed(cfg, iteration, done.best_key[0])
         stopped_early = bool(all_reduce_sum(float(stopped_early), self.ctx))
         restart = bool(all_reduce_sum(float(restart), self.ctx))  # every rank restarts, or none
         if stopped_early and not restart and self.ctx.is_main:
