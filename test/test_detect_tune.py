@@ -131,3 +131,23 @@ def test_node_config_of_a_users_own_data_sets_no_empty_domain(tmp_path: Path):
 def test_a_missing_detector_file_is_named(tmp_path: Path):
     with pytest.raises(TuneError, match=r"nope\.yaml"):
         tune.load_detector_yaml(tmp_path / "nope.yaml")
+
+
+def test_the_grid_adds_shortest_segments_relative_to_the_typical_segment_length():
+    bounds = [np.array([3, 7, 11]), np.array([9, 19]), np.array([39])]
+    assert tune.typical_segment_length(bounds) == 10.0  # median of 4, 10 and 40 steps per subtask
+    assert tune.typical_segment_length([]) == 0.0
+    assert {c.min_segment_length for c in tune.default_grid()} == {1, 3}
+    assert {c.min_segment_length for c in tune.default_grid(47.0)} == {1, 3, 12, 24}
+    assert {c.min_segment_length for c in tune.default_grid(6.0)} == {1, 2, 3}
+    assert len(tune.default_grid(47.0)) == 18 * 2 * 4 * 3
+
+
+def test_a_long_shortest_segment_removes_the_false_alarms_after_each_boundary():
+    # subtasks of 20 steps; a spurious peak 4 steps after each boundary as high as the true ones
+    episode = _episode([0] * 20 + [1] * 20 + [2] * 20)
+    replay = _replay([19, 23, 39, 43], 60, 0.6)
+    best, metrics, _ = tune.choose_on_replays([replay], [episode], objective="f1", relative_min_segment=True)
+    assert best.min_segment_length >= 5 and metrics["f1_tol1"] == 1.0
+    old, _, _ = tune.choose_on_replays([replay], [episode], objective="f1")  # the default grid
+    assert tune.score_online([replay], [episode], old)["f1_tol1"] < 1.0

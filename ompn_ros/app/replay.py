@@ -27,7 +27,7 @@ from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
-from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays, default_grid
+from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter
 from ompn_ros.stream.replay import replay_episode
@@ -110,8 +110,7 @@ def choose_detector(
     objective: str = "f1",
 ) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
     """Replay once, then grid-search the online detector (:func:`ompn_ros.detect.tune.choose_on_replays`)."""
-    grid = list(grid or default_grid())
-    replays = replay_all(policy, episodes, grid[0])
+    replays = replay_all(policy, episodes, grid[0] if grid else DetectorConfig())
     check_finite(replays, episodes)
     return choose_on_replays(replays, episodes, grid, objective)
 

@@ -7,7 +7,7 @@ in the boundaries the online detections are scored against:
 
 * :func:`tune_on_labels`: the episodes' true subtask boundaries; then the chosen setting's
   ``offset`` is searched the same way (:func:`~ompn_ros.detect.tune.offset_grid`,
-  docs/design.md#boundary-offset);
+  docs/design.md#detector-grid);
 * :func:`calibrate_label_free`: a whole-episode *reference* computed from the same model's
   expansion distributions, no labels (:func:`reference_boundaries`): the paper's automatic
   threshold (Lu et al., ICLR 2021, Algorithm 2) with the boundary at the onset of each run above

@@ -25,7 +25,7 @@ the threshold"), made causal:
 * ``offset``: a committed boundary is reported that many steps earlier than its rule places it (never
   at or before the previous boundary), with that step's score, level and stamp; it is published at
   the same step as without the offset.  Calibrated on validation episodes when the score's runs end a
-  steady few steps after the true boundaries (docs/design.md#boundary-offset).
+  steady few steps after the true boundaries (docs/design.md#detector-grid).
 
 ``mode='hsmm'`` is a different decoder with the same step interface: the explicit-duration HSMM of
 :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there ``high`` is
@@ -108,7 +108,8 @@ class DetectorConfig:
         if isinstance(lag, bool) or not isinstance(lag, int | np.integer) or not 0 <= lag <= MAX_LAG:
             raise DetectorConfigError(f"detector 'lag' must be an integer in [0, {MAX_LAG}], got {lag!r}")
         offset = self.offset
-        if isinstance(offset, bool) or not isinstance(offset, int | np.integer) or not 0 <= offset <= MAX_OFFSET:
+        offset_int = isinstance(offset, int | np.integer) and not isinstance(offset, bool)
+        if not offset_int or not 0 <= offset <= MAX_OFFSET:
             raise DetectorConfigError(
                 f"detector 'offset' must be an integer in [0, {MAX_OFFSET}], got {offset!r}"
             )

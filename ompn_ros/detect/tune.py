@@ -8,9 +8,10 @@ so everything here is ROS-free and model-free: replaying the model is the caller
   (:func:`ompn_ros.detect.online.detect_sequence`) against the offline detectors of the paper
   (Top-K, Algorithm 1; automatic threshold, Algorithm 2; Lu et al., ICLR 2021, §3.3) with K = the
   true number of boundaries.
-* :func:`choose_on_replays`: a grid search over :class:`DetectorConfig` maximising boundary F1
+* :func:`choose_on_replays`: a grid search over :class:`DetectorConfig` (:func:`default_grid`, on
+  request with shortest segments relative to the episodes' typical length) maximising boundary F1
   (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2), then over
-  the chosen setting's ``offset`` (:func:`offset_grid`, docs/design.md#boundary-offset).
+  the chosen setting's ``offset`` (:func:`offset_grid`, docs/design.md#detector-grid).
 * :func:`write_node_config` / :func:`load_detector_yaml`: the chosen settings as an ``ompn_node``
   ``--params-file`` and back.
 
@@ -158,9 +159,29 @@ def compare_on_replays(
     return results
 
 
-def default_grid() -> list[DetectorConfig]:
-    """The detector settings searched by :func:`choose_on_replays` (18 highs × 2 × 2 × modes)."""
+MIN_SEGMENT_LENGTHS = (1, 3)
+"""The grid's absolute choices of ``min_segment_length`` (steps)."""
+MIN_SEGMENT_FRACTIONS = (0.25, 0.5)
+"""The grid's relative choices of ``min_segment_length``: these fractions of the typical segment length
+of the tuning targets (:func:`typical_segment_length`; docs/design.md#detector-grid)."""
+
+
+def typical_segment_length(boundaries: Sequence[np.ndarray]) -> float:
+    """The median over episodes of the mean segment length in steps (``T / K`` for K boundaries, the
+    last at ``T - 1``); 0 without boundaries.  O(E log E)."""
+    lengths = [(int(b[-1]) + 1) / len(b) for b in boundaries if len(b)]
+    return float(np.median(lengths)) if lengths else 0.0
+
+
+def default_grid(segment_length: float = 0.0) -> list[DetectorConfig]:
+    """The detector settings searched by :func:`choose_on_replays` and the calibration: 18 highs × 2
+    hystereses × the ``min_segment_length`` choices × 3 modes.  The choices are
+    ``MIN_SEGMENT_LENGTHS`` and, for a ``segment_length`` > 0 (the targets'
+    :func:`typical_segment_length`), its ``MIN_SEGMENT_FRACTIONS``, so that a domain of long subtasks
+    can rule out false alarms right after a boundary."""
     highs = [round(float(h), 2) for h in np.arange(0.05, 0.91, 0.05)]
+    relative = (max(1, round(f * segment_length)) for f in MIN_SEGMENT_FRACTIONS)
+    min_lengths = sorted({*MIN_SEGMENT_LENGTHS, *relative})
     return [
         DetectorConfig(
             high=high,
@@ -168,7 +189,7 @@ def default_grid() -> list[DetectorConfig]:
             min_segment_length=min_len,
             mode=mode,
         )
-        for high, hyst, min_len, mode in itertools.product(highs, (0.0, 0.1), (1, 3), MODES)
+        for high, hyst, min_len, mode in itertools.product(highs, (0.0, 0.1), min_lengths, MODES)
     ]
 
 
@@ -192,9 +213,12 @@ def choose_on_replays(
     episodes: Sequence[Episode],
     grid: Sequence[DetectorConfig] | None = None,
     objective: str = "f1",
+    relative_min_segment: bool = False,
 ) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
     """Grid-search the online detector, maximising ``objective`` (one of ``OBJECTIVES``), then its
-    ``offset`` (:func:`offset_grid`).
+    ``offset`` (:func:`offset_grid`).  ``relative_min_segment``: the default grid also tries shortest
+    segments relative to the episodes' :func:`typical_segment_length` (off by default;
+    docs/design.md#detector-grid).
 
     The first setting with the best :func:`objective_key` wins.  Returns ``(best config, its
     metrics, comparison with the offline detectors)``.  O((|grid| + MAX_OFFSET) · Σ T).
@@ -202,7 +226,8 @@ def choose_on_replays(
     if objective not in OBJECTIVES:
         raise TuneError(f"detector tuning objective must be one of {OBJECTIVES}, got {objective!r}")
     _check_labelled(replays, episodes)
-    grid = list(grid or default_grid())
+    typical = typical_segment_length([ep.boundaries for ep in episodes]) if relative_min_segment else 0.0
+    grid = list(grid or default_grid(typical))
     if not grid:
         raise TuneError("grid: no detector settings to search")
     config, _ = _search(replays, episodes, grid, objective)
