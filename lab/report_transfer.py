@@ -25,8 +25,8 @@ def _line(row: dict[str, Any]) -> str:
     refs = [(ref[f"{k}_f1_1"], ref[f"{k}_align"]) for k in ("offline", "online")]
     verdict = "holds" if row["holds"] else "loses more than 2 points"
     return (f"| {row['default']} | {row['tuned_on']} | {row['family']} | {row['kept_out_of_tuning']} | "
-            f"{_seeds(row['seeds'])} | {row['reference']} | {pair(*figures[0])} | {gaps(figures[0], refs[0])} | "
-            f"{pair(*figures[1])} | {gaps(figures[1], refs[1])} | {verdict} |")
+            f"{_seeds(row['seeds'])} | {row['reference']} | {pair(*figures[0])} | "
+            f"{gaps(figures[0], refs[0])} | {pair(*figures[1])} | {gaps(figures[1], refs[1])} | {verdict} |")
 
 
 def transfer_markdown(results_dir: Path, level: int = 2) -> list[str]:

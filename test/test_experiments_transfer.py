@@ -60,6 +60,8 @@ def test_the_restart_check_pairs_the_runs_with_and_without_the_rule(tmp_path: Pa
     assert not restart["holds"]
 
 
-def test_without_own_data_the_command_says_what_to_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_without_own_data_the_command_says_what_to_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert transfer.main([str(tmp_path)]) == 2
     assert "lab.own_data collate" in capsys.readouterr().err
