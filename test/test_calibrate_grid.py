@@ -18,8 +18,10 @@ from ompn_ros.detect.calibrate import (
     pooled_counts,
     reference_boundaries,
     scores_from_p_hats,
+    search,
     tune_on_labels,
 )
+from ompn_ros.detect.tune import offset_grid
 from ompn_ros.detect.errors import CalibrationError
 from ompn_ros.detect.online import DetectorConfig, detect_sequence
 from ompn_ros.metrics import alignment_accuracy, mean_f1
@@ -63,11 +65,13 @@ def _late(seed: int, delay: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
 
 
 @pytest.mark.parametrize("delay", [0, 2, 3])
-def test_label_tuning_calibrates_the_offset_of_late_scores(delay: int) -> None:
+def test_the_offset_search_finds_how_late_the_scores_are(delay: int) -> None:
     p_hats, labels = _late(8, delay)
     scores = scores_from_p_hats(p_hats)
     without = search_grid_only(scores, labels)
-    result = tune_on_labels(scores, labels, "align")  # the objective of continuous control
+    gts = [np.append(np.flatnonzero(np.diff(lab)), len(lab) - 1) for lab in labels]
+    found = tune_on_labels(scores, labels, "align")  # the objective of continuous control
+    result = search(scores, gts, labels, "align", offset_grid(found.config))
     assert result.config.offset == delay
     assert result.metrics["f1_tol1"] == 1.0
     if delay > 1:

@@ -65,9 +65,12 @@ def test_the_grid_search_finds_a_threshold_below_the_peaks():
 
 def test_the_search_moves_late_boundaries_back_and_the_node_file_keeps_the_offset(tmp_path):
     replay = _replay([5, 9], 12, 0.6)  # each peak 2 steps after its boundary (3, 7)
-    best, metrics, _ = tune.choose_on_replays([replay], [EPISODE], objective="align")
+    best, metrics, _ = tune.choose_on_replays([replay], [EPISODE], objective="align", long_subtasks=True)
     assert best.offset == 2 and metrics["f1_tol1"] == 1.0 and metrics["align_strict"] == 1.0
-    on_time, _, _ = tune.choose_on_replays([_replay([3, 7], 12, 0.6)], [EPISODE], objective="align")
+    plain, _, _ = tune.choose_on_replays([replay], [EPISODE], objective="align")  # the default: no offset
+    assert plain.offset == 0
+    on_time, _, _ = tune.choose_on_replays([_replay([3, 7], 12, 0.6)], [EPISODE], objective="align",
+                                           long_subtasks=True)
     assert on_time.offset == 0
     path = tune.write_node_config(tmp_path / "node.yaml", "dial", best, {"online": metrics}, "a test")
     assert tune.load_detector_yaml(path) == best
@@ -147,7 +150,7 @@ def test_a_long_shortest_segment_removes_the_false_alarms_after_each_boundary():
     # subtasks of 20 steps; a spurious peak 4 steps after each boundary as high as the true ones
     episode = _episode([0] * 20 + [1] * 20 + [2] * 20)
     replay = _replay([19, 23, 39, 43], 60, 0.6)
-    best, metrics, _ = tune.choose_on_replays([replay], [episode], objective="f1", relative_min_segment=True)
+    best, metrics, _ = tune.choose_on_replays([replay], [episode], objective="f1", long_subtasks=True)
     assert best.min_segment_length >= 5 and metrics["f1_tol1"] == 1.0
     old, _, _ = tune.choose_on_replays([replay], [episode], objective="f1")  # the default grid
     assert tune.score_online([replay], [episode], old)["f1_tol1"] < 1.0

@@ -46,14 +46,14 @@ class Tuned:
 
 
 def tune_detector(policy: Any, episodes: Sequence[Episode], objective: str | None, domain: str | None,
-                  lag: int, max_delay: float, relative_min_segment: bool = False) -> Tuned:
+                  lag: int, max_delay: float, long_subtasks: bool = False) -> Tuned:
     """Replay ``episodes`` once and choose the online detector maximising ``objective`` (none: the
     domain's, F1 without a domain); the 'hsmm' detector of ``lag`` may cost ``max_delay`` mean steps."""
     objective = objective or DEFAULT_OBJECTIVE.get(domain or "", "f1")
     replays = replay.replay_all(policy, episodes, default_grid()[0])
     replay.check_finite(replays, episodes)
     threshold, metrics, comparison = choose_on_replays(replays, episodes, objective=objective,
-                                                       relative_min_segment=relative_min_segment)
+                                                       long_subtasks=long_subtasks)
     duration = duration_detector([r.scores for r in replays], [ep.boundaries for ep in episodes], lag,
                                  max_delay)
     model = None if duration is None else duration.model

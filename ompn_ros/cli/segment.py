@@ -126,9 +126,9 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
         help="with --tune: the mean delay in steps the 'hsmm' detector's threshold may cost",
     )
     p.add_argument(
-        "--relative-min-segment", action="store_true",
-        help="with --tune: also try shortest segments of 1/4 and 1/2 the episodes' typical subtask length "
-        "(long subtasks, e.g. an arm at 25 Hz; docs/design.md#detector-grid)",
+        "--long-subtasks", action="store_true",
+        help="with --tune: subtasks of tens of steps (e.g. an arm at 25 Hz): also try shortest segments of "
+        "1/4 and 1/2 the episodes' typical subtask length, then a boundary offset (docs/design.md#detector-grid)",
     )
     p.add_argument(
         "--objective",
@@ -167,7 +167,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ReplayError(f"no episodes found in {args.bag}")
     if args.tune:
         tuned = tune_detector(policy, episodes, args.objective, args.domain, args.lag, args.max_delay,
-                              args.relative_min_segment)
+                              args.long_subtasks)
         return _tune(args, tuned)
     settings, line = segment_setup.detector_settings(args.checkpoint, args.detector_config)
     config, model = settings.online, settings.duration_model

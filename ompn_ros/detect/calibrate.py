@@ -5,9 +5,7 @@ with the same objective (:func:`objective_key`: the objective metric, then the o
 shorter detection delay) over per-episode score sequences of validation episodes.  They differ only
 in the boundaries the online detections are scored against:
 
-* :func:`tune_on_labels`: the episodes' true subtask boundaries; then the chosen setting's
-  ``offset`` is searched the same way (:func:`~ompn_ros.detect.tune.offset_grid`,
-  docs/design.md#detector-grid);
+* :func:`tune_on_labels`: the episodes' true subtask boundaries;
 * :func:`calibrate_label_free`: a whole-episode *reference* computed from the same model's
   expansion distributions, no labels (:func:`reference_boundaries`): the paper's automatic
   threshold (Lu et al., ICLR 2021, Algorithm 2) with the boundary at the onset of each run above
@@ -56,7 +54,6 @@ from ompn_ros.detect.tune import (
     Objective,
     default_grid,
     objective_key,
-    offset_grid,
 )
 from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries, mean_f1
 
@@ -285,8 +282,7 @@ def tune_on_labels(
     labels = [np.asarray(lab, dtype=np.int64) for lab in labels]
     bounds = [np.flatnonzero(np.diff(lab) != 0) if len(lab) else lab for lab in labels]
     bounds = [np.append(b, len(lab) - 1) for b, lab in zip(bounds, labels, strict=True)]
-    found = search(scores, bounds, labels, objective, grid, "labels")
-    return search(scores, bounds, labels, objective, offset_grid(found.config), "labels")
+    return search(scores, bounds, labels, objective, grid, "labels")
 
 
 def estimated_count(p_hat: np.ndarray) -> int:

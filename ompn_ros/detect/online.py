@@ -25,7 +25,8 @@ the threshold"), made causal:
 * ``offset``: a committed boundary is reported that many steps earlier than its rule places it (never
   at or before the previous boundary), with that step's score, level and stamp; it is published at
   the same step as without the offset.  Calibrated on validation episodes when the score's runs end a
-  steady few steps after the true boundaries (docs/design.md#detector-grid).
+  steady few steps after the true boundaries (`ompn_segment --tune --long-subtasks`,
+  docs/design.md#detector-grid).
 
 ``mode='hsmm'`` is a different decoder with the same step interface: the explicit-duration HSMM of
 :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there ``high`` is

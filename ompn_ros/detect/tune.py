@@ -10,8 +10,9 @@ so everything here is ROS-free and model-free: replaying the model is the caller
   true number of boundaries.
 * :func:`choose_on_replays`: a grid search over :class:`DetectorConfig` (:func:`default_grid`, on
   request with shortest segments relative to the episodes' typical length) maximising boundary F1
-  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2), then over
-  the chosen setting's ``offset`` (:func:`offset_grid`, docs/design.md#detector-grid).
+  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2); for long
+  subtasks also over the chosen setting's ``offset`` (:func:`offset_grid`,
+  docs/design.md#detector-grid).
 * :func:`write_node_config` / :func:`load_detector_yaml`: the chosen settings as an ``ompn_node``
   ``--params-file`` and back.
 
@@ -195,7 +196,7 @@ def default_grid(segment_length: float = 0.0) -> list[DetectorConfig]:
 
 def offset_grid(config: DetectorConfig) -> list[DetectorConfig]:
     """``config`` with every ``offset`` from 0 to ``MAX_OFFSET`` (0 first, so that a tie keeps it); the
-    second stage of every tuning on labelled episodes.  Only ``config`` for mode 'hsmm'."""
+    second stage of a tuning for long subtasks.  Only ``config`` for mode 'hsmm'."""
     if config.mode not in MODES:
         return [config]
     return [replace(config, offset=offset) for offset in range(MAX_OFFSET + 1)]
@@ -213,12 +214,12 @@ def choose_on_replays(
     episodes: Sequence[Episode],
     grid: Sequence[DetectorConfig] | None = None,
     objective: str = "f1",
-    relative_min_segment: bool = False,
+    long_subtasks: bool = False,
 ) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
-    """Grid-search the online detector, maximising ``objective`` (one of ``OBJECTIVES``), then its
-    ``offset`` (:func:`offset_grid`).  ``relative_min_segment``: the default grid also tries shortest
-    segments relative to the episodes' :func:`typical_segment_length` (off by default;
-    docs/design.md#detector-grid).
+    """Grid-search the online detector, maximising ``objective`` (one of ``OBJECTIVES``).
+    ``long_subtasks`` (off by default; docs/design.md#detector-grid): the default grid also tries
+    shortest segments relative to the episodes' :func:`typical_segment_length`, and the chosen
+    setting's ``offset`` is searched next (:func:`offset_grid`).
 
     The first setting with the best :func:`objective_key` wins.  Returns ``(best config, its
     metrics, comparison with the offline detectors)``.  O((|grid| + MAX_OFFSET) · Σ T).
@@ -226,12 +227,13 @@ def choose_on_replays(
     if objective not in OBJECTIVES:
         raise TuneError(f"detector tuning objective must be one of {OBJECTIVES}, got {objective!r}")
     _check_labelled(replays, episodes)
-    typical = typical_segment_length([ep.boundaries for ep in episodes]) if relative_min_segment else 0.0
+    typical = typical_segment_length([ep.boundaries for ep in episodes]) if long_subtasks else 0.0
     grid = list(grid or default_grid(typical))
     if not grid:
         raise TuneError("grid: no detector settings to search")
-    config, _ = _search(replays, episodes, grid, objective)
-    config, metrics = _search(replays, episodes, offset_grid(config), objective)
+    config, metrics = _search(replays, episodes, grid, objective)
+    if long_subtasks:
+        config, metrics = _search(replays, episodes, offset_grid(config), objective)
     return config, metrics, compare_on_replays(replays, episodes, {"online": config})
 
 
