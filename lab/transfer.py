@@ -70,10 +70,10 @@ CRAFT_SEEDS, DIAL_SEEDS = tuple(range(10, 15)), tuple(range(5, 8))
 CHECKS = (
     Check("final_observation: blank, best of 2 (Craft)", "Craft full, expert, seeds 0–9",
           "Craft full, expert", "seeds 10–14", CRAFT_SEEDS,
-          arm("craft", "blank", "expert", 2), arm("craft", "complete", "expert"), "complete bags"),
+          arm("craft", "blank", "expert", 2), arm("craft", "complete", "expert"), "complete bags, one run"),
     Check("final_observation: blank, best of 2 (Craft)", "Craft full, expert, seeds 0–9",
           "Craft full, human-like", "the family", CRAFT_SEEDS,
-          arm("craft", "blank", "human", 2), arm("craft", "complete", "human"), "complete bags"),
+          arm("craft", "blank", "human", 2), arm("craft", "complete", "human"), "complete bags, one run"),
     Check("final_observation: extrapolate (Dial)", "Dial, expert, seeds 0–4",
           "Dial, expert", "seeds 5–7", DIAL_SEEDS,
           arm("dial", "extrapolate", "expert"), arm("dial", "complete", "expert"), "complete bags"),

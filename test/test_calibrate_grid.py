@@ -21,9 +21,9 @@ from ompn_ros.detect.calibrate import (
     search,
     tune_on_labels,
 )
-from ompn_ros.detect.tune import offset_grid
 from ompn_ros.detect.errors import CalibrationError
 from ompn_ros.detect.online import DetectorConfig, detect_sequence
+from ompn_ros.detect.tune import offset_grid
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 
