@@ -128,7 +128,8 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--long-subtasks", action="store_true",
         help="with --tune: subtasks of tens of steps (e.g. an arm at 25 Hz): also try shortest segments of "
-        "1/4 and 1/2 the episodes' typical subtask length, then a boundary offset (docs/design.md#detector-grid)",
+        "1/4 and 1/2 the episodes' typical subtask length, then a boundary offset "
+        "(docs/design.md#detector-grid)",
     )
     p.add_argument(
         "--objective",
