@@ -144,6 +144,8 @@ def test_a_detector_file_written_before_the_offset_reads_as_offset_0(tmp_path: P
     del doc["online"]["offset"]
     path.write_text(json.dumps(doc))
     assert load_detector_settings(tmp_path).online.offset == 0
+    assert "offset" not in load_detector_settings(tmp_path).describe()  # the log line names a non-zero one
+    assert "offset=2" in _settings().describe()
 
 
 @pytest.mark.parametrize(

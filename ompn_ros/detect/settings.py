@@ -122,7 +122,7 @@ class DetectorSettings:
                     f"fitted on {model.episodes} episodes)")
         else:
             what = (f"detector high={c.high} low={c.low_threshold} min_segment_length={c.min_segment_length} "
-                    f"mode={c.mode}")
+                    f"mode={c.mode}" + (f" offset={c.offset}" if c.offset else ""))
         return f"{what} done_threshold={self.done_threshold} (source: {self.source}; {self.provenance})"
 
     def to_dict(self) -> dict[str, Any]:
