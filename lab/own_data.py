@@ -59,6 +59,7 @@ from ompn_ros.train.detector import (
     calibrate_without_labels,
 )
 from ompn_ros.train.precision import cpu_model
+from ompn_ros.train.restart import read_attempt
 from ompn_ros.train.trainer import train, train_val_episodes
 
 from .data import collect_bags, held_out_split
@@ -283,13 +284,9 @@ def _train_seconds(run_dir: Path) -> float:
 
 
 def restarts_of(run_dir: Path) -> int:
-    """How many times the restart rule started ``run_dir``'s run, or its candidates, again (from their
-    ``attempt.json`` records; 0 without any)."""
-    total = 0
-    for record in (run_dir / "attempt.json", *sorted(run_dir.glob("candidates/*/attempt.json"))):
-        if record.is_file():
-            total += int(json.loads(record.read_text())["attempt"])
-    return total
+    """How many times the restart rule started ``run_dir``'s run, or its candidates, again (the
+    attempts their run directories record; 0 without any)."""
+    return read_attempt(run_dir) + sum(read_attempt(c) for c in sorted(run_dir.glob("candidates/*")))
 
 
 def score_arm(

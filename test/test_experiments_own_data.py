@@ -176,3 +176,13 @@ def test_final_observation_means_pair_each_seed_with_its_complete_arm(tmp_path: 
                                                        "final_craft_full_complete_best2_seed11")]
     (tmp_path / report_own.OWN_DATA).write_text(json.dumps(doc))
     assert "Means over seeds" not in report.render_readme(tmp_path)
+
+
+def test_restarts_are_counted_from_the_run_and_its_candidates(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    (run / "candidates" / "0").mkdir(parents=True)
+    (run / "candidates" / "1").mkdir()
+    assert own_data.restarts_of(run) == 0
+    (run / "attempt.json").write_text('{"attempt": 1, "seed": 100003, "reason": "x"}')
+    (run / "candidates" / "1" / "attempt.json").write_text('{"attempt": 1, "seed": 110010, "reason": "x"}')
+    assert own_data.restarts_of(run) == 2
