@@ -28,6 +28,7 @@ import numpy as np
 
 from lab.report_hparams import hparams_markdown
 from lab.report_own import own_markdown
+from lab.report_selection import selection_markdown
 from lab.report_transfer import transfer_markdown
 
 DOMAINS = ("craft", "dial")
@@ -274,6 +275,7 @@ def render_readme(results_dir: Path) -> str:
     parts += hparams_markdown(results_dir)
     parts += own_markdown(results_dir)
     parts += transfer_markdown(results_dir)
+    parts += selection_markdown(results_dir)
     return "\n".join(parts).rstrip("\n") + "\n"
 
 

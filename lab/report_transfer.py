@@ -42,7 +42,8 @@ def transfer_markdown(results_dir: Path, level: int = 2) -> list[str]:
         f"Made by `{' '.join(meta['command'])}` on {meta['date']} from `{meta['source']}`: means over the "
         f"seeds, {meta['held_out']}. F1@1 / alignment in %; Δ = with the default (or on the family) minus "
         f"the reference, in points. A default holds when no figure loses more than "
-        f"{meta['tolerance_points']:g} points.",
+        f"{meta['tolerance_points']:g} points."
+        + (f" Detector: {meta['detector']}." if "detector" in meta else ""),
         "",
         "| default | tuned on | family | kept out of tuning | seeds | reference | offline | Δ offline | "
         "online | Δ online | verdict |",

@@ -114,6 +114,56 @@ def test_objective_orders_by_the_chosen_metric_first():
     assert tune.objective_key(b, "align") > tune.objective_key(a, "align")
 
 
+def _rows(*figures: tuple[float, float, float]) -> list[dict[str, float]]:
+    return [{"f1_tol1": f, "align_strict": a, "delay_mean": d} for f, a, d in figures]
+
+
+def test_without_a_band_the_pick_is_the_objective_order():
+    rng = np.random.default_rng(3)
+    rows = _rows(*[(float(f), float(a), float(d)) for f, a, d in rng.random((40, 3)).round(1)])
+    for objective in ("f1", "align"):
+        first = max(range(len(rows)), key=lambda g: (tune.objective_key(rows[g], objective), -g))
+        assert tune.pick_setting(rows, objective, band=0.0) == first
+
+
+def test_a_near_tie_on_the_objective_is_decided_by_the_other_metric():
+    rows = _rows((0.40, 0.960, 1.0), (0.85, 0.957, 0.5), (0.95, 0.90, 0.5))
+    assert tune.pick_setting(rows, "align", band=0.0) == 0
+    assert tune.pick_setting(rows, "align", band=0.005) == 1  # 0.3 points lower, F1 45 points higher
+    assert tune.pick_setting(rows, "align", band=0.002) == 0  # outside the band: not tied
+    assert tune.pick_setting(rows, "f1", band=0.005) == 2
+
+
+def test_standard_error_of_f1_is_that_of_a_mean_over_episodes():
+    per_episode = _rows((0.5, 0.0, 0.0), (0.7, 0.0, 0.0), (0.9, 0.0, 0.0))
+    assert tune.standard_error(per_episode, [10, 20, 30], "f1") == pytest.approx(0.2 / np.sqrt(3))
+    assert tune.standard_error(per_episode[:1], [10], "f1") == 0.0
+
+
+def test_standard_error_of_alignment_weights_episodes_by_their_steps():
+    aligned = [0.9, 0.7, 0.8, 0.6]
+    per_episode = _rows(*[(0.0, a, 0.0) for a in aligned])
+    equal = tune.standard_error(per_episode, [50] * 4, "align")
+    assert equal == pytest.approx(np.std(aligned, ddof=1) / 2)  # equal lengths: a plain mean
+    long_good = tune.standard_error(per_episode, [400, 10, 10, 10], "align")
+    assert long_good < equal  # one long episode dominates the pooled ratio
+
+
+def test_one_standard_error_ties_settings_validation_cannot_tell_apart():
+    rows = _rows((0.40, 0.960, 1.0), (0.85, 0.955, 0.5))
+    noisy = _rows((0.4, 0.99, 1.0), (0.4, 0.93, 1.0))  # the best setting's episodes: 3 points apart
+    steady = _rows((0.4, 0.96, 1.0), (0.4, 0.96, 1.0))
+    assert tune.pick_within_error(rows, "align", lambda g: noisy, [100, 100]) == 1
+    assert tune.pick_within_error(rows, "align", lambda g: steady, [100, 100]) == 0
+
+
+def test_pick_setting_refuses_no_rows_and_a_negative_band():
+    with pytest.raises(TuneError, match="no detector settings"):
+        tune.pick_setting([], "f1")
+    with pytest.raises(TuneError, match="band must be >= 0"):
+        tune.pick_setting(_rows((0.5, 0.5, 1.0)), "f1", band=-0.1)
+
+
 def test_node_config_round_trip(tmp_path: Path):
     config = DetectorConfig(high=0.35, low=0.25, min_segment_length=3, mode="rising_edge")
     path = tune.write_node_config(

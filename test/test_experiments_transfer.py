@@ -66,3 +66,30 @@ def test_without_own_data_the_command_says_what_to_run(
 ) -> None:
     assert transfer.main([str(tmp_path)]) == 2
     assert "lab.own_data collate" in capsys.readouterr().err
+
+
+def _family(name: str, role: str, old: tuple[float, float], new: tuple[float, float]) -> dict:
+    arms = [{"arm": f"human_dial_complete_seed{s}"} for s in (5, 6)]
+    return {"family": name, "role": role, "runs": 2, "changed": 1, "arms": arms, "means": {
+        "previous": {"f1_1": old[0], "align": old[1]}, "one_se": {"f1_1": new[0], "align": new[1]},
+        "test_oracle": {"f1_1": 0.9, "align": 0.9}}}
+
+
+def test_the_detector_rule_is_checked_on_the_families_kept_out_of_its_choice(tmp_path: Path) -> None:
+    _write(tmp_path, [_row("human_craft_full_complete_seed11")])
+    families = [
+        _family("seen", "seen while choosing the rule", (0.5, 0.5), (0.1, 0.1)),  # not a check
+        _family("Dial human-like", "kept out", (0.60, 0.87), (0.65, 0.86)),
+        _family("Craft human-like", "kept out", (0.81, 0.61), (0.78, 0.62)),  # F1@1 -3: loses
+    ]
+    (tmp_path / "detector_selection.json").write_text(json.dumps(
+        {"meta": {"command": ["y"], "date": "d", "held_out": "h"}, "families": families}))
+    assert transfer.main([str(tmp_path)]) == 0
+    rows = [r for r in json.loads((tmp_path / transfer.TRANSFER).read_text())["rows"]
+            if r["default"].startswith("detector selection")]
+    assert [r["family"] for r in rows] == ["Dial human-like", "Craft human-like"]
+    assert rows[0]["holds"] and rows[0]["gap"]["online_f1_1"] == pytest.approx(0.05)
+    assert not rows[1]["holds"] and rows[0]["seeds"] == [5, 6]
+    text = (tmp_path / "README.md").read_text()
+    assert "| Dial human-like | kept out | 2 | 1 | 60.0 / 87.0 | 65.0 / 86.0 | +5.0 / -1.0 | 90.0 / 90.0 |" \
+        in text.splitlines()

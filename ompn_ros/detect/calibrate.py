@@ -1,9 +1,11 @@
 """Choosing the online detector of a checkpoint: tuned on labels, or calibrated without them.
 
 Both variants run the same grid search (:func:`default_grid`, the grid of ``ompn_segment --tune``)
-with the same objective (:func:`objective_key`: the objective metric, then the other one, then the
-shorter detection delay) over per-episode score sequences of validation episodes.  They differ only
-in the boundaries the online detections are scored against:
+with the same objective (:func:`pick_setting`: the objective metric, then the other one, then the
+shorter detection delay) over per-episode score sequences of validation episodes.  They differ in
+the boundaries the online detections are scored against, and in how close to the best objective
+a setting must be to count as tied on it (with labels: one standard error over the episodes,
+:func:`pick_within_error`; without them: exactly equal):
 
 * :func:`tune_on_labels`: the episodes' true subtask boundaries;
 * :func:`calibrate_label_free`: a whole-episode *reference* computed from the same model's
@@ -54,6 +56,8 @@ from ompn_ros.detect.tune import (
     Objective,
     default_grid,
     objective_key,
+    pick_setting,
+    pick_within_error,
 )
 from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries, mean_f1
 
@@ -248,10 +252,17 @@ def search(
     grid: Sequence[DetectorConfig] | None = None,
     target: str = "labels",
 ) -> Calibration:
-    """The grid setting with the largest :func:`objective_key` (the first one on ties)."""
+    """The grid setting :func:`pick_within_error` keeps (one standard error over the episodes)."""
     grid = _checked_grid(grid, objective)
     rows = evaluate_grid(scores, grid, target_boundaries, target_labels)
-    return _best(grid, rows, objective, target, len(scores))
+
+    def per_episode(g: int) -> list[dict[str, float]]:
+        return [evaluate_grid([scores[i]], [grid[g]], [target_boundaries[i]],
+                              None if target_labels is None else [target_labels[i]])[0]
+                for i in range(len(scores))]
+
+    best = pick_within_error(rows, objective, per_episode, [len(s) for s in scores])
+    return Calibration(grid[best], rows[best], objective, target, len(scores))
 
 
 def _checked_grid(grid: Sequence[DetectorConfig] | None, objective: Objective) -> list[DetectorConfig]:
@@ -266,9 +277,9 @@ def _checked_grid(grid: Sequence[DetectorConfig] | None, objective: Objective) -
 
 def _best(grid: list[DetectorConfig], rows: list[dict[str, float]], objective: Objective, target: str,
           n_episodes: int) -> Calibration:
-    """The setting with the largest :func:`objective_key` (the first one on ties)."""
-    keys = [objective_key(row, objective) for row in rows]
-    best = max(range(len(grid)), key=lambda g: (keys[g], -g))
+    """The setting :func:`pick_setting` keeps (the label-free calibration: agreement with a reference
+    the same model computed, so no standard error over episodes applies)."""
+    best = pick_setting(rows, objective)
     return Calibration(grid[best], rows[best], objective, target, n_episodes)
 
 

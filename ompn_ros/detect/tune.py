@@ -22,7 +22,7 @@ Cost: one detector pass is O(T) per episode, so a grid of G settings costs O(G �
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Literal, Protocol
@@ -202,11 +202,62 @@ def offset_grid(config: DetectorConfig) -> list[DetectorConfig]:
     return [replace(config, offset=offset) for offset in range(MAX_OFFSET + 1)]
 
 
+def _metric_order(objective: Objective) -> tuple[str, str]:
+    return ("f1_tol1", "align_strict") if objective == "f1" else ("align_strict", "f1_tol1")
+
+
 def objective_key(metrics: Metrics, objective: Objective = "f1") -> tuple[float, float, float]:
     """Sort key of a detector's metrics: the objective, then the other metric, then a short delay."""
     delay = metrics["delay_mean"]
-    first, second = ("f1_tol1", "align_strict") if objective == "f1" else ("align_strict", "f1_tol1")
+    first, second = _metric_order(objective)
     return (metrics[first], metrics[second], -(delay if np.isfinite(delay) else 1e9))
+
+
+def pick_setting(rows: Sequence[Metrics], objective: Objective = "f1", band: float = 0.0) -> int:
+    """Index of the setting a tuning keeps among settings with metrics ``rows``: of those whose
+    objective metric is within ``band`` of the best, the one with the best other metric, then
+    objective, then delay (the first on ties).  ``band`` 0 is the plain :func:`objective_key` order.
+    O(G)."""
+    if not rows:
+        raise TuneError("no detector settings to choose from")
+    if not band >= 0:
+        raise TuneError(f"band must be >= 0, got {band}")
+    first, _ = _metric_order(objective)
+    top = max(row[first] for row in rows)
+    near = [g for g, row in enumerate(rows) if row[first] >= top - band]
+
+    def key(g: int) -> tuple[float, float, float, int]:
+        first_value, second_value, delay = objective_key(rows[g], objective)
+        return (second_value, first_value, delay, -g)
+
+    return max(near, key=key)
+
+
+def standard_error(per_episode: Sequence[Metrics], lengths: Sequence[int], objective: Objective) -> float:
+    """Standard error over episodes of one setting's objective metric, from its metrics on each
+    episode alone (``lengths``: their steps).  F1@1 is a mean over episodes (sample std / sqrt(E));
+    alignment pools the steps of all episodes, a ratio of sums (delta method).  0 below two
+    episodes.  O(E)."""
+    n = len(per_episode)
+    if n < 2:
+        return 0.0
+    if objective == "f1":
+        return float(np.std([m["f1_tol1"] for m in per_episode], ddof=1) / np.sqrt(n))
+    steps = np.asarray(lengths, dtype=np.float64)
+    correct = np.array([m["align_strict"] for m in per_episode]) * steps
+    ratio = correct.sum() / steps.sum()
+    return float(np.sqrt(((correct - ratio * steps) ** 2).sum() * n / (n - 1)) / steps.sum())
+
+
+def pick_within_error(rows: Sequence[Metrics], objective: Objective,
+                      per_episode: Callable[[int], Sequence[Metrics]], lengths: Sequence[int]) -> int:
+    """The setting a tuning on labels keeps: :func:`pick_setting` with a band of one standard error
+    of the best setting's objective (``per_episode(g)``: setting ``g``'s metrics on each episode),
+    the one-standard-error rule of model selection.  Validation cannot tell apart settings closer
+    than that on the objective, while the other metric can differ by tens of points between them
+    (docs/design.md#detector-grid).  O(G + E)."""
+    top = pick_setting(rows, objective)
+    return pick_setting(rows, objective, standard_error(per_episode(top), lengths, objective))
 
 
 def choose_on_replays(
@@ -221,7 +272,7 @@ def choose_on_replays(
     shortest segments relative to the episodes' :func:`typical_segment_length`, and the chosen
     setting's ``offset`` is searched next (:func:`offset_grid`).
 
-    The first setting with the best :func:`objective_key` wins.  Returns ``(best config, its
+    :func:`pick_setting` keeps one setting.  Returns ``(best config, its
     metrics, comparison with the offline detectors)``.  O((|grid| + MAX_OFFSET) · Σ T).
     """
     if objective not in OBJECTIVES:
@@ -239,15 +290,14 @@ def choose_on_replays(
 
 def _search(replays: Sequence[Replayed], episodes: Sequence[Episode], grid: Sequence[DetectorConfig],
             objective: str) -> tuple[DetectorConfig, Metrics]:
-    """The first setting of ``grid`` with the best :func:`objective_key`, and its metrics."""
-    best: tuple[tuple[float, float, float], DetectorConfig, Metrics] | None = None
-    for cfg in grid:
-        metrics = score_online(replays, episodes, cfg)
-        key = objective_key(metrics, objective)  # type: ignore[arg-type]
-        if best is None or key > best[0]:
-            best = (key, cfg, metrics)
-    assert best is not None
-    return best[1], best[2]
+    """The setting of ``grid`` that :func:`pick_setting` keeps, and its metrics."""
+    rows = [score_online(replays, episodes, cfg) for cfg in grid]
+
+    def per_episode(g: int) -> list[Metrics]:
+        return [score_online(replays[i:i + 1], episodes[i:i + 1], grid[g]) for i in range(len(episodes))]
+
+    best = pick_within_error(rows, objective, per_episode, [ep.length for ep in episodes])  # type: ignore[arg-type]
+    return grid[best], rows[best]
 
 
 def write_node_config(
