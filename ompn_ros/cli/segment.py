@@ -16,7 +16,8 @@ Tuning (choose the per-domain node defaults from measurements):
         [--write-config config/ompn_node_<domain>.yaml]
 
 The tuning objective is boundary F1 at tolerance 1 or the alignment accuracy (strict decoding), then
-the other one, then the lower mean detection delay.
+the other one, then the lower mean detection delay; settings within one standard error of the best
+objective (over the tuning episodes) count as tied on it (docs/design.md#detector-grid).
 """
 
 from __future__ import annotations
@@ -135,7 +136,8 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
         "--objective",
         choices=OBJECTIVES,
         default=None,
-        help="with --tune: maximise boundary F1 (tol 1) or alignment first "
+        help="with --tune: maximise boundary F1 (tol 1) or alignment first; settings within one standard "
+        "error of the best count as tied and the other metric decides "
         f"(none: per domain, {DEFAULT_OBJECTIVE}; f1 without --domain)",
     )
 
