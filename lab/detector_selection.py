@@ -1,5 +1,6 @@
-"""Which online detector setting validation should pick: the grid search's lexicographic rule
-against rules that are less swayed by a small validation set (docs/experiments.md §47).
+"""Which online detector setting validation should pick: the grid search's previous rule (the largest
+objective) against the one-standard-error rule, which a small validation set sways less
+(docs/experiments.md §47).
 
 For each arm of :mod:`lab.own_data` with a trained run, the validation and held-out test episodes'
 teacher-forced scores are computed once (cached in ``<work>/selection/<arm>.npz``; the streaming

@@ -162,6 +162,9 @@ def _arms() -> dict[str, Arm]:
                 demonstrator="human"),
             Arm(f"human_dial_extrapolate_seed{seed}", "demonstrator", "dial", length="fixed",
                 bags="extrapolate", seed=seed, demonstrator="human"),
+            # extrapolating a noisy human-like row T: does a copy of the last observation do better?
+            Arm(f"human_dial_duplicate_seed{seed}", "demonstrator", "dial", length="fixed",
+                bags="duplicate", seed=seed, demonstrator="human"),
         ]
     return {a.name: a for a in arms}
 

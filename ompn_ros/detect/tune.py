@@ -10,7 +10,8 @@ so everything here is ROS-free and model-free: replaying the model is the caller
   true number of boundaries.
 * :func:`choose_on_replays`: a grid search over :class:`DetectorConfig` (:func:`default_grid`, on
   request with shortest segments relative to the episodes' typical length) maximising boundary F1
-  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2); for long
+  (tolerance 1) or strict alignment accuracy (the paper's headline metrics, §4.1-4.2), settings
+  within one standard error of the best counting as tied (:func:`pick_within_error`); for long
   subtasks also over the chosen setting's ``offset`` (:func:`offset_grid`,
   docs/design.md#detector-grid).
 * :func:`write_node_config` / :func:`load_detector_yaml`: the chosen settings as an ``ompn_node``
@@ -272,8 +273,8 @@ def choose_on_replays(
     shortest segments relative to the episodes' :func:`typical_segment_length`, and the chosen
     setting's ``offset`` is searched next (:func:`offset_grid`).
 
-    :func:`pick_setting` keeps one setting.  Returns ``(best config, its
-    metrics, comparison with the offline detectors)``.  O((|grid| + MAX_OFFSET) · Σ T).
+    :func:`pick_within_error` keeps one setting (one standard error over the episodes).  Returns
+    ``(best config, its metrics, comparison with the offline detectors)``.  O((|grid| + MAX_OFFSET) · Σ T).
     """
     if objective not in OBJECTIVES:
         raise TuneError(f"detector tuning objective must be one of {OBJECTIVES}, got {objective!r}")
@@ -290,7 +291,7 @@ def choose_on_replays(
 
 def _search(replays: Sequence[Replayed], episodes: Sequence[Episode], grid: Sequence[DetectorConfig],
             objective: str) -> tuple[DetectorConfig, Metrics]:
-    """The setting of ``grid`` that :func:`pick_setting` keeps, and its metrics."""
+    """The setting of ``grid`` that :func:`pick_within_error` keeps, and its metrics."""
     rows = [score_online(replays, episodes, cfg) for cfg in grid]
 
     def per_episode(g: int) -> list[Metrics]:
