@@ -140,6 +140,11 @@ def _arms() -> dict[str, Arm]:
                                 seed=seed))
             arms.append(Arm(f"final_{tag}_{bags}{suffix}", "final_observation", domain, length="fixed",
                             bags=bags, seed=seed))  # type: ignore[arg-type]
+    # Dial's copied row T on the expert seeds of the extrapolate choice: the second option of
+    # final_observation: auto (docs/experiments.md §48; seed 0's arm is defined above)
+    for seed in range(1, 5):
+        arms.append(Arm(f"final_dial_duplicate_seed{seed}", "final_observation", "dial", length="fixed",
+                        bags="duplicate", seed=seed))
     # §43: the better of two initialisations by validation alignment, on the held-out seeds
     for seed in range(10, 20):
         for bags in ("complete", "blank"):
