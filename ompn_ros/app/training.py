@@ -46,6 +46,8 @@ RUN_OUTPUTS = (
     "read_report.txt",
     "candidates",
     "candidates.json",
+    "final_observation",
+    "final_observation.json",
 )
 """What ``ompn_train`` writes into its output directory (``--overwrite`` removes exactly these)."""
 
@@ -176,18 +178,24 @@ def shared_arrays(load: Callable[[], EpisodeArrays], ctx: DistContext | None = N
                               f"({exc}): put OMPN_CACHE_DIR on a disk every machine sees") from exc
 
 
-def bag_data(bags: list[str], data: dict[str, Any]) -> TrainingData:
-    """Episodes from ``bags`` (cached reader; ``data.on_error`` raise | skip_tail) and the model sizes."""
+def reader_spec(data: dict[str, Any]) -> ReaderSpec:
+    """The reader spec of the ``data`` section: ``data.reader_spec``'s file, or ``data.domain``'s preset."""
     domain_name = data.get("domain")
     if data.get("reader_spec"):
-        spec = ReaderSpec.from_yaml(data["reader_spec"])
-    elif domain_name in DOMAINS:
-        spec = ReaderSpec.for_domain(domain_name)
-    else:
-        raise TrainSetupError(
-            f"data.domain must be one of {sorted(DOMAINS)}, or give data.reader_spec (a reader YAML such as "
-            f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
-        )
+        return ReaderSpec.from_yaml(data["reader_spec"])
+    if domain_name in DOMAINS:
+        return ReaderSpec.for_domain(domain_name)
+    raise TrainSetupError(
+        f"data.domain must be one of {sorted(DOMAINS)}, or give data.reader_spec (a reader YAML such as "
+        f"config/reader_jointstate_example.yaml) for your own bags; got domain {domain_name!r}"
+    )
+
+
+def bag_data(bags: list[str], data: dict[str, Any], spec: ReaderSpec | None = None) -> TrainingData:
+    """Episodes from ``bags`` (cached reader; ``data.on_error`` raise | skip_tail) and the model sizes.
+    ``spec``: the reader spec (default: :func:`reader_spec` of ``data``)."""
+    domain_name = data.get("domain")
+    spec = reader_spec(data) if spec is None else spec
     on_error = data.get("on_error", "raise")
     workers, cached = _data_int(data, "cache_workers", 0), bool(data.get("cache", True))
     if workers < 0:
@@ -255,8 +263,13 @@ def build_configs(
         train_fields["progress"] = False
     train_config = TrainConfig.from_dict(train_fields)
     guessed = final_row_guessed(str(data.report.get("summary", "")))
-    labelled = train_config.labels == "auto" and all(ep.subtask is not None for ep in data.episodes)
-    return OMPNConfig.from_dict(model_fields), resolve_candidates(train_config, guessed, labelled)
+    return OMPNConfig.from_dict(model_fields), resolve_candidates(train_config, guessed,
+                                                                  labelled(train_config, data))
+
+
+def labelled(train_config: TrainConfig, data: TrainingData) -> bool:
+    """Whether validation labels select the checkpoint: ``train.labels: auto`` and every episode labelled."""
+    return train_config.labels == "auto" and all(ep.subtask is not None for ep in data.episodes)
 
 
 def run_training(

@@ -16,7 +16,9 @@ obs_dim, action_type and action_dim come from data.domain (ompn_ros.layout) or, 
 from the synthetic task; --set section.key=value overrides any entry (values are parsed as YAML).
 --out sets train.out_dir and must be empty unless --resume or --overwrite is given.  With
 data.on_error=skip_tail, a bag with a corrupt tail keeps the episodes before it; what the reader
-kept and dropped is printed and stored as OUT/read_report.json (and .txt).
+kept and dropped is printed and stored as OUT/read_report.json (and .txt).  With the reader's
+final_observation: auto, one run per option of final_options trains under OUT/final_observation/ and
+the one validation prefers is kept (OUT/final_observation.json).
 """
 
 from __future__ import annotations
@@ -27,8 +29,10 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from ompn_ros.app import training
+from ompn_ros.app.final_choice import train_auto
 from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
@@ -76,20 +80,38 @@ def _run(args: argparse.Namespace) -> int:
     apply_overrides(config, args.overrides)
     training.check_device(config)
     training.prepare_out_dir(args.out, args.resume, args.overwrite)
+    spec = None if args.synthetic else training.reader_spec(config["data"])
+    if spec is not None and spec.final_observation == "auto":
+        summary, option = train_auto(args.bags, config, spec, args.out, args.resume, args.quiet,
+                                     shown=_print_read)
+        _print_summary(summary, option)
+        return 0
     if args.synthetic:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])
     else:
-        data = training.bag_data(args.bags, config["data"])
+        data = training.bag_data(args.bags, config["data"], spec)
         print(data.report["summary"], file=sys.stderr)
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)
     if data.report:
         write_read_report(args.out, data.report)
-    summary = training.run_training(data, model_config, train_config, args.out)
-    if summary is not None:
-        shown = {k: summary[k] for k in ("iterations", "best_iteration", "restarts", "frames")}
-        shown["candidates"] = max(1, len(summary["candidates"]))  # initialisations trained (candidates.json)
-        print(json.dumps(shown))
+    _print_summary(training.run_training(data, model_config, train_config, args.out))
     return 0
+
+
+def _print_read(option: str, data: training.TrainingData) -> None:
+    print(f"final_observation: auto, row T read as '{option}':\n{data.report['summary']}", file=sys.stderr)
+
+
+def _print_summary(summary: dict[str, Any] | None, final_observation: str | None = None) -> None:
+    """One JSON line: iterations, best iteration, restarts, frames, initialisations trained (and the
+    ``final_observation`` option ``auto`` kept)."""
+    if summary is None:
+        return
+    shown = {k: summary[k] for k in ("iterations", "best_iteration", "restarts", "frames")}
+    shown["candidates"] = max(1, len(summary["candidates"]))  # initialisations trained (candidates.json)
+    if final_observation is not None:
+        shown["final_observation"] = final_observation
+    print(json.dumps(shown))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

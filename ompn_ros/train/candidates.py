@@ -104,11 +104,11 @@ def candidate_rows(everyone: Sequence[Candidate]) -> list[dict[str, Any]]:
     ]
 
 
-def _publish(out_dir: Path, winner: Candidate, everyone: Sequence[Candidate], selection: str) -> None:
-    """Copy the winner's checkpoints and log into ``out_dir`` and write ``candidates.json``."""
-    assert winner.out_dir is not None
-    for name in COPIED:
-        source, target = winner.out_dir / name, out_dir / name
+def copy_outputs(source_dir: Path, out_dir: Path, names: Sequence[str]) -> None:
+    """Replace ``out_dir/<name>`` by ``source_dir/<name>`` for each of ``names`` (files or directories;
+    a name ``source_dir`` lacks is removed from ``out_dir``)."""
+    for name in names:
+        source, target = source_dir / name, out_dir / name
         if target.is_dir():
             shutil.rmtree(target)
         elif target.exists():
@@ -117,6 +117,12 @@ def _publish(out_dir: Path, winner: Candidate, everyone: Sequence[Candidate], se
             shutil.copytree(source, target)
         elif source.is_file():
             shutil.copy2(source, target)
+
+
+def _publish(out_dir: Path, winner: Candidate, everyone: Sequence[Candidate], selection: str) -> None:
+    """Copy the winner's checkpoints and log into ``out_dir`` and write ``candidates.json``."""
+    assert winner.out_dir is not None
+    copy_outputs(winner.out_dir, out_dir, COPIED)
     doc = {
         "selection": selection,
         "winner": winner.index,
@@ -157,5 +163,6 @@ __all__ = [
     "best_of",
     "candidate_config",
     "candidate_rows",
+    "copy_outputs",
     "resolve_candidates",
 ]

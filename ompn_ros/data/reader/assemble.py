@@ -215,7 +215,7 @@ def _final_observation(ctx: BagContext, topics: Topics, dec: Decoded, w: Window,
                        number: int) -> np.ndarray | None:
     """Steps of an episode whose last observation has an action (``ReaderSpec.final_observation``)."""
     a, b = w.first_obs, w.stop_obs
-    report, how = ctx.report, ctx.spec.final_observation
+    report, how = ctx.report, ctx.spec.final_guess
     if how == "extrapolate" and b - a < 2:
         how = "duplicate"  # one recorded step: nothing to extrapolate from
     if how == "duplicate":

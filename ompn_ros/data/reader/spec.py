@@ -7,7 +7,7 @@ The YAML form (``config/reader_*.yaml``) holds the same keys under an optional `
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
@@ -22,9 +22,15 @@ T = TypeVar("T")
 
 OnError = Literal["raise", "skip_tail"]
 LabelKind = Literal["ordinal", "id", "boundary", "none"]
-FinalObservation = Literal["drop_last_step", "duplicate", "blank", "extrapolate", "require"]
+FinalObservation = Literal["drop_last_step", "duplicate", "blank", "extrapolate", "require", "auto"]
 Split = Literal["auto", "markers", "gaps", "topic", "idle", "bag"]
-FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require")
+FINAL_OBSERVATION = ("drop_last_step", "duplicate", "blank", "extrapolate", "require", "auto")
+FINAL_GUESSES: tuple[FinalObservation, ...] = ("duplicate", "blank", "extrapolate")
+"""The options that guess row T of an episode without its final observation (what ``auto`` chooses
+among; each keeps every recorded action)."""
+DEFAULT_FINAL_OPTIONS: tuple[FinalObservation, ...] = ("extrapolate", "duplicate")
+"""``final_options`` by default: the two guesses of a smooth continuous row T
+(docs/design.md#final-observation-auto)."""
 PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
 """``final_observation`` of each domain's preset: the option that lost least against complete bags
 there (docs/design.md#final-observation)."""
@@ -152,7 +158,15 @@ class ReaderSpec:
             Craft and ``drop_last_step`` 36.8 (seed 0).  Record the observation after the last
             command when you can.
 
+            * ``auto``: ``ompn_train`` trains once per option of ``final_options`` on the same
+              split and keeps the run whose online detector validation prefers
+              (:mod:`ompn_ros.app.final_choice`, docs/design.md#final-observation-auto); anything
+              else that reads the bags with this spec uses the first option.
+
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
+        final_options: the options ``final_observation: auto`` tries, in order (at least one, each
+            of ``duplicate``, ``blank``, ``extrapolate``, no repeats).  The first
+            is kept when validation cannot choose (no labels) and is what other readers use.
         split: how episodes are delimited (YAML key ``split``): ``markers`` (start/end markers on
             the ``episode`` topic, required), ``gaps`` (observations more than ``time_gap``
             seconds apart), ``topic`` (every message on ``split_topic`` starts an episode at the
@@ -187,6 +201,7 @@ class ReaderSpec:
     task: str = ""
     labels: LabelKind | None = None
     final_observation: FinalObservation = "duplicate"
+    final_options: tuple[FinalObservation, ...] = DEFAULT_FINAL_OPTIONS  # a list is accepted
     split: Split = "auto"
     split_topic: str | None = None
     idle_s: float = 1.0
@@ -229,12 +244,35 @@ class ReaderSpec:
             raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
                                   "and no stamps (assemble's own 'stamp' key chooses the stamps of its rule)")
 
+    def _check_final_options(self) -> None:
+        """``final_options`` as a tuple of distinct guessing options (a list is accepted)."""
+        value: Any = self.final_options
+        options = tuple(value) if isinstance(value, (list, tuple)) else (value,)
+        bad = [o for o in options if o not in FINAL_GUESSES]
+        if not options or bad or len(set(options)) != len(options):
+            raise ReaderSpecError(f"final_options must list distinct options of {FINAL_GUESSES}, "
+                                  f"got {value!r}")
+        object.__setattr__(self, "final_options", options)
+
+    @property
+    def final_guess(self) -> FinalObservation:
+        """The option the reader applies: ``final_observation``, or the first of ``final_options`` for
+        ``auto`` (``ompn_train`` reads once per option instead, :meth:`with_final`)."""
+        return self.final_options[0] if self.final_observation == "auto" else self.final_observation
+
+    def with_final(self, option: FinalObservation) -> ReaderSpec:
+        """This spec reading with ``option`` (one of ``final_options``) in place of ``auto``."""
+        if option not in self.final_options:
+            raise ReaderSpecError(f"final option '{option}' is not one of final_options {self.final_options}")
+        return replace(self, final_observation=option)
+
     def _check_choices(self) -> None:
         if self.labels is not None and self.labels not in layout.LABEL_KINDS:
             raise ReaderSpecError(f"labels must be one of {layout.LABEL_KINDS}, got '{self.labels}'")
         if self.final_observation not in FINAL_OBSERVATION:
             raise ReaderSpecError(f"final_observation must be one of {FINAL_OBSERVATION}, "
                                   f"got '{self.final_observation}'")
+        self._check_final_options()
         if self.split not in SPLITS:
             raise ReaderSpecError(f"split must be one of {SPLITS}, got '{self.split}'")
         if self.split == "topic" and not self.split_topic:
@@ -302,6 +340,7 @@ class ReaderSpec:
             src["joint_names"] = None if src["joint_names"] is None else list(src["joint_names"])
         out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
         out["stamps"] = None if self.stamps is None else dict(self.stamps)
+        out["final_options"] = list(self.final_options)
         return out
 
 
