@@ -9,8 +9,8 @@ is the threshold setting its validation labels pick under one standard error (th
 ``ompn_train``; these runs' tuning never picked the 'hsmm' detector), from the teacher-forced scores
 :mod:`lab.detector_selection` caches; the options are then compared as ``ompn_train`` compares them
 (:func:`~ompn_ros.detect.tune.pick_within_error` on the two runs' validation figures).  Offline
-figures are the own-data table's: the automatic threshold's F1@1 and Top-K's alignment (authors'
-decoding), on the same test episodes.
+figures are the own-data table's: the automatic threshold's F1@1 and alignment (authors' decoding),
+on the same test episodes.
 
     python -m lab.final_auto --work runs/own_data        # results/final_auto.json and the README
 """
@@ -30,12 +30,12 @@ import numpy as np
 
 from lab.detector_selection import _bounds, _grid_rows, cached_scores, one_standard_error, validation
 from lab.report import write_readme
-from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
+from lab.report_final_auto import FINAL_AUTO
+from ompn_ros.detect.offline import auto_threshold_boundaries
 from ompn_ros.detect.tune import default_grid, pick_within_error
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 OBJECTIVE = "align"  # Dial's tuning objective (ompn_ros.detect.tune.DEFAULT_OBJECTIVE)
-RESULTS_FILE = "final_auto.json"
 FIGURES = ("offline_f1_1", "offline_align", "online_f1_1", "online_align")
 
 
@@ -45,17 +45,21 @@ class Family:
 
     name: str
     role: str
+    kept_out: str
     seeds: tuple[int, ...]
     options: tuple[tuple[str, str], ...]
     reference: str
 
 
 FAMILIES = (
-    Family("Dial, human-like", "kept out of every tuning", tuple(range(5, 10)),
-           (("extrapolate", "human_dial_extrapolate_seed{seed}"), ("duplicate", "human_dial_duplicate_seed{seed}")),
+    Family("Dial, human-like", "kept out of every tuning; `duplicate` was proposed after seeds 5–7",
+           "the family; seeds 8–9 for the option set", tuple(range(5, 10)),
+           (("extrapolate", "human_dial_extrapolate_seed{seed}"),
+            ("duplicate", "human_dial_duplicate_seed{seed}")),
            "human_dial_complete_seed{seed}"),
-    Family("Dial, expert", "the seeds extrapolate was chosen on", tuple(range(5)),
-           (("extrapolate", "final_dial_extrapolate_seed{seed}"), ("duplicate", "final_dial_duplicate_seed{seed}")),
+    Family("Dial, expert", "the seeds `extrapolate` was chosen on", "no seed", tuple(range(5)),
+           (("extrapolate", "final_dial_extrapolate_seed{seed}"),
+            ("duplicate", "final_dial_duplicate_seed{seed}")),
            "final_dial_complete_seed{seed}"),
 )
 
@@ -65,12 +69,12 @@ def arm_name(pattern: str, seed: int) -> str:
 
 
 def offline_figures(p_hats: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> dict[str, float]:
-    """The automatic threshold's F1@1 and Top-K's alignment (authors' decoding), K = the true count."""
+    """The automatic threshold's F1@1 and alignment (authors' decoding), K = the true count: Dial's
+    offline detector (paper Algorithm 2), as the own-data table scores it."""
     bounds = _bounds(list(labels))
     auto = [auto_threshold_boundaries(p, len(b))[0] for p, b in zip(p_hats, bounds, strict=True)]
-    topk = [top_k_boundaries(p, len(b)) for p, b in zip(p_hats, bounds, strict=True)]
     return {"offline_f1_1": mean_f1(auto, bounds, 1).f1,
-            "offline_align": alignment_accuracy(topk, list(labels), "authors")}
+            "offline_align": alignment_accuracy(auto, list(labels), "authors")}
 
 
 def score_run(arm: str, work: Path) -> dict[str, Any]:
@@ -94,8 +98,8 @@ def seed_row(family: Family, seed: int, work: Path) -> dict[str, Any]:
                                    lambda g: runs[names[g]]["val_per_episode"], runs[names[0]]["lengths"])]
     reference = score_run(arm_name(family.reference, seed), work)
     return {"seed": seed, "kept": kept,
-            "options": {n: {"arm": r["arm"], "val_f1_1": r["val"]["f1_tol1"], "val_align": r["val"]["align_strict"],
-                            **r["test"]} for n, r in runs.items()},
+            "options": {n: {"arm": r["arm"], "val_f1_1": r["val"]["f1_tol1"],
+                            "val_align": r["val"]["align_strict"], **r["test"]} for n, r in runs.items()},
             "auto": runs[kept]["test"], "complete": reference["test"]}
 
 
@@ -109,7 +113,8 @@ def family_row(family: Family, work: Path) -> dict[str, Any]:
     means = {"auto": _means([s["auto"] for s in seeds]), "complete": _means([s["complete"] for s in seeds])}
     for option, _ in family.options:
         means[option] = _means([s["options"][option] for s in seeds])
-    return {"family": family.name, "role": family.role, "seeds": list(family.seeds),
+    return {"family": family.name, "role": family.role, "kept_out_of_tuning": family.kept_out,
+            "seeds": list(family.seeds),
             "kept": {o: sum(s["kept"] == o for s in seeds) for o, _ in family.options},
             "means": means, "per_seed": seeds}
 
@@ -121,7 +126,7 @@ def write_results(work: Path, results: Path, command: Sequence[str]) -> Path:
                         "the option is kept on the runs' own validation episodes",
             "detector": "each run's online threshold detector picked on validation under one standard error"}
     doc = {"meta": meta, "families": [family_row(f, work) for f in FAMILIES]}
-    target = results / RESULTS_FILE
+    target = results / FINAL_AUTO
     target.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     write_readme(results)
     return target

@@ -15,8 +15,8 @@ from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.app.final_choice import FINAL_DIR, FINAL_FILE, OptionRun, Validated, choose, train_auto
 from ompn_ros.app.training import load_config
 from ompn_ros.cli.train import main
-from ompn_ros.data.reader import ReaderSpec, read_episodes
 from ompn_ros.data.errors import ReaderSpecError
+from ompn_ros.data.reader import ReaderSpec, read_episodes
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--quiet", "--set", "model.n_slots=2", "--set", "model.slot_size=16", "--set", "train.batch_size=8",
@@ -89,7 +89,8 @@ def test_nothing_to_choose_trains_the_first_option_alone(
     spec = _auto_spec(tmp_path / "reader.yaml", ["duplicate", "blank"])
     assert main(_args(bags[0], spec, tmp_path / "complete")) == 0  # every final observation recorded
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["final_observation"] == "duplicate"
-    assert not (tmp_path / "complete" / FINAL_DIR).exists() and not (tmp_path / "complete" / FINAL_FILE).exists()
+    assert not (tmp_path / "complete" / FINAL_DIR).exists()
+    assert not (tmp_path / "complete" / FINAL_FILE).exists()
     assert main(_args(bags[1], spec, tmp_path / "unlabelled", "--set", "train.labels=none")) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["final_observation"] == "duplicate"
     assert not (tmp_path / "unlabelled" / FINAL_DIR).exists()  # no labels: runs cannot be ranked
@@ -118,7 +119,8 @@ def test_final_options_are_validated_and_round_trip() -> None:
     spec = ReaderSpec.from_dict({"final_observation": "auto", "final_options": ["duplicate", "extrapolate"]})
     assert spec.final_options == ("duplicate", "extrapolate")
     assert ReaderSpec.from_dict(spec.to_dict()) == spec
-    assert ReaderSpec().final_options == ("extrapolate", "duplicate") and ReaderSpec().final_guess == "duplicate"
+    assert ReaderSpec().final_options == ("extrapolate", "duplicate")
+    assert ReaderSpec().final_guess == "duplicate"  # not auto: final_observation itself
     for bad in ([], ["drop_last_step"], ["blank", "blank"], ["zeros"]):
         with pytest.raises(ReaderSpecError, match="final_options"):
             ReaderSpec(final_observation="auto", final_options=bad)  # type: ignore[arg-type]
@@ -142,7 +144,7 @@ def test_a_tie_within_one_standard_error_goes_to_the_other_metric() -> None:
     assert choose([noisy, steady]) == 1  # .015 below, well within noisy's error; F1@1 decides
     far = _run("blank", _validated([0.9, 0.9, 0.9, 0.9], [0.50, 0.52, 0.48, 0.50]))
     assert choose([noisy, far]) == 0  # outside the error: the objective decides
-    short = OptionRun("blank", Path("b"), {}, Validated(steady.validated.metrics, steady.validated.per_episode,
-                                                        [9] * 4, "align"))
+    short = OptionRun("blank", Path("b"), {},
+                      Validated(steady.validated.metrics, steady.validated.per_episode, [9] * 4, "align"))
     with pytest.raises(TrainSetupError, match="differ in length"):
         choose([noisy, short])
