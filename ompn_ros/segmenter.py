@@ -252,6 +252,9 @@ class ReplayResult:
     scores: np.ndarray  # [T]
     boundaries: list[BoundaryEvent] = field(default_factory=list)
     actions: list[Any] = field(default_factory=list)
+    published: list[BoundaryEvent] = field(default_factory=list)
+    """Every boundary ``ompn_node`` publishes for the episode, in order: ``boundaries``, one the
+    detector commits at the done step (row T), and the last one again with ``final`` set."""
 
     @property
     def boundary_steps(self) -> np.ndarray:

@@ -106,7 +106,8 @@ def replay_episode(
 
 def _episode_result(record: StreamRecord, T: int) -> ReplayResult:
     """The ``T`` real steps of ``record`` (one episode) as arrays, with its boundaries up to step T - 1."""
-    events = [event for _, _, event in record.boundaries]
+    published = [event for _, _, event in record.boundaries]
+    events = list(published)
     if len(events) > 1 and not events[-2].final and events[-1] == dataclasses.replace(events[-2], final=True):
         events.pop()  # the node repeats the last boundary as final (with_final); the episode has it once
     outs = [out for _, _, out in record.steps[:T]]
@@ -119,4 +120,5 @@ def _episode_result(record: StreamRecord, T: int) -> ReplayResult:
         scores=np.array([out.score for out in outs]),
         boundaries=[event for event in events if event.step <= T - 1],
         actions=[so.action for so in sos],
+        published=published,
     )
