@@ -148,3 +148,12 @@ def test_a_tie_within_one_standard_error_goes_to_the_other_metric() -> None:
                       Validated(steady.validated.metrics, steady.validated.per_episode, [9] * 4, "align"))
     with pytest.raises(TrainSetupError, match="differ in length"):
         choose([noisy, short])
+
+
+def test_the_dial_preset_chooses_on_validation_and_craft_keeps_blank() -> None:
+    dial = ReaderSpec.from_yaml(ROOT / "config" / "reader_dial.yaml")
+    assert dial == ReaderSpec.for_domain("dial")  # the YAML is the preset
+    assert (dial.final_observation, dial.final_options) == ("auto", ("extrapolate", "duplicate"))
+    assert ReaderSpec.for_domain("craft").final_observation == "blank"
+    example = ReaderSpec.from_yaml(ROOT / "config" / "reader_jointstate_example.yaml")
+    assert example.final_guess == "extrapolate"  # label-free: the first option

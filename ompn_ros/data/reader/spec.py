@@ -31,9 +31,10 @@ among; each keeps every recorded action)."""
 DEFAULT_FINAL_OPTIONS: tuple[FinalObservation, ...] = ("extrapolate", "duplicate")
 """``final_options`` by default: the two guesses of a smooth continuous row T
 (docs/design.md#final-observation-auto)."""
-PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "extrapolate"}
-"""``final_observation`` of each domain's preset: the option that lost least against complete bags
-there (docs/design.md#final-observation)."""
+PRESET_FINAL: dict[str, FinalObservation] = {"craft": "blank", "dial": "auto"}
+"""``final_observation`` of each domain's preset: Craft the option that lost least against complete
+bags (docs/design.md#final-observation); Dial ``auto``, the choice on validation between
+``extrapolate`` and ``duplicate`` (docs/design.md#final-observation-auto)."""
 SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
@@ -142,7 +143,7 @@ class ReaderSpec:
             * ``extrapolate``: row ``T`` is ``2 s_T - s_{T-1}``, a linear guess of the missing
               observation from the last two (an episode of one step gets a duplicate); every
               recorded action is kept.  Meant for smooth continuous states (joint positions and
-              velocities), not one-hot features.  The Dial preset uses it.
+              velocities), not one-hot features.
             * ``drop_last_step``: the last observation becomes row ``T`` and its action step is
               dropped (one step per episode is lost; when that step completes the task, as Craft's
               final ``use`` does, the model learns to stop early).
@@ -161,7 +162,8 @@ class ReaderSpec:
             * ``auto``: ``ompn_train`` trains once per option of ``final_options`` on the same
               split and keeps the run whose online detector validation prefers
               (:mod:`ompn_ros.app.final_choice`, docs/design.md#final-observation-auto); anything
-              else that reads the bags with this spec uses the first option.
+              else that reads the bags with this spec uses the first option.  The Dial preset uses
+              it.
 
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
         final_options: the options ``final_observation: auto`` tries, in order (at least one, each
