@@ -7,8 +7,9 @@ the same seeds, the arms run with a default against the arms without it (its ref
 family of data:
 
 * ``final_observation``: bags without the observation after the last command, read with the
-  domain's preset (Craft ``blank`` with the best of two initialisations, Dial ``extrapolate``),
-  against complete bags of the same demonstrations, one run each;
+  domain's preset (Craft ``blank`` with the best of two initialisations, Dial ``extrapolate`` until
+  it was replaced by ``auto``, whose rows come from ``final_auto.json``), against complete bags of
+  the same demonstrations, one run each;
 * ``restart rule``: the same runs with the rule and without it (``train.restart_at: 0``);
 * ``demonstrator``: human-like demonstrations against the expert's, complete bags (not a default:
   how much a user's teleoperated data costs, goal "human-like within 5 points").
@@ -76,10 +77,10 @@ CHECKS = (
     Check("final_observation: blank, best of 2 (Craft)", "Craft full, expert, seeds 0–9",
           "Craft full, human-like", "the family", CRAFT_SEEDS,
           arm("craft", "blank", "human", 2), arm("craft", "complete", "human"), "complete bags, one run"),
-    Check("final_observation: extrapolate (Dial)", "Dial, expert, seeds 0–4",
+    Check("final_observation: extrapolate (Dial's preset before auto)", "Dial, expert, seeds 0–4",
           "Dial, expert", "seeds 5–9", DIAL_SEEDS,
           arm("dial", "extrapolate", "expert"), arm("dial", "complete", "expert"), "complete bags"),
-    Check("final_observation: extrapolate (Dial)", "Dial, expert, seeds 0–4",
+    Check("final_observation: extrapolate (Dial's preset before auto)", "Dial, expert, seeds 0–4",
           "Dial, human-like", "the family", DIAL_SEEDS,
           arm("dial", "extrapolate", "human"), arm("dial", "complete", "human"), "complete bags"),
     Check("restart rule: below 0.7 at iteration 120 (Craft)", "Craft with a sketch, expert, seeds 0–4",
@@ -180,7 +181,8 @@ def build(results: Path, command: Sequence[str]) -> Path:
         "held_out": "test episodes of each bag set (20 %), never trained on or tuned on; the human-like "
                     "family was kept out of every tuning",
         "detector": f"the online figures of {OWN_DATA} use the detector rule of their date (the previous "
-                    f"rule); {SELECTION} rescores the human-like checkpoints with the current one",
+                    f"rule); {SELECTION} rescores the human-like checkpoints with the current one, and "
+                    f"{FINAL_AUTO} scores both sides of its rows with it",
     }
     target = results / TRANSFER
     target.write_text(json.dumps({"meta": meta, "rows": found}, indent=1) + "\n", encoding="utf-8")
