@@ -14,9 +14,7 @@ rule's pick on validation is scored on test.  Nothing is trained.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from lab.own_data import arm_by_name, arm_configs, arm_data
-from lab.report import write_readme
+from lab.report import write_study
 from ompn_ros.detect.calibrate import evaluate_grid, scores_from_p_hats
 from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, pick_setting, pick_within_error
 from ompn_ros.model.checkpoint import load_checkpoint
@@ -171,14 +169,9 @@ def family_row(family: Family, work: Path) -> dict[str, Any]:
 
 def write_results(work: Path, results: Path, command: Sequence[str]) -> Path:
     """``results/detector_selection.json`` over :data:`FAMILIES`, and the README regenerated."""
-    meta = {"command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()),
-            "held_out": "test episodes of each bag set (20 %), never trained or tuned on; each rule picks "
+    meta = {"held_out": "test episodes of each bag set (20 %), never trained or tuned on; each rule picks "
                         "on the run's own validation episodes"}
-    doc = {"meta": meta, "families": [family_row(f, work) for f in FAMILIES]}
-    target = results / RESULTS_FILE
-    target.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-    write_readme(results)
-    return target
+    return write_study(results, RESULTS_FILE, command, meta, [family_row(f, work) for f in FAMILIES])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,9 +18,7 @@ on the same test episodes.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from lab.detector_selection import _bounds, _grid_rows, cached_scores, one_standard_error, validation
-from lab.report import write_readme
+from lab.report import write_study
 from lab.report_final_auto import FINAL_AUTO
 from ompn_ros.detect.offline import auto_threshold_boundaries
 from ompn_ros.detect.tune import default_grid, pick_within_error
@@ -122,15 +120,10 @@ def family_row(family: Family, work: Path) -> dict[str, Any]:
 
 def write_results(work: Path, results: Path, command: Sequence[str]) -> Path:
     """``results/final_auto.json`` over :data:`FAMILIES`, and the README regenerated."""
-    meta = {"command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()),
-            "held_out": "test episodes of each bag set (20 %, complete bags), never trained or tuned on; "
+    meta = {"held_out": "test episodes of each bag set (20 %, complete bags), never trained or tuned on; "
                         "the option is kept on the runs' own validation episodes",
             "detector": "each run's online threshold detector picked on validation under one standard error"}
-    doc = {"meta": meta, "families": [family_row(f, work) for f in FAMILIES]}
-    target = results / FINAL_AUTO
-    target.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-    write_readme(results)
-    return target
+    return write_study(results, FINAL_AUTO, command, meta, [family_row(f, work) for f in FAMILIES])
 
 
 def main(argv: list[str] | None = None) -> int:

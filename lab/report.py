@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypedDict
@@ -284,6 +285,17 @@ def render_readme(results_dir: Path) -> str:
 def write_readme(results_dir: Path) -> Path:
     target = results_dir / README
     target.write_text(render_readme(results_dir), encoding="utf-8")
+    return target
+
+
+def write_study(results_dir: Path, name: str, command: Sequence[str], meta: dict[str, Any],
+                families: list[dict[str, Any]]) -> Path:
+    """``results_dir/name``: a lab study's ``meta`` (with its command and today's date) and family rows;
+    then the README regenerated."""
+    head = {"command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()), **meta}
+    target = results_dir / name
+    target.write_text(json.dumps({"meta": head, "families": families}, indent=1) + "\n", encoding="utf-8")
+    write_readme(results_dir)
     return target
 
 
