@@ -12,6 +12,8 @@ from typing import Any
 from .report_own import gaps, pair
 
 TRANSFER = "transfer.json"
+WARMUP = "agreement_warmup.json"
+"""The label-free warm-up check (:mod:`lab.warmup_check`), one source of the transfer table."""
 
 
 def _seeds(seeds: list[int]) -> str:
@@ -53,4 +55,4 @@ def transfer_markdown(results_dir: Path, level: int = 2) -> list[str]:
     return ["\n".join(lines) + "\n"]
 
 
-__all__ = ["TRANSFER", "transfer_markdown"]
+__all__ = ["TRANSFER", "WARMUP", "transfer_markdown"]

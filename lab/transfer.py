@@ -33,7 +33,7 @@ from .report import write_readme
 from .report_final_auto import FINAL_AUTO
 from .report_own import OWN_DATA
 from .report_selection import SELECTION
-from .report_transfer import TRANSFER
+from .report_transfer import TRANSFER, WARMUP
 
 TOLERANCE = 0.02
 """The largest loss (a fraction; 2 points) a default may show where it was not tuned."""
@@ -168,6 +168,29 @@ def final_auto_rows(results: Path) -> list[Row]:
     return rows
 
 
+def warmup_rows(results: Path) -> list[Row]:
+    """``agreement_warmup`` (label-free checkpoint selection) against no warm-up, per family of
+    ``agreement_warmup.json`` (offline validation figures only; none when it is absent)."""
+    path = results / WARMUP
+    if not path.is_file():
+        return []
+    rows = []
+    for family in json.loads(path.read_text(encoding="utf-8"))["families"]:
+        mine, ref = family["means"]["shipped"], family["means"]["none"]
+        gap = {k: float(mine[k]) - float(ref[k]) for k in ("offline_f1_1", "offline_align")}
+        online = dict.fromkeys(("online_f1_1", "online_align"))  # no checkpoint between evaluations
+        rows.append({
+            "default": "agreement_warmup: 100 (label-free checkpoint selection)",
+            "tuned_on": "Dial, expert, labels hidden, seeds 0–1", "family": family["family"],
+            "kept_out_of_tuning": "the family", "seeds": list(family["seeds"]),
+            "reference": "no warm-up, same runs (validation episodes)",
+            "with_default": {**{k: float(mine[k]) for k in gap}, **online},
+            "without": {**{k: float(ref[k]) for k in gap}, **online},
+            "gap": gap, "holds": min(gap.values()) >= -TOLERANCE,
+        })
+    return rows
+
+
 def build(results: Path, command: Sequence[str]) -> Path:
     """Write ``results/transfer.json`` from ``results/own_data.json`` (and ``detector_selection.json``)
     and regenerate the README."""
@@ -175,9 +198,10 @@ def build(results: Path, command: Sequence[str]) -> Path:
     found = [row for check in CHECKS if (row := evaluate(check, rows)) is not None]
     found += detector_rows(results)
     found += final_auto_rows(results)
+    found += warmup_rows(results)
     meta = {
         "command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()),
-        "tolerance_points": 100 * TOLERANCE, "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}",
+        "tolerance_points": 100 * TOLERANCE, "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}, {WARMUP}",
         "held_out": "test episodes of each bag set (20 %), never trained on or tuned on; the human-like "
                     "family was kept out of every tuning",
         "detector": f"the online figures of {OWN_DATA} use the detector rule of their date (the previous "
