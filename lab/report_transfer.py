@@ -14,6 +14,8 @@ from .report_own import gaps, pair
 TRANSFER = "transfer.json"
 WARMUP = "agreement_warmup.json"
 """The label-free warm-up check (:mod:`lab.warmup_check`), one source of the transfer table."""
+BUDGET = "delay_budget.json"
+"""The decoder's delay budget check (:mod:`lab.budget_check`), one source of the transfer table."""
 
 
 def _seeds(seeds: list[int]) -> str:
@@ -55,4 +57,4 @@ def transfer_markdown(results_dir: Path, level: int = 2) -> list[str]:
     return ["\n".join(lines) + "\n"]
 
 
-__all__ = ["TRANSFER", "WARMUP", "transfer_markdown"]
+__all__ = ["BUDGET", "TRANSFER", "WARMUP", "transfer_markdown"]

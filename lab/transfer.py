@@ -33,7 +33,7 @@ from .report import write_readme
 from .report_final_auto import FINAL_AUTO
 from .report_own import OWN_DATA
 from .report_selection import SELECTION
-from .report_transfer import TRANSFER, WARMUP
+from .report_transfer import BUDGET, TRANSFER, WARMUP
 
 TOLERANCE = 0.02
 """The largest loss (a fraction; 2 points) a default may show where it was not tuned."""
@@ -191,6 +191,30 @@ def warmup_rows(results: Path) -> list[Row]:
     return rows
 
 
+def budget_rows(results: Path) -> list[Row]:
+    """The decoder's delay budget against none, per family of ``delay_budget.json`` (online figures;
+    none when it is absent)."""
+    path = results / BUDGET
+    if not path.is_file():
+        return []
+    rows = []
+    for family in json.loads(path.read_text(encoding="utf-8"))["families"]:
+        mine, ref = family["means"]["shipped"], family["means"]["none"]
+        gap = {k: float(mine[k]) - float(ref[k]) for k in ("online_f1_1", "online_align")}
+        offline = dict.fromkeys(("offline_f1_1", "offline_align"))  # an online detector only
+        rows.append({
+            "default": "delay budget: 6 steps (duration decoder)",
+            "tuned_on": "Craft full and partial, expert",
+            "family": family["family"], "kept_out_of_tuning": "the family", "seeds": list(family["seeds"]),
+            "reference": f"no budget (mean delay {ref['delay_mean']:.1f} steps, "
+                         f"{mine['delay_mean']:.1f} with it)",
+            "with_default": {**offline, **{k: float(mine[k]) for k in gap}},
+            "without": {**offline, **{k: float(ref[k]) for k in gap}},
+            "gap": gap, "holds": min(gap.values()) >= -TOLERANCE,
+        })
+    return rows
+
+
 def build(results: Path, command: Sequence[str]) -> Path:
     """Write ``results/transfer.json`` from ``results/own_data.json`` (and ``detector_selection.json``)
     and regenerate the README."""
@@ -199,9 +223,11 @@ def build(results: Path, command: Sequence[str]) -> Path:
     found += detector_rows(results)
     found += final_auto_rows(results)
     found += warmup_rows(results)
+    found += budget_rows(results)
     meta = {
         "command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()),
-        "tolerance_points": 100 * TOLERANCE, "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}, {WARMUP}",
+        "tolerance_points": 100 * TOLERANCE,
+        "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}, {WARMUP}, {BUDGET}",
         "held_out": "test episodes of each bag set (20 %), never trained on or tuned on; the human-like "
                     "family was kept out of every tuning",
         "detector": f"the online figures of {OWN_DATA} use the detector rule of their date (the previous "

@@ -7,14 +7,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
+from lab_cache import write_cache
 
 from lab import final_auto as study
 from lab import transfer
 from lab.own_data import ARMS
-
-RNG = np.random.default_rng(3)
 
 
 def test_every_family_names_arms_of_the_own_data_study() -> None:
@@ -25,32 +23,11 @@ def test_every_family_names_arms_of_the_own_data_study() -> None:
         assert [o for o, _ in family.options] == ["extrapolate", "duplicate"]  # the preset's first
 
 
-def _episode(sharp: bool, length: int = 40, subtasks: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """A p_hat [T, 3] whose expansion peaks at the labelled boundaries (``sharp``) or anywhere."""
-    labels = np.repeat(np.arange(subtasks), length // subtasks + 1)[:length]
-    ends = set(np.flatnonzero(np.diff(labels) != 0).tolist()) | {length - 1}
-    p = np.zeros((length, 3))
-    for t in range(length):
-        high = (t in ends) if sharp else RNG.random() < 0.15
-        p[t] = [0.05, 0.05, 0.9] if high else [0.9, 0.05, 0.05]
-    return p, labels
-
-
-def _cache(work: Path, arm: str, sharp: bool) -> None:
-    doc = {}
-    for prefix, n in (("val", 12), ("test", 10)):
-        for i in range(n):
-            p, lab = _episode(sharp)
-            doc[f"{prefix}_p{i}"], doc[f"{prefix}_l{i}"] = p.astype(np.float32), lab
-    (work / "selection").mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(work / "selection" / f"{arm}.npz", **doc)  # type: ignore[arg-type]
-
-
 def test_each_seed_keeps_the_run_validation_prefers_and_reports_its_test_figures(tmp_path: Path) -> None:
     family = study.FAMILIES[0]
-    _cache(tmp_path, "human_dial_extrapolate_seed5", sharp=False)
-    _cache(tmp_path, "human_dial_duplicate_seed5", sharp=True)
-    _cache(tmp_path, "human_dial_complete_seed5", sharp=True)
+    write_cache(tmp_path, "human_dial_extrapolate_seed5", sharp=False)
+    write_cache(tmp_path, "human_dial_duplicate_seed5", sharp=True)
+    write_cache(tmp_path, "human_dial_complete_seed5", sharp=True)
     row = study.seed_row(family, 5, tmp_path)
     assert row["kept"] == "duplicate"
     assert row["options"]["duplicate"]["val_align"] > row["options"]["extrapolate"]["val_align"]

@@ -1,0 +1,84 @@
+"""The duration decoder's delay budget on human-like Craft runs: the 'hsmm' detector tuned on each run's
+validation episodes within the shipped budget (``train.detector_delay``, 6 steps) and without one,
+scored on held-out test episodes.
+
+The budget was set on expert Craft, where larger budgets changed nothing (docs/design.md#delay-budget).
+Here each run's cached teacher-forced scores (:mod:`lab.detector_selection`; the streaming stepper
+gives the same ``p_hat`` to 1e-5) are decoded as ``ompn_train`` decodes them
+(:func:`~ompn_ros.detect.calibrate.calibrate_duration`, lag :data:`~ompn_ros.train.detector.DURATION_LAG`,
+objective alignment), once with the budget and once without, and the chosen threshold is scored on
+test: F1@1, strict alignment and the mean delay of inner boundaries.  Nothing is trained.
+
+    python -m lab.budget_check --work runs/own_data      # results/delay_budget.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lab.detector_selection import _bounds, cached_scores
+from lab.report import write_study
+from lab.report_transfer import BUDGET
+from ompn_ros.detect.calibrate import DurationCalibration, calibrate_duration, scores_from_p_hats
+from ompn_ros.detect.duration import make_detector
+from ompn_ros.detect.online import run_detector
+from ompn_ros.metrics import alignment_accuracy, mean_f1
+from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
+
+RUNS = tuple(f"human_craft_full_complete_seed{s}" for s in range(10, 15)) + tuple(
+    f"human_craft_full_blank_best2_seed{s}" for s in range(10, 15))
+FAMILY = "Craft full, human-like, complete and blank best of 2, seeds 10–14"
+FIGURES = ("online_f1_1", "online_align", "delay_mean")
+
+
+def decoded(cal: DurationCalibration, p_hats: Sequence[np.ndarray],
+            labels: Sequence[np.ndarray]) -> dict[str, float]:
+    """The calibrated 'hsmm' detector on these episodes: F1@1, strict alignment, mean inner delay."""
+    detector = make_detector(cal.config, cal.model)
+    events = [run_detector(detector, s) for s in scores_from_p_hats(p_hats)]
+    preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
+    delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
+    return {"online_f1_1": mean_f1(preds, _bounds(list(labels)), 1).f1,
+            "online_align": alignment_accuracy(preds, list(labels), "strict"),
+            "delay_mean": float(np.mean(delays)) if delays else 0.0}
+
+
+def run_row(arm: str, work: Path) -> dict[str, Any]:
+    """One run: per budget, the threshold validation chose and its test figures."""
+    data = cached_scores(arm, work)
+    val_scores, val_bounds = scores_from_p_hats(data["val_p"]), _bounds(data["val_l"])
+    row: dict[str, Any] = {"arm": arm}
+    for name, budget in (("shipped", DURATION_DELAY), ("none", None)):
+        cal = calibrate_duration(val_scores, val_bounds, DURATION_LAG, "align", max_delay=budget)
+        row[name] = {"threshold": cal.config.high, **decoded(cal, data["test_p"], data["test_l"])}
+    return row
+
+
+def family_row(work: Path, runs: Sequence[str] = RUNS) -> dict[str, Any]:
+    rows = [run_row(r, work) for r in runs]
+    means = {k: {f: float(np.mean([r[k][f] for r in rows])) for f in FIGURES} for k in ("shipped", "none")}
+    return {"family": FAMILY, "seeds": sorted({int(r.rsplit("seed", 1)[1]) for r in runs}), "means": means,
+            "runs": rows}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m lab.budget_check [--work W] [--results R]``: ``R/delay_budget.json``."""
+    parser = argparse.ArgumentParser(prog="python -m lab.budget_check", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--work", type=Path, default=Path("runs/own_data"))
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    args = parser.parse_args(argv)
+    command = ["python", "-m", "lab.budget_check", *(argv if argv is not None else sys.argv[1:])]
+    meta = {"held_out": "test episodes of each bag set (20 %), never trained or tuned on; each threshold "
+                        "chosen on the run's own validation episodes", "budget_steps": DURATION_DELAY}
+    print(f"wrote {write_study(args.results, BUDGET, command, meta, [family_row(args.work)])}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
