@@ -14,7 +14,6 @@ test: F1@1, strict alignment and the mean delay of inner boundaries.  Nothing is
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from lab.detector_selection import _bounds, cached_scores
-from lab.report import write_study
+from lab.report import study_main
 from lab.report_transfer import BUDGET
 from ompn_ros.detect.calibrate import DurationCalibration, calibrate_duration, scores_from_p_hats
 from ompn_ros.detect.duration import make_detector
@@ -67,17 +66,13 @@ def family_row(work: Path, runs: Sequence[str] = RUNS) -> dict[str, Any]:
             "runs": rows}
 
 
+META = {"held_out": "test episodes of each bag set (20 %), never trained or tuned on; each threshold "
+                    "chosen on the run's own validation episodes", "budget_steps": DURATION_DELAY}
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab.budget_check [--work W] [--results R]``: ``R/delay_budget.json``."""
-    parser = argparse.ArgumentParser(prog="python -m lab.budget_check", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--work", type=Path, default=Path("runs/own_data"))
-    parser.add_argument("--results", type=Path, default=Path("results"))
-    args = parser.parse_args(argv)
-    command = ["python", "-m", "lab.budget_check", *(argv if argv is not None else sys.argv[1:])]
-    meta = {"held_out": "test episodes of each bag set (20 %), never trained or tuned on; each threshold "
-                        "chosen on the run's own validation episodes", "budget_steps": DURATION_DELAY}
-    print(f"wrote {write_study(args.results, BUDGET, command, meta, [family_row(args.work)])}")
-    return 0
+    return study_main(argv, "lab.budget_check", __doc__ or "", BUDGET, META, lambda work: [family_row(work)])
 
 
 if __name__ == "__main__":

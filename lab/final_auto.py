@@ -17,7 +17,6 @@ on the same test episodes.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from lab.detector_selection import _bounds, _grid_rows, cached_scores, one_standard_error, validation
-from lab.report import write_study
+from lab.report import study_main
 from lab.report_final_auto import FINAL_AUTO
 from ompn_ros.detect.offline import auto_threshold_boundaries
 from ompn_ros.detect.tune import default_grid, pick_within_error
@@ -118,23 +117,15 @@ def family_row(family: Family, work: Path) -> dict[str, Any]:
             "means": means, "per_seed": seeds}
 
 
-def write_results(work: Path, results: Path, command: Sequence[str]) -> Path:
-    """``results/final_auto.json`` over :data:`FAMILIES`, and the README regenerated."""
-    meta = {"held_out": "test episodes of each bag set (20 %, complete bags), never trained or tuned on; "
-                        "the option is kept on the runs' own validation episodes",
-            "detector": "each run's online threshold detector picked on validation under one standard error"}
-    return write_study(results, FINAL_AUTO, command, meta, [family_row(f, work) for f in FAMILIES])
+META = {"held_out": "test episodes of each bag set (20 %, complete bags), never trained or tuned on; "
+                    "the option is kept on the runs' own validation episodes",
+        "detector": "each run's online threshold detector picked on validation under one standard error"}
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab.final_auto [--work W] [--results R]``: ``R/final_auto.json``."""
-    parser = argparse.ArgumentParser(prog="python -m lab.final_auto", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--work", type=Path, default=Path("runs/own_data"))
-    parser.add_argument("--results", type=Path, default=Path("results"))
-    args = parser.parse_args(argv)
-    command = ["python", "-m", "lab.final_auto", *(argv if argv is not None else sys.argv[1:])]
-    print(f"wrote {write_results(args.work, args.results, command)}")
-    return 0
+    return study_main(argv, "lab.final_auto", __doc__ or "", FINAL_AUTO, META,
+                      lambda work: [family_row(f, work) for f in FAMILIES])
 
 
 if __name__ == "__main__":

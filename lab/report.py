@@ -18,10 +18,11 @@ and, when present, ``craft_hparams.json`` (:mod:`lab.report_hparams`) and
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypedDict
 
@@ -286,6 +287,20 @@ def write_readme(results_dir: Path) -> Path:
     target = results_dir / README
     target.write_text(render_readme(results_dir), encoding="utf-8")
     return target
+
+
+def study_main(argv: Sequence[str] | None, module: str, doc: str, name: str, meta: dict[str, Any],
+               families: Callable[[Path], list[dict[str, Any]]]) -> int:
+    """``python -m <module> [--work W] [--results R]``: ``families(W)`` written to ``R/<name>`` by
+    :func:`write_study` (``doc``: the module docstring, whose first paragraph is the help)."""
+    parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.split("\n\n")[0])
+    parser.add_argument("--work", type=Path, default=Path("runs/own_data"))
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    given = list(argv if argv is not None else sys.argv[1:])
+    args = parser.parse_args(given)
+    command = ["python", "-m", module, *given]
+    print(f"wrote {write_study(args.results, name, command, meta, families(args.work))}")
+    return 0
 
 
 def write_study(results_dir: Path, name: str, command: Sequence[str], meta: dict[str, Any],

@@ -146,73 +146,52 @@ def detector_rows(results: Path) -> list[Row]:
     return rows
 
 
-def final_auto_rows(results: Path) -> list[Row]:
-    """``final_observation: auto`` (Dial) against complete bags, per family of ``final_auto.json``
-    (none when it is absent)."""
-    path = results / FINAL_AUTO
+def study_rows(results: Path, name: str, sides: tuple[str, str], figures: Sequence[str],
+               describe: Callable[[Row], Row]) -> list[Row]:
+    """One row per family of the lab study file ``name`` (none when it is absent): the means under
+    ``sides`` (the default's key, the reference's) compared on ``figures`` (the others shown as –);
+    ``describe(family)`` gives the row's ``default``, ``tuned_on``, ``kept_out_of_tuning`` and
+    ``reference``."""
+    path = results / name
     if not path.is_file():
         return []
     rows = []
     for family in json.loads(path.read_text(encoding="utf-8"))["families"]:
-        mine, ref = family["means"]["auto"], family["means"]["complete"]
-        gap = {k: float(mine[k]) - float(ref[k]) for k in FIGURES}
+        mine, ref = (family["means"][side] for side in sides)
+        gap = {k: float(mine[k]) - float(ref[k]) for k in figures}
         rows.append({
-            "default": "final_observation: auto, extrapolate or duplicate (Dial)",
-            "tuned_on": "no free parameter (the options: Dial expert seeds 0–4, human-like seeds 5–7)",
-            "family": family["family"], "kept_out_of_tuning": family["kept_out_of_tuning"],
-            "seeds": list(family["seeds"]), "reference": "complete bags",
-            "with_default": {k: float(mine[k]) for k in FIGURES},
-            "without": {k: float(ref[k]) for k in FIGURES},
+            **describe(family), "family": family["family"], "seeds": list(family["seeds"]),
+            "with_default": {k: float(mine[k]) if k in figures else None for k in FIGURES},
+            "without": {k: float(ref[k]) if k in figures else None for k in FIGURES},
             "gap": gap, "holds": min(gap.values()) >= -TOLERANCE,
         })
     return rows
+
+
+def final_auto_rows(results: Path) -> list[Row]:
+    """``final_observation: auto`` (Dial) against complete bags (``final_auto.json``)."""
+    return study_rows(results, FINAL_AUTO, ("auto", "complete"), FIGURES, lambda family: {
+        "default": "final_observation: auto, extrapolate or duplicate (Dial)",
+        "tuned_on": "no free parameter (the options: Dial expert seeds 0–4, human-like seeds 5–7)",
+        "kept_out_of_tuning": family["kept_out_of_tuning"], "reference": "complete bags"})
 
 
 def warmup_rows(results: Path) -> list[Row]:
-    """``agreement_warmup`` (label-free checkpoint selection) against no warm-up, per family of
-    ``agreement_warmup.json`` (offline validation figures only; none when it is absent)."""
-    path = results / WARMUP
-    if not path.is_file():
-        return []
-    rows = []
-    for family in json.loads(path.read_text(encoding="utf-8"))["families"]:
-        mine, ref = family["means"]["shipped"], family["means"]["none"]
-        gap = {k: float(mine[k]) - float(ref[k]) for k in ("offline_f1_1", "offline_align")}
-        online = dict.fromkeys(("online_f1_1", "online_align"))  # no checkpoint between evaluations
-        rows.append({
-            "default": "agreement_warmup: 100 (label-free checkpoint selection)",
-            "tuned_on": "Dial, expert, labels hidden, seeds 0–1", "family": family["family"],
-            "kept_out_of_tuning": "the family", "seeds": list(family["seeds"]),
-            "reference": "no warm-up, same runs (validation episodes)",
-            "with_default": {**{k: float(mine[k]) for k in gap}, **online},
-            "without": {**{k: float(ref[k]) for k in gap}, **online},
-            "gap": gap, "holds": min(gap.values()) >= -TOLERANCE,
-        })
-    return rows
+    """``agreement_warmup`` (label-free checkpoint selection) against no warm-up
+    (``agreement_warmup.json``; offline validation figures: no checkpoint between evaluations)."""
+    return study_rows(results, WARMUP, ("shipped", "none"), ("offline_f1_1", "offline_align"), lambda _: {
+        "default": "agreement_warmup: 100 (label-free checkpoint selection)",
+        "tuned_on": "Dial, expert, labels hidden, seeds 0–1", "kept_out_of_tuning": "the family",
+        "reference": "no warm-up, same runs (validation episodes)"})
 
 
 def budget_rows(results: Path) -> list[Row]:
-    """The decoder's delay budget against none, per family of ``delay_budget.json`` (online figures;
-    none when it is absent)."""
-    path = results / BUDGET
-    if not path.is_file():
-        return []
-    rows = []
-    for family in json.loads(path.read_text(encoding="utf-8"))["families"]:
-        mine, ref = family["means"]["shipped"], family["means"]["none"]
-        gap = {k: float(mine[k]) - float(ref[k]) for k in ("online_f1_1", "online_align")}
-        offline = dict.fromkeys(("offline_f1_1", "offline_align"))  # an online detector only
-        rows.append({
-            "default": "delay budget: 6 steps (duration decoder)",
-            "tuned_on": "Craft full and partial, expert",
-            "family": family["family"], "kept_out_of_tuning": "the family", "seeds": list(family["seeds"]),
-            "reference": f"no budget (mean delay {ref['delay_mean']:.1f} steps, "
-                         f"{mine['delay_mean']:.1f} with it)",
-            "with_default": {**offline, **{k: float(mine[k]) for k in gap}},
-            "without": {**offline, **{k: float(ref[k]) for k in gap}},
-            "gap": gap, "holds": min(gap.values()) >= -TOLERANCE,
-        })
-    return rows
+    """The decoder's delay budget against none (``delay_budget.json``; an online detector only)."""
+    return study_rows(results, BUDGET, ("shipped", "none"), ("online_f1_1", "online_align"), lambda family: {
+        "default": "delay budget: 6 steps (duration decoder)", "tuned_on": "Craft full and partial, expert",
+        "kept_out_of_tuning": "the family",
+        "reference": f"no budget (mean delay {family['means']['none']['delay_mean']:.1f} steps, "
+                     f"{family['means']['shipped']['delay_mean']:.1f} with it)"})
 
 
 def build(results: Path, command: Sequence[str]) -> Path:

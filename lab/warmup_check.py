@@ -16,7 +16,6 @@ Checkpoints between evaluations are not kept, so there are no online figures.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections.abc import Sequence
@@ -24,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lab.report import write_study
+from lab.report import study_main
 from lab.report_transfer import WARMUP
 from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.trainer import eligible, selection_key
@@ -75,18 +74,14 @@ def family_row(family: Family, work: Path) -> dict[str, Any]:
             "means": means, "runs": runs}
 
 
+META = {"held_out": "validation episodes of each run: not trained on, and their labels unseen by the "
+                    "label-free selection", "warmup": SHIPPED_WARMUP}
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab.warmup_check [--work W] [--results R]``: ``R/agreement_warmup.json``."""
-    parser = argparse.ArgumentParser(prog="python -m lab.warmup_check", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--work", type=Path, default=Path("runs/own_data"))
-    parser.add_argument("--results", type=Path, default=Path("results"))
-    args = parser.parse_args(argv)
-    command = ["python", "-m", "lab.warmup_check", *(argv if argv is not None else sys.argv[1:])]
-    meta = {"held_out": "validation episodes of each run: not trained on, and their labels unseen by the "
-                        "label-free selection", "warmup": SHIPPED_WARMUP}
-    families = [family_row(f, args.work) for f in FAMILIES]
-    print(f"wrote {write_study(args.results, WARMUP, command, meta, families)}")
-    return 0
+    return study_main(argv, "lab.warmup_check", __doc__ or "", WARMUP, META,
+                      lambda work: [family_row(f, work) for f in FAMILIES])
 
 
 if __name__ == "__main__":
