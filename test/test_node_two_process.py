@@ -59,9 +59,12 @@ def marker(kind: str, values: dict[str, str]) -> DiagnosticArray:
     return msg
 
 
-def call(node, ex, srv_type, name: str, timeout: float = 10.0):
-    """Call a service of the subprocess node from this process; None on time-out."""
-    client = node.create_client(srv_type, name)
+def call(client, ex, srv_type, timeout: float = 10.0):
+    """Call a service of the subprocess node from this process; None on time-out.  The clients are
+    made when the test starts: Fast DDS drops a response whose client's response reader the service
+    has not matched yet ("client will not receive response"), and ``wait_for_service`` sees only the
+    request side, so a client made just before its call can lose the answer on a loaded machine (a
+    ~/reset call did, once, in a full test run)."""
     if not client.wait_for_service(timeout_sec=timeout):
         return None
     future = client.call_async(srv_type.Request())
@@ -115,6 +118,8 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
         ex.add_node(sim)
         obs_pub = sim.create_publisher(Float32MultiArray, f"/{ns}/{layout.OBSERVATION}", RELIABLE)
         ep_pub = sim.create_publisher(DiagnosticArray, f"/{ns}/{layout.EPISODE}", RELIABLE)
+        get_state = sim.create_client(GetState, f"/{ns}/ompn_node/get_state")
+        reset_client = sim.create_client(Trigger, f"/{ns}/ompn_node/reset")
         pis: list[np.ndarray] = []
         events: list[SubtaskBoundary] = []
         states: list[SubtaskState] = []
@@ -185,12 +190,12 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
             assert got[-1].step == ep.length - 1 and got[-1].final
         assert mean_f1(preds, [ep.boundaries for ep in episodes], tol=1).f1 >= 0.75
         # the node's services are served by its executor (lifecycle state, ~/reset)
-        state = call(sim, ex, GetState, f"/{ns}/ompn_node/get_state")
+        state = call(get_state, ex, GetState)
         assert state is not None and state.current_state.label == "active"
         pump(lambda: False, 0.5)  # let /diagnostics catch up with the last end marker's new episode
         starts_before = int(diags[-1]["episode_starts"])
         assert int(diags[-1]["episodes"]) == int(diags[-1]["episodes_ended"]) == len(episodes)
-        reset = call(sim, ex, Trigger, f"/{ns}/ompn_node/reset")
+        reset = call(reset_client, ex, Trigger)
         assert reset is not None and reset.success, reset
         assert pump(lambda: int(diags[-1]["episode_starts"]) == starts_before + 1, 5)
     finally:
