@@ -6,11 +6,10 @@ Metrics are fractions in the file and percentages in the table.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
-from .report_own import pair
+from .report_own import json_section, pair
 
 FINAL_AUTO = "final_auto.json"
 
@@ -30,27 +29,19 @@ def _lines(family: dict[str, Any]) -> list[str]:
     return out
 
 
+def _intro(meta: dict[str, Any]) -> str:
+    return (f"Made by `{' '.join(meta['command'])}` on {meta['date']}: per seed, the runs trained on bags "
+            "without the observation after the last command, row T read as `extrapolate` and as "
+            "`duplicate` on the same split; *auto* keeps the one whose online detector validation prefers "
+            "(best alignment within one standard error, then F1@1), as `ompn_train` does. Scored on "
+            f"{meta['held_out']}; {meta['detector']}. Means, F1@1 / alignment in %.")
+
+
 def final_auto_markdown(results_dir: Path, level: int = 2) -> list[str]:
     """The table of ``final_observation: auto``, when ``final_auto.json`` exists."""
-    path = results_dir / FINAL_AUTO
-    if not path.is_file():
-        return []
-    doc = json.loads(path.read_text(encoding="utf-8"))
-    meta = doc["meta"]
-    lines = [
-        f"{'#' * level} final_observation: auto on Dial",
-        "",
-        f"Made by `{' '.join(meta['command'])}` on {meta['date']}: per seed, the runs trained on bags "
-        "without the observation after the last command, row T read as `extrapolate` and as "
-        "`duplicate` on the same split; *auto* keeps the one whose online detector validation prefers "
-        "(best alignment within one standard error, then F1@1), as `ompn_train` does. Scored on "
-        f"{meta['held_out']}; {meta['detector']}. Means, F1@1 / alignment in %.",
-        "",
-        "| family | runs | kept by validation | offline | online |",
-        "|" + "---|" * 5,
-        *(line for family in doc["families"] for line in _lines(family)),
-    ]
-    return ["\n".join(lines) + "\n"]
+    return json_section(results_dir, FINAL_AUTO, "final_observation: auto on Dial", _intro,
+                        ("family", "runs", "kept by validation", "offline", "online"),
+                        lambda doc: (line for family in doc["families"] for line in _lines(family)), level)
 
 
 __all__ = ["FINAL_AUTO", "final_auto_markdown"]

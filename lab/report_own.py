@@ -12,7 +12,7 @@ Metrics are fractions in the files and percentages in the tables.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict
 
@@ -127,6 +127,19 @@ def _iterations(row: OwnDataRow) -> str:
 def _head(*columns: str) -> list[str]:
     """A markdown table's header row and separator."""
     return ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
+def json_section(results_dir: Path, name: str, title: str, intro: Callable[[dict[str, Any]], str],
+                 columns: Sequence[str], lines: Callable[[dict[str, Any]], Iterable[str]],
+                 level: int = 2) -> list[str]:
+    """A README section from the results file ``name``: the heading ``title``, ``intro(meta)``, and a
+    table of ``columns`` whose rows are ``lines(doc)``; nothing when the file is absent."""
+    path = results_dir / name
+    if not path.is_file():
+        return []
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    text = [f"{'#' * level} {title}", "", intro(doc["meta"]), "", *_head(*columns), *lines(doc)]
+    return ["\n".join(text) + "\n"]
 
 
 def _scores(row: Mapping[str, Any], kind: str) -> str:

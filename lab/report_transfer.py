@@ -5,11 +5,10 @@ Metrics are fractions in the file and percentages in the table; gaps in percenta
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
-from .report_own import gaps, pair
+from .report_own import gaps, json_section, pair
 
 TRANSFER = "transfer.json"
 WARMUP = "agreement_warmup.json"
@@ -33,28 +32,20 @@ def _line(row: dict[str, Any]) -> str:
             f"{gaps(figures[0], refs[0])} | {pair(*figures[1])} | {gaps(figures[1], refs[1])} | {verdict} |")
 
 
+def _intro(meta: dict[str, Any]) -> str:
+    return (f"Made by `{' '.join(meta['command'])}` on {meta['date']} from `{meta['source']}`: means "
+            f"over the seeds, {meta['held_out']}. F1@1 / alignment in %; Δ = with the default (or on the "
+            f"family) minus the reference, in points. A default holds when no figure loses more than "
+            f"{meta['tolerance_points']:g} points."
+            + (f" Detector: {meta['detector']}." if "detector" in meta else ""))
+
+
 def transfer_markdown(results_dir: Path, level: int = 2) -> list[str]:
     """The transfer table, when ``transfer.json`` exists."""
-    path = results_dir / TRANSFER
-    if not path.is_file():
-        return []
-    doc = json.loads(path.read_text(encoding="utf-8"))
-    meta = doc["meta"]
-    lines = [
-        f"{'#' * level} Transfer: tuned defaults on data they were not tuned on",
-        "",
-        f"Made by `{' '.join(meta['command'])}` on {meta['date']} from `{meta['source']}`: means over the "
-        f"seeds, {meta['held_out']}. F1@1 / alignment in %; Δ = with the default (or on the family) minus "
-        f"the reference, in points. A default holds when no figure loses more than "
-        f"{meta['tolerance_points']:g} points."
-        + (f" Detector: {meta['detector']}." if "detector" in meta else ""),
-        "",
-        "| default | tuned on | family | kept out of tuning | seeds | reference | offline | Δ offline | "
-        "online | Δ online | verdict |",
-        "|" + "---|" * 11,
-        *(_line(row) for row in doc["rows"]),
-    ]
-    return ["\n".join(lines) + "\n"]
+    columns = ("default", "tuned on", "family", "kept out of tuning", "seeds", "reference", "offline",
+               "Δ offline", "online", "Δ online", "verdict")
+    return json_section(results_dir, TRANSFER, "Transfer: tuned defaults on data they were not tuned on",
+                        _intro, columns, lambda doc: (_line(row) for row in doc["rows"]), level)
 
 
 __all__ = ["BUDGET", "TRANSFER", "WARMUP", "transfer_markdown"]
