@@ -158,6 +158,14 @@ def _arms() -> dict[str, Arm]:
             Arm(f"human_craft_full_blank_best2_seed{seed}", "demonstrator", "craft", length="fixed",
                 bags="blank", seed=seed, candidates=2, demonstrator="human"),
         ]
+    # the same on partial observation: Craft's blank, best of 2 was tuned on full observation
+    for seed in range(10, 15):
+        arms += [
+            Arm(f"human_craft_partial_complete_seed{seed}", "demonstrator", "craft", partial=True,
+                length="fixed", seed=seed, demonstrator="human"),
+            Arm(f"human_craft_partial_blank_best2_seed{seed}", "demonstrator", "craft", partial=True,
+                length="fixed", bags="blank", seed=seed, candidates=2, demonstrator="human"),
+        ]
     for seed in (11, 12):  # the complete arms whose first initialisation the restart rule abandoned
         arms.append(Arm(f"human_craft_full_complete_norestart_seed{seed}", "demonstrator", "craft",
                         length="fixed", seed=seed, demonstrator="human", restart=False))
@@ -455,7 +463,8 @@ def _parser() -> argparse.ArgumentParser:
         "--episodes", type=int, default=0, help="per task for Craft, in total for Dial (0 = default)"
     )
     p = sub.add_parser("strip", help="write <work>/stripped/<data>: the bags without final observations")
-    p.add_argument("data", choices=["craft_full", "dial_full", "craft_full_human", "dial_full_human"])
+    p.add_argument("data", choices=["craft_full", "dial_full", "craft_full_human", "craft_partial_human",
+                                    "dial_full_human"])
     p = sub.add_parser("run", help="train and score one arm into <work>/arms/<arm>.json")
     p.add_argument("arm", choices=sorted(ARMS))
     p.add_argument("--threads", type=int, default=1)
