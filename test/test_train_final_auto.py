@@ -1,6 +1,7 @@
 """final_observation: auto: one run per option of final_options on the same split, the one whose online
 detector validation prefers (one standard error, then the other metric) published into the run
-directory; the first option alone when nothing can be chosen."""
+directory; the first option alone when nothing can be chosen.  Each run's checkpoints name the option
+they were trained with, and a replay of an auto spec reads later bags with it."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.app.errors import ReplayError, TrainSetupError
 from ompn_ros.app.final_choice import FINAL_DIR, FINAL_FILE, OptionRun, Validated, choose, train_auto
+from ompn_ros.app.final_record import RECORD_FILE, record_final, resolve_final, trained_final
 from ompn_ros.app.training import load_config
+from ompn_ros.cli.segment import main as segment_main
 from ompn_ros.cli.train import main
 from ompn_ros.data.errors import ReaderSpecError
 from ompn_ros.data.reader import ReaderSpec, read_episodes
@@ -79,6 +82,15 @@ def test_stripped_bags_train_every_option_and_publish_the_one_validation_keeps(
     parts = [json.loads((out / FINAL_DIR / o / "summary.json").read_text()) for o in ("blank", "duplicate")]
     assert summary["final_observation"] == doc["chosen"]
     assert summary["frames"] == sum(p["frames"] for p in parts)
+    assert trained_final(out / "best") == trained_final(out / "last") == doc["chosen"]
+    for option, guess in (("blank", "zeros"), ("duplicate", "the last observation")):
+        assert trained_final(out / FINAL_DIR / option / "best") == option
+        # a replay of the auto spec reads row T as the checkpoint was trained, not as the first option
+        replayed = tmp_path / f"segment_{option}"
+        assert segment_main(["--bag", str(bags[1]), "--checkpoint", str(out / FINAL_DIR / option / "best"),
+                             "--reader-config", str(spec), "--out", str(replayed),
+                             "--plot-episodes", "0"]) == 0
+        assert guess in (replayed / "read_report.txt").read_text()
     assert main(_args(bags[1], spec, out, "--overwrite", "--set", "train.seed=4")) == 0
     assert json.loads((out / FINAL_FILE).read_text())["options"] != doc["options"]  # retrained afresh
 
@@ -91,6 +103,7 @@ def test_nothing_to_choose_trains_the_first_option_alone(
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["final_observation"] == "duplicate"
     assert not (tmp_path / "complete" / FINAL_DIR).exists()
     assert not (tmp_path / "complete" / FINAL_FILE).exists()
+    assert trained_final(tmp_path / "complete" / "best") == "duplicate"
     assert main(_args(bags[1], spec, tmp_path / "unlabelled", "--set", "train.labels=none")) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["final_observation"] == "duplicate"
     assert not (tmp_path / "unlabelled" / FINAL_DIR).exists()  # no labels: runs cannot be ranked
@@ -104,6 +117,20 @@ def test_torchrun_is_refused_in_one_line(tmp_path: Path, bags: tuple[Path, Path]
     with pytest.raises(TrainSetupError, match="torchrun"):
         train_auto([str(bags[1])], load_config(None), spec, tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_checkpoint_record_sets_auto_and_a_bad_one_is_refused_in_one_line(tmp_path: Path) -> None:
+    auto = ReaderSpec(final_observation="auto", final_options=("extrapolate", "duplicate"))
+    assert resolve_final(auto, None) == auto and resolve_final(auto, tmp_path) == auto  # no record
+    record_final(tmp_path, "blank")  # outside final_options: training's option still wins
+    assert resolve_final(auto, tmp_path).final_guess == "blank"
+    fixed = ReaderSpec(final_observation="duplicate")
+    assert resolve_final(fixed, tmp_path) == fixed  # a fixed option is the user's choice
+    for text in ("{", json.dumps({"format": "other", "final_observation": "blank"}),
+                 json.dumps({"format": "ompn_ros.final_observation", "final_observation": "auto"})):
+        (tmp_path / RECORD_FILE).write_text(text)
+        with pytest.raises(ReplayError, match=RECORD_FILE):
+            trained_final(tmp_path)
 
 
 def test_other_readers_read_auto_as_the_first_option(tmp_path: Path, bags: tuple[Path, Path]) -> None:

@@ -142,7 +142,7 @@ def episode_scores(episodes: Sequence[Episode],
 
 def _stamps(settings: BatchSettings, path: Path, episodes: Sequence[Episode]) -> list[np.ndarray] | None:
     """The observation stamps of ``episodes`` (None when the bag cannot give them and no copy is due)."""
-    spec = reader_spec(settings.reader_config, settings.domain)
+    spec = reader_spec(settings.reader_config, settings.domain, settings.checkpoint)
     try:
         return observation_stamps(path, episodes, topic=spec.observation.topic, namespace=spec.namespace)
     except AnnotateError:
@@ -152,8 +152,8 @@ def _stamps(settings: BatchSettings, path: Path, episodes: Sequence[Episode]) ->
 
 
 def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, Any]:
-    result = read_episodes(path, spec=reader_spec(settings.reader_config, settings.domain),
-                           on_error=settings.on_error)
+    spec = reader_spec(settings.reader_config, settings.domain, settings.checkpoint)
+    result = read_episodes(path, spec=spec, on_error=settings.on_error)
     episodes = list(result.episodes)
     doc: dict[str, Any] = {"read": True, "read_summary": result.report.summary(), "episodes": len(episodes)}
     if not episodes:

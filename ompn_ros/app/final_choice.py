@@ -11,7 +11,9 @@ each run's bundled online detector on its own validation episodes and keeps the 
 :func:`~ompn_ros.detect.tune.pick_within_error` prefers: the best validation objective (the domain's
 headline metric) within one standard error, then the other metric, the rule that tunes the detector
 itself.  The winner's checkpoints, log and reports are copied into ``OUT``;
-``OUT/final_observation.json`` records every option's validation figures and the choice.
+``OUT/final_observation.json`` records every option's validation figures and the choice, and each
+run's ``best/`` and ``last/`` name the option they were trained with
+(:mod:`ompn_ros.app.final_record`), which later readers of the ``auto`` spec apply.
 
 The first option trains alone when no episode lacks its final observation (nothing to choose) or
 without validation labels (the label-free agreement does not rank runs, docs/design.md#best-of-two).
@@ -32,6 +34,7 @@ from typing import Any, cast
 import numpy as np
 
 from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.app.final_record import record_final
 from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.training import TrainingData, bag_data, build_configs, labelled, run_training
 from ompn_ros.atomic import atomic_write_text
@@ -143,7 +146,9 @@ def train_auto(bags: list[str], config: dict[str, dict[str, Any]], spec: ReaderS
     if reason is not None or len(options) == 1:
         LOG.info("final_observation: auto keeps %s (%s)", options[0], reason or "one option")
         write_read_report(out, first.report)
-        return run_training(first, model_config, train_config, out), options[0]
+        summary = run_training(first, model_config, train_config, out)
+        _record(out, options[0])
+        return summary, options[0]
     runs = []
     for option in options:
         data = first if option == options[0] else bag_data(bags, config["data"], spec.with_final(option))
@@ -165,8 +170,16 @@ def _train_option(option: str, data: TrainingData, config: dict[str, dict[str, A
     write_read_report(out, data.report)
     summary = run_training(data, model_config, train_config, out)
     assert summary is not None  # one process (train_auto refuses torchrun)
+    _record(out, option)
     _, val_eps, _ = train_val_episodes(data.episodes, train_config)
     return OptionRun(option, out, summary, validate_online(out, val_eps, train_config))
+
+
+def _record(run_dir: Path, option: str) -> None:
+    """Name ``option`` beside the run's checkpoints, for later readers of an ``auto`` spec."""
+    for name in ("best", "last"):
+        if (run_dir / name).is_dir():
+            record_final(run_dir / name, option)
 
 
 def _publish(out: Path, runs: Sequence[OptionRun], winner: int) -> None:

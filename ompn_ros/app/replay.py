@@ -20,6 +20,7 @@ import numpy as np
 
 from ompn_ros.app.annotate import AnnotateReport, annotate_bag, observation_stamps
 from ompn_ros.app.errors import ReplayError
+from ompn_ros.app.final_record import resolve_final
 from ompn_ros.atomic import atomic_write, atomic_write_text
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
@@ -34,18 +35,22 @@ from ompn_ros.stream.replay import replay_episode
 from sim_nodes.registry import DOMAINS, default_tasks, expert_episode
 
 
-def reader_spec(reader_config: str | None, domain: str | None) -> ReaderSpec:
-    """The reader spec of ``reader_config`` (YAML), else the preset of ``domain``, else the defaults."""
+def reader_spec(reader_config: str | None, domain: str | None, checkpoint: str | None = None) -> ReaderSpec:
+    """The reader spec of ``reader_config`` (YAML), else the preset of ``domain``, else the defaults;
+    ``final_observation: auto`` reads as ``checkpoint`` was trained (:func:`resolve_final`)."""
     if reader_config:
-        return ReaderSpec.from_yaml(reader_config)
-    return ReaderSpec.for_domain(domain) if domain else ReaderSpec()
+        spec = ReaderSpec.from_yaml(reader_config)
+    else:
+        spec = ReaderSpec.for_domain(domain) if domain else ReaderSpec()
+    return resolve_final(spec, checkpoint)
 
 
 def read_bag_episodes(
-    bag: str, reader_config: str | None, domain: str | None, on_error: OnError = "raise"
+    bag: str, reader_config: str | None, domain: str | None, on_error: OnError = "raise",
+    checkpoint: str | None = None,
 ) -> ReadResult:
     """Episodes of ``bag`` with :func:`reader_spec`."""
-    return read_episodes(bag, spec=reader_spec(reader_config, domain), on_error=on_error)
+    return read_episodes(bag, spec=reader_spec(reader_config, domain, checkpoint), on_error=on_error)
 
 
 def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:

@@ -43,12 +43,13 @@ def load_stepper(checkpoint: str, device: str) -> Any:
 
 def load_episodes(
     bag: str | None, reader_config: str | None, domain: str | None, on_error: OnError, generate: int,
-    seed: int,
+    seed: int, checkpoint: str | None = None,
 ) -> tuple[list[Episode], ReadResult | None]:
-    """The episodes of ``bag`` (with what the reader kept and dropped), else ``generate`` fresh expert
-    episodes of ``domain`` from ``seed`` (no read result)."""
+    """The episodes of ``bag`` (with what the reader kept and dropped; ``final_observation: auto`` as
+    ``checkpoint`` was trained), else ``generate`` fresh expert episodes of ``domain`` from ``seed`` (no
+    read result)."""
     if bag:
-        result = replay.read_bag_episodes(bag, reader_config, domain, on_error)
+        result = replay.read_bag_episodes(bag, reader_config, domain, on_error, checkpoint)
         return list(result.episodes), result
     if generate:
         return replay.generate_episodes(domain or "", generate, seed), None

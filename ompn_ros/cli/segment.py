@@ -161,7 +161,7 @@ def _run(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)
     policy = segment_setup.load_stepper(args.checkpoint, device)
     episodes, read = segment_setup.load_episodes(args.bag, args.reader_config, args.domain, args.on_error,
-                                                 args.generate, args.seed)
+                                                 args.generate, args.seed, args.checkpoint)
     if read is not None:
         print(read.report.summary(), file=sys.stderr)
         if not args.tune:
@@ -180,7 +180,7 @@ def _run(args: argparse.Namespace) -> int:
     print(json.dumps(replay.json_safe(summary), indent=1))
     print(f"ompn_segment: {line}", file=sys.stderr)
     if args.annotate:
-        spec = replay.reader_spec(args.reader_config, args.domain)
+        spec = replay.reader_spec(args.reader_config, args.domain, args.checkpoint)
         done = replay.annotate(args.bag, Path(args.annotate), episodes, replays, spec,
                                overwrite=args.overwrite)
         print(f"ompn_segment: annotated copy written to {done.out}", file=sys.stderr)

@@ -150,9 +150,9 @@ class ReaderSpec:
             * ``require``: such an episode is an :class:`AlignmentError` (``strict``) or dropped.
             * ``auto``: ``ompn_train`` trains once per option of ``final_options`` on the same
               split and keeps the run whose online detector validation prefers
-              (:mod:`ompn_ros.app.final_choice`, docs/design.md#final-observation-auto); anything
-              else that reads the bags with this spec uses the first option.  The Dial preset uses
-              it.
+              (:mod:`ompn_ros.app.final_choice`, docs/design.md#final-observation-auto); a replay
+              reads with the option its checkpoint names (:mod:`ompn_ros.app.final_record`),
+              anything else with the first option.  The Dial preset uses it.
 
             Trained on our data with that observation removed (docs/design.md#final-observation,
             held out, against complete bags of the same seed): ``extrapolate`` on expert Dial is
