@@ -1,6 +1,6 @@
-"""The duration decoder's delay budget on human-like Craft runs: the 'hsmm' detector tuned on each run's
-validation episodes within the shipped budget (``train.detector_delay``, 6 steps) and without one,
-scored on held-out test episodes.
+"""The duration decoder's delay budget on human-like Craft runs (full and partial observation): the
+'hsmm' detector tuned on each run's validation episodes within the shipped budget
+(``train.detector_delay``, 6 steps) and without one, scored on held-out test episodes.
 
 The budget was set on expert Craft, where larger budgets changed nothing (docs/design.md#delay-budget).
 Here each run's cached teacher-forced scores (:mod:`lab.detector_selection`; the streaming stepper
@@ -30,9 +30,17 @@ from ompn_ros.detect.online import run_detector
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 
-RUNS = tuple(f"human_craft_full_complete_seed{s}" for s in range(10, 15)) + tuple(
-    f"human_craft_full_blank_best2_seed{s}" for s in range(10, 15))
-FAMILY = "Craft full, human-like, complete and blank best of 2, seeds 10–14"
+
+def _runs(observation: str) -> tuple[str, ...]:
+    return tuple(f"human_craft_{observation}_{bags}_seed{s}" for bags in ("complete", "blank_best2")
+                 for s in range(10, 15))
+
+
+FAMILIES = (
+    ("Craft full, human-like, complete and blank best of 2, seeds 10–14", _runs("full")),
+    ("Craft partial, human-like, complete and blank best of 2, seeds 10–14", _runs("partial")),
+)
+"""(name, runs): the human-like Craft families, kept out of every tuning."""
 FIGURES = ("online_f1_1", "online_align", "delay_mean")
 
 
@@ -59,10 +67,10 @@ def run_row(arm: str, work: Path) -> dict[str, Any]:
     return row
 
 
-def family_row(work: Path, runs: Sequence[str] = RUNS) -> dict[str, Any]:
+def family_row(work: Path, family: str, runs: Sequence[str]) -> dict[str, Any]:
     rows = [run_row(r, work) for r in runs]
     means = {k: {f: float(np.mean([r[k][f] for r in rows])) for f in FIGURES} for k in ("shipped", "none")}
-    return {"family": FAMILY, "seeds": sorted({int(r.rsplit("seed", 1)[1]) for r in runs}), "means": means,
+    return {"family": family, "seeds": sorted({int(r.rsplit("seed", 1)[1]) for r in runs}), "means": means,
             "runs": rows}
 
 
@@ -72,7 +80,8 @@ META = {"held_out": "test episodes of each bag set (20 %), never trained or tune
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab.budget_check [--work W] [--results R]``: ``R/delay_budget.json``."""
-    return study_main(argv, "lab.budget_check", __doc__ or "", BUDGET, META, lambda work: [family_row(work)])
+    return study_main(argv, "lab.budget_check", __doc__ or "", BUDGET, META,
+                      lambda work: [family_row(work, name, runs) for name, runs in FAMILIES])
 
 
 if __name__ == "__main__":

@@ -150,6 +150,12 @@ def _arms() -> dict[str, Arm]:
         for bags in ("complete", "blank"):
             arms.append(Arm(f"final_craft_full_{bags}_best2_seed{seed}", "final_observation", "craft",
                             length="fixed", bags=bags, seed=seed, candidates=2))  # type: ignore[arg-type]
+    # the same on partial observation (Craft's blank, best of 2 was tuned on full observation)
+    for seed in range(10, 15):
+        arms += [Arm(f"final_craft_partial_complete_seed{seed}", "final_observation", "craft", partial=True,
+                     length="fixed", seed=seed),
+                 Arm(f"final_craft_partial_blank_best2_seed{seed}", "final_observation", "craft",
+                     partial=True, length="fixed", bags="blank", seed=seed, candidates=2)]
     # Human-like demonstrations (a family kept out of every tuning), the held-out seeds of §43
     for seed in range(10, 15):
         arms += [
@@ -463,8 +469,8 @@ def _parser() -> argparse.ArgumentParser:
         "--episodes", type=int, default=0, help="per task for Craft, in total for Dial (0 = default)"
     )
     p = sub.add_parser("strip", help="write <work>/stripped/<data>: the bags without final observations")
-    p.add_argument("data", choices=["craft_full", "dial_full", "craft_full_human", "craft_partial_human",
-                                    "dial_full_human"])
+    p.add_argument("data", choices=["craft_full", "craft_partial", "dial_full", "craft_full_human",
+                                    "craft_partial_human", "dial_full_human"])
     p = sub.add_parser("run", help="train and score one arm into <work>/arms/<arm>.json")
     p.add_argument("arm", choices=sorted(ARMS))
     p.add_argument("--threads", type=int, default=1)

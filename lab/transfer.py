@@ -21,6 +21,7 @@ tuned on, and the ones kept out of every tuning, are named in :data:`CHECKS`.  O
 
 from __future__ import annotations
 
+import itertools
 import json
 import sys
 import time
@@ -184,7 +185,7 @@ def final_auto_rows(results: Path) -> list[Row]:
 
 def _span(values: Sequence[int]) -> str:
     """``"40–160"`` for evenly spaced values, ``"0"`` for one, ``"0, 40"`` otherwise."""
-    even = len(values) > 2 and len({b - a for a, b in zip(values, values[1:])}) == 1
+    even = len(values) > 2 and len({b - a for a, b in itertools.pairwise(values)}) == 1
     return f"{values[0]}–{values[-1]}" if even else ", ".join(map(str, values))
 
 

@@ -53,7 +53,8 @@ def _work(tmp_path: Path, logs: dict[str, list[float]]) -> Path:
 
 def test_the_transfer_table_checks_the_warm_up_against_the_family_best(tmp_path: Path) -> None:
     # run a's early peak (iteration 20) is kept without a warm-up; figures grow with the iteration
-    work = _work(tmp_path, {"a_seed1": [0.9, 0.1, 0.2, 0.3, 0.4, 0.5], "b_seed2": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]})
+    work = _work(tmp_path, {"a_seed1": [0.9, 0.1, 0.2, 0.3, 0.4, 0.5],
+                            "b_seed2": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]})
     row = check.family_row(check.Family("toy", ("a_seed1", "b_seed2"), "craft", "the family"), work)
     assert row["changed"] == 1 and row["seeds"] == [1, 2] and row["family_warmup"] == 20
     assert row["means"]["none"]["offline_align"] == pytest.approx((0.0 + 5 / 20) / 2)
