@@ -5,7 +5,8 @@ objective) against the one-standard-error rule, which a small validation set swa
 For each arm of :mod:`lab.own_data` with a trained run, the validation and held-out test episodes'
 teacher-forced scores are computed once (cached in ``<work>/selection/<arm>.npz``; the streaming
 stepper gives the same ``p_hat`` to 1e-5), the whole default grid is evaluated on both, and each
-rule's pick on validation is scored on test.  Nothing is trained.
+rule's pick on validation is scored on test, beside the detector the run bundles (``detector.json``,
+what ``ompn_node`` runs from the checkpoint: on Craft the duration decoder).  Nothing is trained.
 
     python -m lab.detector_selection --work runs/own_data            # results/detector_selection.json
     python -m lab.detector_selection --work runs/own_data ARM [ARM ...]  # printed only
@@ -25,7 +26,11 @@ import numpy as np
 from lab.own_data import arm_by_name, arm_configs, arm_data
 from lab.report import write_study
 from ompn_ros.detect.calibrate import evaluate_grid, scores_from_p_hats
+from ompn_ros.detect.duration import DurationModel, make_detector
+from ompn_ros.detect.online import DetectorConfig, run_detector
+from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, pick_setting, pick_within_error
+from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.train.evaluation import teacher_forced_p_hat
 from ompn_ros.train.trainer import train_val_episodes
@@ -105,6 +110,28 @@ def validation(p_hats: list[np.ndarray], labels: list[np.ndarray], grid: list[An
     return Validation(evaluate_grid(scores, grid, bounds, labels), per_episode, [len(s) for s in scores])
 
 
+def decoded(config: DetectorConfig, model: DurationModel | None, p_hats: Sequence[np.ndarray],
+            labels: Sequence[np.ndarray]) -> dict[str, float]:
+    """The causal detector ``config`` (``model`` for 'hsmm') on these episodes: F1@1, strict alignment
+    and the mean delay of inner boundaries."""
+    detector = make_detector(config, model)
+    events = [run_detector(detector, s) for s in scores_from_p_hats(p_hats)]
+    preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
+    delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
+    return {"online_f1_1": mean_f1(preds, _bounds(list(labels)), 1).f1,
+            "online_align": alignment_accuracy(preds, list(labels), "strict"),
+            "delay_mean": float(np.mean(delays)) if delays else 0.0}
+
+
+def bundled(arm_name: str, work: Path, data: dict[str, list[np.ndarray]]) -> dict[str, Any]:
+    """The detector the arm's run bundles (``best/detector.json``, what ``ompn_node`` runs from the
+    checkpoint) on the test episodes."""
+    settings = load_detector_settings(work / "runs" / arm_name / "best")
+    got = decoded(settings.online, settings.duration_model, data["test_p"], data["test_l"])
+    return {"config": settings.online.mode, "source": settings.source, "f1_1": got["online_f1_1"],
+            "align": got["online_align"], "delay": got["delay_mean"]}
+
+
 def study_arm(arm_name: str, work: Path) -> dict[str, Any]:
     """Per rule: the setting picked on validation and its validation and test F1@1 / alignment."""
     arm = arm_by_name(arm_name)
@@ -122,6 +149,7 @@ def study_arm(arm_name: str, work: Path) -> dict[str, Any]:
                      "val_align": val.rows[g]["align_strict"],
                      "f1_1": test[g]["f1_tol1"], "align": test[g]["align_strict"],
                      "delay": test[g]["delay_mean"]}
+    out["bundled"] = bundled(arm_name, work, data)
     return out
 
 
@@ -152,14 +180,19 @@ FAMILIES = (
     Family("Craft partial, human-like, complete and blank best of 2, seeds 10–14", "kept out",
            _seeded("human_craft_partial_complete_seed{seed}", range(10, 15))
            + _seeded("human_craft_partial_blank_best2_seed{seed}", range(10, 15))),
+    Family("Craft partial, expert, complete and blank best of 2, seeds 10–14", "kept out",
+           _seeded("final_craft_partial_complete_seed{seed}", range(10, 15))
+           + _seeded("final_craft_partial_blank_best2_seed{seed}", range(10, 15))),
 )
 RESULTS_FILE = "detector_selection.json"
 
 
 def means(rows: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
-    """Per rule, the mean test F1@1 and alignment over ``rows`` (fractions)."""
+    """Per rule (and for the bundled detector), the mean test F1@1 and alignment over ``rows``
+    (fractions)."""
     return {k: {"f1_1": float(np.mean([r[k]["f1_1"] for r in rows])),
-                "align": float(np.mean([r[k]["align"] for r in rows]))} for k in [*RULES, "test_oracle"]}
+                "align": float(np.mean([r[k]["align"] for r in rows]))}
+            for k in [*RULES, "test_oracle", "bundled"]}
 
 
 def family_row(family: Family, work: Path) -> dict[str, Any]:
@@ -194,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = [study_arm(name, args.work) for name in args.arms]
     for row in rows:
         print(row["arm"], " ".join(f"{k}={100 * row[k]['f1_1']:.1f}/{100 * row[k]['align']:.1f}"
-                                   for k in [*RULES, "test_oracle"]))
+                                   for k in [*RULES, "test_oracle", "bundled"]))
     print("mean", " ".join(f"{k}={100 * v['f1_1']:.1f}/{100 * v['align']:.1f}"
                            for k, v in means(rows).items()))
     return 0

@@ -84,6 +84,10 @@ CHECKS = (
           "Craft partial, human-like", "the family", CRAFT_SEEDS,
           arm("craft", "blank", "human", 2, observation="partial"),
           arm("craft", "complete", "human", observation="partial"), "complete bags, one run"),
+    Check("final_observation: blank, best of 2 (Craft)", "Craft full, expert, seeds 0–9",
+          "Craft partial, expert", "the observation; seeds 10–14", CRAFT_SEEDS,
+          arm("craft", "blank", "expert", 2, observation="partial"),
+          arm("craft", "complete", "expert", observation="partial"), "complete bags, one run"),
     Check("final_observation: extrapolate (Dial's preset before auto)", "Dial, expert, seeds 0–4",
           "Dial, expert", "seeds 5–9", DIAL_SEEDS,
           arm("dial", "extrapolate", "expert"), arm("dial", "complete", "expert"), "complete bags"),
@@ -97,6 +101,10 @@ CHECKS = (
     Check("demonstrator: human-like against expert (Craft)", "–", "Craft full, complete bags",
           "the family", CRAFT_SEEDS,
           arm("craft", "complete", "human"), arm("craft", "complete", "expert"), "expert demonstrations"),
+    Check("demonstrator: human-like against expert (Craft partial)", "–", "Craft partial, complete bags",
+          "the family", CRAFT_SEEDS,
+          arm("craft", "complete", "human", observation="partial"),
+          arm("craft", "complete", "expert", observation="partial"), "expert demonstrations"),
     Check("demonstrator: human-like against expert (Dial)", "–", "Dial, complete bags",
           "the family", DIAL_SEEDS,
           arm("dial", "complete", "human"), arm("dial", "complete", "expert"), "expert demonstrations"),
@@ -207,8 +215,9 @@ def warmup_rows(results: Path) -> list[Row]:
 def budget_rows(results: Path) -> list[Row]:
     """The decoder's delay budget against none (``delay_budget.json``; an online detector only)."""
     return study_rows(results, BUDGET, ("shipped", "none"), ("online_f1_1", "online_align"), lambda family: {
-        "default": "delay budget: 6 steps (duration decoder)", "tuned_on": "Craft full and partial, expert",
-        "kept_out_of_tuning": "the family",
+        "default": "delay budget: 6 steps (duration decoder)",
+        "tuned_on": "Craft full and partial, expert, seeds 0–4",
+        "kept_out_of_tuning": family.get("kept_out_of_tuning", "the family"),
         "reference": f"no budget (mean delay {family['means']['none']['delay_mean']:.1f} steps, "
                      f"{family['means']['shipped']['delay_mean']:.1f} with it)"})
 

@@ -18,7 +18,7 @@ from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
 
 
 def test_every_run_is_an_arm_of_the_own_data_study() -> None:
-    for _, runs in check.FAMILIES:
+    for _, _, runs in check.FAMILIES:
         assert len(runs) == 10 and all(run in ARMS for run in runs)
 
 
@@ -26,7 +26,7 @@ def test_each_run_is_decoded_with_and_without_the_budget(tmp_path: Path) -> None
     runs = ("toy_seed1", "toy_seed2")
     for run in runs:
         write_cache(tmp_path, run, sharp=True)
-    row = check.family_row(tmp_path, "toy", runs)
+    row = check.family_row(tmp_path, "toy", "the family", runs)
     data = cached_scores("toy_seed1", tmp_path)
     free = calibrate_duration(scores_from_p_hats(data["val_p"]), _bounds(data["val_l"]), 1, "align")
     assert row["runs"][0]["none"]["threshold"] == free.config.high  # the trainer's own calibration
