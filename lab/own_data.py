@@ -172,6 +172,9 @@ def _arms() -> dict[str, Arm]:
             Arm(f"human_craft_partial_blank_best2_seed{seed}", "demonstrator", "craft", partial=True,
                 length="fixed", bags="blank", seed=seed, candidates=2, demonstrator="human"),
         ]
+    for seed in range(10, 15):  # the rule abandoned the first initialisation of every partial complete arm
+        arms.append(Arm(f"human_craft_partial_complete_norestart_seed{seed}", "demonstrator", "craft",
+                        partial=True, length="fixed", seed=seed, demonstrator="human", restart=False))
     for seed in (11, 12):  # the complete arms whose first initialisation the restart rule abandoned
         arms.append(Arm(f"human_craft_full_complete_norestart_seed{seed}", "demonstrator", "craft",
                         length="fixed", seed=seed, demonstrator="human", restart=False))
