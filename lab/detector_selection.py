@@ -180,9 +180,8 @@ FAMILIES = (
     Family("Craft partial, human-like, complete and blank best of 2, seeds 10–14", "kept out",
            _seeded("human_craft_partial_complete_seed{seed}", range(10, 15))
            + _seeded("human_craft_partial_blank_best2_seed{seed}", range(10, 15))),
-    Family("Craft partial, expert, complete and blank best of 2, seeds 10–14", "kept out",
-           _seeded("final_craft_partial_complete_seed{seed}", range(10, 15))
-           + _seeded("final_craft_partial_blank_best2_seed{seed}", range(10, 15))),
+    Family("Craft partial, expert, complete, seeds 10–14", "kept out",
+           _seeded("final_craft_partial_complete_seed{seed}", range(10, 15))),
 )
 RESULTS_FILE = "detector_selection.json"
 

@@ -19,7 +19,7 @@ from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
 
 def test_every_run_is_an_arm_of_the_own_data_study() -> None:
     for _, _, runs in check.FAMILIES:
-        assert len(runs) == 10 and all(run in ARMS for run in runs)
+        assert len(runs) in (5, 10) and all(run in ARMS for run in runs)
 
 
 def test_each_run_is_decoded_with_and_without_the_budget(tmp_path: Path) -> None:
