@@ -8,7 +8,8 @@ Here each run's cached teacher-forced scores (:mod:`lab.detector_selection`; the
 gives the same ``p_hat`` to 1e-5) are decoded as ``ompn_train`` decodes them
 (:func:`~ompn_ros.detect.calibrate.calibrate_duration`, lag :data:`~ompn_ros.train.detector.DURATION_LAG`,
 objective alignment), once with the budget and once without, and the chosen threshold is scored on
-test: F1@1, strict alignment and the mean delay of inner boundaries.  Nothing is trained.
+test: F1@1, strict alignment, the mean delay of inner boundaries and the share of them published
+only at the episode end.  Nothing is trained.
 
     python -m lab.budget_check --work runs/own_data      # results/delay_budget.json
 """
@@ -40,7 +41,7 @@ FAMILIES = (
     ("Craft partial, expert, complete, seeds 10–14", "seeds 10–14", _runs("partial", ("complete",), "final")),
 )
 """(name, kept out of tuning, runs): the budget was set on expert Craft, full and partial, seeds 0–4."""
-FIGURES = ("online_f1_1", "online_align", "delay_mean")
+FIGURES = ("online_f1_1", "online_align", "delay_mean", "at_end_share")
 
 
 def run_row(arm: str, work: Path) -> dict[str, Any]:

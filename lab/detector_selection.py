@@ -29,7 +29,7 @@ from ompn_ros.detect.calibrate import evaluate_grid, scores_from_p_hats
 from ompn_ros.detect.duration import DurationModel, make_detector
 from ompn_ros.detect.online import DetectorConfig, run_detector
 from ompn_ros.detect.settings import load_detector_settings
-from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, pick_setting, pick_within_error
+from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, delay_stats, pick_setting, pick_within_error
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.train.evaluation import teacher_forced_p_hat
@@ -112,15 +112,17 @@ def validation(p_hats: list[np.ndarray], labels: list[np.ndarray], grid: list[An
 
 def decoded(config: DetectorConfig, model: DurationModel | None, p_hats: Sequence[np.ndarray],
             labels: Sequence[np.ndarray]) -> dict[str, float]:
-    """The causal detector ``config`` (``model`` for 'hsmm') on these episodes: F1@1, strict alignment
-    and the mean delay of inner boundaries."""
+    """The causal detector ``config`` (``model`` for 'hsmm') on these episodes: F1@1, strict alignment,
+    and the mean delay of inner boundaries and the share published only at the episode end
+    (:func:`~ompn_ros.detect.tune.delay_stats`)."""
     detector = make_detector(config, model)
     events = [run_detector(detector, s) for s in scores_from_p_hats(p_hats)]
     preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
-    delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
-    return {"online_f1_1": mean_f1(preds, _bounds(list(labels)), 1).f1,
+    bounds = _bounds(list(labels))
+    delays = delay_stats(events, bounds)
+    return {"online_f1_1": mean_f1(preds, bounds, 1).f1,
             "online_align": alignment_accuracy(preds, list(labels), "strict"),
-            "delay_mean": float(np.mean(delays)) if delays else 0.0}
+            "delay_mean": delays["delay_mean"], "at_end_share": delays["at_end_share"]}
 
 
 def bundled(arm_name: str, work: Path, data: dict[str, list[np.ndarray]]) -> dict[str, Any]:

@@ -12,7 +12,12 @@ family of data:
   the same demonstrations, one run each;
 * ``restart rule``: the same runs with the rule and without it (``train.restart_at: 0``);
 * ``demonstrator``: human-like demonstrations against the expert's, complete bags (not a default:
-  how much a user's teleoperated data costs, goal "human-like within 5 points").
+  how much a user's teleoperated data costs, goal "human-like within 5 points");
+* from the lab's studies: the detector's selection rule, ``final_observation: auto``, the
+  agreement warm-up (against each family's own best warm-up) and the decoder's delay budget.
+
+Families: Craft and Dial, expert and human-like demonstrations, full and partial observation,
+complete and stripped bags.
 
 A default *holds* on a family when no figure (offline and online F1@1 and alignment, means over
 the seeds) is more than :data:`TOLERANCE` points below its reference.  The families each default was
@@ -219,8 +224,14 @@ def budget_rows(results: Path) -> list[Row]:
         "default": "delay budget: 6 steps (duration decoder)",
         "tuned_on": "Craft full and partial, expert, seeds 0–4",
         "kept_out_of_tuning": family.get("kept_out_of_tuning", "the family"),
-        "reference": f"no budget (mean delay {family['means']['none']['delay_mean']:.1f} steps, "
-                     f"{family['means']['shipped']['delay_mean']:.1f} with it)"})
+        "reference": f"no budget (mean delay {_delay(family['means']['none'])}; "
+                     f"{_delay(family['means']['shipped'])} with it)"})
+
+
+def _delay(means: Row) -> str:
+    """``"8.5 steps, 12 % at the end"`` (the share only where the study recorded it)."""
+    share = means.get("at_end_share")
+    return f"{means['delay_mean']:.1f} steps" + ("" if share is None else f", {100 * share:.0f} % at the end")
 
 
 def build(results: Path, command: Sequence[str]) -> Path:
