@@ -38,7 +38,8 @@ from ompn_ros.train.trainer import eligible, selection_key
 
 SHIPPED_WARMUP = 100  # config/train_{craft,dial}.yaml
 GRID = tuple(range(0, 201, 20))
-"""The warm-ups tried for a family's own best: every evaluation (20 iterations apart) up to 200."""
+"""The warm-ups tried for a family's own best: every evaluation (20 iterations apart) up to 200; it
+holds 0 (none) and the shipped value."""
 FIGURES = ("offline_f1_1", "offline_align")
 ORDER = {"craft": FIGURES, "dial": ("offline_align", "offline_f1_1")}
 """The figure ranked first per domain, as the detector's tuning ranks them (docs/design.md#detector-grid)."""
@@ -82,11 +83,9 @@ def run_row(run: str, work: Path) -> dict[str, Any]:
     under ``"grid"``, keyed by the warm-up)."""
     lines = (work / "runs" / run / "log.jsonl").read_text(encoding="utf-8").splitlines()
     history = [json.loads(line) for line in lines if line.strip()]
-    row: dict[str, Any] = {"run": run, "evaluations": len(history)}
-    for name, warmup in (("shipped", SHIPPED_WARMUP), ("none", 0)):
-        row[name] = _figures(label_free_pick(history, warmup))
-    row["grid"] = {str(w): _figures(label_free_pick(history, w)) for w in GRID}
-    return row
+    grid = {str(w): _figures(label_free_pick(history, w)) for w in GRID}
+    return {"run": run, "evaluations": len(history), "shipped": grid[str(SHIPPED_WARMUP)], "none": grid["0"],
+            "grid": grid}
 
 
 def _mean(picks: Sequence[dict[str, Any]]) -> dict[str, float]:

@@ -127,7 +127,7 @@ def test_a_checkpoint_record_sets_auto_and_a_bad_one_is_refused_in_one_line(tmp_
     fixed = ReaderSpec(final_observation="duplicate")
     assert resolve_final(fixed, tmp_path) == fixed  # a fixed option is the user's choice
     for text in ("{", json.dumps({"format": "other", "final_observation": "blank"}),
-                 json.dumps({"format": "ompn_ros.final_observation", "final_observation": "auto"})):
+                 json.dumps({"format": "ompn_ros.final_guess", "final_observation": "auto"})):
         (tmp_path / RECORD_FILE).write_text(text)
         with pytest.raises(ReplayError, match=RECORD_FILE):
             trained_final(tmp_path)

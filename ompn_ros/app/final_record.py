@@ -1,7 +1,7 @@
 """The final-row guess a checkpoint was trained with, recorded beside it.
 
 ``final_observation: auto`` (docs/design.md#final-observation-auto) reads the training bags once per
-option and keeps one run.  Its ``best/`` and ``last/`` then hold ``final_observation.json`` naming the
+option and keeps one run.  Its ``best/`` and ``last/`` then hold ``final_guess.json`` naming the
 option kept, and :func:`resolve_final` reads later bags of an ``auto`` spec with that option for that
 checkpoint, so a replay guesses row T as training did.  Without the record (a checkpoint trained on
 complete bags or with a fixed option), an ``auto`` spec reads with its first option.
@@ -19,12 +19,12 @@ from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.reader import ReaderSpec
 from ompn_ros.data.reader.spec import FINAL_GUESSES, FinalObservation
 
-RECORD_FILE = "final_observation.json"
-FORMAT = "ompn_ros.final_observation"
+RECORD_FILE = "final_guess.json"
+FORMAT = "ompn_ros.final_guess"
 
 
 def record_final(checkpoint_dir: Path, option: str) -> None:
-    """Write ``checkpoint_dir/final_observation.json`` naming ``option``."""
+    """Write ``checkpoint_dir/final_guess.json`` naming ``option``."""
     doc = {"format": FORMAT, "version": 1, "final_observation": option}
     atomic_write_text(checkpoint_dir / RECORD_FILE, json.dumps(doc, indent=1) + "\n")
 
