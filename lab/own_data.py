@@ -16,7 +16,8 @@ held-out test episodes of the reproduction's split, :func:`lab.data.held_out_spl
   observation read with the domain's preset.
 
 Labels are only used for scoring, except by the label-tuned detector.  ``run`` trains and scores
-one arm into ``<work>/arms/<arm>.json``; ``collate`` gathers them into ``results/own_data.json``
+one arm into ``<work>/arms/<arm>.json``; ``rescore`` scores its run again with today's scoring,
+keeping how it was trained; ``collate`` gathers them into ``results/own_data.json``
 (rendered by :mod:`lab.report`).  Cost per arm: one training run plus one replay
 of the validation and test episodes.
 """
@@ -59,7 +60,7 @@ from ompn_ros.train.detector import (
     calibrate_without_labels,
 )
 from ompn_ros.train.precision import cpu_model
-from ompn_ros.train.restart import read_attempt
+from ompn_ros.train.restart import ATTEMPT_FILE, read_attempt
 from ompn_ros.train.trainer import train, train_val_episodes
 
 from .data import collect_bags, held_out_split
@@ -312,6 +313,17 @@ def restarts_of(run_dir: Path) -> int:
     return read_attempt(run_dir) + sum(read_attempt(c) for c in sorted(run_dir.glob("candidates/*")))
 
 
+def abandoned_of(run_dir: Path) -> int:
+    """How many of ``run_dir``'s run and candidates were trained under the restart rule of before it
+    kept the better attempt (docs/design.md#restart-rule): their record names no kept attempt, the
+    first initialisation was abandoned at ``restart_at``."""
+    count = 0
+    for record in [run_dir / ATTEMPT_FILE, *sorted(run_dir.glob(f"candidates/*/{ATTEMPT_FILE}"))]:
+        if record.is_file() and "kept" not in json.loads(record.read_text()):
+            count += 1
+    return count
+
+
 def score_arm(
     arm: Arm, checkpoint: Path, pool: list[Episode], test: list[Episode], cfg: TrainConfig
 ) -> dict[str, Any]:
@@ -389,6 +401,25 @@ def run_arm(
     return row
 
 
+TRAINING_FIELDS = ("iterations", "best_iteration", "stopped_early", "selection", "train_seconds", "patience",
+                   "iteration_cap", "checkpoint")
+"""What a rescored arm keeps of its row: how it was trained, not how it scores."""
+
+
+def rescore_arm(arm: Arm, work: Path) -> dict[str, Any]:
+    """Score ``arm``'s trained checkpoint again with today's scoring (e.g. a newer detector rule) and
+    keep the training fields of its row (``<work>/arms/<arm>.json``, which must exist)."""
+    path = work / "arms" / f"{arm.name}.json"
+    if not path.is_file():
+        raise ReproduceError(f"{path} does not exist: run the arm before rescoring it")
+    before = json.loads(path.read_text())
+    run_dir = work / "runs" / (arm.last_of or arm.name)
+    row = run_arm(arm, work, checkpoint=run_dir / ("last" if arm.last_of else "best"))
+    row.update({k: before[k] for k in TRAINING_FIELDS if k in before})
+    path.write_text(json.dumps(row, indent=1) + "\n")
+    return row
+
+
 def strip_arm_bags(work: Path, data: str) -> Path:
     """The stripped copy ``<work>/stripped/<data>`` of ``<work>/bags/<data>`` (made once)."""
     out = work / "stripped" / data
@@ -420,6 +451,9 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
         run_dir = work / "runs" / row["arm"]
         if "restarts" not in row and run_dir.is_dir():
             row["restarts"] = restarts_of(run_dir)
+        row.pop("restart_abandoned", None)
+        if run_dir.is_dir() and (abandoned := abandoned_of(run_dir)):
+            row["restart_abandoned"] = abandoned
     if not rows:
         raise ReproduceError(f"no arm results under {work / 'arms'}")
     episodes: dict[str, dict[str, int]] = {}
@@ -480,6 +514,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--resume-from", type=Path, help="continue this finished shorter run of the same config")
     p.add_argument("--resume", action="store_true", help="continue what the arm's run directory holds")
+    p = sub.add_parser("rescore", help="score the arm's trained run again (today's detector rule), keeping "
+                       "the training fields of <work>/arms/<arm>.json")
+    p.add_argument("arm", choices=sorted(ARMS))
     p = sub.add_parser("collate", help="write results/own_data.json and results/README.md")
     p.add_argument("--results", type=Path, default=Path("results"))
     p.add_argument("--note", action="append", default=[], help="a sentence printed under the tables")
@@ -499,6 +536,8 @@ def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str
             arm_by_name(args.arm), args.work, args.threads, args.checkpoint, args.resume_from, args.resume
         )
         return json.dumps(row, indent=1)
+    if args.command == "rescore":
+        return json.dumps(rescore_arm(arm_by_name(args.arm), args.work), indent=1)
     given = list(argv if argv is not None else sys.argv[1:])
     kept = [a for k, a in enumerate(given) if a != "--note" and (k == 0 or given[k - 1] != "--note")]
     command = ["python", "-m", "lab.own_data", *kept]  # notes are stored apart
@@ -506,7 +545,7 @@ def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lab.own_data {collect,strip,run,collate} ...`` (see ``--help``)."""
+    """``python -m lab.own_data {collect,strip,run,rescore,collate} ...`` (see ``--help``)."""
     args = _parser().parse_args(argv)
     try:
         print(_run_command(args, argv))

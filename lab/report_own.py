@@ -50,6 +50,7 @@ class OwnDataRow(TypedDict, total=False):
     demonstrator: str  # "expert" | "human" (absent: expert)
     restart: bool  # False: trained with the restart rule off (absent: as the shipped config)
     restarts: int  # how many times the restart rule started the run (or a candidate) again
+    restart_abandoned: int  # runs (or candidates) the earlier rule restarted, abandoning the first
 
 
 class OwnDataDoc(TypedDict):
@@ -110,6 +111,8 @@ def _setting(row: OwnDataRow) -> str:
     human = ", human-like" if row.get("demonstrator") == "human" else ""
     last = ", last checkpoint" if row.get("checkpoint") == "last" else ""
     rule = ", no restart rule" if row.get("restart") is False else ""
+    if row.get("restart_abandoned"):
+        rule = ", earlier restart rule"  # the first initialisation abandoned, not compared
     return f"{name}{obs}{human}, seed {row['seed']}{_best_of(row)}{last}{rule}"
 
 

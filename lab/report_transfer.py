@@ -27,7 +27,10 @@ def _line(row: dict[str, Any]) -> str:
     figures = [(mine[f"{k}_f1_1"], mine[f"{k}_align"]) for k in ("offline", "online")]
     refs = [(ref[f"{k}_f1_1"], ref[f"{k}_align"]) for k in ("offline", "online")]
     verdict = "holds" if row["holds"] else "loses more than 2 points"
-    return (f"| {row['default']} | {row['tuned_on']} | {row['family']} | {row['kept_out_of_tuning']} | "
+    earlier = row.get("earlier_restart_rule", 0)
+    runs = f"{earlier} run" + ("s" if earlier > 1 else "")
+    family = row["family"] + (f" ({runs} under the earlier restart rule)" if earlier else "")
+    return (f"| {row['default']} | {row['tuned_on']} | {family} | {row['kept_out_of_tuning']} | "
             f"{_seeds(row['seeds'])} | {row['reference']} | {pair(*figures[0])} | "
             f"{gaps(figures[0], refs[0])} | {pair(*figures[1])} | {gaps(figures[1], refs[1])} | {verdict} |")
 

@@ -21,7 +21,7 @@ from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.errors import CheckpointError
 from ompn_ros.paths import config_file
 from ompn_ros.train.config import TrainConfig
-from ompn_ros.train.restart import attempt_config, read_attempt
+from ompn_ros.train.restart import attempt_config, read_kept
 from ompn_ros.train.trainer import train, train_val_episodes
 
 BaseConfig = dict[str, dict[str, Any]]
@@ -80,7 +80,8 @@ def stored_train_config(extra: dict[str, Any], fallback: TrainConfig | None) -> 
 def trained_to_the_end(run_dir: Path, model_cfg: OMPNConfig, train_cfg: TrainConfig) -> bool:
     """True when ``run_dir`` holds a ``best/`` checkpoint and a ``last/`` one at ``train.iterations``
     that was trained with the requested model and training configuration (runtime fields aside; a run
-    the restart rule started again, :mod:`ompn_ros.train.restart`, with its attempt's seed).
+    the restart rule trained again holds its kept attempt, :mod:`ompn_ros.train.restart`, with that
+    attempt's seed).
     A finished run with another configuration is reported and trained again."""
     last = run_dir / "last"
     if not (run_dir / "best").is_dir() or not (last / "meta.json").is_file():
@@ -93,7 +94,7 @@ def trained_to_the_end(run_dir: Path, model_cfg: OMPNConfig, train_cfg: TrainCon
         return False
     if int(extra.get("iteration", -1)) != train_cfg.iterations:
         return False
-    requested_train = attempt_config(train_cfg, read_attempt(run_dir)).to_dict()  # a restarted run's seed
+    requested_train = attempt_config(train_cfg, read_kept(run_dir)).to_dict()  # the kept attempt's seed
     differ = sorted(k for k, v in model_cfg.to_dict().items() if stored_model.get(k) != v)
     if stored_train is not None:
         differ += sorted(

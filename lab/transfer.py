@@ -133,7 +133,9 @@ def evaluate(check: Check, rows: Sequence[Row]) -> Row | None:
     reference = _means([ref[s] for s in seeds])
     gap = {k: with_default[k] - reference[k] for k in FIGURES}
     worst = min(gap.values())
+    earlier = sum(int(side[s].get("restart_abandoned", 0)) for side in (mine, ref) for s in seeds)
     return {
+        **({"earlier_restart_rule": earlier} if earlier else {}),
         "default": check.default, "tuned_on": check.tuned_on, "family": check.family,
         "kept_out_of_tuning": check.kept_out, "seeds": seeds, "reference": check.reference_name,
         "with_default": with_default, "without": reference, "gap": gap,
@@ -249,9 +251,10 @@ def build(results: Path, command: Sequence[str]) -> Path:
         "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}, {WARMUP}, {BUDGET}",
         "held_out": "test episodes of each bag set (20 %), never trained on or tuned on; the human-like "
                     "family was kept out of every tuning",
-        "detector": f"the online figures of {OWN_DATA} use the detector rule of their date (the previous "
-                    f"rule); {SELECTION} rescores the human-like checkpoints with the current one, and "
-                    f"{FINAL_AUTO} scores both sides of its rows with it",
+        "detector": f"the online figures of {OWN_DATA} use the detector rule of their date: the current "
+                    "one (one standard error) for the human-like Craft and the expert Craft partial rows, "
+                    f"the previous one for the others; {SELECTION} rescores the human-like checkpoints "
+                    f"with both, and {FINAL_AUTO} scores both sides of its rows with the current one",
     }
     target = results / TRANSFER
     target.write_text(json.dumps({"meta": meta, "rows": found}, indent=1) + "\n", encoding="utf-8")

@@ -186,3 +186,27 @@ def test_restarts_are_counted_from_the_run_and_its_candidates(tmp_path: Path) ->
     (run / "attempt.json").write_text('{"attempt": 1, "seed": 100003, "reason": "x"}')
     (run / "candidates" / "1" / "attempt.json").write_text('{"attempt": 1, "seed": 110010, "reason": "x"}')
     assert own_data.restarts_of(run) == 2
+    # records of the rule that abandoned the first initialisation name no kept attempt
+    assert own_data.abandoned_of(run) == 2
+    kept = {"attempt": 1, "seed": 100003, "reason": "x", "attempts": [], "kept": 0}
+    (run / "attempt.json").write_text(json.dumps(kept))
+    assert own_data.abandoned_of(run) == 1 and own_data.restarts_of(run) == 2
+
+
+def test_a_rescored_arm_keeps_how_it_was_trained(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    arm = own_data.arm_by_name("human_craft_full_complete_seed10")
+    assert own_data.main(["--work", str(tmp_path), "rescore", arm.name]) == 2  # nothing to rescore yet
+    (tmp_path / "arms").mkdir()
+    before = {"arm": arm.name, "train_seconds": 812.5, "iterations": 200, "online_align": 0.5}
+    (tmp_path / "arms" / f"{arm.name}.json").write_text(json.dumps(before))
+    scored: list[Path] = []
+
+    def score(arm_: object, work: Path, checkpoint: Path) -> dict:
+        scored.append(checkpoint)
+        return {"arm": arm.name, "train_seconds": None, "iterations": 7, "online_align": 0.6}
+
+    monkeypatch.setattr(own_data, "run_arm", score)
+    row = own_data.rescore_arm(arm, tmp_path)
+    assert scored == [tmp_path / "runs" / arm.name / "best"]
+    assert row == {"arm": arm.name, "train_seconds": 812.5, "iterations": 200, "online_align": 0.6}
+    assert json.loads((tmp_path / "arms" / f"{arm.name}.json").read_text()) == row

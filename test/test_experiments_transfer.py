@@ -59,6 +59,22 @@ def test_the_restart_check_pairs_the_runs_with_and_without_the_rule(tmp_path: Pa
     restart = next(r for r in rows if r["default"].startswith("restart rule"))
     assert restart["seeds"] == [11] and restart["gap"]["offline_align"] == pytest.approx(-0.05)
     assert not restart["holds"]
+    assert "earlier_restart_rule" not in restart
+
+
+def test_runs_under_the_earlier_restart_rule_are_named(tmp_path: Path) -> None:
+    _write(tmp_path, [
+        {**_row("human_craft_full_complete_seed11"), "restart_abandoned": 1},
+        _row("human_craft_full_complete_norestart_seed11"),
+        _row("human_craft_full_complete_seed12"),
+        _row("human_craft_full_complete_norestart_seed12"),
+    ])
+    assert transfer.main([str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / transfer.TRANSFER).read_text())["rows"]
+    restart = next(r for r in rows if r["default"].startswith("restart rule"))
+    assert restart["seeds"] == [11, 12] and restart["earlier_restart_rule"] == 1
+    assert "| Craft full, human-like, the runs it restarted (1 run under the earlier restart rule) |" in \
+        (tmp_path / "README.md").read_text()
 
 
 def test_without_own_data_the_command_says_what_to_run(

@@ -20,7 +20,17 @@ from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.detector import DURATION_GAIN, DURATION_LAG, pick_online
 from ompn_ros.train.errors import TrainConfigError, TrainStateError
-from ompn_ros.train.restart import RESTART_SEED_STRIDE, attempt_config, collapsed, read_attempt, rule_applies
+from ompn_ros.train.restart import (
+    RESTART_SEED_STRIDE,
+    attempt_config,
+    keep_attempt,
+    kept_attempt,
+    read_attempt,
+    read_kept,
+    rule_applies,
+    start_score,
+    weak_start,
+)
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
     _patience_exhausted,
@@ -178,23 +188,63 @@ def _weights(path: Path) -> list[torch.Tensor]:
     return [t.clone() for t in load_checkpoint(path)[0].state_dict().values()]
 
 
-def test_an_unreachable_bound_restarts_once_on_the_same_split(tmp_path: Path, episodes: list) -> None:
+def _iterations(log: Path) -> list[int]:
+    return [json.loads(line)["iteration"] for line in log.read_text().splitlines()]
+
+
+def test_a_weak_start_trains_a_second_initialisation_and_keeps_the_better(
+    tmp_path: Path, episodes: list
+) -> None:
     cfg = _cfg(tmp_path / "r", **SMALL, restart_at=2, restart_below=1.0, restarts=1)
     result = train(episodes[:32], _model_config(), cfg)
     assert result.restarts == 1 and result.iterations == 4  # the second attempt is never checked again
     record = json.loads((tmp_path / "r" / "attempt.json").read_text())
     assert record["attempt"] == 1 and record["seed"] == 3 + RESTART_SEED_STRIDE
     assert "below restart_below=1.0" in record["reason"]
-    old_log = (tmp_path / "r" / "log_attempt0.jsonl").read_text().splitlines()
-    assert [json.loads(line)["iteration"] for line in old_log] == [1, 2]  # stopped at restart_at
-    # the same split, another initialisation: equal to a run started with the attempt's config
-    direct_cfg = attempt_config(replace(cfg, out_dir=str(tmp_path / "d"), restart_at=0), 1)
-    assert train(episodes[:32], _model_config(), direct_cfg).restarts == 0
+    rows = record["attempts"]
+    assert [r["attempt"] for r in rows] == [0, 1] and all(r["best_iteration"] > 0 for r in rows)
+    kept = record["kept"]
+    assert kept == kept_attempt(rows) and result.best_metrics["align"] == max(r["best"] for r in rows)
+    assert _iterations(tmp_path / "r" / "attempts" / "1" / "log.jsonl") == [1, 2, 3, 4]
+    first_log = tmp_path / "r" / ("log_attempt0.jsonl" if kept else "log.jsonl")
+    assert _iterations(first_log) == [1, 2, 3, 4]  # the weak start trained to the end all the same
+    # each attempt equals a run started with its config; the run directory holds the kept one
+    direct = attempt_config(replace(cfg, out_dir=str(tmp_path / "d"), restart_at=0), kept)
+    assert train(episodes[:32], _model_config(), direct).restarts == 0
     assert all(torch.equal(a, b) for a, b in zip(_weights(tmp_path / "r" / "last"),
-                                                  _weights(tmp_path / "d" / "last"), strict=True))
+                                                  _weights(Path(str(direct.out_dir)) / "last"), strict=True))
+    assert (tmp_path / "r" / "best" / "detector.json").is_file()
     assert [e.seed for e in train_val_episodes(episodes[:32], cfg)[1]] == [
         e.seed for e in train_val_episodes(episodes[:32], attempt_config(cfg, 1))[1]
     ]
+    # a fresh run in the same directory forgets the earlier attempts
+    again = train(episodes[:32], _model_config(), replace(cfg, restart_at=0))
+    assert again.restarts == 0 and not (tmp_path / "r" / "attempts").exists()
+    assert not (tmp_path / "r" / "attempt.json").exists()
+
+
+def test_the_kept_attempt_is_published_with_the_first_log_kept(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    (out / "best").mkdir(parents=True)
+    (out / "best" / "w").write_text("first")
+    (out / "log.jsonl").write_text("first log\n")
+    second = out / "attempts" / "1"
+    for name in ("best", "last"):
+        (second / name).mkdir(parents=True)
+        (second / name / "w").write_text(f"second {name}")
+    (second / "log.jsonl").write_text("second log\n")
+    rows = [{"attempt": 0, "best": 0.6}, {"attempt": 1, "best": 0.8}]
+    record = {"attempt": 1, "seed": 9, "reason": "x", "attempts": rows[:1]}
+    (out / "attempt.json").write_text(json.dumps(record))
+    keep_attempt(out, kept_attempt(rows), rows)
+    assert (out / "best" / "w").read_text() == "second best"
+    assert (out / "last" / "w").read_text() == "second last"
+    assert (out / "log.jsonl").read_text() == "second log\n"
+    assert (out / "log_attempt0.jsonl").read_text() == "first log\n"
+    doc = json.loads((out / "attempt.json").read_text())
+    assert doc["kept"] == 1 and doc["attempts"] == rows and doc["reason"] == "x"
+    equal = [{"attempt": 0, "best": 0.7}, {"attempt": 1, "best": 0.7}]
+    assert kept_attempt(equal) == 0  # the first of equals
 
 
 def test_a_reached_bound_or_hidden_labels_never_restart(tmp_path: Path, episodes: list) -> None:
@@ -206,20 +256,30 @@ def test_a_reached_bound_or_hidden_labels_never_restart(tmp_path: Path, episodes
     assert blind.restarts == 0 and blind.selection == "agreement"
 
 
-def test_a_killed_restarted_run_resumes_its_attempt(tmp_path: Path, episodes: list) -> None:
+@pytest.mark.parametrize("killed_in", ["attempts/1", "."])
+def test_a_killed_restarted_run_resumes_its_attempt(tmp_path: Path, episodes: list, killed_in: str) -> None:
+    """Killed in the second attempt, or in the first after its weak start was seen: the resumed run
+    ends with the weights and record of an uninterrupted one."""
     cfg = _cfg(tmp_path / "k", **{**SMALL, "iterations": 6}, restart_at=2, restart_below=1.0)
     whole = train(episodes[:32], _model_config(), replace(cfg, out_dir=str(tmp_path / "w")))
 
     def kill(iteration: int, _: dict) -> None:
-        if (tmp_path / "k" / "attempt.json").exists() and iteration == 5:
+        second = (tmp_path / "k" / "attempt.json").exists()
+        if iteration == 5 and second == (killed_in != "."):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
         train(episodes[:32], _model_config(), cfg, callback=kill)
     resumed = train(episodes[:32], _model_config(), replace(cfg, resume=True))
     assert resumed.restarts == whole.restarts == 1
+    assert resumed.best_metrics == whole.best_metrics
     assert all(torch.equal(a, b) for a, b in zip(_weights(tmp_path / "k" / "last"),
                                                   _weights(tmp_path / "w" / "last"), strict=True))
+    kept = read_kept(tmp_path / "w")
+    assert read_kept(tmp_path / "k") == kept
+    source = tmp_path / "w" / ("attempts/1" if kept else ".")
+    assert all(torch.equal(a, b) for a, b in zip(_weights(source / "best"), _weights(tmp_path / "w" / "best"),
+                                                  strict=True))
 
 
 def test_a_broken_restart_record_is_one_clear_error(tmp_path: Path) -> None:
@@ -230,16 +290,27 @@ def test_a_broken_restart_record_is_one_clear_error(tmp_path: Path) -> None:
     (tmp_path / "attempt.json").write_text('{"attempt": -1}')
     with pytest.raises(TrainStateError, match="must be an int >= 0"):
         read_attempt(tmp_path)
+    (tmp_path / "attempt.json").write_text('{"attempt": 1, "seed": 3, "reason": "x"}')
+    assert read_kept(tmp_path) == 1  # a record from before the rule kept the better attempt
+    record = {"attempt": 1, "attempts": [{"attempt": 0, "best": 0.5}], "kept": 0}
+    (tmp_path / "attempt.json").write_text(json.dumps(record))
+    assert read_kept(tmp_path) == 0 and read_attempt(tmp_path) == 1
+    (tmp_path / "attempt.json").write_text('{"attempt": 1, "attempts": [{"best": 0.5}]}')
+    with pytest.raises(TrainStateError, match="list of attempt records"):
+        read_attempt(tmp_path)
 
 
 def test_rule_bookkeeping_and_validation() -> None:
     cfg = TrainConfig(iterations=200, restart_at=120, restart_below=0.7, restarts=1)
     assert rule_applies(cfg, True, 0) and not rule_applies(cfg, True, 1)
     assert not rule_applies(cfg, False, 0) and not rule_applies(replace(cfg, restart_at=0), True, 0)
-    assert collapsed(cfg, 120, 0.61) and not collapsed(cfg, 120, 0.93) and not collapsed(cfg, 100, 0.1)
-    assert not collapsed(cfg, 140, 0.1)  # checked once, at the first evaluation at or after restart_at
+    assert weak_start(cfg, [(100, 0.5), (120, 0.61), (140, 0.9)])
+    assert not weak_start(cfg, [(100, 0.5), (120, 0.93)]) and not weak_start(cfg, [(20, 0.1), (100, 0.1)])
+    assert not weak_start(cfg, [(100, 0.75), (130, 0.1)])  # the best so far counts, checked once
+    assert start_score(cfg, [(60, 0.615), (130, 0.6), (140, 0.95)]) == 0.615
+    assert start_score(replace(cfg, restart_at=0), [(120, 0.1)]) is None
     odd = replace(cfg, eval_every=50)  # an eval_every that misses restart_at: checked at 150
-    assert collapsed(odd, 150, 0.5) and not collapsed(odd, 100, 0.5) and not collapsed(odd, 200, 0.5)
+    assert weak_start(odd, [(100, 0.8), (150, 0.5)]) is False and weak_start(odd, [(100, 0.5), (150, 0.6)])
     assert attempt_config(cfg, 0) is cfg and attempt_config(cfg, 2).split_seed == cfg.seed
     with pytest.raises(TrainConfigError, match="restart_at"):
         TrainConfig(restart_at=-20)

@@ -134,12 +134,13 @@ class TrainConfig:
     and ``candidates_no_final`` are set by the shipped configs):
 
     Attributes:
-        restart_at: the restart rule (:mod:`ompn_ros.train.restart`): at the first evaluation at or
-            after this iteration, a run whose best validation criterion so far is below
-            ``restart_below`` starts again from a new initialisation on the same split, at most
-            ``restarts`` times.  Labelled selections only.  0 = off.
+        restart_at: the restart rule (:mod:`ompn_ros.train.restart`): a run whose best validation
+            criterion by its first evaluation at or after this iteration is below ``restart_below``
+            trains to the end, then a new initialisation trains on the same split (in
+            ``OUT/attempts/<k>/``, at most ``restarts`` times) and the attempt with the best
+            validation criterion is kept.  Labelled selections only.  0 = off.
         restart_below: the bound of the restart rule (the selection criterion, e.g. alignment).
-        restarts: the most restarts one run makes.
+        restarts: the most extra initialisations one run trains under the rule.
         candidates: initialisations trained on the one split; the one with the best validation
             criterion is kept (:mod:`ompn_ros.train.candidates`, ``OUT/candidates.json``).  1 = one run.
         candidates_no_final: ``candidates`` for bags whose final observation the reader guessed (no

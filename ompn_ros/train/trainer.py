@@ -28,6 +28,8 @@ under ``out_dir``:
   continues from it and, with the same seed and data, reaches bitwise the same weights as an
   uninterrupted run.
 * ``log.jsonl``: one JSON line per evaluation; TensorBoard scalars under ``tb/`` if enabled.
+* ``attempt.json`` and ``attempts/<k>/``: with the restart rule, the further initialisations after a
+  weak start and which attempt the files above hold (:mod:`ompn_ros.train.restart`).
 """
 
 from __future__ import annotations
@@ -79,13 +81,17 @@ from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateEr
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
 from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.restart import (
-    ATTEMPT_FILE,
     attempt_config,
-    collapsed,
+    attempt_row,
+    clear_attempts,
+    finished_attempts,
+    keep_attempt,
+    kept_attempt,
     read_attempt,
     restart_reason,
     rule_applies,
     start_attempt,
+    weak_start,
 )
 from ompn_ros.train.state import (
     clean_state_root,
@@ -114,9 +120,9 @@ class TrainResult:
     selection: str = ""
     detectors: dict[str, DetectorSettings] = field(default_factory=dict)
     restarts: int = 0
-    """How many times the restart rule started the run again (:mod:`ompn_ros.train.restart`)."""
-    collapsed: bool = False
-    """This attempt stopped at ``restart_at`` under the restart rule (internal to :func:`train`)."""
+    """How many more initialisations the restart rule trained (:mod:`ompn_ros.train.restart`)."""
+    weak_start: bool = False
+    """The restart rule flagged this attempt (internal to :func:`train`)."""
     candidates: list[dict[str, Any]] = field(default_factory=list)
     """With ``candidates`` > 1: every candidate's seed, best iteration and score (the one returned won)."""
 
@@ -332,8 +338,9 @@ def train(
 ) -> TrainResult:
     """Train an :class:`~ompn_ros.model.policy.OMPNPolicy` by behaviour cloning (see module docstring).
 
-    With ``restart_at`` set, an attempt that collapsed starts again from a new initialisation on the
-    same split (:mod:`ompn_ros.train.restart`); ``resume`` continues the attempt ``out_dir`` records.
+    With ``restart_at`` set, a run that starts weak is followed by a new initialisation on the same
+    split and the better of the two by validation is kept (:mod:`ompn_ros.train.restart`); ``resume``
+    continues the attempt ``out_dir`` records.
     With ``candidates`` > 1, that many initialisations train on the split and the best by validation is
     kept (:mod:`ompn_ros.train.candidates`); the result's ``train_seconds`` and ``frames`` sum them.
 
@@ -350,26 +357,55 @@ def train(
         return _train_candidates(episodes, model_config, train_config, ctx, callback)
     out_dir = Path(train_config.out_dir) if train_config.out_dir is not None else None
     attempt = read_attempt(out_dir) if train_config.resume else 0
-    if out_dir is not None and not train_config.resume and ctx.is_main:
-        (out_dir / ATTEMPT_FILE).unlink(missing_ok=True)
-    spent, frames = 0.0, 0  # the abandoned attempts' cost, included in the result
+    rows = finished_attempts(out_dir) if train_config.resume else []
+    if not train_config.resume and ctx.is_main:
+        clear_attempts(out_dir)
+    results: dict[int, TrainResult] = {}
     while True:
-        result = _Attempt(
-            episodes, model_config, attempt_config(train_config, attempt), attempt, ctx, callback
-        ).run()
-        if not result.collapsed:
-            return replace(result, restarts=attempt, train_seconds=spent + result.train_seconds,
-                           frames=frames + result.frames)
-        spent, frames = spent + result.train_seconds, frames + result.frames
+        sub = attempt_config(train_config, attempt)
+        result = results[attempt] = _Attempt(episodes, model_config, sub, attempt, ctx, callback).run()
+        rows.append(attempt_row(attempt, sub.seed, _best_score(result), result.best_iteration,
+                                result.train_seconds, result.frames))
+        if not result.weak_start:
+            break
         attempt += 1
-        reason = restart_reason(
-            train_config, result.selection, result.best_metrics.get(result.selection, -math.inf),
-            result.best_iteration,
-        )
+        reason = restart_reason(train_config, result.selection, _scores(train_config, result))
         if ctx.is_main:
             LOG.warning("%s (attempt %d of at most %d)", reason, attempt + 1, train_config.restarts + 1)
-            start_attempt(out_dir, attempt, attempt_config(train_config, attempt).seed, reason)
+            start_attempt(out_dir, attempt, attempt_config(train_config, attempt).seed, reason, rows)
         train_config = replace(train_config, resume=False)
+    return _kept(episodes, model_config, train_config, ctx, results, rows)
+
+
+def _best_score(result: TrainResult) -> float:
+    return float(result.best_metrics.get(result.selection, -math.inf))
+
+
+def _scores(cfg: TrainConfig, result: TrainResult) -> list[tuple[int, float]]:
+    """``(iteration, criterion)`` of the selectable evaluations of ``result``'s history."""
+    its = [int(h["iteration"]) for h in result.history]
+    return [(it, selection_key(h, result.selection)[0]) for it, h in zip(its, result.history, strict=True)
+            if eligible(cfg, result.selection, it)]
+
+
+def _kept(episodes: Sequence[Episode], model_config: OMPNConfig, cfg: TrainConfig, ctx: DistContext,
+          results: dict[int, TrainResult], rows: list[dict[str, Any]]) -> TrainResult:
+    """The result of the attempt with the best validation criterion, published in ``OUT`` when
+    there was more than one (:func:`~ompn_ros.train.restart.keep_attempt`); the cost sums them all."""
+    last = max(results)
+    if last == 0:
+        return results[0]
+    kept = int(all_reduce_sum(float(kept_attempt(rows) if ctx.is_main else 0), ctx))
+    if kept not in results:  # a resumed run kept an attempt finished before the kill: reload it
+        again = attempt_config(replace(cfg, resume=True), kept)
+        results[kept] = _Attempt(episodes, model_config, again, kept, ctx, None).run()
+    if ctx.is_main:
+        keep_attempt(Path(cfg.out_dir) if cfg.out_dir is not None else None, kept, rows)
+        LOG.info("restart rule: attempts %s; kept attempt %d", ", ".join(
+            f"{r['attempt']}: {float(r['best']):.3f}" for r in rows), kept)
+    return replace(results[kept], restarts=last, out_dir=cfg.out_dir, weak_start=False,
+                   train_seconds=sum(float(r["train_seconds"]) for r in rows),
+                   frames=sum(int(r["frames"]) for r in rows))
 
 
 def _train_candidates(
@@ -571,10 +607,10 @@ class _Attempt:
             models.average.update(models.policy, iteration)
         return stats
 
-    def _evaluate(self, iteration: int, stats: dict[str, float], check_rule: bool) -> tuple[bool, bool]:
-        """Rank 0: validate, keep the best, log and save.  Every rank: ``(stop early, restart)``."""
+    def _evaluate(self, iteration: int, stats: dict[str, float]) -> bool:
+        """Rank 0: validate, keep the best, log and save.  Every rank: whether to stop early."""
         cfg, done = self.cfg, self.done
-        stopped_early = restart = False
+        stopped_early = False
         if self.ctx.is_main:
             metrics = validation_metrics(self.models.evaluated, self.val_eps, cfg)
             metrics["train_loss"] = stats["loss"]
@@ -594,19 +630,16 @@ class _Attempt:
                 extra = {**self.extra_base, "iteration": iteration, "metrics": metrics}
                 _save_all(self.out_dir, self.models, done, extra, is_best)
             stopped_early = _patience_exhausted(cfg, self.selection, done.history, done.best_iteration)
-            restart = check_rule and collapsed(cfg, iteration, done.best_key[0])
         stopped_early = bool(all_reduce_sum(float(stopped_early), self.ctx))
-        restart = bool(all_reduce_sum(float(restart), self.ctx))  # every rank restarts, or none
-        if stopped_early and not restart and self.ctx.is_main:
+        if stopped_early and self.ctx.is_main:
             LOG.info("early stop at iteration %d: %s has not improved for %d evaluations (best at iteration "
                      "%d)", iteration, self.selection, cfg.patience, done.best_iteration)
-        return stopped_early, restart
+        return stopped_early
 
-    def _loop(self, check_rule: bool) -> tuple[bool, bool]:
-        """Update until the last iteration, an early stop or a restart: ``(stopped early, restart)``."""
+    def _loop(self) -> bool:
+        """Update until the last iteration or an early stop: whether it stopped early."""
         cfg, done = self.cfg, self.done
         stopped_early = _patience_exhausted(cfg, self.selection, done.history, done.best_iteration)
-        restart = False
         per_epoch = math.ceil(len(self.train_eps) / cfg.batch_size)
         progress = None
         if cfg.progress and self.ctx.is_main:
@@ -615,7 +648,7 @@ class _Attempt:
             progress = tqdm(total=cfg.iterations, initial=done.iteration, desc="train", unit="it",
                             leave=False)
         try:
-            while done.iteration < cfg.iterations and not stopped_early and not restart:
+            while done.iteration < cfg.iterations and not stopped_early:
                 done.iteration += 1
                 stats = self._update(done.iteration, per_epoch)
                 if progress is not None:
@@ -624,31 +657,24 @@ class _Attempt:
                 if self.callback is not None:
                     self.callback(done.iteration, stats)
                 if done.iteration % cfg.eval_every == 0 or done.iteration == cfg.iterations:
-                    stopped_early, restart = self._evaluate(done.iteration, stats, check_rule)
+                    stopped_early = self._evaluate(done.iteration, stats)
         finally:
             if progress is not None:
                 progress.close()
             if self.sinks is not None:
                 self.sinks.close()
-        return stopped_early, restart
+        return stopped_early
 
     def run(self) -> TrainResult:
-        """Train, then (unless the attempt collapsed) bundle the detectors with ``best/`` and ``last/``."""
+        """Train, bundle the detectors with ``best/`` and ``last/`` and say whether the restart rule
+        flags the attempt."""
         cfg, done = self.cfg, self.done
         started = time.perf_counter()
         labelled = self.selection in LABELLED_SELECTIONS
         if cfg.restart_at and not labelled and self.attempt == 0 and self.ctx.is_main:
             LOG.warning("restart rule (restart_at=%d) off: it needs validation labels, and %s selects "
                         "without them", cfg.restart_at, self.selection)
-        stopped_early, restart = self._loop(rule_applies(cfg, labelled, self.attempt))
-        result = TrainResult(
-            policy=self.models.evaluated, stopped_early=stopped_early, selection=self.selection,
-            iterations=done.iteration, best_iteration=done.best_iteration, best_metrics=done.best_metrics,
-            last_metrics=done.last_metrics, history=done.history, out_dir=cfg.out_dir,
-            train_seconds=time.perf_counter() - started, frames=done.frames, collapsed=restart,
-        )
-        if restart:
-            return result
+        stopped_early = self._loop()
         warning = early_agreement_warning(self.selection, done.history, done.best_iteration) \
             if self.ctx.is_main else None
         if warning is not None:
@@ -656,7 +682,15 @@ class _Attempt:
         detectors: dict[str, DetectorSettings] = {}
         if self.out_dir is not None and self.ctx.is_main:
             detectors = bundle_detectors(self.out_dir, self.val_eps, cfg)
-        return replace(result, detectors=detectors, train_seconds=time.perf_counter() - started)
+        result = TrainResult(
+            policy=self.models.evaluated, stopped_early=stopped_early, selection=self.selection,
+            iterations=done.iteration, best_iteration=done.best_iteration, best_metrics=done.best_metrics,
+            last_metrics=done.last_metrics, history=done.history, out_dir=cfg.out_dir,
+            train_seconds=time.perf_counter() - started, frames=done.frames, detectors=detectors,
+        )
+        weak = self.ctx.is_main and rule_applies(cfg, labelled, self.attempt) \
+            and weak_start(cfg, _scores(cfg, result))
+        return replace(result, weak_start=bool(all_reduce_sum(float(weak), self.ctx)))
 
 
 def train_step(
