@@ -59,8 +59,9 @@ from ompn_ros.train.detector import (
     LABEL_FREE_REFERENCE_MIN_LENGTH,
     calibrate_without_labels,
 )
+from ompn_ros.train.errors import TrainStateError
 from ompn_ros.train.precision import cpu_model
-from ompn_ros.train.restart import ATTEMPT_FILE, read_attempt
+from ompn_ros.train.restart import read_attempt, read_record
 from ompn_ros.train.trainer import train, train_val_episodes
 
 from .data import collect_bags, held_out_split
@@ -317,11 +318,8 @@ def abandoned_of(run_dir: Path) -> int:
     """How many of ``run_dir``'s run and candidates were trained under the restart rule of before it
     kept the better attempt (docs/design.md#restart-rule): their record names no kept attempt, the
     first initialisation was abandoned at ``restart_at``."""
-    count = 0
-    for record in [run_dir / ATTEMPT_FILE, *sorted(run_dir.glob(f"candidates/*/{ATTEMPT_FILE}"))]:
-        if record.is_file() and "kept" not in json.loads(record.read_text()):
-            count += 1
-    return count
+    records = [read_record(d) for d in [run_dir, *sorted(run_dir.glob("candidates/*"))]]
+    return sum(1 for r in records if r and "kept" not in r)
 
 
 def score_arm(
@@ -549,7 +547,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         print(_run_command(args, argv))
-    except (ReproduceError, BagError, OSError) as exc:
+    except (ReproduceError, BagError, TrainStateError, OSError) as exc:
         print(f"own_data: error: {exc}", file=sys.stderr)
         return 2
     return 0

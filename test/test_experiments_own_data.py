@@ -12,6 +12,7 @@ from lab import own_data, report, report_own
 from lab.runs import load_train_config, pin_fixed_length
 from lab.spec import REPRODUCTION_ITERATIONS
 from ompn_ros.train.config import TrainConfig
+from ompn_ros.train.errors import TrainStateError
 
 
 def _row(arm: str, **scores: float) -> dict[str, Any]:
@@ -191,6 +192,9 @@ def test_restarts_are_counted_from_the_run_and_its_candidates(tmp_path: Path) ->
     kept = {"attempt": 1, "seed": 100003, "reason": "x", "attempts": [], "kept": 0}
     (run / "attempt.json").write_text(json.dumps(kept))
     assert own_data.abandoned_of(run) == 1 and own_data.restarts_of(run) == 2
+    (run / "attempt.json").write_text("{broken")
+    with pytest.raises(TrainStateError, match="is not a restart record"):
+        own_data.abandoned_of(run)
 
 
 def test_a_rescored_arm_keeps_how_it_was_trained(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -97,7 +97,9 @@ def kept_attempt(rows: Sequence[dict[str, Any]]) -> int:
     return int(max(rows, key=lambda r: float(r["best"]))["attempt"])
 
 
-def _read(out_dir: Path | None) -> dict[str, Any]:
+def read_record(out_dir: Path | None) -> dict[str, Any]:
+    """``out_dir``'s restart record, checked (empty without one); :class:`TrainStateError` names a
+    malformed one."""
     path = None if out_dir is None else out_dir / ATTEMPT_FILE
     if path is None or not path.is_file():
         return {}
@@ -119,13 +121,13 @@ def _read(out_dir: Path | None) -> dict[str, Any]:
 def read_attempt(out_dir: Path | None) -> int:
     """The attempt a resumable run directory holds (0 without a record): the one in progress, or
     the last one trained."""
-    return int(_read(out_dir).get("attempt", 0))
+    return int(read_record(out_dir).get("attempt", 0))
 
 
 def read_kept(out_dir: Path | None) -> int:
     """The attempt whose checkpoints ``out_dir`` holds: the kept one (a record written before the
     rule kept the better attempt names none: its last attempt trained in ``out_dir``)."""
-    doc = _read(out_dir)
+    doc = read_record(out_dir)
     kept = doc.get("kept", doc.get("attempt", 0))
     if not isinstance(kept, int) or isinstance(kept, bool) or kept < 0:
         raise TrainStateError(f"{out_dir}/{ATTEMPT_FILE}: 'kept' must be an int >= 0, got {kept!r}")
@@ -134,7 +136,7 @@ def read_kept(out_dir: Path | None) -> int:
 
 def finished_attempts(out_dir: Path | None) -> list[dict[str, Any]]:
     """The rows of the attempts ``out_dir`` records as finished before the one in progress."""
-    doc = _read(out_dir)
+    doc = read_record(out_dir)
     return [r for r in doc.get("attempts", []) if r["attempt"] < doc.get("attempt", 0)]
 
 
@@ -192,6 +194,7 @@ __all__ = [
     "kept_attempt",
     "read_attempt",
     "read_kept",
+    "read_record",
     "restart_reason",
     "rule_applies",
     "start_attempt",
