@@ -68,16 +68,22 @@ def _arrays(p_hats: Sequence[np.ndarray], episodes: Sequence[Any], prefix: str) 
     return out
 
 
+def arm_splits(arm_name: str, work: Path) -> tuple[list[Any], list[Any], list[Any], Any]:
+    """(train, validation, test) episodes of the arm's run, as it split them, and its best checkpoint's
+    policy (an OMPN, as the arm trains)."""
+    arm = arm_by_name(arm_name)
+    pool, test = arm_data(arm, work)
+    _, cfg = arm_configs(arm, work, 1)
+    train, val, _ = train_val_episodes(pool, cfg)
+    return train, val, test, load_checkpoint(work / "runs" / arm.name / "best")[0]
+
+
 def cached_scores(arm_name: str, work: Path) -> dict[str, list[np.ndarray]]:
     """``val_p``/``val_l``/``test_p``/``test_l``: per-episode ``p_hat`` and labels of the arm's best
     checkpoint on its validation and test episodes."""
     target = work / "selection" / f"{arm_name}.npz"
     if not target.is_file():
-        arm = arm_by_name(arm_name)
-        pool, test = arm_data(arm, work)
-        _, cfg = arm_configs(arm, work, 1)
-        _, val, _ = train_val_episodes(pool, cfg)
-        policy: Any = load_checkpoint(work / "runs" / arm.name / "best")[0]  # an OMPN, as the arm trains
+        _, val, test, policy = arm_splits(arm_name, work)
         doc = {**_arrays(teacher_forced_p_hat(policy, list(val))[0], val, "val"),
                **_arrays(teacher_forced_p_hat(policy, list(test))[0], test, "test")}
         target.parent.mkdir(parents=True, exist_ok=True)

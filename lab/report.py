@@ -29,6 +29,7 @@ from typing import Any, TypedDict
 import numpy as np
 
 from lab.report_final_auto import final_auto_markdown
+from lab.report_head import head_markdown
 from lab.report_hparams import hparams_markdown
 from lab.report_own import own_markdown
 from lab.report_selection import selection_markdown
@@ -280,6 +281,7 @@ def render_readme(results_dir: Path) -> str:
     parts += transfer_markdown(results_dir)
     parts += selection_markdown(results_dir)
     parts += final_auto_markdown(results_dir)
+    parts += head_markdown(results_dir)
     return "\n".join(parts).rstrip("\n") + "\n"
 
 

@@ -1,0 +1,62 @@
+"""The "Boundary head" section of ``results/README.md``, from ``boundary_head.json``
+(:mod:`lab.boundary_head`).
+
+Metrics are fractions in the file and percentages in the table; delays in steps.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .report_own import json_section, pair, pct
+
+HEAD = "boundary_head.json"
+
+
+def _online(means: dict[str, float] | None) -> str:
+    if means is None:
+        return "–"
+    return (f"{pair(means['online_f1_1'], means['online_align'])}, {means['delay_mean']:.1f} steps, "
+            f"{pct(means['at_end_share'])} % at end")
+
+
+def _line(row: dict[str, Any]) -> str:
+    means = row["means"]
+    bundled = means["bundled"]
+    return (f"| {row['family']} | {row['role']} | {row['runs']} | "
+            f"{pair(means['offline']['f1_1'], means['offline']['align'])} | "
+            f"{pair(bundled['f1_1'], bundled['align'])} | {_online(means['decoder_budget'])} | "
+            f"{_online(means['head_labels'])} | {_online(means['head_topk'])} | {_chosen(means['chosen'])} |")
+
+
+def _chosen(means: dict[str, float] | None) -> str:
+    if means is None:
+        return "–"
+    return f"{pair(means['f1_1'], means['align'])} (head in {int(means['head_runs'])})"
+
+
+def _intro(meta: dict[str, Any]) -> str:
+    return (f"Made by `{' '.join(meta['command'])}` on {meta['date']}: a causal boundary head (an MLP over "
+            f"the last {meta['window']} steps of the model's outputs, trained on each run's training "
+            f"episodes; lag at most {meta['max_lag']} steps) against the run's own detectors, scored on "
+            f"{meta['held_out']}. *offline*: the paper's detector of the domain (Top-K on Craft, the "
+            "automatic threshold on Dial); *bundled*: the detector `ompn_train` bundled with the run "
+            "(what `ompn_node` runs today); *decoder ≤ 6*: Craft's duration decoder tuned on validation "
+            "within the delay budget; *head, labels*: the head trained on the true boundaries; *head, "
+            "Top-K*: trained on the model's own offline segmentation; *chosen on validation*: per run, the "
+            "head (labels) where its validation alignment beats the bundled detector's, else the bundled "
+            "detector, with the number of runs that chose the head. Design rows set the head; the "
+            "others were kept out (docs/experiments.md §51). Means, F1@1 / alignment in %, then the mean "
+            "delay of inner boundaries and the share published only at the episode end.")
+
+
+def head_markdown(results_dir: Path, level: int = 2) -> list[str]:
+    """The boundary-head table, when ``boundary_head.json`` exists."""
+    return json_section(results_dir, HEAD, "Boundary head: a learned causal detector", _intro,
+                        ("family", "role", "runs", "offline", "bundled", "decoder ≤ 6", "head, labels",
+                         "head, Top-K", "chosen on validation"),
+                        lambda doc: (_line(row) for row in doc["families"]), level)
+
+
+__all__ = ["HEAD", "head_markdown"]
