@@ -297,7 +297,7 @@ def heads(data: dict[str, list[np.ndarray]], n_p: int, recurrent: bool, seed: in
 def study_arm(arm_name: str, work: Path, recurrent: bool = False, seed: int = 0) -> dict[str, Any]:
     """One run of :mod:`lab.own_data` (row cached in ``<work>/head/<arm>.json``): offline, the bundled
     detector, the duration decoder tuned within the budget, the heads."""
-    cached = work / "head" / f"{arm_name}{'_gru' if recurrent else ''}.json"
+    cached = work / "head" / f"{arm_name}{'_gru' if recurrent else ''}{f'_seed{seed}' if seed else ''}.json"
     if cached.is_file():
         return dict(json.loads(cached.read_text(encoding="utf-8")))
     data = cached_outputs(arm_name, work)
@@ -396,6 +396,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robot", type=Path, help="an `examples/own_robot.py --out` directory")
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--head", choices=("window", "gru"), default="window")
+    parser.add_argument("--seed", type=int, default=0, help="the head's initialisation and batch order")
     parser.add_argument("--out", type=Path, help="with ARMs: also write their rows to this file")
     parser.add_argument("arms", nargs="*")
     given = list(argv if argv is not None else sys.argv[1:])
@@ -403,18 +404,18 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     recurrent = args.head == "gru"
     if args.arms:
-        rows = [study_arm(arm, args.work, recurrent) for arm in args.arms]
+        rows = [study_arm(arm, args.work, recurrent, args.seed) for arm in args.arms]
         for row in rows:
             print(json.dumps(row))
         if args.out:
             args.out.write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8")
         return 0
-    families = [family_row(f, role, [study_arm(a, args.work, recurrent) for a in arms])
+    families = [family_row(f, role, [study_arm(a, args.work, recurrent, args.seed) for a in arms])
                 for f, role, arms in FAMILIES]
     if args.robot:
-        families.append(family_row(*ROBOT_FAMILY, [study_robot(args.robot, recurrent)]))
+        families.append(family_row(*ROBOT_FAMILY, [study_robot(args.robot, recurrent, args.seed)]))
     command = ["python", "-m", "lab.boundary_head", *given]
-    print(f"wrote {write_study(args.results, RESULTS, command, META, families)}")
+    print(f"wrote {write_study(args.results, RESULTS, command, {**META, 'head_seed': args.seed}, families)}")
     return 0
 
 
