@@ -32,15 +32,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from lab.detector_selection import _bounds, arm_splits, bundled, cached_scores, decoded
+from lab.detector_selection import _bounds, arm_splits, bundled_of, cached_scores, decoded, online_figures
 from lab.own_data import arm_by_name
 from lab.report import write_study
+from lab.scoring import offline_boundaries
 from ompn_ros.app import training
 from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
-from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
-from ompn_ros.detect.settings import load_detector_settings
-from ompn_ros.detect.tune import delay_stats
+from ompn_ros.detect.offline import top_k_boundaries
+from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.train.batching import collate
@@ -245,13 +245,10 @@ def decode(q: np.ndarray, rule: Rule) -> tuple[list[int], list[int]]:
 
 
 def score(qs: Sequence[np.ndarray], labels: Sequence[np.ndarray], rule: Rule) -> dict[str, float]:
+    """The head's probabilities ``qs`` decoded by ``rule``: :func:`~lab.detector_selection.online_figures`."""
     decoded_eps = [decode(q, rule) for q in qs]
-    preds = [np.array(s, dtype=np.int64) for s, _ in decoded_eps]
-    bounds = _bounds(list(labels))
-    delays = delay_stats(preds, bounds, [w for _, w in decoded_eps])
-    return {"online_f1_1": mean_f1(preds, bounds, 1).f1,
-            "online_align": alignment_accuracy(preds, list(labels), "strict"),
-            "delay_mean": delays["delay_mean"], "at_end_share": delays["at_end_share"]}
+    return online_figures([np.array(s, dtype=np.int64) for s, _ in decoded_eps], [w for _, w in decoded_eps],
+                          labels)
 
 
 THETAS = tuple(round(0.05 * i, 2) for i in range(1, 20))
@@ -270,12 +267,10 @@ def pick(qs: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> tuple[Rule, 
 
 def offline(xs: Sequence[np.ndarray], labels: Sequence[np.ndarray], n_p: int, domain: str
             ) -> dict[str, float]:
-    """The paper's offline detector of the domain (Top-K on Craft, the automatic threshold on Dial)."""
-    def one(p: np.ndarray, k: int) -> np.ndarray:
-        return top_k_boundaries(p, k) if domain == "craft" else auto_threshold_boundaries(p, k)[0]
-
+    """The paper's offline detector of the domain (:func:`lab.scoring.offline_boundaries`) on test."""
     bounds = _bounds(list(labels))
-    preds = [one(x[:, :n_p].astype(np.float64), len(b)) for x, b in zip(xs, bounds, strict=True)]
+    preds = [offline_boundaries(domain, x[:, :n_p].astype(np.float64), len(b))
+             for x, b in zip(xs, bounds, strict=True)]
     return {"f1_1": mean_f1(preds, bounds, 1).f1,
             "align": alignment_accuracy(preds, list(labels), "authors"),
             "align_strict": alignment_accuracy(preds, list(labels), "strict")}
@@ -306,8 +301,7 @@ def study_arm(arm_name: str, work: Path, recurrent: bool = False, seed: int = 0)
     settings = load_detector_settings(work / "runs" / arm_name / "best")
     row: dict[str, Any] = {"arm": arm_name, "offline": offline(data["test_x"], data["test_l"], n_p,
                                                                arm_by_name(arm_name).domain),
-                           "bundled": {**bundled(arm_name, work, scores), "val": decoded(
-                               settings.online, settings.duration_model, scores["val_p"], scores["val_l"])}}
+                           "bundled": _bundled(settings, scores)}
     if arm_by_name(arm_name).domain == "craft":
         cal = calibrate_duration(scores_from_p_hats(scores["val_p"]), _bounds(scores["val_l"]), DURATION_LAG,
                                  "align", max_delay=DURATION_DELAY)
@@ -321,15 +315,17 @@ def study_robot(flow: Path, recurrent: bool = False, seed: int = 0) -> dict[str,
     """The robot profile: offline, the detector the checkpoint bundles, the heads."""
     data = robot_outputs(flow)
     n_p = int(load_checkpoint(flow / "model" / "best")[0].config.n_slots) + 1
-    settings = load_detector_settings(flow / "model" / "best")
-    p_test = [x[:, :n_p].astype(np.float64) for x in data["test_x"]]
-    got = decoded(settings.online, settings.duration_model, p_test, data["test_l"])
-    val = decoded(settings.online, settings.duration_model,
-                  [x[:, :n_p].astype(np.float64) for x in data["val_x"]], data["val_l"])
+    scores = {f"{split}_{kind}": [x[:, :n_p].astype(np.float64) for x in data[f"{split}_x"]] if kind == "p"
+              else data[f"{split}_l"] for split in ("val", "test") for kind in "pl"}
     return {"arm": "robot_profile", "offline": offline(data["test_x"], data["test_l"], n_p, "dial"),
-            "bundled": {"f1_1": got["online_f1_1"], "align": got["online_align"], "delay": got["delay_mean"],
-                        "val": val},
+            "bundled": _bundled(load_detector_settings(flow / "model" / "best"), scores),
             **heads(data, n_p, recurrent, seed)}
+
+
+def _bundled(settings: DetectorSettings, scores: dict[str, list[np.ndarray]]) -> dict[str, Any]:
+    """The detector a run bundles, on test, with its validation figures (for :func:`chosen`)."""
+    return {**bundled_of(settings, scores),
+            "val": decoded(settings.online, settings.duration_model, scores["val_p"], scores["val_l"])}
 
 
 def _arms(prefix: str, seeds: Sequence[int]) -> tuple[str, ...]:
@@ -397,18 +393,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--head", choices=("window", "gru"), default="window")
     parser.add_argument("--seed", type=int, default=0, help="the head's initialisation and batch order")
-    parser.add_argument("--out", type=Path, help="with ARMs: also write their rows to this file")
     parser.add_argument("arms", nargs="*")
     given = list(argv if argv is not None else sys.argv[1:])
     args = parser.parse_args(given)
     torch.set_num_threads(1)
     recurrent = args.head == "gru"
     if args.arms:
-        rows = [study_arm(arm, args.work, recurrent, args.seed) for arm in args.arms]
-        for row in rows:
-            print(json.dumps(row))
-        if args.out:
-            args.out.write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8")
+        for arm in args.arms:
+            print(json.dumps(study_arm(arm, args.work, recurrent, args.seed)), flush=True)
         return 0
     families = [family_row(f, role, [study_arm(a, args.work, recurrent, args.seed) for a in arms])
                 for f, role, arms in FAMILIES]

@@ -28,7 +28,7 @@ from lab.report import write_study
 from ompn_ros.detect.calibrate import evaluate_grid, scores_from_p_hats
 from ompn_ros.detect.duration import DurationModel, make_detector
 from ompn_ros.detect.online import DetectorConfig, run_detector
-from ompn_ros.detect.settings import load_detector_settings
+from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, delay_stats, pick_setting, pick_within_error
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
@@ -116,28 +116,38 @@ def validation(p_hats: list[np.ndarray], labels: list[np.ndarray], grid: list[An
     return Validation(evaluate_grid(scores, grid, bounds, labels), per_episode, [len(s) for s in scores])
 
 
-def decoded(config: DetectorConfig, model: DurationModel | None, p_hats: Sequence[np.ndarray],
-            labels: Sequence[np.ndarray]) -> dict[str, float]:
-    """The causal detector ``config`` (``model`` for 'hsmm') on these episodes: F1@1, strict alignment,
-    and the mean delay of inner boundaries and the share published only at the episode end
-    (:func:`~ompn_ros.detect.tune.delay_stats`)."""
-    detector = make_detector(config, model)
-    events = [run_detector(detector, s) for s in scores_from_p_hats(p_hats)]
-    preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
+def online_figures(preds: Sequence[np.ndarray], detected_at: Sequence[Sequence[int]],
+                   labels: Sequence[np.ndarray]) -> dict[str, float]:
+    """F1@1, strict alignment, and the mean delay of inner boundaries and the share published only at
+    the episode end (:func:`~ompn_ros.detect.tune.delay_stats`) of causal detections: per episode the
+    boundary steps and the steps they were published at."""
     bounds = _bounds(list(labels))
-    delays = delay_stats(events, bounds)
+    delays = delay_stats(preds, bounds, detected_at)
     return {"online_f1_1": mean_f1(preds, bounds, 1).f1,
             "online_align": alignment_accuracy(preds, list(labels), "strict"),
             "delay_mean": delays["delay_mean"], "at_end_share": delays["at_end_share"]}
 
 
-def bundled(arm_name: str, work: Path, data: dict[str, list[np.ndarray]]) -> dict[str, Any]:
-    """The detector the arm's run bundles (``best/detector.json``, what ``ompn_node`` runs from the
-    checkpoint) on the test episodes."""
-    settings = load_detector_settings(work / "runs" / arm_name / "best")
+def decoded(config: DetectorConfig, model: DurationModel | None, p_hats: Sequence[np.ndarray],
+            labels: Sequence[np.ndarray]) -> dict[str, float]:
+    """The causal detector ``config`` (``model`` for 'hsmm') on these episodes: :func:`online_figures`."""
+    detector = make_detector(config, model)
+    events = [run_detector(detector, s) for s in scores_from_p_hats(p_hats)]
+    return online_figures([np.array([e.step for e in evs], dtype=np.int64) for evs in events],
+                          [[e.detected_at for e in evs] for evs in events], labels)
+
+
+def bundled_of(settings: DetectorSettings, data: dict[str, list[np.ndarray]]) -> dict[str, Any]:
+    """The detector of ``settings`` on the test episodes of ``data`` (``test_p``, ``test_l``)."""
     got = decoded(settings.online, settings.duration_model, data["test_p"], data["test_l"])
     return {"config": settings.online.mode, "source": settings.source, "f1_1": got["online_f1_1"],
             "align": got["online_align"], "delay": got["delay_mean"]}
+
+
+def bundled(arm_name: str, work: Path, data: dict[str, list[np.ndarray]]) -> dict[str, Any]:
+    """The detector the arm's run bundles (``best/detector.json``, what ``ompn_node`` runs from the
+    checkpoint) on the test episodes."""
+    return bundled_of(load_detector_settings(work / "runs" / arm_name / "best"), data)
 
 
 def study_arm(arm_name: str, work: Path) -> dict[str, Any]:

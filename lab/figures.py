@@ -6,9 +6,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from lab.scoring import Evaluation
+from lab.scoring import Evaluation, offline_boundaries
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
 from ompn_ros.plotting import plot_episode
 
 
@@ -21,7 +20,7 @@ def save_figures(
         if i >= count:
             break
         k = len(ep.boundaries)
-        offline = top_k_boundaries(p_hat, k) if domain == "craft" else auto_threshold_boundaries(p_hat, k)[0]
+        offline = offline_boundaries(domain, p_hat, k)
         path = out / f"{domain}_{setting}_episode{i}.png"
         plot_episode(
             path,

@@ -26,6 +26,7 @@ from ompn_ros.app.replay import choose_detector, compare_detectors, replay_all
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.calibrate import scores_from_p_hats
+from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
 from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import (
@@ -51,6 +52,12 @@ TRAINING_CELLS = ("train_seconds", "frames_per_second")
 """Result cells that only training produces (kept from the previous results by --reevaluate)."""
 DURATION_DELAYS = (2, 4, 6, 8, 10, 12, 15)
 """Mean delays (steps) within which the duration decoder is tuned and scored (``online_hsmm_d<delay>_*``)."""
+
+
+def offline_boundaries(domain: str, p_hat: np.ndarray, k: int) -> np.ndarray:
+    """The paper's offline detector of ``domain`` with ``k`` subtasks: Top-K on Craft, the automatic
+    threshold on Dial."""
+    return top_k_boundaries(p_hat, k) if domain == "craft" else auto_threshold_boundaries(p_hat, k)[0]
 
 
 @dataclass(frozen=True)
