@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import itertools
 import os
 import struct
 import subprocess
@@ -137,6 +138,17 @@ def _cost_model() -> Any:
     return fit_duration_model(scores, bounds)
 
 
+def _cost_head(features: int) -> Any:
+    """A boundary head of the trained sizes (window 8, 2 × 64 hidden, lags 0-6) with random weights
+    (for timing mode 'head' only)."""
+    from ompn_ros.detect.head import BoundaryHead
+
+    rng = np.random.default_rng(0)
+    sizes = [8 * features, 64, 64, 7]
+    weights = tuple((rng.normal(0, 0.1, (a, b)), rng.normal(0, 0.1, b)) for a, b in itertools.pairwise(sizes))
+    return BoundaryHead(weights, np.zeros(sizes[0]), np.ones(sizes[0]), 8, features)
+
+
 def bench_duration_span(reps: int = 2000) -> Result:
     """The duration decoder's per-step kernel at its bound: ``MAX_SPAN`` steps since the last boundary,
     no boundary published yet (the backward pass covers every later subtask), K = 4 and 8."""
@@ -189,6 +201,13 @@ def bench_in_process(steps: int) -> Result:
         times = _time_steps(seg.reset, seg.step, obs, starts)
         out[f"{name}_segmenter_hsmm_step_p50"] = (_pct(times, 50), "us")
         out[f"{name}_segmenter_hsmm_step_p99"] = (_pct(times, 99), "us")
+        # the boundary head (mode 'head'): one pass of its network per step on the model's outputs
+        features = model.config.n_slots + 1 + model.config.action_dim
+        config = DetectorConfig(mode="head", high=0.5, lag=3, min_segment_length=2)
+        seg = StreamingSegmenter(StreamingPolicy(model, backend="jit"), config, None, _cost_head(features))
+        times = _time_steps(seg.reset, seg.step, obs, starts)
+        out[f"{name}_segmenter_head_step_p50"] = (_pct(times, 50), "us")
+        out[f"{name}_segmenter_head_step_p99"] = (_pct(times, 99), "us")
         torch_reset, torch_step = _torch_stepper(model)
         times = _time_steps(torch_reset, torch_step, obs, starts, reps=1)
         out[f"{name}_torch_step_p50"] = (_pct(times, 50), "us")

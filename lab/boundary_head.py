@@ -14,6 +14,13 @@ boundary of step ``t - d`` at step ``t`` when the head's probability passes ``th
 ``gap`` and ``peak`` are chosen on the run's validation episodes for alignment.  Nothing of the
 OMPN is retrained.  ``--head gru`` swaps the window MLP for a GRU over the whole episode so far.
 
+The window head is trained by the product's :func:`ompn_ros.train.boundary_head.train_head` (what
+``ompn_train`` runs, docs/design.md#boundary-head).  The decoding here is the study's own: it
+publishes step ``t - d`` at step ``t`` and picks the rule by strict alignment; the node's decoder
+(:mod:`ompn_ros.detect.head`) places the same boundaries for a rule, one step later (it holds the newest step,
+so an episode's 'done' observation never places one) and ``ompn_train`` picks by the authors'
+alignment (docs/experiments.md §52).
+
     python -m lab.boundary_head --work runs/own_data --robot runs/own_robot   # results/boundary_head.json
     python -m lab.boundary_head --work runs/own_data ARM [ARM ...]            # printed only
 """
@@ -39,18 +46,20 @@ from lab.scoring import offline_boundaries
 from ompn_ros.app import training
 from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
+from ompn_ros.detect.head import BoundaryHead
+from ompn_ros.detect.head import windowed as windowed_rows
 from ompn_ros.detect.offline import top_k_boundaries
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.train.batching import collate
+from ompn_ros.train.boundary_head import EPOCHS, HIDDEN, MAX_HEAD_LAG, WINDOW
+from ompn_ros.train.boundary_head import targets as lag_targets
+from ompn_ros.train.boundary_head import train_head as train_window_head
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.trainer import train_val_episodes
 
-WINDOW = 8
-MAX_LAG = int(DURATION_DELAY)
-HIDDEN = 64
-EPOCHS = 40
+MAX_LAG = MAX_HEAD_LAG
 SPLITS = ("train", "val", "test")
 
 
@@ -91,18 +100,25 @@ def _save(target: Path, policy: Any, splits: tuple[Sequence[Any], ...]) -> None:
 ROBOT_READER = Path(__file__).resolve().parents[1] / "config" / "reader_dial_robot.yaml"
 
 
+def robot_splits(flow: Path) -> tuple[list[Any], list[Any], list[Any], Any]:
+    """(train, validation, test) episodes of the robot profile's run of ``examples/own_robot.py --out
+    FLOW`` (``FLOW/bags/train`` split as ``ompn_train`` split it, ``FLOW/bags/heldout`` as test) and
+    its best checkpoint's policy."""
+    config = load_config(str(ROBOT_READER.parent / "train_dial.yaml"))
+    apply_overrides(config, ["data.domain=null", f"data.reader_spec={ROBOT_READER}"])
+    data = training.bag_data([str(flow / "bags" / "train")], config["data"])
+    _, cfg = training.build_configs(config, data, flow / "model", True, True)
+    train, val, _ = train_val_episodes(data.episodes, cfg)
+    test = training.bag_data([str(flow / "bags" / "heldout")], config["data"]).episodes
+    return list(train), list(val), list(test), load_checkpoint(flow / "model" / "best")[0]
+
+
 def robot_outputs(flow: Path) -> dict[str, list[np.ndarray]]:
-    """The robot profile's run of ``examples/own_robot.py --out FLOW`` (``FLOW/bags/train`` split as
-    ``ompn_train`` split it, ``FLOW/bags/heldout`` as test), cached in ``FLOW/head.npz``."""
+    """The robot profile's outputs on :func:`robot_splits`, cached in ``FLOW/head.npz``."""
     target = flow / "head.npz"
     if not target.is_file():
-        config = load_config(str(ROBOT_READER.parent / "train_dial.yaml"))
-        apply_overrides(config, ["data.domain=null", f"data.reader_spec={ROBOT_READER}"])
-        data = training.bag_data([str(flow / "bags" / "train")], config["data"])
-        _, cfg = training.build_configs(config, data, flow / "model", True, True)
-        train, val, _ = train_val_episodes(data.episodes, cfg)
-        test = training.bag_data([str(flow / "bags" / "heldout")], config["data"]).episodes
-        _save(target, load_checkpoint(flow / "model" / "best")[0], (train, val, test))
+        train, val, test, policy = robot_splits(flow)
+        _save(target, policy, (train, val, test))
     return _load(target)
 
 
@@ -116,21 +132,13 @@ def _load(target: Path) -> dict[str, list[np.ndarray]]:
 
 
 def windowed(x: np.ndarray) -> np.ndarray:
-    """``[T, WINDOW * F]``: rows ``t - WINDOW + 1 .. t`` of ``x`` (the first row repeated before 0)."""
-    pad = np.concatenate([np.repeat(x[:1], WINDOW - 1, axis=0), x], axis=0)
-    return np.concatenate([pad[i:i + len(x)] for i in range(WINDOW)], axis=1)
+    """``[T, WINDOW * F]``: :func:`ompn_ros.detect.head.windowed` at the head's window."""
+    return windowed_rows(x, WINDOW)
 
 
 def targets(bounds: np.ndarray, length: int) -> np.ndarray:
-    """``[T, MAX_LAG + 1]``: 1 where step ``t - j`` is an inner boundary."""
-    y = np.zeros((length, MAX_LAG + 1), dtype=np.float32)
-    for b in bounds:
-        if b >= length - 1:
-            continue
-        for j in range(MAX_LAG + 1):
-            if b + j < length:
-                y[b + j, j] = 1.0
-    return y
+    """``[T, MAX_LAG + 1]``: :func:`ompn_ros.train.boundary_head.targets`."""
+    return lag_targets(bounds, length, MAX_LAG)
 
 
 def topk_bounds(x: np.ndarray, labels: np.ndarray, n_p: int) -> np.ndarray:
@@ -153,21 +161,21 @@ class _GRU(torch.nn.Module):
 @dataclass(frozen=True)
 class Head:
     """A trained head: ``head(x)`` maps one episode's outputs ``[T, F]`` to ``[T, MAX_LAG + 1]``
-    probabilities, computed causally (row ``t`` reads rows ``<= t`` only)."""
+    probabilities, computed causally (row ``t`` reads rows ``<= t`` only): the product's window head
+    (:class:`~ompn_ros.detect.head.BoundaryHead`), or the lab's GRU."""
 
-    net: torch.nn.Module
-    mean: np.ndarray
-    std: np.ndarray
-    recurrent: bool
-
-    def inputs(self, x: np.ndarray) -> np.ndarray:
-        return (((x if self.recurrent else windowed(x)) - self.mean) / self.std).astype(np.float32)
+    window: BoundaryHead | None = None
+    net: torch.nn.Module | None = None
+    mean: np.ndarray | None = None
+    std: np.ndarray | None = None
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        z = torch.from_numpy(self.inputs(x))
+        if self.window is not None:
+            return self.window.probabilities(x)
+        assert self.net is not None and self.mean is not None and self.std is not None
+        z = torch.from_numpy(((x - self.mean) / self.std).astype(np.float32))
         with torch.no_grad():
-            logits = self.net(z[None])[0] if self.recurrent else self.net(z)
-        return torch.sigmoid(logits).numpy()
+            return torch.sigmoid(self.net(z[None])[0]).numpy()
 
 
 def _padded(arrays: Sequence[np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -179,33 +187,27 @@ def _padded(arrays: Sequence[np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def train_head(xs: Sequence[np.ndarray], bounds: Sequence[np.ndarray], seed: int, recurrent: bool) -> Head:
-    """The head on every step of the training episodes, binary cross-entropy per lag."""
+    """The head on every step of the training episodes, binary cross-entropy per lag: the product's
+    window head (:func:`ompn_ros.train.boundary_head.train_head`), or a GRU over the episode so far."""
+    if not recurrent:
+        return Head(window=train_window_head(xs, bounds, seed))
     torch.manual_seed(seed)
-    cat = np.concatenate([x if recurrent else windowed(x) for x in xs])
-    head = Head(torch.nn.Module(), cat.mean(0), cat.std(0) + 1e-6, recurrent)
-    net: torch.nn.Module = _GRU(cat.shape[1]) if recurrent else torch.nn.Sequential(
-        torch.nn.Linear(cat.shape[1], HIDDEN), torch.nn.ReLU(), torch.nn.Linear(HIDDEN, HIDDEN),
-        torch.nn.ReLU(), torch.nn.Linear(HIDDEN, MAX_LAG + 1))
-    ys = [targets(b, len(x)) for x, b in zip(xs, bounds, strict=True)]
-    if recurrent:
-        z, mask = _padded([head.inputs(x) for x in xs])
-        y, _ = _padded(ys)
-        units, size = torch.arange(len(xs)), 16
-    else:
-        z = torch.from_numpy(((cat - head.mean) / head.std).astype(np.float32))
-        y = torch.from_numpy(np.concatenate(ys))
-        mask, units, size = torch.ones(len(z)), torch.arange(len(z)), 256
+    cat = np.concatenate(xs)
+    mean, std = cat.mean(0), cat.std(0) + 1e-6
+    net = _GRU(cat.shape[1])
+    z, mask = _padded([((x - mean) / std).astype(np.float32) for x in xs])
+    y, _ = _padded([targets(b, len(x)) for x, b in zip(xs, bounds, strict=True)])
     opt = torch.optim.Adam(net.parameters(), lr=2e-3, weight_decay=1e-4)
     gen = torch.Generator().manual_seed(seed)
     for _ in range(EPOCHS):
-        for idx in units[torch.randperm(len(units), generator=gen)].split(size):
+        for idx in torch.randperm(len(xs), generator=gen).split(16):
             raw = torch.nn.functional.binary_cross_entropy_with_logits(net(z[idx]), y[idx], reduction="none")
             loss = (raw.mean(-1) * mask[idx]).sum() / mask[idx].sum()
             opt.zero_grad()
             loss.backward()
             opt.step()
     net.eval()
-    return Head(net, head.mean, head.std, recurrent)
+    return Head(net=net, mean=mean, std=std)
 
 
 @dataclass(frozen=True)

@@ -42,11 +42,12 @@ def _intro(meta: dict[str, Any]) -> str:
             f"episodes; lag at most {meta['max_lag']} steps) against the run's own detectors, scored on "
             f"{meta['held_out']}. *offline*: the paper's detector of the domain (Top-K on Craft, the "
             "automatic threshold on Dial); *bundled*: the detector `ompn_train` bundled with the run "
-            "(what `ompn_node` runs today); *decoder ≤ 6*: Craft's duration decoder tuned on validation "
-            "within the delay budget; *head, labels*: the head trained on the true boundaries; *head, "
-            "Top-K*: trained on the model's own offline segmentation; *chosen on validation*: per run, the "
-            "head (labels) where its validation alignment beats the bundled detector's, else the bundled "
-            "detector, with the number of runs that chose the head. Design rows set the head; the "
+            "when it was trained, before `ompn_train` fitted a head too (§52); *decoder ≤ 6*: Craft's "
+            "duration decoder tuned on validation within the delay budget; *head, labels*: the head "
+            "trained on the true boundaries; *head, Top-K*: trained on the model's own offline "
+            "segmentation; *chosen on validation*: per run, the head (labels) where its validation "
+            "alignment beats the bundled detector's, else the bundled detector, with the number of runs "
+            "that chose the head. Design rows set the head; the "
             "others were kept out (docs/experiments.md §51). Means, F1@1 / alignment in %, then the mean "
             "delay of inner boundaries and the share published only at the episode end.")
 

@@ -21,6 +21,8 @@ import numpy as np
 from numba import njit
 
 from ompn_ros.detect.duration import Detector, DurationModel, make_detector
+from ompn_ros.detect.errors import BoundaryHeadError
+from ompn_ros.detect.head import BoundaryHead, HeadDetector, head_outputs
 from ompn_ros.detect.online import (
     BoundaryEvent,
     DetectorConfig,
@@ -86,15 +88,30 @@ def _all_finite(a: np.ndarray) -> bool:  # pragma: no cover - compiled
     return True
 
 
+def _checked_head(head: BoundaryHead | None, config: Any) -> BoundaryHead | None:
+    """``head`` when it reads this model's outputs per step (``n + 1 + A``), else a BoundaryHeadError."""
+    if head is None:
+        return None
+    outputs = int(config.n_slots) + 1 + int(config.action_dim)
+    if head.features != outputs:
+        raise BoundaryHeadError(
+            f"the boundary head reads {head.features} outputs per step and this model gives {outputs} "
+            f"(n_slots {config.n_slots} + 1 + action_dim {config.action_dim}): it belongs to another model"
+        )
+    return head
+
+
 class StreamingSegmenter:
     """Validate, step the policy's ordered memory, score the expansion and detect boundaries."""
 
     def __init__(self, policy: StreamingPolicyLike, detector_config: DetectorConfig | None = None,
-                 duration_model: DurationModel | None = None) -> None:
+                 duration_model: DurationModel | None = None, head: BoundaryHead | None = None) -> None:
         self.policy = policy
         self.duration_model = duration_model
+        self.head = _checked_head(head, policy.config)
         self.detector_config = detector_config or DetectorConfig()
-        self.detector: Detector = make_detector(self.detector_config, duration_model)
+        self.detector: Detector = make_detector(self.detector_config, duration_model, head)
+        self._discrete = getattr(policy.config, "action_type", "discrete") == "discrete"
         self._detector_changed = False
         _all_finite(np.zeros(1, dtype=np.float32))  # compiled (or loaded from numba's cache) now
         self.obs_dim = int(policy.config.obs_dim)
@@ -140,7 +157,7 @@ class StreamingSegmenter:
         sketch_arr = self._validate_sketch(sketch)
         self.policy.reset(sketch_arr)
         if self._detector_changed:
-            self.detector = make_detector(self.detector_config, self.duration_model)
+            self.detector = make_detector(self.detector_config, self.duration_model, self.head)
             self._detector_changed = False
         self.detector.reset()
         self._sketch = sketch_arr
@@ -191,6 +208,9 @@ class StreamingSegmenter:
         p_hat = np.asarray(out.p_hat)
         score = expansion_score(p_hat)
         level = expansion_level(p_hat)
+        if isinstance(self.detector, HeadDetector):  # the head reads the whole output, not the score
+            action_out = out.action_logits if self._discrete else out.action
+            self.detector.feed(head_outputs(p_hat, action_out, self._discrete))
         boundary = self.detector.update(score, level, 0 if stamp_ns is None else int(stamp_ns))
         return SegmenterOutput(out, boundary, self._step_index, score, level)
 
@@ -205,10 +225,11 @@ class StreamingSegmenter:
 
     def set_detector(self, config: DetectorConfig) -> str:
         """Run ``config``: from the next step, or from the next episode when it changes the decoder
-        (mode 'hsmm' on or off, or its lag) in the middle of one.  Returns which; raises
-        :class:`~ompn_ros.detect.errors.DurationModelError` (nothing changed) for 'hsmm' without a
-        duration model."""
-        fresh = make_detector(config, self.duration_model)
+        (mode 'hsmm' or 'head' on or off, or their lag) in the middle of one.  Returns which; raises
+        :class:`~ompn_ros.detect.errors.DurationModelError` or
+        :class:`~ompn_ros.detect.errors.BoundaryHeadError` (nothing changed) for 'hsmm' without a
+        duration model or 'head' without a boundary head."""
+        fresh = make_detector(config, self.duration_model, self.head)
         self.detector_config, running = config, self.detector
         if type(running) is type(fresh) and getattr(running, "lag", 0) == getattr(fresh, "lag", 0):
             running.configure(config)  # the same decoder: only its thresholds change
@@ -255,6 +276,8 @@ class ReplayResult:
     published: list[BoundaryEvent] = field(default_factory=list)
     """Every boundary ``ompn_node`` publishes for the episode, in order: ``boundaries``, one the
     detector commits at the done step (row T), and the last one again with ``final`` set."""
+    outputs: np.ndarray | None = None
+    """``[T, n + 1 + A]``: what the boundary head reads (:func:`~ompn_ros.detect.head.head_outputs`)."""
 
     @property
     def boundary_steps(self) -> np.ndarray:

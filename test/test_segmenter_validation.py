@@ -43,6 +43,7 @@ class FakeStep:
     p_hat: np.ndarray
     expected_position: float
     done_prob: float
+    action_logits: np.ndarray | None = None
 
 
 class FakePolicy:
@@ -70,7 +71,8 @@ class FakePolicy:
         p_hat /= p_hat.sum()
         pi = p_hat[1:][::-1] / p_hat[1:].sum()
         pos = float(np.arange(1, len(pi) + 1) @ pi)
-        return FakeStep(int(np.argmax(z)), pi, float(p_hat[0]), p_hat, pos, float(p_hat[0]))
+        logits = z.astype(np.float32)
+        return FakeStep(int(np.argmax(z)), pi, float(p_hat[0]), p_hat, pos, float(p_hat[0]), logits)
 
 
 def make_segmenter(**cfg: object) -> StreamingSegmenter:

@@ -37,6 +37,7 @@ from ompn_ros.train.trainer import (
     effective_selection,
     eligible,
     evaluations_since_best,
+    head_fit_episodes,
     train,
     train_val_episodes,
 )
@@ -88,8 +89,30 @@ def test_labelled_run_bundles_tuned_detectors(tmp_path: Path, episodes: list) ->
     m = best.metrics
     gains = m["hsmm_val_align"] >= m["threshold_val_align"] + DURATION_GAIN
     keeps = m["hsmm_val_f1_tol1"] >= m["threshold_val_f1_tol1"] - DURATION_GAIN
-    assert (best.online.mode == "hsmm") == (gains and keeps)
+    before_head = "hsmm" if gains and keeps else "threshold"
+    # the boundary head is trained too, kept with the checkpoint, and runs when it aligns better
+    assert best.head is not None and (tmp_path / "best" / "boundary_head.safetensors").is_file()
+    assert best.head.rule is not None and 1 <= best.head.rule.lag <= best.head.max_lag
+    head_wins = m["head_val_align"] > m[f"{before_head}_val_align"]
+    assert (best.online.mode == "head") == head_wins
+    assert not head_wins or best.online == best.head.rule
+    if not head_wins:
+        assert (best.online.mode == "hsmm") == (before_head == "hsmm")
     assert best.online.mode != "hsmm" or best.online.lag == DURATION_LAG
+
+
+def test_the_head_is_fitted_on_episodes_spread_over_the_whole_training_split(episodes: list) -> None:
+    many = [replace(ep, task=f"task{i // 300}") for i, ep in enumerate(episodes * 13)]  # 1 248, task blocks
+    fit = head_fit_episodes(many)
+    assert len(fit) == 416 and {ep.task for ep in fit} == {ep.task for ep in many}
+    assert head_fit_episodes(episodes[:40]) == episodes[:40]
+
+
+def test_the_boundary_head_can_be_turned_off(tmp_path: Path, episodes: list) -> None:
+    result = train(episodes[:48], _model_config(), _cfg(tmp_path, iterations=4, eval_every=2,
+                                                        boundary_head=False))
+    assert result.detectors["best"].head is None and "head_val_align" not in result.detectors["best"].metrics
+    assert not (tmp_path / "best" / "boundary_head.safetensors").exists()
 
 
 def test_hidden_labels_select_and_calibrate_without_them(tmp_path: Path, episodes: list) -> None:

@@ -40,6 +40,7 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import OnError, read_episodes
 from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.errors import KNOWN_ERRORS, error_line
 from ompn_ros.metrics import alignment_counts, f1_with_tolerance
@@ -54,7 +55,8 @@ class BatchSettings:
 
     Attributes:
         checkpoint: the checkpoint (or ensemble) directory.
-        detector: the online detector (resolved once, ``detect/settings.py``) and its duration model.
+        detector: the online detector (resolved once, ``detect/settings.py``), its duration model and
+            boundary head.
         out: the run's folder (records, table, summary).
         annotate: the folder of annotated copies (None: none written).
         reader_config, domain, on_error: how bags are read (``app/replay.py``).
@@ -65,6 +67,7 @@ class BatchSettings:
     detector: DetectorConfig
     out: Path
     duration_model: DurationModel | None = None
+    head: BoundaryHead | None = None
     annotate: Path | None = None
     reader_config: str | None = None
     domain: str | None = None
@@ -159,7 +162,7 @@ def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, An
     if not episodes:
         raise BagError("no episodes found", path=path)
     stepper = _stepper(settings.checkpoint, settings.device)
-    replays = replay_all(stepper, episodes, settings.detector, settings.duration_model)
+    replays = replay_all(stepper, episodes, settings.detector, settings.duration_model, settings.head)
     check_finite(replays, episodes)
     stamps = _stamps(settings, path, episodes)
     if settings.annotate is not None and stamps is not None:

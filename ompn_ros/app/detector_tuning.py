@@ -2,7 +2,9 @@
 
 The threshold detector is grid-searched (:func:`ompn_ros.detect.tune.choose_on_replays`), the 'hsmm'
 duration detector is fitted beside it (:func:`ompn_ros.train.detector.duration_detector`) and the
-online one picked between them (:func:`ompn_ros.train.detector.pick_online`); see docs/design.md.
+online one picked between them (:func:`ompn_ros.train.detector.pick_online`); a checkpoint's
+boundary head, with the decoding chosen with it, runs instead when it aligns better on the same
+episodes (:func:`ompn_ros.train.detector.prefer_head`); see docs/design.md.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Any
 from ompn_ros.app import replay
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
@@ -24,7 +27,7 @@ from ompn_ros.detect.tune import (
     score_online,
     write_node_config,
 )
-from ompn_ros.train.detector import duration_detector, pick_online
+from ompn_ros.train.detector import duration_detector, pick_online, prefer_head
 
 
 @dataclass
@@ -46,9 +49,11 @@ class Tuned:
 
 
 def tune_detector(policy: Any, episodes: Sequence[Episode], objective: str | None, domain: str | None,
-                  lag: int, max_delay: float, long_subtasks: bool = False) -> Tuned:
+                  lag: int, max_delay: float, long_subtasks: bool = False,
+                  head: BoundaryHead | None = None) -> Tuned:
     """Replay ``episodes`` once and choose the online detector maximising ``objective`` (none: the
-    domain's, F1 without a domain); the 'hsmm' detector of ``lag`` may cost ``max_delay`` mean steps."""
+    domain's, F1 without a domain); the 'hsmm' detector of ``lag`` may cost ``max_delay`` mean steps;
+    ``head``: the checkpoint's boundary head, a candidate with its stored decoding."""
     objective = objective or DEFAULT_OBJECTIVE.get(domain or "", "f1")
     replays = replay.replay_all(policy, episodes, default_grid()[0])
     replay.check_finite(replays, episodes)
@@ -58,8 +63,10 @@ def tune_detector(policy: Any, episodes: Sequence[Episode], objective: str | Non
                                  max_delay)
     model = None if duration is None else duration.model
     best, figures = pick_online(threshold, metrics, duration)
-    if best is not threshold:  # 'online' names what runs: the duration decoder
-        metrics = score_online(replays, episodes, best, model)
+    if head is not None and head.rule is not None:
+        best = prefer_head(best, figures, head.rule, score_online(replays, episodes, head.rule, None, head))
+    if best is not threshold:  # 'online' names what runs: the duration decoder or the head
+        metrics = score_online(replays, episodes, best, model, head)
         comparison = {"online": metrics, "online_threshold": comparison.pop("online"), **comparison}
     return Tuned(objective, best, metrics, comparison, figures, model)
 

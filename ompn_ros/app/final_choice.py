@@ -48,7 +48,7 @@ from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.candidates import copy_outputs
 from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.detector import objective_for
-from ompn_ros.train.evaluation import teacher_forced_p_hat
+from ompn_ros.train.evaluation import teacher_forced_outputs
 from ompn_ros.train.trainer import train_val_episodes
 
 LOG = logging.getLogger("ompn_ros.train")
@@ -66,6 +66,7 @@ class _Scored:
 
     scores: np.ndarray
     p_hat: np.ndarray
+    outputs: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -83,13 +84,14 @@ def validate_online(run_dir: Path, val_eps: Sequence[Episode], cfg: TrainConfig)
     """Score ``run_dir/best``'s online detector (``detector.json``) on ``val_eps``.  O(Σ T)."""
     policy, _ = load_checkpoint(run_dir / "best")
     settings = load_detector_settings(run_dir / "best")
-    p_hats, _ = teacher_forced_p_hat(cast(OMPNPolicy, policy), val_eps, bptt=cfg.bptt,
+    outputs = teacher_forced_outputs(cast(OMPNPolicy, policy), val_eps, bptt=cfg.bptt,
                                      batch_size=cfg.eval_batch_size)
-    replays = [_Scored(s, p) for s, p in zip(scores_from_p_hats(p_hats), p_hats, strict=True)]
+    p_hats = [x[:, :policy.config.n_slots + 1] for x in outputs]
+    replays = [_Scored(s, p, x) for s, p, x in zip(scores_from_p_hats(p_hats), p_hats, outputs, strict=True)]
 
     def score(index: Sequence[int]) -> Metrics:
         return score_online([replays[i] for i in index], [val_eps[i] for i in index], settings.online,
-                            settings.duration_model)
+                            settings.duration_model, settings.head)
 
     every = range(len(val_eps))
     return Validated(score(every), [score([i]) for i in every], [ep.length for ep in val_eps],

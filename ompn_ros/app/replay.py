@@ -26,6 +26,7 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
 from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays
@@ -76,9 +77,10 @@ def read_report_doc(result: ReadResult, on_error: str) -> dict[str, Any]:
 
 
 def replay_all(policy: Any, episodes: Sequence[Episode], config: DetectorConfig,
-               duration_model: DurationModel | None = None) -> list[ReplayResult]:
+               duration_model: DurationModel | None = None, head: BoundaryHead | None = None
+               ) -> list[ReplayResult]:
     """Replay every episode (done step included, as live) through one StreamingSegmenter."""
-    segmenter = StreamingSegmenter(policy, config, duration_model)
+    segmenter = StreamingSegmenter(policy, config, duration_model, head)
     return [replay_episode(segmenter, ep, include_done_step=True) for ep in episodes]
 
 
@@ -100,12 +102,13 @@ def compare_detectors(
     offline_thresholds: Iterable[float] = (0.5,),
     replays: Sequence[ReplayResult] | None = None,
     duration_model: DurationModel | None = None,
+    head: BoundaryHead | None = None,
 ) -> dict[str, Metrics]:
     """Online vs offline detectors on ``episodes`` (see :func:`ompn_ros.detect.tune.compare_on_replays`)."""
     configs = online_configs or {"online": DetectorConfig()}
     if replays is None:
-        replays = replay_all(policy, episodes, next(iter(configs.values())), duration_model)
-    return compare_on_replays(replays, episodes, configs, offline_thresholds, duration_model)
+        replays = replay_all(policy, episodes, next(iter(configs.values())), duration_model, head)
+    return compare_on_replays(replays, episodes, configs, offline_thresholds, duration_model, head)
 
 
 def choose_detector(
@@ -186,12 +189,14 @@ def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, 
 def run_replay(
     policy: Any, episodes: Sequence[Episode], config: DetectorConfig, out: Path, plot_episodes: int = 3,
     *, replays: Sequence[ReplayResult] | None = None, duration_model: DurationModel | None = None,
+    head: BoundaryHead | None = None,
 ) -> dict[str, Any]:
     """Replay ``episodes`` (unless ``replays`` are given) and write the output files into ``out``;
-    returns the summary.  ``duration_model``: the model of an online detector of mode 'hsmm'."""
+    returns the summary.  ``duration_model``: the model of an online detector of mode 'hsmm';
+    ``head``: the boundary head of mode 'head'."""
     out.mkdir(parents=True, exist_ok=True)
     if replays is None:
-        replays = replay_all(policy, episodes, config, duration_model)
+        replays = replay_all(policy, episodes, config, duration_model, head)
     check_finite(replays, episodes)
     arrays: dict[str, np.ndarray] = {}
     for i, r in enumerate(replays):
@@ -207,6 +212,6 @@ def run_replay(
     summary: dict[str, Any] = {"episodes": len(episodes), "detector": config.to_dict()}
     if episodes and all(ep.subtask is not None for ep in episodes):
         summary["metrics"] = compare_detectors(policy, episodes, {"online": config}, replays=replays,
-                                               duration_model=duration_model)
+                                               duration_model=duration_model, head=head)
         atomic_write_text(out / "metrics.json", json.dumps(json_safe(summary["metrics"]), indent=1))
     return summary

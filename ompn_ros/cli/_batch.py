@@ -58,6 +58,7 @@ def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     print(f"ompn_segment: {line}", file=sys.stderr)
     settings = BatchSettings(
         checkpoint=args.checkpoint, detector=detector.online, duration_model=detector.duration_model,
+        head=detector.head,
         out=Path(args.out), annotate=Path(args.annotate) if args.annotate else None,
         reader_config=args.reader_config, domain=args.domain, on_error=args.on_error, device=device)
     bags = list_bags(args.bags)

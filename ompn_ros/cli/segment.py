@@ -169,14 +169,15 @@ def _run(args: argparse.Namespace) -> int:
     if not episodes:
         raise ReplayError(f"no episodes found in {args.bag}")
     if args.tune:
+        stored, _ = segment_setup.detector_settings(args.checkpoint, None)
         tuned = tune_detector(policy, episodes, args.objective, args.domain, args.lag, args.max_delay,
-                              args.long_subtasks)
+                              args.long_subtasks, stored.head)
         return _tune(args, tuned)
     settings, line = segment_setup.detector_settings(args.checkpoint, args.detector_config)
     config, model = settings.online, settings.duration_model
-    replays = replay_all(policy, episodes, config, model)
+    replays = replay_all(policy, episodes, config, model, settings.head)
     summary = replay.run_replay(policy, episodes, config, Path(args.out), args.plot_episodes, replays=replays,
-                                duration_model=model)
+                                duration_model=model, head=settings.head)
     print(json.dumps(replay.json_safe(summary), indent=1))
     print(f"ompn_segment: {line}", file=sys.stderr)
     if args.annotate:

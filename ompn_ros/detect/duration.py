@@ -45,9 +45,11 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from ompn_ros.detect.errors import DurationModelError
+from ompn_ros.detect.errors import BoundaryHeadError, DurationModelError
+from ompn_ros.detect.head import BoundaryHead, HeadDetector
 from ompn_ros.detect.online import (
     DURATION_MODE,
+    HEAD_MODE,
     MAX_LAG,
     BoundaryEvent,
     DetectorConfig,
@@ -413,14 +415,23 @@ def decode_episode(model: DurationModel, scores: np.ndarray, lag: int, threshold
     return np.asarray([e.step for e in events], dtype=np.int64)
 
 
-Detector = OnlineDetector | DurationDetector
+Detector = OnlineDetector | DurationDetector | HeadDetector
 """What :class:`~ompn_ros.segmenter.StreamingSegmenter` steps (``update``, ``close``, ``configure``,
 ``reset``)."""
 
 
-def make_detector(config: DetectorConfig, model: DurationModel | None) -> Detector:
-    """The detector of ``config``: the threshold detector, or for mode 'hsmm' the duration decoder of
-    ``model`` (a :class:`DurationModelError` without one)."""
+def make_detector(config: DetectorConfig, model: DurationModel | None,
+                  head: BoundaryHead | None = None) -> Detector:
+    """The detector of ``config``: the threshold detector; for mode 'hsmm' the duration decoder of
+    ``model`` (a :class:`DurationModelError` without one); for mode 'head' the boundary head ``head``
+    (a :class:`BoundaryHeadError` without one)."""
+    if config.mode == HEAD_MODE:
+        if head is None:
+            raise BoundaryHeadError(
+                f"detector mode '{HEAD_MODE}' needs a boundary head: the checkpoint's detector.json has none "
+                "(ompn_train fits one on labelled bags)"
+            )
+        return HeadDetector(head, config)
     if config.mode != DURATION_MODE:
         return OnlineDetector(config)
     if model is None:

@@ -1,5 +1,5 @@
 """Errors of the detectors: offline and online detector parameters, ``detector.json``, the duration
-model, tuning and calibration input.
+model, the boundary head, tuning and calibration input.
 
 Every class derives from :class:`ompn_ros.errors.OMPNError` (and ``ValueError``); the message names the
 parameter, key or argument at fault.
@@ -24,6 +24,10 @@ class DetectorSettingsError(OMPNError, ValueError):
 
 class DurationModelError(OMPNError, ValueError):
     """An invalid duration model, or episodes a model cannot be fitted on; the message says which."""
+
+
+class BoundaryHeadError(OMPNError, ValueError):
+    """An invalid boundary head, its file, or input it cannot read; the message says which."""
 
 
 class TuneError(OMPNError, ValueError):

@@ -31,7 +31,10 @@ the threshold"), made causal:
 ``mode='hsmm'`` is a different decoder with the same step interface: the explicit-duration HSMM of
 :mod:`ompn_ros.detect.duration`, which needs a duration model fitted on episodes; there ``high`` is
 the posterior probability a boundary needs, and a boundary comes at least ``lag + 1`` steps after
-its step (more when the evidence is weak).
+its step (more when the evidence is weak).  ``mode='head'`` reads the model's whole output, not the
+score: the learned boundary head of :mod:`ompn_ros.detect.head`; there ``high`` is the head's
+probability a boundary needs at ``lag`` steps and ``min_segment_length`` the fewest steps between
+two boundaries.
 
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
 hard-coded to "expand from the top", ``docs/craft.md`` §3.6).
@@ -52,7 +55,9 @@ MODES = ("falling_edge", "peak", "rising_edge")
 """The threshold detectors' commit rules (the grids of ``ompn_segment --tune`` and the calibration)."""
 DURATION_MODE = "hsmm"
 """The mode of :class:`~ompn_ros.detect.duration.DurationDetector` (needs a fitted duration model)."""
-ALL_MODES = (*MODES, DURATION_MODE)
+HEAD_MODE = "head"
+"""The mode of :class:`~ompn_ros.detect.head.HeadDetector` (needs a trained boundary head)."""
+ALL_MODES = (*MODES, DURATION_MODE, HEAD_MODE)
 MAX_LAG = 10
 """The longest lag of the duration decoder (the fewest steps a boundary waits; see
 :mod:`ompn_ros.detect.duration` for its cost per step)."""
@@ -73,11 +78,12 @@ class DetectorConfig:
             (no hysteresis, the paper's Algorithm 1). Must satisfy ``0 <= low <= high``.
         min_segment_length: minimum number of steps of a segment closed by a detected boundary
             (``>= 1``; 1 disables the check).
-        mode: 'falling_edge' | 'peak' | 'rising_edge', or 'hsmm' (see the module docstring).
+        mode: 'falling_edge' | 'peak' | 'rising_edge', 'hsmm' or 'head' (see the module docstring).
         force_first_step_low: treat step 0's score as 0 (the authors' evaluation does this).
         lag: the fewest steps the 'hsmm' decoder waits after a step is taken in before it publishes
             it as a boundary, so at least ``lag + 1`` steps after the step (0 … ``MAX_LAG``; the
-            threshold modes ignore it).
+            threshold modes ignore it). Mode 'head': the lag the head's probability is read at
+            (0 … the head's longest); the boundary is published ``lag + 1`` steps after its step.
         offset: the threshold modes report a boundary this many steps before the step their rule
             gives, never at or before the previous boundary (0 … ``MAX_OFFSET``; 'hsmm' needs 0).
             The boundary is still published when the rule commits it.
@@ -114,14 +120,14 @@ class DetectorConfig:
             raise DetectorConfigError(
                 f"detector 'offset' must be an integer in [0, {MAX_OFFSET}], got {offset!r}"
             )
-        if self.mode == DURATION_MODE and offset:
+        if self.mode not in MODES and offset:
             raise DetectorConfigError(
-                f"detector 'offset' applies to the threshold modes {MODES}; mode '{DURATION_MODE}' needs 0, "
+                f"detector 'offset' applies to the threshold modes {MODES}; mode '{self.mode}' needs 0, "
                 f"got {offset}"
             )
-        if self.mode == DURATION_MODE and not 0.0 < float(self.high) < 1.0:
+        if self.mode not in MODES and not 0.0 < float(self.high) < 1.0:
             raise DetectorConfigError(
-                f"detector 'high' of mode '{DURATION_MODE}' is a probability in (0, 1), got {self.high!r}"
+                f"detector 'high' of mode '{self.mode}' is a probability in (0, 1), got {self.high!r}"
             )
 
     @property

@@ -14,7 +14,10 @@ values came from (``source``) and what they measured.  Layout::
      "source": "tuned_on_validation", "provenance": "...", "metrics": {"f1_tol1": 0.94}}
 
 ``duration_model`` (optional) is what the online mode 'hsmm' decodes with
-(:mod:`ompn_ros.detect.duration`); an online detector of that mode needs it.
+(:mod:`ompn_ros.detect.duration`); an online detector of that mode needs it.  ``boundary_head``
+(optional) describes the learned boundary head of the online mode 'head' (:mod:`ompn_ros.detect.head`):
+its sizes, and its weights in ``boundary_head.safetensors`` beside ``detector.json``, whose header is
+checked against those sizes before any weight is read.
 
 Precedence for every consumer: an explicit parameter (or ``--detector-config``) beats the
 checkpoint's ``detector.json``, which beats the built-in defaults (``source = 'default'``).
@@ -35,8 +38,14 @@ from typing import Any, Literal, get_args
 
 from ompn_ros.atomic import remove_stale_temps, temp_prefix
 from ompn_ros.detect.duration import DurationModel
-from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError, DurationModelError
-from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
+from ompn_ros.detect.errors import (
+    BoundaryHeadError,
+    DetectorConfigError,
+    DetectorSettingsError,
+    DurationModelError,
+)
+from ompn_ros.detect.head import BoundaryHead, load_head, write_head
+from ompn_ros.detect.online import DURATION_MODE, HEAD_MODE, DetectorConfig
 
 DETECTOR_FILE = "detector.json"
 FORMAT = "ompn_ros.detector"
@@ -66,6 +75,7 @@ class DetectorSettings:
         provenance: one free-text line: how, on what and when the values were chosen.
         metrics: what the settings measured when chosen (name -> number).
         duration_model: the fitted model of the online mode 'hsmm' (None: that mode is unavailable).
+        head: the trained boundary head of the online mode 'head' (None: that mode is unavailable).
     """
 
     online: DetectorConfig = field(default_factory=DetectorConfig)
@@ -76,6 +86,7 @@ class DetectorSettings:
     provenance: str = "built-in defaults"
     metrics: dict[str, float] = field(default_factory=dict)
     duration_model: DurationModel | None = None
+    head: BoundaryHead | None = None
 
     def __post_init__(self) -> None:
         self._check()
@@ -112,6 +123,11 @@ class DetectorSettings:
             raise DetectorSettingsError(
                 f"{_where('', 'online.mode')} '{DURATION_MODE}' needs a 'duration_model', and there is none"
             )
+        if self.online.mode == HEAD_MODE and (self.head is None or self.online.lag > self.head.max_lag):
+            raise DetectorSettingsError(
+                f"{_where('', 'online.mode')} '{HEAD_MODE}' needs a 'boundary_head' that reads lag "
+                f"{self.online.lag}, and there is none"
+            )
 
     def describe(self) -> str:
         """One log line: the online detector, its source and provenance."""
@@ -120,6 +136,10 @@ class DetectorSettings:
             model = self.duration_model
             what = (f"detector mode={c.mode} lag={c.lag} threshold={c.high} (K={model.subtasks}, "
                     f"fitted on {model.episodes} episodes)")
+        elif c.mode == HEAD_MODE and self.head is not None:
+            what = (f"detector mode={c.mode} lag={c.lag} threshold={c.high} gap={c.min_segment_length} "
+                    f"peak={self.head.peak} (window {self.head.window}, trained on {self.head.episodes} "
+                    "episodes)")
         else:
             what = (f"detector high={c.high} low={c.low_threshold} min_segment_length={c.min_segment_length} "
                     f"mode={c.mode}" + (f" offset={c.offset}" if c.offset else ""))
@@ -138,11 +158,14 @@ class DetectorSettings:
         }
         if self.duration_model is not None:
             data["duration_model"] = self.duration_model.to_dict()
+        if self.head is not None:
+            data["boundary_head"] = self.head.meta()
         return data
 
     @classmethod
-    def from_dict(cls, data: Any, origin: str = "") -> DetectorSettings:
-        """Parse the :meth:`to_dict` layout; errors name ``origin`` and the key."""
+    def from_dict(cls, data: Any, origin: str = "", directory: Path | None = None) -> DetectorSettings:
+        """Parse the :meth:`to_dict` layout; errors name ``origin`` and the key.  A ``boundary_head``
+        is read from ``directory`` (the checkpoint directory; required then)."""
         if not isinstance(data, dict):
             raise DetectorSettingsError(f"{origin or 'detector settings'}: expected a JSON object")
         if data.get("format", FORMAT) != FORMAT:
@@ -165,6 +188,7 @@ class DetectorSettings:
             "provenance",
             "metrics",
             "duration_model",
+            "boundary_head",
         }
         unknown = sorted(set(data) - known)
         if unknown:
@@ -187,6 +211,15 @@ class DetectorSettings:
                 model = DurationModel.from_dict(data["duration_model"])
             except DurationModelError as exc:
                 raise DetectorSettingsError(f"{_where(origin, 'duration_model')}: {exc}") from exc
+        head = None
+        if data.get("boundary_head") is not None:
+            if directory is None:
+                raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: its weights file is read "
+                                            "from the checkpoint directory, and none was given")
+            try:
+                head = load_head(directory, data["boundary_head"], origin or "detector settings")
+            except BoundaryHeadError as exc:
+                raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: {exc}") from exc
         try:
             return cls(
                 online=online,
@@ -197,6 +230,7 @@ class DetectorSettings:
                 provenance=data.get("provenance", ""),
                 metrics=metrics,
                 duration_model=model,
+                head=head,
             )
         except DetectorSettingsError as exc:
             raise DetectorSettingsError(f"{origin}: {exc}" if origin else str(exc)) from None
@@ -268,12 +302,15 @@ def detector_file(checkpoint_dir: str | Path) -> Path:
 
 
 def save_detector_settings(checkpoint_dir: str | Path, settings: DetectorSettings) -> Path:
-    """Write ``detector.json`` into ``checkpoint_dir`` atomically (temporary sibling + ``os.replace``)."""
+    """Write ``detector.json`` into ``checkpoint_dir`` atomically (temporary sibling + ``os.replace``),
+    after the boundary head's weights when the settings carry one."""
     target = detector_file(checkpoint_dir)
     if not target.parent.is_dir():
         raise DetectorSettingsError(
             f"{target.parent}: not a directory (no checkpoint to add {DETECTOR_FILE} to)"
         )
+    if settings.head is not None:
+        write_head(target.parent, settings.head)
     text = json.dumps(settings.to_dict(), indent=1, allow_nan=False) + "\n"
     remove_stale_temps(target.parent, DETECTOR_FILE)
     handle = tempfile.NamedTemporaryFile(
@@ -309,7 +346,7 @@ def load_detector_settings(checkpoint_dir: str | Path) -> DetectorSettings:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DetectorSettingsError(f"{path}: cannot read: {exc}") from exc
-    return DetectorSettings.from_dict(data, origin=str(path))
+    return DetectorSettings.from_dict(data, origin=str(path), directory=path.parent)
 
 
 def resolve_detector(
@@ -335,6 +372,7 @@ def resolve_detector(
         f"overriding the checkpoint's ({stored.source})",
         metrics={},
         duration_model=stored.duration_model,
+        head=stored.head,
     )
     return settings, f"using {settings.describe()}"
 

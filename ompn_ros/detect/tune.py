@@ -35,6 +35,7 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel, make_detector
 from ompn_ros.detect.errors import TuneError
+from ompn_ros.detect.head import BoundaryHead, HeadDetector, decode_all
 from ompn_ros.detect.online import MAX_OFFSET, MODES, BoundaryEvent, DetectorConfig, run_detector
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
@@ -120,13 +121,24 @@ def _check_labelled(replays: Sequence[Replayed], episodes: Sequence[Episode]) ->
 
 
 def score_online(replays: Sequence[Replayed], episodes: Sequence[Episode], config: DetectorConfig,
-                 duration_model: DurationModel | None = None) -> Metrics:
-    """The causal detector ``config`` (with ``duration_model`` for mode 'hsmm') on the replayed scores:
-    F1, alignment and delays (O(Σ T))."""
-    detector = make_detector(config, duration_model)
-    events = [run_detector(detector, r.scores) for r in replays]
+                 duration_model: DurationModel | None = None, head: BoundaryHead | None = None) -> Metrics:
+    """The causal detector ``config`` (with ``duration_model`` for mode 'hsmm', ``head`` for mode
+    'head', which reads the replays' ``outputs``) on the replays: F1, alignment and delays (O(Σ T))."""
+    detector = make_detector(config, duration_model, head)
+    if isinstance(detector, HeadDetector):
+        rows = [detector.head.probabilities(_outputs(r)) for r in replays]
+        events = decode_all(rows, config, detector.peak)
+    else:
+        events = [run_detector(detector, r.scores) for r in replays]
     preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
     return {**score_predictions(preds, episodes), **delay_stats(events, [ep.boundaries for ep in episodes])}
+
+
+def _outputs(replay: Replayed) -> np.ndarray:
+    got = getattr(replay, "outputs", None)
+    if got is None:
+        raise TuneError("detector mode 'head' reads the model's outputs, and these replays carry none")
+    return np.asarray(got)
 
 
 def compare_on_replays(
@@ -135,6 +147,7 @@ def compare_on_replays(
     online_configs: dict[str, DetectorConfig],
     offline_thresholds: Iterable[float] = (0.5,),
     duration_model: DurationModel | None = None,
+    head: BoundaryHead | None = None,
 ) -> dict[str, Metrics]:
     """Online vs offline detectors on the same replays (paper Algorithms 1-2, K = true count).
 
@@ -143,7 +156,7 @@ def compare_on_replays(
     Returns ``{detector name: {metric: value}}``.
     """
     _check_labelled(replays, episodes)
-    results = {name: score_online(replays, episodes, cfg, duration_model)
+    results = {name: score_online(replays, episodes, cfg, duration_model, head)
                for name, cfg in online_configs.items()}
     thresholds = list(offline_thresholds)
     preds: dict[str, list[np.ndarray]] = {"offline_topk": [], "offline_auto": []}

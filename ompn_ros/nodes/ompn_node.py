@@ -96,12 +96,12 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from ompn_ros.data.obs import ObservationSpecError
-from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError
-from ompn_ros.detect.online import DURATION_MODE
+from ompn_ros.detect.online import DURATION_MODE, HEAD_MODE
 from ompn_ros.detect.settings import (
     DETECTOR_PARAMETERS,
     NODE_PARAMETERS,
+    DetectorSettings,
     detector_config,
     node_parameters,
     resolve_detector,
@@ -201,11 +201,19 @@ class OMPNNode(NodeInputs):
         except DetectorConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         seg = self.segmenter
-        no_model = seg is not None and seg.duration_model is None and not self._from_checkpoint
-        if config.mode == DURATION_MODE and no_model:
+        if seg is None or self._from_checkpoint:
+            return result
+        if config.mode == DURATION_MODE and seg.duration_model is None:
             return SetParametersResult(successful=False, reason=(
                 f"detector_mode '{DURATION_MODE}' needs a duration model, and this checkpoint's "
                 "detector.json has none (ompn_train writes one)"))
+        if config.mode == HEAD_MODE and seg.head is None:
+            return SetParametersResult(successful=False, reason=(
+                f"detector_mode '{HEAD_MODE}' needs a boundary head, and this checkpoint's detector.json has "
+                "none (ompn_train fits one on labelled bags)"))
+        if config.mode == HEAD_MODE and seg.head is not None and config.lag > seg.head.max_lag:
+            return SetParametersResult(successful=False, reason=(
+                f"detector_lag {config.lag} is beyond this boundary head's lags (1 … {seg.head.max_lag})"))
         return result
 
     def _apply_parameters(self, params: list[Any]) -> None:
@@ -220,10 +228,10 @@ class OMPNNode(NodeInputs):
             when = self.segmenter.set_detector(config)  # checked by _on_set_parameters
             self.get_logger().info(f"detector now {config} ({when})")
 
-    def _apply_checkpoint_detector(self, path: str) -> DurationModel | None:
+    def _apply_checkpoint_detector(self, path: str) -> DetectorSettings:
         """Fill the detector parameters nobody set explicitly from the checkpoint's ``detector.json``
-        (``ompn_ros.detect.settings``) and log which settings run and where they came from; its duration
-        model (mode 'hsmm'), if any."""
+        (``ompn_ros.detect.settings``) and log which settings run and where they came from; the
+        settings (their duration model and boundary head, if any)."""
         settings, line = resolve_detector(path)
         stored = node_parameters(settings)
         take = [Parameter(n, value=stored[n]) for n in NODE_PARAMETERS if n not in self._explicit]
@@ -234,7 +242,7 @@ class OMPNNode(NodeInputs):
             self._from_checkpoint = False
         explicit = sorted(self._explicit)
         self.get_logger().info(f"{line}; overridden by parameters: {explicit}" if explicit else line)
-        return settings.duration_model
+        return settings
 
     # --- lifecycle -----------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -264,7 +272,7 @@ class OMPNNode(NodeInputs):
             path = resolve_checkpoint(self.values)
         except ValueError as exc:
             raise NodeConfigError(str(exc)) from exc
-        duration_model = self._apply_checkpoint_detector(path)
+        stored = self._apply_checkpoint_detector(path)
         policy = stepper_from_checkpoint(path)
         try:
             check_model(self.values, policy.config)
@@ -273,7 +281,8 @@ class OMPNNode(NodeInputs):
             raise NodeConfigError(str(exc)) from exc
         depth = int(self.values["qos_depth"])
         self.assembled = None if spec is None else AssembledInput(spec, int(policy.config.obs_dim), depth)
-        segmenter = StreamingSegmenter(policy, detector_config(self.values), duration_model)
+        segmenter = StreamingSegmenter(policy, detector_config(self.values), stored.duration_model,
+                                       stored.head)
         default = self.stream.default_sketch
         if segmenter.needs_sketch and default is not None:
             segmenter.reset(default)

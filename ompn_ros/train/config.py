@@ -44,7 +44,7 @@ def _is_number(value: Any) -> bool:
 _POSITIVE_INTS = ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size")
 _COUNTS = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts")
 _AT_LEAST_ONE = ("candidates", "candidates_no_final")
-_FLAGS = ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16")
+_FLAGS = ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16", "boundary_head")
 _NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
     "lr": (lambda v: v > 0, "must be > 0"),
     "clip_norm": (lambda v: v > 0, "must be > 0"),
@@ -66,7 +66,7 @@ RECORDED_ORDER = (
     "agreement_warmup", "restart_at", "restart_below", "restarts", "candidates", "candidates_no_final",
     "detector_lag", "detector_delay", "obs_norm", "eval_episodes", "eval_batch_size", "progress", "bf16",
     "weight_decay", "ema_decay", "lr_schedule", "obs_dropout", "obs_dropout_range", "force_bf16",
-    "action_norm", "distill_from", "distill_weight", "device",
+    "action_norm", "distill_from", "distill_weight", "device", "boundary_head",
 )
 """The order of the keys of :meth:`TrainConfig.to_dict` (that of the fields before they were grouped)."""
 
@@ -118,6 +118,9 @@ class TrainConfig:
             ``ompn_ros.train.detector``).
         detector_delay: the mean delay (steps from a boundary to its publication) the 'hsmm'
             detector's threshold may cost on the validation episodes.
+        boundary_head: with labels, also train the learned boundary head (online mode 'head') at the
+            end of training and run it when its validation alignment is higher
+            (``ompn_ros.train.detector``, docs/design.md#boundary-head).
         obs_norm: ``'none'`` (Craft one-hot features) or ``'maxabs'`` (Dial: (s − mean)/max|s|).
         eval_episodes: cap on validation episodes per evaluation (0 = all).
         eval_batch_size: episodes per teacher-forced evaluation batch.
@@ -196,6 +199,7 @@ class TrainConfig:
     agreement_warmup: int = 0
     detector_lag: int = DURATION_LAG
     detector_delay: float = DURATION_DELAY
+    boundary_head: bool = True
     obs_norm: ObsNorm = "none"
     eval_episodes: int = 0
     eval_batch_size: int = 64

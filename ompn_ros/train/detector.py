@@ -21,12 +21,18 @@ alignment at ``train.detector_lag``, with a mean delay of at most ``train.detect
 checkpoint keeps the model.  It becomes the online detector
 when its validation alignment beats the threshold detector's by :data:`DURATION_GAIN` with F1@1 at
 most :data:`DURATION_GAIN` lower (docs/design.md#duration-decoder).
+
+With labels, and the training episodes' outputs given, the learned boundary head (mode 'head',
+:mod:`ompn_ros.train.boundary_head`) is trained too and kept with the checkpoint; it becomes the
+online detector when its validation alignment is higher than that of the detector chosen above
+(docs/design.md#boundary-head).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -46,8 +52,9 @@ from ompn_ros.detect.calibrate import (
     tune_on_labels,
 )
 from ompn_ros.detect.errors import DurationModelError
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
+from ompn_ros.train.boundary_head import HeadChoice, fit_and_choose
 from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
 
 LOG = logging.getLogger("ompn_ros.train")
@@ -131,6 +138,37 @@ def pick_online(threshold: DetectorConfig, threshold_metrics: dict[str, float],
     return (duration.config if better else threshold), figures
 
 
+@dataclass(frozen=True)
+class HeadData:
+    """What the boundary head is fitted on: the model's outputs
+    (:func:`~ompn_ros.train.evaluation.teacher_forced_outputs`) on the labelled training episodes and
+    on the validation episodes, and the seed of its initialisation."""
+
+    train_outputs: Sequence[np.ndarray]
+    train_episodes: Sequence[Episode]
+    val_outputs: Sequence[np.ndarray]
+    seed: int = 0
+
+
+def pick_head(online: DetectorConfig, figures: dict[str, float], data: HeadData | None,
+              val_eps: Sequence[Episode]) -> tuple[DetectorConfig, HeadChoice | None]:
+    """The online detector, the boundary head's when its validation alignment is higher (see the
+    module docstring); the head fitted, if any.  ``figures`` gains the head's validation figures."""
+    if data is None or not data.train_episodes or any(ep.subtask is None for ep in data.train_episodes):
+        return online, None
+    choice = fit_and_choose(data.train_outputs, data.train_episodes, data.val_outputs, val_eps, data.seed)
+    return prefer_head(online, figures, choice.config, choice.metrics), choice
+
+
+def prefer_head(online: DetectorConfig, figures: dict[str, float], head: DetectorConfig,
+                head_metrics: dict[str, float]) -> DetectorConfig:
+    """``head`` (the boundary head's decoding) when its alignment ``head_metrics`` is higher than that
+    of ``online`` in ``figures``, else ``online``; ``figures`` gains the head's figures."""
+    figures.update({f"head_val_{k}": float(head_metrics[k]) for k in ("align", "f1_tol1", "delay_mean")})
+    kind = "hsmm" if online.mode == DURATION_MODE else "threshold"
+    return head if head_metrics["align"] > figures[f"{kind}_val_align"] else online
+
+
 def choose_settings(
     p_hats: Sequence[np.ndarray],
     episodes: Sequence[Episode],
@@ -140,12 +178,13 @@ def choose_settings(
     what: str,
     lag: int | None = DURATION_LAG,
     max_delay: float | None = DURATION_DELAY,
+    head: HeadData | None = None,
 ) -> DetectorSettings:
     """Detector settings for the model whose validation ``p_hats`` are given (see module docstring).
 
     ``what`` names the checkpoint in the provenance line.  Labels are used only when ``use_labels``
     and every episode has them.  ``lag``: of the 'hsmm' detector (None: fit none); ``max_delay``: the
-    mean delay its threshold may cost.
+    mean delay its threshold may cost; ``head``: what the boundary head is fitted on (None: none).
     """
     objective = objective_for(action_type)
     labelled = use_labels and all(ep.subtask is not None for ep in episodes)
@@ -154,6 +193,7 @@ def choose_settings(
         tuned = tune_on_labels(scores, [np.asarray(ep.subtask) for ep in episodes], objective)
         duration = duration_detector(scores, [ep.boundaries for ep in episodes], lag, max_delay)
         online, figures = pick_online(tuned.config, tuned.metrics, duration)
+        online, fitted = pick_head(online, figures, head, episodes)
         offline, min_length = _offline_choice(p_hats, episodes)
         return DetectorSettings(
             online=online,
@@ -164,6 +204,7 @@ def choose_settings(
             f"(objective {objective}; online mode {online.mode})",
             metrics={**_metrics(tuned), **figures},
             duration_model=None if duration is None else duration.model,
+            head=None if fitted is None else fitted.head,
         )
     calibrated = calibrate_without_labels(p_hats, episodes, action_type, scores)
     counts = pooled_counts(p_hats, [ep.task for ep in episodes])
@@ -195,6 +236,7 @@ def bundle(
     use_labels: bool,
     lag: int | None = DURATION_LAG,
     max_delay: float | None = DURATION_DELAY,
+    head: HeadData | None = None,
 ) -> DetectorSettings:
     """Choose the settings (:func:`choose_settings`) and write ``checkpoint_dir/detector.json``."""
     settings = choose_settings(
@@ -205,6 +247,7 @@ def bundle(
         what=f"checkpoint {checkpoint_dir.name}/",
         lag=lag,
         max_delay=max_delay,
+        head=head,
     )
     save_detector_settings(checkpoint_dir, settings)
     LOG.info("%s: %s", checkpoint_dir / "detector.json", settings.describe())
@@ -212,7 +255,18 @@ def bundle(
 
 
 __all__ = [
-    "DURATION_DELAY", "DURATION_GAIN", "DURATION_LAG", "LABEL_FREE_REFERENCE",
-    "LABEL_FREE_REFERENCE_MIN_LENGTH", "bundle", "calibrate_without_labels", "choose_settings",
-    "duration_detector", "objective_for", "pick_online",
+    "DURATION_DELAY",
+    "DURATION_GAIN",
+    "DURATION_LAG",
+    "LABEL_FREE_REFERENCE",
+    "LABEL_FREE_REFERENCE_MIN_LENGTH",
+    "HeadData",
+    "bundle",
+    "calibrate_without_labels",
+    "choose_settings",
+    "duration_detector",
+    "objective_for",
+    "pick_head",
+    "pick_online",
+    "prefer_head",
 ]

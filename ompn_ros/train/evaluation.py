@@ -7,13 +7,14 @@ paper's K-sweep tables).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.detect.head import head_outputs
 from ompn_ros.detect.offline import (
     auto_threshold_boundaries,
     constrained_top_k_boundaries,
@@ -123,6 +124,26 @@ def tune_min_length(
     return best, scores
 
 
+def _teacher_forced(policy: OMPNPolicy, episodes: Sequence[Episode], bptt: int, batch_size: int
+                    ) -> Iterator[tuple[Sequence[Episode], Any, Any]]:
+    """``(episodes, batch, outputs)`` per chunk of ``batch_size`` episodes, in evaluation mode."""
+    if not episodes:
+        raise EvaluationError("evaluation needs at least one episode")
+    config = policy.config
+    was_training = policy.training
+    policy.eval()
+    use_sketch = config.sketch_mode != "none"
+    device = device_of(policy)
+    try:
+        with torch.no_grad():
+            for start in range(0, len(episodes), batch_size):
+                chunk = episodes[start : start + batch_size]
+                batch = batch_to(collate(chunk, config.action_type, config.action_dim, use_sketch), device)
+                yield chunk, batch, policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=bptt)
+    finally:
+        policy.train(was_training)
+
+
 def teacher_forced_p_hat(
     policy: OMPNPolicy,
     episodes: Sequence[Episode],
@@ -132,38 +153,38 @@ def teacher_forced_p_hat(
     no_done_loss: bool = False,
 ) -> tuple[list[np.ndarray], dict[str, float]]:
     """Per-episode ``p_hat`` for the real steps and the loss statistics (done step included)."""
-    if not episodes:
-        raise EvaluationError("evaluation needs at least one episode")
     config = policy.config
-    was_training = policy.training
-    policy.eval()
-    use_sketch = config.sketch_mode != "none"
-    device = device_of(policy)
     total_loss = total_acc = total_valid = 0.0
     p_hats: list[np.ndarray] = []
-    try:
-        with torch.no_grad():
-            for start in range(0, len(episodes), batch_size):
-                chunk = episodes[start : start + batch_size]
-                batch = batch_to(collate(chunk, config.action_type, config.action_dim, use_sketch), device)
-                out = policy.forward_sequence(batch.obs, batch.mask, batch.sketch, bptt=bptt)
-                _, stats = bc_loss(
-                    out, batch.actions, batch.mask, batch.done_mask, config, no_done_loss=no_done_loss,
-                    action_scale=policy.action_scale(),
-                )
-                n_valid = float(batch.valid_steps)
-                total_loss += stats["loss"] * n_valid
-                total_acc += stats.get("accuracy", 0.0) * n_valid
-                total_valid += n_valid
-                p_hat = out.p_hat.cpu().numpy()
-                for i, ep in enumerate(chunk):
-                    p_hats.append(p_hat[i, : ep.length].astype(np.float64))
-    finally:
-        policy.train(was_training)
+    for chunk, batch, out in _teacher_forced(policy, episodes, bptt, batch_size):
+        _, stats = bc_loss(
+            out, batch.actions, batch.mask, batch.done_mask, config, no_done_loss=no_done_loss,
+            action_scale=policy.action_scale(),
+        )
+        n_valid = float(batch.valid_steps)
+        total_loss += stats["loss"] * n_valid
+        total_acc += stats.get("accuracy", 0.0) * n_valid
+        total_valid += n_valid
+        p_hat = out.p_hat.cpu().numpy()
+        for i, ep in enumerate(chunk):
+            p_hats.append(p_hat[i, : ep.length].astype(np.float64))
     stats_out = {"loss": total_loss / total_valid}
     if config.action_type == "discrete":
         stats_out["accuracy"] = total_acc / total_valid
     return p_hats, stats_out
+
+
+def teacher_forced_outputs(
+    policy: OMPNPolicy, episodes: Sequence[Episode], *, bptt: int = 64, batch_size: int = 64
+) -> list[np.ndarray]:
+    """Per-episode boundary-head inputs ``[T, n + 1 + A]`` for the real steps: ``p_hat`` beside the
+    action output (:func:`~ompn_ros.detect.head.head_outputs`), as the node's stepper gives them."""
+    discrete = policy.config.action_type == "discrete"
+    rows: list[np.ndarray] = []
+    for chunk, _, out in _teacher_forced(policy, episodes, bptt, batch_size):
+        both = head_outputs(out.p_hat.cpu().numpy(), out.action_out.float().cpu().numpy(), discrete)
+        rows += [both[i, : ep.length] for i, ep in enumerate(chunk)]
+    return rows
 
 
 def evaluate(

@@ -68,6 +68,7 @@ from ompn_ros.train.batching import (
 )
 from ompn_ros.train.candidates import best_of, candidate_rows
 from ompn_ros.train.config import LABELLED_SELECTIONS, TrainConfig
+from ompn_ros.train.detector import HeadData
 from ompn_ros.train.detector import bundle as bundle_detector
 from ompn_ros.train.device import batch_to, device_of, resolve_device
 from ompn_ros.train.distill import distill_loss, teacher_p_hats, with_teacher_targets
@@ -78,7 +79,7 @@ from ompn_ros.train.distributed import (
     broadcast_module,
 )
 from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateError
-from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
+from ompn_ros.train.evaluation import evaluate, teacher_forced_outputs, teacher_forced_p_hat
 from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.restart import (
     attempt_config,
@@ -298,10 +299,34 @@ def validation_metrics(
     return metrics
 
 
+HEAD_TRAIN_EPISODES = 500
+"""The most training episodes the boundary head is fitted on (its cost grows with their steps); from
+more, every k-th is taken, so that bags recorded task by task are all represented."""
+
+
+def head_fit_episodes(train_eps: Sequence[Episode]) -> list[Episode]:
+    """The training episodes the boundary head is fitted on: all, or every k-th of more than
+    :data:`HEAD_TRAIN_EPISODES`."""
+    return list(train_eps[::math.ceil(len(train_eps) / HEAD_TRAIN_EPISODES) or 1])
+
+
+def _head_data(policy: OMPNPolicy, train_eps: Sequence[Episode], val_eps: Sequence[Episode],
+               cfg: TrainConfig) -> HeadData | None:
+    """The boundary head's inputs when ``train.boundary_head`` is on and every episode is labelled."""
+    fit = head_fit_episodes(train_eps)
+    labelled = all(ep.subtask is not None for ep in (*fit, *val_eps))
+    if not (cfg.boundary_head and cfg.labels == "auto" and fit and labelled):
+        return None
+    return HeadData(teacher_forced_outputs(policy, fit, bptt=cfg.bptt, batch_size=cfg.eval_batch_size), fit,
+                    teacher_forced_outputs(policy, val_eps, bptt=cfg.bptt, batch_size=cfg.eval_batch_size),
+                    seed=cfg.seed)
+
+
 def bundle_detectors(
-    out_dir: Path, val_eps: Sequence[Episode], cfg: TrainConfig
+    out_dir: Path, val_eps: Sequence[Episode], cfg: TrainConfig, train_eps: Sequence[Episode] = ()
 ) -> dict[str, DetectorSettings]:
-    """Write ``detector.json`` into ``best/`` and ``last/`` (see :mod:`ompn_ros.train.detector`)."""
+    """Write ``detector.json`` into ``best/`` and ``last/`` (see :mod:`ompn_ros.train.detector`); with
+    ``train_eps``, the boundary head is fitted on them (``train.boundary_head``)."""
     written: dict[str, DetectorSettings] = {}
     for name in ("best", "last"):
         directory = out_dir / name
@@ -314,6 +339,7 @@ def bundle_detectors(
         written[name] = bundle_detector(
             directory, p_hats, val_eps, action_type=policy.config.action_type,
             use_labels=cfg.labels == "auto", lag=cfg.detector_lag, max_delay=cfg.detector_delay,
+            head=_head_data(cast(OMPNPolicy, policy), train_eps, val_eps, cfg),
         )
     return written
 
@@ -681,7 +707,7 @@ class _Attempt:
             LOG.warning(warning)
         detectors: dict[str, DetectorSettings] = {}
         if self.out_dir is not None and self.ctx.is_main:
-            detectors = bundle_detectors(self.out_dir, self.val_eps, cfg)
+            detectors = bundle_detectors(self.out_dir, self.val_eps, cfg, self.train_eps)
         result = TrainResult(
             policy=self.models.evaluated, stopped_early=stopped_early, selection=self.selection,
             iterations=done.iteration, best_iteration=done.best_iteration, best_metrics=done.best_metrics,
