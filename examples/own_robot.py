@@ -72,6 +72,8 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
 from ompn_ros.data.episode import Episode  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
+from ompn_ros.detect.online import HEAD_MODE  # noqa: E402
+from ompn_ros.detect.settings import load_detector_settings  # noqa: E402
 from ompn_ros.detect.tune import score_predictions  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402
 
@@ -311,24 +313,36 @@ def live_boundaries(bag: Path) -> list[list[int]]:
     return episodes[:-1] if not episodes[-1] else episodes
 
 
-def as_replayed(steps: Sequence[int], length: int) -> list[int]:
+def as_replayed(steps: Sequence[int], length: int, cut: int = 0) -> list[int]:
     """Live boundary steps as the replay scores them: the node closes an episode at the last step it
     saw (``T``, the final observation, since nothing marks it); the replay closes it at ``T - 1`` and
-    drops a boundary on the final observation."""
-    return sorted({s for s in steps if s <= length - 1} | {length - 1})
+    drops a boundary on the final observation.  With ``cut``, the boundaries of the episode's last
+    ``cut`` steps (but the closing one) are left out."""
+    return sorted({s for s in steps if s <= length - 1 - cut} | {length - 1})
 
 
-def score_live(bag: Path, replay_dir: Path) -> dict[str, Any]:
+def end_steps(checkpoint: Path) -> int:
+    """How many of an episode's last steps the node and the replay may place differently: the boundary
+    head (mode 'head') decides its last ``lag`` steps when the episode closes, and the node, with no
+    marker, closes at the final observation, the replay one step earlier; 0 for the other modes."""
+    online = load_detector_settings(checkpoint).online
+    return int(online.lag) if online.mode == HEAD_MODE else 0
+
+
+def score_live(bag: Path, replay_dir: Path, checkpoint: Path) -> dict[str, Any]:
     """Live boundaries against the skill ids of the same recording (read with the reader spec), and
-    per-episode agreement with ``ompn_segment``'s replay of that recording (``replay_dir``)."""
+    per-episode agreement with ``ompn_segment``'s replay of that recording (``replay_dir``) on the
+    boundaries both decide the same way (all but the last :func:`end_steps`)."""
     episodes: list[Episode] = read(bag).episodes
     events = live_boundaries(bag)
     if len(events) != len(episodes):
         raise OwnRobotError(f"live: the node ended {len(events)} episodes, the recording has {len(episodes)}")
     preds = [as_replayed(e, ep.length) for e, ep in zip(events, episodes, strict=True)]
     replayed = json.loads((replay_dir / "boundaries.json").read_text())["episodes"]
-    same = sum(p == sorted({int(b["step"]) for b in r["boundaries"]})
-               for p, r in zip(preds, replayed, strict=True))
+    cut = end_steps(checkpoint)
+    same = sum(as_replayed(p, ep.length, cut) == as_replayed([int(b["step"]) for b in r["boundaries"]],
+                                                             ep.length, cut)
+               for p, r, ep in zip(preds, replayed, episodes, strict=True))
     scored = score_predictions([np.asarray(p, dtype=np.int64) for p in preds], episodes)
     return {"episodes": len(episodes), "metrics": scored,
             "agree_with_replay": same / len(episodes), "boundaries": events}
@@ -382,7 +396,7 @@ def run(flow: Flow) -> dict[str, Any]:
     if flow.live:
         live_bag = live(flow, checkpoint, env)
         replay = segment(flow, live_bag, checkpoint, None, env, name="segment_live")  # detector.json
-        live_doc = score_live(live_bag, flow.out / "segment_live")
+        live_doc = score_live(live_bag, flow.out / "segment_live", checkpoint)
         live_doc["replay_metrics"] = replay
         (flow.out / "live.json").write_text(json.dumps(live_doc, indent=1))
         lap("live")
