@@ -4,6 +4,7 @@ its file, its training and choice on validation, and the segmenter running it.""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import shutil
 from pathlib import Path
@@ -15,7 +16,14 @@ from ompn_ros.app.detector_tuning import tune_detector
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.errors import BoundaryHeadError, DetectorConfigError, DetectorSettingsError
-from ompn_ros.detect.head import HEAD_FILE, BoundaryHead, HeadDetector, decode_rows, head_outputs
+from ompn_ros.detect.head import (
+    HEAD_FILE,
+    BoundaryHead,
+    HeadDetector,
+    decode_rows,
+    decoded_steps,
+    head_outputs,
+)
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings, save_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint
@@ -233,3 +241,16 @@ def test_a_head_of_another_model_is_refused_when_the_segmenter_is_built() -> Non
     segmenter = StreamingSegmenter(stepper, _cfg(1), None, _toy_head(2, outputs, 3))
     got = segmenter.step(np.zeros(config.obs_dim, dtype=np.float32))
     assert got.boundary is None and segmenter.detector.steps_seen == 1
+
+
+def test_the_scoring_decoder_makes_the_streaming_decoders_decisions() -> None:
+    rng = np.random.default_rng(7)
+    checked = 0
+    for length in (2, 3, 9, 40):
+        rows = rng.uniform(0, 1, (length, 5)) ** 3
+        for lag, theta, gap, peak in itertools.product(range(5), (0.05, 0.3, 0.7), (1, 3), (False, True)):
+            events = decode_rows(rows, _cfg(lag, theta, gap), peak)
+            steps, when = decoded_steps(rows, _cfg(lag, theta, gap), peak)
+            assert (steps, when) == ([e.step for e in events], [e.detected_at for e in events]), (length, lag)
+            checked += len(steps) > 1
+    assert checked > 50

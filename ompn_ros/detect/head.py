@@ -336,7 +336,34 @@ def decode_all(rows: Sequence[np.ndarray], config: DetectorConfig, peak: bool) -
     return [decode_rows(r, config, peak) for r in rows]
 
 
+def decoded_steps(rows: np.ndarray, config: DetectorConfig, peak: bool) -> tuple[list[int], list[int]]:
+    """(boundary steps, steps they are published at) of :func:`decode_rows`, without building the
+    events: the same decisions over the rows that pass θ only (for scoring many rules at once;
+    ``test/test_boundary_head.py`` checks it against :class:`HeadDecoder`)."""
+    length, lag, theta, gap = len(rows), int(config.lag), float(config.high), int(config.min_segment_length)
+    steps: list[int] = []
+    when: list[int] = []
+
+    def fires(row: np.ndarray, s: int, j: int) -> bool:
+        return (s >= 1 and (not steps or s - steps[-1] >= gap) and row[j] >= theta
+                and not (peak and j > 0 and row[j - 1] > row[j]))
+
+    taken = length if lag > 0 else length - 1  # lag 0: the last row is the final boundary itself
+    for t in np.flatnonzero(rows[:taken, lag] >= theta).tolist():
+        if fires(rows[t], t - lag, lag):
+            steps.append(t - lag)
+            when.append(min(t + 1, length - 1))
+    for s in range(max(1, length - lag), length - 1):
+        if fires(rows[length - 1], s, length - 1 - s):
+            steps.append(s)
+            when.append(length - 1)
+    if not steps or steps[-1] < length - 1:
+        steps.append(length - 1)
+        when.append(length - 1)
+    return steps, when
+
+
 __all__ = [
-    "HEAD_FILE", "BoundaryHead", "HeadDecoder", "HeadDetector", "decode_all", "decode_rows",
+    "HEAD_FILE", "BoundaryHead", "HeadDecoder", "HeadDetector", "decode_all", "decode_rows", "decoded_steps",
     "expected_shapes", "head_outputs", "load_head", "windowed", "write_head",
 ]

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.head import BoundaryHead, decode_all, windowed
+from ompn_ros.detect.head import BoundaryHead, decoded_steps, windowed
 from ompn_ros.detect.online import HEAD_MODE, DetectorConfig
 from ompn_ros.detect.tune import Metrics, delay_stats, score_predictions
 
@@ -76,9 +76,10 @@ def train_head(outputs: Sequence[np.ndarray], bounds: Sequence[np.ndarray], seed
 def score_rule(rows: Sequence[np.ndarray], episodes: Sequence[Episode], config: DetectorConfig,
                peak: bool) -> Metrics:
     """F1, alignment and delays of the head's decoding ``config`` over its probabilities ``rows``."""
-    events = decode_all(rows, config, peak)
-    preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
-    return {**score_predictions(preds, episodes), **delay_stats(events, [ep.boundaries for ep in episodes])}
+    decoded = [decoded_steps(r, config, peak) for r in rows]
+    preds = [np.array(steps, dtype=np.int64) for steps, _ in decoded]
+    return {**score_predictions(preds, episodes),
+            **delay_stats(preds, [ep.boundaries for ep in episodes], [when for _, when in decoded])}
 
 
 @dataclass(frozen=True)
