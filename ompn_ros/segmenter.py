@@ -22,7 +22,7 @@ from numba import njit
 
 from ompn_ros.detect.duration import Detector, DurationModel, make_detector
 from ompn_ros.detect.errors import BoundaryHeadError
-from ompn_ros.detect.head import BoundaryHead, HeadDetector, head_outputs
+from ompn_ros.detect.head import BoundaryHead, HeadDetector, step_outputs
 from ompn_ros.detect.online import (
     BoundaryEvent,
     DetectorConfig,
@@ -111,7 +111,6 @@ class StreamingSegmenter:
         self.head = _checked_head(head, policy.config)
         self.detector_config = detector_config or DetectorConfig()
         self.detector: Detector = make_detector(self.detector_config, duration_model, head)
-        self._discrete = getattr(policy.config, "action_type", "discrete") == "discrete"
         self._detector_changed = False
         _all_finite(np.zeros(1, dtype=np.float32))  # compiled (or loaded from numba's cache) now
         self.obs_dim = int(policy.config.obs_dim)
@@ -209,8 +208,7 @@ class StreamingSegmenter:
         score = expansion_score(p_hat)
         level = expansion_level(p_hat)
         if isinstance(self.detector, HeadDetector):  # the head reads the whole output, not the score
-            action_out = out.action_logits if self._discrete else out.action
-            self.detector.feed(head_outputs(p_hat, action_out, self._discrete))
+            self.detector.feed(step_outputs(out))
         boundary = self.detector.update(score, level, 0 if stamp_ns is None else int(stamp_ns))
         return SegmenterOutput(out, boundary, self._step_index, score, level)
 

@@ -155,6 +155,9 @@ def test_a_head_file_that_disagrees_with_detector_json_is_refused_before_it_is_r
         load_detector_settings(tmp_path)
     with pytest.raises(DetectorSettingsError, match="needs a 'boundary_head'"):
         DetectorSettings(online=_cfg(1))
+    beyond = r"'online.lag' 3 is beyond the boundary head's lags \(0 … 2\)"
+    with pytest.raises(DetectorSettingsError, match=beyond):
+        DetectorSettings(online=_cfg(3), head=_toy_head(2, 3, 3))
     with pytest.raises(BoundaryHeadError, match="its rule must be of mode 'head' with lag <= 2"):
         dataclasses.replace(_toy_head(2, 3, 3), rule=_cfg(3))
 

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from ompn_ros.atomic import atomic_write
 from ompn_ros.detect.errors import BoundaryHeadError, DetectorConfigError
 from ompn_ros.detect.online import HEAD_MODE, KEPT_STEPS, BoundaryEvent, DetectorConfig, EpisodeLog
 
@@ -157,6 +158,13 @@ def head_outputs(p_hat: np.ndarray, action_out: np.ndarray, discrete: bool) -> n
     return np.concatenate([np.asarray(p_hat, dtype=np.float64), act], axis=-1)
 
 
+def step_outputs(step: Any) -> np.ndarray:
+    """:func:`head_outputs` of one stepper ``StepOutput``: its action logits when it has them
+    (discrete actions), else its action (the continuous mean)."""
+    discrete = step.action_logits is not None
+    return head_outputs(step.p_hat, step.action_logits if discrete else step.action, discrete)
+
+
 def expected_shapes(meta: dict[str, Any]) -> dict[str, tuple[int, ...]]:
     """The tensor shapes a head of ``meta`` holds (checked against the file before loading)."""
     width = int(meta["window"]) * int(meta["features"])
@@ -209,13 +217,13 @@ def load_head(directory: Path, meta: Any, origin: str) -> BoundaryHead:
 
 
 def write_head(directory: Path, head: BoundaryHead) -> Path:
-    """Write ``directory/HEAD_FILE`` (``detector.json``, written after it, names it)."""
-    from safetensors.numpy import save_file
+    """Write ``directory/HEAD_FILE`` whole or not at all (:func:`ompn_ros.atomic.atomic_write`);
+    ``detector.json``, written after it, names it."""
+    from safetensors.numpy import save
 
     path = directory / HEAD_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    save_file(head.tensors(), str(tmp), metadata={"boundary_head": json.dumps(head.meta())})
-    tmp.replace(path)
+    data = save(head.tensors(), metadata={"boundary_head": json.dumps(head.meta())})
+    atomic_write(path, lambda handle: handle.write(data))
     return path
 
 
@@ -365,5 +373,5 @@ def decoded_steps(rows: np.ndarray, config: DetectorConfig, peak: bool) -> tuple
 
 __all__ = [
     "HEAD_FILE", "BoundaryHead", "HeadDecoder", "HeadDetector", "decode_all", "decode_rows", "decoded_steps",
-    "expected_shapes", "head_outputs", "load_head", "windowed", "write_head",
+    "expected_shapes", "head_outputs", "load_head", "step_outputs", "windowed", "write_head",
 ]

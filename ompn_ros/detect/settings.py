@@ -123,10 +123,14 @@ class DetectorSettings:
             raise DetectorSettingsError(
                 f"{_where('', 'online.mode')} '{DURATION_MODE}' needs a 'duration_model', and there is none"
             )
-        if self.online.mode == HEAD_MODE and (self.head is None or self.online.lag > self.head.max_lag):
+        if self.online.mode == HEAD_MODE and self.head is None:
             raise DetectorSettingsError(
-                f"{_where('', 'online.mode')} '{HEAD_MODE}' needs a 'boundary_head' that reads lag "
-                f"{self.online.lag}, and there is none"
+                f"{_where('', 'online.mode')} '{HEAD_MODE}' needs a 'boundary_head', and there is none"
+            )
+        if self.online.mode == HEAD_MODE and self.head is not None and self.online.lag > self.head.max_lag:
+            raise DetectorSettingsError(
+                f"{_where('', 'online.lag')} {self.online.lag} is beyond the boundary head's lags "
+                f"(0 … {self.head.max_lag})"
             )
 
     def describe(self) -> str:

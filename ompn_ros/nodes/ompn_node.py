@@ -213,7 +213,7 @@ class OMPNNode(NodeInputs):
                 "none (ompn_train fits one on labelled bags)"))
         if config.mode == HEAD_MODE and seg.head is not None and config.lag > seg.head.max_lag:
             return SetParametersResult(successful=False, reason=(
-                f"detector_lag {config.lag} is beyond this boundary head's lags (1 … {seg.head.max_lag})"))
+                f"detector_lag {config.lag} is beyond this boundary head's lags (0 … {seg.head.max_lag})"))
         return result
 
     def _apply_parameters(self, params: list[Any]) -> None:

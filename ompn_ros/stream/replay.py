@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.head import head_outputs
+from ompn_ros.detect.head import step_outputs
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import ReplayResult, SegmenterOutput, StreamingSegmenter
 from ompn_ros.stream.rule import StreamLimits, StreamRule
@@ -122,6 +122,5 @@ def _episode_result(record: StreamRecord, T: int) -> ReplayResult:
         boundaries=[event for event in events if event.step <= T - 1],
         actions=[so.action for so in sos],
         published=published,
-        outputs=np.array([head_outputs(so.p_hat, so.action if so.action_logits is None else so.action_logits,
-                                       so.action_logits is not None) for so in sos]),
+        outputs=np.array([step_outputs(so) for so in sos]),
     )

@@ -79,7 +79,7 @@ from ompn_ros.train.distributed import (
     broadcast_module,
 )
 from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateError
-from ompn_ros.train.evaluation import evaluate, teacher_forced_outputs, teacher_forced_p_hat
+from ompn_ros.train.evaluation import evaluate, teacher_forced_outputs
 from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.restart import (
     attempt_config,
@@ -311,15 +311,14 @@ def head_fit_episodes(train_eps: Sequence[Episode]) -> list[Episode]:
 
 
 def _head_data(policy: OMPNPolicy, train_eps: Sequence[Episode], val_eps: Sequence[Episode],
-               cfg: TrainConfig) -> HeadData | None:
+               val_outputs: list[np.ndarray], cfg: TrainConfig) -> HeadData | None:
     """The boundary head's inputs when ``train.boundary_head`` is on and every episode is labelled."""
     fit = head_fit_episodes(train_eps)
     labelled = all(ep.subtask is not None for ep in (*fit, *val_eps))
     if not (cfg.boundary_head and cfg.labels == "auto" and fit and labelled):
         return None
-    return HeadData(teacher_forced_outputs(policy, fit, bptt=cfg.bptt, batch_size=cfg.eval_batch_size), fit,
-                    teacher_forced_outputs(policy, val_eps, bptt=cfg.bptt, batch_size=cfg.eval_batch_size),
-                    seed=cfg.seed)
+    train_outputs = teacher_forced_outputs(policy, fit, bptt=cfg.bptt, batch_size=cfg.eval_batch_size)
+    return HeadData(train_outputs, fit, val_outputs, seed=cfg.seed)
 
 
 def bundle_detectors(
@@ -332,14 +331,14 @@ def bundle_detectors(
         directory = out_dir / name
         if not (directory / "config.json").is_file():
             continue
-        policy, _ = load_checkpoint(directory)
-        p_hats, _ = teacher_forced_p_hat(
-            cast(OMPNPolicy, policy), val_eps, bptt=cfg.bptt, batch_size=cfg.eval_batch_size
-        )
+        policy = cast(OMPNPolicy, load_checkpoint(directory)[0])
+        # p_hat is the first n + 1 columns of the outputs the head reads: one pass for both
+        val_outputs = teacher_forced_outputs(policy, val_eps, bptt=cfg.bptt, batch_size=cfg.eval_batch_size)
+        p_hats = [x[:, :policy.config.n_slots + 1] for x in val_outputs]
         written[name] = bundle_detector(
             directory, p_hats, val_eps, action_type=policy.config.action_type,
             use_labels=cfg.labels == "auto", lag=cfg.detector_lag, max_delay=cfg.detector_delay,
-            head=_head_data(cast(OMPNPolicy, policy), train_eps, val_eps, cfg),
+            head=_head_data(policy, train_eps, val_eps, val_outputs, cfg),
         )
     return written
 
