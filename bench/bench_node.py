@@ -208,6 +208,13 @@ def bench_in_process(steps: int) -> Result:
         times = _time_steps(seg.reset, seg.step, obs, starts)
         out[f"{name}_segmenter_head_step_p50"] = (_pct(times, 50), "us")
         out[f"{name}_segmenter_head_step_p99"] = (_pct(times, 99), "us")
+        # the duration decoder over the head (mode 'head_hsmm'): both costs, its evidence read from rows
+        config = DetectorConfig(mode="head_hsmm", high=0.98, lag=1)
+        seg = StreamingSegmenter(StreamingPolicy(model, backend="jit"), config, _cost_model(),
+                                 _cost_head(features))
+        times = _time_steps(seg.reset, seg.step, obs, starts)
+        out[f"{name}_segmenter_head_hsmm_step_p50"] = (_pct(times, 50), "us")
+        out[f"{name}_segmenter_head_hsmm_step_p99"] = (_pct(times, 99), "us")
         torch_reset, torch_step = _torch_stepper(model)
         times = _time_steps(torch_reset, torch_step, obs, starts, reps=1)
         out[f"{name}_torch_step_p50"] = (_pct(times, 50), "us")

@@ -26,7 +26,8 @@ import numpy as np
 from lab.own_data import arm_by_name, arm_configs, arm_data
 from lab.report import write_study
 from ompn_ros.detect.calibrate import evaluate_grid, scores_from_p_hats
-from ompn_ros.detect.duration import DurationModel, make_detector
+from ompn_ros.detect.duration import DurationModel
+from ompn_ros.detect.factory import make_detector
 from ompn_ros.detect.online import DetectorConfig, run_detector
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, delay_stats, pick_setting, pick_within_error

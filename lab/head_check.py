@@ -1,4 +1,5 @@
-"""The shipped boundary head path, end to end, on episodes none of it was fitted on (docs/experiments.md §52).
+"""The shipped boundary head path, end to end, on episodes none of it was fitted on (docs/experiments.md
+§52, §53).
 
 For the shipped checkpoint of a domain, the product's own pieces fit a boundary head
 (:func:`ompn_ros.train.boundary_head.fit_and_choose`, what ``ompn_train`` runs on labelled bags) on
@@ -8,10 +9,11 @@ bundled detector is the checkpoint's ``detector.json``.  Both are then replayed 
 held-out human-like ones (``50000 +``, the default human-like demonstrator), and scored online.  The
 per-run choice runs the head only where its validation alignment beats the bundled detector's.
 
-``--work W ARM …`` scores runs of :mod:`lab.own_data` trained with ``train.boundary_head`` on (what
-``ompn_train`` bundles now): on the run's own held-out test episodes, the detector it bundled (the
-head where validation chose it) against the detector it would have bundled without the head
-(:func:`ompn_ros.train.detector.choose_settings` again on the same validation episodes).
+``--work W ARM …`` scores runs of :mod:`lab.own_data` trained with ``train.boundary_head`` on, on the
+run's own held-out test episodes: the detector ``ompn_train`` would bundle without the head
+(:func:`ompn_ros.train.detector.choose_settings` again on the same validation episodes), the head
+alone, the choice between them (what ``ompn_train`` bundled before mode 'head_hsmm'), the duration
+decoder over the head with its threshold tuned on validation, and ``ompn_train``'s choice today.
 
     python -m lab.head_check --domain dial        # one JSON line per family
     python -m lab.head_check --work runs/own_data final_dial_complete_seed1   # one line per run
@@ -31,6 +33,7 @@ from lab.boundary_head import robot_splits
 from lab.detector_selection import arm_splits
 from ompn_ros.app.replay import replay_all
 from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.detect.calibrate import DurationCalibration, calibrate_head_duration
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import DetectorConfig
@@ -38,8 +41,15 @@ from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import score_online
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import stepper_from_checkpoint
-from ompn_ros.train.boundary_head import choose_rule, fit_and_choose
-from ompn_ros.train.detector import choose_settings
+from ompn_ros.train.boundary_head import HeadChoice, choose_rule, fit_and_choose
+from ompn_ros.train.detector import (
+    DURATION_DELAY,
+    DURATION_LAG,
+    HeadData,
+    choose_settings,
+    pick_head_duration,
+    prefer_head,
+)
 from ompn_ros.train.evaluation import teacher_forced_outputs
 from sim_nodes.human import parse_human
 from sim_nodes.registry import default_tasks, expert_episode
@@ -60,20 +70,32 @@ def _online(stepper: Any, eps: list[Any], config: DetectorConfig, model: Duratio
 
 
 def check(domain: str, n_train: int, n_val: int, n_test: int, seed: int) -> list[dict[str, Any]]:
-    """Rows per held-out family: the bundled detector and the head, online on replays."""
+    """Rows per held-out family: the bundled detector, the head and, with the checkpoint's duration
+    model, mode 'head_hsmm' (its threshold tuned on the validation episodes), online on replays."""
     path = shipped_checkpoint(domain)
     policy, _ = load_checkpoint(path)
     bundled = load_detector_settings(path)
     train, val = _episodes(domain, 20000, n_train), _episodes(domain, 30000, n_val)
+    val_outputs = teacher_forced_outputs(policy, val)  # type: ignore[arg-type]
     choice = fit_and_choose(teacher_forced_outputs(policy, train), train,  # type: ignore[arg-type]
-                            teacher_forced_outputs(policy, val), val, seed)  # type: ignore[arg-type]
+                            val_outputs, val, seed)  # type: ignore[arg-type]
+    model = bundled.duration_model
+    both = None if model is None else calibrate_head_duration(
+        model, [choice.head.probabilities(x) for x in val_outputs], [ep.boundaries for ep in val],
+        DURATION_LAG, "align", max_delay=DURATION_DELAY)
     stepper = stepper_from_checkpoint(path)
-    ref_val = _online(stepper, val, bundled.online, bundled.duration_model)
+    ref_val = _online(stepper, val, bundled.online, model)
     rows = []
     for family, eps in (("expert", _episodes(domain, 40000, n_test)),
                         ("human-like", _episodes(domain, 50000, n_test, human=True))):
-        ref = _online(stepper, eps, bundled.online, bundled.duration_model)
+        ref = _online(stepper, eps, bundled.online, model)
         got = _online(stepper, eps, choice.config, None, choice.head)
+        if both is not None:
+            both_got = _online(stepper, eps, both.config, model, choice.head)
+            rows.append({"domain": domain, "family": family,
+                         "head_hsmm": {k: both_got[k] for k in FIGURES},
+                         "head_hsmm_rule": both.config.to_dict(),
+                         "val_head_hsmm_align": both.metrics["align"]})
         rows.append({"domain": domain, "family": family, "test_episodes": len(eps),
                      "bundled": {k: ref[k] for k in FIGURES}, "bundled_mode": bundled.online.mode,
                      "head": {k: got[k] for k in FIGURES}, "head_rule": choice.config.to_dict(),
@@ -97,23 +119,40 @@ def check_robot(flow: Path) -> dict[str, Any]:
 
 
 def _check(run: Path, val: list[Any], test: list[Any], policy: Any) -> dict[str, Any]:
+    """The run's detectors on its test episodes: ``without_head`` (threshold or 'hsmm', chosen again on
+    validation), ``head`` (its rule), ``previous`` (``ompn_train``'s choice before mode 'head_hsmm'),
+    ``head_hsmm`` (its threshold tuned on validation within the delay budget; ``head_hsmm_any_delay``
+    without it) and ``now`` (``ompn_train``'s choice today)."""
     bundled = load_detector_settings(run)
     if bundled.head is None:
         raise ValueError(f"{run}: no boundary head (trained with train.boundary_head off?)")
-    outputs = teacher_forced_outputs(policy, val)
+    head, outputs = bundled.head, teacher_forced_outputs(policy, val)
     p_hats = [x[:, :policy.config.n_slots + 1] for x in outputs]
-    rule = bundled.head.rule or choose_rule(bundled.head, outputs, val).config
+    rule = head.rule or choose_rule(head, outputs, val).config
     before = choose_settings(p_hats, val, action_type=policy.config.action_type, use_labels=True,
                              what="without the head")
+    figures = dict(before.metrics)
+    head_figures = {k: bundled.metrics[f"head_val_{k}"] for k in ("align", "f1_tol1", "delay_mean")}
+    previous = prefer_head(before.online, figures, rule, head_figures)
+    model = before.duration_model
+    detectors = {"without_head": before.online, "head": rule, "previous": previous}
+    if model is not None:
+        rows = [head.probabilities(x) for x in outputs]
+        tuned = calibrate_head_duration(model, rows, [ep.boundaries for ep in val], DURATION_LAG, "align",
+                                        max_delay=DURATION_DELAY)
+        detectors["head_hsmm"] = tuned.config
+        detectors["head_hsmm_any_delay"] = calibrate_head_duration(  # the delay budget's cost
+            model, rows, [ep.boundaries for ep in val], DURATION_LAG, "align", max_delay=None).config
+        detectors["now"] = pick_head_duration(previous, figures, DurationCalibration(model, tuned.config, {}),
+                                              HeadChoice(head, rule, {}), HeadData([], [], outputs), val,
+                                              DURATION_LAG, DURATION_DELAY)
     stepper = stepper_from_checkpoint(run)
-    rows = {"bundled": _online(stepper, test, bundled.online, bundled.duration_model, bundled.head),
-            "without_head": _online(stepper, test, before.online, before.duration_model),
-            "head": _online(stepper, test, rule, None, bundled.head)}
+    scored = {name: _online(stepper, test, config, model, head) for name, config in detectors.items()}
     return {"test_episodes": len(test), "bundled_mode": bundled.online.mode,
-            "without_head_mode": before.online.mode, "head_rule": rule.to_dict(),
-            "head_peak": bundled.head.peak,
-            "val": {k: v for k, v in bundled.metrics.items() if k.endswith(("_val_align", "_val_f1_tol1"))},
-            **{name: {k: got[k] for k in FIGURES} for name, got in rows.items()}}
+            "modes": {name: config.mode for name, config in detectors.items()}, "head_rule": rule.to_dict(),
+            "head_hsmm_rule": detectors.get("head_hsmm", rule).to_dict(), "head_peak": head.peak,
+            "val": {k: v for k, v in figures.items() if k.endswith(("_val_align", "_val_f1_tol1"))},
+            **{name: {k: got[k] for k in FIGURES} for name, got in scored.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:

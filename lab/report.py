@@ -29,7 +29,7 @@ from typing import Any, TypedDict
 import numpy as np
 
 from lab.report_final_auto import final_auto_markdown
-from lab.report_head import head_markdown
+from lab.report_head import head_duration_markdown, head_markdown
 from lab.report_hparams import hparams_markdown
 from lab.report_own import own_markdown
 from lab.report_selection import selection_markdown
@@ -282,6 +282,7 @@ def render_readme(results_dir: Path) -> str:
     parts += selection_markdown(results_dir)
     parts += final_auto_markdown(results_dir)
     parts += head_markdown(results_dir)
+    parts += head_duration_markdown(results_dir)
     return "\n".join(parts).rstrip("\n") + "\n"
 
 

@@ -1,5 +1,5 @@
-"""The "Boundary head" section of ``results/README.md``, from ``boundary_head.json``
-(:mod:`lab.boundary_head`).
+"""The "Boundary head" sections of ``results/README.md``, from ``boundary_head.json``
+(:mod:`lab.boundary_head`) and ``head_duration.json`` (:mod:`lab.head_duration`).
 
 Metrics are fractions in the file and percentages in the table; delays in steps.
 """
@@ -12,6 +12,7 @@ from typing import Any
 from .report_own import json_section, pair, pct
 
 HEAD = "boundary_head.json"
+HEAD_DURATION = "head_duration.json"
 
 
 def _online(means: dict[str, float] | None) -> str:
@@ -60,4 +61,45 @@ def head_markdown(results_dir: Path, level: int = 2) -> list[str]:
                         lambda doc: (_line(row) for row in doc["families"]), level)
 
 
-__all__ = ["HEAD", "head_markdown"]
+def _figures(means: dict[str, float] | None) -> str:
+    if means is None:
+        return "–"
+    return (f"{pair(means['f1_tol1'], means['align'])}, {means['delay_mean']:.1f} steps, "
+            f"{pct(means['at_end_share'])} % at end")
+
+
+def _duration_line(row: dict[str, Any]) -> str:
+    means = row["means"]
+    return (f"| {row['family']} | {row['role']} | {row['runs']} | "
+            f"{pair(means['offline']['f1_tol1'], means['offline']['align'])} | "
+            f"{pair(means['threshold']['f1_tol1'], means['threshold']['align'])} | "
+            f"{_figures(means['previous'])} | {_figures(means['head_hsmm'])} | "
+            f"{_figures(means['head_hsmm_any_delay'])} | {_figures(means['now'])} "
+            f"(head_hsmm in {int(means['now_head_hsmm_runs']['runs'])}) |")
+
+
+def _duration_intro(meta: dict[str, Any]) -> str:
+    return (f"Made by `{' '.join(meta['command'])}` on {meta['date']}: the duration decoder over the "
+            "boundary head (mode `head_hsmm`, docs/design.md) on the runs of the own-data study, trained by "
+            "`ompn_train` with their head, scored through the node's segmenter on each run's held-out test "
+            "episodes. "
+            "*offline*: the run's Top-K (Craft) or automatic threshold (Dial); *threshold*: the run's "
+            "threshold detector tuned on its validation labels; *previous*: the detector "
+            "`ompn_train` chose before `head_hsmm` existed (threshold, `hsmm` or `head`); *head_hsmm*: its "
+            f"threshold tuned on validation ({meta['budget']}); *no budget*: the same without the delay "
+            "budget; *now*: `ompn_train`'s choice today, with the "
+            f"number of runs that chose `head_hsmm`. Designed on {meta['design']}; every other row was kept "
+            "out (docs/experiments.md §53). Means, F1@1 / alignment in %, then the mean delay of inner "
+            "boundaries and the share published only at the episode end.")
+
+
+def head_duration_markdown(results_dir: Path, level: int = 2) -> list[str]:
+    """The table of mode 'head_hsmm', when ``head_duration.json`` exists."""
+    return json_section(results_dir, HEAD_DURATION, "Boundary head: the duration decoder over it",
+                        _duration_intro,
+                        ("family", "role", "runs", "offline", "threshold", "previous", "head_hsmm",
+                         "head_hsmm, no budget", "now"),
+                        lambda doc: (_duration_line(row) for row in doc["families"]), level)
+
+
+__all__ = ["HEAD", "HEAD_DURATION", "head_duration_markdown", "head_markdown"]

@@ -37,6 +37,7 @@ from typing import Any
 
 from .report import write_readme
 from .report_final_auto import FINAL_AUTO
+from .report_head import HEAD_DURATION
 from .report_own import OWN_DATA
 from .report_selection import SELECTION
 from .report_transfer import BUDGET, TRANSFER, WARMUP
@@ -230,6 +231,35 @@ def budget_rows(results: Path) -> list[Row]:
                      f"{_delay(family['means']['shipped'])} with it)"})
 
 
+def head_budget_rows(results: Path) -> list[Row]:
+    """The same budget for mode 'head_hsmm' (``head_duration.json``), on the families whose runs
+    ``ompn_train`` gave that mode, the design runs left out."""
+    path = results / HEAD_DURATION
+    if not path.is_file():
+        return []
+    rows = []
+    for family in json.loads(path.read_text(encoding="utf-8"))["families"]:
+        means = family["means"]
+        if family["role"] == "design" or not means["now_head_hsmm_runs"]["runs"]:
+            continue
+        with_it, none = means["head_hsmm"], means["head_hsmm_any_delay"]
+        if none is None:
+            continue
+        mine, ref = ({"online_f1_1": m["f1_tol1"], "online_align": m["align"]} for m in (with_it, none))
+        gap = {k: mine[k] - ref[k] for k in mine}
+        seeds = list(family["seeds"])
+        rows.append({
+            "default": "delay budget: 6 steps (duration decoder over the head, head_hsmm)",
+            "tuned_on": "Craft full and partial, expert, seeds 0–4 (with the duration decoder)",
+            "kept_out_of_tuning": "the family" if family["role"] == "kept out" else f"seeds {_span(seeds)}",
+            "reference": f"no budget (mean delay {_delay(none)}; {_delay(with_it)} with it)",
+            "family": family["family"], "seeds": seeds,
+            "with_default": {k: mine.get(k) for k in FIGURES}, "without": {k: ref.get(k) for k in FIGURES},
+            "gap": gap, "holds": min(gap.values()) >= -TOLERANCE,
+        })
+    return rows
+
+
 def _delay(means: Row) -> str:
     """``"8.5 steps, 12 % at the end"`` (the share only where the study recorded it)."""
     share = means.get("at_end_share")
@@ -245,10 +275,11 @@ def build(results: Path, command: Sequence[str]) -> Path:
     found += final_auto_rows(results)
     found += warmup_rows(results)
     found += budget_rows(results)
+    found += head_budget_rows(results)
     meta = {
         "command": list(command), "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "tolerance_points": 100 * TOLERANCE,
-        "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}, {WARMUP}, {BUDGET}",
+        "source": f"{OWN_DATA}, {SELECTION}, {FINAL_AUTO}, {WARMUP}, {BUDGET}, {HEAD_DURATION}",
         "held_out": "test episodes of each bag set (20 %), never trained on or tuned on; the human-like "
                     "family was kept out of every tuning",
         "detector": f"the online figures of {OWN_DATA} use the detector rule of their date: the current "

@@ -20,9 +20,10 @@ from typing import Any, Protocol
 import numpy as np
 from numba import njit
 
-from ompn_ros.detect.duration import Detector, DurationModel, make_detector
+from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import BoundaryHeadError
-from ompn_ros.detect.head import BoundaryHead, HeadDetector, step_outputs
+from ompn_ros.detect.factory import Detector, make_detector
+from ompn_ros.detect.head import BoundaryHead, FedByHead, step_outputs
 from ompn_ros.detect.online import (
     BoundaryEvent,
     DetectorConfig,
@@ -207,7 +208,7 @@ class StreamingSegmenter:
         p_hat = np.asarray(out.p_hat)
         score = expansion_score(p_hat)
         level = expansion_level(p_hat)
-        if isinstance(self.detector, HeadDetector):  # the head reads the whole output, not the score
+        if isinstance(self.detector, FedByHead):  # the head reads the whole output, not the score
             self.detector.feed(step_outputs(out))
         boundary = self.detector.update(score, level, 0 if stamp_ns is None else int(stamp_ns))
         return SegmenterOutput(out, boundary, self._step_index, score, level)
@@ -223,10 +224,10 @@ class StreamingSegmenter:
 
     def set_detector(self, config: DetectorConfig) -> str:
         """Run ``config``: from the next step, or from the next episode when it changes the decoder
-        (mode 'hsmm' or 'head' on or off, or their lag) in the middle of one.  Returns which; raises
-        :class:`~ompn_ros.detect.errors.DurationModelError` or
-        :class:`~ompn_ros.detect.errors.BoundaryHeadError` (nothing changed) for 'hsmm' without a
-        duration model or 'head' without a boundary head."""
+        (mode 'hsmm', 'head' or 'head_hsmm' on or off, or their lag) in the middle of one.  Returns
+        which; raises :class:`~ompn_ros.detect.errors.DurationModelError` or
+        :class:`~ompn_ros.detect.errors.BoundaryHeadError` (nothing changed) for a mode without the
+        duration model or the boundary head it needs."""
         fresh = make_detector(config, self.duration_model, self.head)
         self.detector_config, running = config, self.detector
         if type(running) is type(fresh) and getattr(running, "lag", 0) == getattr(fresh, "lag", 0):

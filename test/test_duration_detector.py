@@ -19,7 +19,6 @@ from ompn_ros.detect.duration import (
     _end_posterior,
     decode_episode,
     fit_duration_model,
-    make_detector,
 )
 from ompn_ros.detect.errors import (
     CalibrationError,
@@ -27,6 +26,7 @@ from ompn_ros.detect.errors import (
     DetectorSettingsError,
     DurationModelError,
 )
+from ompn_ros.detect.factory import make_detector
 from ompn_ros.detect.online import DetectorConfig, OnlineDetector, detect_sequence, run_detector
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries

@@ -1,6 +1,6 @@
-"""``ompn_node`` runs a checkpoint's boundary head (detector mode 'head'): live equals replay on a
-human-like stream, ``ompn_segment``'s scoring equals the streamed boundaries, and the mode is refused
-live for a checkpoint without a head."""
+"""``ompn_node`` runs a checkpoint's boundary head (detector modes 'head' and 'head_hsmm'): live equals
+replay on a human-like stream, ``ompn_segment``'s scoring equals the streamed boundaries, and the
+modes are refused live for a checkpoint without a head."""
 
 from __future__ import annotations
 
@@ -17,24 +17,50 @@ from rclpy.parameter import Parameter  # noqa: E402
 from test_boundary_head import checkpoint_with_head  # noqa: E402
 from test_node_human_stream import Recorder, _episodes, live, received  # noqa: E402
 
+from ompn_ros.detect.calibrate import scores_from_p_hats  # noqa: E402
+from ompn_ros.detect.duration import fit_duration_model  # noqa: E402
 from ompn_ros.detect.head import HeadDetector, decode_rows  # noqa: E402
+from ompn_ros.detect.head_duration import HeadDurationDetector, decode_head_duration  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.detect.settings import load_detector_settings, save_detector_settings  # noqa: E402
+from ompn_ros.model.checkpoint import load_checkpoint  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 from ompn_ros.stream.replay import replay_episode  # noqa: E402
+from ompn_ros.train.evaluation import teacher_forced_p_hat  # noqa: E402
+from sim_nodes.registry import expert_episode  # noqa: E402
 
 torch.set_num_threads(1)
 
 
-@pytest.mark.parametrize("domain", ["craft", "dial"])
-def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: Path, domain: str) -> None:
+def checkpoint_with_both(tmp_path: Path, domain: str) -> Path:
+    """:func:`checkpoint_with_head` running mode 'head_hsmm' with a duration model fitted on expert
+    episodes."""
     path = checkpoint_with_head(tmp_path, domain)
+    eps = [expert_episode(domain, 700 + i) for i in range(16)]
+    p_hats = teacher_forced_p_hat(load_checkpoint(path)[0], eps)[0]  # type: ignore[arg-type]
+    model = fit_duration_model(scores_from_p_hats(p_hats), [ep.boundaries for ep in eps])
+    stored = load_detector_settings(path)
+    both = DetectorConfig(mode="head_hsmm", high=0.9, lag=1)
+    save_detector_settings(path, type(stored)(online=both, head=stored.head, duration_model=model,
+                                              provenance="a test"))
+    return path
+
+
+@pytest.mark.parametrize(("domain", "mode"), [("craft", "head"), ("dial", "head"), ("craft", "head_hsmm"),
+                                              ("dial", "head_hsmm")])
+def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: Path, domain: str,
+                                                                 mode: str) -> None:
+    made = checkpoint_with_head if mode == "head" else checkpoint_with_both
+    path = made(tmp_path, domain)
     node = OMPNNode(context=ctx, parameter_overrides=[Parameter("checkpoint", value=str(path))])
     ok = TransitionCallbackReturn.SUCCESS
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
     node._pubs = {k: Recorder() for k in node._pubs}
     seg = node.segmenter
-    assert seg is not None and isinstance(seg.detector, HeadDetector)
-    assert node.get_parameter("detector_mode").value == "head"
+    assert seg is not None and seg.head is not None
+    assert isinstance(seg.detector, HeadDetector if mode == "head" else HeadDurationDetector)
+    assert node.get_parameter("detector_mode").value == mode
     offline = StreamingSegmenter(seg.policy, seg.detector_config, seg.duration_model, seg.head)
     t0 = (int(time.time()) - 10_000) * 1_000_000_000
     inner = 0
@@ -45,23 +71,30 @@ def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: 
         want = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in replay.published]
         assert got == want, (i, got, want)
         end = replay.boundaries[-1].detected_at  # the episode end decides its last steps
-        assert all(b.detected_at in (b.step + seg.detector_config.lag + 1, end) for b in replay.boundaries)
+        lag = seg.detector_config.lag
+        if mode == "head":
+            assert all(b.detected_at in (b.step + lag + 1, end) for b in replay.boundaries)
+        assert all(b.detected_at >= b.step + lag + 1 or b.detected_at == end for b in replay.boundaries)
         inner += len(replay.boundaries) - 1
         # ompn_segment's scoring decodes the replay's outputs at once, with the same rule
         assert replay.outputs is not None
-        batch = decode_rows(seg.head.probabilities(replay.outputs), seg.detector_config, seg.head.peak)
+        rows = seg.head.probabilities(replay.outputs)
+        batch = (decode_rows(rows, seg.detector_config, seg.head.peak) if mode == "head"
+                 else decode_head_duration(seg.duration_model, rows, seg.detector_config))  # type: ignore[arg-type]
         assert [b.step for b in batch] == [b.step for b in replay.boundaries]
     assert inner > 3
-    result = node.set_parameters([Parameter("detector_lag", value=seg.head.max_lag + 1)])[0]
-    assert not result.successful and "beyond this boundary head's lags" in result.reason
+    if mode == "head":
+        result = node.set_parameters([Parameter("detector_lag", value=seg.head.max_lag + 1)])[0]
+        assert not result.successful and "beyond this boundary head's lags" in result.reason
     node.destroy_node()
 
 
-def test_the_head_mode_is_refused_for_a_checkpoint_without_a_head(ctx) -> None:
+@pytest.mark.parametrize("mode", ["head", "head_hsmm"])
+def test_the_head_modes_are_refused_for_a_checkpoint_without_a_head(ctx, mode: str) -> None:
     node = OMPNNode(context=ctx, parameter_overrides=[Parameter("domain", value="craft")])
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS, node.last_error
-    both = [Parameter("detector_mode", value="head"), Parameter("detector_lag", value=2)]
+    both = [Parameter("detector_mode", value=mode), Parameter("detector_lag", value=2)]
     result = node.set_parameters(both)[0]
-    assert not result.successful and "needs a boundary head" in result.reason
-    assert node.segmenter is not None and node.segmenter.detector_config.mode != "head"
+    assert not result.successful and f"'{mode}' needs a boundary head" in result.reason
+    assert node.segmenter is not None and node.segmenter.detector_config.mode not in ("head", "head_hsmm")
     node.destroy_node()

@@ -94,11 +94,15 @@ def test_labelled_run_bundles_tuned_detectors(tmp_path: Path, episodes: list) ->
     assert best.head is not None and (tmp_path / "best" / "boundary_head.safetensors").is_file()
     assert best.head.rule is not None and 1 <= best.head.rule.lag <= best.head.max_lag
     head_wins = m["head_val_align"] > m[f"{before_head}_val_align"]
-    assert (best.online.mode == "head") == head_wins
-    assert not head_wins or best.online == best.head.rule
-    if not head_wins:
+    before_both = "head" if head_wins else before_head
+    # then the duration decoder over the head, its threshold tuned as the duration decoder's
+    both_wins = m["head_hsmm_val_align"] > m[f"{before_both}_val_align"]
+    assert (best.online.mode == "head_hsmm") == both_wins
+    assert (best.online.mode == "head") == (head_wins and not both_wins)
+    assert best.online.mode != "head" or best.online == best.head.rule
+    if not head_wins and not both_wins:
         assert (best.online.mode == "hsmm") == (before_head == "hsmm")
-    assert best.online.mode != "hsmm" or best.online.lag == DURATION_LAG
+    assert best.online.mode not in ("hsmm", "head_hsmm") or best.online.lag == DURATION_LAG
 
 
 def test_the_head_is_fitted_on_episodes_spread_over_the_whole_training_split(episodes: list) -> None:

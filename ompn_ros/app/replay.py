@@ -192,8 +192,8 @@ def run_replay(
     head: BoundaryHead | None = None,
 ) -> dict[str, Any]:
     """Replay ``episodes`` (unless ``replays`` are given) and write the output files into ``out``;
-    returns the summary.  ``duration_model``: the model of an online detector of mode 'hsmm';
-    ``head``: the boundary head of mode 'head'."""
+    returns the summary.  ``duration_model``: the model of an online detector of mode 'hsmm' or
+    'head_hsmm'; ``head``: the boundary head of mode 'head' or 'head_hsmm'."""
     out.mkdir(parents=True, exist_ok=True)
     if replays is None:
         replays = replay_all(policy, episodes, config, duration_model, head)

@@ -118,13 +118,14 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--lag", type=int, default=DURATION_LAG, choices=range(MAX_LAG + 1), metavar=f"0..{MAX_LAG}",
-        help="with --tune: the lag of the 'hsmm' detector (boundaries come >= lag + 1 steps late) fitted "
+        help="with --tune: the lag of the 'hsmm' and 'head_hsmm' detectors (boundaries come >= lag + 1 "
+        "steps late); the 'hsmm' one is fitted "
         "beside the threshold grid (it is chosen when it gains 1 point of alignment and keeps F1@1 within "
         "1 point)",
     )
     p.add_argument(
         "--max-delay", type=float, default=DURATION_DELAY, metavar="STEPS",
-        help="with --tune: the mean delay in steps the 'hsmm' detector's threshold may cost",
+        help="with --tune: the mean delay in steps the 'hsmm' and 'head_hsmm' detectors' thresholds may cost",
     )
     p.add_argument(
         "--long-subtasks", action="store_true",

@@ -35,21 +35,30 @@ on target boundaries (labels or a reference) and chooses its threshold with the 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from typing import Literal, get_args
 
 import numpy as np
 
 from ompn_ros.detect.duration import DurationDetector, DurationModel, fit_duration_model
 from ompn_ros.detect.errors import CalibrationError
+from ompn_ros.detect.head_duration import decode_head_duration
 from ompn_ros.detect.offline import (
     auto_threshold,
     constrained_top_k_boundaries,
     depth_scores,
     standardise,
 )
-from ompn_ros.detect.online import DURATION_MODE, MODES, DetectorConfig, expansion_scores, run_detector
+from ompn_ros.detect.online import (
+    DURATION_MODE,
+    HEAD_DURATION_MODE,
+    MODES,
+    BoundaryEvent,
+    DetectorConfig,
+    expansion_scores,
+    run_detector,
+)
 from ompn_ros.detect.tune import (
     MATCH_TOLERANCE,
     OBJECTIVES,
@@ -441,28 +450,65 @@ def calibrate_duration(
     its publication, those decided at the episode end included) is at most ``max_delay`` (None: any;
     none within it: the threshold of the shortest delay).  O(len(thresholds) · Σ T · K · n²), ``n``
     the steps between published boundaries."""
+    model = fit_duration_model(scores, target_boundaries)
+    detector = DurationDetector(model, lag)
+
+    def events(threshold: float) -> list[list[BoundaryEvent]]:
+        detector.threshold = threshold
+        return [run_detector(detector, s) for s in scores]
+
+    config, metrics = _pick_threshold(events, target_boundaries, [len(s) for s in scores], objective,
+                                      thresholds, max_delay)
+    return DurationCalibration(model, replace(config, mode=DURATION_MODE, lag=lag), metrics)
+
+
+def calibrate_head_duration(
+    model: DurationModel,
+    rows: Sequence[np.ndarray],
+    target_boundaries: Sequence[np.ndarray],
+    lag: int,
+    objective: Objective = "align",
+    thresholds: Sequence[float] = DURATION_THRESHOLDS,
+    max_delay: float | None = None,
+) -> DurationCalibration:
+    """The threshold of mode 'head_hsmm' (the duration decoder of ``model`` over the boundary head's
+    probabilities ``rows`` ``[T, max_lag + 1]`` per episode) with ``lag``, chosen as
+    :func:`calibrate_duration` chooses it, against ``target_boundaries``."""
+
+    def events(threshold: float) -> list[list[BoundaryEvent]]:
+        config = DetectorConfig(mode=HEAD_DURATION_MODE, high=threshold, lag=lag)
+        return [decode_head_duration(model, r, config) for r in rows]
+
+    config, metrics = _pick_threshold(events, target_boundaries, [len(r) for r in rows], objective,
+                                      thresholds, max_delay)
+    return DurationCalibration(model, replace(config, mode=HEAD_DURATION_MODE, lag=lag), metrics)
+
+
+def _pick_threshold(
+    decode: Callable[[float], list[list[BoundaryEvent]]], targets: Sequence[np.ndarray],
+    lengths: Sequence[int],
+    objective: Objective, thresholds: Sequence[float], max_delay: float | None,
+) -> tuple[DetectorConfig, dict[str, float]]:
+    """The threshold whose decoding ``decode(θ)`` is best by :func:`objective_key` against ``targets``
+    among those of mean delay at most ``max_delay`` (None: any; none within it: the shortest delay);
+    returned as a config of ``high`` = θ, with its metrics."""
     if not thresholds:
         raise CalibrationError("thresholds: need at least one")
     if max_delay is not None and not max_delay > 0:
         raise CalibrationError(f"max_delay must be > 0 steps, got {max_delay!r}")
-    model = fit_duration_model(scores, target_boundaries)
-    labels = [labels_from_boundaries(b, len(s)) for s, b in zip(scores, target_boundaries, strict=True)]
-    rows = [_duration_row(model, lag, threshold, scores, target_boundaries, labels)
-            for threshold in thresholds]
+    labels = [labels_from_boundaries(b, n) for b, n in zip(targets, lengths, strict=True)]
+    rows = [_events_row(decode(threshold), targets, labels) for threshold in thresholds]
     allowed = [i for i, row in enumerate(rows) if max_delay is None or row["delay_mean"] <= max_delay]
     if allowed:
         best = max(allowed, key=lambda i: (objective_key(rows[i], objective), -i))
     else:
         best = min(range(len(rows)), key=lambda i: (rows[i]["delay_mean"], i))
-    config = DetectorConfig(mode=DURATION_MODE, high=float(thresholds[best]), lag=lag)
-    return DurationCalibration(model, config, rows[best])
+    return DetectorConfig(high=float(thresholds[best])), rows[best]
 
 
-def _duration_row(model: DurationModel, lag: int, threshold: float, scores: Sequence[np.ndarray],
-                  targets: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> dict[str, float]:
-    """The 'hsmm' detector's F1, alignment and mean delay against ``targets``."""
-    detector = DurationDetector(model, lag, threshold)
-    events = [run_detector(detector, s) for s in scores]
+def _events_row(events: Sequence[Sequence[BoundaryEvent]], targets: Sequence[np.ndarray],
+                labels: Sequence[np.ndarray]) -> dict[str, float]:
+    """F1, alignment and mean delay of a decoder's ``events`` against ``targets``."""
     preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
     delays = [e.detected_at - e.step for evs in events for e in evs if not e.final]
     align = alignment_accuracy(preds, labels, "strict")
@@ -481,6 +527,7 @@ __all__ = [
     "Reference",
     "agreement",
     "calibrate_duration",
+    "calibrate_head_duration",
     "calibrate_label_free",
     "default_grid",
     "detect_grid",

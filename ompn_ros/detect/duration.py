@@ -45,16 +45,13 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from ompn_ros.detect.errors import BoundaryHeadError, DurationModelError
-from ompn_ros.detect.head import BoundaryHead, HeadDetector
+from ompn_ros.detect.errors import DurationModelError
 from ompn_ros.detect.online import (
     DURATION_MODE,
-    HEAD_MODE,
     MAX_LAG,
     BoundaryEvent,
     DetectorConfig,
     EpisodeLog,
-    OnlineDetector,
     _StepRecord,
     run_detector,
 )
@@ -128,6 +125,14 @@ class DurationModel:
     @property
     def bins(self) -> int:
         return int(self.f0.size)
+
+    @property
+    def boundary_share(self) -> float:
+        """The share of steps that end an inner segment, ``(K - 1) / Σ_i E[L_i]`` (lengths up to the
+        tables' end): the prior of a boundary at a step."""
+        log_p = self.lengths[0]
+        expected = float((np.exp(log_p) * np.arange(log_p.shape[1])).sum())
+        return (self.subtasks - 1) / max(expected, 1.0)
 
     def bin_of(self, score: float) -> int:
         """The histogram bin of ``score`` (scores outside [0, 1] fall in the end bins)."""
@@ -328,6 +333,8 @@ class DurationDetector(EpisodeLog):
         force_first_step_low: treat step 0's score as 0, as the threshold detectors do.
     """
 
+    mode = DURATION_MODE
+
     def __init__(self, model: DurationModel, lag: int = 0, threshold: float = 0.5,
                  force_first_step_low: bool = True) -> None:
         if isinstance(lag, bool) or not isinstance(lag, int | np.integer) or not 0 <= lag <= MAX_LAG:
@@ -340,8 +347,9 @@ class DurationDetector(EpisodeLog):
 
     def configure(self, config: DetectorConfig) -> None:
         """Take ``config``'s threshold (``high``) from the next step; its lag must be this decoder's."""
-        if config.mode != DURATION_MODE or config.lag != self.lag:
-            raise DurationModelError(f"a running duration decoder (lag {self.lag}) cannot become {config}")
+        if config.mode != self.mode or config.lag != self.lag:
+            raise DurationModelError(f"a running duration decoder (mode {self.mode}, lag {self.lag}) cannot "
+                                     f"become {config}")
         self.threshold, self.force_first_step_low = float(config.high), bool(config.force_first_step_low)
 
     def reset(self) -> None:
@@ -375,13 +383,17 @@ class DurationDetector(EpisodeLog):
         if last < first:
             return None
         log_p, log_s = self.model.lengths
-        prob, end = _end_posterior(log_p, log_s, self.model.logs[2], self.model.logs[3],
-                                   np.asarray(self._span, dtype=np.int64), self._n_boundaries,
+        prob, end = _end_posterior(log_p, log_s, *self._evidence(start, len(self._span)), self._n_boundaries,
                                    start - self._last_boundary - 1, first, last)
         if prob <= self.threshold or end < 0:
             return None
         del self._span[: end + 1]
         return self._emit(start + end, self._step, self._record(start + end))
+
+    def _evidence(self, start: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(log f1 table, log f0 table, each step's index into them) of the ``n`` span steps from step
+        ``start``: here the score histograms and the steps' bins."""
+        return self.model.logs[2], self.model.logs[3], np.asarray(self._span[:n], dtype=np.int64)
 
     def close(self, last_step: int | None = None) -> list[BoundaryEvent]:
         """Close the episode at ``last_step`` (default: the last step seen): the held step is decided
@@ -399,8 +411,7 @@ class DurationDetector(EpisodeLog):
         decided = self._step if held is None or held[0] <= end else held[0] - 1
         start = decided - len(self._span) + 1
         if end >= start and self._n_boundaries < self.model.subtasks - 1:
-            path = _closing_path(*self.model.lengths, self.model.logs[2], self.model.logs[3],
-                                 np.asarray(self._span[: end - start + 1], dtype=np.int64),
+            path = _closing_path(*self.model.lengths, *self._evidence(start, end - start + 1),
                                  self._n_boundaries, start - self._last_boundary - 1, 1 if start == 0 else 0)
             events += [self._emit(start + int(i), end, self._record(start + int(i))) for i in path[:-1]]
         events.append(self._emit(end, self._step, self._record(end), final=True))
@@ -415,34 +426,4 @@ def decode_episode(model: DurationModel, scores: np.ndarray, lag: int, threshold
     return np.asarray([e.step for e in events], dtype=np.int64)
 
 
-Detector = OnlineDetector | DurationDetector | HeadDetector
-"""What :class:`~ompn_ros.segmenter.StreamingSegmenter` steps (``update``, ``close``, ``configure``,
-``reset``)."""
-
-
-def make_detector(config: DetectorConfig, model: DurationModel | None,
-                  head: BoundaryHead | None = None) -> Detector:
-    """The detector of ``config``: the threshold detector; for mode 'hsmm' the duration decoder of
-    ``model`` (a :class:`DurationModelError` without one); for mode 'head' the boundary head ``head``
-    (a :class:`BoundaryHeadError` without one)."""
-    if config.mode == HEAD_MODE:
-        if head is None:
-            raise BoundaryHeadError(
-                f"detector mode '{HEAD_MODE}' needs a boundary head: the checkpoint's detector.json has none "
-                "(ompn_train fits one on labelled bags)"
-            )
-        return HeadDetector(head, config)
-    if config.mode != DURATION_MODE:
-        return OnlineDetector(config)
-    if model is None:
-        raise DurationModelError(
-            f"detector mode '{DURATION_MODE}' needs a duration model: the checkpoint's detector.json has "
-            "none (ompn_train writes one when it can fit it)"
-        )
-    return DurationDetector(model, config.lag, config.high, config.force_first_step_low)
-
-
-__all__ = [
-    "Detector", "DurationDetector", "DurationModel", "decode_episode",
-    "fit_duration_model", "make_detector",
-]
+__all__ = ["DurationDetector", "DurationModel", "decode_episode", "fit_duration_model"]

@@ -32,7 +32,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -300,37 +300,72 @@ class HeadDecoder(EpisodeLog):
         return events
 
 
-class HeadDetector(HeadDecoder):
-    """The boundary head as a streaming detector: :meth:`feed` the step's outputs, then :meth:`update`."""
+class HeadInput:
+    """The head over a stream: :meth:`feed` each step's outputs, then :meth:`row` gives that step's
+    probabilities (the window starts filled with the episode's first step)."""
 
-    def __init__(self, head: BoundaryHead, config: DetectorConfig) -> None:
+    def __init__(self, head: BoundaryHead) -> None:
         self.head = head
         self._window = np.zeros((head.window, head.features))
-        self._fed: np.ndarray | None = None
-        super().__init__(config, head.max_lag, head.peak)
+        self.reset()
 
     def reset(self) -> None:
-        super().reset()
-        self._fed = None
+        self._fed: np.ndarray | None = None
+        self._steps = 0
 
     def feed(self, outputs: np.ndarray) -> None:
-        """The step's model outputs (:func:`head_outputs`), read by the next :meth:`update`."""
+        """The step's model outputs (:func:`head_outputs`), read by the next :meth:`row`."""
         if outputs.shape != (self.head.features,):
             raise BoundaryHeadError(f"the boundary head reads {self.head.features} outputs per step, got "
                                     f"{outputs.shape}")
         self._fed = outputs
 
-    def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
-        """Consume the next step (its outputs fed first); the boundary published now, if any."""
+    def row(self) -> np.ndarray:
+        """The probabilities ``[max_lag + 1]`` of the step fed last."""
         if self._fed is None:
-            raise BoundaryHeadError("HeadDetector.update without the step's outputs: feed() them first")
-        if self.steps_seen == 0:
+            raise BoundaryHeadError("a head detector's update came without the step's outputs: "
+                                    "feed() them first")
+        if self._steps == 0:
             self._window[:] = self._fed
         else:
             self._window[:-1] = self._window[1:]
             self._window[-1] = self._fed
-        self._fed = None
-        return self.take(self.head.forward(self._window.ravel()), score, level, stamp_ns)
+        self._fed, self._steps = None, self._steps + 1
+        return self.head.forward(self._window.ravel())
+
+
+class FedByHead:
+    """A streaming detector over the head's rows: :meth:`feed` the step's outputs, then :meth:`update`
+    takes the step's row (the class it is mixed into decodes rows with ``take``)."""
+
+    head: BoundaryHead
+    input: HeadInput
+    if TYPE_CHECKING:  # the decoder's, found after this class in the method order
+        def take(self, row: np.ndarray, score: float, level: int = 0,
+                 stamp_ns: int = 0) -> BoundaryEvent | None: ...
+
+    def _attach(self, head: BoundaryHead) -> None:
+        self.head, self.input = head, HeadInput(head)
+
+    def reset(self) -> None:
+        super().reset()  # type: ignore[misc]
+        self.input.reset()
+
+    def feed(self, outputs: np.ndarray) -> None:
+        """The step's model outputs (:func:`head_outputs`), read by the next :meth:`update`."""
+        self.input.feed(outputs)
+
+    def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
+        """Consume the next step (its outputs fed first); the boundary published now, if any."""
+        return self.take(self.input.row(), score, level, stamp_ns)
+
+
+class HeadDetector(FedByHead, HeadDecoder):
+    """The boundary head as a streaming detector: :meth:`feed` the step's outputs, then :meth:`update`."""
+
+    def __init__(self, head: BoundaryHead, config: DetectorConfig) -> None:
+        self._attach(head)
+        HeadDecoder.__init__(self, config, head.max_lag, head.peak)
 
 
 def decode_rows(rows: np.ndarray, config: DetectorConfig, peak: bool) -> list[BoundaryEvent]:
@@ -372,6 +407,8 @@ def decoded_steps(rows: np.ndarray, config: DetectorConfig, peak: bool) -> tuple
 
 
 __all__ = [
-    "HEAD_FILE", "BoundaryHead", "HeadDecoder", "HeadDetector", "decode_all", "decode_rows", "decoded_steps",
+    "HEAD_FILE", "BoundaryHead", "FedByHead", "HeadDecoder", "HeadDetector", "HeadInput", "decode_all",
+    "decode_rows",
+    "decoded_steps",
     "expected_shapes", "head_outputs", "load_head", "step_outputs", "windowed", "write_head",
 ]

@@ -34,7 +34,9 @@ the posterior probability a boundary needs, and a boundary comes at least ``lag 
 its step (more when the evidence is weak).  ``mode='head'`` reads the model's whole output, not the
 score: the learned boundary head of :mod:`ompn_ros.detect.head`; there ``high`` is the head's
 probability a boundary needs at ``lag`` steps and ``min_segment_length`` the fewest steps between
-two boundaries.
+two boundaries.  ``mode='head_hsmm'`` is the duration decoder with the head's probabilities as its
+evidence instead of the score (:mod:`ompn_ros.detect.head_duration`); ``high`` and ``lag`` as for
+'hsmm'.
 
 Step 0 is forced to score 0 by default, as in the authors' evaluation (the first step's p_hat is
 hard-coded to "expand from the top", ``docs/craft.md`` §3.6).
@@ -57,7 +59,12 @@ DURATION_MODE = "hsmm"
 """The mode of :class:`~ompn_ros.detect.duration.DurationDetector` (needs a fitted duration model)."""
 HEAD_MODE = "head"
 """The mode of :class:`~ompn_ros.detect.head.HeadDetector` (needs a trained boundary head)."""
-ALL_MODES = (*MODES, DURATION_MODE, HEAD_MODE)
+HEAD_DURATION_MODE = "head_hsmm"
+"""The mode of :class:`~ompn_ros.detect.head_duration.HeadDurationDetector`: the duration decoder
+weighing the boundary head's probabilities (needs both)."""
+DURATION_MODES = (DURATION_MODE, HEAD_DURATION_MODE)
+"""The modes of the duration decoder."""
+ALL_MODES = (*MODES, DURATION_MODE, HEAD_MODE, HEAD_DURATION_MODE)
 MAX_LAG = 10
 """The longest lag of the duration decoder (the fewest steps a boundary waits; see
 :mod:`ompn_ros.detect.duration` for its cost per step)."""
@@ -78,10 +85,11 @@ class DetectorConfig:
             (no hysteresis, the paper's Algorithm 1). Must satisfy ``0 <= low <= high``.
         min_segment_length: minimum number of steps of a segment closed by a detected boundary
             (``>= 1``; 1 disables the check).
-        mode: 'falling_edge' | 'peak' | 'rising_edge', 'hsmm' or 'head' (see the module docstring).
+        mode: 'falling_edge' | 'peak' | 'rising_edge', 'hsmm', 'head' or 'head_hsmm' (see the module
+            docstring).
         force_first_step_low: treat step 0's score as 0 (the authors' evaluation does this).
-        lag: the fewest steps the 'hsmm' decoder waits after a step is taken in before it publishes
-            it as a boundary, so at least ``lag + 1`` steps after the step (0 … ``MAX_LAG``; the
+        lag: the fewest steps the 'hsmm' and 'head_hsmm' decoders wait after a step is taken in before
+            they publish it as a boundary, so at least ``lag + 1`` steps after the step (0 … ``MAX_LAG``; the
             threshold modes ignore it). Mode 'head': the lag the head's probability is read at
             (0 … the head's longest); the boundary is published ``lag + 1`` steps after its step.
         offset: the threshold modes report a boundary this many steps before the step their rule

@@ -45,7 +45,7 @@ from ompn_ros.detect.errors import (
     DurationModelError,
 )
 from ompn_ros.detect.head import BoundaryHead, load_head, write_head
-from ompn_ros.detect.online import DURATION_MODE, HEAD_MODE, DetectorConfig
+from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 
 DETECTOR_FILE = "detector.json"
 FORMAT = "ompn_ros.detector"
@@ -119,13 +119,14 @@ class DetectorSettings:
             for k, v in self.metrics.items()
         ):
             raise DetectorSettingsError(f"{_where('', 'metrics')} must map names to numbers")
-        if self.online.mode == DURATION_MODE and self.duration_model is None:
+        if self.online.mode in DURATION_MODES and self.duration_model is None:
             raise DetectorSettingsError(
-                f"{_where('', 'online.mode')} '{DURATION_MODE}' needs a 'duration_model', and there is none"
+                f"{_where('', 'online.mode')} '{self.online.mode}' needs a 'duration_model', and there is "
+                "none"
             )
-        if self.online.mode == HEAD_MODE and self.head is None:
+        if self.online.mode in (HEAD_MODE, HEAD_DURATION_MODE) and self.head is None:
             raise DetectorSettingsError(
-                f"{_where('', 'online.mode')} '{HEAD_MODE}' needs a 'boundary_head', and there is none"
+                f"{_where('', 'online.mode')} '{self.online.mode}' needs a 'boundary_head', and there is none"
             )
         if self.online.mode == HEAD_MODE and self.head is not None and self.online.lag > self.head.max_lag:
             raise DetectorSettingsError(
@@ -136,7 +137,7 @@ class DetectorSettings:
     def describe(self) -> str:
         """One log line: the online detector, its source and provenance."""
         c = self.online
-        if c.mode == DURATION_MODE and self.duration_model is not None:
+        if c.mode in DURATION_MODES and self.duration_model is not None:
             model = self.duration_model
             what = (f"detector mode={c.mode} lag={c.lag} threshold={c.high} (K={model.subtasks}, "
                     f"fitted on {model.episodes} episodes)")

@@ -33,9 +33,11 @@ import yaml
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
-from ompn_ros.detect.duration import DurationModel, make_detector
+from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import TuneError
+from ompn_ros.detect.factory import make_detector
 from ompn_ros.detect.head import BoundaryHead, HeadDetector, decode_all
+from ompn_ros.detect.head_duration import HeadDurationDetector, decode_head_duration
 from ompn_ros.detect.online import MAX_OFFSET, MODES, BoundaryEvent, DetectorConfig, run_detector
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
@@ -123,21 +125,26 @@ def _check_labelled(replays: Sequence[Replayed], episodes: Sequence[Episode]) ->
 def score_online(replays: Sequence[Replayed], episodes: Sequence[Episode], config: DetectorConfig,
                  duration_model: DurationModel | None = None, head: BoundaryHead | None = None) -> Metrics:
     """The causal detector ``config`` (with ``duration_model`` for mode 'hsmm', ``head`` for mode
-    'head', which reads the replays' ``outputs``) on the replays: F1, alignment and delays (O(Σ T))."""
+    'head', both for 'head_hsmm'; the head reads the replays' ``outputs``) on the replays: F1,
+    alignment and delays (O(Σ T))."""
     detector = make_detector(config, duration_model, head)
     if isinstance(detector, HeadDetector):
-        rows = [detector.head.probabilities(_outputs(r)) for r in replays]
+        rows = [detector.head.probabilities(_outputs(r, config)) for r in replays]
         events = decode_all(rows, config, detector.peak)
+    elif isinstance(detector, HeadDurationDetector):
+        rows = [detector.head.probabilities(_outputs(r, config)) for r in replays]
+        events = [decode_head_duration(detector.model, q, config, r.scores) for q, r in zip(rows, replays)]
     else:
         events = [run_detector(detector, r.scores) for r in replays]
     preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
     return {**score_predictions(preds, episodes), **delay_stats(events, [ep.boundaries for ep in episodes])}
 
 
-def _outputs(replay: Replayed) -> np.ndarray:
+def _outputs(replay: Replayed, config: DetectorConfig) -> np.ndarray:
     got = getattr(replay, "outputs", None)
     if got is None:
-        raise TuneError("detector mode 'head' reads the model's outputs, and these replays carry none")
+        raise TuneError(f"detector mode '{config.mode}' reads the model's outputs, and these replays carry "
+                        "none")
     return np.asarray(got)
 
 

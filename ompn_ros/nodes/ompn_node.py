@@ -97,7 +97,7 @@ from std_srvs.srv import Trigger
 
 from ompn_ros.data.obs import ObservationSpecError
 from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError
-from ompn_ros.detect.online import DURATION_MODE, HEAD_MODE
+from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE
 from ompn_ros.detect.settings import (
     DETECTOR_PARAMETERS,
     NODE_PARAMETERS,
@@ -203,14 +203,14 @@ class OMPNNode(NodeInputs):
         seg = self.segmenter
         if seg is None or self._from_checkpoint:
             return result
-        if config.mode == DURATION_MODE and seg.duration_model is None:
+        if config.mode in DURATION_MODES and seg.duration_model is None:
             return SetParametersResult(successful=False, reason=(
-                f"detector_mode '{DURATION_MODE}' needs a duration model, and this checkpoint's "
+                f"detector_mode '{config.mode}' needs a duration model, and this checkpoint's "
                 "detector.json has none (ompn_train writes one)"))
-        if config.mode == HEAD_MODE and seg.head is None:
+        if config.mode in (HEAD_MODE, HEAD_DURATION_MODE) and seg.head is None:
             return SetParametersResult(successful=False, reason=(
-                f"detector_mode '{HEAD_MODE}' needs a boundary head, and this checkpoint's detector.json has "
-                "none (ompn_train fits one on labelled bags)"))
+                f"detector_mode '{config.mode}' needs a boundary head, and this checkpoint's detector.json "
+                "has none (ompn_train fits one on labelled bags)"))
         if config.mode == HEAD_MODE and seg.head is not None and config.lag > seg.head.max_lag:
             return SetParametersResult(successful=False, reason=(
                 f"detector_lag {config.lag} is beyond this boundary head's lags (0 … {seg.head.max_lag})"))

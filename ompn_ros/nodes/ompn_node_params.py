@@ -105,13 +105,15 @@ SPECS: Final = (
     ParamSpec("detector_mode", "falling_edge", "boundary commit rule; 'hsmm': the duration decoder of the "
               "checkpoint's detector.json (detector_high = the posterior that the subtask has ended; higher: "
               "later, surer boundaries); 'head': its learned boundary head (detector_high = the head's "
-              "probability, detector_min_segment_length = the fewest steps between boundaries); switching to "
-              "or from 'hsmm' or 'head' inside an episode applies from the next one", choices=ALL_MODES,
+              "probability, detector_min_segment_length = the fewest steps between boundaries); "
+              "'head_hsmm': the duration decoder weighing the head (detector_high as for 'hsmm'); switching "
+              "to or from 'hsmm', 'head' or 'head_hsmm' inside an episode applies from the next one",
+              choices=ALL_MODES,
               apply="live"),
-    ParamSpec("detector_lag", 0, "hsmm: a boundary is published at least detector_lag + 1 steps after its "
-              "step (more when the evidence is weak); head: detector_lag + 1 steps after it (the episode end "
-              "decides its last steps); "
-              "changed inside an episode: from the next one", int_range=(0, MAX_LAG), apply="live"),
+    ParamSpec("detector_lag", 0, "hsmm, head_hsmm: a boundary is published at least detector_lag + 1 steps "
+              "after its step (more when the evidence is weak); head: detector_lag + 1 steps after it (the "
+              "episode end decides its last steps); changed inside an episode: from the next one",
+              int_range=(0, MAX_LAG), apply="live"),
     ParamSpec("detector_offset", 0, "threshold modes: report a boundary this many steps before the step the "
               "rule gives (not before the previous boundary); it is still published when the rule commits it",
               int_range=(0, MAX_OFFSET), apply="live"),

@@ -25,7 +25,10 @@ most :data:`DURATION_GAIN` lower (docs/design.md#duration-decoder).
 With labels, and the training episodes' outputs given, the learned boundary head (mode 'head',
 :mod:`ompn_ros.train.boundary_head`) is trained too and kept with the checkpoint; it becomes the
 online detector when its validation alignment is higher than that of the detector chosen above
-(docs/design.md#boundary-head).
+(docs/design.md#boundary-head).  With the head and the duration model both fitted, the duration
+decoder over the head (mode 'head_hsmm', :mod:`ompn_ros.detect.head_duration`) has its threshold
+tuned the same way, and becomes the online detector when its validation alignment is higher still
+(docs/design.md#duration-decoder-over-the-head).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from ompn_ros.detect.calibrate import (
     Objective,
     Reference,
     calibrate_duration,
+    calibrate_head_duration,
     calibrate_label_free,
     evaluate_grid,
     pooled_counts,
@@ -52,7 +56,7 @@ from ompn_ros.detect.calibrate import (
     tune_on_labels,
 )
 from ompn_ros.detect.errors import DurationModelError
-from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
+from ompn_ros.detect.online import DURATION_MODE, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
 from ompn_ros.train.boundary_head import HeadChoice, fit_and_choose
 from ompn_ros.train.evaluation import decomposition_metrics, tune_min_length
@@ -164,9 +168,29 @@ def prefer_head(online: DetectorConfig, figures: dict[str, float], head: Detecto
                 head_metrics: dict[str, float]) -> DetectorConfig:
     """``head`` (the boundary head's decoding) when its alignment ``head_metrics`` is higher than that
     of ``online`` in ``figures``, else ``online``; ``figures`` gains the head's figures."""
-    figures.update({f"head_val_{k}": float(head_metrics[k]) for k in ("align", "f1_tol1", "delay_mean")})
-    kind = "hsmm" if online.mode == DURATION_MODE else "threshold"
-    return head if head_metrics["align"] > figures[f"{kind}_val_align"] else online
+    return _prefer(online, figures, "head", head, head_metrics)
+
+
+def pick_head_duration(online: DetectorConfig, figures: dict[str, float],
+                       duration: DurationCalibration | None, fitted: HeadChoice | None, data: HeadData | None,
+                       val_eps: Sequence[Episode], lag: int | None,
+                       max_delay: float | None) -> DetectorConfig:
+    """The online detector: mode 'head_hsmm' (the duration model over the fitted head, its threshold
+    tuned as the duration decoder's) when its validation alignment is higher than that of ``online``;
+    ``figures`` gains its figures.  ``online`` unchanged without a head, a duration model or a lag."""
+    if duration is None or fitted is None or data is None or lag is None:
+        return online
+    rows = [fitted.head.probabilities(x) for x in data.val_outputs]
+    tuned = calibrate_head_duration(duration.model, rows, [ep.boundaries for ep in val_eps], lag, "align",
+                                    max_delay=max_delay)
+    return _prefer(online, figures, HEAD_DURATION_MODE, tuned.config, tuned.metrics)
+
+
+def _prefer(online: DetectorConfig, figures: dict[str, float], name: str, candidate: DetectorConfig,
+            metrics: dict[str, float]) -> DetectorConfig:
+    figures.update({f"{name}_val_{k}": float(metrics[k]) for k in ("align", "f1_tol1", "delay_mean")})
+    kind = online.mode if online.mode in (DURATION_MODE, HEAD_MODE, HEAD_DURATION_MODE) else "threshold"
+    return candidate if metrics["align"] > figures[f"{kind}_val_align"] else online
 
 
 def choose_settings(
@@ -194,6 +218,7 @@ def choose_settings(
         duration = duration_detector(scores, [ep.boundaries for ep in episodes], lag, max_delay)
         online, figures = pick_online(tuned.config, tuned.metrics, duration)
         online, fitted = pick_head(online, figures, head, episodes)
+        online = pick_head_duration(online, figures, duration, fitted, head, episodes, lag, max_delay)
         offline, min_length = _offline_choice(p_hats, episodes)
         return DetectorSettings(
             online=online,
@@ -267,6 +292,7 @@ __all__ = [
     "duration_detector",
     "objective_for",
     "pick_head",
+    "pick_head_duration",
     "pick_online",
     "prefer_head",
 ]
