@@ -50,9 +50,11 @@ clock subscribers receive it.
 
 ``wait_for_subscribers`` = N (> 0) holds the first episode until every topic in ``wait_topics``
 (default ``['*']``: all topics of the sim, the recorder case; an ``ompn_node`` in policy mode only needs
-``['observation']``) has N matched subscribers (a subscriber whose QoS does not match is not counted),
-then waits 0.5 s more.  Invalid parameters raise :class:`ParameterError` at startup; the node's ``main()``
-(:func:`ompn_ros.ros.run.run_node`) prints it in one line and exits with code 2.
+``['observation']``) has N matched subscribers (a subscriber whose QoS does not match is not
+counted) and, in policy mode, ``cmd_action`` has a matched publisher (an answer sent before that
+match would be lost), then waits 0.5 s more.  Invalid parameters raise :class:`ParameterError` at
+startup; the node's ``main()`` (:func:`ompn_ros.ros.run.run_node`) prints it in one line and exits
+with code 2.
 """
 
 from __future__ import annotations
@@ -322,8 +324,8 @@ class SimNode(Node):
         self._resume_at = 0.0  # end of the pause between episodes (monotonic seconds)
         self._ready_since: float | None = None
         self._wait_topic_names = self._wait_topics()
-        if self.mode == "policy":
-            self.create_subscription(action_msg_type(domain), layout.CMD_ACTION, self._on_cmd_action, SIM_QOS)
+        self._cmd_sub = None if self.mode != "policy" else self.create_subscription(
+            action_msg_type(domain), layout.CMD_ACTION, self._on_cmd_action, SIM_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         # The step timer runs on the steady clock: under use_sim_time a ROS-time timer would wait for
         # the /clock this node itself publishes only when it steps.
@@ -411,7 +413,8 @@ class SimNode(Node):
         wanted = int(self.params["wait_for_subscribers"])
         if wanted == 0 or (self._ready_since is not None and time.monotonic() >= self._ready_since):
             return True
-        if self._ready_since is None and all(
+        answered = self._cmd_sub is None or self._cmd_sub.get_publisher_count() >= 1
+        if self._ready_since is None and answered and all(
             p.get_subscription_count() >= wanted for p in self._waited_publishers()
         ):
             # The subscriber's other topics are matched a moment later: settle before publishing.

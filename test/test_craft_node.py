@@ -51,7 +51,7 @@ def start_sim(*params: str) -> subprocess.Popen:
 class Listener:
     """Subscribes to every craft topic; records (source stamp, receive order, topic, message)."""
 
-    def __init__(self) -> None:
+    def __init__(self, answers: bool = True) -> None:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("craft_test_listener", context=self.context)
@@ -60,7 +60,7 @@ class Listener:
         self.events: list[tuple[int, int, str, object]] = []
         for topic, msg_type in TOPICS.items():
             self.node.create_subscription(msg_type, topic, self._callback(topic), SIM_QOS)
-        self.cmd = self.node.create_publisher(Int32, layout.CMD_ACTION, SIM_QOS)
+        self.cmd = self.node.create_publisher(Int32, layout.CMD_ACTION, SIM_QOS) if answers else None
 
     def _callback(self, topic: str) -> Callable:
         def callback(msg: object, info: dict) -> None:
@@ -203,6 +203,25 @@ def test_policy_mode_holds_then_steps_on_cmd_action(listener):
     assert np.array_equal(obs, demo.observations)
     phase, end = marker(listener.of(layout.EPISODE)[-1])
     assert phase == "end" and end["success"] == "true" and end["steps"] == str(demo.length)
+
+
+def test_policy_mode_waits_for_a_cmd_action_publisher_before_its_first_observation():
+    """An answer published before the sim's cmd_action subscription matched would be lost and the sim
+    would hold forever: with wait_for_subscribers it starts only once something can answer."""
+    silent = Listener(answers=False)
+    proc = start_sim("task:=makebed", "seed:=3", "mode:=policy", "rate:=0.0", "episodes:=1",
+                     "policy_timeout:=0.3", "wait_for_subscribers:=1")  # fmt: skip
+    try:
+        seen = silent.spin_until(lambda: silent.node.count_publishers(layout.OBSERVATION) >= 1, timeout=15.0)
+        assert seen, "the sim's observation publisher was never discovered"
+        silent.spin_until(lambda: False, timeout=2.0)  # matched, settled, but nobody can answer
+        assert not silent.of(layout.OBSERVATION)
+        silent.cmd = silent.node.create_publisher(Int32, layout.CMD_ACTION, SIM_QOS)
+        assert silent.spin_until(lambda: len(silent.of(layout.OBSERVATION)) >= 1, timeout=12.0)
+    finally:
+        proc.kill()
+        proc.communicate(timeout=5)
+        silent.close()
 
 
 def test_human_demonstrator_publishes_its_episode_with_drops_and_duplicates(listener):

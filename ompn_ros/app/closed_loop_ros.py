@@ -6,7 +6,8 @@ Three child processes per run (this module itself imports no rclpy):
   ``cmd_action`` arrives), **one sim process per episode**: episode i runs a sim with
   ``seed:=EVAL_SEED_BASE + i episodes:=1`` (map/initial pose ``derive_seed(EVAL_SEED_BASE + i, 0)``, the
   sims' seed rule) and ``wait_for_subscribers:=2`` on ``observation`` and ``episode`` so it starts only
-  once ``ompn_node`` and the monitor listen;
+  once ``ompn_node`` and the monitor listen and ``ompn_node``'s ``cmd_action`` publisher is matched (an
+  earlier answer would be lost and the sim would hold);
 * ``ompn_node`` with the checkpoint and ``done_threshold:=1.0`` so that, as in the in-process
   evaluator, it always sends the argmax env action (a DONE would end a sim episode early);
 * ``episode_monitor`` (``ompn_ros/nodes/episode_monitor.py``) printing one JSON line per end marker.
