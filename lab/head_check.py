@@ -33,22 +33,20 @@ from lab.boundary_head import robot_splits
 from lab.detector_selection import arm_splits
 from ompn_ros.app.replay import replay_all
 from ompn_ros.checkpoints import shipped_checkpoint
-from ompn_ros.detect.calibrate import DurationCalibration, calibrate_head_duration
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.online import HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import score_online
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import stepper_from_checkpoint
-from ompn_ros.train.boundary_head import HeadChoice, choose_rule, fit_and_choose
+from ompn_ros.train.boundary_head import choose_rule, fit_and_choose
 from ompn_ros.train.detector import (
     DURATION_DELAY,
     DURATION_LAG,
-    HeadData,
     choose_settings,
-    pick_head_duration,
-    prefer_head,
+    prefer,
+    tune_head_duration,
 )
 from ompn_ros.train.evaluation import teacher_forced_outputs
 from sim_nodes.human import parse_human
@@ -80,9 +78,8 @@ def check(domain: str, n_train: int, n_val: int, n_test: int, seed: int) -> list
     choice = fit_and_choose(teacher_forced_outputs(policy, train), train,  # type: ignore[arg-type]
                             val_outputs, val, seed)  # type: ignore[arg-type]
     model = bundled.duration_model
-    both = None if model is None else calibrate_head_duration(
-        model, [choice.head.probabilities(x) for x in val_outputs], [ep.boundaries for ep in val],
-        DURATION_LAG, "align", max_delay=DURATION_DELAY)
+    both = None if model is None else tune_head_duration(model, choice.head, val_outputs, val,
+                                                         DURATION_LAG, DURATION_DELAY)
     stepper = stepper_from_checkpoint(path)
     ref_val = _online(stepper, val, bundled.online, model)
     rows = []
@@ -133,19 +130,15 @@ def _check(run: Path, val: list[Any], test: list[Any], policy: Any) -> dict[str,
                              what="without the head")
     figures = dict(before.metrics)
     head_figures = {k: bundled.metrics[f"head_val_{k}"] for k in ("align", "f1_tol1", "delay_mean")}
-    previous = prefer_head(before.online, figures, rule, head_figures)
+    previous = prefer(before.online, figures, HEAD_MODE, rule, head_figures)
     model = before.duration_model
     detectors = {"without_head": before.online, "head": rule, "previous": previous}
     if model is not None:
-        rows = [head.probabilities(x) for x in outputs]
-        tuned = calibrate_head_duration(model, rows, [ep.boundaries for ep in val], DURATION_LAG, "align",
-                                        max_delay=DURATION_DELAY)
+        tuned = tune_head_duration(model, head, outputs, val, DURATION_LAG, DURATION_DELAY)
         detectors["head_hsmm"] = tuned.config
-        detectors["head_hsmm_any_delay"] = calibrate_head_duration(  # the delay budget's cost
-            model, rows, [ep.boundaries for ep in val], DURATION_LAG, "align", max_delay=None).config
-        detectors["now"] = pick_head_duration(previous, figures, DurationCalibration(model, tuned.config, {}),
-                                              HeadChoice(head, rule, {}), HeadData([], [], outputs), val,
-                                              DURATION_LAG, DURATION_DELAY)
+        detectors["head_hsmm_any_delay"] = tune_head_duration(  # the delay budget's cost
+            model, head, outputs, val, DURATION_LAG, None).config
+        detectors["now"] = prefer(previous, figures, HEAD_DURATION_MODE, tuned.config, tuned.metrics)
     stepper = stepper_from_checkpoint(run)
     scored = {name: _online(stepper, test, config, model, head) for name, config in detectors.items()}
     return {"test_episodes": len(test), "bundled_mode": bundled.online.mode,

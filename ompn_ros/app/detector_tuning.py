@@ -4,9 +4,9 @@ The threshold detector is grid-searched (:func:`ompn_ros.detect.tune.choose_on_r
 duration detector is fitted beside it (:func:`ompn_ros.train.detector.duration_detector`) and the
 online one picked between them (:func:`ompn_ros.train.detector.pick_online`); a checkpoint's
 boundary head, with the decoding chosen with it, runs instead when it aligns better on the same
-episodes (:func:`ompn_ros.train.detector.prefer_head`), and the duration decoder over that head
-(mode 'head_hsmm', its threshold tuned as the duration decoder's) when it aligns better still
-(:func:`ompn_ros.train.detector.pick_head_duration`); see docs/design.md.
+episodes, and the duration decoder over that head (mode 'head_hsmm', its threshold tuned as the
+duration decoder's) when it aligns better still (:func:`ompn_ros.train.detector.prefer`); see
+docs/design.md.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from ompn_ros.app import replay
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.online import HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
     Metrics,
@@ -29,8 +29,7 @@ from ompn_ros.detect.tune import (
     score_online,
     write_node_config,
 )
-from ompn_ros.train.boundary_head import HeadChoice
-from ompn_ros.train.detector import HeadData, duration_detector, pick_head_duration, pick_online, prefer_head
+from ompn_ros.train.detector import duration_detector, pick_online, prefer, tune_head_duration
 
 
 @dataclass
@@ -67,10 +66,12 @@ def tune_detector(policy: Any, episodes: Sequence[Episode], objective: str | Non
     model = None if duration is None else duration.model
     best, figures = pick_online(threshold, metrics, duration)
     if head is not None and head.rule is not None:
-        best = prefer_head(best, figures, head.rule, score_online(replays, episodes, head.rule, None, head))
-        outputs = [r.outputs for r in replays if r.outputs is not None]
-        best = pick_head_duration(best, figures, duration, HeadChoice(head, head.rule, {}),
-                                  HeadData([], [], outputs), episodes, lag, max_delay)
+        alone = score_online(replays, episodes, head.rule, None, head)
+        best = prefer(best, figures, HEAD_MODE, head.rule, alone)
+        if duration is not None:
+            outputs = [r.outputs for r in replays if r.outputs is not None]
+            both = tune_head_duration(duration.model, head, outputs, episodes, lag, max_delay)
+            best = prefer(best, figures, HEAD_DURATION_MODE, both.config, both.metrics)
     if best is not threshold:  # 'online' names what runs: the duration decoder or the head
         metrics = score_online(replays, episodes, best, model, head)
         comparison = {"online": metrics, "online_threshold": comparison.pop("online"), **comparison}

@@ -36,7 +36,7 @@ on target boundaries (labels or a reference) and chooses its threshold with the 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal, get_args
 
 import numpy as np
@@ -457,9 +457,9 @@ def calibrate_duration(
         detector.threshold = threshold
         return [run_detector(detector, s) for s in scores]
 
-    config, metrics = _pick_threshold(events, target_boundaries, [len(s) for s in scores], objective,
-                                      thresholds, max_delay)
-    return DurationCalibration(model, replace(config, mode=DURATION_MODE, lag=lag), metrics)
+    high, metrics = _pick_threshold(events, target_boundaries, [len(s) for s in scores], objective,
+                                    thresholds, max_delay)
+    return DurationCalibration(model, DetectorConfig(mode=DURATION_MODE, high=high, lag=lag), metrics)
 
 
 def calibrate_head_duration(
@@ -479,19 +479,19 @@ def calibrate_head_duration(
         config = DetectorConfig(mode=HEAD_DURATION_MODE, high=threshold, lag=lag)
         return [decode_head_duration(model, r, config) for r in rows]
 
-    config, metrics = _pick_threshold(events, target_boundaries, [len(r) for r in rows], objective,
-                                      thresholds, max_delay)
-    return DurationCalibration(model, replace(config, mode=HEAD_DURATION_MODE, lag=lag), metrics)
+    high, metrics = _pick_threshold(events, target_boundaries, [len(r) for r in rows], objective,
+                                    thresholds, max_delay)
+    return DurationCalibration(model, DetectorConfig(mode=HEAD_DURATION_MODE, high=high, lag=lag), metrics)
 
 
 def _pick_threshold(
     decode: Callable[[float], list[list[BoundaryEvent]]], targets: Sequence[np.ndarray],
     lengths: Sequence[int],
     objective: Objective, thresholds: Sequence[float], max_delay: float | None,
-) -> tuple[DetectorConfig, dict[str, float]]:
+) -> tuple[float, dict[str, float]]:
     """The threshold whose decoding ``decode(θ)`` is best by :func:`objective_key` against ``targets``
     among those of mean delay at most ``max_delay`` (None: any; none within it: the shortest delay);
-    returned as a config of ``high`` = θ, with its metrics."""
+    returned with its metrics."""
     if not thresholds:
         raise CalibrationError("thresholds: need at least one")
     if max_delay is not None and not max_delay > 0:
@@ -503,7 +503,7 @@ def _pick_threshold(
         best = max(allowed, key=lambda i: (objective_key(rows[i], objective), -i))
     else:
         best = min(range(len(rows)), key=lambda i: (rows[i]["delay_mean"], i))
-    return DetectorConfig(high=float(thresholds[best])), rows[best]
+    return float(thresholds[best]), rows[best]
 
 
 def _events_row(events: Sequence[Sequence[BoundaryEvent]], targets: Sequence[np.ndarray],

@@ -55,7 +55,9 @@ from ompn_ros.detect.calibrate import (
     scores_from_p_hats,
     tune_on_labels,
 )
+from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import DurationModelError
+from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import DURATION_MODE, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
 from ompn_ros.train.boundary_head import HeadChoice, fit_and_choose
@@ -155,39 +157,35 @@ class HeadData:
 
 
 def pick_head(online: DetectorConfig, figures: dict[str, float], data: HeadData | None,
-              val_eps: Sequence[Episode]) -> tuple[DetectorConfig, HeadChoice | None]:
-    """The online detector, the boundary head's when its validation alignment is higher (see the
-    module docstring); the head fitted, if any.  ``figures`` gains the head's validation figures."""
+              val_eps: Sequence[Episode], duration: DurationCalibration | None = None, lag: int | None = None,
+              max_delay: float | None = None) -> tuple[DetectorConfig, HeadChoice | None]:
+    """The online detector: the boundary head's decoding when its validation alignment is higher, then
+    mode 'head_hsmm' (with ``duration``'s model and ``lag``) when its alignment is higher still (see the
+    module docstring); the head fitted, if any.  ``figures`` gains their validation figures."""
     if data is None or not data.train_episodes or any(ep.subtask is None for ep in data.train_episodes):
         return online, None
     choice = fit_and_choose(data.train_outputs, data.train_episodes, data.val_outputs, val_eps, data.seed)
-    return prefer_head(online, figures, choice.config, choice.metrics), choice
+    online = prefer(online, figures, HEAD_MODE, choice.config, choice.metrics)
+    if duration is not None and lag is not None:
+        both = tune_head_duration(duration.model, choice.head, data.val_outputs, val_eps, lag, max_delay)
+        online = prefer(online, figures, HEAD_DURATION_MODE, both.config, both.metrics)
+    return online, choice
 
 
-def prefer_head(online: DetectorConfig, figures: dict[str, float], head: DetectorConfig,
-                head_metrics: dict[str, float]) -> DetectorConfig:
-    """``head`` (the boundary head's decoding) when its alignment ``head_metrics`` is higher than that
-    of ``online`` in ``figures``, else ``online``; ``figures`` gains the head's figures."""
-    return _prefer(online, figures, "head", head, head_metrics)
+def tune_head_duration(model: DurationModel, head: BoundaryHead, val_outputs: Sequence[np.ndarray],
+                       val_eps: Sequence[Episode], lag: int, max_delay: float | None) -> DurationCalibration:
+    """Mode 'head_hsmm' over ``head``'s probabilities of the validation outputs, its threshold tuned
+    as the duration decoder's (:func:`~ompn_ros.detect.calibrate.calibrate_head_duration`)."""
+    rows = [head.probabilities(x) for x in val_outputs]
+    return calibrate_head_duration(model, rows, [ep.boundaries for ep in val_eps], lag, "align",
+                                   max_delay=max_delay)
 
 
-def pick_head_duration(online: DetectorConfig, figures: dict[str, float],
-                       duration: DurationCalibration | None, fitted: HeadChoice | None, data: HeadData | None,
-                       val_eps: Sequence[Episode], lag: int | None,
-                       max_delay: float | None) -> DetectorConfig:
-    """The online detector: mode 'head_hsmm' (the duration model over the fitted head, its threshold
-    tuned as the duration decoder's) when its validation alignment is higher than that of ``online``;
-    ``figures`` gains its figures.  ``online`` unchanged without a head, a duration model or a lag."""
-    if duration is None or fitted is None or data is None or lag is None:
-        return online
-    rows = [fitted.head.probabilities(x) for x in data.val_outputs]
-    tuned = calibrate_head_duration(duration.model, rows, [ep.boundaries for ep in val_eps], lag, "align",
-                                    max_delay=max_delay)
-    return _prefer(online, figures, HEAD_DURATION_MODE, tuned.config, tuned.metrics)
-
-
-def _prefer(online: DetectorConfig, figures: dict[str, float], name: str, candidate: DetectorConfig,
-            metrics: dict[str, float]) -> DetectorConfig:
+def prefer(online: DetectorConfig, figures: dict[str, float], name: str, candidate: DetectorConfig,
+           metrics: dict[str, float]) -> DetectorConfig:
+    """``candidate`` (the detector ``name``: 'head' or 'head_hsmm') when its validation alignment in
+    ``metrics`` is higher than that of ``online`` in ``figures``, else ``online``; ``figures`` gains
+    the candidate's figures as ``<name>_val_*``."""
     figures.update({f"{name}_val_{k}": float(metrics[k]) for k in ("align", "f1_tol1", "delay_mean")})
     kind = online.mode if online.mode in (DURATION_MODE, HEAD_MODE, HEAD_DURATION_MODE) else "threshold"
     return candidate if metrics["align"] > figures[f"{kind}_val_align"] else online
@@ -217,8 +215,7 @@ def choose_settings(
         tuned = tune_on_labels(scores, [np.asarray(ep.subtask) for ep in episodes], objective)
         duration = duration_detector(scores, [ep.boundaries for ep in episodes], lag, max_delay)
         online, figures = pick_online(tuned.config, tuned.metrics, duration)
-        online, fitted = pick_head(online, figures, head, episodes)
-        online = pick_head_duration(online, figures, duration, fitted, head, episodes, lag, max_delay)
+        online, fitted = pick_head(online, figures, head, episodes, duration, lag, max_delay)
         offline, min_length = _offline_choice(p_hats, episodes)
         return DetectorSettings(
             online=online,
@@ -292,7 +289,7 @@ __all__ = [
     "duration_detector",
     "objective_for",
     "pick_head",
-    "pick_head_duration",
     "pick_online",
-    "prefer_head",
+    "prefer",
+    "tune_head_duration",
 ]
