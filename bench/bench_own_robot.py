@@ -15,7 +15,7 @@ the recorded ``~/boundary`` events.  Figures:
   (target alignment >= 0.85); ``own_robot_val_*``: the same on the validation split (best checkpoint);
 * ``own_robot_live_align``, ``own_robot_live_f1_tol1``: the live node's boundaries, and
   ``own_robot_live_agree_with_replay``: the fraction of live episodes whose boundaries equal the
-  replay of the same recording;
+  replay of the same recording (those decided before the episode's last step, which both take alike);
 * ``own_robot_train_episodes``, ``own_robot_steps``: what the reader made of the training bag;
 * ``own_robot_<step>_s``: wall time of recording, reading, training, tuning, segmenting and step 5.
 

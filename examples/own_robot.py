@@ -31,6 +31,7 @@ printed as they run::
         -p topics:="['jaco/joint_states','jaco/skill_id','jaco/effort_command','ompn_node/boundary']" &
     ompn_node --ros-args -p checkpoint:=OUT/model/best -p observation_spec:=config/reader_dial_robot.yaml \
         -p episode_gap:=0.5 -p obs_qos:=reliable -p boundary_replay:=none &  # detector: step 4's tuning
+    # (start the sim once the recorder has logged 'subscribed .../ompn_node/boundary')
     dial_sim --ros-args -p profile:=robot -p rate:=25.0 -p joint_states_qos:=reliable \
         -p episodes:=N -p seed:=1000000 -p wait_for_subscribers:=2 -p "wait_topics:=['jaco/joint_states']"
 
@@ -72,8 +73,6 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import ReaderSpec, ReadResult, read_episodes  # noqa: E402
 from ompn_ros.data.episode import Episode  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
-from ompn_ros.detect.online import HEAD_MODE  # noqa: E402
-from ompn_ros.detect.settings import load_detector_settings  # noqa: E402
 from ompn_ros.detect.tune import score_predictions  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402
 
@@ -253,6 +252,8 @@ def live(flow: Flow, checkpoint: Path, env: dict[str, str]) -> Path:
     procs: dict[str, subprocess.Popen[str]] = {}
     try:
         for name, step_argv in (("recorder", rec_argv), ("ompn_node", node_argv), ("dial_sim", sim_argv)):
+            if name == "dial_sim":  # the first boundary must not come before the recorder takes it
+                _wait_subscribed(procs, logs, f"{ns}/{LIVE_BOUNDARY}", flow.timeout_s)
             _show("live", step_argv)
             with logs[name].open("w") as log:  # a file, not a pipe: a chatty node never blocks on it
                 procs[name] = subprocess.Popen(step_argv, env=env, stdout=log, stderr=subprocess.STDOUT,
@@ -280,6 +281,23 @@ def _tail(path: Path) -> str:
     return lines[-1] if lines else ""
 
 
+def _wait_subscribed(procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path], topic: str,
+                     timeout_s: float) -> None:
+    """Until the recorder logs its subscription to ``topic``: it finds topics by discovery, and the
+    node's ``~/boundary`` (volatile here) appears only once the node is configured, so a sim started
+    before that could see its first boundaries published to no recorder."""
+    deadline, line = time.monotonic() + timeout_s, f"subscribed {topic} ["
+    while line not in logs["recorder"].read_text(errors="replace"):
+        for name in ("recorder", "ompn_node"):
+            if procs[name].poll() is not None:
+                raise OwnRobotError(f"live: {name} exited with {procs[name].returncode} before the "
+                                    f"recorder subscribed {topic}: {_tail(logs[name])}")
+        if time.monotonic() > deadline:
+            raise OwnRobotError(f"live: the recorder did not subscribe {topic} within {timeout_s:.0f} s "
+                                f"(see {logs['recorder']})")
+        time.sleep(0.1)
+
+
 def _wait_live(procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path], timeout_s: float) -> None:
     """Until the sim has run its episodes; a recorder or node that exits first fails the step."""
     deadline = time.monotonic() + timeout_s
@@ -297,55 +315,57 @@ def _wait_live(procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path], t
                             f"{_tail(logs['dial_sim'])}")
 
 
-def live_boundaries(bag: Path) -> list[list[int]]:
-    """The node's ``~/boundary`` events in the live bag, one list of steps per episode (an episode
-    ends with its ``final`` event)."""
+def live_boundaries(bag: Path) -> list[list[tuple[int, int]]]:
+    """The node's ``~/boundary`` events in the live bag, one list of (step, decided step) per episode
+    (an episode ends with its ``final`` event)."""
     from rosbags.rosbag2 import Reader
 
-    episodes: list[list[int]] = [[]]
+    episodes: list[list[tuple[int, int]]] = [[]]
     with Reader(bag) as reader:
         conns = [c for c in reader.connections if c.topic.endswith("/" + LIVE_BOUNDARY)]
         for _, _, raw in reader.messages(connections=conns):
             event = decode_subtask_boundary(raw)  # ompn_interfaces/msg/SubtaskBoundary
-            episodes[-1].append(event.step)
+            episodes[-1].append((int(event.step), int(event.decided_step)))
             if event.final:
                 episodes.append([])
     return episodes[:-1] if not episodes[-1] else episodes
 
 
-def as_replayed(steps: Sequence[int], length: int, cut: int = 0) -> list[int]:
+def as_replayed(steps: Sequence[int], length: int) -> list[int]:
     """Live boundary steps as the replay scores them: the node closes an episode at the last step it
     saw (``T``, the final observation, since nothing marks it); the replay closes it at ``T - 1`` and
-    drops a boundary on the final observation.  With ``cut``, the boundaries of the episode's last
-    ``cut`` steps (but the closing one) are left out."""
-    return sorted({s for s in steps if s <= length - 1 - cut} | {length - 1})
+    drops a boundary on the final observation."""
+    return sorted({s for s in steps if s <= length - 1} | {length - 1})
 
 
-def end_steps(checkpoint: Path) -> int:
-    """How many of an episode's last steps the node and the replay may place differently: the boundary
-    head (mode 'head') decides its last ``lag`` steps when the episode closes, and the node, with no
-    marker, closes at the final observation, the replay one step earlier; 0 for the other modes."""
-    online = load_detector_settings(checkpoint).online
-    return int(online.lag) if online.mode == HEAD_MODE else 0
+def decided_alike(events: Sequence[tuple[int, int]], length: int) -> list[int]:
+    """The steps of the boundaries decided at steps ``<= length - 2``: a causal detector has taken the
+    same steps there live and in the replay.  After that the node takes two more (the episode's last
+    step and its final observation), the replay one, and each closes the episode where it stopped, so
+    what is decided then (the boundary head's last ``lag`` steps, the duration decoder's open
+    segments) may differ."""
+    return [step for step, decided in events if decided <= length - 2]
 
 
-def score_live(bag: Path, replay_dir: Path, checkpoint: Path) -> dict[str, Any]:
+def score_live(bag: Path, replay_dir: Path) -> dict[str, Any]:
     """Live boundaries against the skill ids of the same recording (read with the reader spec), and
     per-episode agreement with ``ompn_segment``'s replay of that recording (``replay_dir``) on the
-    boundaries both decide the same way (all but the last :func:`end_steps`)."""
+    boundaries both decide from the same steps (:func:`decided_alike`)."""
     episodes: list[Episode] = read(bag).episodes
     events = live_boundaries(bag)
     if len(events) != len(episodes):
         raise OwnRobotError(f"live: the node ended {len(events)} episodes, the recording has {len(episodes)}")
-    preds = [as_replayed(e, ep.length) for e, ep in zip(events, episodes, strict=True)]
+    preds = [as_replayed([s for s, _ in e], ep.length) for e, ep in zip(events, episodes, strict=True)]
     replayed = json.loads((replay_dir / "boundaries.json").read_text())["episodes"]
-    cut = end_steps(checkpoint)
-    same = sum(as_replayed(p, ep.length, cut) == as_replayed([int(b["step"]) for b in r["boundaries"]],
-                                                             ep.length, cut)
-               for p, r, ep in zip(preds, replayed, episodes, strict=True))
+    differ = {}  # episode index: (live, replay) boundaries where they differ
+    for i, (e, r, ep) in enumerate(zip(events, replayed, episodes, strict=True)):
+        pair = (decided_alike(e, ep.length),
+                decided_alike([(int(b["step"]), int(b["detected_at"])) for b in r["boundaries"]], ep.length))
+        if pair[0] != pair[1]:
+            differ[i] = pair
     scored = score_predictions([np.asarray(p, dtype=np.int64) for p in preds], episodes)
-    return {"episodes": len(episodes), "metrics": scored,
-            "agree_with_replay": same / len(episodes), "boundaries": events}
+    return {"episodes": len(episodes), "metrics": scored, "boundaries": [[s for s, _ in e] for e in events],
+            "agree_with_replay": 1.0 - len(differ) / len(episodes), "differ_from_replay": differ}
 
 
 def _run(argv: list[str], env: dict[str, str], timeout: float, step: str) -> None:
@@ -396,7 +416,7 @@ def run(flow: Flow) -> dict[str, Any]:
     if flow.live:
         live_bag = live(flow, checkpoint, env)
         replay = segment(flow, live_bag, checkpoint, None, env, name="segment_live")  # detector.json
-        live_doc = score_live(live_bag, flow.out / "segment_live", checkpoint)
+        live_doc = score_live(live_bag, flow.out / "segment_live")
         live_doc["replay_metrics"] = replay
         (flow.out / "live.json").write_text(json.dumps(live_doc, indent=1))
         lap("live")

@@ -64,6 +64,16 @@ def test_own_robot_flow(tmp_path: Path, ros_env: dict[str, str]) -> None:
         demo = generate_episode(derive_seed(5 + own.HELDOUT_SEED, i))
         assert np.array_equal(ep.subtask, demo.subtask)  # the ground truth is the sim's
         assert steps and steps[-1] >= ep.length - 1  # the final boundary closes the episode
-    assert live["agree_with_replay"] == 1.0
+    assert live["agree_with_replay"] == 1.0, live["differ_from_replay"]
     assert {"f1_tol1", "align"} <= set(live["metrics"])
     assert all(0.0 <= live["metrics"][k] <= 1.0 for k in ("f1_tol1", "align"))
+
+
+def test_live_and_replay_compared_on_boundaries_decided_from_the_same_steps() -> None:
+    own = _example()
+    # an episode of 10 steps: the replay takes steps 0..9, the node 0..10 (the final observation)
+    live = [(3, 4), (7, 8), (8, 10), (10, 10)]  # (8, 10) decided once the node saw the final observation
+    replay = [(3, 4), (7, 8), (9, 9)]
+    assert own.decided_alike(live, 10) == own.decided_alike(replay, 10) == [3, 7]
+    assert own.as_replayed([s for s, _ in live], 10) == [3, 7, 8, 9]
+    assert own.decided_alike([(2, 4), (7, 8)], 10) != own.decided_alike(replay, 10)  # a real difference shows
