@@ -58,7 +58,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -281,35 +281,34 @@ def _tail(path: Path) -> str:
     return lines[-1] if lines else ""
 
 
+def _wait_until(done: Callable[[], bool], procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path],
+                timeout_s: float, what: str) -> None:
+    """Until ``done()``; a recorder or node that exits first, or the timeout, fails the step."""
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        for name in ("recorder", "ompn_node"):
+            if procs[name].poll() is not None:
+                raise OwnRobotError(f"live: {name} exited with {procs[name].returncode} before {what}: "
+                                    f"{_tail(logs[name])}")
+        if time.monotonic() > deadline:
+            raise OwnRobotError(f"live: {what} took more than {timeout_s:.0f} s")
+        time.sleep(0.1)
+
+
 def _wait_subscribed(procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path], topic: str,
                      timeout_s: float) -> None:
     """Until the recorder logs its subscription to ``topic``: it finds topics by discovery, and the
     node's ``~/boundary`` (volatile here) appears only once the node is configured, so a sim started
     before that could see its first boundaries published to no recorder."""
-    deadline, line = time.monotonic() + timeout_s, f"subscribed {topic} ["
-    while line not in logs["recorder"].read_text(errors="replace"):
-        for name in ("recorder", "ompn_node"):
-            if procs[name].poll() is not None:
-                raise OwnRobotError(f"live: {name} exited with {procs[name].returncode} before the "
-                                    f"recorder subscribed {topic}: {_tail(logs[name])}")
-        if time.monotonic() > deadline:
-            raise OwnRobotError(f"live: the recorder did not subscribe {topic} within {timeout_s:.0f} s "
-                                f"(see {logs['recorder']})")
-        time.sleep(0.1)
+    line = f"subscribed {topic} ["
+    _wait_until(lambda: line in logs["recorder"].read_text(errors="replace"), procs, logs, timeout_s,
+                f"the recorder subscribed {topic} (see {logs['recorder']})")
 
 
 def _wait_live(procs: dict[str, subprocess.Popen[str]], logs: dict[str, Path], timeout_s: float) -> None:
     """Until the sim has run its episodes; a recorder or node that exits first fails the step."""
-    deadline = time.monotonic() + timeout_s
-    while procs["dial_sim"].poll() is None:
-        for name in ("recorder", "ompn_node"):
-            if procs[name].poll() is not None:
-                raise OwnRobotError(f"live: {name} exited with {procs[name].returncode} while the sim ran: "
-                                    f"{_tail(logs[name])}")
-        if time.monotonic() > deadline:
-            raise OwnRobotError(f"live: the sim did not finish within {timeout_s:.0f} s "
-                                f"(see {logs['dial_sim']})")
-        time.sleep(0.2)
+    _wait_until(lambda: procs["dial_sim"].poll() is not None, procs, logs, timeout_s,
+                f"the sim finished (see {logs['dial_sim']})")
     if procs["dial_sim"].returncode != 0:
         raise OwnRobotError(f"live: dial_sim exited with {procs['dial_sim'].returncode}: "
                             f"{_tail(logs['dial_sim'])}")

@@ -20,16 +20,28 @@ from ompn_ros.data.cache import load_arrays
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import ReaderSpec
 
+HUMAN_VARIANTS: dict[str, tuple[str, ...]] = {
+    "human": (),
+    "human_nopauses": ("pause_rate=0", "hesitation_rate=0"),
+    "human_nodetours": ("overshoot_rate=0", "wrong_move_rate=0"),
+}
+"""Human-like demonstrators of the lab: the defaults, and the defaults without one perturbation
+(docs/experiments.md §54)."""
+
 
 def collect_bags(
-    domain: str, partial: bool, episodes: int, seed: int, work: Path, human: bool = False
+    domain: str, partial: bool, episodes: int, seed: int, work: Path, demonstrator: str = "expert"
 ) -> Path:
-    """Seeded demonstrations into ``work/bags/<domain>_<obs>[_human]/`` (reused when already complete).
+    """Seeded demonstrations into ``work/bags/<domain>_<obs>[_<demonstrator>]/`` (reused when already
+    complete).
 
-    ``episodes`` is per task for Craft and in total for Dial.  ``human``: the human-like demonstrator
-    at the domain's defaults instead of the expert.  O(episodes) rollouts.
+    ``episodes`` is per task for Craft and in total for Dial.  ``demonstrator``: 'expert' or a key
+    of :data:`HUMAN_VARIANTS` (the human-like demonstrator with those parameters).  O(episodes)
+    rollouts.
     """
-    suffix = "_human" if human else ""
+    human = demonstrator != "expert"
+    changes = HUMAN_VARIANTS[demonstrator] if human else ()
+    suffix = f"_{demonstrator}" if human else ""
     out = work / "bags" / f"{domain}_{'partial' if partial else 'full'}{suffix}"
     tasks = list(CRAFT_TASKS) if domain == "craft" else ["dial"]
     total = episodes * len(tasks) if domain == "craft" else episodes
@@ -41,6 +53,7 @@ def collect_bags(
             manifest.get("totals", {}).get("episodes") == total
             and settings["seed"] == seed
             and settings.get("demonstrator", "expert") == ("human" if human else "expert")
+            and (not human or settings.get("human") == human_settings(domain, changes).as_dict())
         ):
             print(f"   reusing {out} ({total} episodes)")
             return out
@@ -54,7 +67,7 @@ def collect_bags(
         split_every=max(1, total // 4),
         overwrite=out.exists(),
         progress=sys.stderr.isatty(),
-        human=human_settings(domain, []) if human else None,
+        human=human_settings(domain, changes) if human else None,
         command=[
             "ompn_collect",
             "--domain",
@@ -67,6 +80,7 @@ def collect_bags(
             str(seed),
             *(["--partial"] if partial else []),
             *(["--demonstrator", "human"] if human else []),
+            *[arg for change in changes for arg in ("--human", change)],
         ],
     )
     return out
@@ -101,3 +115,21 @@ def held_out_split(
     if overlap:
         raise ReproduceError(f"split stage: {len(overlap)} episodes are in both train and test")
     return train, test
+
+
+IDLE_TOLERANCE = 0.2
+"""A Craft step is idle when no observation feature moves by this much (features are one-hot; the
+human-like sensor noise has a standard deviation of 0.02)."""
+
+
+def collapse_idle(ep: Episode, tol: float = IDLE_TOLERANCE) -> tuple[Episode, np.ndarray]:
+    """(the episode without its idle steps, the kept steps): step t is idle when observation t + 1
+    differs from observation t by less than ``tol`` in every feature (its action changed nothing);
+    the last step is always kept, and the final observation stays (docs/experiments.md §54)."""
+    moved = np.abs(np.diff(ep.observations, axis=0)).max(axis=1) >= tol
+    moved[-1] = True
+    kept = np.flatnonzero(moved)
+    subtask = None if ep.subtask is None else ep.subtask[kept]
+    short = Episode(np.concatenate([ep.observations[kept], ep.observations[-1:]]), ep.actions[kept], subtask,
+                    ep.sketch, ep.task, ep.seed, ep.success)
+    return short, kept

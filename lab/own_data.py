@@ -64,13 +64,13 @@ from ompn_ros.train.precision import cpu_model
 from ompn_ros.train.restart import read_attempt, read_record
 from ompn_ros.train.trainer import train, train_val_episodes
 
-from .data import collect_bags, held_out_split
+from .data import HUMAN_VARIANTS, collapse_idle, collect_bags, held_out_split
 from .report import write_readme
 from .report_own import OWN_DATA
 from .strip import strip_bags
 
 Study = Literal["labels", "final_observation", "length", "demonstrator"]
-Demonstrator = Literal["expert", "human"]
+Demonstrator = Literal["expert", "human", "human_nopauses", "human_nodetours"]
 Bags = Literal["complete", "drop_last_step", "duplicate", "blank", "extrapolate"]
 Length = Literal["patience", "fixed"]
 DATA_SEED = 0
@@ -97,11 +97,14 @@ class Arm:
     restart: bool = True
     """False: the restart rule off (``train.restart_at: 0``), to see what a restarted run would have
     become."""
+    idle: bool = True
+    """False: the training and validation episodes lose their idle steps (:func:`lab.data.collapse_idle`,
+    docs/experiments.md §54); the test episodes keep them."""
 
     @property
     def data(self) -> str:
         """The bag set: ``<domain>_<full|partial>[_human]``."""
-        suffix = "_human" if self.demonstrator == "human" else ""
+        suffix = "" if self.demonstrator == "expert" else f"_{self.demonstrator}"
         return f"{self.domain}_{'partial' if self.partial else 'full'}{suffix}"
 
 
@@ -178,6 +181,13 @@ def _arms() -> dict[str, Arm]:
     for seed in (11, 12):  # the complete arms whose first initialisation the restart rule abandoned
         arms.append(Arm(f"human_craft_full_complete_norestart_seed{seed}", "demonstrator", "craft",
                         length="fixed", seed=seed, demonstrator="human", restart=False))
+    # the human-like demonstrator without one perturbation: which one costs the training (§54)
+    for seed in range(10, 15):
+        for variant in ("nopauses", "nodetours"):
+            arms.append(Arm(f"human_craft_full_{variant}_seed{seed}", "demonstrator", "craft", length="fixed",
+                            seed=seed, demonstrator=f"human_{variant}"))  # type: ignore[arg-type]
+        arms.append(Arm(f"human_craft_full_noidle_seed{seed}", "demonstrator", "craft", length="fixed",
+                        seed=seed, demonstrator="human", idle=False))
     for seed in range(5, 10):
         arms += [
             Arm(f"human_dial_complete_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
@@ -228,7 +238,7 @@ def _key(ep: Episode) -> tuple[str, int]:
 def arm_data(arm: Arm, work: Path) -> tuple[list[Episode], list[Episode]]:
     """(train pool, test): the reproduction's split of the complete bags; for stripped arms the
     pool's episodes are taken, in the same order, from the stripped copy read with the arm's option."""
-    human = arm.demonstrator == "human"
+    human = arm.demonstrator != "expert"
     complete = read_episodes(work / "bags" / arm.data, arm.domain, work / "cache", lenient=human)
     pool, test = held_out_split(complete, DEFAULT_TEST_RATIO, DATA_SEED)
     if arm.bags == "complete":
@@ -358,6 +368,8 @@ def run_arm(
     """Train (or, with ``checkpoint``, reuse a run trained with the same config) and score one arm;
     writes ``<work>/arms/<arm>.json`` and returns its row."""
     pool, test = arm_data(arm, work)
+    if not arm.idle:
+        pool = [collapse_idle(ep)[0] for ep in pool]
     _, cfg = arm_configs(arm, work, threads)
     info: dict[str, Any]
     if arm.last_of and checkpoint is None:
@@ -388,6 +400,7 @@ def run_arm(
         "seed": arm.seed,
         "demonstrator": arm.demonstrator,
         **({} if arm.restart else {"restart": False}),
+        **({} if arm.idle else {"idle_steps": "collapsed in training"}),
         **({"candidates_trained": arm.candidates} if arm.candidates > 1 else {}),
         **info,
     }
@@ -456,7 +469,7 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
         raise ReproduceError(f"no arm results under {work / 'arms'}")
     episodes: dict[str, dict[str, int]] = {}
     for row in rows:  # one entry per bag set, and one more per other number of episodes read from it
-        human = "_human" if row.get("demonstrator") == "human" else ""
+        human = "" if row.get("demonstrator", "expert") == "expert" else f"_{row['demonstrator']}"
         data = f"{row['domain']}_{row['observation']}{human}"
         split = {"train": row["train_episodes"], "val": row["val_episodes"], "test": row["test_episodes"]}
         first = episodes.setdefault(data, split)
@@ -497,7 +510,7 @@ def _parser() -> argparse.ArgumentParser:
         "collect", help="collect the seeded demonstrations of a bag set (reproduction defaults)"
     )
     p.add_argument("data", choices=[f"{d}{h}" for d in ("craft_full", "craft_partial", "dial_full")
-                                    for h in ("", "_human")])
+                                    for h in ("", *(f"_{v}" for v in HUMAN_VARIANTS))])
     p.add_argument(
         "--episodes", type=int, default=0, help="per task for Craft, in total for Dial (0 = default)"
     )
@@ -524,9 +537,10 @@ def _parser() -> argparse.ArgumentParser:
 def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str:
     """Run the sub-command ``args.command``; return what it prints."""
     if args.command == "collect":
-        domain, obs, *human = args.data.split("_")
+        domain, obs, *human = args.data.split("_", 2)
         episodes = args.episodes or DEFAULT_EPISODES[domain]
-        return collect_bags(domain, obs == "partial", episodes, DATA_SEED, args.work, bool(human))
+        demonstrator = human[0] if human else "expert"
+        return collect_bags(domain, obs == "partial", episodes, DATA_SEED, args.work, demonstrator)
     if args.command == "strip":
         return strip_arm_bags(args.work, args.data)
     if args.command == "run":

@@ -108,7 +108,8 @@ def _best_of(row: OwnDataRow) -> str:
 def _setting(row: OwnDataRow) -> str:
     name = "Craft" if row["domain"] == "craft" else "Dial"
     obs = f" {row['observation']}" if row["domain"] == "craft" else ""
-    human = ", human-like" if row.get("demonstrator") == "human" else ""
+    human = {"expert": "", "human": ", human-like"}.get(row.get("demonstrator", "expert"),
+                                                        f", {row.get('demonstrator')}")
     last = ", last checkpoint" if row.get("checkpoint") == "last" else ""
     rule = ", no restart rule" if row.get("restart") is False else ""
     if row.get("restart_abandoned"):

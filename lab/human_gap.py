@@ -1,0 +1,153 @@
+"""Where the human-like gap comes from (docs/experiments.md §54, #36 item 5): what each perturbation of
+the human-like demonstrator costs a trained model, and whether the gap lies in segmenting human-like
+episodes or in learning from them.
+
+``quirks``: one checkpoint (default: the domain's shipped one) on held-out episodes of the expert, of
+the human-like demonstrator at its defaults, of each perturbation alone and of the defaults without
+each one.  ``cross``: own-data runs (:mod:`lab.own_data`) trained on expert or on human-like
+demonstrations, each on the same held-out expert and human-like episodes, and (Craft) on the
+human-like ones with their idle steps collapsed (:func:`collapse_idle`: a measurement of what a
+model input without pauses would give, not a product feature).  Offline figures, the
+domain's primary detector (Top-K for Craft, the automatic threshold for Dial), teacher-forced from
+generated episodes (no bags: dropped and duplicated messages, which only a bag shows, are left out).
+Held-out episodes are seeds ``60000 +`` (tasks in turn), used by no run and no tuning.
+
+    python -m lab.human_gap quirks --domain craft
+    python -m lab.human_gap cross --work runs/own_data final_craft_full_complete_seed10 \\
+        human_craft_full_complete_seed10
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from lab.data import collapse_idle
+from lab.own_data import arm_by_name
+from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.data.episode import Episode
+from ompn_ros.detect.offline import top_k_boundaries
+from ompn_ros.metrics import alignment_accuracy, mean_f1
+from ompn_ros.model.checkpoint import load_checkpoint
+from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
+from sim_nodes.human import parse_human
+from sim_nodes.registry import default_tasks, expert_episode
+
+SEED_BASE = 60000
+_OFF = {"pauses": ("pause_rate=0", "hesitation_rate=0"), "hesitations": ("hesitation_rate=0",),
+        "detours": ("overshoot_rate=0", "wrong_move_rate=0"), "noise": ("sensor_noise=0",),
+        "tempo": ("speed_range=1:1",)}
+_MESSAGES = ("drop_rate=0", "duplicate_rate=0")
+def perturbations(domain: str) -> tuple[str, ...]:
+    """The perturbations studied in ``domain`` (Craft has one cell per step: no tempo)."""
+    return tuple(p for p in _OFF if domain == "dial" or p != "tempo")
+
+
+def families(domain: str) -> dict[str, tuple[str, ...] | None]:
+    """Family name: the human-like parameters changed from the defaults (None: the expert)."""
+    names = perturbations(domain)
+    out: dict[str, tuple[str, ...] | None] = {"expert": None, "human-like": ()}
+    for name in names:
+        others = [o for n in names if n != name for o in _OFF[n] if o not in _OFF[name]]
+        out[f"{name} only"] = (*others, *_MESSAGES)
+        out[f"human-like without {name}"] = _OFF[name]
+    return out
+
+
+def episodes(domain: str, changes: tuple[str, ...] | None, count: int,
+             partial: bool = False) -> list[Episode]:
+    tasks = default_tasks(domain)
+    like = None if changes is None else parse_human(domain, changes)
+    return [expert_episode(domain, SEED_BASE + i, task=tasks[i % len(tasks)], partial=partial, human=like)
+            for i in range(count)]
+
+
+def figures(policy: Any, eps: Sequence[Episode]) -> dict[str, float]:
+    """Offline alignment and F1@1 (the domain's primary detector), mean episode length and, for
+    discrete actions, action accuracy (%)."""
+    got = evaluate(policy, eps, keep_p_hat=False)
+    out = {"align": round(100 * got["align"], 1), "f1_tol1": round(100 * got["f1_tol1"], 1),
+           "mean_steps": round(sum(e.length for e in eps) / len(eps), 1)}
+    if "accuracy" in got and got["accuracy"] == got["accuracy"]:  # discrete actions only
+        out["accuracy"] = round(100 * float(got["accuracy"]), 1)
+    return out
+
+
+def collapsed_figures(policy: Any, eps: Sequence[Episode]) -> dict[str, float]:
+    """Top-K on the episodes without their idle steps, each boundary mapped back to its step and
+    scored against the full episode's labels (Craft)."""
+    short = [collapse_idle(ep) for ep in eps]
+    p_hats, _ = teacher_forced_p_hat(policy, [s for s, _ in short])
+    preds = [np.unique(np.append(kept[top_k_boundaries(p, len(ep.boundaries))], ep.length - 1))
+             for p, (_, kept), ep in zip(p_hats, short, eps, strict=True)]
+    labels = [np.asarray(ep.subtask) for ep in eps]
+    kept_share = sum(len(k) for _, k in short) / sum(ep.length for ep in eps)
+    return {"align": round(100 * alignment_accuracy(preds, labels, variant="authors"), 1),
+            "f1_tol1": round(100 * mean_f1(preds, [ep.boundaries for ep in eps], 1).f1, 1),
+            "idle_share": round(100 * (1.0 - kept_share), 1)}
+
+
+def quirks(domain: str, checkpoint: Path, count: int, partial: bool) -> list[dict[str, Any]]:
+    policy, _ = load_checkpoint(checkpoint)
+    return [{"domain": domain, "checkpoint": str(checkpoint), "family": name, "episodes": count,
+             **figures(policy, episodes(domain, changes, count, partial))}
+            for name, changes in families(domain).items()]
+
+
+def default_count(domain: str) -> int:
+    """Held-out episodes per family: Craft 150, Dial 60 (Dial's episodes are 7-10 times longer)."""
+    return 150 if domain == "craft" else 60
+
+
+def cross(work: Path, arms: Sequence[str], count: int | None) -> list[dict[str, Any]]:
+    """One row per own-data run: its figures on held-out expert and human-like episodes of its
+    domain and observation (``count`` each, default :func:`default_count`)."""
+    rows, held = [], {}
+    for name in arms:
+        arm = arm_by_name(name)
+        key, n = (arm.domain, arm.partial), count or default_count(arm.domain)
+        if key not in held:
+            held[key] = {family: episodes(arm.domain, changes, n, arm.partial)
+                         for family, changes in (("expert", None), ("human-like", ()))}
+        policy, _ = load_checkpoint(work / "runs" / name / "best")
+        row = {"arm": name, "trained_on": arm.demonstrator, "episodes": n,
+               **{family: figures(policy, eps) for family, eps in held[key].items()}}
+        if arm.domain == "craft":
+            row["human-like, idle steps collapsed"] = collapsed_figures(policy, held[key]["human-like"])
+        rows.append(row)
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="study", required=True)
+    q = sub.add_parser("quirks", help="one checkpoint on each perturbation family")
+    q.add_argument("--domain", choices=("craft", "dial"), default="craft")
+    q.add_argument("--checkpoint", type=Path, default=None, help="default: the domain's shipped checkpoint")
+    q.add_argument("--partial", action="store_true", help="Craft's partial observation")
+    c = sub.add_parser("cross", help="own-data runs on expert and human-like held-out episodes")
+    c.add_argument("--work", type=Path, required=True)
+    c.add_argument("arms", nargs="+")
+    for p in (q, c):
+        p.add_argument("--episodes", type=int, default=None, help="held-out episodes (Craft 150, Dial 60)")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    if args.study == "quirks":
+        count = args.episodes or default_count(args.domain)
+        rows = quirks(args.domain, args.checkpoint or shipped_checkpoint(args.domain), count, args.partial)
+    else:
+        rows = cross(args.work, args.arms, args.episodes)
+    for row in rows:
+        print(json.dumps(row), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
