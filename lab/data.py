@@ -122,11 +122,14 @@ IDLE_TOLERANCE = 0.2
 human-like sensor noise has a standard deviation of 0.02)."""
 
 
-def collapse_idle(ep: Episode, tol: float = IDLE_TOLERANCE) -> tuple[Episode, np.ndarray]:
+def collapse_idle(ep: Episode, tol: float = IDLE_TOLERANCE, features: int | None = None
+                  ) -> tuple[Episode, np.ndarray]:
     """(the episode without its idle steps, the kept steps): step t is idle when observation t + 1
-    differs from observation t by less than ``tol`` in every feature (its action changed nothing);
-    the last step is always kept, and the final observation stays (docs/experiments.md §54)."""
-    moved = np.abs(np.diff(ep.observations, axis=0)).max(axis=1) >= tol
+    differs from observation t by less than ``tol`` in every feature (the first ``features`` only,
+    when given): its action changed nothing.  The last step is always kept, and the final
+    observation stays (docs/experiments.md §54)."""
+    watched = ep.observations if features is None else ep.observations[:, :features]
+    moved = np.abs(np.diff(watched, axis=0)).max(axis=1) >= tol
     moved[-1] = True
     kept = np.flatnonzero(moved)
     subtask = None if ep.subtask is None else ep.subtask[kept]

@@ -7,7 +7,9 @@ the human-like demonstrator at its defaults, of each perturbation alone and of t
 each one.  ``cross``: own-data runs (:mod:`lab.own_data`) trained on expert or on human-like
 demonstrations, each on the same held-out expert and human-like episodes, and (Craft) on the
 human-like ones with their idle steps collapsed (:func:`collapse_idle`: a measurement of what a
-model input without pauses would give, not a product feature).  Offline figures, the
+model input without pauses would give, not a product feature).  ``collapse``: one checkpoint on
+held-out expert and human-like episodes with their idle steps collapsed at given tolerances (Dial:
+on the joint angles, ``--features 9``).  Offline figures, the
 domain's primary detector (Top-K for Craft, the automatic threshold for Dial), teacher-forced from
 generated episodes (no bags: dropped and duplicated messages, which only a bag shows, are left out).
 Held-out episodes are seeds ``60000 +`` (tasks in turn), used by no run and no tuning.
@@ -15,6 +17,7 @@ Held-out episodes are seeds ``60000 +`` (tasks in turn), used by no run and no t
     python -m lab.human_gap quirks --domain craft
     python -m lab.human_gap cross --work runs/own_data final_craft_full_complete_seed10 \\
         human_craft_full_complete_seed10
+    python -m lab.human_gap collapse --domain dial --tolerance 0.004 0.006 --features 9
 """
 
 from __future__ import annotations
@@ -29,11 +32,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from lab.data import collapse_idle
+from lab.data import IDLE_TOLERANCE, collapse_idle
 from lab.own_data import arm_by_name
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.offline import top_k_boundaries
+from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
@@ -80,18 +83,38 @@ def figures(policy: Any, eps: Sequence[Episode]) -> dict[str, float]:
     return out
 
 
-def collapsed_figures(policy: Any, eps: Sequence[Episode]) -> dict[str, float]:
-    """Top-K on the episodes without their idle steps, each boundary mapped back to its step and
-    scored against the full episode's labels (Craft)."""
-    short = [collapse_idle(ep) for ep in eps]
+def _boundaries(domain: str, p_hat: np.ndarray, k: int) -> np.ndarray:
+    """The domain's primary offline detector: Top-K (Craft), the automatic threshold (Dial)."""
+    return top_k_boundaries(p_hat, k) if domain == "craft" else auto_threshold_boundaries(p_hat, k)[0]
+
+
+def collapsed_figures(policy: Any, eps: Sequence[Episode], domain: str = "craft",
+                      tol: float = IDLE_TOLERANCE, features: int | None = None) -> dict[str, float]:
+    """The primary detector on the episodes without their idle steps (:func:`collapse_idle`), each
+    boundary mapped back to its step and scored against the full episode's labels."""
+    short = [collapse_idle(ep, tol, features) for ep in eps]
     p_hats, _ = teacher_forced_p_hat(policy, [s for s, _ in short])
-    preds = [np.unique(np.append(kept[top_k_boundaries(p, len(ep.boundaries))], ep.length - 1))
+    preds = [np.unique(np.append(kept[_boundaries(domain, p, len(ep.boundaries))], ep.length - 1))
              for p, (_, kept), ep in zip(p_hats, short, eps, strict=True)]
     labels = [np.asarray(ep.subtask) for ep in eps]
     kept_share = sum(len(k) for _, k in short) / sum(ep.length for ep in eps)
     return {"align": round(100 * alignment_accuracy(preds, labels, variant="authors"), 1),
             "f1_tol1": round(100 * mean_f1(preds, [ep.boundaries for ep in eps], 1).f1, 1),
             "idle_share": round(100 * (1.0 - kept_share), 1)}
+
+
+def collapse(domain: str, checkpoint: Path, count: int, tols: Sequence[float],
+             features: int | None) -> list[dict[str, Any]]:
+    """The checkpoint on held-out expert and human-like episodes, as they are and with their idle
+    steps collapsed at each tolerance."""
+    policy, _ = load_checkpoint(checkpoint)
+    rows = []
+    for family in ("expert", "human-like"):
+        eps = episodes(domain, families(domain)[family], count)
+        rows.append({"domain": domain, "family": family, "as_is": figures(policy, eps),
+                     "collapsed": {str(t): collapsed_figures(policy, eps, domain, t, features) for t in tols},
+                     "features": features})
+    return rows
 
 
 def quirks(domain: str, checkpoint: Path, count: int, partial: bool) -> list[dict[str, Any]]:
@@ -135,13 +158,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     c = sub.add_parser("cross", help="own-data runs on expert and human-like held-out episodes")
     c.add_argument("--work", type=Path, required=True)
     c.add_argument("arms", nargs="+")
-    for p in (q, c):
+    k = sub.add_parser("collapse", help="one checkpoint on held-out episodes with idle steps collapsed")
+    k.add_argument("--domain", choices=("craft", "dial"), default="craft")
+    k.add_argument("--checkpoint", type=Path, default=None, help="default: the domain's shipped checkpoint")
+    k.add_argument("--tolerance", type=float, nargs="+", default=[IDLE_TOLERANCE])
+    k.add_argument("--features", type=int, default=None, help="watch the first N features only")
+    for p in (q, c, k):
         p.add_argument("--episodes", type=int, default=None, help="held-out episodes (Craft 150, Dial 60)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.study == "quirks":
         count = args.episodes or default_count(args.domain)
         rows = quirks(args.domain, args.checkpoint or shipped_checkpoint(args.domain), count, args.partial)
+    elif args.study == "collapse":
+        rows = collapse(args.domain, args.checkpoint or shipped_checkpoint(args.domain),
+                        args.episodes or default_count(args.domain), args.tolerance, args.features)
     else:
         rows = cross(args.work, args.arms, args.episodes)
     for row in rows:

@@ -186,8 +186,10 @@ def _arms() -> dict[str, Arm]:
         for variant in ("nopauses", "nodetours"):
             arms.append(Arm(f"human_craft_full_{variant}_seed{seed}", "demonstrator", "craft", length="fixed",
                             seed=seed, demonstrator=f"human_{variant}"))  # type: ignore[arg-type]
-        arms.append(Arm(f"human_craft_full_noidle_seed{seed}", "demonstrator", "craft", length="fixed",
-                        seed=seed, demonstrator="human", idle=False))
+        for partial in (False, True):
+            obs = "partial" if partial else "full"
+            arms.append(Arm(f"human_craft_{obs}_noidle_seed{seed}", "demonstrator", "craft", partial=partial,
+                            length="fixed", seed=seed, demonstrator="human", idle=False))
     for seed in range(5, 10):
         arms += [
             Arm(f"human_dial_complete_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,

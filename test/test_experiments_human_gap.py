@@ -36,7 +36,7 @@ def test_the_variant_arms_train_on_their_own_bag_sets() -> None:
     assert all(a.data == f"craft_full_{a.demonstrator}" for a in variants)
     assert ARMS["human_craft_full_complete_seed10"].data == "craft_full_human"
     noidle = [a for a in ARMS.values() if not a.idle]
-    assert noidle and all(a.data == "craft_full_human" and a.domain == "craft" for a in noidle)
+    assert {a.data for a in noidle} == {"craft_full_human", "craft_partial_human"}
 
 
 def test_quirks_scores_the_shipped_craft_checkpoint() -> None:
@@ -64,3 +64,17 @@ def test_collapse_idle_drops_the_steps_whose_action_changed_nothing() -> None:
     assert kept.tolist() == [0, 3, 4]  # steps 1 and 2 idle (observations 1-3 equal); the last kept
     assert short.length == 3 and short.actions.tolist() == [0, 1, 4] and short.subtask.tolist() == [0, 1, 1]
     assert np.array_equal(short.observations[-1], obs[-1])
+
+
+def test_collapse_idle_can_watch_the_first_features_only() -> None:
+    import numpy as np
+
+    from lab.data import collapse_idle
+    from ompn_ros.data.episode import Episode
+
+    obs = np.zeros((4, 3), dtype=np.float32)
+    obs[:, 2] = [0.0, 1.0, 2.0, 3.0]  # an unwatched feature moves every step
+    obs[2:, 0] = 1.0  # the watched one moves once, between observations 1 and 2
+    ep = Episode(obs, np.zeros(3, dtype=np.int64))
+    assert collapse_idle(ep, 0.5)[1].tolist() == [0, 1, 2]
+    assert collapse_idle(ep, 0.5, features=2)[1].tolist() == [1, 2]
