@@ -41,7 +41,8 @@ bursts would lose messages.  A real arm publishing at its own rate needs neither
 sim at 25 Hz (real time, ``--live-rate``).  Live, the node cannot know that a JointState is an
 episode's last one: it closes the episode at the last step it saw (``T``, the final observation),
 which is scored as ``T - 1`` exactly as ``ompn_segment``'s replay closes it; the live boundaries are
-compared with ``ompn_segment`` on the same live recording (the offline replay of the same stream).
+compared with ``ompn_segment`` on the same live recording (the offline replay of the same stream) on
+those decided before the episode's last step, which both take alike (:func:`decided_alike`).
 
 Run: ``python examples/own_robot.py --out runs/own_robot [--episodes 300 --heldout 50]`` (or
 ``examples/own_robot.sh``).  Every process runs DDS on loopback and shared memory only

@@ -103,7 +103,7 @@ class Arm:
 
     @property
     def data(self) -> str:
-        """The bag set: ``<domain>_<full|partial>[_human]``."""
+        """The bag set: ``<domain>_<full|partial>[_<demonstrator>]`` (none for the expert)."""
         suffix = "" if self.demonstrator == "expert" else f"_{self.demonstrator}"
         return f"{self.domain}_{'partial' if self.partial else 'full'}{suffix}"
 
