@@ -15,11 +15,16 @@ HEAD = "boundary_head.json"
 HEAD_DURATION = "head_duration.json"
 
 
-def _online(means: dict[str, float] | None) -> str:
+def _figures(means: dict[str, float] | None, f1: str = "f1_tol1", align: str = "align") -> str:
+    """F1@1 / alignment, mean delay and share at the episode end of one online detector ('–': none)."""
     if means is None:
         return "–"
-    return (f"{pair(means['online_f1_1'], means['online_align'])}, {means['delay_mean']:.1f} steps, "
+    return (f"{pair(means[f1], means[align])}, {means['delay_mean']:.1f} steps, "
             f"{pct(means['at_end_share'])} % at end")
+
+
+def _online(means: dict[str, float] | None) -> str:
+    return _figures(means, "online_f1_1", "online_align")
 
 
 def _line(row: dict[str, Any]) -> str:
@@ -59,13 +64,6 @@ def head_markdown(results_dir: Path, level: int = 2) -> list[str]:
                         ("family", "role", "runs", "offline", "bundled", "decoder ≤ 6", "head, labels",
                          "head, Top-K", "chosen on validation"),
                         lambda doc: (_line(row) for row in doc["families"]), level)
-
-
-def _figures(means: dict[str, float] | None) -> str:
-    if means is None:
-        return "–"
-    return (f"{pair(means['f1_tol1'], means['align'])}, {means['delay_mean']:.1f} steps, "
-            f"{pct(means['at_end_share'])} % at end")
 
 
 def _duration_line(row: dict[str, Any]) -> str:
