@@ -9,7 +9,9 @@ demonstrations, each on the same held-out expert and human-like episodes, and (C
 human-like ones with their idle steps collapsed (:func:`collapse_idle`: a measurement of what a
 model input without pauses would give, not a product feature).  ``collapse``: one checkpoint on
 held-out expert and human-like episodes with their idle steps collapsed at given tolerances (Dial:
-on the joint angles, ``--features 9``).  Offline figures, the
+on the joint angles, ``--features 9``).  ``replayed``: own-data runs as the product runs them, offline
+and online from the node's replay (the only scoring for a run with ``model.still_tolerance``, §55).
+Otherwise offline figures, the
 domain's primary detector (Top-K for Craft, the automatic threshold for Dial), teacher-forced from
 generated episodes (no bags: dropped and duplicated messages, which only a bag shows, are left out).
 Held-out episodes are seeds ``60000 +`` (tasks in turn), used by no run and no tuning.
@@ -18,6 +20,7 @@ Held-out episodes are seeds ``60000 +`` (tasks in turn), used by no run and no t
     python -m lab.human_gap cross --work runs/own_data final_craft_full_complete_seed10 \\
         human_craft_full_complete_seed10
     python -m lab.human_gap collapse --domain dial --tolerance 0.004 0.006 --features 9
+    python -m lab.human_gap replayed --work runs/own_data human_craft_full_still_seed10
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +37,7 @@ import torch
 
 from lab.data import IDLE_TOLERANCE, collapse_idle
 from lab.own_data import arm_by_name
+from lab.replayed import replayed_figures
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
@@ -129,21 +133,47 @@ def default_count(domain: str) -> int:
     return 150 if domain == "craft" else 60
 
 
+def held_out(domain: str, partial: bool, count: int) -> dict[str, list[Episode]]:
+    """The held-out expert and human-like episodes of a domain and observation (seeds ``SEED_BASE +``)."""
+    return {family: episodes(domain, changes, count, partial)
+            for family, changes in (("expert", None), ("human-like", ()))}
+
+
+def arms_held_out(arms: Sequence[str], count: int | None) -> Iterator[tuple[Any, dict[str, list[Episode]]]]:
+    """Each own-data arm with the held-out expert and human-like episodes of its domain and observation
+    (``count`` each, default :func:`default_count`), generated once per domain and observation."""
+    held: dict[tuple[str, bool], dict[str, list[Episode]]] = {}
+    for name in arms:
+        arm = arm_by_name(name)
+        key = (arm.domain, arm.partial)
+        if key not in held:
+            held[key] = held_out(arm.domain, arm.partial, count or default_count(arm.domain))
+        yield arm, held[key]
+
+
+def replayed(work: Path, arms: Sequence[str], count: int | None) -> list[dict[str, Any]]:
+    """One row per own-data run: offline and online figures as the product gives them
+    (:func:`lab.replayed.replayed_figures`: the node's replay with ``ompn_train``'s detector), on the
+    held-out expert and human-like episodes of its domain and observation (§55)."""
+    rows = []
+    for arm, held in arms_held_out(arms, count):
+        checkpoint = work / "runs" / arm.name / "best"
+        scored = {family: replayed_figures(checkpoint, arm.domain, eps) for family, eps in held.items()}
+        rows.append({"arm": arm.name, "trained_on": arm.demonstrator, "still_tolerance": arm.still,
+                     "episodes": len(held["expert"]), **scored})
+    return rows
+
+
 def cross(work: Path, arms: Sequence[str], count: int | None) -> list[dict[str, Any]]:
     """One row per own-data run: its figures on held-out expert and human-like episodes of its
     domain and observation (``count`` each, default :func:`default_count`)."""
-    rows, held = [], {}
-    for name in arms:
-        arm = arm_by_name(name)
-        key, n = (arm.domain, arm.partial), count or default_count(arm.domain)
-        if key not in held:
-            held[key] = {family: episodes(arm.domain, changes, n, arm.partial)
-                         for family, changes in (("expert", None), ("human-like", ()))}
-        policy, _ = load_checkpoint(work / "runs" / name / "best")
-        row = {"arm": name, "trained_on": arm.demonstrator, "episodes": n,
-               **{family: figures(policy, eps) for family, eps in held[key].items()}}
+    rows = []
+    for arm, held in arms_held_out(arms, count):
+        policy, _ = load_checkpoint(work / "runs" / arm.name / "best")
+        row = {"arm": arm.name, "trained_on": arm.demonstrator, "episodes": len(held["expert"]),
+               **{family: figures(policy, eps) for family, eps in held.items()}}
         if arm.domain == "craft":
-            row["human-like, idle steps collapsed"] = collapsed_figures(policy, held[key]["human-like"])
+            row["human-like, idle steps collapsed"] = collapsed_figures(policy, held["human-like"])
         rows.append(row)
     return rows
 
@@ -158,12 +188,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     c = sub.add_parser("cross", help="own-data runs on expert and human-like held-out episodes")
     c.add_argument("--work", type=Path, required=True)
     c.add_argument("arms", nargs="+")
+    r = sub.add_parser("replayed", help="own-data runs through the node's replay (offline and online)")
+    r.add_argument("--work", type=Path, required=True)
+    r.add_argument("arms", nargs="+")
     k = sub.add_parser("collapse", help="one checkpoint on held-out episodes with idle steps collapsed")
     k.add_argument("--domain", choices=("craft", "dial"), default="craft")
     k.add_argument("--checkpoint", type=Path, default=None, help="default: the domain's shipped checkpoint")
     k.add_argument("--tolerance", type=float, nargs="+", default=[IDLE_TOLERANCE])
     k.add_argument("--features", type=int, default=None, help="watch the first N features only")
-    for p in (q, c, k):
+    for p in (q, c, r, k):
         p.add_argument("--episodes", type=int, default=None, help="held-out episodes (Craft 150, Dial 60)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -173,6 +206,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif args.study == "collapse":
         rows = collapse(args.domain, args.checkpoint or shipped_checkpoint(args.domain),
                         args.episodes or default_count(args.domain), args.tolerance, args.features)
+    elif args.study == "replayed":
+        rows = replayed(args.work, args.arms, args.episodes)
     else:
         rows = cross(args.work, args.arms, args.episodes)
     for row in rows:

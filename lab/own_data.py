@@ -64,7 +64,8 @@ from ompn_ros.train.precision import cpu_model
 from ompn_ros.train.restart import read_attempt, read_record
 from ompn_ros.train.trainer import train, train_val_episodes
 
-from .data import HUMAN_VARIANTS, collapse_idle, collect_bags, held_out_split
+from .data import HUMAN_VARIANTS, IDLE_TOLERANCE, collapse_idle, collect_bags, held_out_split
+from .replayed import replayed_figures
 from .report import write_readme
 from .report_own import OWN_DATA
 from .strip import strip_bags
@@ -100,12 +101,20 @@ class Arm:
     idle: bool = True
     """False: the training and validation episodes lose their idle steps (:func:`lab.data.collapse_idle`,
     docs/experiments.md §54); the test episodes keep them."""
+    still: float = 0.0
+    """``model.still_tolerance``: the product's rule for still observations (:mod:`ompn_ros.data.still`),
+    applied by ``ompn_train`` and every replay; the run is scored through the node's replay."""
 
     @property
     def data(self) -> str:
         """The bag set: ``<domain>_<full|partial>[_<demonstrator>]`` (none for the expert)."""
         suffix = "" if self.demonstrator == "expert" else f"_{self.demonstrator}"
         return f"{self.domain}_{'partial' if self.partial else 'full'}{suffix}"
+
+
+STILL_TOLERANCE = IDLE_TOLERANCE
+"""``model.still_tolerance`` of the still arms: Craft's observation elements are 0/1 and its human-like
+sensor noise stays far below 0.2 (the tolerance of the §54 measurement, not tuned on any score)."""
 
 
 def _arms() -> dict[str, Arm]:
@@ -190,6 +199,9 @@ def _arms() -> dict[str, Arm]:
             obs = "partial" if partial else "full"
             arms.append(Arm(f"human_craft_{obs}_noidle_seed{seed}", "demonstrator", "craft", partial=partial,
                             length="fixed", seed=seed, demonstrator="human", idle=False))
+            # the same through the product's model.still_tolerance (§55)
+            arms.append(Arm(f"human_craft_{obs}_still_seed{seed}", "demonstrator", "craft", partial=partial,
+                            length="fixed", seed=seed, demonstrator="human", still=STILL_TOLERANCE))
     for seed in range(5, 10):
         arms += [
             Arm(f"human_dial_complete_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
@@ -269,7 +281,8 @@ def arm_configs(arm: Arm, work: Path, threads: int) -> tuple[Any, TrainConfig]:
     if not arm.restart:
         base["train"]["restart_at"] = 0
     spec = RunSpec(domain=arm.domain, setting=setting, seed=arm.seed)
-    return build_configs(spec, base, work / "runs" / arm.name)
+    model, train = build_configs(spec, base, work / "runs" / arm.name)
+    return (replace(model, still_tolerance=arm.still) if arm.still else model), train
 
 
 def train_arm(
@@ -340,6 +353,11 @@ def score_arm(
     """Held-out scores of ``checkpoint``: offline (the paper's detector), online with the detector
     tuned on the validation labels and online with the label-free calibrated one."""
     policy = load_checkpoint(checkpoint)[0]
+    if arm.still:  # the teacher-forced scoring below would step the still rows: the product's replay
+        got = replayed_figures(checkpoint, arm.domain, test)
+        return {"offline_f1_1": got["offline_f1_1"] / 100, "offline_align": got["offline_align"] / 100,
+                "online_f1_1": got["online_f1_1"] / 100, "online_align": got["online_align"] / 100,
+                "online_detector": got["online_mode"], "test_episodes": len(test)}
     _, val, _ = train_val_episodes(pool, cfg)
     run = evaluate_policy(arm.domain, policy, test, val)
     p_hats = run.val_p_hat  # teacher-forced, as ompn_train calibrates

@@ -115,6 +115,8 @@ class StreamingSegmenter:
         self._detector_changed = False
         _all_finite(np.zeros(1, dtype=np.float32))  # compiled (or loaded from numba's cache) now
         self.obs_dim = int(policy.config.obs_dim)
+        # the model's still_tolerance: 0, every observation is a step; the stream rule applies it
+        self.still_tolerance = float(getattr(policy.config, "still_tolerance", 0.0))
         # validate() already checked the observation: skip the policy's own check when it offers that
         self._step_policy = getattr(policy, "step_trusted", policy.step)
         self.rejected: Counter[str] = Counter({reason: 0 for reason in REJECT_REASONS})
@@ -277,6 +279,10 @@ class ReplayResult:
     detector commits at the done step (row T), and the last one again with ``final`` set."""
     outputs: np.ndarray | None = None
     """``[T, n + 1 + A]``: what the boundary head reads (:func:`~ompn_ros.detect.head.head_outputs`)."""
+    run_ends: np.ndarray | None = None
+    """A model with ``still_tolerance``: the rows that hold a step's output (the last row of each run,
+    :mod:`ompn_ros.data.still`), in step order; ``None`` when every row is a step.  A detector decoded
+    again from the arrays reads these rows and maps its steps back to them, as the node does."""
 
     @property
     def boundary_steps(self) -> np.ndarray:

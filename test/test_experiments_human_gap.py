@@ -78,3 +78,33 @@ def test_collapse_idle_can_watch_the_first_features_only() -> None:
     ep = Episode(obs, np.zeros(3, dtype=np.int64))
     assert collapse_idle(ep, 0.5)[1].tolist() == [0, 1, 2]
     assert collapse_idle(ep, 0.5, features=2)[1].tolist() == [1, 2]
+
+
+def test_the_still_arms_train_with_the_products_rule(tmp_path) -> None:
+    from lab.own_data import STILL_TOLERANCE, arm_configs
+
+    still = [a for a in ARMS.values() if a.still]
+    assert {a.data for a in still} == {"craft_full_human", "craft_partial_human"} and len(still) == 10
+    model, _ = arm_configs(ARMS["human_craft_full_still_seed10"], tmp_path, 1)
+    assert model.still_tolerance == STILL_TOLERANCE > 0
+    assert arm_configs(ARMS["human_craft_full_complete_seed10"], tmp_path, 1)[0].still_tolerance == 0
+
+
+def test_replayed_scores_a_checkpoint_as_the_node_runs_it(tmp_path) -> None:
+    import json
+    import shutil
+
+    from lab.replayed import replayed_figures
+    from ompn_ros.checkpoints import shipped_checkpoint
+
+    eps = hg.episodes("craft", (), 4)
+    plain = replayed_figures(shipped_checkpoint("craft"), "craft", eps)
+    still_dir = tmp_path / "still"
+    shutil.copytree(shipped_checkpoint("craft"), still_dir)
+    config = json.loads((still_dir / "config.json").read_text())
+    (still_dir / "config.json").write_text(json.dumps({**config, "still_tolerance": 0.2}))
+    still = replayed_figures(still_dir, "craft", eps)
+    assert plain["still_tolerance"] == 0 and still["still_tolerance"] == 0.2
+    for got in (plain, still):
+        assert all(0 <= got[k] <= 100 for k in ("offline_align", "offline_f1_1", "online_align", "online_f1_1"))
+    assert plain != {**still, "still_tolerance": 0.0}  # the pauses of these episodes were not stepped

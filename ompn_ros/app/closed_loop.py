@@ -32,6 +32,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ompn_ros.app.errors import ClosedLoopError
+from ompn_ros.data.still import StillRuns
 from ompn_ros.model.build import PolicyModule
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import build_stepper
@@ -122,8 +123,31 @@ def load_evaluated(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
 
 def policy_agent(policy: PolicyModule) -> Agent:
     """The in-process agent of ``policy``: its streaming stepper
-    (:func:`ompn_ros.model.load.build_stepper`)."""
-    return build_stepper(policy)
+    (:func:`ompn_ros.model.load.build_stepper`), behind the still rule when the model has one."""
+    stepper = build_stepper(policy)
+    tolerance = float(getattr(policy.config, "still_tolerance", 0.0))
+    return StillAgent(stepper, tolerance) if tolerance > 0 else stepper
+
+
+class StillAgent:
+    """A model with ``still_tolerance`` in the loop: an observation that moved nothing since the last
+    stepped one is not stepped (:mod:`ompn_ros.data.still`, as in training and ``ompn_node``) and the
+    last step's output, its action included, is given again."""
+
+    def __init__(self, stepper: Any, tolerance: float) -> None:
+        self.stepper, self.config = stepper, stepper.config
+        self.runs = StillRuns(tolerance)
+        self.last: Any = None
+
+    def reset(self, sketch: np.ndarray | None = None) -> None:
+        self.stepper.reset(sketch)
+        self.runs.reset()
+        self.last = None
+
+    def step(self, obs: np.ndarray) -> Any:
+        if self.runs.push(np.asarray(obs, dtype=np.float32).ravel()) or self.last is None:
+            self.last = self.stepper.step(obs)
+        return self.last
 
 
 def agent_uses_sketch(agent: Any) -> bool:

@@ -26,7 +26,7 @@ import itertools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import yaml
@@ -128,16 +128,37 @@ def score_online(replays: Sequence[Replayed], episodes: Sequence[Episode], confi
     'head', both for 'head_hsmm'; the head reads the replays' ``outputs``) on the replays: F1,
     alignment and delays (O(Σ T))."""
     detector = make_detector(config, duration_model, head)
-    if isinstance(detector, HeadDetector):
-        rows = [detector.head.probabilities(_outputs(r, config)) for r in replays]
-        events = decode_all(rows, config, detector.peak)
-    elif isinstance(detector, HeadDurationDetector):
-        rows = [detector.head.probabilities(_outputs(r, config)) for r in replays]
-        events = [decode_head_duration(detector.model, q, config, r.scores) for q, r in zip(rows, replays)]
-    else:
-        events = [run_detector(detector, r.scores) for r in replays]
+    events = [on_rows(_decode(detector, config, r), run_ends(r)) for r in replays]
     preds = [np.array([e.step for e in evs], dtype=np.int64) for evs in events]
     return {**score_predictions(preds, episodes), **delay_stats(events, [ep.boundaries for ep in episodes])}
+
+
+def run_ends(replay: Replayed) -> np.ndarray | None:
+    """The rows of a replay that hold a step's output (a model with ``still_tolerance``), else None."""
+    ends = getattr(replay, "run_ends", None)
+    return None if ends is None else np.asarray(ends, dtype=np.int64)
+
+
+def on_rows(events: list[BoundaryEvent], ends: np.ndarray | None) -> list[BoundaryEvent]:
+    """Events decoded from a replay's stepped rows (``ends``), their steps mapped back to those rows."""
+    if ends is None or not len(ends):
+        return events
+    last = len(ends) - 1
+    return [replace(e, step=int(ends[min(e.step, last)]), detected_at=int(ends[min(e.detected_at, last)]))
+            for e in events]
+
+
+def _decode(detector: Any, config: DetectorConfig, replay: Replayed) -> list[BoundaryEvent]:
+    """The causal detector over one replay's stepped rows (every row, unless :func:`run_ends`)."""
+    ends = run_ends(replay)
+    scores = replay.scores if ends is None else replay.scores[ends]
+    if isinstance(detector, HeadDetector | HeadDurationDetector):
+        outputs = _outputs(replay, config)
+        q = detector.head.probabilities(outputs if ends is None else outputs[ends])
+        if isinstance(detector, HeadDetector):
+            return list(decode_all([q], config, detector.peak)[0])
+        return list(decode_head_duration(detector.model, q, config, scores))
+    return list(run_detector(detector, scores))
 
 
 def _outputs(replay: Replayed, config: DetectorConfig) -> np.ndarray:
@@ -170,11 +191,16 @@ def compare_on_replays(
     preds.update({f"offline_thr{thr:g}": [] for thr in thresholds})
     gts = [ep.boundaries for ep in episodes]
     for r, gt in zip(replays, gts, strict=True):
-        k = len(gt)
-        preds["offline_topk"].append(offline.top_k_boundaries(r.p_hat, k))
-        preds["offline_auto"].append(offline.auto_threshold_boundaries(r.p_hat, k)[0])
+        k, ends = len(gt), run_ends(r)
+        p_hat = r.p_hat if ends is None else r.p_hat[ends]  # the stepped rows, mapped back below
+
+        def rows(found: np.ndarray, ends: np.ndarray | None = ends) -> np.ndarray:
+            return found if ends is None else ends[np.asarray(found, dtype=np.int64)]
+
+        preds["offline_topk"].append(rows(offline.top_k_boundaries(p_hat, k)))
+        preds["offline_auto"].append(rows(offline.auto_threshold_boundaries(p_hat, k)[0]))
         for thr in thresholds:
-            preds[f"offline_thr{thr:g}"].append(offline.threshold_boundaries(r.p_hat, thr, k))
+            preds[f"offline_thr{thr:g}"].append(rows(offline.threshold_boundaries(p_hat, thr, k)))
     for name, found in preds.items():
         at_end = [[len(r.scores) - 1] * len(p) for r, p in zip(replays, found, strict=True)]
         results[name] = {**score_predictions(found, episodes), **delay_stats(found, gts, at_end)}

@@ -6,6 +6,7 @@ import json
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
+from ompn_ros.data.still import check_tolerance
 from ompn_ros.model.errors import ConfigError
 
 CONFIG_VERSION = 1
@@ -51,6 +52,10 @@ class OMPNConfig:
             split's statistics stored as the buffers ``action_mean`` / ``action_std``; the model
             outputs ``head * std + mean``, i.e. actions in the data's own units, and the Gaussian loss
             is taken on the standardised residual).  Absent in older configs: ``'none'``.
+        still_tolerance: 0 (every observation is a step) or the tolerance below which an observation
+            that changed no element since the last stepped one is not stepped, in training, the replay
+            and ``ompn_node`` alike (:mod:`ompn_ros.data.still`, docs/design.md#still-observations).
+            Absent in older configs: 0.
     """
 
     obs_dim: int
@@ -68,6 +73,7 @@ class OMPNConfig:
     version: int = CONFIG_VERSION
     arch: Arch = "ompn"
     action_norm: ActionNorm = "none"
+    still_tolerance: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("obs_dim", "action_dim", "n_slots", "slot_size"):
@@ -87,6 +93,10 @@ class OMPNConfig:
         self.action_variance = float(self.action_variance)
         self._check_arch()
         self._check_action_norm()
+        try:
+            self.still_tolerance = check_tolerance(self.still_tolerance, "OMPNConfig.still_tolerance")
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         if self.version != CONFIG_VERSION:
             raise ConfigError(
                 f"OMPNConfig.version {self.version!r} is not supported (this code reads version "

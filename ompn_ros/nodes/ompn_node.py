@@ -40,7 +40,8 @@ Lifecycle: every transition is logged; a request the current state does not offe
 ``success: false`` and one line (:mod:`ompn_ros.nodes.lifecycle_guard`), and the shutdown transition ends
 the process (exit 0).
 
-Publications (per accepted observation; built by :mod:`ompn_ros.data.messages`, the
+Publications (per accepted observation, except one that a model with ``still_tolerance`` does not step:
+:mod:`ompn_ros.data.still`, counted ``still_observations``; built by :mod:`ompn_ros.data.messages`, the
 ``ompn_interfaces`` types included):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).

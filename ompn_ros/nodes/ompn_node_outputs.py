@@ -162,7 +162,8 @@ class NodeOutputs(LifecycleNode):
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
         ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
-        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value);
+        ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value); with a model's
+        ``still_tolerance`` ``still_observations`` (observations that moved nothing: not stepped);
         ``repeated_messages``: messages a driver sent twice, stepped once (:mod:`ompn_ros.data.repeats`)."""
         stream, seg = self.stream, self.stream.segmenter
         out = {"accepted": 0, "rejected": 0}
@@ -175,6 +176,8 @@ class NodeOutputs(LifecycleNode):
         out["repeated_messages"] = stream.repeats.total
         if stream.idle is not None:
             out["idle_trimmed"] = stream.idle.trimmed
+        if seg is not None and seg.still_tolerance > 0:
+            out["still_observations"] = int(stream.events["still_observations"])
         if self._joints is not None and self._joints.merger is not None:
             out["joint_missing"] = self._joints.missing
         if self.assembled is not None:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.data.episode import Episode
+from ompn_ros.data.still import StillRuns
 from ompn_ros.detect.head import step_outputs
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import ReplayResult, SegmenterOutput, StreamingSegmenter
@@ -102,11 +103,15 @@ def replay_episode(
     for t in range(n_obs):
         rule.observe(episode.observations[t], None if stamps_ns is None else int(stamps_ns[t]), 0)
     rule.close_episode(T)
-    return _episode_result(record, T)
+    return _episode_result(record, T, rule.still)
 
 
-def _episode_result(record: StreamRecord, T: int) -> ReplayResult:
-    """The ``T`` real steps of ``record`` (one episode) as arrays, with its boundaries up to step T - 1."""
+def _episode_result(record: StreamRecord, T: int, runs: StillRuns | None = None) -> ReplayResult:
+    """The ``T`` real steps of ``record`` (one episode) as arrays, with its boundaries up to step T - 1;
+    with ``runs`` (a model's ``still_tolerance``) a row per observation of the stream: :func:`_on_rows`."""
+    run_ends = None
+    if runs is not None and runs.steps:
+        record.steps, run_ends = _on_rows(record.steps, runs, T)
     published = [event for _, _, event in record.boundaries]
     events = list(published)
     if len(events) > 1 and not events[-2].final and events[-1] == dataclasses.replace(events[-2], final=True):
@@ -123,4 +128,31 @@ def _episode_result(record: StreamRecord, T: int) -> ReplayResult:
         actions=[so.action for so in sos],
         published=published,
         outputs=np.array([step_outputs(so) for so in sos]),
+        run_ends=run_ends,
     )
+
+
+def _on_rows(steps: list[tuple[int, int, SegmenterOutput]], runs: StillRuns, T: int
+             ) -> tuple[list[tuple[int, int, SegmenterOutput]], np.ndarray]:
+    """The stepped outputs spread over the ``T`` rows of the stream they came from, and the row of each
+    step's output: the last row of its run (where its boundary lies, :mod:`ompn_ros.data.still`); the
+    run's earlier rows hold its memory read-out with no expansion (``p_hat`` all on the bottom slot,
+    score 0)."""
+    rows: list[tuple[int, int, SegmenterOutput]] = []
+    ends: list[int] = []
+    for j, (episode, stamp, out) in enumerate(steps):
+        first = runs.firsts[j]
+        if first > T - 1:
+            break
+        last = min(runs.ends[j], T - 1)
+        if last > first:
+            so = out.step_output
+            still_p_hat = np.zeros_like(np.asarray(so.p_hat))
+            still_p_hat[-1] = 1.0
+            held_output = dataclasses.replace(so, p_hat=still_p_hat)
+            held = dataclasses.replace(out, step_output=held_output, boundary=None, score=0.0, level=1)
+            rows.extend((episode, stamp, dataclasses.replace(held, step_index=row))
+                        for row in range(first, last))
+        rows.append((episode, stamp, dataclasses.replace(out, step_index=last)))
+        ends.append(last)
+    return rows, np.array(ends, dtype=np.int64)

@@ -16,6 +16,8 @@ The rules, in the order a stamped observation meets them (``docs/parameters.md``
   starts the next (the bag reader's ``split: gaps``, :mod:`ompn_ros.stream.gap`), as does a silence of
   that long on the receiver's clock (:meth:`StreamRule.check_silence`);
 * with ``idle_s``, still observations are held until the reader's ``split: idle`` rule decides them;
+* with a model whose ``still_tolerance`` is above 0, an observation that moved nothing since the last
+  stepped one is not stepped (:mod:`ompn_ros.data.still`); steps and boundaries keep the stream's rows;
 * a smaller step back, like any invalid observation, is rejected by the segmenter without a step.
 
 Episode markers ('start' with an optional sketch, 'end' with the step count), sketch messages and
@@ -28,6 +30,7 @@ from __future__ import annotations
 import array
 from collections import Counter
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -35,6 +38,7 @@ import numpy as np
 from ompn_ros import layout
 from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.data.repeats import Repeats
+from ompn_ros.data.still import StillRuns
 from ompn_ros.detect.online import BoundaryEvent, with_final
 from ompn_ros.segmenter import SegmenterOutput, StreamingSegmenter
 from ompn_ros.stream.gap import IdleGate, SilenceWatch, gap_ends_episode
@@ -124,6 +128,7 @@ class StreamRule:
         self.last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
         self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
         self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
+        self.still: StillRuns | None = None  # the episode's still rule (the model's still_tolerance)
 
     def arm(self) -> None:
         """Start the pause and idle rules the limits ask for (the node: on activation)."""
@@ -192,6 +197,12 @@ class StreamRule:
                 if isinstance(data, array.array) and data.typecode == "f"
                 else data
             )
+            runs = self._runs(seg)
+            if runs is not None:  # still_tolerance: a still observation joins the open run, no step
+                obs = self._validated(seg, obs, stamp_ns)
+                if not runs.push(obs, 0 if stamp_ns is None else int(stamp_ns)):
+                    self.events["still_observations"] += 1
+                    return
             out = seg.step(obs, stamp_ns)
         except InvalidInput as exc:
             self.sink.skipped(exc, True)
@@ -199,10 +210,38 @@ class StreamRule:
         self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
         if out.step_index == 0:
             self.events["episodes"] += 1
+        if runs is not None:  # the rows and stamps of the recorded stream
+            out = replace(out, boundary=self._on_rows(out.boundary), step_index=runs.firsts[-1])
         # The boundary event goes out first: it is the latency-critical product of the node.
         if out.boundary is not None:
             self.emit_boundary(out.boundary, log=False)
         self.sink.step_out(out, self.last_stamp_ns, self.events["episodes"])
+
+    def _runs(self, seg: StreamingSegmenter) -> StillRuns | None:
+        """The episode's still rule when the model has a ``still_tolerance`` (:mod:`ompn_ros.data.still`)."""
+        if self.still is None and seg.still_tolerance > 0:
+            self.still = StillRuns(seg.still_tolerance)
+        return self.still
+
+    @staticmethod
+    def _validated(seg: StreamingSegmenter, obs: Any, stamp_ns: int | None) -> np.ndarray:
+        """``obs`` validated as :meth:`StreamingSegmenter.step` does, a rejection counted the same way."""
+        try:
+            return seg.validate(obs, stamp_ns)
+        except InvalidInput as exc:
+            seg.count_rejection(exc)
+            raise
+
+    def _on_rows(self, event: BoundaryEvent | None, last_row: int | None = None) -> BoundaryEvent | None:
+        """``event`` with its steps as rows of the stream: a step's boundary at the last row of its run
+        (``last_row``: at most the episode's last real step); unchanged without ``still_tolerance``."""
+        runs = self.still
+        if event is None or runs is None or runs.steps == 0:
+            return event
+        row, stamp = runs.end_of(event.step, last_row)
+        detected = runs.end_of(event.detected_at, last_row)[0]
+        return replace(event, step=row, detected_at=max(detected, row),
+                       stamp_ns=stamp if event.stamp_ns else event.stamp_ns)
 
     def _idle_decided(self, decided: list[tuple[str, np.ndarray | None, int]]) -> None:
         """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``)."""
@@ -250,6 +289,7 @@ class StreamRule:
             sketch = self.latest_sketch if self.latest_sketch is not None else self.default_sketch
         seg.reset(sketch)
         seg.forget_stamps()
+        self.still = None
         self.last_boundary = None
         self.last_receive_ns = 0
         self.last_stamp_ns = 0
@@ -260,17 +300,23 @@ class StreamRule:
         The boundary last given to the sink comes again with ``final`` set when closing adds none."""
         seg = self.segmenter
         assert seg is not None
-        last = seg.step_index
+        runs = self.still
+        last = seg.step_index if runs is None else runs.rows - 1
         if steps is not None and steps < last:  # fewer steps than observed: the marker is wrong
             self.events["bad_end_markers"] += 1
             self.sink.warning(
                 f"end marker says steps={steps} after {last + 1} observations: closing at the last step seen"
             )
             steps = None
+        last_row = None if steps is None or steps <= 0 else steps - 1
+        if runs is not None and steps is not None:  # the marker counts rows; the detector, steps
+            steps = runs.steps_before(steps)
         closing = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
         self.events["episodes_ended"] += 1
         for event in closing:
-            self.emit_boundary(event)
+            mapped = self._on_rows(event, last_row)
+            assert mapped is not None
+            self.emit_boundary(mapped)
         if self.last_boundary is not None:
             last_event, decided = self.last_boundary
             for event in with_final([last_event])[1:]:

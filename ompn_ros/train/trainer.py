@@ -48,6 +48,7 @@ import torch
 
 from ompn_ros.atomic import write_failure
 from ompn_ros.data.episode import Episode
+from ompn_ros.data.still import drop_still
 from ompn_ros.detect.calibrate import agreement
 from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.build import PolicyModule, build_policy
@@ -378,6 +379,7 @@ def train(
             training (used to simulate a kill in tests).
     """
     ctx = dist_ctx or DistContext()
+    episodes = _without_still(episodes, model_config.still_tolerance, ctx)
     if train_config.candidates > 1:
         return _train_candidates(episodes, model_config, train_config, ctx, callback)
     out_dir = Path(train_config.out_dir) if train_config.out_dir is not None else None
@@ -400,6 +402,19 @@ def train(
             start_attempt(out_dir, attempt, attempt_config(train_config, attempt).seed, reason, rows)
         train_config = replace(train_config, resume=False)
     return _kept(episodes, model_config, train_config, ctx, results, rows)
+
+
+def _without_still(episodes: Sequence[Episode], tolerance: float, ctx: DistContext) -> Sequence[Episode]:
+    """The episodes as the model is stepped on them: with ``still_tolerance`` > 0 without their still
+    observations (:func:`~ompn_ros.data.still.drop_still`; idempotent, so nested calls cost only time)."""
+    if tolerance <= 0:
+        return episodes
+    reduced = [drop_still(ep, tolerance)[0] for ep in episodes]
+    before, after = sum(ep.length for ep in episodes), sum(ep.length for ep in reduced)
+    if ctx.is_main and after < before:
+        LOG.info("still_tolerance %g: %d of %d steps are still and not stepped", tolerance, before - after,
+                 before)
+    return reduced
 
 
 def _best_score(result: TrainResult) -> float:
