@@ -105,6 +105,7 @@ def test_replayed_scores_a_checkpoint_as_the_node_runs_it(tmp_path) -> None:
     (still_dir / "config.json").write_text(json.dumps({**config, "still_tolerance": 0.2}))
     still = replayed_figures(still_dir, "craft", eps)
     assert plain["still_tolerance"] == 0 and still["still_tolerance"] == 0.2
+    figures = ("offline_align", "offline_f1_1", "online_align", "online_f1_1")
     for got in (plain, still):
-        assert all(0 <= got[k] <= 100 for k in ("offline_align", "offline_f1_1", "online_align", "online_f1_1"))
+        assert all(0 <= got[k] <= 100 for k in figures)
     assert plain != {**still, "still_tolerance": 0.0}  # the pauses of these episodes were not stepped

@@ -244,3 +244,19 @@ def test_the_node_with_the_tolerance_on_a_human_like_craft_stream_equals_its_rep
         inner += sum(not b.final for b in replay.published)
     assert inner > 3 and node.counters()["still_observations"] > 0
     node.destroy_node()
+
+
+def test_an_episode_the_idle_rule_ends_closes_on_the_streams_rows(ckpt: Path) -> None:
+    ep, moved = paused_episode()
+    held = np.repeat(ep.observations[-1:], 40, axis=0)  # the robot waits 1.6 s: the idle rule ends it
+    obs = np.concatenate([ep.observations, held, paused_episode(seed=12)[0].observations])
+    stamps = [100 * 10**9 + 40 * MS * t for t in range(len(obs))]
+    seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DETECTOR)
+    record = replay_stream(seg, obs, stamps, StreamLimits(idle_s=1.0, idle_speed=0.01))
+    first = [event for episode, _, event in record.boundaries if episode == 1]
+    stepped = [out.step_index for episode, _, out in record.steps if episode == 1]
+    # the idle rule trims the stream's first row (still before any motion), so the episode's rows start one
+    # later; it ends at the first held row, its final observation (row T = 60): the last real step is 59
+    assert stepped == [0, *[t - 1 for t in moved[1:]], ep.length - 1]
+    assert len(first) > 2 and first[-1].final and first[-1].step == ep.length - 1
+    assert all(event.step + 1 in stepped for event in first[:-1])  # each at the last row of a run

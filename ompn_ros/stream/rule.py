@@ -254,7 +254,8 @@ class StreamRule:
             if x is not None:
                 self._step(seg, x, stamp)
             if kind == "end" and seg.step_index >= 0 and not seg.detector.closed:
-                self.close_episode(seg.step_index)  # the final observation (row T) is the last stepped
+                # the final observation (row T) is the last one given to the segmenter
+                self.close_episode(seg.step_index if self.still is None else self.still.rows - 1)
 
     def emit_boundary(self, event: BoundaryEvent, decided_ns: int | None = None, log: bool = True) -> None:
         """Give ``event`` to the sink, decided at ``decided_ns`` (default: the last step's stamp)."""
