@@ -133,34 +133,41 @@ def default_count(domain: str) -> int:
     return 150 if domain == "craft" else 60
 
 
-def held_out(domain: str, partial: bool, count: int) -> dict[str, list[Episode]]:
-    """The held-out expert and human-like episodes of a domain and observation (seeds ``SEED_BASE +``)."""
-    return {family: episodes(domain, changes, count, partial)
-            for family, changes in (("expert", None), ("human-like", ()))}
+HELD_OUT = ("expert", "human-like")
+"""The families the own-data runs are scored on by default (any of :func:`families` can be asked for)."""
 
 
-def arms_held_out(arms: Sequence[str], count: int | None) -> Iterator[tuple[Any, dict[str, list[Episode]]]]:
-    """Each own-data arm with the held-out expert and human-like episodes of its domain and observation
-    (``count`` each, default :func:`default_count`), generated once per domain and observation."""
+def held_out(domain: str, partial: bool, count: int, names: Sequence[str] = HELD_OUT
+             ) -> dict[str, list[Episode]]:
+    """Held-out episodes of a domain and observation (seeds ``SEED_BASE +``), per family of `quirks`."""
+    known = families(domain)
+    return {name: episodes(domain, known[name], count, partial) for name in names}
+
+
+def arms_held_out(arms: Sequence[str], count: int | None, names: Sequence[str] = HELD_OUT
+                  ) -> Iterator[tuple[Any, dict[str, list[Episode]]]]:
+    """Each own-data arm with the held-out episodes of ``names`` of its domain and observation (``count``
+    each, default :func:`default_count`), generated once per domain and observation."""
     held: dict[tuple[str, bool], dict[str, list[Episode]]] = {}
     for name in arms:
         arm = arm_by_name(name)
         key = (arm.domain, arm.partial)
         if key not in held:
-            held[key] = held_out(arm.domain, arm.partial, count or default_count(arm.domain))
+            held[key] = held_out(arm.domain, arm.partial, count or default_count(arm.domain), names)
         yield arm, held[key]
 
 
-def replayed(work: Path, arms: Sequence[str], count: int | None) -> list[dict[str, Any]]:
+def replayed(work: Path, arms: Sequence[str], count: int | None, names: Sequence[str] = HELD_OUT
+             ) -> list[dict[str, Any]]:
     """One row per own-data run: offline and online figures as the product gives them
     (:func:`lab.replayed.replayed_figures`: the node's replay with ``ompn_train``'s detector), on the
-    held-out expert and human-like episodes of its domain and observation (§55)."""
+    held-out episodes of ``names`` (default: expert and human-like) of its domain and observation (§55)."""
     rows = []
-    for arm, held in arms_held_out(arms, count):
+    for arm, held in arms_held_out(arms, count, names):
         checkpoint = work / "runs" / arm.name / "best"
         scored = {family: replayed_figures(checkpoint, arm.domain, eps) for family, eps in held.items()}
         rows.append({"arm": arm.name, "trained_on": arm.demonstrator, "still_tolerance": arm.still,
-                     "episodes": len(held["expert"]), **scored})
+                     "episodes": count or default_count(arm.domain), **scored})
     return rows
 
 
@@ -191,6 +198,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     r = sub.add_parser("replayed", help="own-data runs through the node's replay (offline and online)")
     r.add_argument("--work", type=Path, required=True)
     r.add_argument("arms", nargs="+")
+    r.add_argument("--families", nargs="+", default=list(HELD_OUT),
+                   help="families of `quirks` (default: %(default)s)")
     k = sub.add_parser("collapse", help="one checkpoint on held-out episodes with idle steps collapsed")
     k.add_argument("--domain", choices=("craft", "dial"), default="craft")
     k.add_argument("--checkpoint", type=Path, default=None, help="default: the domain's shipped checkpoint")
@@ -207,7 +216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = collapse(args.domain, args.checkpoint or shipped_checkpoint(args.domain),
                         args.episodes or default_count(args.domain), args.tolerance, args.features)
     elif args.study == "replayed":
-        rows = replayed(args.work, args.arms, args.episodes)
+        rows = replayed(args.work, args.arms, args.episodes, args.families)
     else:
         rows = cross(args.work, args.arms, args.episodes)
     for row in rows:
