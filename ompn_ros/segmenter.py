@@ -197,11 +197,18 @@ class StreamingSegmenter:
 
     def step(self, obs: Any, stamp_ns: int | None = None) -> SegmenterOutput:
         """Validate and consume one observation; raises :class:`InvalidInput` without side effects."""
+        return self.step_checked(self.checked(obs, stamp_ns), stamp_ns)
+
+    def checked(self, obs: Any, stamp_ns: int | None = None) -> np.ndarray:
+        """:meth:`validate`, a rejection counted by its reason (then raised)."""
         try:
-            arr = self.validate(obs, stamp_ns)
+            return self.validate(obs, stamp_ns)
         except InvalidInput as exc:
             self.rejected[exc.reason] += 1
             raise
+
+    def step_checked(self, arr: np.ndarray, stamp_ns: int | None = None) -> SegmenterOutput:
+        """Consume an observation :meth:`checked` has just returned (same stamp, nothing in between)."""
         out = self._step_policy(arr)
         if stamp_ns is not None:
             self._last_stamp = int(stamp_ns)

@@ -77,7 +77,10 @@ def test_a_run_ends_where_the_next_step_starts_and_markers_count_rows() -> None:
     pushed = [runs.push(np.full(2, v, np.float32), 10 * i) for i, v in enumerate(values)]
     assert pushed == [True, False, False, True, False, True]  # against the last stepped row, not the last row
     assert runs.firsts == [0, 3, 5] and runs.ends == [2, 4, 5] and runs.steps == 3
-    assert runs.end_of(0) == (2, 20) and runs.end_of(1) == (4, 40) and runs.end_of(2, last_row=4) == (4, 50)
+    assert runs.end_of(0) == (2, 20) and runs.end_of(1) == (4, 40)
+    assert runs.end_of(2, last_row=4) == (4, 40)  # a last step of its own at the final row: the run before
+    runs.push(np.full(2, 0.0, np.float32), 60)  # the final observation (row 6) extends the last run
+    assert runs.end_of(2, last_row=5) == (5, 50) and runs.end_of(0, last_row=5) == (2, 20)
     assert [runs.steps_before(r) for r in (0, 1, 3, 4, 5, 6)] == [0, 1, 1, 2, 2, 3]
     drift = StillRuns(TOL)
     drifting = [drift.push(np.full(1, 0.15 * i, np.float32)) for i in range(4)]
@@ -168,6 +171,7 @@ def test_the_node_live_publishes_what_the_replay_gives_on_a_paused_stream(ctx, c
     replay = replay_episode(seg, ep, include_done_step=True, stamps_ns=stamps)
     assert len(replay.published) > 2
     assert live == [(b.step, b.subtask, b.final, b.stamp_ns) for b in replay.published]
+    assert all(b.stamp_ns == stamps[b.step] for b in replay.published)  # the closing ones too
     assert states == len(moved) + 1  # one ~/state per stepped observation (the final one moved too)
     assert node_counters["still_observations"] == ep.length - len(moved)
 

@@ -51,6 +51,7 @@ class StillRuns:
     firsts: list[int] = field(default_factory=list)
     ends: list[int] = field(default_factory=list)
     stamps: list[int] = field(default_factory=list)
+    priors: list[int] = field(default_factory=list)  # the stamp of the row before ends[j] in its run
     _last: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -62,6 +63,7 @@ class StillRuns:
         self.firsts.clear()
         self.ends.clear()
         self.stamps.clear()
+        self.priors.clear()
 
     def is_still(self, obs: np.ndarray) -> bool:
         """Whether ``obs`` is within the tolerance of the last stepped observation (nothing changes)."""
@@ -74,12 +76,14 @@ class StillRuns:
         row = self.rows
         self.rows += 1
         if self.is_still(obs):
+            self.priors[-1] = self.stamps[-1]
             self.ends[-1], self.stamps[-1] = row, int(stamp_ns)
             return False
         self._last = np.array(obs, dtype=np.float32, copy=True)
         self.firsts.append(row)
         self.ends.append(row)
         self.stamps.append(int(stamp_ns))
+        self.priors.append(int(stamp_ns))
         return True
 
     @property
@@ -89,12 +93,14 @@ class StillRuns:
 
     def end_of(self, step: int, last_row: int | None = None) -> tuple[int, int]:
         """``(row, stamp)`` of the last observation of step ``step``'s run, at most ``last_row`` (the
-        episode's last real step when it closes: the final observation is no step of a run)."""
+        episode's last real step when it closes: the final observation, row ``last_row + 1``, is no step
+        of a run, so the run that holds ``last_row`` ends there)."""
         j = min(max(step, 0), len(self.ends) - 1)
-        row, stamp = self.ends[j], self.stamps[j]
-        if last_row is not None and row > last_row:
-            row = max(last_row, 0)
-        return row, stamp
+        if last_row is not None and self.ends[j] > last_row:
+            j = min(j, int(np.searchsorted(np.asarray(self.firsts), last_row, side="right")) - 1)
+            if self.ends[j] > last_row:  # the final observation extended this run: its row before
+                return last_row, self.priors[j]
+        return self.ends[j], self.stamps[j]
 
     def steps_before(self, row: int) -> int:
         """How many stepped observations lie at rows ``< row`` (an end marker's step count, mapped)."""

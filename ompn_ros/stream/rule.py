@@ -198,12 +198,14 @@ class StreamRule:
                 else data
             )
             runs = self._runs(seg)
-            if runs is not None:  # still_tolerance: a still observation joins the open run, no step
-                obs = self._validated(seg, obs, stamp_ns)
-                if not runs.push(obs, 0 if stamp_ns is None else int(stamp_ns)):
+            if runs is None:
+                out = seg.step(obs, stamp_ns)
+            else:  # still_tolerance: a still observation joins the open run, no step
+                arr = seg.checked(obs, stamp_ns)
+                if not runs.push(arr, 0 if stamp_ns is None else int(stamp_ns)):
                     self.events["still_observations"] += 1
                     return
-            out = seg.step(obs, stamp_ns)
+                out = seg.step_checked(arr, stamp_ns)
         except InvalidInput as exc:
             self.sink.skipped(exc, True)
             return
@@ -222,15 +224,6 @@ class StreamRule:
         if self.still is None and seg.still_tolerance > 0:
             self.still = StillRuns(seg.still_tolerance)
         return self.still
-
-    @staticmethod
-    def _validated(seg: StreamingSegmenter, obs: Any, stamp_ns: int | None) -> np.ndarray:
-        """``obs`` validated as :meth:`StreamingSegmenter.step` does, a rejection counted the same way."""
-        try:
-            return seg.validate(obs, stamp_ns)
-        except InvalidInput as exc:
-            seg.count_rejection(exc)
-            raise
 
     def _on_rows(self, event: BoundaryEvent | None, last_row: int | None = None) -> BoundaryEvent | None:
         """``event`` with its steps as rows of the stream: a step's boundary at the last row of its run
