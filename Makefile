@@ -18,7 +18,7 @@ export ROS_DOMAIN_ID
 export PYTHONDONTWRITEBYTECODE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: setup demo test test-fast test-slow lint colcon bench doctor reproduce-craft reproduce-dial clean
+.PHONY: setup demo test test-fast test-slow lint colcon bench doctor reproduce-craft reproduce-dial ship-craft ship-dial clean
 
 setup: $(STAMP)
 
@@ -75,6 +75,11 @@ reproduce-craft: setup
 
 reproduce-dial: setup
 	$(PY) -m lab.reproduce dial
+
+# The shipped checkpoints: ompn_collect, ompn_train (current config and defaults, the detector it
+# chooses), ompn_segment on held-out demonstrations, then copied into the package (lab/ship_product.py).
+ship-craft ship-dial: ship-%: setup
+	$(PY) -m lab.ship_product $*
 
 clean:
 	rm -rf build install log .pytest_cache .mypy_cache .ruff_cache *.egg-info
