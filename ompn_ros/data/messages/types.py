@@ -1,0 +1,136 @@
+"""Message types beyond ROS 2 Jazzy's: registered from a bag's own definitions, a folder of ``.msg``
+files or an installed interface package, into the package's one typestore (:func:`.cdr.typestore`).
+
+* A bag: rosbag2 stores each topic's definition (sqlite3 ``message_definitions`` table, mcap schemas)
+  as ``ros2msg`` text (the type's own fields, then ``MSG: pkg/msg/Dep`` sections separated by ``=``
+  lines) or ``ros2idl``; :func:`register_definition` registers the types it holds.
+* A folder (:func:`register_folder`): ``<pkg>/msg/*.msg`` below it (or the folder is ``<pkg>`` itself).
+* A package (:func:`register_package`): its ``share/<pkg>/msg`` in the ament prefixes.
+
+A type already in the typestore is kept (the Jazzy definitions win over a bag's); a definition that
+cannot be parsed raises :class:`TypeDefinitionError` naming the type.  Types are registered
+process-wide; registering the same definition again is a no-op.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from ompn_ros.errors import OMPNError
+
+from .cdr import typestore
+
+_SECTION = re.compile(r"^=+\s*$", re.MULTILINE)
+_MSG_HEADER = re.compile(r"^\s*MSG:\s*(\S+)\s*$", re.MULTILINE)
+
+
+class TypeDefinitionError(OMPNError, ValueError):
+    """A message definition that cannot be registered, or a type that no source defines."""
+
+
+def full_name(name: str) -> str:
+    """``pkg/Type`` -> ``pkg/msg/Type`` (``pkg/msg/Type`` unchanged)."""
+    parts = name.strip("/").split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else "/".join(parts)
+
+
+def known(typename: str) -> bool:
+    """Whether ``typename`` is in the typestore (Jazzy's or registered)."""
+    return typename in typestore().fielddefs
+
+
+def register_definition(typename: str, fmt: str, text: str) -> list[str]:
+    """Register the types of one embedded definition (``fmt``: 'msg' or 'idl'); the names added."""
+    if known(typename) or not text.strip():
+        return []
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+    try:
+        if fmt == "idl":
+            types = get_types_from_idl(text)
+        else:
+            types = {}
+            sections = _SECTION.split(text)
+            types.update(get_types_from_msg(sections[0], typename))
+            for section in sections[1:]:
+                header = _MSG_HEADER.search(section)
+                if header is not None:
+                    body = section[header.end():]
+                    types.update(get_types_from_msg(body, full_name(header.group(1))))
+    except Exception as err:  # rosbags' parsers raise several types on a bad definition
+        raise TypeDefinitionError(f"the definition of {typename} cannot be parsed: {err}") from err
+    return _register(types)
+
+
+def _register(types: dict[str, Any]) -> list[str]:
+    new = {name: tree for name, tree in types.items() if not known(name)}
+    if new:
+        typestore().register(new)
+    return sorted(new)
+
+
+def register_folder(folder: str | Path) -> list[str]:
+    """Register every ``.msg`` file below ``folder`` as ``<pkg>/msg/<Name>``, ``<pkg>`` being the folder
+    that holds its ``msg`` folder (or ``folder`` itself for ``.msg`` files directly in it)."""
+    from rosbags.typesys import get_types_from_msg
+
+    root = Path(folder)
+    files = sorted(root.rglob("*.msg"))
+    if not files:
+        raise TypeDefinitionError(f"types: no .msg file below '{root}' (expected <pkg>/msg/<Name>.msg)")
+    types: dict[str, Any] = {}
+    for file in files:
+        pkg = file.parent.parent.name if file.parent.name == "msg" else file.parent.name
+        name = f"{pkg}/msg/{file.stem}"
+        try:
+            types.update(get_types_from_msg(file.read_text(encoding="utf-8"), name))
+        except Exception as err:  # rosbags' parser raises several types on a bad definition
+            raise TypeDefinitionError(f"types: '{file}' is not a valid .msg definition of {name}: {err}") from err
+    return _register(types)
+
+
+def package_share(package: str) -> Path | None:
+    """``share/<package>`` of an installed ROS package (ament prefixes, then this Python's prefix)."""
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    for prefix in [*prefixes, sys.prefix]:
+        share = Path(prefix) / "share" / package
+        if (share / "msg").is_dir():
+            return share
+    return None
+
+
+def register_package(package: str) -> list[str]:
+    """Register the ``.msg`` files of an installed interface package."""
+    share = package_share(package)
+    if share is None:
+        raise TypeDefinitionError(f"types: '{package}' is neither a folder nor an installed interface "
+                                  "package (no share/<pkg>/msg in AMENT_PREFIX_PATH)")
+    return register_folder(share)
+
+
+def register_sources(sources: Iterable[str]) -> list[str]:
+    """Register each source: a folder of ``.msg`` files or an installed package name."""
+    added: list[str] = []
+    for source in sources:
+        added += register_folder(source) if Path(source).is_dir() else register_package(source)
+    return added
+
+
+def ensure(typename: str, sources: Iterable[str] = ()) -> None:
+    """Make ``typename`` known: registered already, or by ``sources``, or by its installed package;
+    :class:`TypeDefinitionError` naming the way out otherwise."""
+    if known(typename):
+        return
+    register_sources(sources)
+    package = typename.split("/", 1)[0]
+    if not known(typename) and package_share(package) is not None:
+        register_package(package)
+    if not known(typename):
+        raise TypeDefinitionError(
+            f"type {typename} is not in the bag's definitions nor the typestore: name its .msg folder "
+            f"with `types: DIR` in the spec, or install its package ({package})")
