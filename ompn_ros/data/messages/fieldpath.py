@@ -74,16 +74,16 @@ def parse_path(text: str) -> tuple[Step, ...]:
     return tuple(steps)
 
 
-_FIELDS: dict[str, list[tuple[str, Any]]] = {}
+FIELD_CACHE: dict[str, list[tuple[str, Any]]] = {}
 SIZES: Final = {prim: np.dtype(dt).itemsize for prim, dt in NUMERIC.items()}
 
 
 def fields_of(typename: str) -> list[tuple[str, Any]]:
     """``(name, node)`` of every field of ``typename`` (rosbags' parse tree; a registered name never
     changes its definition, so it is cached)."""
-    out = _FIELDS.get(typename)
+    out = FIELD_CACHE.get(typename)
     if out is None:
-        out = _FIELDS[typename] = list(typestore().fielddefs[typename][1])
+        out = FIELD_CACHE[typename] = list(typestore().fielddefs[typename][1])
     return out
 
 

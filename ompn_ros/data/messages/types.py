@@ -67,10 +67,14 @@ def register_definition(typename: str, fmt: str, text: str) -> list[str]:
     return _register(types)
 
 
+_REGISTERED: set[str] = set()  # the names this process added to the Jazzy typestore
+
+
 def _register(types: dict[str, Any]) -> list[str]:
     new = {name: tree for name, tree in types.items() if not known(name)}
     if new:
         typestore().register(new)
+        _REGISTERED.update(new)
     return sorted(new)
 
 
@@ -134,3 +138,15 @@ def ensure(typename: str, sources: Iterable[str] = ()) -> None:
         raise TypeDefinitionError(
             f"type {typename} is not in the bag's definitions nor the typestore: name its .msg folder "
             f"with `types: DIR` in the spec, or install its package ({package})")
+
+
+def forget(names: Iterable[str]) -> None:
+    """Drop types this process registered (a process that reads bags whose definitions of one name
+    differ, tests); Jazzy's own types stay."""
+    from . import fieldpath
+
+    store = typestore()
+    for name in set(names) & _REGISTERED:
+        _REGISTERED.discard(name)
+        for table in (store.fielddefs, store.types, store.cache, fieldpath.FIELD_CACHE):
+            table.pop(name, None)

@@ -1,0 +1,193 @@
+"""Any message type from the bag's own definitions (or a .msg folder), read by field path, and topics
+recorded under two types; each bag written as another lab would (test/type_corpus.py), read back value
+for value."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import type_corpus as tc
+from compat_corpus import edit_metadata, old_metadata, old_sqlite_schema, storage_file
+from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data.errors import ReaderSpecError, TopicTypeError, UnknownTypeError
+
+LENGTHS = [6, 9, 7]
+
+
+@pytest.fixture(autouse=True)
+def _fresh_types() -> Iterator[None]:
+    """Each test learns the lab's types itself (from its bag or its .msg folder)."""
+    tc.forget_lab_types()
+    yield
+    tc.forget_lab_types()
+
+
+@pytest.fixture(scope="module")
+def store() -> Any:
+    return tc.lab_typestore()
+
+
+def _spec(command: tc.Command, **extra: Any) -> ReaderSpec:
+    return ReaderSpec.from_dict({
+        "observation": {"topic": tc.STATE, "type": tc.ARM_STATE, "field": "positions"},
+        "action": {"topic": tc.CMD, "type": command.msgtype, "field": command.path},
+        "subtask": None, "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5, **extra,
+    })
+
+
+@pytest.mark.parametrize("name", sorted(tc.COMMANDS))
+@pytest.mark.parametrize("storage,version", [("mcap", 9), ("sqlite3", 9), ("sqlite3", 8), ("mcap", 6),
+                                             ("sqlite3", 5)])
+def test_custom_state_and_command_types_read_from_the_bags_definitions(
+        tmp_path: Path, store: Any, name: str, storage: str, version: int) -> None:
+    command = tc.COMMANDS[name]
+    demo = tc.demos(store, command, LENGTHS)
+    bag = tc.write_rosbags(tmp_path / "bag", store, demo, storage=storage, version=version if version >= 8 else 9)
+    if version < 8:  # metadata.yaml as older rosbag2 wrote it (the storage keeps its definitions)
+        edit_metadata(bag, lambda info: old_metadata(info, version))
+    tc.check(read_episodes(bag, spec=_spec(command)).episodes, demo)
+
+
+@pytest.mark.parametrize("name", ["joint_trajectory", "servo_jog"])
+def test_foxglove_mcap_with_embedded_schemas(tmp_path: Path, store: Any, name: str) -> None:
+    command = tc.COMMANDS[name]
+    demo = tc.demos(store, command, LENGTHS, seed=3)
+    bag = tc.write_foxglove(tmp_path / "robot.mcap", store, demo)
+    tc.check(read_episodes(bag, spec=_spec(command)).episodes, demo)
+
+
+def test_bag_without_definitions_needs_the_msg_folder(tmp_path: Path, store: Any) -> None:
+    command = tc.COMMANDS["joint_trajectory"]
+    demo = tc.demos(store, command, LENGTHS, seed=5)
+    bag = tc.write_rosbags(tmp_path / "bag", store, demo, storage="sqlite3")
+    edit_metadata(bag, lambda info: old_metadata(info, 5))
+    old_sqlite_schema(storage_file(bag), 3)  # a Humble-era schema: no message_definitions table
+    with pytest.raises(UnknownTypeError) as err:
+        read_episodes(bag, spec=_spec(command))
+    line = str(err.value)
+    assert tc.ARM_STATE in line and "`types: DIR`" in line and "\n" not in line
+    folder = tc.write_msg_folder(tmp_path / "src")
+    tc.check(read_episodes(bag, spec=_spec(command, types=[str(folder)])).episodes, demo)
+
+
+def test_header_stamp_of_a_custom_type_is_the_clock(tmp_path: Path, store: Any) -> None:
+    """``stamps: {state: header}`` reads ArmState's header.stamp (1 ms before the log stamp)."""
+    command = tc.COMMANDS["forward_command"]
+    demo = tc.demos(store, command, LENGTHS, seed=7)
+    bag = tc.write_rosbags(tmp_path / "bag", store, demo)
+    result = read_episodes(bag, spec=_spec(command, stamps={tc.STATE: "header"}))
+    tc.check(result.episodes, demo)
+    first = [s for s, t, _, _ in demo.messages if t == tc.STATE][0]
+    assert int(result.episodes[0].extras["stamps"][0]) == first - 1_000_000 \
+        if "stamps" in result.episodes[0].extras else True
+
+
+def test_assembled_observation_takes_nested_fields(tmp_path: Path, store: Any) -> None:
+    command = tc.COMMANDS["servo_twist"]
+    demo = tc.demos(store, command, LENGTHS, seed=11)
+    bag = tc.write_rosbags(tmp_path / "bag", store, demo)
+    spec = ReaderSpec.from_dict({
+        "assemble": {"step_topic": tc.STATE, "stamp": "receive", "fields": [
+            {"topic": tc.STATE, "type": tc.ARM_STATE, "field": "positions"},
+            {"topic": tc.STATE, "type": tc.ARM_STATE, "field": "gripper.width"}]},
+        "action": {"topic": tc.CMD, "type": command.msgtype, "field": command.path},
+        "subtask": None, "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5})
+    result = read_episodes(bag, spec=spec)
+    tc.check(result.episodes, demo, gripper=True)
+    names = result.episodes[0].extras["obs_names"]
+    assert list(names) == ["arm/state/positions/0", "arm/state/positions/1", "arm/state/positions/2",
+                           "arm/state/gripper.width/gripper.width"]
+
+
+@pytest.mark.parametrize("path,words", [
+    ("positons", ["has no field 'positons'", "positions", "gripper"]),
+    ("gripper.width.x", ["gripper.width is not a message"]),
+    ("joint_names", ["string[]", "not a number"]),
+])
+def test_a_wrong_path_names_type_path_and_fields(tmp_path: Path, store: Any, path: str, words: list[str]) -> None:
+    command = tc.COMMANDS["forward_command"]
+    bag = tc.write_rosbags(tmp_path / "bag", store, tc.demos(store, command, LENGTHS))
+    spec = ReaderSpec.from_dict({
+        "observation": {"topic": tc.STATE, "type": tc.ARM_STATE, "field": path},
+        "action": {"topic": tc.CMD, "type": command.msgtype}, "subtask": None, "sketch": None,
+        "episode": None})
+    with pytest.raises(TopicTypeError) as err:
+        read_episodes(bag, spec=spec)
+    assert tc.ARM_STATE in str(err.value) and all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_a_type_without_a_path_names_the_key() -> None:
+    with pytest.raises(ReaderSpecError, match="needs a field path"):
+        ReaderSpec.from_dict({"observation": {"topic": "/s", "type": tc.ARM_STATE}})
+
+
+# --- one topic under two types (a split bag where the command changed type) ------------------------------
+def _two_type_bag(tmp_path: Path, first: str, second: str) -> tuple[Path, list[np.ndarray], list[np.ndarray]]:
+    """One mcap where ``/arm/cmd`` is ``first`` for the first demonstration and ``second`` after, as a
+    split bag whose command changed type reads; returns (bag, observations, actions)."""
+    from rosbags.rosbag2 import Writer
+
+    from ompn_ros.data import messages as m
+
+    store = m.typestore()
+    rng = np.random.default_rng(2)
+    obs_all, act_all, t = [], [], 10**9
+    with Writer(tmp_path / "bag", version=9) as writer:
+        state = writer.add_connection(tc.STATE, "std_msgs/msg/Float32MultiArray", typestore=store)
+        cmds = {ty: writer.add_connection(tc.CMD, ty, typestore=store) for ty in (first, second)}
+        for k, steps in enumerate(LENGTHS):
+            msgtype = first if k == 0 else second
+            obs = rng.standard_normal((steps + 1, 2)).astype(np.float32)
+            act = np.round(rng.standard_normal((steps, 3)), 2)
+            act[0] = [1.0, 2.0, 0.0]
+            for i in range(steps + 1):
+                stamp = t + i * tc.STEP_NS
+                writer.write(state, stamp, m.serialize(m.float32_array(obs[i], "s")))
+                if i < steps:
+                    writer.write(cmds[msgtype], stamp + 2_000_000, _array(store, msgtype, act[i]))
+            obs_all.append(obs)
+            act_all.append(act.astype(np.float32))
+            t += steps * tc.STEP_NS + tc.GAP_NS
+    return tmp_path / "bag", obs_all, act_all
+
+
+def _array(store: Any, msgtype: str, values: np.ndarray) -> bytes:
+    layout = store.types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
+    if msgtype == "sensor_msgs/msg/JointState":
+        msg = store.types[msgtype](header=tc._header(store, 1), name=list(tc.JOINTS), position=values,
+                                   velocity=np.zeros(0), effort=np.zeros(0))
+    else:
+        dtype = np.float32 if "32" in msgtype else np.float64
+        msg = store.types[msgtype](layout=layout, data=values.astype(dtype))
+    return bytes(store.serialize_cdr(msg, msgtype))
+
+
+def test_float64_then_float32_commands_are_decoded_per_connection(tmp_path: Path) -> None:
+    bag, obs, act = _two_type_bag(tmp_path, "std_msgs/msg/Float64MultiArray", "std_msgs/msg/Float32MultiArray")
+    spec = ReaderSpec.from_dict({"observation": {"topic": tc.STATE, "type": "std_msgs/msg/Float32MultiArray"},
+                                 "action": {"topic": tc.CMD, "type": None}, "subtask": None, "sketch": None,
+                                 "episode": None, "split": "gaps"})
+    got = read_episodes(bag, spec=spec).episodes
+    assert len(got) == len(LENGTHS)
+    for ep, o, a in zip(got, obs, act):
+        np.testing.assert_array_equal(ep.observations, o)
+        np.testing.assert_array_equal(ep.actions, a)
+    np.testing.assert_array_equal(got[1].actions[0], [1.0, 2.0, 0.0])  # not [0.0, 1.875, 0.0]
+
+
+def test_a_spec_type_that_fits_one_connection_names_both_and_the_change(tmp_path: Path) -> None:
+    bag, _, _ = _two_type_bag(tmp_path, "sensor_msgs/msg/JointState", "std_msgs/msg/Float64MultiArray")
+    spec = ReaderSpec.from_dict({"observation": {"topic": tc.STATE, "type": "std_msgs/msg/Float32MultiArray"},
+                                 "action": {"topic": tc.CMD, "type": "sensor_msgs/msg/JointState"},
+                                 "subtask": None, "sketch": None, "episode": None, "split": "gaps"})
+    with pytest.raises(TopicTypeError) as err:
+        read_episodes(bag, spec=spec)
+    line = str(err.value)
+    assert "sensor_msgs/msg/JointState" in line and "std_msgs/msg/Float64MultiArray" in line, line
+    first_change = LENGTHS[0]  # the first command of the second demonstration
+    assert f"message #{first_change}" in line and "\n" not in line, line
