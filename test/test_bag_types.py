@@ -101,7 +101,7 @@ def test_assembled_observation_takes_nested_fields(tmp_path: Path, store: Any) -
     tc.check(result.episodes, demo, gripper=True)
     names = result.episodes[0].extras["obs_names"]
     assert list(names) == ["arm/state/positions/0", "arm/state/positions/1", "arm/state/positions/2",
-                           "arm/state/gripper.width/gripper.width"]
+                           "arm/state/gripper.width/width"]
 
 
 @pytest.mark.parametrize("path,words", [

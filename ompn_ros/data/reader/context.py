@@ -203,6 +203,10 @@ class BagContext:
             topic = self.resolve(name, True)
             assert topic is not None  # required=True raised otherwise
             got = self.raw.types[topic]
+            try:
+                ensure(got, self.spec.types)
+            except TypeDefinitionError:
+                pass  # named below
             if got not in m.typestore().types:
                 raise UnknownTypeError(f"message type '{got}' is not in the ROS 2 Jazzy typestore",
                                        path=self.path, topic=topic, index=0)
