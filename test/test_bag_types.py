@@ -191,3 +191,30 @@ def test_a_spec_type_that_fits_one_connection_names_both_and_the_change(tmp_path
     assert "sensor_msgs/msg/JointState" in line and "std_msgs/msg/Float64MultiArray" in line, line
     first_change = LENGTHS[0]  # the first command of the second demonstration
     assert f"message #{first_change}" in line and "\n" not in line, line
+
+
+def test_string_labels_by_field_path_are_names_turned_into_ids(tmp_path: Path, store: Any) -> None:
+    command = tc.COMMANDS["forward_command"]
+    demo = tc.demos(store, command, LENGTHS, seed=13)
+    string = store.types["std_msgs/msg/String"]
+    skills, names = [], []
+    for stamp, topic, _, _ in list(demo.messages):
+        if topic == tc.STATE:
+            k = len(names)
+            names.append("reach" if k % 10 < 4 else "grasp")
+            skills.append((stamp + 500_000, "/arm/skill", "std_msgs/msg/String", string(data=names[-1])))
+    demo.messages = sorted(demo.messages + skills, key=lambda x: x[0])
+    bag = tc.write_rosbags(tmp_path / "bag", store, demo)
+    spec = _spec(command, subtask={"topic": "/arm/skill", "type": "std_msgs/msg/String", "field": "data"},
+                 labels="id")
+    result = read_episodes(bag, spec=spec)
+    tc.check(result.episodes, demo)
+    start = 0
+    for ep in result.episodes:
+        want = np.asarray([0 if n == "reach" else 1 for n in names[start:start + ep.length + 1]])
+        np.testing.assert_array_equal(ep.extras["subtask_id"][:ep.length], want[:ep.length])
+        start += ep.length + 1
+    assert any("'reach': 0" in note and "'grasp': 1" in note for note in result.report.bags[0].notes)
+    with pytest.raises(Exception, match="holds names .*set labels: id"):
+        read_episodes(bag, spec=_spec(command, subtask={"topic": "/arm/skill", "type": "std_msgs/msg/String",
+                                                         "field": "data"}, labels="ordinal"))

@@ -90,13 +90,13 @@ class BagContext:
         tdata = self.raw.topics.get(topic)
         return [] if tdata is None else tdata.message_types()
 
-    def check_source(self, topic: str, src: VectorSource, allowed: Sequence[str]) -> str:
+    def check_source(self, topic: str, src: VectorSource, allowed: Sequence[str], strings: bool = False) -> str:
         """The type of ``topic`` after checking ``src`` reads every type it carries: the fast types
         without a field path, any registered type with one (one line naming the way out otherwise)."""
         types = self.topic_types(topic)
         if len(types) == 1 and src.field is None:
             return self.check_type(topic, allowed, src.type)
-        why = {t: reason for t in types if (reason := self._unfit(t, src, tuple(allowed))) is not None}
+        why = {t: reason for t in types if (reason := self._unfit(t, src, tuple(allowed), strings)) is not None}
         if not why:
             return types[0]
         if len(types) == 1:
@@ -104,7 +104,7 @@ class BagContext:
                 why[types[0]], path=self.path, topic=topic, index=0)
         raise self._type_change(topic, types, why)
 
-    def _unfit(self, msgtype: str, src: VectorSource, allowed: tuple[str, ...]) -> str | None:
+    def _unfit(self, msgtype: str, src: VectorSource, allowed: tuple[str, ...], strings: bool) -> str | None:
         """Why ``src`` cannot read messages of ``msgtype`` (``None``: it can)."""
         if src.field is not None:
             if src.type is not None and msgtype != src.type:
@@ -114,7 +114,11 @@ class BagContext:
                 target = describe(msgtype, src.field)
             except (TypeDefinitionError, FieldPathError) as err:
                 return str(err)
-            return None if target.kind != "string" else f"field '{src.field}' of {msgtype} is a string"
+            if target.kind == "string" and not strings:
+                return f"field '{src.field}' of {msgtype} is a string"
+            if strings and target.labels != ("",):
+                return f"field '{src.field}' of {msgtype} is not one number or string (a label is one value)"
+            return None
         if src.type is not None:
             return None if msgtype == src.type else f"the spec's type is {src.type}"
         if msgtype not in (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY) or msgtype not in allowed:
@@ -180,7 +184,11 @@ class BagContext:
             if topic:
                 self.check_type(topic, (kind,), kind)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
-            self.check_type(sub, (layout.INT32,), layout.INT32)
+            if spec.subtask_field is not None:
+                label = VectorSource(sub, spec.subtask_type, field=spec.subtask_field)
+                self.check_source(sub, label, (), strings=True)
+            else:
+                self.check_type(sub, (layout.INT32,), layout.INT32)
         for name, base in self.spec.stamps or ():
             topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
             if topic is not None:

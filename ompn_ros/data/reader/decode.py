@@ -123,7 +123,9 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         sub = topics.sub
         sub_stamps, raws = ctx.data(sub)
         out.sub_stamps = sub_stamps
-        if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
+        if topics.labels != layout.LABELS_BOUNDARY and ctx.spec.subtask_field is not None:
+            out.sub = _guard(errors, lambda: generic.labels(ctx, sub, sub_stamps, raws, topics.labels))
+        elif topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
             out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
     if topics.split:
         split = topics.split

@@ -16,7 +16,8 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
-from ..errors import CorruptBagError, TopicTypeError, UnknownTypeError, VectorLengthError
+from ..errors import CorruptBagError, LabelError, TopicTypeError, UnknownTypeError, VectorLengthError
+from ..messages.cdr import CdrError
 from ..messages.fieldpath import FieldPathError, FieldReader, RowError
 from ..messages.types import TypeDefinitionError, ensure
 from .context import BagContext
@@ -98,3 +99,30 @@ def header_stamps(ctx: BagContext, topic: str, raws: list[bytes], msgtype: str) 
     except RowError as err:
         raise CorruptBagError(f"cannot read header.stamp of {msgtype}: {err.detail}", path=ctx.path,
                               topic=topic, index=err.row) from err
+
+
+def labels(ctx: BagContext, topic: str, stamps: np.ndarray, raws: list[bytes], kind: str) -> np.ndarray:
+    """The label of every message (``ReaderSpec.subtask_field``) as int64: numbers as they are, strings
+    (names) as ids in order of first appearance (``labels: id`` only; the names go to the report)."""
+    msgtype = ctx.topic_types(topic)[0]
+    reader = field_reader(ctx, topic, msgtype, [ctx.spec.subtask_field or ""])
+    names: dict[str, int] = {}
+    out = np.zeros(len(raws), dtype=np.int64)
+    for i, raw in enumerate(raws):
+        try:
+            value = reader.scalars(raw)[0]
+        except CdrError as err:
+            raise CorruptBagError(f"cannot read label field '{reader.paths[0]}' of {msgtype}: {err}",
+                                  path=ctx.path, topic=topic, index=i, stamp=int(stamps[i])) from err
+        if isinstance(value, str):
+            if kind != layout.LABELS_ID:
+                raise LabelError(f"label field '{reader.paths[0]}' holds names ('{value}'): set labels: id",
+                                 path=ctx.path, topic=topic, index=i)
+            value = names.setdefault(value, len(names))
+        elif float(value) != int(value):
+            raise LabelError(f"label field '{reader.paths[0]}' holds {value}, not a whole number",
+                             path=ctx.path, topic=topic, index=i)
+        out[i] = int(value)
+    if names:
+        ctx.report.notes.append(f"topic '{topic}': subtask names as ids {names}")
+    return out

@@ -160,6 +160,12 @@ class ReaderSpec:
 
             ``ordinal``, ``id`` and ``boundary`` require the topic (:class:`MissingTopicError`).
             Metrics only ever see the ordinals (``Episode.subtask``).
+
+            ``subtask`` may also be a mapping ``{topic, type, field}`` (the grammar of
+            ``observation`` and ``action``, docs/specs.md): the label is the number or string
+            ``field`` leads to in any message type (``task_msgs/msg/Skill`` ``id``,
+            ``std_msgs/msg/String`` ``data``).  Strings are names: with ``labels: id`` each distinct
+            name gets an id in order of first appearance (``BagReport.notes`` lists them).
         final_observation: what to do with an episode whose last observation already has an
             action, i.e. the observation after the last command was not recorded (YAML key
             ``final_observation``):
@@ -242,6 +248,8 @@ class ReaderSpec:
     idle_s: float = 1.0
     idle_speed: float = 0.0
     types: tuple[str, ...] = ()  # a list is accepted
+    subtask_type: str | None = None  # YAML: subtask: {topic, type, field}
+    subtask_field: str | None = None
 
     def __post_init__(self) -> None:
         self._check_choices()
@@ -357,6 +365,12 @@ class ReaderSpec:
         for key in ("observation", "action"):
             if key in kwargs:
                 kwargs[key] = _vector_source(key, kwargs[key])
+        if isinstance(kwargs.get("subtask"), dict):
+            label = _vector_source("subtask", kwargs["subtask"])
+            if label.field is None:
+                raise ReaderSpecError("'subtask' as a mapping needs 'field' (e.g. {topic: /skill, type: "
+                                      "std_msgs/msg/String, field: data})")
+            kwargs.update(subtask=label.topic, subtask_type=label.type, subtask_field=label.field)
         if kwargs.get("assemble") is not None:
             kwargs["assemble"] = _observation_spec(kwargs["assemble"])
         return _build(cls, kwargs, "reader spec")
@@ -387,6 +401,9 @@ class ReaderSpec:
         out["stamps"] = None if self.stamps is None else dict(self.stamps)
         out["final_options"] = list(self.final_options)
         out["types"] = list(self.types)
+        if self.subtask_field is not None:
+            out["subtask"] = {"topic": self.subtask, "type": self.subtask_type, "field": self.subtask_field}
+        del out["subtask_type"], out["subtask_field"]
         return out
 
 
