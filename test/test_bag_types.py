@@ -218,3 +218,25 @@ def test_string_labels_by_field_path_are_names_turned_into_ids(tmp_path: Path, s
     with pytest.raises(Exception, match="holds names .*set labels: id"):
         read_episodes(bag, spec=_spec(command, subtask={"topic": "/arm/skill", "type": "std_msgs/msg/String",
                                                          "field": "data"}, labels="ordinal"))
+
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+
+
+@pytest.mark.parametrize("name", ["reader_joint_trajectory", "reader_moveit_servo", "reader_custom_arm",
+                                  "reader_ur_style"])
+def test_example_specs_load(name: str) -> None:
+    spec = ReaderSpec.from_yaml(CONFIG / f"{name}.yaml")
+    assert spec.action.field is not None
+
+
+def test_the_custom_arm_example_reads_a_labs_bag(tmp_path: Path, store: Any) -> None:
+    command = tc.COMMANDS["joint_trajectory"]
+    demo = tc.demos(store, command, LENGTHS, seed=17)
+    string = store.types["std_msgs/msg/String"]
+    demo.messages = sorted(demo.messages + [(s + 500_000, "/arm/skill", "std_msgs/msg/String",
+                                             string(data="reach")) for s, t, _, _ in demo.messages
+                                            if t == tc.STATE], key=lambda x: x[0])
+    bag = tc.write_rosbags(tmp_path / "bag", store, demo, storage="sqlite3")
+    result = read_episodes(bag, spec=ReaderSpec.from_yaml(CONFIG / "reader_custom_arm.yaml"))
+    tc.check(result.episodes, demo, gripper=True)
