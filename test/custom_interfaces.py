@@ -61,9 +61,18 @@ def build(root: Path, env: dict[str, str]) -> Path:
     env["AMENT_PREFIX_PATH"] = os.pathsep.join(p for p in (sys.prefix, env.get("AMENT_PREFIX_PATH", "")) if p)
     env["PATH"] = os.pathsep.join((str(Path(sys.executable).parent), env.get("PATH", "")))
     steps = [
-        ["cmake", "-S", str(src), "-B", str(build_dir), "-DBUILD_TESTING=OFF", "-DCMAKE_BUILD_TYPE=Release",
-         f"-DCMAKE_INSTALL_PREFIX={prefix}", f"-DCMAKE_PREFIX_PATH={sys.prefix}",
-         f"-DPython3_EXECUTABLE={sys.executable}"],
+        [
+            "cmake",
+            "-S",
+            str(src),
+            "-B",
+            str(build_dir),
+            "-DBUILD_TESTING=OFF",
+            "-DCMAKE_BUILD_TYPE=Release",
+            f"-DCMAKE_INSTALL_PREFIX={prefix}",
+            f"-DCMAKE_PREFIX_PATH={sys.prefix}",
+            f"-DPython3_EXECUTABLE={sys.executable}",
+        ],
         ["cmake", "--build", str(build_dir), "--parallel", "1"],
         ["cmake", "--install", str(build_dir)],
     ]
@@ -80,7 +89,11 @@ def environment(prefix: Path, env: dict[str, str]) -> dict[str, str]:
     site = prefix / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
     out = dict(env)
     out["PYTHONPATH"] = os.pathsep.join(p for p in (str(site), env.get("PYTHONPATH", "")) if p)
-    out["LD_LIBRARY_PATH"] = os.pathsep.join(p for p in (str(prefix / "lib"), env.get("LD_LIBRARY_PATH", "")) if p)
-    out["AMENT_PREFIX_PATH"] = os.pathsep.join(p for p in (str(prefix), env.get("AMENT_PREFIX_PATH", "")) if p)
+    out["LD_LIBRARY_PATH"] = os.pathsep.join(
+        p for p in (str(prefix / "lib"), env.get("LD_LIBRARY_PATH", "")) if p
+    )
+    out["AMENT_PREFIX_PATH"] = os.pathsep.join(
+        p for p in (str(prefix), env.get("AMENT_PREFIX_PATH", "")) if p
+    )
     out.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)  # the child sets its library path up afresh
     return out

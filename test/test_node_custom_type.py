@@ -62,7 +62,8 @@ DRIVER = textwrap.dedent(f"""
 
     rclpy.init()
     node = rclpy.create_node("arm_driver", namespace="arm1")
-    pub = node.create_publisher(ArmState, "state", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    pub = node.create_publisher(ArmState, "state", qos)
     deadline = time.monotonic() + 60
     while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -102,8 +103,16 @@ def lab_package(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return random_checkpoint(tmp_path_factory, "customtype", seed=9,
-                             obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
+    return random_checkpoint(
+        tmp_path_factory,
+        "customtype",
+        seed=9,
+        obs_dim=OBS_DIM,
+        action_type="discrete",
+        action_dim=3,
+        n_slots=3,
+        slot_size=16,
+    )
 
 
 def _stop(proc: subprocess.Popen[str]) -> str:
@@ -120,7 +129,7 @@ def _published(path: Path) -> list[tuple[int, bytes]]:
     data, out, pos = path.read_bytes(), [], 0
     while pos < len(data):
         stamp, size = struct.unpack_from("<qI", data, pos)
-        out.append((stamp, data[pos + 12:pos + 12 + size]))
+        out.append((stamp, data[pos + 12 : pos + 12 + size]))
         pos += 12 + size
     return out
 
@@ -135,33 +144,66 @@ def _replay(ckpt: Path, published: list[tuple[int, bytes]], bag: Path) -> np.nda
         for stamp, raw in published:
             writer.write(conn, stamp, raw)
     tc.forget_lab_types()  # the reader learns the type from the bag
-    spec = ReaderSpec.from_dict({
-        "assemble": {"step_topic": TOPIC, "stamp": "receive", "tolerance_s": 1.0, "fields": [
-            {"topic": TOPIC, "type": tc.ARM_STATE, "field": "positions"},
-            {"topic": TOPIC, "type": tc.ARM_STATE, "field": "gripper.width"}]},
-        "action": {"topic": TOPIC, "type": tc.ARM_STATE, "field": "velocities"},
-        "subtask": None, "sketch": None, "episode": None, "split": "gaps", "time_gap": 5.0})
+    spec = ReaderSpec.from_dict(
+        {
+            "assemble": {
+                "step_topic": TOPIC,
+                "stamp": "receive",
+                "tolerance_s": 1.0,
+                "fields": [
+                    {"topic": TOPIC, "type": tc.ARM_STATE, "field": "positions"},
+                    {"topic": TOPIC, "type": tc.ARM_STATE, "field": "gripper.width"},
+                ],
+            },
+            "action": {"topic": TOPIC, "type": tc.ARM_STATE, "field": "velocities"},
+            "subtask": None,
+            "sketch": None,
+            "episode": None,
+            "split": "gaps",
+            "time_gap": 5.0,
+        }
+    )
     (episode,) = read_episodes(bag, spec=spec).episodes
     seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DetectorConfig())
     rows = []
-    for x in episode.observations[:len(published)]:
+    for x in episode.observations[: len(published)]:
         so = seg.step(x).step_output
         rows.append(np.concatenate([so.pi, [so.expected_position, so.pi_end]]).astype(np.float32))
     return np.stack(rows)
 
 
-def test_custom_type_live_equals_replay(lab_package: Path, ckpt: Path, ros_env: dict[str, str],
-                                        tmp_path: Path) -> None:
+def test_custom_type_live_equals_replay(
+    lab_package: Path, ckpt: Path, ros_env: dict[str, str], tmp_path: Path
+) -> None:
     env = ci.environment(lab_package, ros_env)
     ns = f"custom_{os.getpid()}"
     status_name = f"/{ns}/ompn_node: segmenter"
     spec_file = tmp_path / "arm.yaml"
     spec_file.write_text(f"observation: {SPEC_TEXT}\n")
     node_proc = subprocess.Popen(
-        [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", "-r", f"__ns:=/{ns}",
-         "-p", f"checkpoint:={ckpt}", "-p", f"observation_spec:={spec_file}", "-p", "qos_depth:=1000",
-         "-p", "diagnostics_period:=0.1", "-p", "max_stamp_lead:=0.0"],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        [
+            sys.executable,
+            "-m",
+            "ompn_ros.nodes.ompn_node",
+            "--ros-args",
+            "-r",
+            f"__ns:=/{ns}",
+            "-p",
+            f"checkpoint:={ckpt}",
+            "-p",
+            f"observation_spec:={spec_file}",
+            "-p",
+            "qos_depth:=1000",
+            "-p",
+            "diagnostics_period:=0.1",
+            "-p",
+            "max_stamp_lead:=0.0",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     driver: subprocess.Popen[str] | None = None
     pis: list[np.ndarray] = []
     diags: list[dict[str, str]] = []
@@ -171,11 +213,21 @@ def test_custom_type_live_equals_replay(lab_package: Path, ckpt: Path, ros_env: 
         sub = rclpy.create_node("observer", context=ctx)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(sub)
-        sub.create_subscription(Float32MultiArray, f"/{ns}/ompn_node/pi",
-                                lambda raw: pis.append(np.asarray(parse_float32_array(raw))), RELIABLE,
-                                raw=True)
-        sub.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diags.extend(
-            {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name), 10)
+        sub.create_subscription(
+            Float32MultiArray,
+            f"/{ns}/ompn_node/pi",
+            lambda raw: pis.append(np.asarray(parse_float32_array(raw))),
+            RELIABLE,
+            raw=True,
+        )
+        sub.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: diags.extend(
+                {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name
+            ),
+            10,
+        )
 
         def pump(cond: Any, timeout: float) -> bool:
             deadline = time.monotonic() + timeout
@@ -187,9 +239,16 @@ def test_custom_type_live_equals_replay(lab_package: Path, ckpt: Path, ros_env: 
             return bool(cond())
 
         assert pump(lambda: bool(diags), 90), "ompn_node never published /diagnostics"
-        driver = subprocess.Popen([sys.executable, "-c", DRIVER, str(tmp_path / "published.bin")], env=env,
-                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert pump(lambda: driver is not None and driver.poll() is not None, 120), "the driver did not finish"
+        driver = subprocess.Popen(
+            [sys.executable, "-c", DRIVER, str(tmp_path / "published.bin")],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        assert pump(lambda: driver is not None and driver.poll() is not None, 120), (
+            "the driver did not finish"
+        )
         pump(lambda: len(pis) >= STEPS, 10)
     finally:
         rclpy.try_shutdown(context=ctx)
@@ -200,17 +259,36 @@ def test_custom_type_live_equals_replay(lab_package: Path, ckpt: Path, ros_env: 
     assert "Traceback" not in node_out and "FATAL" not in node_out
     published = _published(tmp_path / "published.bin")
     assert len(published) == STEPS == len(pis), (len(published), len(pis))
-    np.testing.assert_allclose(np.stack(pis), _replay(ckpt, published, tmp_path / "bag"), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        np.stack(pis), _replay(ckpt, published, tmp_path / "bag"), rtol=1e-5, atol=1e-6
+    )
 
 
-def test_a_type_not_installed_is_one_line_naming_its_package(ckpt: Path, ros_env: dict[str, str],
-                                                             tmp_path: Path) -> None:
+def test_a_type_not_installed_is_one_line_naming_its_package(
+    ckpt: Path, ros_env: dict[str, str], tmp_path: Path
+) -> None:
     spec_file = tmp_path / "arm.yaml"
-    spec_file.write_text("observation: {step_topic: /arm/state, fields: [{topic: /arm/state, type: "
-                         "acme_arm_msgs/msg/ArmState, field: positions}]}\n")
-    done = subprocess.run([sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
-                           "-p", f"checkpoint:={ckpt}", "-p", f"observation_spec:={spec_file}"],
-                          env=ros_env, cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    spec_file.write_text(
+        "observation: {step_topic: /arm/state, fields: [{topic: /arm/state, type: "
+        "acme_arm_msgs/msg/ArmState, field: positions}]}\n"
+    )
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ompn_ros.nodes.ompn_node",
+            "--ros-args",
+            "-p",
+            f"checkpoint:={ckpt}",
+            "-p",
+            f"observation_spec:={spec_file}",
+        ],
+        env=ros_env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert done.returncode == 2, done.stdout + done.stderr
     problems = [x for x in (done.stdout + done.stderr).splitlines() if "[INFO]" not in x]
     assert len(problems) == 1, problems

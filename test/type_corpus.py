@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from ompn_ros.data import messages as m
-
 STATE, CMD = "/arm/state", "/arm/cmd"
 JOINTS = ("shoulder", "elbow", "wrist")
 STEP_NS, GAP_NS = 40_000_000, 2_000_000_000
@@ -27,12 +25,14 @@ ARM_STATE, GRIPPER_STATE = "my_robot_msgs/msg/ArmState", "my_robot_msgs/msg/Grip
 JOINT_JOG = "control_msgs/msg/JointJog"
 MSG_FILES = {
     ARM_STATE: "std_msgs/Header header\nstring[] joint_names\nfloat64[] positions\nfloat64[] velocities\n"
-               "GripperState gripper\n",
+    "GripperState gripper\n",
     GRIPPER_STATE: "float64 width\nfloat32 force\nbool grasped\n",
 }
 """The lab's interface package ``my_robot_msgs`` (what its ``msg/`` folder holds)."""
-JOINT_JOG_MSG = ("std_msgs/Header header\nstring[] joint_names\nfloat64[] displacements\n"
-                 "float64[] velocities\nfloat64 duration\n")
+JOINT_JOG_MSG = (
+    "std_msgs/Header header\nstring[] joint_names\nfloat64[] displacements\n"
+    "float64[] velocities\nfloat64 duration\n"
+)
 """``control_msgs/msg/JointJog`` (MoveIt Servo's joint command; not in the Jazzy typestore)."""
 SEPARATOR = "=" * 80 + "\n"
 
@@ -82,26 +82,48 @@ def _header(store: Any, stamp: int) -> Any:
 
 
 def _trajectory(store: Any, stamp: int, act: np.ndarray) -> Any:
-    point, duration = store.types["trajectory_msgs/msg/JointTrajectoryPoint"], store.types[
-        "builtin_interfaces/msg/Duration"]
+    point, duration = (
+        store.types["trajectory_msgs/msg/JointTrajectoryPoint"],
+        store.types["builtin_interfaces/msg/Duration"],
+    )
     empty = np.zeros(0)
-    points = [point(positions=act * 0.5, velocities=empty, accelerations=empty, effort=empty,
-                    time_from_start=duration(sec=0, nanosec=20_000_000)),
-              point(positions=act.copy(), velocities=np.zeros(3), accelerations=empty, effort=empty,
-                    time_from_start=duration(sec=0, nanosec=40_000_000))]
-    return store.types["trajectory_msgs/msg/JointTrajectory"](header=_header(store, stamp),
-                                                              joint_names=list(JOINTS), points=points)
+    points = [
+        point(
+            positions=act * 0.5,
+            velocities=empty,
+            accelerations=empty,
+            effort=empty,
+            time_from_start=duration(sec=0, nanosec=20_000_000),
+        ),
+        point(
+            positions=act.copy(),
+            velocities=np.zeros(3),
+            accelerations=empty,
+            effort=empty,
+            time_from_start=duration(sec=0, nanosec=40_000_000),
+        ),
+    ]
+    return store.types["trajectory_msgs/msg/JointTrajectory"](
+        header=_header(store, stamp), joint_names=list(JOINTS), points=points
+    )
 
 
 def _twist(store: Any, stamp: int, act: np.ndarray) -> Any:
     vec, twist = store.types["geometry_msgs/msg/Vector3"], store.types["geometry_msgs/msg/Twist"]
     return store.types["geometry_msgs/msg/TwistStamped"](
-        header=_header(store, stamp), twist=twist(linear=vec(x=act[0], y=act[1], z=act[2]), angular=vec(x=0.0, y=0.0, z=0.0)))
+        header=_header(store, stamp),
+        twist=twist(linear=vec(x=act[0], y=act[1], z=act[2]), angular=vec(x=0.0, y=0.0, z=0.0)),
+    )
 
 
 def _jog(store: Any, stamp: int, act: np.ndarray) -> Any:
-    return store.types[JOINT_JOG](header=_header(store, stamp), joint_names=list(JOINTS),
-                                  displacements=np.zeros(0), velocities=act.copy(), duration=0.1)
+    return store.types[JOINT_JOG](
+        header=_header(store, stamp),
+        joint_names=list(JOINTS),
+        displacements=np.zeros(0),
+        velocities=act.copy(),
+        duration=0.1,
+    )
 
 
 def _forward(store: Any, stamp: int, act: np.ndarray) -> Any:
@@ -110,7 +132,9 @@ def _forward(store: Any, stamp: int, act: np.ndarray) -> Any:
 
 
 COMMANDS = {
-    "joint_trajectory": Command("trajectory_msgs/msg/JointTrajectory", "points[-1].positions", 3, _trajectory),
+    "joint_trajectory": Command(
+        "trajectory_msgs/msg/JointTrajectory", "points[-1].positions", 3, _trajectory
+    ),
     "servo_twist": Command("geometry_msgs/msg/TwistStamped", "twist.linear", 3, _twist),
     "servo_jog": Command(JOINT_JOG, "velocities", 3, _jog),
     "forward_command": Command("std_msgs/msg/Float64MultiArray", "data", 3, _forward),
@@ -140,12 +164,18 @@ def demos(store: Any, command: Command, lengths: list[int], seed: int = 0, t0: i
         act = rng.standard_normal((steps, command.width))
         for k in range(steps + 1):
             stamp = t + k * STEP_NS
-            state = arm(header=_header(store, stamp - 1_000_000), joint_names=list(JOINTS), positions=pos[k],
-                        velocities=np.zeros(len(JOINTS)), gripper=grip(width=width[k], force=2.5, grasped=k > 2))
+            state = arm(
+                header=_header(store, stamp - 1_000_000),
+                joint_names=list(JOINTS),
+                positions=pos[k],
+                velocities=np.zeros(len(JOINTS)),
+                gripper=grip(width=width[k], force=2.5, grasped=k > 2),
+            )
             out.messages.append((stamp, STATE, ARM_STATE, state))
             if k < steps:
-                out.messages.append((stamp + 2_000_000, CMD, command.msgtype,
-                                     command.build(store, stamp + 2_000_000, act[k])))
+                out.messages.append(
+                    (stamp + 2_000_000, CMD, command.msgtype, command.build(store, stamp + 2_000_000, act[k]))
+                )
         out.positions.append(pos)
         out.grippers.append(width)
         out.actions.append(act)
@@ -186,7 +216,11 @@ def _dependencies(store: Any, msgtype: str) -> Iterator[str]:
 def ros2msg(store: Any, msgtype: str) -> str:
     """The concatenated ``ros2msg`` definition rosbag2 and Foxglove store (own fields, then each
     dependency after a ``=`` line and ``MSG: pkg/Type``)."""
-    texts = {ARM_STATE: MSG_FILES[ARM_STATE], GRIPPER_STATE: MSG_FILES[GRIPPER_STATE], JOINT_JOG: JOINT_JOG_MSG}
+    texts = {
+        ARM_STATE: MSG_FILES[ARM_STATE],
+        GRIPPER_STATE: MSG_FILES[GRIPPER_STATE],
+        JOINT_JOG: JOINT_JOG_MSG,
+    }
 
     def text(name: str) -> str:
         if name in texts:

@@ -91,7 +91,8 @@ class AssembledInput:
         self.spec = spec
         self.obs_dim = int(obs_dim)
         # the rclpy class of each topic (any installed type: one line naming the package otherwise)
-        self.classes = {topic: message_class(typename, MESSAGE_CLASSES) for topic, typename in spec.topics.items()}
+        self.classes = {topic: message_class(typename, MESSAGE_CLASSES)
+                        for topic, typename in spec.topics.items()}
         self.asm = ObservationAssembler(spec, history=max(1, history))
         self.size_checked = declared is not None
         self.topic_types: dict[str, str | None] = {}  # last problem line per topic (None = fine)

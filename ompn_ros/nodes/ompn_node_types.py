@@ -34,7 +34,8 @@ def message_class(typename: str, fast: dict[str, Any]) -> Any:
         raise ObservationSpecError(
             f"message type {typename} is not installed: install its package '{package}' (e.g. apt install "
             f"ros-jazzy-{package.replace('_', '-')}, or build it in your workspace) and source its setup "
-            "before starting ompn_node") from None
+            "before starting ompn_node"
+        ) from None
     if not known(typename):
         _register_definition(typename, cls)
     return cls
@@ -53,5 +54,7 @@ def _register_definition(typename: str, cls: Any) -> None:
     try:
         ensure(typename)
     except TypeDefinitionError as err:
-        raise ObservationSpecError(f"{err} (the package is installed without its share/{package}/msg "
-                                   "folder: source its setup so that AMENT_PREFIX_PATH names it)") from None
+        raise ObservationSpecError(
+            f"{err} (the package is installed without its share/{package}/msg "
+            "folder: source its setup so that AMENT_PREFIX_PATH names it)"
+        ) from None

@@ -37,9 +37,22 @@ from ompn_ros.errors import OMPNError
 from .cdr import CdrError, typestore
 
 NUMERIC: Final[dict[str, str]] = {
-    "bool": "u1", "byte": "u1", "char": "u1", "octet": "u1", "int8": "i1", "uint8": "u1",
-    "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4", "int64": "i8", "uint64": "u8",
-    "float32": "f4", "float64": "f8", "float": "f4", "double": "f8",
+    "bool": "u1",
+    "byte": "u1",
+    "char": "u1",
+    "octet": "u1",
+    "int8": "i1",
+    "uint8": "u1",
+    "int16": "i2",
+    "uint16": "u2",
+    "int32": "i4",
+    "uint32": "u4",
+    "int64": "i8",
+    "uint64": "u8",
+    "float32": "f4",
+    "float64": "f8",
+    "float": "f4",
+    "double": "f8",
 }
 """CDR primitive -> numpy dtype (little-endian; big-endian messages swap it)."""
 TIME_TYPES: Final = frozenset({"builtin_interfaces/msg/Time", "builtin_interfaces/msg/Duration"})
@@ -105,20 +118,26 @@ def describe(typename: str, path: str) -> Target:
     for k, step in enumerate(steps):
         here = ".".join(_text(s) for s in steps[:k]) or "the message"
         if current[0] != NAME:
-            raise FieldPathError(f"{typename}: field path '{path}': {here} is not a message, it has no "
-                                 f"field '{step.name}'")
+            raise FieldPathError(
+                f"{typename}: field path '{path}': {here} is not a message, it has no field '{step.name}'"
+            )
         sub = dict(fields_of(current[1]))
         if step.name not in sub:
-            raise FieldPathError(f"{typename}: field path '{path}': {current[1]} has no field '{step.name}' "
-                                 f"(fields: {', '.join(sub) or 'none'})")
+            raise FieldPathError(
+                f"{typename}: field path '{path}': {current[1]} has no field '{step.name}' "
+                f"(fields: {', '.join(sub) or 'none'})"
+            )
         current = sub[step.name]
         if step.index is not None:
             if current[0] not in (ARRAY, SEQUENCE):
-                raise FieldPathError(f"{typename}: field path '{path}': '{step.name}' is not an array, it "
-                                     "takes no index")
+                raise FieldPathError(
+                    f"{typename}: field path '{path}': '{step.name}' is not an array, it takes no index"
+                )
             if current[0] == ARRAY and not -current[1][1] <= step.index < current[1][1]:
-                raise FieldPathError(f"{typename}: field path '{path}': index {step.index} is outside "
-                                     f"'{step.name}' of {current[1][1]} elements")
+                raise FieldPathError(
+                    f"{typename}: field path '{path}': index {step.index} is outside "
+                    f"'{step.name}' of {current[1][1]} elements"
+                )
             current = current[1][0]
     return _target(typename, path, current)
 
@@ -150,8 +169,10 @@ def _target(typename: str, path: str, node: Any) -> Target:
             if kind == ARRAY and inner is not None:
                 return Target("numeric", tuple(f"{i}.{lab}" for i in range(detail[1]) for lab in inner))
             return Target("numeric", None)
-    raise FieldPathError(f"{typename}: field path '{path}' leads to {_node_name(node)}, not a number, a "
-                         "numeric array or a message of numbers")
+    raise FieldPathError(
+        f"{typename}: field path '{path}' leads to {_node_name(node)}, not a number, a "
+        "numeric array or a message of numbers"
+    )
 
 
 def _node_name(node: Any) -> str:
@@ -262,7 +283,9 @@ def _take_field(w: _Walk, node: Any, pos: int, here: list[Want], leaves: bool = 
                 w.segs[slot].append((start + k * size, 1, NUMERIC[elem[1][0]]))
         return start + n * size
     for i in range(n):  # strings or messages, element by element
-        chosen = [(s, slot) for s, slot in here if s[0].index is None or _element(s[0].index, n, s[0].name) == i]
+        chosen = [
+            (s, slot) for s, slot in here if s[0].index is None or _element(s[0].index, n, s[0].name) == i
+        ]
         if not chosen or (elem[0] == BASE and leaves):
             pos = _skip(w, elem, pos)
         elif elem[0] == BASE:
@@ -359,7 +382,7 @@ class FieldReader:
         for segs, path in zip(w.segs, self.paths):
             if len(segs) == 1 and segs[0][2] == "S":
                 off, n, _ = segs[0]
-                out.append(bytes(raw[off:off + n]).decode("utf-8", errors="replace"))
+                out.append(bytes(raw[off : off + n]).decode("utf-8", errors="replace"))
                 continue
             vec = _gather(raw, segs, w.big, path, keep=True)
             if vec.size != 1:
@@ -390,8 +413,14 @@ class FieldReader:
                 self._group(raws, rows, block.reshape(rows.size, int(length)), out, n)
         return [np.zeros((n, 0)) if o is None else o for o in out]
 
-    def _group(self, raws: Sequence[bytes | memoryview], rows: np.ndarray, block: np.ndarray,
-               out: list[np.ndarray | None], n: int) -> None:
+    def _group(
+        self,
+        raws: Sequence[bytes | memoryview],
+        rows: np.ndarray,
+        block: np.ndarray,
+        out: list[np.ndarray | None],
+        n: int,
+    ) -> None:
         """Rows of one message length: those with the layout of the group's first message in bulk,
         the others again by the same rule (each round takes at least its first row)."""
         while rows.size:
@@ -400,7 +429,9 @@ class FieldReader:
                 w = self.walk(raws[first])
             except CdrError as err:
                 raise RowError(first, str(err)) from err
-            cols = np.concatenate([np.arange(2), *(np.arange(word, word + 4) for word in sorted(set(w.words)))])
+            cols = np.concatenate(
+                [np.arange(2), *(np.arange(word, word + 4) for word in sorted(set(w.words)))]
+            )
             layout = block[:, cols]  # the bytes that fix the layout: header, every length word
             same = (layout == layout[0]).all(axis=1)
             taken = block if same.all() else block[same]
@@ -411,8 +442,12 @@ class FieldReader:
                 target = out[k]
                 assert target is not None
                 if target.shape[1] != part.shape[1]:
-                    raise RowError(first, f"field '{self.paths[k]}' has {part.shape[1]} values, the first "
-                                   f"message {target.shape[1]}", reason="wrong_size")
+                    raise RowError(
+                        first,
+                        f"field '{self.paths[k]}' has {part.shape[1]} values, the first "
+                        f"message {target.shape[1]}",
+                        reason="wrong_size",
+                    )
                 target[rows[same]] = part
             rows, block = rows[~same], block[~same]
 
@@ -425,7 +460,9 @@ class RowError(Exception):
         super().__init__(detail)
 
 
-def _gather(raw: bytes | memoryview, segs: list[Segment], big: bool, path: str, keep: bool = False) -> np.ndarray:
+def _gather(
+    raw: bytes | memoryview, segs: list[Segment], big: bool, path: str, keep: bool = False
+) -> np.ndarray:
     parts = []
     for off, count, dtype in segs:
         if dtype == "S":
@@ -444,7 +481,7 @@ def _columns(block: np.ndarray, segs: list[Segment], big: bool, path: str) -> np
         if dtype == "S":
             raise CdrError(f"field '{path}' is a string, not a number")
         dt = np.dtype(dtype).newbyteorder(">" if big else "<")
-        cols = np.ascontiguousarray(block[:, off:off + count * dt.itemsize]).view(dt)
+        cols = np.ascontiguousarray(block[:, off : off + count * dt.itemsize]).view(dt)
         parts.append(cols.astype(np.float64))
     if not parts:
         return np.zeros((block.shape[0], 0))

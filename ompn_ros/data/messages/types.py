@@ -23,6 +23,7 @@ from typing import Any
 
 from ompn_ros.errors import OMPNError
 
+from . import fieldpath
 from .cdr import typestore
 
 _SECTION = re.compile(r"^=+\s*$", re.MULTILINE)
@@ -60,7 +61,7 @@ def register_definition(typename: str, fmt: str, text: str) -> list[str]:
             for section in sections[1:]:
                 header = _MSG_HEADER.search(section)
                 if header is not None:
-                    body = section[header.end():]
+                    body = section[header.end() :]
                     types.update(get_types_from_msg(body, full_name(header.group(1))))
     except Exception as err:  # rosbags' parsers raise several types on a bad definition
         raise TypeDefinitionError(f"the definition of {typename} cannot be parsed: {err}") from err
@@ -94,7 +95,9 @@ def register_folder(folder: str | Path) -> list[str]:
         try:
             types.update(get_types_from_msg(file.read_text(encoding="utf-8"), name))
         except Exception as err:  # rosbags' parser raises several types on a bad definition
-            raise TypeDefinitionError(f"types: '{file}' is not a valid .msg definition of {name}: {err}") from err
+            raise TypeDefinitionError(
+                f"types: '{file}' is not a valid .msg definition of {name}: {err}"
+            ) from err
     return _register(types)
 
 
@@ -112,8 +115,10 @@ def register_package(package: str) -> list[str]:
     """Register the ``.msg`` files of an installed interface package."""
     share = package_share(package)
     if share is None:
-        raise TypeDefinitionError(f"types: '{package}' is neither a folder nor an installed interface "
-                                  "package (no share/<pkg>/msg in AMENT_PREFIX_PATH)")
+        raise TypeDefinitionError(
+            f"types: '{package}' is neither a folder nor an installed interface "
+            "package (no share/<pkg>/msg in AMENT_PREFIX_PATH)"
+        )
     return register_folder(share)
 
 
@@ -137,14 +142,13 @@ def ensure(typename: str, sources: Iterable[str] = ()) -> None:
     if not known(typename):
         raise TypeDefinitionError(
             f"type {typename} is not in the bag's definitions nor the typestore: name its .msg folder "
-            f"with `types: DIR` in the spec, or install its package ({package})")
+            f"with `types: DIR` in the spec, or install its package ({package})"
+        )
 
 
 def forget(names: Iterable[str]) -> None:
     """Drop types this process registered (a process that reads bags whose definitions of one name
     differ, tests); Jazzy's own types stay."""
-    from . import fieldpath
-
     store = typestore()
     for name in set(names) & _REGISTERED:
         _REGISTERED.discard(name)

@@ -16,8 +16,9 @@ The same block configures the bag reader (reader-spec YAML) and ``ompn_node`` (p
 Type names are the ROS 2 spellings (``pkg/msg/Type``; ``pkg/Type`` and, for the types of
 :data:`FIELDS`, the bare ``Type`` are accepted too).  Any other type is read through a field path
 (``field: gripper.width``, ``twist.linear``, ``points[-1].positions``; docs/specs.md), its definition
-coming from the bag, a ``.msg`` folder or its installed package.  Every error is one :class:`ObservationSpecError` line naming the entry at fault, e.g.
-``fields[2]: field 'positon' of topic '/arm1/joint_states': sensor_msgs/msg/JointState has no field``.
+coming from the bag, a ``.msg`` folder or its installed package.  Every error is one
+:class:`ObservationSpecError` line naming the entry at fault, e.g. ``fields[2]: field 'positon' of
+topic '/arm1/joint_states': sensor_msgs/msg/JointState: field path 'positon': ... has no field``.
 """
 
 from __future__ import annotations

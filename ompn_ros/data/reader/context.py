@@ -90,13 +90,15 @@ class BagContext:
         tdata = self.raw.topics.get(topic)
         return [] if tdata is None else tdata.message_types()
 
-    def check_source(self, topic: str, src: VectorSource, allowed: Sequence[str], strings: bool = False) -> str:
+    def check_source(self, topic: str, src: VectorSource, allowed: Sequence[str],
+                     strings: bool = False) -> str:
         """The type of ``topic`` after checking ``src`` reads every type it carries: the fast types
         without a field path, any registered type with one (one line naming the way out otherwise)."""
         types = self.topic_types(topic)
         if len(types) == 1 and src.field is None:
             return self.check_type(topic, allowed, src.type)
-        why = {t: reason for t in types if (reason := self._unfit(t, src, tuple(allowed), strings)) is not None}
+        unfit = {t: self._unfit(t, src, tuple(allowed), strings) for t in types}
+        why = {t: reason for t, reason in unfit.items() if reason is not None}
         if not why:
             return types[0]
         if len(types) == 1:

@@ -208,9 +208,9 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
         values = generic.vectors(ctx, topic, src, stamps, raws, ctx.message_types(topic))
         if ctx.clock(topic) != "header":
             return values, stamps, None, stamps
-        header = generic.header_stamps(ctx, topic, raws, ctx.topic_types(topic)[0])
-        ctx.header_lag[topic] = stamps - header
-        return values, header, None, stamps
+        robot = generic.header_stamps(ctx, topic, raws, ctx.topic_types(topic)[0])
+        ctx.header_lag[topic] = stamps - robot
+        return values, robot, None, stamps
     if msgtype == layout.FLOAT32_ARRAY:
         values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
         return values, stamps, None, stamps

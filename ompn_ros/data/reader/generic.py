@@ -40,8 +40,9 @@ def field_reader(ctx: BagContext, topic: str, msgtype: str, paths: list[str]) ->
         raise TopicTypeError(str(err), path=ctx.path, topic=topic, index=0) from err
 
 
-def vectors(ctx: BagContext, topic: str, src: VectorSource, stamps: np.ndarray, raws: list[bytes],
-            types: list[str]) -> np.ndarray:
+def vectors(
+    ctx: BagContext, topic: str, src: VectorSource, stamps: np.ndarray, raws: list[bytes], types: list[str]
+) -> np.ndarray:
     """``[N, D]`` float32 of the messages ``raws`` (``types``: each message's type), per connection."""
     distinct = list(dict.fromkeys(types))
     if len(distinct) == 1:
@@ -54,40 +55,66 @@ def vectors(ctx: BagContext, topic: str, src: VectorSource, stamps: np.ndarray, 
         if out is None:
             out = np.zeros((len(raws), part.shape[1]), dtype=np.float32)
         if part.shape[1] != out.shape[1]:
-            raise VectorLengthError(f"{msgtype} gives {part.shape[1]} values, {distinct[0]} {out.shape[1]} "
-                                    "(the topic changes type)", path=ctx.path, topic=topic,
-                                    index=int(rows[0]), stamp=int(stamps[rows[0]]))
+            raise VectorLengthError(
+                f"{msgtype} gives {part.shape[1]} values, {distinct[0]} {out.shape[1]} "
+                "(the topic changes type)",
+                path=ctx.path,
+                topic=topic,
+                index=int(rows[0]),
+                stamp=int(stamps[rows[0]]),
+            )
         out[rows] = part
     assert out is not None
     return out
 
 
-def _one_type(ctx: BagContext, topic: str, src: VectorSource, stamps: np.ndarray, raws: list[bytes],
-              msgtype: str, rows: np.ndarray) -> np.ndarray:
+def _one_type(
+    ctx: BagContext,
+    topic: str,
+    src: VectorSource,
+    stamps: np.ndarray,
+    raws: list[bytes],
+    msgtype: str,
+    rows: np.ndarray,
+) -> np.ndarray:
     """Messages of one type; errors name the message's index in the whole topic (``rows``)."""
     if src.field is None and msgtype == layout.FLOAT32_ARRAY:
         try:
-            return m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
+            return m.stack_float32_arrays(
+                raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps
+            )
         except (CorruptBagError, VectorLengthError) as err:
-            raise type(err)(err.reason, path=ctx.path, topic=topic, index=int(rows[err.index or 0]),
-                            stamp=err.stamp) from err
+            raise type(err)(
+                err.reason, path=ctx.path, topic=topic, index=int(rows[err.index or 0]), stamp=err.stamp
+            ) from err
     if src.field is None and msgtype == layout.FLOAT64_ARRAY:
         try:
             return stack_float64_arrays(raws, src.dim, ctx.path, topic, stamps)
         except (CorruptBagError, VectorLengthError) as err:
-            raise type(err)(err.reason, path=ctx.path, topic=topic, index=int(rows[err.index or 0]),
-                            stamp=err.stamp) from err
+            raise type(err)(
+                err.reason, path=ctx.path, topic=topic, index=int(rows[err.index or 0]), stamp=err.stamp
+            ) from err
     path = src.field or "data"
     reader = field_reader(ctx, topic, msgtype, [path])
     try:
         values = reader.vectors(raws)[0]
     except RowError as err:
         kind = VectorLengthError if err.reason == "wrong_size" else CorruptBagError
-        raise kind(f"cannot read field '{path}' of {msgtype}: {err.detail}", path=ctx.path, topic=topic,
-                   index=int(rows[err.row]), stamp=int(stamps[err.row])) from err
+        raise kind(
+            f"cannot read field '{path}' of {msgtype}: {err.detail}",
+            path=ctx.path,
+            topic=topic,
+            index=int(rows[err.row]),
+            stamp=int(stamps[err.row]),
+        ) from err
     if src.dim is not None and values.shape[1] != src.dim and len(raws):
-        raise VectorLengthError(f"field '{path}' has {values.shape[1]} values, expected {src.dim}",
-                                path=ctx.path, topic=topic, index=int(rows[0]), stamp=int(stamps[0]))
+        raise VectorLengthError(
+            f"field '{path}' has {values.shape[1]} values, expected {src.dim}",
+            path=ctx.path,
+            topic=topic,
+            index=int(rows[0]),
+            stamp=int(stamps[0]),
+        )
     return values.astype(np.float32)
 
 
@@ -97,8 +124,9 @@ def header_stamps(ctx: BagContext, topic: str, raws: list[bytes], msgtype: str) 
     try:
         return reader.stamps(raws)
     except RowError as err:
-        raise CorruptBagError(f"cannot read header.stamp of {msgtype}: {err.detail}", path=ctx.path,
-                              topic=topic, index=err.row) from err
+        raise CorruptBagError(
+            f"cannot read header.stamp of {msgtype}: {err.detail}", path=ctx.path, topic=topic, index=err.row
+        ) from err
 
 
 def labels(ctx: BagContext, topic: str, stamps: np.ndarray, raws: list[bytes], kind: str) -> np.ndarray:
@@ -112,16 +140,29 @@ def labels(ctx: BagContext, topic: str, stamps: np.ndarray, raws: list[bytes], k
         try:
             value = reader.scalars(raw)[0]
         except CdrError as err:
-            raise CorruptBagError(f"cannot read label field '{reader.paths[0]}' of {msgtype}: {err}",
-                                  path=ctx.path, topic=topic, index=i, stamp=int(stamps[i])) from err
+            raise CorruptBagError(
+                f"cannot read label field '{reader.paths[0]}' of {msgtype}: {err}",
+                path=ctx.path,
+                topic=topic,
+                index=i,
+                stamp=int(stamps[i]),
+            ) from err
         if isinstance(value, str):
             if kind != layout.LABELS_ID:
-                raise LabelError(f"label field '{reader.paths[0]}' holds names ('{value}'): set labels: id",
-                                 path=ctx.path, topic=topic, index=i)
+                raise LabelError(
+                    f"label field '{reader.paths[0]}' holds names ('{value}'): set labels: id",
+                    path=ctx.path,
+                    topic=topic,
+                    index=i,
+                )
             value = names.setdefault(value, len(names))
         elif float(value) != int(value):
-            raise LabelError(f"label field '{reader.paths[0]}' holds {value}, not a whole number",
-                             path=ctx.path, topic=topic, index=i)
+            raise LabelError(
+                f"label field '{reader.paths[0]}' holds {value}, not a whole number",
+                path=ctx.path,
+                topic=topic,
+                index=i,
+            )
         out[i] = int(value)
     if names:
         ctx.report.notes.append(f"topic '{topic}': subtask names as ids {names}")

@@ -294,7 +294,8 @@ class ReaderSpec:
         value: Any = self.types
         sources = (value,) if isinstance(value, str) else tuple(value or ())
         if not all(isinstance(v, str) and v.strip() for v in sources):
-            raise ReaderSpecError(f"types must list folders of .msg files or interface package names, got {value!r}")
+            raise ReaderSpecError(f"types must list folders of .msg files or interface package names, "
+                                  f"got {value!r}")
         object.__setattr__(self, "types", sources)
 
     def _check_final_options(self) -> None:
