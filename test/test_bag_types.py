@@ -195,7 +195,10 @@ def _two_type_bag(tmp_path: Path, first: str, second: str) -> tuple[Path, list[n
 
 
 def _array(store: Any, msgtype: str, values: np.ndarray) -> bytes:
-    layout = store.types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
+    """A command of ``msgtype``; MultiArrays carry a 1-D layout labelled 'joint' (as a driver that
+    names its dimension), which puts a Float64MultiArray's data where a Float32MultiArray's would be."""
+    dim = store.types["std_msgs/msg/MultiArrayDimension"](label="joint", size=3, stride=3)
+    layout = store.types["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=0)
     if msgtype == "sensor_msgs/msg/JointState":
         msg = store.types[msgtype](
             header=tc._header(store, 1),
