@@ -352,6 +352,7 @@ class FieldReader:
         self.paths = tuple(paths)
         self.targets = [describe(typename, p) for p in self.paths]
         self._wants: list[Want] = [(parse_path(p), k) for k, p in enumerate(self.paths)]
+        self._last: _Layout | None = None  # the layout of the last message :meth:`values` walked
 
     def walk(self, raw: bytes | memoryview) -> _Walk:
         """The segments of every path in one message; :class:`CdrError` on bytes that do not fit."""
@@ -371,9 +372,13 @@ class FieldReader:
         return w
 
     def values(self, raw: bytes | memoryview) -> list[np.ndarray]:
-        """One float64 vector per path (strings are refused: :meth:`scalars`)."""
-        w = self.walk(raw)
-        return [_gather(raw, segs, w.big, p) for segs, p in zip(w.segs, self.paths)]
+        """One float64 vector per path (strings are refused: :meth:`scalars`).  A message of the last
+        one's layout (same length, header and length words: one ``struct`` call) reuses its offsets."""
+        last = self._last
+        if last is None or not last.fits(raw):
+            w = self.walk(raw)
+            last = self._last = _Layout(raw, w)
+        return [_gather(raw, segs, last.big, p) for segs, p in zip(last.segs, self.paths)]
 
     def scalars(self, raw: bytes | memoryview) -> list[int | float | str]:
         """One value per path, each path leading to a single number or a string (labels)."""
@@ -450,6 +455,22 @@ class FieldReader:
                     )
                 target[rows[same]] = part
             rows, block = rows[~same], block[~same]
+
+
+class _Layout:
+    """The offsets of one message's walk and what decides them: its length, header and length words."""
+
+    def __init__(self, raw: bytes | memoryview, w: _Walk) -> None:
+        self.size, self.head, self.big, self.segs = len(raw), bytes(raw[:2]), w.big, w.segs
+        fmt, pos = ">" if w.big else "<", 0
+        for word in sorted(set(w.words)):
+            fmt += f"{word - pos}xI"
+            pos = word + 4
+        self.words = struct.Struct(fmt)
+        self.values = self.words.unpack_from(raw, 0)
+
+    def fits(self, raw: bytes | memoryview) -> bool:
+        return len(raw) == self.size and raw[:2] == self.head and self.words.unpack_from(raw, 0) == self.values
 
 
 class RowError(Exception):
