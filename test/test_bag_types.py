@@ -317,3 +317,17 @@ def test_the_custom_arm_example_reads_a_labs_bag(tmp_path: Path, store: Any) -> 
     bag = tc.write_rosbags(tmp_path / "bag", store, demo, storage="sqlite3")
     result = read_episodes(bag, spec=ReaderSpec.from_yaml(CONFIG / "reader_custom_arm.yaml"))
     tc.check(result.episodes, demo, gripper=True)
+
+
+def test_an_assembled_topic_under_two_types_names_both(tmp_path: Path) -> None:
+    bag, _, _ = _two_type_bag(tmp_path, "std_msgs/msg/Float64MultiArray", "std_msgs/msg/Float32MultiArray")
+    spec = ReaderSpec.from_dict({
+        "assemble": {"step_topic": tc.STATE, "stamp": "receive", "tolerance_s": 0.5, "fields": [
+            {"topic": tc.STATE, "type": "std_msgs/msg/Float32MultiArray", "field": "data"},
+            {"topic": tc.CMD, "type": "std_msgs/msg/Float64MultiArray", "field": "data"}]},
+        "action": {"topic": tc.CMD, "type": None}, "subtask": None, "sketch": None, "episode": None,
+        "split": "gaps"})
+    with pytest.raises(TopicTypeError) as err:
+        read_episodes(bag, spec=spec)
+    line = str(err.value)
+    assert "Float64MultiArray to std_msgs/msg/Float32MultiArray" in line and f"message #{LENGTHS[0]}" in line, line

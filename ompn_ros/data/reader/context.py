@@ -215,11 +215,12 @@ class BagContext:
             got = self.raw.types[topic]
             try:
                 ensure(got, self.spec.types)
-            except TypeDefinitionError:
-                pass  # named below
-            if got not in m.typestore().types:
-                raise UnknownTypeError(f"message type '{got}' is not in the ROS 2 Jazzy typestore",
-                                       path=self.path, topic=topic, index=0)
+            except TypeDefinitionError as err:
+                raise UnknownTypeError(str(err), path=self.path, topic=topic, index=0) from None
+            types = self.topic_types(topic)
+            if len(types) > 1 and any(canonical_type(t) != want for t in types):
+                why = {t: f"the assemble block reads {want}" for t in types if canonical_type(t) != want}
+                raise self._type_change(topic, types, why)
             if canonical_type(got) != want:
                 raise TopicTypeError(f"carries '{got}', the reader spec's assemble block expects '{want}'",
                                      path=self.path, topic=topic, index=0)
