@@ -135,10 +135,12 @@ class ReaderSpec:
         time_gap: seconds between observations that split episodes when there are no markers.
         tolerance: seconds a partner may follow its observation (see the alignment rule).
         strict: raise :class:`AlignmentError` on missing/duplicate partners instead of counting.
-        stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics;
-            meant for foreign bags whose per-step topics are all JointState on one clock).
+        stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics and of
+            the topics read through a field path whose type has a ``std_msgs/Header header``;
+            meant for foreign bags whose per-step topics are all stamped on one clock).
         stamps: the time base per topic (YAML key ``stamps``, ``{topic: log | header}``), overriding
-            ``stamp`` for the topics it names; ``header`` needs a JointState topic.  Partners are
+            ``stamp`` for the topics it names; ``header`` needs a JointState topic or a field-path
+            topic with a header.  Partners are
             aligned on these stamps, so topics stamped on different clocks (the robot's header
             stamps, a label node's receive time) must be brought to one: when most messages of a
             partner attach to no observation while its stamps and the observations' are offset by a
