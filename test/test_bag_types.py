@@ -330,4 +330,5 @@ def test_an_assembled_topic_under_two_types_names_both(tmp_path: Path) -> None:
     with pytest.raises(TopicTypeError) as err:
         read_episodes(bag, spec=spec)
     line = str(err.value)
-    assert "Float64MultiArray to std_msgs/msg/Float32MultiArray" in line and f"message #{LENGTHS[0]}" in line, line
+    assert "Float64MultiArray to std_msgs/msg/Float32MultiArray" in line, line
+    assert f"message #{LENGTHS[0]}" in line, line

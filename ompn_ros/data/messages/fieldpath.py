@@ -470,7 +470,8 @@ class _Layout:
         self.values = self.words.unpack_from(raw, 0)
 
     def fits(self, raw: bytes | memoryview) -> bool:
-        return len(raw) == self.size and raw[:2] == self.head and self.words.unpack_from(raw, 0) == self.values
+        same_head = len(raw) == self.size and raw[:2] == self.head
+        return same_head and self.words.unpack_from(raw, 0) == self.values
 
 
 class RowError(Exception):
