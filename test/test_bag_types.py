@@ -332,3 +332,10 @@ def test_an_assembled_topic_under_two_types_names_both(tmp_path: Path) -> None:
     line = str(err.value)
     assert "Float64MultiArray to std_msgs/msg/Float32MultiArray" in line, line
     assert f"message #{LENGTHS[0]}" in line, line
+
+
+def test_a_ros2idl_schema_of_a_custom_type(tmp_path: Path, store: Any) -> None:
+    command = tc.COMMANDS["servo_jog"]
+    demo = tc.demos(store, command, LENGTHS, seed=19)
+    bag = tc.write_idl_mcap(tmp_path / "robot.mcap", store, demo)
+    tc.check(read_episodes(bag, spec=_spec(command)).episodes, demo)

@@ -268,3 +268,57 @@ def check(got: list[Any], demo: Demo, *, gripper: bool = False) -> None:
         want = np.hstack([pos, width[:, None]]) if gripper else pos
         np.testing.assert_array_equal(ep.observations, want.astype(np.float32))
         np.testing.assert_array_equal(ep.actions, act.astype(np.float32))
+
+
+IDL = {
+    ARM_STATE: """#include "my_robot_msgs/msg/GripperState.idl"
+#include "std_msgs/msg/Header.idl"
+
+module my_robot_msgs {
+  module msg {
+    struct ArmState {
+      std_msgs::msg::Header header;
+      sequence<string> joint_names;
+      sequence<double> positions;
+      sequence<double> velocities;
+      my_robot_msgs::msg::GripperState gripper;
+    };
+  };
+};
+""",
+    GRIPPER_STATE: """module my_robot_msgs {
+  module msg {
+    struct GripperState {
+      double width;
+      float force;
+      boolean grasped;
+    };
+  };
+};
+""",
+}
+"""The lab's types as the ``.idl`` files rosidl generates from its ``.msg`` files."""
+
+
+def write_idl_mcap(path: Path, store: Any, demo: Demo) -> Path:
+    """``demo`` as a bare ``.mcap`` written with the ``mcap`` package whose ArmState schema is
+    ``ros2idl`` (rosbag2's concatenation: ``IDL: pkg/msg/Type`` sections between ``=`` lines), the other
+    types' schemas ``ros2msg``."""
+    from mcap.writer import Writer as McapWriter
+
+    with open(path, "wb") as fh:
+        writer = McapWriter(fh)
+        writer.start(profile="ros2", library="lab")
+        channels: dict[str, int] = {}
+        for stamp, topic, msgtype, msg in demo.messages:
+            if topic not in channels:
+                if msgtype == ARM_STATE:
+                    text = "".join(f"{SEPARATOR}IDL: {name}\n{IDL[name]}" for name in IDL)
+                    schema = writer.register_schema(msgtype, "ros2idl", text.encode())
+                else:
+                    schema = writer.register_schema(msgtype, "ros2msg", ros2msg(store, msgtype).encode())
+                channels[topic] = writer.register_channel(topic, "cdr", schema)
+            writer.add_message(channels[topic], log_time=stamp, data=bytes(store.serialize_cdr(msg, msgtype)),
+                               publish_time=stamp)
+        writer.finish()
+    return path

@@ -28,6 +28,7 @@ from .cdr import typestore
 
 _SECTION = re.compile(r"^=+\s*$", re.MULTILINE)
 _MSG_HEADER = re.compile(r"^\s*MSG:\s*(\S+)\s*$", re.MULTILINE)
+_IDL_HEADER = re.compile(r"^\s*IDL:\s*\S+\s*$", re.MULTILINE)
 
 
 class TypeDefinitionError(OMPNError, ValueError):
@@ -52,8 +53,14 @@ def register_definition(typename: str, fmt: str, text: str) -> list[str]:
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
     try:
-        if fmt == "idl":
-            types = get_types_from_idl(text)
+        if fmt == "idl":  # rosbag2's ros2idl: IDL files after 'IDL: pkg/msg/Type', '=' lines between
+            types = {}
+            for section in _SECTION.split(text):
+                # rosidl's files start with #include lines, which rosbags' IDL parser refuses: dropped
+                lines = _IDL_HEADER.sub("", section).splitlines()
+                body = "\n".join(x for x in lines if not x.lstrip().startswith("#")).strip()
+                if body:
+                    types.update(get_types_from_idl(body + "\n"))
         else:
             types = {}
             sections = _SECTION.split(text)
