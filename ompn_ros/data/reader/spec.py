@@ -403,7 +403,14 @@ class ReaderSpec:
         out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
         out["stamps"] = None if self.stamps is None else dict(self.stamps)
         out["final_options"] = list(self.final_options)
-        out["types"] = list(self.types)
+        # the new keys only when used: a spec without them keeps its former form (and cache keys)
+        for key in ("observation", "action"):
+            if out[key]["field"] is None:
+                del out[key]["field"]
+        if self.types:
+            out["types"] = list(self.types)
+        else:
+            del out["types"]
         if self.subtask_field is not None:
             out["subtask"] = {"topic": self.subtask, "type": self.subtask_type, "field": self.subtask_field}
         del out["subtask_type"], out["subtask_field"]
