@@ -282,6 +282,9 @@ def _take_field(w: _Walk, node: Any, pos: int, here: list[Want], leaves: bool = 
                 k = _element(index, n, steps[0].name)
                 w.segs[slot].append((start + k * size, 1, NUMERIC[elem[1][0]]))
         return start + n * size
+    for steps, _ in here:  # an index outside the sequence (a trajectory without points) is an error
+        if steps[0].index is not None:
+            _element(steps[0].index, n, steps[0].name)
     for i in range(n):  # strings or messages, element by element
         chosen = [
             (s, slot) for s, slot in here if s[0].index is None or _element(s[0].index, n, s[0].name) == i
