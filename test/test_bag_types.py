@@ -339,3 +339,15 @@ def test_a_ros2idl_schema_of_a_custom_type(tmp_path: Path, store: Any) -> None:
     demo = tc.demos(store, command, LENGTHS, seed=19)
     bag = tc.write_idl_mcap(tmp_path / "robot.mcap", store, demo)
     tc.check(read_episodes(bag, spec=_spec(command)).episodes, demo)
+
+
+def test_two_bags_defining_one_type_differently_are_refused(tmp_path: Path, store: Any) -> None:
+    """Two labs' ``my_robot_msgs/msg/GripperState`` in one run: never one read as the other."""
+    command = tc.COMMANDS["forward_command"]
+    demo = tc.demos(store, command, LENGTHS)
+    tc.check(read_episodes(tc.write_rosbags(tmp_path / "a", store, demo), spec=_spec(command)).episodes, demo)
+    other = tc.lab_typestore(gripper="float32 width\nfloat64 force\nbool grasped\n")
+    bag = tc.write_rosbags(tmp_path / "b", other, tc.demos(other, command, LENGTHS))
+    with pytest.raises(UnknownTypeError) as err:
+        read_episodes(bag, spec=_spec(command))
+    assert tc.GRIPPER_STATE in str(err.value) and "separate runs" in str(err.value), str(err.value)

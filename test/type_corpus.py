@@ -37,13 +37,15 @@ JOINT_JOG_MSG = (
 SEPARATOR = "=" * 80 + "\n"
 
 
-def lab_typestore() -> Any:
-    """The writing lab's typestore: Jazzy's plus its own and control_msgs' types (not the reader's)."""
+def lab_typestore(gripper: str | None = None) -> Any:
+    """The writing lab's typestore: Jazzy's plus its own and control_msgs' types (not the reader's);
+    ``gripper``: another lab's definition of ``GripperState``."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     types: dict[str, Any] = {}
-    for name, text in (*MSG_FILES.items(), (JOINT_JOG, JOINT_JOG_MSG)):
+    files = {**MSG_FILES, **({GRIPPER_STATE: gripper} if gripper else {})}
+    for name, text in (*files.items(), (JOINT_JOG, JOINT_JOG_MSG)):
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store

@@ -47,8 +47,10 @@ def known(typename: str) -> bool:
 
 
 def register_definition(typename: str, fmt: str, text: str) -> list[str]:
-    """Register the types of one embedded definition (``fmt``: 'msg' or 'idl'); the names added."""
-    if known(typename) or not text.strip():
+    """Register the types of one embedded definition (``fmt``: 'msg' or 'idl'); the names added.  A
+    type registered before (another bag's, a folder's) must have the same fields, else
+    :class:`TypeDefinitionError`: one name, two definitions, never one read as the other."""
+    if builtin(typename) or not text.strip() or _TEXTS.get(typename) == text:
         return []
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
@@ -72,18 +74,34 @@ def register_definition(typename: str, fmt: str, text: str) -> list[str]:
                     types.update(get_types_from_msg(body, full_name(header.group(1))))
     except Exception as err:  # rosbags' parsers raise several types on a bad definition
         raise TypeDefinitionError(f"the definition of {typename} cannot be parsed: {err}") from err
-    return _register(types)
+    added = _register(types)
+    _TEXTS[typename] = text  # the same text again (the next bag of a lab) is not parsed again
+    return added
 
 
 _REGISTERED: set[str] = set()  # the names this process added to the Jazzy typestore
+_TEXTS: dict[str, str] = {}  # type -> the embedded definition registered for it
+
+
+def builtin(typename: str) -> bool:
+    """Whether ``typename`` is one of ROS 2 Jazzy's types (known without registering)."""
+    return known(typename) and typename not in _REGISTERED
 
 
 def _register(types: dict[str, Any]) -> list[str]:
-    new = {name: tree for name, tree in types.items() if not known(name)}
-    if new:
-        typestore().register(new)
+    """Register ``types`` but Jazzy's own; a name registered before with other fields is refused."""
+    from rosbags.typesys import TypesysError
+
+    mine = {name: tree for name, tree in types.items() if not builtin(name)}
+    new = sorted(name for name in mine if not known(name))
+    if mine:
+        try:
+            typestore().register(mine)  # rosbags compares the fields of names it holds already
+        except TypesysError as err:
+            raise TypeDefinitionError(f"{err} (read before from another bag or folder): read bags of the two "
+                                      "definitions in separate runs") from None
         _REGISTERED.update(new)
-    return sorted(new)
+    return new
 
 
 def register_folder(folder: str | Path) -> list[str]:
@@ -159,5 +177,6 @@ def forget(names: Iterable[str]) -> None:
     store = typestore()
     for name in set(names) & _REGISTERED:
         _REGISTERED.discard(name)
+        _TEXTS.pop(name, None)
         for table in (store.fielddefs, store.types, store.cache, fieldpath.FIELD_CACHE):
             table.pop(name, None)

@@ -18,7 +18,7 @@ from rosbags.interfaces import Connection, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader
 
 from ..errors import CorruptBagError, UnknownTypeError
-from ..messages.types import TypeDefinitionError, known, register_definition
+from ..messages.types import TypeDefinitionError, builtin, register_definition
 from ..obs import ObservationSpec
 from ..repeats import Repeats, unrepeated
 from .columns import AssemblySink, Float32Column
@@ -213,7 +213,7 @@ def register_bag_types(bag: Path, conns: list[Connection]) -> None:
     """Register the message types the bag defines for ``conns`` that the typestore lacks (rosbag2
     stores each topic's definition: sqlite3 ``message_definitions``, mcap schemas)."""
     for c in conns:
-        if known(c.msgtype) or c.msgdef.format == MessageDefinitionFormat.NONE:
+        if builtin(c.msgtype) or c.msgdef.format == MessageDefinitionFormat.NONE:
             continue
         fmt = "idl" if c.msgdef.format == MessageDefinitionFormat.IDL else "msg"
         try:
