@@ -351,3 +351,39 @@ def test_two_bags_defining_one_type_differently_are_refused(tmp_path: Path, stor
     with pytest.raises(UnknownTypeError) as err:
         read_episodes(bag, spec=_spec(command))
     assert tc.GRIPPER_STATE in str(err.value) and "separate runs" in str(err.value), str(err.value)
+
+
+def test_a_label_topic_under_two_types_is_read_per_connection(tmp_path: Path) -> None:
+    """Skill ids published as Int32, then (after a driver update) as Int64 with values past 2**32."""
+    from rosbags.rosbag2 import Writer
+
+    from ompn_ros.data import messages as m
+
+    store = m.typestore()
+    rng = np.random.default_rng(4)
+    t, want = 10**9, []
+    with Writer(tmp_path / "bag", version=9) as writer:
+        state = writer.add_connection(tc.STATE, "std_msgs/msg/Float32MultiArray", typestore=store)
+        cmd = writer.add_connection(tc.CMD, "std_msgs/msg/Float32MultiArray", typestore=store)
+        skills = {ty: writer.add_connection("/arm/skill", ty, typestore=store)
+                  for ty in ("std_msgs/msg/Int32", "std_msgs/msg/Int64")}
+        for k, steps in enumerate(LENGTHS):
+            msgtype = "std_msgs/msg/Int32" if k == 0 else "std_msgs/msg/Int64"
+            ids = [7 + k * 2**33 if i < 3 else 9 for i in range(steps)] if k else [4] * 3 + [5] * (steps - 3)
+            want.append(ids)
+            for i in range(steps + 1):
+                stamp = t + i * tc.STEP_NS
+                writer.write(state, stamp, m.serialize(m.float32_array(rng.standard_normal(2), "s")))
+                if i < steps:
+                    command = m.serialize(m.float32_array(rng.standard_normal(2), "c"))
+                    writer.write(cmd, stamp + 2_000_000, command)
+                    label = bytes(store.serialize_cdr(store.types[msgtype](data=ids[i]), msgtype))
+                    writer.write(skills[msgtype], stamp + 1_000_000, label)
+            t += steps * tc.STEP_NS + tc.GAP_NS
+    spec = ReaderSpec.from_dict({
+        "observation": {"topic": tc.STATE, "type": "std_msgs/msg/Float32MultiArray"},
+        "action": {"topic": tc.CMD, "type": "std_msgs/msg/Float32MultiArray"},
+        "subtask": {"topic": "/arm/skill", "type": None, "field": "data"}, "labels": "id",
+        "sketch": None, "episode": None, "split": "gaps"})
+    got = read_episodes(tmp_path / "bag", spec=spec).episodes
+    assert [list(ep.extras["subtask_id"][:ep.length]) for ep in got] == want

@@ -189,8 +189,8 @@ class BagContext:
             if spec.subtask_field is not None:
                 label = VectorSource(sub, spec.subtask_type, field=spec.subtask_field)
                 self.check_source(sub, label, (), strings=True)
-            else:
-                self.check_type(sub, (layout.INT32,), layout.INT32)
+            else:  # a topic under several types is checked message type by message type
+                self.check_source(sub, VectorSource(sub, layout.INT32), (layout.INT32,))
         for name, base in self.spec.stamps or ():
             topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
             if topic is not None:

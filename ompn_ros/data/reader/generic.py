@@ -132,11 +132,12 @@ def header_stamps(ctx: BagContext, topic: str, raws: list[bytes], msgtype: str) 
 def labels(ctx: BagContext, topic: str, stamps: np.ndarray, raws: list[bytes], kind: str) -> np.ndarray:
     """The label of every message (``ReaderSpec.subtask_field``) as int64: numbers as they are, strings
     (names) as ids in order of first appearance (``labels: id`` only; the names go to the report)."""
-    msgtype = ctx.topic_types(topic)[0]
-    reader = field_reader(ctx, topic, msgtype, [ctx.spec.subtask_field or ""])
+    types = ctx.message_types(topic)  # each message by its own type (a topic under several types)
+    readers = {t: field_reader(ctx, topic, t, [ctx.spec.subtask_field or ""]) for t in set(types)}
     names: dict[str, int] = {}
     out = np.zeros(len(raws), dtype=np.int64)
     for i, raw in enumerate(raws):
+        msgtype, reader = types[i], readers[types[i]]
         try:
             value = reader.scalars(raw)[0]
         except CdrError as err:
