@@ -24,6 +24,9 @@
    DDS: step -> ``~/pi`` and step -> ``~/boundary`` latency at 100 Hz, then 1 kHz on the step topic for
    ``duration`` s (60 s; 10 s with ``quick``): steps in (the node's ``obs.steps``), ``~/pi`` out, lost
    (sent - accepted) and dropped by the assembler.
+4. A type without a hand-written parser (``observation_spec`` = :data:`CUSTOM_SPEC`: the Dial observation
+   as the four arrays of one ``JointTrajectoryPoint``, read by field path as a lab's own type is): the
+   node's work per step in process, step -> ``~/pi`` and step -> ``~/boundary`` latency at 100 Hz.
 
 Run: ``.venv/bin/python bench/bench_node.py [--quick]`` from the repository root.
 """
@@ -618,6 +621,101 @@ def bench_dds_multi(duration: float, latency_msgs: int, executor: str = "events"
     return out
 
 
+CUSTOM_TYPE = "trajectory_msgs/msg/JointTrajectoryPoint"
+CUSTOM_SPEC: dict[str, Any] = {
+    "step_topic": "/arm/point",
+    "stamp": "receive",
+    "fields": [{"topic": "/arm/point", "type": CUSTOM_TYPE, "field": name}
+               for name in ("positions", "velocities", "accelerations", "effort")],
+}  # fmt: skip
+"""The Dial observation (39) from one message of a type without a hand-written parser: 9 positions,
+9 velocities, 15 accelerations, 6 efforts of a ``JointTrajectoryPoint`` (plus its ``Duration``), read by
+field path through the type's definition, as a lab's own message type is (docs/specs.md)."""
+
+
+def _custom_messages(obs: np.ndarray) -> list[bytes]:
+    """Per step, the CDR of one ``JointTrajectoryPoint`` carrying the observation."""
+    from rclpy.serialization import serialize_message
+    from trajectory_msgs.msg import JointTrajectoryPoint
+
+    return [serialize_message(JointTrajectoryPoint(positions=list(x[0:9]), velocities=list(x[9:18]),
+                                                   accelerations=list(x[18:33]), effort=list(x[33:39])))
+            for x in obs.astype(float)]  # fmt: skip
+
+
+def bench_custom_in_process(steps: int) -> Result:
+    """The node's work per step on :data:`CUSTOM_SPEC`: ``ObservationAssembler.step`` (field paths) +
+    ``StreamingSegmenter.step`` (shipped Dial checkpoint), receive stamps 1 ms apart."""
+    import torch
+
+    from ompn_ros.checkpoints import shipped_checkpoint
+    from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec
+    from ompn_ros.detect.online import DetectorConfig
+    from ompn_ros.model.load import stepper_from_checkpoint
+    from ompn_ros.segmenter import StreamingSegmenter
+
+    torch.set_num_threads(1)
+    asm = ObservationAssembler(ObservationSpec.from_dict(CUSTOM_SPEC))
+    seg = StreamingSegmenter(stepper_from_checkpoint(shipped_checkpoint("dial")), DetectorConfig(high=0.1))
+    obs, _ = _observations("dial", steps)
+    raws = _custom_messages(obs)
+    times: list[float] = []
+    for rep in range(3):
+        for k, raw in enumerate(raws):
+            stamp = (rep * len(raws) + k + 1) * 1_000_000
+            t0 = time.perf_counter_ns()
+            x = asm.step(stamp, raw)
+            if not isinstance(x, Drop):
+                seg.step(x, stamp)
+            if rep:
+                times.append((time.perf_counter_ns() - t0) / 1e3)
+    return {"dial_custom_node_step_p50": (_pct(times, 50), "us"),
+            "dial_custom_node_step_p99": (_pct(times, 99), "us")}
+
+
+def bench_dds_custom(latency_msgs: int, executor: str = "events", client: str = "events",
+                     obs_qos: str = "best_effort") -> Result:
+    """``ompn_node`` (shipped Dial checkpoint and detector) with ``observation_spec`` = :data:`CUSTOM_SPEC`
+    in its own process; this process publishes the points at 100 Hz: step -> ``~/pi`` and step ->
+    ``~/boundary`` latency."""
+    import rclpy
+    import yaml
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from trajectory_msgs.msg import JointTrajectoryPoint
+
+    from ompn_ros.paths import config_file
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_node_custom_"))
+    spec_file = tmp / "arm.yaml"
+    spec_file.write_text(yaml.safe_dump({"observation": CUSTOM_SPEC}))
+    raws = _custom_messages(_observations("dial", 20 + latency_msgs)[0])
+    _freeze_garbage()
+    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
+           "--params-file", str(config_file("ompn_node_dial.yaml")), "-p", f"executor:={executor}",
+           "-p", "diagnostics_period:=0.2", "-p", "qos_depth:=1000", "-p", f"observation_spec:={spec_file}",
+           "-p", f"obs_qos:={obs_qos}"]  # fmt: skip
+    log_path = tmp / f"node_custom_{executor}.log"
+    log = open(log_path, "w")  # closed in the finally block
+    proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=str(ROOT), stdout=log, stderr=subprocess.STDOUT)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        c = _Client(ctx, client)
+        pub = c.node.create_publisher(JointTrajectoryPoint, "/arm/point",
+                                      QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        ticks = [[(pub, raw)] for raw in raws]
+        if not c.pump(lambda: bool(c.diag) and pub.get_subscription_count() > 0, 30):
+            raise RuntimeError(f"ompn_node did not come up: {log_path.read_text()}")
+        c.pump(lambda: False, 0.5)
+        c.pace(ticks[:20], 100.0)  # warm-up (the first messages after matching may be lost)
+        c.pump(lambda: False, 0.5)
+        out = _multi_latency(c, ticks[20:], f"dial_custom_{executor}")
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        _stop(proc, log)
+    return out
+
+
 def run(quick: bool = False, executor: str = "events", client: str = "events", parts: str = "all",
         multi_wait: float | None = None, obs_qos: str = "best_effort") -> Result:
     """All figures (name -> (value, unit)); ``quick`` = 5 s at 1 kHz (multi-topic: 10 s) and fewer
@@ -636,6 +734,10 @@ def run(quick: bool = False, executor: str = "events", client: str = "events", p
         results.update(bench_multi_in_process(1000 if quick else 5000))
         results.update(bench_dds_multi(duration=10.0 if quick else 60.0, latency_msgs=300 if quick else 3000,
                                        executor=executor, client=client, wait_s=multi_wait, obs_qos=obs_qos))
+    if parts in ("all", "custom"):
+        results.update(bench_custom_in_process(1000 if quick else 5000))
+        results.update(bench_dds_custom(300 if quick else 3000, executor=executor, client=client,
+                                        obs_qos=obs_qos))
     return results
 
 
@@ -646,8 +748,9 @@ def main() -> None:
                         help="ompn_node's executor parameter")
     parser.add_argument("--client-executor", choices=("events", "single"), default="events",
                         help="executor of the publishing/subscribing benchmark client")
-    parser.add_argument("--parts", choices=("all", "step", "dds", "multi"), default="all",
-                        help="multi: the multi-topic observation_spec case alone")
+    parser.add_argument("--parts", choices=("all", "step", "dds", "multi", "custom"), default="all",
+                        help="multi: the multi-topic observation_spec case alone; custom: an observation "
+                             "type read by field path")
     parser.add_argument("--multi-wait", type=float, default=None, metavar="S",
                         help="wait_s of the multi-topic spec (default: the spec's default; 0 = no wait)")
     parser.add_argument("--obs-qos", choices=("best_effort", "reliable"), default="best_effort",

@@ -19,7 +19,7 @@ from std_msgs.msg import Float32MultiArray, Int32MultiArray
 from ompn_ros import layout
 from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array
 from ompn_ros.data.obs import Decided, Drop
-from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, JointInput, drop_line
+from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, drop_line
 from ompn_ros.nodes.ompn_node_outputs import NodeOutputs
 from ompn_ros.nodes.ompn_node_params import input_qos
 from ompn_ros.validate import BadStamp, InvalidInput, MalformedMessage, WrongObservationLength
@@ -64,7 +64,7 @@ class NodeInputs(NodeOutputs):
         spec = assembled.spec
         for topic in (*spec.partner_topics, spec.step_topic):
             callback = self._on_spec_step if topic == spec.step_topic else self._partner_callback(topic)
-            msg_class = MESSAGE_CLASSES[spec.type_of(topic)]
+            msg_class = assembled.classes[topic]
             self._subscribe(msg_class, topic, callback, qos, "obs_qos", raw=True)
         self._graph_timer = self.create_timer(1.0, self._check_topic_types)
         self._check_topic_types()

@@ -25,6 +25,7 @@ from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
 from ompn_ros import layout
 from ompn_ros.data.joint_merge import JointMerger, field_width_line
 from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec, ObservationSpecError
+from ompn_ros.nodes.ompn_node_types import message_class
 
 MESSAGE_CLASSES: Final[dict[str, Any]] = {
     layout.JOINT_STATE: JointState,
@@ -35,7 +36,8 @@ MESSAGE_CLASSES: Final[dict[str, Any]] = {
     layout.WRENCH_STAMPED: WrenchStamped,
     layout.POSE_STAMPED: PoseStamped,
 }
-"""The rclpy message class of every type an observation spec may name (its canonical spelling)."""
+"""The rclpy message class of the hand-parsed types (canonical spelling); any other installed type is
+imported by name (:mod:`ompn_ros.nodes.ompn_node_types`)."""
 
 COUNTER_PREFIX: Final = "obs."
 
@@ -88,6 +90,9 @@ class AssembledInput:
             )
         self.spec = spec
         self.obs_dim = int(obs_dim)
+        # the rclpy class of each topic (any installed type: one line naming the package otherwise)
+        self.classes = {topic: message_class(typename, MESSAGE_CLASSES)
+                        for topic, typename in spec.topics.items()}
         self.asm = ObservationAssembler(spec, history=max(1, history))
         self.size_checked = declared is not None
         self.topic_types: dict[str, str | None] = {}  # last problem line per topic (None = fine)

@@ -7,6 +7,9 @@
 * :mod:`.observations`: fast parsers of the per-step messages (MultiArrays, Int32, Float32/64,
   JointState, WrenchStamped, PoseStamped) for the bag reader, the node and the observation rule.
 * :mod:`.interfaces`: ``ompn_interfaces``' ``SubtaskBoundary`` and ``SubtaskState``.
+* :mod:`.fieldpath`: any numeric or string field of any registered type by path
+  (``points[-1].positions``), read from raw CDR along the type's definition (docs/specs.md).
+* :mod:`.types`: registering types from a bag's definitions, a ``.msg`` folder or a package.
 """
 
 from .cdr import (

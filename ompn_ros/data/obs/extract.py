@@ -29,6 +29,8 @@ from ompn_ros.layout import (
 )
 
 from ..errors import ObservationSpecError
+from ..messages.fieldpath import NAME, FieldPathError, FieldReader, fields_of
+from ..messages.types import known
 from .spec import FieldSpec, ObservationSpec
 
 ExtractReason = Literal["malformed", "wrong_size"]
@@ -105,12 +107,30 @@ class TopicExtractor:
             raise ValueError(f"TopicExtractor('{topic}') needs fields of that topic and one type")
         self.topic = topic
         self.type = fields[0].type
-        self.has_header = self.type in (JOINT_STATE, WRENCH_STAMPED, POSE_STAMPED)
-        self._parse = m.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]
+        generic = [f for f in fields if f.generic]
+        self._paths: FieldReader | None = None
+        if generic:  # field paths: one walk per message over the type's definition
+            self._paths = path_reader(self.type, [f.field for f in generic])
+        self.has_header = self.type in (JOINT_STATE, WRENCH_STAMPED, POSE_STAMPED) or (
+            self._paths is not None and self._paths.paths[-1] == "header.stamp")
+        fast = len(generic) < len(fields)
+        self._parse = (m.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]) \
+            if fast else self._parse_paths
+        if generic and fast:
+            self._parse = _both(self._parse, self._parse_paths)
         self._fields = [_FieldState(f, f.declared_size, f.names) for f in fields]
         for state in self._fields:
             if state.size is not None:
                 state.labels = state.spec.labels(state.size)
+
+    def _parse_paths(self, raw: bytes | memoryview) -> Parsed:
+        assert self._paths is not None
+        values = self._paths.values(raw)  # CdrError on bytes that do not fit: 'malformed' in extract()
+        stamp = None
+        if self._paths.paths[-1] == "header.stamp":
+            sec, nanosec = values.pop()
+            stamp = int(sec) * 1_000_000_000 + int(nanosec)
+        return stamp, dict(zip(self._paths.paths, values)), None
 
     @property
     def sizes(self) -> list[int | None]:
@@ -139,7 +159,9 @@ class TopicExtractor:
         self, state: _FieldState, values: dict[str, np.ndarray], names: tuple[str, ...] | None
     ) -> np.ndarray:
         spec = state.spec
-        if self.type == JOINT_STATE:
+        if spec.generic:
+            vec = values[spec.field]
+        elif self.type == JOINT_STATE:
             vec = self._joint_field(state, values[spec.field], names or ())
         elif (self.type, spec.field) in _SLICES:
             vec = values["all"][_SLICES[(self.type, spec.field)]]
@@ -182,6 +204,30 @@ class TopicExtractor:
                 state.index_cache[key] = index
         state.last_names, state.last_index = names, index
         return arr[index]
+
+
+def path_reader(typename: str, paths: list[str]) -> FieldReader:
+    """A :class:`FieldReader` of ``paths`` (and ``header.stamp`` last when the type has a header);
+    :class:`ObservationSpecError` names the type or the path at fault."""
+    try:
+        if not known(typename):
+            raise ObservationSpecError(
+                f"type {typename} is not in the bag's definitions nor the typestore: name its .msg folder "
+                f"with `types: DIR`, or install its package ({typename.split('/', 1)[0]})")
+        header = dict(fields_of(typename)).get("header") == (NAME, "std_msgs/msg/Header")
+        return FieldReader(typename, [*paths, *(["header.stamp"] if header else [])])
+    except FieldPathError as err:
+        raise ObservationSpecError(str(err)) from err
+
+
+def _both(fast: Callable[[bytes | memoryview], Parsed],
+          paths: Callable[[bytes | memoryview], Parsed]) -> Callable[[bytes | memoryview], Parsed]:
+    """A topic with fast fields and field paths: both parsers, their values merged."""
+    def parse(raw: bytes | memoryview) -> Parsed:
+        stamp, values, names = fast(raw)
+        return stamp, {**values, **paths(raw)[1]}, names
+
+    return parse
 
 
 def extractors(spec: ObservationSpec) -> dict[str, TopicExtractor]:

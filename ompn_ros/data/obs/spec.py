@@ -13,9 +13,12 @@ The same block configures the bag reader (reader-spec YAML) and ``ompn_node`` (p
         - {topic: /arm1/gripper, type: std_msgs/msg/Float32MultiArray, field: data, size: 2}
         - {topic: /arm1/wrench, type: geometry_msgs/msg/WrenchStamped, field: wrench}
 
-Type names are the ROS 2 spellings (``pkg/msg/Type``; ``pkg/Type`` and the bare ``Type`` are accepted
-too).  Every error is one :class:`ObservationSpecError` line naming the entry at fault, e.g.
-``fields[2]: field 'positon' of topic '/arm1/joint_states': sensor_msgs/msg/JointState has no field``.
+Type names are the ROS 2 spellings (``pkg/msg/Type``; ``pkg/Type`` and, for the types of
+:data:`FIELDS`, the bare ``Type`` are accepted too).  Any other type is read through a field path
+(``field: gripper.width``, ``twist.linear``, ``points[-1].positions``; docs/specs.md), its definition
+coming from the bag, a ``.msg`` folder or its installed package.  Every error is one
+:class:`ObservationSpecError` line naming the entry at fault, e.g. ``fields[2]: field 'positon' of
+topic '/arm1/joint_states': sensor_msgs/msg/JointState: field path 'positon': ... has no field``.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from pathlib import Path
 from typing import Any, Final, Literal
 
 from ompn_ros.data.errors import ObservationSpecError
+from ompn_ros.data.messages.fieldpath import FieldPathError, Target, describe, parse_path
+from ompn_ros.data.messages.types import full_name, known
 from ompn_ros.layout import (
     FLOAT32,
     FLOAT32_ARRAY,
@@ -69,11 +74,15 @@ FIXED_LABELS: Final[dict[tuple[str, str], tuple[str, ...]]] = {
 
 
 def canonical_type(name: str) -> str | None:
-    """``pkg/msg/Type`` of a supported type given as ``pkg/msg/Type``, ``pkg/Type`` or ``Type``."""
+    """``pkg/msg/Type`` of a type given as ``pkg/msg/Type`` or ``pkg/Type`` (any type), or as the bare
+    ``Type`` of a fast-parsed one (:data:`FIELDS`); ``None`` for a bare name of another type."""
     base = name.rsplit("/", 1)[-1]
     for full in FIELDS:
         if name == full or (full.endswith("/" + base) and name in (base, full.replace("/msg/", "/"))):
             return full
+    parts = name.strip("/").split("/")
+    if len(parts) in (2, 3) and all(parts) and (len(parts) == 2 or parts[1] == "msg"):
+        return full_name(name)
     return None
 
 
@@ -105,17 +114,39 @@ class FieldSpec:
             raise ObservationSpecError(f"{at}: the topic must be a non-empty name")
         full = canonical_type(self.type) if isinstance(self.type, str) else None
         if full is None:
-            raise ObservationSpecError(f"{at}: unsupported message type {self.type!r}; "
-                                       f"supported: {sorted(FIELDS)}")
+            raise ObservationSpecError(f"{at}: message type {self.type!r} needs its package (pkg/msg/Type); "
+                                       f"the bare names known are those of {sorted(FIELDS)}")
         object.__setattr__(self, "type", full)
-        if self.field not in FIELDS[full]:
-            raise ObservationSpecError(f"{at}: {full} has no field {self.field!r}; "
-                                       f"known: {list(FIELDS[full])}")
+        if self.generic:
+            self._check_path(at, full)
         self._check_names_and_size(at, full)
+
+    @property
+    def generic(self) -> bool:
+        """Whether the field is a field path read through the type's definition (else a fast parser)."""
+        return self.field not in FIELDS.get(self.type, ())
+
+    def _check_path(self, at: str, full: str) -> None:
+        """The path's syntax, and its target when the type is already known (a bag's own type is
+        checked when its definition is registered, :meth:`target`)."""
+        try:
+            parse_path(self.field)
+            if known(full):
+                target = describe(full, self.field)
+                if target.kind == "string":
+                    raise FieldPathError(f"{full}: field path '{self.field}' is a string, not a number")
+        except FieldPathError as err:
+            raise ObservationSpecError(f"{at}: {err}") from None
+
+    def target(self) -> Target | None:
+        """What a field path leads to (``None`` for a fast field or a type not registered yet)."""
+        if not self.generic or not known(self.type):
+            return None
+        return describe(self.type, self.field)
 
     def _check_names_and_size(self, at: str, full: str) -> None:
         if self.names is not None:
-            if full not in VARIABLE_SIZE:
+            if full not in VARIABLE_SIZE and not self.generic:
                 raise ObservationSpecError(f"{at}: names are not allowed for {full} (its labels are fixed)")
             names = tuple(self.names) if isinstance(self.names, (list, tuple)) else None
             if not names or not all(isinstance(n, str) and n for n in names):
@@ -125,7 +156,7 @@ class FieldSpec:
                 raise ObservationSpecError(f"{at}: names has duplicates: {list(names)}")
             object.__setattr__(self, "names", names)
         if self.size is not None:
-            if full not in (FLOAT32_ARRAY, FLOAT64_ARRAY):
+            if full not in (FLOAT32_ARRAY, FLOAT64_ARRAY) and not self.generic:
                 has = "names" if full == JOINT_STATE else "a fixed size"
                 raise ObservationSpecError(f"{at}: only MultiArray fields declare a size ({full} has {has})")
             if isinstance(self.size, bool) or not isinstance(self.size, int) or self.size <= 0:
@@ -136,20 +167,29 @@ class FieldSpec:
     @property
     def declared_size(self) -> int | None:
         """Number of elements known from the spec alone, ``None`` when the first message decides."""
-        fixed = FIXED_LABELS.get((self.type, self.field))
-        if fixed is not None:
+        fixed = FIXED_LABELS.get((self.type, self.field)) or self._path_labels()
+        if fixed is not None and self.names is None:
             return len(fixed)
         if self.names is not None:
             return len(self.names)
         return self.size
 
+    def _path_labels(self) -> tuple[str, ...] | None:
+        """Labels a field path's type fixes (a scalar is labelled by its last field name)."""
+        target = self.target()
+        if target is None or target.labels is None:
+            return None
+        if target.labels == ("",):
+            return (self.field.rsplit(".", 1)[-1].split("[", 1)[0],)
+        return target.labels
+
     def labels(self, size: int, joint_names: Sequence[str] | None = None) -> tuple[str, ...]:
         """Element labels for a field of ``size`` elements (``joint_names``: a JointState's own order)."""
-        fixed = FIXED_LABELS.get((self.type, self.field))
-        if fixed is not None:
-            return fixed
         if self.names is not None:
             return self.names
+        fixed = FIXED_LABELS.get((self.type, self.field)) or self._path_labels()
+        if fixed is not None:
+            return fixed
         if joint_names is not None:
             return tuple(joint_names)
         return tuple(str(i) for i in range(size))

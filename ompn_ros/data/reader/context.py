@@ -13,10 +13,12 @@ from ompn_ros.layout import resolve_topic
 
 from .. import messages as m
 from ..errors import MissingTopicError, TopicTypeError, UnknownTypeError
+from ..messages.fieldpath import NAME, FieldPathError, describe, fields_of
+from ..messages.types import TypeDefinitionError, ensure, known
 from ..obs.spec import ObservationSpec, canonical_type
 from .raw import RawBag
 from .report import BagReport
-from .spec import ACTION_TYPES, VECTOR_TYPES, ReaderSpec
+from .spec import ACTION_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
 
 
 @dataclass(frozen=True)
@@ -54,10 +56,91 @@ class BagContext:
 
     def clock(self, topic: str) -> str:
         """The time base of ``topic``: ``ReaderSpec.stamps`` for it, else ``ReaderSpec.stamp``; topics
-        without a header the reader uses (all but JointState) are always on the bag's receive clock."""
-        if self.raw.types.get(topic) != layout.JOINT_STATE:
+        without a header the reader uses (all but JointState and the types read through a field path
+        that have a ``header``) are always on the bag's receive clock."""
+        if self.raw.types.get(topic) != layout.JOINT_STATE and not self._generic_header(topic):
             return "log"
         return self._clocks.get(topic, self.spec.stamp)
+
+    def _generic_header(self, topic: str) -> bool:
+        """Whether ``topic`` is read through a field path and its one type has ``header.stamp``."""
+        spec = self.spec
+        sources = [s for s in (spec.observation, spec.action) if s.field is not None
+                   and self.resolve_quiet(s.topic) == topic]
+        types = self.topic_types(topic)
+        if not sources or len(types) != 1 or not known(types[0]):
+            return False
+        return dict(fields_of(types[0])).get("header") == (NAME, "std_msgs/msg/Header")
+
+    def resolve_quiet(self, name: str) -> str:
+        """``name`` resolved in the spec's namespace (no suffix match, no note)."""
+        return resolve_topic(name, self.spec.namespace)
+
+    def topic_types(self, topic: str) -> list[str]:
+        """The types of ``topic`` in the order its messages show them (several in a split bag where
+        the topic changed type)."""
+        tdata = self.raw.topics.get(topic)
+        if tdata is not None:
+            return list(tdata.types)
+        return [self.raw.types[topic]] if topic in self.raw.types else []
+
+    def message_types(self, topic: str) -> list[str]:
+        """Each message's type in the topic's (sorted) order."""
+        self.stamps(topic)
+        tdata = self.raw.topics.get(topic)
+        return [] if tdata is None else tdata.message_types()
+
+    def check_source(self, topic: str, src: VectorSource, allowed: Sequence[str],
+                     strings: bool = False) -> str:
+        """The type of ``topic`` after checking ``src`` reads every type it carries: the fast types
+        without a field path, any registered type with one (one line naming the way out otherwise)."""
+        types = self.topic_types(topic)
+        if len(types) == 1 and src.field is None:
+            return self.check_type(topic, allowed, src.type)
+        unfit = {t: self._unfit(t, src, tuple(allowed), strings) for t in types}
+        why = {t: reason for t, reason in unfit.items() if reason is not None}
+        if not why:
+            return types[0]
+        if len(types) == 1:
+            raise (UnknownTypeError if not known(types[0]) else TopicTypeError)(
+                why[types[0]], path=self.path, topic=topic, index=0)
+        raise self._type_change(topic, types, why)
+
+    def _unfit(self, msgtype: str, src: VectorSource, allowed: tuple[str, ...], strings: bool) -> str | None:
+        """Why ``src`` cannot read messages of ``msgtype`` (``None``: it can)."""
+        if src.field is not None:
+            if src.type is not None and msgtype != src.type:
+                return f"the spec's type is {src.type}"
+            try:
+                ensure(msgtype, self.spec.types)
+                target = describe(msgtype, src.field)
+            except (TypeDefinitionError, FieldPathError) as err:
+                return str(err)
+            if target.kind == "string" and not strings:
+                return f"field '{src.field}' of {msgtype} is a string"
+            if strings and target.labels != ("",):
+                return f"field '{src.field}' of {msgtype} is not one number or string (a label is one value)"
+            return None
+        if src.type is not None:
+            return None if msgtype == src.type else f"the spec's type is {src.type}"
+        if msgtype not in (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY) or msgtype not in allowed:
+            return f"without a field path a topic of several types must hold {layout.FLOAT32_ARRAY} or " \
+                   f"{layout.FLOAT64_ARRAY}"
+        return None
+
+    def _type_change(self, topic: str, types: list[str], why: dict[str, str]) -> TopicTypeError:
+        """The one line of a topic recorded under several types that the spec reads only some of."""
+        tdata = self.raw.topics[topic]
+        assert tdata.kinds is not None  # several types
+        change = next(i for i, k in enumerate(tdata.kinds) if k != tdata.kinds[0])
+        before, after = tdata.types[tdata.kinds[0]], tdata.types[tdata.kinds[change]]
+        good = [t for t in types if t not in why]
+        bad = [t for t in types if t in why]
+        return TopicTypeError(
+            f"the topic changes type from {before} to {after} at message #{change} (stamp "
+            f"{tdata.stamps[change] / 1e9:.3f} s); the reader spec fits {' and '.join(good) or 'neither'}, "
+            f"not {' and '.join(bad)} ({why[bad[0]]}): give a field path both types have, or read the "
+            "parts as separate bags", path=self.path, topic=topic, index=change, stamp=None)
 
 
     def resolve(self, name: str | None, required: bool) -> str | None:
@@ -90,8 +173,8 @@ class BagContext:
         topics = Topics(
             obs=obs, act=act, assemble=assemble,
             obs_type=self.raw.types[obs] if assemble is not None else
-            self.check_type(obs, VECTOR_TYPES, spec.observation.type),
-            act_type=self.check_type(act, ACTION_TYPES, spec.action.type),
+            self.check_source(obs, spec.observation, VECTOR_TYPES),
+            act_type=self.check_source(act, spec.action, ACTION_TYPES),
             sub=sub, labels=labels,
             sketch=self.resolve(spec.sketch, False),
             episode=self.resolve(spec.episode, spec.split == "markers"),
@@ -103,13 +186,18 @@ class BagContext:
             if topic:
                 self.check_type(topic, (kind,), kind)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
-            self.check_type(sub, (layout.INT32,), layout.INT32)
+            if spec.subtask_field is not None:
+                label = VectorSource(sub, spec.subtask_type, field=spec.subtask_field)
+                self.check_source(sub, label, (), strings=True)
+            else:  # a topic under several types is checked message type by message type
+                self.check_source(sub, VectorSource(sub, layout.INT32), (layout.INT32,))
         for name, base in self.spec.stamps or ():
             topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
             if topic is not None:
                 self._clocks[topic] = base
         for topic, clock in self._clocks.items():
-            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE:
+            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE \
+                    and not self._generic_header(topic):
                 raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "
                                      "its time base to log in the reader spec's stamps", path=self.path,
                                      topic=topic, index=0)
@@ -125,9 +213,14 @@ class BagContext:
             topic = self.resolve(name, True)
             assert topic is not None  # required=True raised otherwise
             got = self.raw.types[topic]
-            if got not in m.typestore().types:
-                raise UnknownTypeError(f"message type '{got}' is not in the ROS 2 Jazzy typestore",
-                                       path=self.path, topic=topic, index=0)
+            try:
+                ensure(got, self.spec.types)
+            except TypeDefinitionError as err:
+                raise UnknownTypeError(str(err), path=self.path, topic=topic, index=0) from None
+            types = self.topic_types(topic)
+            if len(types) > 1 and any(canonical_type(t) != want for t in types):
+                why = {t: f"the assemble block reads {want}" for t in types if canonical_type(t) != want}
+                raise self._type_change(topic, types, why)
             if canonical_type(got) != want:
                 raise TopicTypeError(f"carries '{got}', the reader spec's assemble block expects '{want}'",
                                      path=self.path, topic=topic, index=0)
@@ -183,7 +276,9 @@ class BagContext:
         """The topic's message type, after checking it is decodable and what the spec expects."""
         msgtype = self.raw.types[topic]
         if msgtype not in m.typestore().types:
-            raise UnknownTypeError(f"message type '{msgtype}' is not in the ROS 2 Jazzy typestore",
+            raise UnknownTypeError(f"message type '{msgtype}' is not in the ROS 2 Jazzy typestore nor the "
+                                   "bag's definitions: name its .msg folder with `types: DIR` in the reader "
+                                   "spec and read a field of it with `field:` (docs/specs.md)",
                                    path=self.path, topic=topic, index=0)
         if expected is not None and msgtype != expected:
             raise TopicTypeError(f"carries '{msgtype}', the reader spec expects '{expected}'",

@@ -25,6 +25,7 @@ from ompn_ros import layout
 
 from .. import messages as m
 from ..errors import AlignmentError, BagError, CorruptBagError, NonFiniteValueError
+from . import generic
 from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors, merge_publishers
 from .observe import AssembledRows, assembled_rows
@@ -122,7 +123,9 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         sub = topics.sub
         sub_stamps, raws = ctx.data(sub)
         out.sub_stamps = sub_stamps
-        if topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
+        if topics.labels != layout.LABELS_BOUNDARY and ctx.spec.subtask_field is not None:
+            out.sub = _guard(errors, lambda: generic.labels(ctx, sub, sub_stamps, raws, topics.labels))
+        elif topics.labels != layout.LABELS_BOUNDARY:  # boundary events: only their stamps count
             out.sub = _guard(errors, lambda: m.stack_int32(raws, path=ctx.path, topic=sub, stamps=sub_stamps))
     if topics.split:
         split = topics.split
@@ -201,6 +204,13 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
     if not raws:
         names = len(src.joint_names) * len(src.fields) if src.joint_names else 0
         return np.zeros((0, src.dim or names), dtype=np.float32), stamps, None, stamps
+    if src.field is not None or len(ctx.topic_types(topic)) > 1:  # a field path, or per connection
+        values = generic.vectors(ctx, topic, src, stamps, raws, ctx.message_types(topic))
+        if ctx.clock(topic) != "header":
+            return values, stamps, None, stamps
+        robot = generic.header_stamps(ctx, topic, raws, ctx.topic_types(topic)[0])
+        ctx.header_lag[topic] = stamps - robot
+        return values, robot, None, stamps
     if msgtype == layout.FLOAT32_ARRAY:
         values = m.stack_float32_arrays(raws, expected_dim=src.dim, path=ctx.path, topic=topic, stamps=stamps)
         return values, stamps, None, stamps

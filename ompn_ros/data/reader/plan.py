@@ -35,6 +35,6 @@ def stream_plan(bag: Path, spec: ReaderSpec, types: dict[str, str]) -> StreamPla
                           topics.split) if t}
     if topics.assemble is not None:
         return StreamPlan(assemble=topics.assemble, keep_raw=frozenset(set(topics.assemble.topics) & others))
-    if topics.obs_type == layout.FLOAT32_ARRAY and topics.obs not in others:
+    if topics.obs_type == layout.FLOAT32_ARRAY and topics.obs not in others and not spec.observation.generic:
         return StreamPlan(column=topics.obs, dim=spec.observation.dim)
     return None

@@ -14,10 +14,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from rosbags.interfaces import Connection
+from rosbags.interfaces import Connection, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader
 
-from ..errors import CorruptBagError
+from ..errors import CorruptBagError, UnknownTypeError
+from ..messages.types import TypeDefinitionError, builtin, register_definition
 from ..obs import ObservationSpec
 from ..repeats import Repeats, unrepeated
 from .columns import AssemblySink, Float32Column
@@ -56,9 +57,35 @@ class TopicData:
     seqs: array[int] = field(default_factory=lambda: array("q"))
     column: Float32Column | None = None  # decoded as read: ``raws`` stays empty while it is set
     has_raws: bool = True  # False: a topic fed to an AssemblySink whose bytes were dropped
+    types: list[str] = field(default_factory=list)  # the topic's types in the order they appear
+    kinds: array[int] | None = None  # per message, its type's index in ``types``; None: one type
 
-    def add(self, stamp: int, data: bytes, seq: int) -> None:
+    def __post_init__(self) -> None:
+        self.types = self.types or [self.msgtype]
+
+    def type_of(self, msgtype: str) -> None:
+        """Note the type of the message about to be added: a topic whose connections differ in type
+        (a split bag where a command changed type) keeps each message's own (ends a column)."""
+        if self.kinds is None:
+            if msgtype == self.msgtype:
+                return
+            self.kinds = array("B", bytes(len(self.stamps)))
+            if self.column is not None:
+                self.raws, self.column = self.column.to_raws(), None
+        if msgtype not in self.types:
+            self.types.append(msgtype)
+        self.kinds.append(self.types.index(msgtype))
+
+    def message_types(self) -> list[str]:
+        """The type of every message, in the topic's current order."""
+        if self.kinds is None:
+            return [self.msgtype] * len(self.stamps)
+        return [self.types[k] for k in self.kinds]
+
+    def add(self, stamp: int, data: bytes, seq: int, msgtype: str | None = None) -> None:
         """Append one message (decoded into the column when there is one and it fits)."""
+        if msgtype is not None and (self.kinds is not None or msgtype != self.msgtype):
+            self.type_of(msgtype)
         self.stamps.append(stamp)
         self.seqs.append(seq)
         if self.column is not None:
@@ -73,6 +100,8 @@ class TopicData:
         """Keep messages ``index`` (in that order)."""
         self.stamps = array("q", [self.stamps[i] for i in index])
         self.seqs = array("q", [self.seqs[i] for i in index])
+        if self.kinds is not None:
+            self.kinds = array("B", [self.kinds[i] for i in index])
         if self.column is not None:
             self.column.take(np.asarray(index, dtype=np.int64))
         elif self.has_raws:
@@ -102,7 +131,7 @@ class RawBag:
         tdata = self.topics.get(topic)
         if tdata is None:
             tdata = self.topics[topic] = TopicData(msgtype)
-        tdata.add(stamp, data, self.count - 1)
+        tdata.add(stamp, data, self.count - 1, msgtype)
 
     def truncate(self, stamp: int) -> None:
         """Drop every message stamped at or after ``stamp`` (the corrupt tail)."""
@@ -143,8 +172,14 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
         files = storage_files(bag) if bag.is_dir() else [bag]
         where = files[0] if len(files) == 1 else bag
         raise CorruptBagError(f"cannot open bag: {err}{_unfinished_hint(err)}", path=where) from err
-    raw.types = {c.topic: c.msgtype for c in reader.connections}
+    for c in reader.connections:
+        raw.types.setdefault(c.topic, c.msgtype)  # a topic under several types: its first
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+    try:
+        register_bag_types(bag, conns)
+    except BaseException:
+        reader.close()
+        raise
     for topic in {c.topic for c in conns}:
         raw.topics[topic] = TopicData(raw.types[topic])
     try:
@@ -157,7 +192,7 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
             fed = set(sink.spec.topics) if sink is not None else set()
             for conn, stamp, data in bag_messages(reader, conns, raw.notes, raw.repeats):
                 topic, tdata = conn.topic, raw.topics[conn.topic]
-                tdata.add(stamp, data, read)
+                tdata.add(stamp, data, read, conn.msgtype)
                 if topic in fed:
                     assert sink is not None
                     sink.add(topic, stamp, data)
@@ -172,6 +207,20 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
             pass
     raw.count = read
     return raw
+
+
+def register_bag_types(bag: Path, conns: list[Connection]) -> None:
+    """Register the message types the bag defines for ``conns`` that the typestore lacks (rosbag2
+    stores each topic's definition: sqlite3 ``message_definitions``, mcap schemas)."""
+    for c in conns:
+        if builtin(c.msgtype) or c.msgdef.format == MessageDefinitionFormat.NONE:
+            continue
+        fmt = "idl" if c.msgdef.format == MessageDefinitionFormat.IDL else "msg"
+        try:
+            register_definition(c.msgtype, fmt, c.msgdef.data)
+        except TypeDefinitionError as err:
+            raise UnknownTypeError(f"{err}; name its .msg folder with `types: DIR` in the reader spec",
+                                   path=bag, topic=c.topic) from err
 
 
 def bag_messages(reader: Reader, conns: list[Connection], notes: list[str],

@@ -16,6 +16,8 @@ import yaml
 from ompn_ros import layout
 
 from ..errors import ObservationSpecError, ReaderSpecError
+from ..messages.fieldpath import FieldPathError, parse_path
+from ..messages.types import full_name
 from ..obs.spec import ObservationSpec
 
 T = TypeVar("T")
@@ -38,6 +40,8 @@ bags (docs/design.md#final-observation); Dial ``auto``, the choice on validation
 SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
+"""The types read without a ``field`` path (the hand-written fast parsers); any other type is read
+through a ``field`` path (:mod:`ompn_ros.data.messages.fieldpath`, docs/specs.md)."""
 
 
 @dataclass(frozen=True)
@@ -47,7 +51,12 @@ class VectorSource:
     Attributes:
         topic: topic name (relative names resolve in ``ReaderSpec.namespace``).
         type: ``Float32MultiArray``, ``Float64MultiArray`` (read as float32), ``JointState`` or
-            (actions) ``Int32``; ``None`` = as in the bag.
+            (actions) ``Int32``; any other message type (``pkg/msg/Type``) with ``field``;
+            ``None`` = as in the bag.
+        field: a field path into the message (``positions``, ``gripper.width``, ``twist.linear``,
+            ``points[-1].positions``; docs/specs.md): the numbers it leads to, in definition
+            order, are the vector.  ``None``: the type's own vector (MultiArray ``data``,
+            JointState ``fields``).
         dim: expected vector size (checked), ``None`` = the size of the topic's first message.
         fields: JointState fields concatenated in this order (``position``/``velocity``/``effort``).
         joint_names: JointState joint order (by name); ``None`` = the message's own order.
@@ -65,8 +74,11 @@ class VectorSource:
     fields: tuple[str, ...] = ("position",)
     joint_names: tuple[str, ...] | None = None
     merge_s: float | None = None
+    field: str | None = None
 
     def __post_init__(self) -> None:
+        if self.field is not None:
+            self._check_field()
         if self.merge_s is not None and (self.merge_s < 0 or not self.joint_names):
             raise ReaderSpecError(f"topic '{self.topic}': merge_s needs joint_names (the first names the "
                                   f"step joint) and a value >= 0, got {self.merge_s}")
@@ -74,9 +86,26 @@ class VectorSource:
         if bad or not self.fields:
             raise ReaderSpecError(f"topic '{self.topic}': JointState fields must be a non-empty subset "
                                   f"of {layout.JOINT_FIELDS}, got {list(self.fields)}")
-        if self.type is not None and self.type not in ACTION_TYPES:
-            raise ReaderSpecError(f"topic '{self.topic}': unsupported type '{self.type}', "
-                                  f"expected one of {ACTION_TYPES}")
+        if self.type is not None and self.type not in ACTION_TYPES and self.field is None:
+            raise ReaderSpecError(f"topic '{self.topic}': type '{self.type}' needs a field path (key "
+                                  f"'field', e.g. field: positions; docs/specs.md); without one the type "
+                                  f"must be one of {ACTION_TYPES}")
+
+    def _check_field(self) -> None:
+        try:
+            parse_path(self.field or "")
+        except FieldPathError as err:
+            raise ReaderSpecError(f"topic '{self.topic}': {err}") from None
+        if self.type is not None:
+            object.__setattr__(self, "type", full_name(self.type))
+        if self.joint_names is not None or self.merge_s is not None:
+            raise ReaderSpecError(f"topic '{self.topic}': joint_names and merge_s are JointState keys; with "
+                                  "a field path give the field of the joints you want")
+
+    @property
+    def generic(self) -> bool:
+        """Whether the vector is read through ``field`` (else by the type's fast parser)."""
+        return self.field is not None
 
 
 DEFAULT_OBSERVATION = VectorSource(layout.OBSERVATION)
@@ -106,10 +135,12 @@ class ReaderSpec:
         time_gap: seconds between observations that split episodes when there are no markers.
         tolerance: seconds a partner may follow its observation (see the alignment rule).
         strict: raise :class:`AlignmentError` on missing/duplicate partners instead of counting.
-        stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics;
-            meant for foreign bags whose per-step topics are all JointState on one clock).
+        stamp: ``'log'`` (bag stamps) or ``'header'`` (``header.stamp`` of JointState topics and of
+            the topics read through a field path whose type has a ``std_msgs/Header header``;
+            meant for foreign bags whose per-step topics are all stamped on one clock).
         stamps: the time base per topic (YAML key ``stamps``, ``{topic: log | header}``), overriding
-            ``stamp`` for the topics it names; ``header`` needs a JointState topic.  Partners are
+            ``stamp`` for the topics it names; ``header`` needs a JointState topic or a field-path
+            topic with a header.  Partners are
             aligned on these stamps, so topics stamped on different clocks (the robot's header
             stamps, a label node's receive time) must be brought to one: when most messages of a
             partner attach to no observation while its stamps and the observations' are offset by a
@@ -131,6 +162,12 @@ class ReaderSpec:
 
             ``ordinal``, ``id`` and ``boundary`` require the topic (:class:`MissingTopicError`).
             Metrics only ever see the ordinals (``Episode.subtask``).
+
+            ``subtask`` may also be a mapping ``{topic, type, field}`` (the grammar of
+            ``observation`` and ``action``, docs/specs.md): the label is the number or string
+            ``field`` leads to in any message type (``task_msgs/msg/Skill`` ``id``,
+            ``std_msgs/msg/String`` ``data``).  Strings are names: with ``labels: id`` each distinct
+            name gets an id in order of first appearance (``BagReport.notes`` lists them).
         final_observation: what to do with an episode whose last observation already has an
             action, i.e. the observation after the last command was not recorded (YAML key
             ``final_observation``):
@@ -185,6 +222,10 @@ class ReaderSpec:
         idle_speed: ``split: idle``: a step is still when its observation changed by less than this
             per second since the previous step (largest element; 0 = never by speed).  A step with
             no command attached (an action topic other than the observation's) is still as well.
+        types: where message types come from beyond ROS 2 Jazzy's and the bag's own definitions
+            (rosbag2 stores them in the bag; older bags lack them): folders of ``.msg`` files
+            (``<pkg>/msg/<Name>.msg`` below each) or installed interface package names
+            (:mod:`ompn_ros.data.messages.types`, docs/specs.md).
     """
 
     observation: VectorSource = DEFAULT_OBSERVATION
@@ -208,10 +249,14 @@ class ReaderSpec:
     split_topic: str | None = None
     idle_s: float = 1.0
     idle_speed: float = 0.0
+    types: tuple[str, ...] = ()  # a list is accepted
+    subtask_type: str | None = None  # YAML: subtask: {topic, type, field}
+    subtask_field: str | None = None
 
     def __post_init__(self) -> None:
         self._check_choices()
-        if self.observation.type not in VECTOR_TYPES:
+        self._check_types()
+        if not self.observation.generic and self.observation.type not in VECTOR_TYPES:
             raise ReaderSpecError(f"observation type must be one of {VECTOR_TYPES}, "
                                   f"got '{self.observation.type}'")
         if self.time_gap <= 0 or self.tolerance < 0:
@@ -245,6 +290,15 @@ class ReaderSpec:
         if self.stamp != "log" or self.stamps:
             raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
                                   "and no stamps (assemble's own 'stamp' key chooses the stamps of its rule)")
+
+    def _check_types(self) -> None:
+        """``types`` as a tuple of non-empty strings (folders of ``.msg`` files or package names)."""
+        value: Any = self.types
+        sources = (value,) if isinstance(value, str) else tuple(value or ())
+        if not all(isinstance(v, str) and v.strip() for v in sources):
+            raise ReaderSpecError(f"types must list folders of .msg files or interface package names, "
+                                  f"got {value!r}")
+        object.__setattr__(self, "types", sources)
 
     def _check_final_options(self) -> None:
         """``final_options`` as a tuple of distinct guessing options (a list is accepted)."""
@@ -314,6 +368,12 @@ class ReaderSpec:
         for key in ("observation", "action"):
             if key in kwargs:
                 kwargs[key] = _vector_source(key, kwargs[key])
+        if isinstance(kwargs.get("subtask"), dict):
+            label = _vector_source("subtask", kwargs["subtask"])
+            if label.field is None:
+                raise ReaderSpecError("'subtask' as a mapping needs 'field' (e.g. {topic: /skill, type: "
+                                      "std_msgs/msg/String, field: data})")
+            kwargs.update(subtask=label.topic, subtask_type=label.type, subtask_field=label.field)
         if kwargs.get("assemble") is not None:
             kwargs["assemble"] = _observation_spec(kwargs["assemble"])
         return _build(cls, kwargs, "reader spec")
@@ -343,6 +403,17 @@ class ReaderSpec:
         out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
         out["stamps"] = None if self.stamps is None else dict(self.stamps)
         out["final_options"] = list(self.final_options)
+        # the new keys only when used: a spec without them keeps its former form (and cache keys)
+        for key in ("observation", "action"):
+            if out[key]["field"] is None:
+                del out[key]["field"]
+        if self.types:
+            out["types"] = list(self.types)
+        else:
+            del out["types"]
+        if self.subtask_field is not None:
+            out["subtask"] = {"topic": self.subtask, "type": self.subtask_type, "field": self.subtask_field}
+        del out["subtask_type"], out["subtask_field"]
         return out
 
 
