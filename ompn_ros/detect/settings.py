@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from ompn_ros.atomic import remove_stale_temps, temp_prefix
+from ompn_ros.atomic import remove_stale_temps, temp_prefix, umask_mode
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import (
     BoundaryHeadError,
@@ -323,6 +323,7 @@ def save_detector_settings(checkpoint_dir: str | Path, settings: DetectorSetting
     )
     try:
         with handle:
+            os.fchmod(handle.fileno(), umask_mode())  # a published file follows the umask, not 0600
             handle.write(text)
             handle.flush()
             os.fsync(handle.fileno())

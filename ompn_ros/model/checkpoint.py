@@ -27,7 +27,7 @@ import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 
-from ompn_ros.atomic import free_space, make_temp_dir, remove_stale_temps
+from ompn_ros.atomic import free_space, make_temp_dir, remove_stale_temps, umask_mode
 from ompn_ros.model.build import PolicyModule, build_policy, check_model_size, expected_tensors
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.errors import CheckpointError, ConfigError
@@ -77,10 +77,10 @@ def save_checkpoint(
         save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": "ompn_ros"})
         (tmp / CONFIG_FILE).write_text(policy.config.to_json())
         (tmp / META_FILE).write_text(meta_text)
-        # mkdtemp creates 0700: make the checkpoint readable like any other installed data file.
-        tmp.chmod(0o755)
+        # mkdtemp creates 0700: the checkpoint gets the modes of any file the user writes (the umask)
+        tmp.chmod(umask_mode(directory=True))
         for file in tmp.iterdir():
-            file.chmod(0o644)
+            file.chmod(umask_mode())
         if path.exists():
             old = make_temp_dir(path.parent, path.name, "old")
             os.replace(path, old / "ckpt")
