@@ -22,7 +22,8 @@ from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.nodes.ompn_node_obs import MESSAGE_CLASSES, AssembledInput, JointInput, drop_line
 from ompn_ros.nodes.ompn_node_outputs import NodeOutputs
 from ompn_ros.nodes.ompn_node_params import input_qos
-from ompn_ros.validate import BadStamp, InvalidInput, MalformedMessage, WrongObservationLength
+from ompn_ros.stream.rule import classify_stamp
+from ompn_ros.validate import BadStamp, FutureStamp, InvalidInput, MalformedMessage, WrongObservationLength
 
 MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
 
@@ -207,8 +208,13 @@ class NodeInputs(NodeOutputs):
         if self.stream.repeats.seen_sample(layout.JOINT_STATES, stamp, payload):
             return  # the same sample sent twice (same header stamp and data): one step
         joints = self._joints or JointInput(self.values["joint_fields"], None, None)
+        if joints.merger is not None and self._merge_refuses(stamp):
+            return
         got = joints.observation(stamp, msg.name, fields)
         if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
+            silent = joints.silence_line()
+            if silent is not None:
+                self.get_logger().warning(silent)
             return
         if isinstance(got, str):
             self._reject(MalformedMessage(got))
@@ -216,6 +222,20 @@ class NodeInputs(NodeOutputs):
         self._frame_id = msg.header.frame_id
         with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
             self.process_observation(got.astype(np.float32), stamp)
+
+    def _merge_refuses(self, stamp_ns: int) -> bool:
+        """``joint_merge``: a message of any publisher stamped more than ``max_stamp_lead`` ahead of the
+        node's clock is rejected before it is merged (``future_stamp``), as a step would be: its values
+        would otherwise look fresh to every step until the clock caught up."""
+        limits = self.stream.limits
+        if limits.max_lead_ns <= 0:
+            return False
+        now = self.get_clock().now().nanoseconds
+        if classify_stamp(stamp_ns, None, now, jump_back_ns=0, max_lead_ns=limits.max_lead_ns) != "future":
+            return False
+        self._reject(FutureStamp(f"JointState stamped {stamp_ns} ns is more than max_stamp_lead="
+                                 f"{limits.max_stamp_lead} s ahead of the node's clock: not merged"))
+        return True
 
     def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
         """Step the segmenter on one observation and publish its outputs (or count a rejection).
