@@ -1,7 +1,10 @@
 """``ompn_node``'s inputs: the subscriptions and their callbacks, each surviving any message.
 
 :class:`NodeInputs` turns ROS messages into the stream rule's plain inputs (:mod:`ompn_ros.stream.rule`:
-an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  Topics,
+an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  Every
+input topic (those of ``obs_qos``) also counts the messages its publisher sent that never reached a
+callback (an input queue overwritten while the node was busy), from the gaps in the publication
+sequence numbers of the message info (``messages_missed``, :mod:`ompn_ros.stream.delivery`).  Topics,
 stamps and QoS: the module docstring of :mod:`ompn_ros.nodes.ompn_node`.
 """
 
