@@ -106,4 +106,5 @@ def test_the_gap_rule() -> None:
     assert gaps.seen(100) == 0 and gaps.seen(3) == 0 and gaps.seen(101) == 0  # interleaved: not counted
     gaps.publishers(1)
     assert gaps.seen(110) == 0 and gaps.seen(112) == 1 and gaps.seen(2**64 - 1) == 0
+    assert gaps.seen(0) == 0 and gaps.seen(113) == 0  # no number given: the count goes on unharmed
     assert gaps.missed == 3 + 2 + 1

@@ -37,9 +37,11 @@ class SequenceGaps:
 
     def seen(self, sequence: int) -> int:
         """A received sample's publication sequence number; how many samples before it were missed."""
+        if not 0 < sequence < UNSUPPORTED_LIMIT:
+            return 0  # the middleware gives no number: nothing to count, nothing to remember
         last, self._last = self._last, sequence
-        if last is None or not 0 < sequence < UNSUPPORTED_LIMIT or sequence <= last or self._publishers != 1:
-            return 0  # the first, an unsupported number, a restarted publisher, or several publishers
+        if last is None or sequence <= last or self._publishers != 1:
+            return 0  # the first, a restarted publisher, or several publishers
         gap = sequence - last - 1
         self.missed += gap
         return gap
