@@ -411,6 +411,7 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
             return out
         client.pump(lambda: False, 0.5)
         accepted_before = int(client.diag["accepted"])
+        missed_before = int(client.diag.get("messages_missed", 0))
         n = int(duration * 1000)
         obs = obs_all[20 + latency_msgs :][:n]
         cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
@@ -423,6 +424,9 @@ def bench_dds(domain: str, duration: float, latency_msgs: int, executor: str = "
         out[f"{executor}_1khz_sent"] = (float(n), "msgs")
         out[f"{executor}_1khz_achieved_rate"] = (n / wall, "Hz")
         out[f"{executor}_1khz_lost_steps"] = (float(n - accepted), "steps")
+        # of those, the ones the node counted as sent and never received (its input queue overflowed)
+        missed = int(client.diag.get("messages_missed", 0)) - missed_before
+        out[f"{executor}_1khz_lost_counted"] = (float(missed), "steps")
         out[f"{executor}_1khz_node_cpu"] = (100.0 * cpu / wall, "% of one core")
     finally:
         rclpy.try_shutdown(context=ctx)

@@ -8,7 +8,10 @@ piles up under ``train_state/``.
 
 :func:`atomic_write` writes one file that way (a full or read-only disk leaves the old file, or
 none, never a truncated one) and turns a failed write into one :class:`WriteFailure` line naming the
-file and the space left on its filesystem.
+file and the space left on its filesystem.  ``mkstemp`` and ``mkdtemp`` create owner-only
+temporaries; what is published gets the mode a plain ``open()`` or ``mkdir()`` would give it, the
+process's umask applied (:func:`umask_mode`), so tables, summaries and records are as readable as any
+other file the user writes.
 """
 
 from __future__ import annotations
@@ -36,6 +39,26 @@ def make_temp_dir(parent: Path, stem: str, kind: TempKind = "tmp") -> Path:
     """A new empty directory ``parent/.<stem>.<kind>-<pid>-<random>`` (mode 0700)."""
     parent.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=temp_prefix(stem, kind), dir=parent))
+
+
+def current_umask() -> int:
+    """The process's umask (read from ``/proc/self/status`` where Linux offers it, so no thread ever
+    sees it changed; elsewhere set and restored at once)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def umask_mode(directory: bool = False) -> int:
+    """The mode a new file (``0o666``) or directory (``0o777``) gets under the process's umask."""
+    return (0o777 if directory else 0o666) & ~current_umask()
 
 
 def _alive(pid: int) -> bool:
@@ -105,6 +128,7 @@ def atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
     tmp: str | None = None
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name))
+        os.fchmod(fd, umask_mode())  # mkstemp's 0600 would make every output owner-only
         with os.fdopen(fd, "wb") as handle:
             write(handle)
             handle.flush()
@@ -128,10 +152,12 @@ def atomic_write_text(path: Path, text: str) -> None:
 __all__ = [
     "atomic_write",
     "atomic_write_text",
+    "current_umask",
     "free_space",
     "is_stale",
     "make_temp_dir",
     "remove_stale_temps",
     "temp_prefix",
+    "umask_mode",
     "write_failure",
 ]

@@ -18,6 +18,7 @@ from ompn_ros.app.errors import ReplayError
 from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.reader import ReaderSpec
 from ompn_ros.data.reader.spec import FINAL_GUESSES, FinalObservation
+from ompn_ros.model.checkpoint_json import read_checkpoint_json
 
 RECORD_FILE = "final_guess.json"
 FORMAT = "ompn_ros.final_guess"
@@ -36,12 +37,9 @@ def trained_final(checkpoint_dir: str | Path) -> FinalObservation | None:
         ReplayError: the record is not this format or names no guessing option.
     """
     path = Path(checkpoint_dir) / RECORD_FILE
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         return None
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ReplayError(f"{path}: not readable JSON ({exc})") from None
+    doc = read_checkpoint_json(path, ReplayError)
     option = doc.get("final_observation") if isinstance(doc, dict) else None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or option not in FINAL_GUESSES:
         raise ReplayError(f"{path}: expected format {FORMAT!r} naming one of {list(FINAL_GUESSES)}")

@@ -17,6 +17,11 @@ mtime.  Entries of another format version (``CACHE_FORMAT``) are never hit: a st
 under the key is deleted and rebuilt, and entries of other formats (directories whose
 ``index.json`` names another version) are deleted from ``cache_dir`` when a new entry is built
 there.  Nothing is pickled.
+
+Every entry carries its key and a checksum of each file, verified when it is opened
+(:mod:`ompn_ros.data.cache_store`), and its offsets are checked against its arrays: a damaged,
+edited or misplaced entry is rebuilt from the bags, with a note in the read report (``notes``), and
+temporaries of killed runs are removed when a run starts (their process is gone).
 """
 
 from __future__ import annotations
@@ -33,7 +38,13 @@ from typing import Any
 
 import numpy as np
 
-from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
+from ompn_ros.data.errors import (
+    CacheEntryError,
+    CacheFormatError,
+    EmptyEntryError,
+    MixedBagsError,
+    NpyAppendError,
+)
 
 from .cache_store import (
     CACHE_FORMAT,
@@ -43,6 +54,7 @@ from .cache_store import (
     EntryWriter,
     common_obs_names,
     open_entry,
+    remove_stale_entries,
     write_entry,
 )
 from .episode import Episode
@@ -101,6 +113,7 @@ class EpisodeArrays:
     key: str = ""
     cache_hit: bool = False
     cache_path: Path | None = None
+    notes: list[str] = field(default_factory=list)  # entries found broken and rebuilt on the way
 
     def __len__(self) -> int:
         return len(self.obs_offsets) - 1
@@ -173,23 +186,52 @@ class EpisodeArrays:
         out["obs_names"] = np.asarray(self.obs_names, dtype=str)
         return out
 
-    def save(self, path: Path) -> None:
+    def save(self, path: Path, key: str = "") -> None:
         """Write as a cache entry: a directory of ``.npy`` files and ``index.json``, atomically."""
-        write_entry(path, self._arrays(), self.report)
+        write_entry(path, self._arrays(), self.report, key)
 
     @classmethod
-    def load(cls, path: Path) -> EpisodeArrays:
-        """Open an entry written by :meth:`save` or :func:`load_arrays`, step arrays memory-mapped.
+    def load(cls, path: Path, key: str | None = None) -> EpisodeArrays:
+        """Open an entry written by :meth:`save` or :func:`load_arrays`, step arrays memory-mapped;
+        ``key``: the identity it must have.
 
         Raises :class:`~ompn_ros.data.errors.CacheFormatError` (a ``ValueError``) for an entry
-        of another format version and ``OSError`` when it is missing.
+        of another format version, :class:`~ompn_ros.data.errors.CacheEntryError` for one whose
+        key, checksums or offsets do not hold, and ``OSError`` when it is missing.
         """
-        arrays, report = open_entry(path)
+        arrays, report = open_entry(path, key)
         extras = {k[len("extras__"):]: arrays.pop(k) for k in list(arrays) if k.startswith("extras__")}
         step = {k[len("step_extras__"):]: arrays.pop(k) for k in list(arrays)
                 if k.startswith("step_extras__")}
         names = tuple(str(n) for n in arrays.pop("obs_names"))
-        return cls(**arrays, extras=extras, step_extras=step, obs_names=names, report=report, cache_path=path)
+        try:
+            out = cls(**arrays, extras=extras, step_extras=step, obs_names=names, report=report,
+                      cache_path=path)
+        except TypeError as exc:  # an array missing from the index, or one it should not have
+            raise CacheEntryError(f"cache entry {path}: {exc}") from None
+        out.check_layout()
+        return out
+
+    def check_layout(self) -> None:
+        """Raise :class:`~ompn_ros.data.errors.CacheEntryError` unless the offsets cut the arrays into
+        whole episodes (monotone, from 0 to each array's end, ``T + 1`` observations for ``T``
+        actions) and every per-episode array has one value per episode.  O(episodes)."""
+        n = len(self.obs_offsets) - 1
+        obs, act, sk = (np.asarray(a, np.int64) for a in (self.obs_offsets, self.act_offsets,
+                                                            self.sketch_offsets))
+        per_episode = (self.has_subtask, self.has_sketch, self.tasks, self.seeds, self.success)
+        problems = [
+            n < 0 or len(act) != n + 1 or len(sk) != n + 1,
+            n >= 0 and (obs[0] != 0 or act[0] != 0 or sk[0] != 0),
+            bool(np.any(np.diff(act) < 0)) or bool(np.any(np.diff(sk) < 0)),
+            len(obs) == len(act) and bool(np.any(obs != act + np.arange(n + 1))),
+            n >= 0 and (obs[-1] != len(self.observations) or act[-1] != len(self.actions)
+                        or act[-1] != len(self.subtask) or sk[-1] != len(self.sketch)),
+            any(len(a) != n for a in per_episode),
+        ]
+        if any(problems):
+            raise CacheEntryError(f"cache entry {self.cache_path}: its offsets do not cut its arrays into "
+                                  f"{n} whole episodes")
 
 
 def content_key(bags: Sequence[Path], spec: ReaderSpec, on_error: str) -> str:
@@ -230,25 +272,39 @@ def load_arrays(
         return _in_memory(bags, spec, on_error)
     key = content_key(bags, spec, on_error)
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    remove_stale_entries(root)
     entry = root / f"episodes_{key}"
-    hit = open_hit(entry)
+    notes: list[str] = []
+    hit = open_hit(entry, key, notes)
     if hit is None:
         _prune_other_formats(root)
-        build_entry(bags, spec, on_error, entry)
-        hit = EpisodeArrays.load(entry)
+        build_entry(bags, spec, on_error, entry, key)
+        hit = EpisodeArrays.load(entry, key)
     else:
         hit.cache_hit = True
     hit.key = key
-    return hit
+    return with_notes(hit, notes)
 
 
-def open_hit(entry: Path) -> EpisodeArrays | None:
-    """The entry if it is complete and of this format; a stale or broken one is deleted."""
+def with_notes(arrays: EpisodeArrays, notes: list[str]) -> EpisodeArrays:
+    """``arrays`` with ``notes`` kept and appended to its read report (one line each)."""
+    if notes:
+        arrays.notes = list(notes)
+        arrays.report = "\n".join([arrays.report, *notes]) if arrays.report else "\n".join(notes)
+    return arrays
+
+
+def open_hit(entry: Path, key: str | None = None, notes: list[str] | None = None) -> EpisodeArrays | None:
+    """The entry if it is complete, of this format and (given ``key``) of this identity; a stale or
+    broken one is deleted (a damaged one with a line in ``notes``: it will be rebuilt)."""
     if not entry.exists():
         return None
     try:
-        return EpisodeArrays.load(entry)
-    except (OSError, ValueError, KeyError, TypeError):  # another format or a damaged entry: rebuild it
+        return EpisodeArrays.load(entry, key)
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:  # rebuilt by the caller
+        other_format = isinstance(exc, CacheFormatError) and not isinstance(exc, CacheEntryError)
+        if notes is not None and not other_format:  # an old format is expected after an upgrade
+            notes.append(f"note: cache entry rebuilt from the bags: {exc}")
         shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
         return None
 
@@ -267,10 +323,12 @@ def _prune_other_formats(root: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
-def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path) -> None:
-    """Parse ``bags`` one at a time into the entry at ``entry`` (memory: one bag's parse)."""
+def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry: Path,
+                key: str = "") -> None:
+    """Parse ``bags`` one at a time into the entry at ``entry`` (memory: one bag's parse); ``key``:
+    its identity (:func:`content_key`)."""
     report = ReadReport()
-    writer = EntryWriter(entry)
+    writer = EntryWriter(entry, key)
     try:
         for bag in bags:
             result = read_episodes([bag], spec=spec, on_error=on_error)
@@ -312,4 +370,4 @@ def _in_memory(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError) -> Epi
 
 
 __all__ = ["EpisodeArrays", "build_entry",
-           "content_key", "default_cache_dir", "load_arrays", "open_hit"]
+           "content_key", "default_cache_dir", "load_arrays", "open_hit", "with_notes"]

@@ -22,41 +22,45 @@ from pathlib import Path
 
 from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
 
-from .cache import EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit
-from .cache_store import EntryWriter
+from .cache import EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit, with_notes
+from .cache_store import EntryWriter, remove_stale_entries
 from .reader import OnError, ReaderSpec, resolve_bag_paths
 
 BAGS_DIR = "bags"
 MAX_REPORT_LINES = 40
 
 
-def _build_one(bag: Path, spec: ReaderSpec, on_error: OnError, entry: Path) -> bool:
+def _build_one(bag: Path, spec: ReaderSpec, on_error: OnError, entry: Path, key: str) -> bool:
     """Build the entry of ``bag`` unless it exists; False when the bag has no episode to keep
     (``on_error='skip_tail'``: such a bag gets no entry and is read again next time)."""
-    if open_hit(entry) is not None:  # another run may have built it meanwhile
+    if open_hit(entry, key) is not None:  # another run may have built it meanwhile
         return True
     try:
-        build_entry([bag], spec, on_error, entry)
+        build_entry([bag], spec, on_error, entry, key)
     except EmptyEntryError:
         return False
     return True
 
 
 def build_bag_entries(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, root: Path,
-                      workers: int = 1) -> tuple[list[Path], int]:
+                      workers: int = 1, notes: list[str] | None = None) -> tuple[list[Path], int]:
     """The entries of the bags that have episodes (built where missing, over ``workers`` processes) and
-    how many bags were parsed."""
+    how many bags were parsed; a broken entry is rebuilt with a line in ``notes``."""
     if workers < 1:
         raise ValueError(f"data.cache_workers must be at least 1 for per-bag entries, got {workers}")
-    entries = [root / BAGS_DIR / f"bag_{content_key([bag], spec, on_error)}" for bag in bags]
-    missing = [(bag, entry) for bag, entry in zip(bags, entries, strict=True) if open_hit(entry) is None]
+    remove_stale_entries(root / BAGS_DIR)
+    keys = [content_key([bag], spec, on_error) for bag in bags]
+    entries = [root / BAGS_DIR / f"bag_{key}" for key in keys]
+    missing = [(bag, entry, key) for bag, entry, key in zip(bags, entries, keys, strict=True)
+               if open_hit(entry, key, notes) is None]
     empty: set[Path] = set()
     if workers == 1 or len(missing) <= 1:
-        empty = {entry for bag, entry in missing if not _build_one(bag, spec, on_error, entry)}
+        empty = {entry for bag, entry, key in missing if not _build_one(bag, spec, on_error, entry, key)}
     else:
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=context) as pool:
-            futures = {entry: pool.submit(_build_one, bag, spec, on_error, entry) for bag, entry in missing}
+            futures = {entry: pool.submit(_build_one, bag, spec, on_error, entry, key)
+                       for bag, entry, key in missing}
             for entry, future in futures.items():  # the first bag that fails stops the build, named
                 if not future.result():
                     empty.add(entry)
@@ -78,9 +82,10 @@ def merged_report(reports: Sequence[str], episodes: int, bags: int) -> str:
     return "\n".join(lines)
 
 
-def assemble(entries: Sequence[Path], target: Path) -> None:
-    """Append the episodes of ``entries`` (memory-mapped, one entry at a time) into one entry ``target``."""
-    writer = EntryWriter(target)
+def assemble(entries: Sequence[Path], target: Path, key: str = "") -> None:
+    """Append the episodes of ``entries`` (memory-mapped, one entry at a time) into one entry ``target``
+    of identity ``key``."""
+    writer = EntryWriter(target, key)
     reports = []
     try:
         for entry in entries:
@@ -105,16 +110,18 @@ def load_arrays_per_bag(paths: str | Path | Sequence[str | Path], *, spec: Reade
     spec = spec or ReaderSpec()
     bags = resolve_bag_paths(paths)
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    entries, built = build_bag_entries(bags, spec, on_error, root, workers)
+    remove_stale_entries(root)
+    notes: list[str] = []
+    entries, built = build_bag_entries(bags, spec, on_error, root, workers, notes)
     key = hashlib.blake2b("\n".join(e.name for e in entries).encode(), digest_size=20).hexdigest()
     target = root / f"episodes_set_{key}"
-    hit = open_hit(target)
+    hit = open_hit(target, key, notes)
     if hit is None:
-        assemble(entries, target)
-        hit = EpisodeArrays.load(target)
+        assemble(entries, target, key)
+        hit = EpisodeArrays.load(target, key)
     hit.cache_hit = built == 0
     hit.key = key
-    return hit
+    return with_notes(hit, notes)
 
 
 __all__ = ["assemble", "build_bag_entries", "load_arrays_per_bag", "merged_report"]

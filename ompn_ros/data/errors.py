@@ -92,6 +92,11 @@ class CacheFormatError(OMPNError, ValueError):
     """A cache entry that cannot be used (another format version, or missing/short files)."""
 
 
+class CacheEntryError(CacheFormatError):
+    """A cache entry whose key, checksums or offsets do not hold: damaged, edited or another bag's
+    (the cache rebuilds it with a note)."""
+
+
 class NpyAppendError(OMPNError, ValueError):
     """Rows that do not fit the file (another row shape, or a dtype that cannot be cast safely)."""
 

@@ -90,8 +90,13 @@ class IdleSplitter:
         return self._row + 1
 
     @property
+    def held(self) -> int:
+        """How many still steps are held, not yet decided (O(1))."""
+        return len(self._held)
+
+    @property
     def held_rows(self) -> set[int]:
-        """Rows of the still steps held, not yet decided."""
+        """Rows of the still steps held, not yet decided (O(held): for inspection, not per step)."""
         return {r for r, _ in self._held}
 
     def finish(self) -> list[Cut]:

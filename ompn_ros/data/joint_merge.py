@@ -6,10 +6,16 @@ offline (``VectorSource.merge_s`` of the reader spec) and live (``ompn_node``'s 
 
 * every message updates the latest value (and stamp) of each joint it names;
 * a message that names the **step joint** (the first of the wanted joints, e.g. the arm's first joint)
-  is a step: each wanted joint takes its latest value at or before it, if that value is at most
-  ``tolerance`` older than the step; otherwise the step is dropped and the joint counted missing;
+  is a step: each wanted joint takes its latest value, if that value is stamped at most ``tolerance``
+  from the step (before it or, arriving out of order, after it); otherwise the step is dropped and the
+  joint counted missing (a value stamped an hour ahead is never fresh, and never keeps a silent
+  publisher's joints looking fresh);
 * a field a message leaves empty (a driver that publishes positions only) gives no value for its joints:
-  the caller reports it when it needs that field (:attr:`MergedStep.present`).
+  the caller reports it when it needs that field (:attr:`MergedStep.present`); a field whose length
+  is neither 0 nor the message's joint count is a malformed message (:class:`MalformedJointState`),
+  refused whole;
+* the first step dropped for a joint names it once (:meth:`JointMerger.silence_line`: its publisher
+  went silent), again only after that joint was fresh at a step.
 
 Messages are taken in the order given (the reader: by the spec's stamps; the node: as they arrive).
 O(joints of the message) per message, plus O(wanted joints) per step.
@@ -24,6 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 
 JOINT_FIELDS = ("position", "velocity", "effort")
+
+
+class MalformedJointState(ValueError):
+    """A message whose field lengths do not fit its joint names (the message is not merged)."""
 
 
 @dataclass(frozen=True)
@@ -58,13 +68,21 @@ class JointMerger:
         self._has = {f: np.zeros(len(self.joints), dtype=bool) for f in JOINT_FIELDS}
         self.missing: Counter[str] = Counter()  # wanted joint -> steps dropped for lack of it
         self.steps = 0  # steps merged
+        self._silent: dict[str, int | None] = {}  # joints named by silence_line: their age at the drop
+        self._told: set[str] = set()  # joints named already (until fresh again at a step)
 
     def push(self, stamp_ns: int, names: Sequence[str],
              values: Mapping[str, np.ndarray]) -> MergedStep | None:
-        """Take one message; the merged step when it is one and every joint is fresh, else ``None``."""
+        """Take one message; the merged step when it is one and every joint is fresh, else ``None``.
+
+        Raises :class:`MalformedJointState` (nothing taken) when a field has neither 0 values nor one
+        per joint name."""
+        fields = {f: np.asarray(values.get(f, ()), dtype=np.float64) for f in JOINT_FIELDS}
+        for f, arr in fields.items():
+            if arr.size not in (0, len(names)):
+                raise MalformedJointState(field_width_line(f, arr.size, len(names)))
         rows = [(k, self._index[n]) for k, n in enumerate(names) if n in self._index]
-        for f in JOINT_FIELDS:
-            arr = np.asarray(values.get(f, ()), dtype=np.float64)
+        for f, arr in fields.items():
             usable = arr.size == len(names)
             for k, i in rows:
                 self._values[f][i] = arr[k] if usable else np.nan
@@ -73,20 +91,48 @@ class JointMerger:
             self._stamp[i], self._seen[i] = stamp_ns, True
         if self.joints[0] not in names:
             return None
-        stale = ~self._seen | ((stamp_ns - self._stamp) > self.tolerance_ns)
+        age = stamp_ns - self._stamp
+        stale = ~self._seen | (age > self.tolerance_ns) | (age < -self.tolerance_ns)
         if stale.any():
-            self.missing.update(self.joints[i] for i in np.flatnonzero(stale))
+            lacking = [self.joints[i] for i in np.flatnonzero(stale)]
+            self.missing.update(lacking)
+            for i in np.flatnonzero(stale).tolist():
+                if self.joints[i] not in self._told:
+                    self._told.add(self.joints[i])
+                    self._silent[self.joints[i]] = int(age[i]) if self._seen[i] else None
             return None
+        self._told.clear()
         self.steps += 1
         return MergedStep(int(stamp_ns), {f: v.copy() for f, v in self._values.items()},
                           {f: bool(h.all()) for f, h in self._has.items()})
 
+    def silence_line(self) -> str | None:
+        """Once per joint that went stale (until it is fresh again at a step): the line naming it and
+        the publisher that went silent, or ``None``."""
+        if not self._silent:
+            return None
+        joints = ", ".join(f"'{name}' ({_age_words(age)})" for name, age in self._silent.items())
+        self._silent.clear()
+        return (f"merged steps dropped: no value within {self.tolerance_ns / 1e9:g} s of the step for "
+                f"joints {joints}; is the publisher of these joints silent? Each such step is dropped "
+                "(counted joint_missing) until they are fresh again")
+
     def reset(self) -> None:
         """Forget every joint's latest value (a new stream)."""
+        self._silent.clear()
+        self._told.clear()
         self._seen[:] = False
         for f in JOINT_FIELDS:
             self._values[f][:] = np.nan
             self._has[f][:] = False
+
+
+def _age_words(age_ns: int | None) -> str:
+    if age_ns is None:
+        return "never seen"
+    if age_ns < 0:
+        return f"stamped {-age_ns / 1e9:.3g} s after the step"
+    return f"last seen {age_ns / 1e9:.3g} s before the step"
 
 
 def field_width_line(field: str, width: int, joints: int) -> str:
@@ -98,4 +144,4 @@ def field_width_line(field: str, width: int, joints: int) -> str:
     return f"JointState.{field} has {width} values for {joints} joint names"
 
 
-__all__ = ["JOINT_FIELDS", "JointMerger", "MergedStep", "field_width_line"]
+__all__ = ["JOINT_FIELDS", "JointMerger", "MalformedJointState", "MergedStep", "field_width_line"]

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from ompn_ros.atomic import remove_stale_temps, temp_prefix
+from ompn_ros.atomic import remove_stale_temps, temp_prefix, umask_mode
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import (
     BoundaryHeadError,
@@ -46,6 +46,7 @@ from ompn_ros.detect.errors import (
 )
 from ompn_ros.detect.head import BoundaryHead, load_head, write_head
 from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
+from ompn_ros.model.checkpoint_json import read_checkpoint_json
 
 DETECTOR_FILE = "detector.json"
 FORMAT = "ompn_ros.detector"
@@ -323,6 +324,7 @@ def save_detector_settings(checkpoint_dir: str | Path, settings: DetectorSetting
     )
     try:
         with handle:
+            os.fchmod(handle.fileno(), umask_mode())  # a published file follows the umask, not 0600
             handle.write(text)
             handle.flush()
             os.fsync(handle.fileno())
@@ -341,16 +343,13 @@ def load_detector_settings(checkpoint_dir: str | Path) -> DetectorSettings:
     :class:`DetectorSettingsError` naming the file and the key.
     """
     path = detector_file(checkpoint_dir)
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():  # a FIFO or a device there is refused when read
         warning = (
             f"WARNING: {path} not found, built-in defaults (high=0.5) may publish no boundaries for "
             "this model; calibrate with ompn_train or ompn_segment --tune --write-config"
         )
         return DetectorSettings(source="default", provenance=warning)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DetectorSettingsError(f"{path}: cannot read: {exc}") from exc
+    data = read_checkpoint_json(path, DetectorSettingsError)
     return DetectorSettings.from_dict(data, origin=str(path), directory=path.parent)
 
 

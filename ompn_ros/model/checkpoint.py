@@ -8,7 +8,8 @@
 
 Saving is atomic: the files go to a temporary sibling directory that replaces ``path`` with
 ``os.replace``; temporary directories left by a killed writer are removed by the next save.
-Loading never unpickles anything, and checks every stored tensor's name, dtype and shape (read from
+Loading never unpickles anything, reads every JSON file with size, depth and encoding limits
+(:mod:`ompn_ros.model.checkpoint_json`), and checks every stored tensor's name, dtype and shape (read from
 the safetensors header) against the config before the model is allocated.
 
 The module itself comes from :mod:`ompn_ros.model.build` (config -> model); streaming steppers and
@@ -27,8 +28,9 @@ import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 
-from ompn_ros.atomic import free_space, make_temp_dir, remove_stale_temps
+from ompn_ros.atomic import free_space, make_temp_dir, remove_stale_temps, umask_mode
 from ompn_ros.model.build import PolicyModule, build_policy, check_model_size, expected_tensors
+from ompn_ros.model.checkpoint_json import read_checkpoint_json
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.errors import CheckpointError, ConfigError
 
@@ -77,10 +79,10 @@ def save_checkpoint(
         save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": "ompn_ros"})
         (tmp / CONFIG_FILE).write_text(policy.config.to_json())
         (tmp / META_FILE).write_text(meta_text)
-        # mkdtemp creates 0700: make the checkpoint readable like any other installed data file.
-        tmp.chmod(0o755)
+        # mkdtemp creates 0700: the checkpoint gets the modes of any file the user writes (the umask)
+        tmp.chmod(umask_mode(directory=True))
         for file in tmp.iterdir():
-            file.chmod(0o644)
+            file.chmod(umask_mode())
         if path.exists():
             old = make_temp_dir(path.parent, path.name, "old")
             os.replace(path, old / "ckpt")
@@ -102,10 +104,10 @@ def save_checkpoint(
 def load_config(path: str | Path) -> OMPNConfig:
     """Read only the :class:`OMPNConfig` of checkpoint directory ``path``."""
     file = Path(path) / CONFIG_FILE
-    if not file.is_file():
+    if not file.exists() and not file.is_symlink():  # anything else there is judged by the reader
         raise CheckpointError(f"{file}: missing (is '{path}' an ompn_ros checkpoint directory?)")
     try:
-        return OMPNConfig.from_json(file.read_text())
+        return OMPNConfig.from_dict(read_checkpoint_json(file))
     except ConfigError as exc:
         raise CheckpointError(f"{file}: {exc}") from exc
 
@@ -113,12 +115,9 @@ def load_config(path: str | Path) -> OMPNConfig:
 def _read_meta(path: Path) -> tuple[dict[str, Any], torch.dtype]:
     """``(extra, stored float dtype)`` from ``meta.json`` (absent: ``({}, float32)``)."""
     meta_file = path / META_FILE
-    if not meta_file.is_file():
+    if not meta_file.exists() and not meta_file.is_symlink():
         return {}, torch.float32
-    try:
-        meta = json.loads(meta_file.read_text())
-    except json.JSONDecodeError as exc:
-        raise CheckpointError(f"{meta_file}: not valid JSON: {exc}") from exc
+    meta = read_checkpoint_json(meta_file)
     if not isinstance(meta, dict) or meta.get("format_version") != CHECKPOINT_FORMAT_VERSION:
         version = meta.get("format_version") if isinstance(meta, dict) else None
         raise CheckpointError(

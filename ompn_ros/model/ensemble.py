@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ompn_ros.model.checkpoint import load_config
+from ompn_ros.model.checkpoint_json import read_checkpoint_json
 from ompn_ros.model.errors import EnsembleError, StreamingInputError
 from ompn_ros.model.step_output import StepOutput, checked_observation
 
@@ -87,12 +88,7 @@ def write_ensemble(
 def read_ensemble(path: str | Path) -> tuple[list[Path], dict[str, Any]]:
     """The member checkpoint directories of the ensemble at ``path`` and its ``extra`` metadata."""
     file = Path(path) / ENSEMBLE_FILE
-    try:
-        doc = json.loads(file.read_text())
-    except OSError as exc:
-        raise EnsembleError(f"{file}: cannot be read: {exc}") from exc
-    except json.JSONDecodeError as exc:
-        raise EnsembleError(f"{file}: not valid JSON: {exc}") from exc
+    doc = read_checkpoint_json(file, EnsembleError)
     if not isinstance(doc, dict) or doc.get("format") != ENSEMBLE_FORMAT:
         raise EnsembleError(f"{file}: 'format' must be {ENSEMBLE_FORMAT!r}")
     if doc.get("format_version") != ENSEMBLE_FORMAT_VERSION:

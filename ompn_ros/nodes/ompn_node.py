@@ -168,6 +168,8 @@ class OMPNNode(NodeInputs):
         self._fq_name = self.get_fully_qualified_name()  # the node field of ~/boundary
         self._frame_id = ""  # the observation's header.frame_id (JointState input)
         self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
+        self._missed_warned: set[str] = set()  # input topics whose first unreceived messages were warned
+        self._lost_warned: set[str] = set()  # topics whose first middleware loss was warned
         self._n_slots = 0
         self._active = False
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits

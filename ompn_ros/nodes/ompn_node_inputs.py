@@ -1,7 +1,10 @@
 """``ompn_node``'s inputs: the subscriptions and their callbacks, each surviving any message.
 
 :class:`NodeInputs` turns ROS messages into the stream rule's plain inputs (:mod:`ompn_ros.stream.rule`:
-an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  Topics,
+an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  Every
+input topic (those of ``obs_qos``) also counts the messages its publisher sent that never reached a
+callback (an input queue overwritten while the node was busy), from the gaps in the publication
+sequence numbers of the message info (``messages_missed``, :mod:`ompn_ros.stream.delivery`).  Topics,
 stamps and QoS: the module docstring of :mod:`ompn_ros.nodes.ompn_node`.
 """
 
@@ -13,6 +16,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32MultiArray
 
@@ -22,7 +26,9 @@ from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, drop_line
 from ompn_ros.nodes.ompn_node_outputs import NodeOutputs
 from ompn_ros.nodes.ompn_node_params import input_qos
-from ompn_ros.validate import BadStamp, InvalidInput, MalformedMessage, WrongObservationLength
+from ompn_ros.stream.delivery import SequenceGaps
+from ompn_ros.stream.rule import classify_stamp
+from ompn_ros.validate import BadStamp, FutureStamp, InvalidInput, MalformedMessage, WrongObservationLength
 
 MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
 
@@ -35,6 +41,8 @@ class NodeInputs(NodeOutputs):
     _graph_timer: Any
     _hold_timer: Any
     _sizes_reported: set[str]
+    _missed_warned: set[str]  # topics whose first sequence gap was warned
+    _lost_warned: set[str]  # topics whose first middleware loss was warned
 
     def subscribe_inputs(self) -> None:
         """The subscriptions of the configured input (on activation)."""
@@ -54,8 +62,10 @@ class NodeInputs(NodeOutputs):
         elif self.values["obs_source"] == "joint_state":
             self._subscribe(JointState, layout.JOINT_STATES, self._on_joint_state, inputs, "obs_qos")
         else:  # raw CDR: the float32 data is read in place, no message object is built
-            callback = self._on_array_info if self.uses_message_info else self._on_array
-            self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True)
+            info = self.uses_message_info
+            callback = self._on_array_info if info else self._on_array
+            self._subscribe(Float32MultiArray, layout.OBSERVATION, callback, inputs, "obs_qos", raw=True,
+                            with_info=info)
 
     def _subscribe_spec(self, assembled: AssembledInput, qos: QoSProfile) -> None:
         """One raw subscription per spec topic, the publishers' types checked ~1/s.  Partners first: when
@@ -73,20 +83,63 @@ class NodeInputs(NodeOutputs):
             self._hold_timer = self.create_timer(period, lambda: self._release_held(None))
 
     def _subscribe(
-        self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False
+        self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False,
+        with_info: bool = False,
     ) -> None:
+        """Subscribe ``callback`` (``with_info``: it takes the message info too).  The input topics (those
+        of ``obs_qos``) count the samples they never received (:meth:`_counted`)."""
         lost = ("messages_lost", "markers_lost") if topic == layout.EPISODE else ("messages_lost",)
+        gaps = SequenceGaps() if param == "obs_qos" else None
         events = SubscriptionEventCallbacks(
             incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
-            message_lost=lambda info: self._count_lost(lost, info),
+            message_lost=lambda info: self._count_lost(lost, topic, info),
+            matched=None if gaps is None else _matched(gaps),
         )
-        self._subs.append(
-            self.create_subscription(msg_type, topic, callback, qos, raw=raw, event_callbacks=events)
-        )
+        handler = callback if gaps is None else self._counted(topic, gaps, callback, with_info)
+        sub = self.create_subscription(msg_type, topic, handler, qos, raw=raw, event_callbacks=events)
+        if gaps is not None:
+            # The message info of every sample, with either executor: rclpy's single-threaded one then
+            # calls handler(message, info), the EventsExecutor handler((message, info)).
+            sub._callback_type = Subscription.CallbackType.WithMessageInfo
+        self._subs.append(sub)
 
-    def _count_lost(self, counters: tuple[str, ...], info: Any) -> None:
-        """Messages the middleware reports lost (rmw's ``message_lost`` event)."""
+    def _counted(self, topic: str, gaps: SequenceGaps, callback: Any, with_info: bool) -> Any:
+        """``callback`` behind the gap count of ``topic`` (:mod:`ompn_ros.stream.delivery`)."""
+
+        def on_message(message: Any, info: Any = None) -> None:
+            if info is None:  # the EventsExecutor: one (message, info) argument
+                message, info = message
+            missed = gaps.seen(info.get("publication_sequence_number", 0))
+            if missed:
+                self._count_missed(topic, missed)
+            if with_info:
+                callback(message, info)
+            else:
+                callback(message)
+
+        return on_message
+
+    def _count_missed(self, topic: str, missed: int) -> None:
+        """Samples of ``topic`` sent and never received: counted (``messages_missed``), warned the first
+        time per topic."""
+        self.stream.events["messages_missed"] += missed
+        if topic not in self._missed_warned:
+            self._missed_warned.add(topic)
+            self.get_logger().warning(
+                f"{missed} message(s) on '{topic}' were sent and never received (a gap in the publisher's "
+                f"sequence numbers): the input queue (qos_depth={self.values['qos_depth']}) overflowed while "
+                "the node was busy, or the transport lost them; counted as messages_missed on /diagnostics. "
+                "Raise qos_depth, or publish more slowly")
+
+    def _count_lost(self, counters: tuple[str, ...], topic: str, info: Any) -> None:
+        """Messages the middleware reports lost (rmw's ``message_lost`` event): counted, warned once
+        per topic."""
         self.stream.events.update(dict.fromkeys(counters, info.total_count_change))
+        if topic not in self._lost_warned:
+            self._lost_warned.add(topic)
+            self.get_logger().warning(
+                f"the middleware lost {info.total_count} message(s) on '{topic}' before the node received "
+                "them; counted as messages_lost on /diagnostics")
 
     @property
     def uses_message_info(self) -> bool:
@@ -207,8 +260,13 @@ class NodeInputs(NodeOutputs):
         if self.stream.repeats.seen_sample(layout.JOINT_STATES, stamp, payload):
             return  # the same sample sent twice (same header stamp and data): one step
         joints = self._joints or JointInput(self.values["joint_fields"], None, None)
+        if joints.merger is not None and self._merge_refuses(stamp):
+            return
         got = joints.observation(stamp, msg.name, fields)
         if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
+            silent = joints.silence_line()
+            if silent is not None:
+                self.get_logger().warning(silent)
             return
         if isinstance(got, str):
             self._reject(MalformedMessage(got))
@@ -216,6 +274,20 @@ class NodeInputs(NodeOutputs):
         self._frame_id = msg.header.frame_id
         with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
             self.process_observation(got.astype(np.float32), stamp)
+
+    def _merge_refuses(self, stamp_ns: int) -> bool:
+        """``joint_merge``: a message of any publisher stamped more than ``max_stamp_lead`` ahead of the
+        node's clock is rejected before it is merged (``future_stamp``), as a step would be: its values
+        would otherwise look fresh to every step until the clock caught up."""
+        limits = self.stream.limits
+        if limits.max_lead_ns <= 0:
+            return False
+        now = self.get_clock().now().nanoseconds
+        if classify_stamp(stamp_ns, None, now, jump_back_ns=0, max_lead_ns=limits.max_lead_ns) != "future":
+            return False
+        self._reject(FutureStamp(f"JointState stamped {stamp_ns} ns is more than max_stamp_lead="
+                                 f"{limits.max_stamp_lead} s ahead of the node's clock: not merged"))
+        return True
 
     def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
         """Step the segmenter on one observation and publish its outputs (or count a rejection).
@@ -266,3 +338,12 @@ class NodeInputs(NodeOutputs):
     def _on_sketch(self, msg: Int32MultiArray) -> None:
         if self.stream.segmenter is not None and self._active and len(msg.data) > 0:
             self.stream.sketch_message(msg.data)
+
+
+def _matched(gaps: SequenceGaps) -> Any:
+    """The ``matched`` event callback that tells ``gaps`` how many publishers the topic has now."""
+
+    def on_matched(info: Any) -> None:
+        gaps.publishers(int(info.current_count))
+
+    return on_matched

@@ -23,7 +23,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32, Float32MultiArray, Float64, Float64MultiArray
 
 from ompn_ros import layout
-from ompn_ros.data.joint_merge import JointMerger, field_width_line
+from ompn_ros.data.joint_merge import JointMerger, MalformedJointState, field_width_line
 from ompn_ros.data.obs import Drop, ObservationAssembler, ObservationSpec, ObservationSpecError
 from ompn_ros.nodes.ompn_node_types import message_class
 
@@ -163,9 +163,13 @@ class JointInput:
     def observation(self, stamp_ns: int, names: Sequence[str],
                     values: Mapping[str, np.ndarray]) -> np.ndarray | str | None:
         """The observation (float64), a one-line problem, or ``None``: no step (another publisher's
-        message, or a wanted joint missing: counted in :attr:`missing`)."""
+        message, or a wanted joint missing: counted in :attr:`missing`, named once by
+        :meth:`silence_line`)."""
         if self.merger is not None:
-            step = self.merger.push(stamp_ns, names, values)
+            try:
+                step = self.merger.push(stamp_ns, names, values)
+            except MalformedJointState as exc:  # a field that fits no joint count: the message, refused
+                return str(exc)
             if step is None:
                 return None
             absent = [f for f in self.fields if not step.present[f]]
@@ -186,6 +190,11 @@ class JointInput:
             return f"JointState lacks joints {lacking} (several publishers? set joint_merge)"
         order = [index[n] for n in self.names]
         return np.concatenate([p[order] for p in parts])
+
+    def silence_line(self) -> str | None:
+        """``joint_merge``: the line naming joints whose publisher went silent, once (see
+        :meth:`ompn_ros.data.joint_merge.JointMerger.silence_line`)."""
+        return self.merger.silence_line() if self.merger is not None else None
 
     @property
     def missing(self) -> int:

@@ -38,7 +38,7 @@ LEVEL_OK, LEVEL_WARN = 0, 1
 EVENT_COUNTERS = (
     "episodes", "episode_starts", "episodes_ended", "episode_gaps", "markers", "markers_lost",
     "messages_lost", "boundaries", "clock_jumps", "clock_jumps_forward", "clock_stalls", "clock_negative",
-    "bad_end_markers", "qos_incompatible",
+    "bad_end_markers", "qos_incompatible", "messages_missed",
 )  # fmt: skip
 """The event counters on ``/diagnostics``, in this order (:meth:`NodeOutputs.counters`)."""
 
@@ -154,7 +154,8 @@ class NodeOutputs(LifecycleNode):
         clock restarts), episodes_ended (end markers, pauses and clock restarts that closed an episode),
         episode_gaps (pauses of ``episode_gap`` seen), markers (episode markers handled: every marker
         received is counted here or, when the middleware lost it, in markers_lost), messages_lost (all
-        topics, reported by the middleware),
+        topics, reported by the middleware), messages_missed (input messages a publisher sent that the
+        node never received: gaps in its sequence numbers, :mod:`ompn_ros.stream.delivery`),
         boundaries published, clock_jumps (input stamps back by more than ``clock_jump_back``),
         clock_jumps_forward (``/clock`` ahead by more than ``clock_jump_forward``), clock_stalls (``/clock``
         stood still for ``clock_stall``), clock_negative (negative ``/clock`` times dropped),

@@ -84,10 +84,15 @@ class IdleGate:
         self._pending[self.splitter.rows - 1] = (obs, stamp_ns)
         out: list[tuple[str, np.ndarray | None, int]] = []
         for cut in cuts:
-            x, s = self._pending.get(cut.row, (None, stamp_ns))
+            x, s = self._pending.pop(cut.row, (None, stamp_ns))
             out.append((cut.kind, x, s))
-        held = self.splitter.held_rows
-        self._pending = {r: v for r, v in self._pending.items() if r in held}
+        # Every held row is pending, and a row stops being held only in a push that decides it (a cut,
+        # popped above) or ends the episode (nothing held after it): so the pending rows are the held
+        # ones once the undecided rest is dropped, which happens only when nothing is held (O(1)
+        # amortised, whatever the pause's length; rebuilding the held set here made each still step
+        # cost O(held)).
+        if self.splitter.held == 0:
+            self._pending.clear()
         return out
 
     def flush(self) -> list[tuple[str, np.ndarray | None, int]]:

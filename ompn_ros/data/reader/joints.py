@@ -14,7 +14,7 @@ from ompn_ros import layout
 
 from .. import messages as m
 from ..errors import CorruptBagError, VectorLengthError
-from ..joint_merge import JointMerger, MergedStep, field_width_line
+from ..joint_merge import JointMerger, MalformedJointState, MergedStep, field_width_line
 from .spec import VectorSource
 
 
@@ -84,7 +84,10 @@ def merge_publishers(path: str, topic: str, src: VectorSource, stamps: np.ndarra
     kept: list[int] = []
     steps: list[MergedStep] = []
     for i in np.argsort(clock, kind="stable").tolist():
-        step = merger.push(int(clock[i]), parsed[i][0], parsed[i][2])
+        try:
+            step = merger.push(int(clock[i]), parsed[i][0], parsed[i][2])
+        except MalformedJointState as err:
+            raise VectorLengthError(str(err), path=path, topic=topic, index=i, stamp=int(clock[i])) from None
         if step is not None:
             kept.append(i)
             steps.append(step)
