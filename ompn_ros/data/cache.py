@@ -271,9 +271,10 @@ def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry
     """Parse ``bags`` one at a time into the entry at ``entry`` (memory: one bag's parse)."""
     report = ReadReport()
     writer = EntryWriter(entry)
+    joint_orders: dict[str, tuple[str, ...]] = {}  # one joint order for every bag (reader.joints)
     try:
         for bag in bags:
-            result = read_episodes([bag], spec=spec, on_error=on_error)
+            result = read_episodes([bag], spec=spec, on_error=on_error, joint_orders=joint_orders)
             report.bags.extend(result.report.bags)
             try:
                 writer.add(result.episodes)

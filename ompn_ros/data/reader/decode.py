@@ -169,7 +169,7 @@ def _actions(ctx: BagContext, topics: Topics, obs: ObsParts | None) -> tuple[np.
     if topics.act == topics.obs:  # e.g. JointState: observation = position, action = velocity
         obs_order, obs_log, obs_block = _same_topic_parts(ctx, topics, obs)
         if obs_block is not None:
-            values = joint_vectors(ctx.path, topics.act, spec.action, obs_log, obs_block)
+            values = joint_vectors(ctx.path, topics.act, spec.action, obs_log, obs_block, ctx.joint_orders)
         else:
             raws = ctx.data(topics.obs)[1]
             values = _vectors(ctx, topics.act, topics.act_type, spec.action, obs_log, raws)[0]
@@ -214,7 +214,7 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
         stamps = stamps[index]
     else:
         block = decode_joint_states(ctx.path, topic, stamps, raws)
-    values = joint_vectors(ctx.path, topic, src, stamps, block)
+    values = joint_vectors(ctx.path, topic, src, stamps, block, ctx.joint_orders)
     if header:
         ctx.header_lag[topic] = stamps - block.header
     return values, (_header_clock(ctx, topic, block) if header else stamps), block, stamps
