@@ -19,7 +19,7 @@ from .decode import decode_bag
 from .journal import committed_view
 from .paths import metadata_topic_types, resolve_bag_paths, storage_files, wanted_topics
 from .plan import stream_plan
-from .raw import RawBag, collect_rosbags
+from .raw import Chooser, RawBag, collect_rosbags
 from .reindex import reindexed_view
 from .report import BagReport, ReadReport, ReadResult
 from .salvage import salvage
@@ -48,13 +48,39 @@ def read_raw(bag: Path, spec: ReaderSpec, on_error: OnError) -> RawBag:
     try:
         raw = collect_rosbags(bag, wanted, lambda bag_types: stream_plan(bag, spec, bag_types), choose)
     except CorruptBagError as err:
+        if _rosbags_refuses(bag, err):
+            return _record_by_record(bag, wanted, choose, err)
         if on_error == "raise":
             raise
         raw = salvage(bag, wanted, err, choose)
+    if raw.corrupt is not None and _rosbags_refuses(bag, raw.corrupt):
+        return _record_by_record(bag, wanted, choose, raw.corrupt)
     if raw.corrupt is not None:
         raw.corrupt = _locate_crc_failure(bag, raw.corrupt)
         if on_error == "raise":
             raise raw.corrupt
+    return raw
+
+
+ROSBAGS_REFUSES = {"Profile is not ros2": "its mcap profile is not 'ros2'",
+                   "not in timestamp order": "it has no index and its messages are not in log-time order"}
+"""What ``rosbags`` refuses in an intact mcap file (its error -> the note): a profile other than
+``ros2`` (a writer that leaves it empty) and an unindexed file whose messages are not in log-time
+order."""
+
+
+def _rosbags_refuses(bag: Path, err: CorruptBagError) -> str | None:
+    """The note for an mcap bag ``rosbags`` refuses although it is intact, else ``None``."""
+    why = [note for text, note in ROSBAGS_REFUSES.items() if text in err.reason]
+    return why[0] if why and all(f.suffix == ".mcap" for f in storage_files(bag)) else None
+
+
+def _record_by_record(bag: Path, wanted: set[str] | None, choose: Chooser, err: CorruptBagError) -> RawBag:
+    """An intact mcap file ``rosbags`` will not read (:data:`ROSBAGS_REFUSES`), read record by record
+    (:func:`.salvage.salvage`, no index needed); a note says why.  Damage found on the way is the
+    bag's corruption as usual."""
+    raw = salvage(bag, wanted, None, choose)
+    raw.notes.append(f"read record by record (no index needed): {_rosbags_refuses(bag, err)}")
     return raw
 
 
@@ -122,6 +148,9 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError, r
         if readable != bag:
             raw.corrupt = _renamed(raw.corrupt, readable, bag)
         report.error = str(raw.corrupt)
+        if not raw.types:  # e.g. an mcap file whose only chunk is cut: no topic, no message
+            report.notes.append("nothing could be read before the damage (not even the bag's topics)")
+            return []
     report.notes.extend(raw.notes)
     for topic, n in raw.repeats.counts.items():
         report._add(report.duplicates, topic, n)

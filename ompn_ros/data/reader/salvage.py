@@ -22,9 +22,10 @@ from .raw import Chooser, RawBag
 from .verify import open_readonly
 
 
-def salvage(bag: Path, wanted: set[str] | None, first_error: CorruptBagError,
+def salvage(bag: Path, wanted: set[str] | None, first_error: CorruptBagError | None,
             choose: Chooser | None = None) -> RawBag:
-    """Messages of ``bag`` up to the first unreadable record; later storage files are not trusted.
+    """Messages of ``bag`` up to the first unreadable record; later storage files are not trusted
+    (``first_error``: what made the normal read fail; ``None``: the bag is not known to be damaged).
     ``choose``: the topics to keep by their types when ``wanted`` is ``None`` (no metadata.yaml),
     applied to each topic as the storage names it."""
     raw = RawBag(bag, {}, {}, corrupt=first_error)
