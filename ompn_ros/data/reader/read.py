@@ -24,6 +24,7 @@ from .reindex import reindexed_view
 from .report import BagReport, ReadReport, ReadResult
 from .salvage import salvage
 from .spec import OnError, ReaderSpec
+from .steps import restamp_log
 from .verify import mcap_bad_chunks, mcap_chunks_without_crc, sqlite_problem
 
 
@@ -158,6 +159,8 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError, r
     _crc_note(readable, report)
     ctx = BagContext(raw, spec, report, name=bag, joint_orders=joint_orders)
     topics = ctx.resolve_all()
+    headed = [t for t in topics.used() if raw.types.get(t) == layout.JOINT_STATE]
+    report.notes.extend(restamp_log(raw, readable, headed))  # clocks that step (reader.steps)
     decoded = decode_bag(ctx, topics, on_error)
     for topic in topics.used():
         report.messages[topic] = len(raw.topics[topic].stamps) if topic in raw.topics else 0
