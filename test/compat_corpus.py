@@ -231,7 +231,7 @@ def arm_demos(lengths: list[int], *, robot: ClockStep | None = None, pc: ClockSt
     demonstration, an ``Int32`` skill id on :data:`SKILL` 1 ms after each state; 25 Hz, 2 s pauses.
     ``robot`` / ``pc``: the robot's (header) or the recording PC's (log) clock steps; ``names``: the
     joint names of observation ``k`` (the values follow the names: joint ``j`` holds
-    ``positions[k, ARM_JOINTS.index(j)]``).  ``Demo.labels`` holds the skill ids per step."""
+    ``positions[k, ARM_JOINTS.index(j)]``, a joint not in :data:`ARM_JOINTS` 0.5).  ``Demo.labels`` holds the skill ids per step."""
     rng = np.random.default_rng(seed)
     out = Demo()
     t, k = 10**9, 0
@@ -244,7 +244,7 @@ def arm_demos(lengths: list[int], *, robot: ClockStep | None = None, pc: ClockSt
             log = true + (pc.size_ns if pc is not None and k >= pc.at else 0)
             head = true - ROBOT_LATENCY_NS + (robot.size_ns if robot is not None and k >= robot.at else 0)
             order = names(k) if names is not None else ARM_JOINTS
-            values = [obs[i, ARM_JOINTS.index(j)] for j in order]
+            values = [obs[i, ARM_JOINTS.index(j)] if j in ARM_JOINTS else 0.5 for j in order]
             out.messages.append((log, ARM, m.serialize(m.joint_state(head, list(order), values, ()))))
             out.messages.append((log + 1_000_000, SKILL, m.serialize(m.int32(int(skills[i])))))
             if i < steps:

@@ -24,7 +24,7 @@ class JointBlock:
 
     header: np.ndarray  # int64 [N]
     names: list[tuple[str, ...]]  # per message
-    arrays: dict[str, np.ndarray]  # field -> float64 [N, W] (W = width of the first message)
+    arrays: dict[str, np.ndarray]  # field -> float64 [N, W] (W = the widest message; NaN beyond a row's)
     widths: dict[str, np.ndarray]  # field -> int [N] actual width per message
 
     @property
@@ -55,12 +55,10 @@ def decode_joint_states(path: str, topic: str, stamps: np.ndarray, raws: list[by
     arrays: dict[str, np.ndarray] = {}
     widths: dict[str, np.ndarray] = {}
     for f in layout.JOINT_FIELDS:
-        w = len(rows[f][0]) if rows[f] else 0
-        arr = np.full((len(raws), w), np.nan)
         widths[f] = np.asarray([len(r) for r in rows[f]], dtype=np.int64)
+        arr = np.full((len(raws), int(widths[f].max()) if rows[f] else 0), np.nan)
         for i, r in enumerate(rows[f]):
-            if len(r) == w:
-                arr[i] = r
+            arr[i, : len(r)] = r  # a message naming more joints than the first keeps them all
         arrays[f] = arr
     return JointBlock(header, names_list, arrays, widths)
 
@@ -157,17 +155,18 @@ def _names_change(names: tuple[str, ...], first: tuple[str, ...], earlier_bag: b
 
 def _field_as_is(path: str, topic: str, name: str, stamps: np.ndarray, block: JointBlock) -> np.ndarray:
     arr, widths = block.arrays[name], block.widths[name]
+    first = int(widths[0]) if widths.size else arr.shape[1]
     joints = np.fromiter((len(n) for n in block.names), dtype=np.int64, count=len(block.names))
-    bad = np.flatnonzero((widths != arr.shape[1]) | ((joints > 0) & (widths != joints)))
+    bad = np.flatnonzero((widths != first) | ((joints > 0) & (widths != joints)))
     if bad.size:
         i = int(bad[0])
         if joints[i] > 0 and widths[i] != joints[i]:
             raise VectorLengthError(field_width_line(name, int(widths[i]), int(joints[i])), path=path,
                                     topic=topic, index=i, stamp=int(stamps[i]))
         raise VectorLengthError(f"JointState.{name} has {widths[i]} values, the topic's first "
-                                f"message {arr.shape[1]}", path=path, topic=topic, index=i,
+                                f"message {first}", path=path, topic=topic, index=i,
                                 stamp=int(stamps[i]))
-    return arr
+    return arr[:, :first]
 
 
 def _field_by_name(path: str, topic: str, name: str, joint_names: tuple[str, ...], stamps: np.ndarray,
