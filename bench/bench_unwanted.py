@@ -9,7 +9,9 @@ baseline):
 
 * ``metadata``: the bag directory with its metadata.yaml (topics chosen before reading);
 * ``bare_mcap`` / ``bare_sqlite3``: the storage file alone (a killed recorder, a file sent by mail):
-  the topics are chosen from the storage file's own connections.
+  the topics are chosen from the storage file's own connections;
+* ``no_camera``: the same wanted topics without the camera (the reader's own cost per wanted byte,
+  the modules it loads while reading included).
 
 Target: peak ≤ baseline + 1.5 × the wanted topics' bytes (``*_over_wanted`` ≤ 1.5, the part above
 the baseline over the wanted bytes).
@@ -76,7 +78,7 @@ def _make_bag(path: Path, storage: str, camera_mb: int, wanted_mb: int) -> int:
     rng = np.random.default_rng(0)
     image = m.msg_class("sensor_msgs/msg/Image")
     pixels = rng.integers(0, 255, 640 * 480 * 3, dtype=np.uint8)
-    n_images = camera_mb * MB // pixels.size
+    n_images = camera_mb * MB // pixels.size  # 0: no camera topic at all
     state = m.serialize(m.float32_array(rng.standard_normal(DIM).astype(np.float32), "s"))
     per_step = 2 * len(state)
     steps = wanted_mb * MB // per_step
@@ -107,6 +109,11 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
     tmp = Path(tempfile.mkdtemp(prefix="bench_unwanted_"))
     results: dict[str, tuple[float, str]] = {}
     try:
+        plain = tmp / "no_camera"
+        wanted = _make_bag(plain, "mcap", 0, wanted_mb)
+        res = _run_child(plain)
+        results["no_camera_mcap_peak_rss"] = (res["peak"] / MB, "MB")
+        results["no_camera_mcap_over_wanted"] = ((res["peak"] - res["imports"]) / wanted, "x")
         for storage in ("mcap", "sqlite3"):
             bag = tmp / storage
             wanted = _make_bag(bag, storage, camera_mb, wanted_mb)

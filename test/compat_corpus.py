@@ -285,3 +285,29 @@ def check_arm(got: list[Episode], demo: Demo) -> None:
     check_episodes(got, demo)
     for ep, ids in zip(got, demo.labels):
         np.testing.assert_array_equal(ep.extras["subtask_id"], ids)
+
+
+FLOAT32_ARRAY_MSGDEF = "std_msgs/MultiArrayLayout layout\nfloat32[] data\n" + "=" * 80 + (
+    "\nMSG: std_msgs/MultiArrayLayout\nMultiArrayDimension[] dim\nuint32 data_offset\n" + "=" * 80
+    + "\nMSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride\n")
+"""``std_msgs/msg/Float32MultiArray`` as a ``ros2msg`` schema (what rosbag2 and Foxglove store)."""
+
+
+def write_mcap(path: Path, messages: list[tuple[int, str, bytes]], *, profile: str = "ros2",
+               indexed: bool = True) -> Path:
+    """A bare ``.mcap`` of :data:`STATE` / :data:`CMD` written with the ``mcap`` package's writer, the
+    messages in the order given (``profile``: the header's; ``indexed``: chunk and message indexes and a
+    summary, else none, as a streaming writer leaves them)."""
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    with open(path, "wb") as fh:
+        writer = Writer(fh, index_types=IndexType.ALL if indexed else IndexType.NONE,
+                        use_summary_offsets=indexed, use_statistics=indexed,
+                        compression=CompressionType.NONE)
+        writer.start(profile=profile, library="another lab's logger")
+        schema = writer.register_schema(layout.FLOAT32_ARRAY, "ros2msg", FLOAT32_ARRAY_MSGDEF.encode())
+        channels = {topic: writer.register_channel(topic, "cdr", schema) for topic in (STATE, CMD)}
+        for k, (stamp, topic, raw) in enumerate(messages):
+            writer.add_message(channels[topic], log_time=stamp, data=raw, publish_time=stamp, sequence=k)
+        writer.finish()
+    return path
