@@ -231,7 +231,8 @@ def arm_demos(lengths: list[int], *, robot: ClockStep | None = None, pc: ClockSt
     demonstration, an ``Int32`` skill id on :data:`SKILL` 1 ms after each state; 25 Hz, 2 s pauses.
     ``robot`` / ``pc``: the robot's (header) or the recording PC's (log) clock steps; ``names``: the
     joint names of observation ``k`` (the values follow the names: joint ``j`` holds
-    ``positions[k, ARM_JOINTS.index(j)]``, a joint not in :data:`ARM_JOINTS` 0.5).  ``Demo.labels`` holds the skill ids per step."""
+    ``positions[k, ARM_JOINTS.index(j)]``, a joint not in :data:`ARM_JOINTS` 0.5).  ``Demo.labels``
+    holds the skill ids per step."""
     rng = np.random.default_rng(seed)
     out = Demo()
     t, k = 10**9, 0

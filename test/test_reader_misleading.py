@@ -26,8 +26,8 @@ from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m
 from ompn_ros.data.errors import CorruptBagError, NoEpisodeError
-from ompn_ros.data.reader.raw import collect_rosbags
 from ompn_ros.data.reader.paths import wanted_topics
+from ompn_ros.data.reader.raw import collect_rosbags
 
 ROOT = Path(__file__).resolve().parents[1]
 LENGTHS = [20, 25, 18]
@@ -78,7 +78,7 @@ def _with_empty_label_topic(path: Path) -> Path:
     demo = demos(LENGTHS, seed=24)
     with Writer(path, version=9) as w:
         conns = {t: w.add_connection(t, layout.FLOAT32_ARRAY, typestore=m.typestore()) for t in (STATE, CMD)}
-        w.add_connection("/lab/skill", layout.INT32, typestore=m.typestore())  # the label node never published
+        w.add_connection("/lab/skill", layout.INT32, typestore=m.typestore())  # never published on
         for stamp, topic, raw in demo.messages:
             w.write(conns[topic], stamp, raw)
     return path

@@ -135,7 +135,8 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         stamps, raws = ctx.data(js)
         out.joints = _guard(errors, lambda: decode_joint_states(ctx.path, js, stamps, raws))
         if out.joints is not None:
-            out.joint_stamps = _header_clock(ctx, js, out.joints, stamps) if ctx.clock(js) == "header" else stamps
+            header = ctx.clock(js) == "header"
+            out.joint_stamps = _header_clock(ctx, js, out.joints, stamps) if header else stamps
     if topics.sketch:
         stamps, raws = ctx.data(topics.sketch)
         out.sketches = [(int(s), m.parse_int32_array(r)) for s, r in zip(stamps, raws)]

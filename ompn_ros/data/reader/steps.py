@@ -99,10 +99,18 @@ def record_order_stamps(bag: Path, topics: set[str]) -> dict[str, np.ndarray]:
     return {t: np.concatenate(p) for t, p in parts.items()}
 
 
+STEPS_BACK = ("SELECT 1 FROM (SELECT timestamp - LAG(timestamp) OVER (PARTITION BY topic_id ORDER BY id) AS d "
+              "FROM messages) WHERE d <= ? LIMIT 1")
+"""Whether any topic's stamp steps back in record order (one pass inside SQLite)."""
+
+
 def _sqlite_order(file: Path, topics: set[str]) -> dict[str, np.ndarray]:
+    """Per topic, in message id order; nothing when no stamp steps back (the usual bag: one query)."""
     con = open_readonly(file)
     try:
         ids = {tid: name for tid, name in con.execute("SELECT id, name FROM topics") if name in topics}
+        if con.execute(STEPS_BACK, (-STEP_NS,)).fetchone() is None:
+            return {}
         out: dict[str, np.ndarray] = {}
         for tid, name in ids.items():
             rows = con.execute("SELECT timestamp FROM messages WHERE topic_id = ? ORDER BY id", (tid,))
