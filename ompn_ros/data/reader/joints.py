@@ -150,7 +150,7 @@ def _names_change(names: tuple[str, ...], first: tuple[str, ...], earlier_bag: b
     origin = "an earlier bag's first message" if earlier_bag else "the first message"
     return (f"JointState names change at this message: {what} ({origin} names {list(first)}); set "
             "joint_names in the reader spec to the joints to read (a driver restarted with another URDF, "
-            "or recordings of two robots?)")
+            "recordings of two robots; several publishers on one topic: joint_names with merge_s)")
 
 
 def _field_as_is(path: str, topic: str, name: str, stamps: np.ndarray, block: JointBlock) -> np.ndarray:
