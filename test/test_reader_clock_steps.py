@@ -83,6 +83,7 @@ def test_late_message_is_no_step() -> None:
     late[10] += 300_000_000
     assert lag_steps(ARM, late, header) == []
     assert lag_steps(ARM, log, header) == []
+    assert lag_steps(ARM, log, np.zeros_like(header)) == []  # a header left unset: no clock to compare
     stepped = header.copy()
     stepped[30:] -= 700_000_000
     ((step, clock),) = lag_steps(ARM, log, stepped)

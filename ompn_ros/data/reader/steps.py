@@ -44,6 +44,9 @@ STEP_NS = 100_000_000
 """A clock step is at least this large (0.1 s): delivery jitter stays far below it."""
 SETTLE = 5
 """Messages on each side of a lag change whose medians must show it (a late message is no step)."""
+MAX_STEPS = 8
+"""More lag changes than this in one topic are no clock steps but two unrelated clocks (the stamps
+check of :mod:`.clocks` judges those)."""
 
 
 @dataclass(frozen=True)
@@ -214,14 +217,17 @@ def lag_steps(topic: str, log: np.ndarray, header: np.ndarray) -> list[tuple[Ste
     """Lasting changes of the log − header lag of one topic (both in record order), each with the
     clock that moved (``'log'`` or ``'header'``: the one whose interval left its period, or went
     back).  ``Step.size`` is that clock's step."""
-    if len(log) < 2:
-        return []
+    if len(log) < 2 or np.any(header <= 0):
+        return []  # an unset header (refused where it is used) says nothing about either clock
     lag = log - header
     dlag = np.diff(lag)
     dlog, dhead = np.diff(log), np.diff(header)
     plog, phead = _period(dlog), _period(dhead)
+    candidates = np.flatnonzero(np.abs(dlag) >= STEP_NS)
+    if plog <= 0 or phead <= 0 or candidates.size > MAX_STEPS:
+        return []  # no steady pair of clocks (e.g. publishers on different clocks): no step pattern
     out: list[tuple[Step, str]] = []
-    for i in np.flatnonzero(np.abs(dlag) >= STEP_NS).tolist():
+    for i in candidates.tolist():
         before = np.median(lag[max(0, i + 1 - SETTLE): i + 1])
         after = np.median(lag[i + 1: i + 1 + SETTLE])
         if abs((after - before) - dlag[i]) > STEP_NS // 2:
