@@ -176,9 +176,6 @@ def _actions(ctx: BagContext, topics: Topics, obs: ObsParts | None) -> tuple[np.
             raws = ctx.data(topics.obs)[1]
             values = _vectors(ctx, topics.act, topics.act_type, spec.action, obs_log, raws)[0]
         return (values if obs_order is None else values[obs_order]), None
-    column = ctx.column(topics.act) if topics.act_type == layout.FLOAT32_ARRAY else None
-    if column is not None:  # decoded while reading (reader.columns): the same rows, no raw bytes
-        return column[1], column[0]
     stamps, raws = ctx.data(topics.act)
     if topics.act_type == layout.INT32:
         return m.stack_int32(raws, path=ctx.path, topic=topics.act, stamps=stamps), stamps

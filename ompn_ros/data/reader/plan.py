@@ -8,7 +8,6 @@ then raises the usual error.  Cost: O(topics).
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from ompn_ros import layout
@@ -23,10 +22,9 @@ from .spec import ReaderSpec
 def stream_plan(bag: Path, spec: ReaderSpec, types: dict[str, str]) -> StreamPlan | None:
     """The plan for ``spec`` over a bag whose topics have ``types`` (``None``: keep every topic raw).
 
-    The observation topic and the action topic are decoded as read when each is a
-    ``Float32MultiArray`` topic used for nothing else; with ``ReaderSpec.assemble`` the assembler runs
-    while reading and only the topics another role also uses (action, labels, markers, ...) keep
-    their raw bytes.
+    The observation topic is decoded as read when it is a ``Float32MultiArray`` topic used for
+    nothing else; with ``ReaderSpec.assemble`` the assembler runs while reading and only the
+    topics another role also uses (action, labels, markers, ...) keep their raw bytes.
     """
     ctx = BagContext(RawBag(bag, dict(types), {}), spec, BagReport(str(bag)))
     try:
@@ -37,11 +35,6 @@ def stream_plan(bag: Path, spec: ReaderSpec, types: dict[str, str]) -> StreamPla
                           topics.split) if t}
     if topics.assemble is not None:
         return StreamPlan(assemble=topics.assemble, keep_raw=frozenset(set(topics.assemble.topics) & others))
-    plan = StreamPlan()
     if topics.obs_type == layout.FLOAT32_ARRAY and topics.obs not in others:
-        plan = StreamPlan(column=topics.obs, dim=spec.observation.dim)
-    roles = {t for t in (topics.obs, topics.sub, topics.sketch, topics.episode, topics.joints,
-                         topics.split) if t}
-    if topics.act_type == layout.FLOAT32_ARRAY and topics.act not in roles:
-        plan = replace(plan, act_column=topics.act, act_dim=spec.action.dim)
-    return plan if plan != StreamPlan() else None
+        return StreamPlan(column=topics.obs, dim=spec.observation.dim)
+    return None

@@ -36,15 +36,12 @@ class StreamPlan:
         assemble: ``ReaderSpec.assemble`` with bag topic names, fed to an :class:`AssemblySink`.
         keep_raw: topics whose raw bytes are still needed (e.g. a partner topic that is also the
             action topic); every other topic of the plan keeps stamps and record positions only.
-        act_column, act_dim: the same for a ``Float32MultiArray`` action topic (its own topic).
     """
 
     column: str | None = None
     dim: int | None = None
     assemble: ObservationSpec | None = None
     keep_raw: frozenset[str] = frozenset()
-    act_column: str | None = None
-    act_dim: int | None = None
 
 
 @dataclass
@@ -242,9 +239,8 @@ def _apply_plan(raw: RawBag, plan: StreamPlan | None, counts: dict[str, int]) ->
     """Set the column and the assembler sink of ``plan`` on the topics read (``None``: no sink)."""
     if plan is None:
         return None
-    for topic, dim in ((plan.column, plan.dim), (plan.act_column, plan.act_dim)):
-        if topic is not None and topic in raw.topics:
-            raw.topics[topic].column = Float32Column(dim, counts.get(topic, 0))
+    if plan.column is not None and plan.column in raw.topics:
+        raw.topics[plan.column].column = Float32Column(plan.dim, counts.get(plan.column, 0))
     if plan.assemble is None or not set(plan.assemble.topics) <= set(raw.topics):
         return None
     for topic in plan.assemble.topics:

@@ -102,8 +102,8 @@ def record_order_stamps(bag: Path, topics: set[str]) -> dict[str, np.ndarray]:
     return {t: np.concatenate(p) for t, p in parts.items()}
 
 
-STEPS_BACK = ("SELECT 1 FROM (SELECT timestamp - LAG(timestamp) OVER (PARTITION BY topic_id ORDER BY id) "
-              "AS d FROM messages) WHERE d <= ? LIMIT 1")
+STEPS_BACK = ("SELECT 1 FROM (SELECT timestamp - LAG(timestamp) OVER (PARTITION BY topic_id ORDER BY id) AS d "
+              "FROM messages) WHERE d <= ? LIMIT 1")
 """Whether any topic's stamp steps back in record order (one pass inside SQLite)."""
 
 
