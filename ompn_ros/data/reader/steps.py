@@ -198,8 +198,13 @@ def _forward_log_jumps(raw: RawBag, topic: str) -> list[Step]:
     if tdata is None or not tdata.has_raws or tdata.column is not None or len(tdata.raws) < 2:
         return []
     log = np.asarray(tdata.stamps, dtype=np.int64)
+    gaps = np.flatnonzero(np.diff(log) >= STEP_NS)  # pauses, or jumps: the header stamps tell which
+    ends = header_stamps([tdata.raws[k] for i in gaps.tolist() for k in (i, i + 1)])
+    if ends is None or not gaps.size:
+        return []
+    moved = np.abs(np.diff(log)[gaps] - (ends[1::2] - ends[::2])) >= STEP_NS
     found: list[Step] = []
-    for i in np.flatnonzero(np.diff(log) >= STEP_NS).tolist():
+    for i in gaps[moved].tolist():
         a, b = max(0, i + 1 - SETTLE), min(len(log), i + 1 + SETTLE)
         header = header_stamps(tdata.raws[a:b])
         if header is None:
