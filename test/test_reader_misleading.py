@@ -161,6 +161,6 @@ def test_bare_file_keeps_only_the_wanted_topics(tmp_path: Path, storage: str) ->
             if topic == STATE:
                 w.write(cam, stamp + 1, m.serialize(image))
     bare = storage_file(tmp_path / "bag")
-    raw = collect_rosbags(bare, None, None, lambda types: wanted_topics(SPEC, types))
-    assert sorted(raw.topics) == [CMD, STATE] and "/camera/image_raw" in raw.types
+    kept = collect_rosbags(bare, None, None, lambda types: wanted_topics(SPEC, types))
+    assert sorted(kept.topics) == [CMD, STATE] and "/camera/image_raw" in kept.types
     read_and_check(bare, demo)
