@@ -40,6 +40,7 @@ class Demo:
     observations: list[np.ndarray] = field(default_factory=list)
     actions: list[np.ndarray] = field(default_factory=list)
     messages: list[tuple[int, str, bytes]] = field(default_factory=list)  # (log stamp, topic, CDR)
+    labels: list[np.ndarray] = field(default_factory=list)  # per step, where written
 
 
 def demos(lengths: list[int], seed: int = 0, t0: int = 10**9) -> Demo:
@@ -206,3 +207,108 @@ def old_sqlite_schema(file: Path, schema: int) -> None:
     src.close()
     dst.close()
     old.replace(file)
+
+
+ARM, ARM_CMD, SKILL = "/arm/joint_states", "/arm/command", "/arm/skill"
+ARM_JOINTS = ("shoulder", "elbow", "wrist")
+ROBOT_LATENCY_NS = 3_000_000
+"""The robot's header stamps lead the recording PC's receive time by this much (a steady clock pair)."""
+
+
+@dataclass
+class ClockStep:
+    """A clock set back (``size_ns`` < 0) or forward by ``size_ns`` just before observation
+    ``at`` (counted over the whole bag) and every message after it."""
+
+    at: int
+    size_ns: int
+
+
+def arm_demos(lengths: list[int], *, robot: ClockStep | None = None, pc: ClockStep | None = None,
+              names: Callable[[int], tuple[str, ...]] | None = None, seed: int = 0) -> Demo:
+    """A driver's arm: JointState states on :data:`ARM` (``header.stamp`` on the robot's clock), a
+    ``Float32MultiArray`` command on :data:`ARM_CMD` 2 ms after each state but the last of a
+    demonstration, an ``Int32`` skill id on :data:`SKILL` 1 ms after each state; 25 Hz, 2 s pauses.
+    ``robot`` / ``pc``: the robot's (header) or the recording PC's (log) clock steps; ``names``: the
+    joint names of observation ``k`` (the values follow the names: joint ``j`` holds
+    ``positions[k, ARM_JOINTS.index(j)]``, a joint not in :data:`ARM_JOINTS` 0.5).  ``Demo.labels``
+    holds the skill ids per step."""
+    rng = np.random.default_rng(seed)
+    out = Demo()
+    t, k = 10**9, 0
+    for steps in lengths:
+        obs = rng.standard_normal((steps + 1, len(ARM_JOINTS)))
+        act = rng.standard_normal((steps, ACT_DIM)).astype(np.float32)
+        skills = np.repeat([7, 3, 9], steps // 3 + 1)[: steps + 1].astype(np.int64)
+        for i in range(steps + 1):
+            true = t + i * STEP_NS
+            log = true + (pc.size_ns if pc is not None and k >= pc.at else 0)
+            head = true - ROBOT_LATENCY_NS + (robot.size_ns if robot is not None and k >= robot.at else 0)
+            order = names(k) if names is not None else ARM_JOINTS
+            values = [obs[i, ARM_JOINTS.index(j)] if j in ARM_JOINTS else 0.5 for j in order]
+            out.messages.append((log, ARM, m.serialize(m.joint_state(head, list(order), values, ()))))
+            out.messages.append((log + 1_000_000, SKILL, m.serialize(m.int32(int(skills[i])))))
+            if i < steps:
+                out.messages.append((log + 2_000_000, ARM_CMD, m.serialize(m.float32_array(act[i], "cmd"))))
+            k += 1
+        out.observations.append(obs.astype(np.float32))
+        out.actions.append(act)
+        out.labels.append(skills[:steps])
+        t += steps * STEP_NS + GAP_NS
+    return out
+
+
+ARM_SPEC = ReaderSpec.from_dict({
+    "observation": {"topic": ARM, "type": layout.JOINT_STATE, "fields": ["position"]},
+    "action": {"topic": ARM_CMD, "type": layout.FLOAT32_ARRAY, "dim": ACT_DIM},
+    "subtask": SKILL, "labels": "id", "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5,
+    "tolerance": 0.03, "strict": False, "final_observation": "require",
+})
+"""Reads :func:`arm_demos` on the recording PC's clock (``stamp: log``)."""
+
+
+def write_arm(path: Path, demo: Demo, *, storage: str = "mcap") -> Path:
+    """``demo`` of :func:`arm_demos` as a rosbag2 bag written by ``rosbags``, in the order recorded."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    types = {ARM: layout.JOINT_STATE, ARM_CMD: layout.FLOAT32_ARRAY, SKILL: layout.INT32}
+    with Writer(path, version=9, storage_plugin=plugin) as writer:  # type: ignore[arg-type]
+        conns = {topic: writer.add_connection(topic, kind, typestore=m.typestore())
+                 for topic, kind in types.items()}
+        for stamp, topic, raw in demo.messages:
+            writer.write(conns[topic], stamp, raw)
+    return path
+
+
+def check_arm(got: list[Episode], demo: Demo) -> None:
+    """Every demonstration of :func:`arm_demos` read back value for value, labels included."""
+    check_episodes(got, demo)
+    for ep, ids in zip(got, demo.labels):
+        np.testing.assert_array_equal(ep.extras["subtask_id"], ids)
+
+
+FLOAT32_ARRAY_MSGDEF = "std_msgs/MultiArrayLayout layout\nfloat32[] data\n" + "=" * 80 + (
+    "\nMSG: std_msgs/MultiArrayLayout\nMultiArrayDimension[] dim\nuint32 data_offset\n" + "=" * 80
+    + "\nMSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride\n")
+"""``std_msgs/msg/Float32MultiArray`` as a ``ros2msg`` schema (what rosbag2 and Foxglove store)."""
+
+
+def write_mcap(path: Path, messages: list[tuple[int, str, bytes]], *, profile: str = "ros2",
+               indexed: bool = True) -> Path:
+    """A bare ``.mcap`` of :data:`STATE` / :data:`CMD` written with the ``mcap`` package's writer, the
+    messages in the order given (``profile``: the header's; ``indexed``: chunk and message indexes and a
+    summary, else none, as a streaming writer leaves them)."""
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    with open(path, "wb") as fh:
+        writer = Writer(fh, index_types=IndexType.ALL if indexed else IndexType.NONE,
+                        use_summary_offsets=indexed, use_statistics=indexed,
+                        compression=CompressionType.NONE)
+        writer.start(profile=profile, library="another lab's logger")
+        schema = writer.register_schema(layout.FLOAT32_ARRAY, "ros2msg", FLOAT32_ARRAY_MSGDEF.encode())
+        channels = {topic: writer.register_channel(topic, "cdr", schema) for topic in (STATE, CMD)}
+        for k, (stamp, topic, raw) in enumerate(messages):
+            writer.add_message(channels[topic], log_time=stamp, data=raw, publish_time=stamp, sequence=k)
+        writer.finish()
+    return path

@@ -329,9 +329,10 @@ def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry
     its identity (:func:`content_key`)."""
     report = ReadReport()
     writer = EntryWriter(entry, key)
+    joint_orders: dict[str, tuple[str, ...]] = {}  # one joint order for every bag (reader.joints)
     try:
         for bag in bags:
-            result = read_episodes([bag], spec=spec, on_error=on_error)
+            result = read_episodes([bag], spec=spec, on_error=on_error, joint_orders=joint_orders)
             report.bags.extend(result.report.bags)
             try:
                 writer.add(result.episodes)

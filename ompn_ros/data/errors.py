@@ -72,6 +72,14 @@ class VectorLengthError(BagError):
     """A vector message has a different length than expected (or than the topic's first one)."""
 
 
+class JointNamesError(BagError):
+    """A JointState topic names other joints than its first message (a joint appears or vanishes)."""
+
+
+class ClockStepError(BagError):
+    """A clock the reader aligns on steps back or jumps forward within a bag."""
+
+
 class AlignmentError(BagError):
     """Per-step messages do not line up with the observation clock (missing or duplicate partner)."""
 

@@ -22,7 +22,11 @@ Alignment rule
   so the default ``tolerance`` is a generous 5 s: the episode markers and the "latest observation
   at or before" rule do the alignment, the tolerance only rejects strays.
 * Stamps are the bag's log stamps (``stamp: log``); ``stamp: header`` uses ``header.stamp`` of
-  JointState topics instead.
+  JointState topics instead.  A clock that steps within the bag (an NTP correction) never reshapes
+  a demonstration: the recording PC's clock is read around in recording order, a header clock read
+  with ``stamp: header`` is refused naming ``stamp: log`` (:mod:`.steps`).
+* Without ``joint_names`` the first JointState message's names fix the joint order (the first
+  bag's, across the bags of a read); other orders are reordered by name, other joints refused.
 
 Episodes
 --------
@@ -70,7 +74,7 @@ messages), ``plan`` / ``columns`` (the step topic decoded while the bag is read,
 ``context`` (topic resolution and type checks), ``decode`` / ``joints`` / ``vectors``
 (arrays, corrupt tail), ``observe`` (observations from several topics, ``ReaderSpec.assemble``),
 ``align`` (partners, episode windows), ``assemble`` (episodes), ``report`` (what was used), ``read``
-(entry points).
+(entry points), ``steps`` (clocks that step).
 """
 
 from __future__ import annotations

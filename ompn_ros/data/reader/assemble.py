@@ -241,7 +241,7 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
              steps: np.ndarray, prev_stop_stamp: int, number: int) -> Episode:
     final = w.stop_obs - 1  # row T: the observation after the last action (or its duplicate)
     rows = np.concatenate([steps, [final]])
-    actions = dec.act[partners.act[steps]]
+    actions = _rows(dec.act, partners.act[steps])  # a view when consecutive, as the observations
     sketch = _episode_sketch(dec.sketches, w, int(dec.obs_stamps[w.first_obs]), prev_stop_stamp)
     subtask, extras = _labels(ctx, topics, dec, partners, w, steps, sketch, number)
     if dec.assembled is not None:

@@ -46,13 +46,16 @@ class Topics:
 class BagContext:
     """Resolved topics of one bag and helpers naming the file in errors."""
 
-    def __init__(self, raw: RawBag, spec: ReaderSpec, report: BagReport, name: Path | None = None) -> None:
+    def __init__(self, raw: RawBag, spec: ReaderSpec, report: BagReport, name: Path | None = None,
+                 joint_orders: dict[str, tuple[str, ...]] | None = None) -> None:
         self.raw = raw
         self.spec = spec
         self.report = report
         self.path = str(name if name is not None else raw.path)  # in errors: the user's bag
         self._clocks: dict[str, str] = {}  # ReaderSpec.stamps by bag topic (resolve_all)
         self.header_lag: dict[str, np.ndarray] = {}  # header-stamped topic -> log - header stamps (ns)
+        # JointState topic -> the joint order its first message fixed (shared by the bags of one read)
+        self.joint_orders: dict[str, tuple[str, ...]] = {} if joint_orders is None else joint_orders
 
     def clock(self, topic: str) -> str:
         """The time base of ``topic``: ``ReaderSpec.stamps`` for it, else ``ReaderSpec.stamp``; topics

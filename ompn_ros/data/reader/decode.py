@@ -30,6 +30,7 @@ from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors, merge_publishers
 from .observe import AssembledRows, assembled_rows
 from .spec import OnError, VectorSource
+from .steps import check_header_steps
 from .vectors import stack_float64_arrays
 from .verify import nonfinite_rows
 
@@ -137,7 +138,8 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
         stamps, raws = ctx.data(js)
         out.joints = _guard(errors, lambda: decode_joint_states(ctx.path, js, stamps, raws))
         if out.joints is not None:
-            out.joint_stamps = _header_clock(ctx, js, out.joints) if ctx.clock(js) == "header" else stamps
+            header = ctx.clock(js) == "header"
+            out.joint_stamps = _header_clock(ctx, js, out.joints, stamps) if header else stamps
     if topics.sketch:
         stamps, raws = ctx.data(topics.sketch)
         out.sketches = [(int(s), m.parse_int32_array(r)) for s, r in zip(stamps, raws)]
@@ -172,7 +174,7 @@ def _actions(ctx: BagContext, topics: Topics, obs: ObsParts | None) -> tuple[np.
     if topics.act == topics.obs:  # e.g. JointState: observation = position, action = velocity
         obs_order, obs_log, obs_block = _same_topic_parts(ctx, topics, obs)
         if obs_block is not None:
-            values = joint_vectors(ctx.path, topics.act, spec.action, obs_log, obs_block)
+            values = joint_vectors(ctx.path, topics.act, spec.action, obs_log, obs_block, ctx.joint_orders)
         else:
             raws = ctx.data(topics.obs)[1]
             values = _vectors(ctx, topics.act, topics.act_type, spec.action, obs_log, raws)[0]
@@ -224,20 +226,22 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
         stamps = stamps[index]
     else:
         block = decode_joint_states(ctx.path, topic, stamps, raws)
-    values = joint_vectors(ctx.path, topic, src, stamps, block)
+    values = joint_vectors(ctx.path, topic, src, stamps, block, ctx.joint_orders)
     if header:
         ctx.header_lag[topic] = stamps - block.header
-    return values, (_header_clock(ctx, topic, block) if header else stamps), block, stamps
+    return values, (_header_clock(ctx, topic, block, stamps) if header else stamps), block, stamps
 
 
-def _header_clock(ctx: BagContext, topic: str, block: JointBlock) -> np.ndarray:
+def _header_clock(ctx: BagContext, topic: str, block: JointBlock, log: np.ndarray) -> np.ndarray:
     """``header.stamp`` of every message of ``topic``; a stamp of 0 (a publisher that leaves the header
-    unset) raises :class:`AlignmentError`, whatever ``on_error``: no step order can be trusted."""
+    unset) raises :class:`AlignmentError` and a header clock that steps against the log stamps ``log``
+    :class:`ClockStepError` (:mod:`.steps`), whatever ``on_error``: no step order can be trusted."""
     zero = np.flatnonzero(block.header == 0)
     if zero.size:
         raise AlignmentError(f"header.stamp is 0 in {zero.size} of {len(block.header)} messages (the "
                              "publisher leaves it unset); read with stamp: log", path=ctx.path, topic=topic,
                              index=int(zero[0]))
+    check_header_steps(ctx.path, topic, log, block.header)
     return block.header
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
-from ..errors import CorruptBagError, VectorLengthError
+from ..errors import CorruptBagError, JointNamesError, VectorLengthError
 from ..joint_merge import JointMerger, MalformedJointState, MergedStep, field_width_line
 from .spec import VectorSource
 
@@ -24,7 +24,7 @@ class JointBlock:
 
     header: np.ndarray  # int64 [N]
     names: list[tuple[str, ...]]  # per message
-    arrays: dict[str, np.ndarray]  # field -> float64 [N, W] (W = width of the first message)
+    arrays: dict[str, np.ndarray]  # field -> float64 [N, W] (W = the widest message; NaN beyond a row's)
     widths: dict[str, np.ndarray]  # field -> int [N] actual width per message
 
     @property
@@ -55,12 +55,10 @@ def decode_joint_states(path: str, topic: str, stamps: np.ndarray, raws: list[by
     arrays: dict[str, np.ndarray] = {}
     widths: dict[str, np.ndarray] = {}
     for f in layout.JOINT_FIELDS:
-        w = len(rows[f][0]) if rows[f] else 0
-        arr = np.full((len(raws), w), np.nan)
         widths[f] = np.asarray([len(r) for r in rows[f]], dtype=np.int64)
+        arr = np.full((len(raws), int(widths[f].max()) if rows[f] else 0), np.nan)
         for i, r in enumerate(rows[f]):
-            if len(r) == w:
-                arr[i] = r
+            arr[i, : len(r)] = r  # a message naming more joints than the first keeps them all
         arrays[f] = arr
     return JointBlock(header, names_list, arrays, widths)
 
@@ -99,15 +97,20 @@ def merge_publishers(path: str, topic: str, src: VectorSource, stamps: np.ndarra
     return JointBlock(clock[index], [src.joint_names] * n, arrays, widths), index, merger.missing
 
 
-def joint_vectors(path: str, topic: str, src: VectorSource, stamps: np.ndarray,
-                  block: JointBlock) -> np.ndarray:
-    """Vectors ``[N, D]`` from the JointState fields of ``src`` (reordered by joint name if asked)."""
+def joint_vectors(path: str, topic: str, src: VectorSource, stamps: np.ndarray, block: JointBlock,
+                  orders: dict[str, tuple[str, ...]] | None = None) -> np.ndarray:
+    """Vectors ``[N, D]`` from the JointState fields of ``src`` (reordered by joint name if asked, or
+    to the order the first message fixed: :func:`first_names_order`; ``orders`` carries that order
+    by topic from one bag to the next of a read)."""
+    order = src.joint_names
+    if order is None:
+        order = first_names_order(path, topic, block, orders)
     parts = []
     for name in src.fields:
-        if src.joint_names is None:
+        if order is None:
             parts.append(_field_as_is(path, topic, name, stamps, block))
         else:
-            parts.append(_field_by_name(path, topic, name, src.joint_names, stamps, block))
+            parts.append(_field_by_name(path, topic, name, order, stamps, block))
     n = len(stamps)
     values = np.concatenate(parts, axis=1).astype(np.float32)
     if src.dim is not None and values.shape[1] != src.dim:
@@ -116,19 +119,57 @@ def joint_vectors(path: str, topic: str, src: VectorSource, stamps: np.ndarray,
     return values
 
 
+def first_names_order(path: str, topic: str, block: JointBlock,
+                      orders: dict[str, tuple[str, ...]] | None = None) -> tuple[str, ...] | None:
+    """Without ``joint_names`` the first message's names fix the joint order (the first bag's, when
+    ``orders`` holds it; this block's first names are put there otherwise): ``None`` when every
+    message names those joints in that order (or names none: read as they come), the order when
+    some message names the same joints in another order (it is reordered by name).  A message
+    naming other joints (a joint appears or vanishes, another URDF) raises
+    :class:`JointNamesError`, whatever ``on_error``: it is no corruption.  O(N) tuple compares."""
+    if not block.names or not block.names[0]:
+        return None
+    known = orders.get(topic) if orders is not None else None
+    first = known or block.names[0]
+    if orders is not None and known is None:
+        orders[topic] = first
+    seen: set[tuple[str, ...]] = set()
+    for i, names in enumerate(block.names):
+        if names in seen or names == first:
+            continue
+        seen.add(names)
+        if sorted(names) != sorted(first):
+            raise JointNamesError(_names_change(names, first, known is not None), path=path, topic=topic,
+                                  index=i)
+    return first if seen else None
+
+
+def _names_change(names: tuple[str, ...], first: tuple[str, ...], earlier_bag: bool) -> str:
+    """The line of :class:`JointNamesError`: which joints appear and vanish, and the way out."""
+    appear = [n for n in names if n not in first]
+    vanish = [n for n in first if n not in names]
+    what = "; ".join(part for part in (f"joints {appear} appear" if appear else "",
+                                       f"joints {vanish} vanish" if vanish else "") if part)
+    origin = "an earlier bag's first message" if earlier_bag else "the first message"
+    return (f"JointState names change at this message: {what} ({origin} names {list(first)}); set "
+            "joint_names in the reader spec to the joints to read (a driver restarted with another URDF, "
+            "recordings of two robots; several publishers on one topic: joint_names with merge_s)")
+
+
 def _field_as_is(path: str, topic: str, name: str, stamps: np.ndarray, block: JointBlock) -> np.ndarray:
     arr, widths = block.arrays[name], block.widths[name]
+    first = int(widths[0]) if widths.size else arr.shape[1]
     joints = np.fromiter((len(n) for n in block.names), dtype=np.int64, count=len(block.names))
-    bad = np.flatnonzero((widths != arr.shape[1]) | ((joints > 0) & (widths != joints)))
+    bad = np.flatnonzero((widths != first) | ((joints > 0) & (widths != joints)))
     if bad.size:
         i = int(bad[0])
         if joints[i] > 0 and widths[i] != joints[i]:
             raise VectorLengthError(field_width_line(name, int(widths[i]), int(joints[i])), path=path,
                                     topic=topic, index=i, stamp=int(stamps[i]))
         raise VectorLengthError(f"JointState.{name} has {widths[i]} values, the topic's first "
-                                f"message {arr.shape[1]}", path=path, topic=topic, index=i,
+                                f"message {first}", path=path, topic=topic, index=i,
                                 stamp=int(stamps[i]))
-    return arr
+    return arr[:, :first]
 
 
 def _field_by_name(path: str, topic: str, name: str, joint_names: tuple[str, ...], stamps: np.ndarray,

@@ -144,6 +144,7 @@ class RawBag:
 
 
 Planner = Callable[[dict[str, str]], "StreamPlan | None"]  # topic types -> what to decode while reading
+Chooser = Callable[[dict[str, str]], set[str]]  # topic types -> the topics to keep (no metadata.yaml)
 
 
 def _unfinished_hint(err: Exception) -> str:
@@ -155,12 +156,15 @@ def _unfinished_hint(err: Exception) -> str:
             "--on-error skip_tail (ompn_train: --set data.on_error=skip_tail) keeps its whole episodes")
 
 
-def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None = None) -> RawBag:
+def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None = None,
+                    choose: Chooser | None = None) -> RawBag:
     """Read every message of the wanted topics with ``rosbags`` (the normal path).
 
     ``rosbags`` checks mcap chunk CRCs when the writer set them; a mismatch ends the read like
     any other storage error: the messages read before it are kept and ``corrupt`` names the file.
     ``planner``: given the bag's topic types, the topics to decode while reading (:class:`StreamPlan`).
+    ``choose``: given the bag's topic types, the topics to keep when ``wanted`` is ``None`` (a bag
+    without metadata.yaml: only the wanted topics' bytes are held, whatever else the bag records).
     Raises :class:`CorruptBagError` when the bag cannot even be opened.
     """
     raw = RawBag(bag, {}, {})
@@ -174,6 +178,8 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
         raise CorruptBagError(f"cannot open bag: {err}{_unfinished_hint(err)}", path=where) from err
     for c in reader.connections:
         raw.types.setdefault(c.topic, c.msgtype)  # a topic under several types: its first
+    if wanted is None and choose is not None:
+        wanted = choose(raw.types)
     conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
     try:
         register_bag_types(bag, conns)

@@ -34,14 +34,28 @@ STORAGE_IDS = {".mcap": "mcap", ".db3": "sqlite3"}
 
 
 def split_files(folder: Path) -> list[Path]:
-    """rosbag2's storage files of bag directory ``folder`` (``<folder name>_<n>.<ext>``), by ``n``."""
-    pattern = re.compile(re.escape(folder.name) + r"_(\d+)(\.mcap|\.db3)$")
-    found = []
+    """rosbag2's storage files of bag directory ``folder``, by split number ``n``: the files
+    ``<folder name>_<n>.<ext>``, else (a directory the user renamed) the files ``<name>_<n>.<ext>``
+    of one ``<name>``, as ``ros2 bag reindex`` takes any ``<name>_<n>.<ext>``, when they are every
+    storage file of the directory and numbered ``0 .. k-1`` (files of separate recordings, e.g.
+    ``run_1.mcap``, ``run_2.mcap``, stay separate bags)."""
+    series: dict[str, list[tuple[int, Path]]] = {}
+    others = 0
     for child in folder.iterdir() if folder.is_dir() else ():
-        match = pattern.match(child.name)
+        match = SPLIT_NAME.match(child.name)
         if match and child.is_file():
-            found.append((int(match.group(1)), child))
-    return [path for _, path in sorted(found)]
+            series.setdefault(match.group(1), []).append((int(match.group(2)), child))
+        elif child.suffix in (".mcap", ".db3"):
+            others += 1
+    found = series.get(folder.name)
+    if found is None and len(series) == 1 and not others:
+        (candidate,) = series.values()
+        found = candidate if sorted(n for n, _ in candidate) == list(range(len(candidate))) else None
+    return [path for _, path in sorted(found or [])]
+
+
+SPLIT_NAME = re.compile(r"(.+)_(\d+)(?:\.mcap|\.db3)$")
+"""A split storage file: ``<name>_<n>.<ext>``."""
 
 
 def needs_reindex(bag: Path) -> bool:

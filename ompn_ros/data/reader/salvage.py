@@ -18,17 +18,21 @@ from mcap.stream_reader import StreamReader
 from ..errors import CorruptBagError
 from .compressed import decompress, is_compressed
 from .paths import storage_files
-from .raw import RawBag
+from .raw import Chooser, RawBag
 from .verify import open_readonly
 
 
-def salvage(bag: Path, wanted: set[str] | None, first_error: CorruptBagError) -> RawBag:
-    """Messages of ``bag`` up to the first unreadable record; later storage files are not trusted."""
+def salvage(bag: Path, wanted: set[str] | None, first_error: CorruptBagError | None,
+            choose: Chooser | None = None) -> RawBag:
+    """Messages of ``bag`` up to the first unreadable record; later storage files are not trusted
+    (``first_error``: what made the normal read fail; ``None``: the bag is not known to be damaged).
+    ``choose``: the topics to keep by their types when ``wanted`` is ``None`` (no metadata.yaml),
+    applied to each topic as the storage names it."""
     raw = RawBag(bag, {}, {}, corrupt=first_error)
     for file in storage_files(bag):
         try:
             reader = _salvage_mcap if file.suffix == ".mcap" else _salvage_sqlite
-            ok = reader(file, wanted, raw)
+            ok = reader(file, _Keep(wanted, choose), raw)
         except (OSError, McapError, sqlite3.Error, ValueError, KeyError) as err:
             raw.corrupt = CorruptBagError(f"unreadable storage: {err}", path=file)
             ok = False
@@ -37,7 +41,19 @@ def salvage(bag: Path, wanted: set[str] | None, first_error: CorruptBagError) ->
     return raw
 
 
-def _salvage_mcap(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
+class _Keep:
+    """The topics to keep: ``wanted``, else those ``choose`` picks among the topics seen so far."""
+
+    def __init__(self, wanted: set[str] | None, choose: Chooser | None) -> None:
+        self.wanted, self.choose = wanted, choose
+        self.topics: set[str] | None = wanted if wanted is not None or choose is None else set()
+
+    def see(self, topic: str, msgtype: str) -> None:
+        if self.wanted is None and self.choose is not None and self.topics is not None:
+            self.topics |= self.choose({topic: msgtype})
+
+
+def _salvage_mcap(file: Path, keep: _Keep, raw: RawBag) -> bool:
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
     n = 0
@@ -49,10 +65,11 @@ def _salvage_mcap(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
                 elif isinstance(rec, Channel):
                     channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, ""))
                     raw.types.setdefault(rec.topic, schemas.get(rec.schema_id, ""))
+                    keep.see(*channels[rec.id])
                 elif isinstance(rec, Message):
                     topic, msgtype = channels[rec.channel_id]
                     data = decompress(rec.data) if is_compressed(rec.data) else rec.data
-                    raw.append(wanted, topic, msgtype, rec.log_time, data)
+                    raw.append(keep.topics, topic, msgtype, rec.log_time, data)
                     n += 1
         except Exception as err:  # the mcap stream reader raises many types on a broken stream
             text = f"mcap stream broken after {n} messages: {type(err).__name__} {err}".rstrip()
@@ -61,18 +78,19 @@ def _salvage_mcap(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
     return True
 
 
-def _salvage_sqlite(file: Path, wanted: set[str] | None, raw: RawBag) -> bool:
+def _salvage_sqlite(file: Path, keep: _Keep, raw: RawBag) -> bool:
     con = open_readonly(file)
     n = 0
     try:
         topics = {tid: (name, typ) for tid, name, typ in con.execute("SELECT id, name, type FROM topics")}
         for name, typ in topics.values():
             raw.types.setdefault(name, typ)
+            keep.see(name, typ)
         try:
             for tid, stamp, data in con.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY id"):
                 name, typ = topics[tid]
                 data = decompress(data) if is_compressed(data) else bytes(data)
-                raw.append(wanted, name, typ, int(stamp), data)
+                raw.append(keep.topics, name, typ, int(stamp), data)
                 n += 1
         except sqlite3.DatabaseError as err:
             text = f"sqlite scan broken after {n} messages: {type(err).__name__} {err}"
