@@ -40,7 +40,7 @@ class _Placeholder(types.ModuleType):
 
 
 def _torchvision_placeholder() -> None:
-    importlib.import_module("datasets")  # before the placeholder: Hugging Face datasets then sees no torchvision
+    importlib.import_module("datasets")  # first: Hugging Face datasets then sees no torchvision
     for name in ("torchvision", "torchvision.transforms", "torchvision.transforms.v2",
                  "torchvision.transforms.v2.functional", "torchvision.io"):
         sys.modules[name] = module = _Placeholder(name)

@@ -20,7 +20,7 @@ import dataclasses
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -62,7 +62,7 @@ class DatasetRun:
     checkpoint: str
     detector: DetectorConfig
     out: Path
-    spec: DatasetSpec = DatasetSpec()
+    spec: DatasetSpec = field(default_factory=DatasetSpec)
     duration_model: DurationModel | None = None
     head: BoundaryHead | None = None
     boundaries: Boundaries = "online"
@@ -72,6 +72,11 @@ class DatasetRun:
     in_place: bool = False
     overwrite: bool = False
     device: str = "cpu"
+
+
+def dataset_spec(path: str | None) -> DatasetSpec:
+    """The dataset spec of the YAML file ``path`` (None: the default features)."""
+    return DatasetSpec.from_yaml(path) if path else DatasetSpec()
 
 
 def _top_k(r: ReplayResult, k: int) -> list[BoundaryEvent]:
@@ -93,7 +98,8 @@ def _decided(run: DatasetRun, eps: list[DatasetEpisode], replays: list[ReplayRes
     for ep, r in zip(eps, replays, strict=True):
         k = run.subtasks or (len(ep.episode.boundaries) if ep.episode.subtask is not None else 0)
         if k < 1:
-            raise ReplayError(f"--boundaries top_k needs --subtasks K or labels (episode {ep.index} has none)")
+            raise ReplayError(f"--boundaries top_k needs --subtasks K or labels (episode {ep.index} has "
+                              "none)")
         done.append(dataclasses.replace(r, boundaries=_top_k(r, k)))
     return done
 
@@ -131,7 +137,8 @@ def segment_dataset(run: DatasetRun, dataset: str | Path, progress: Progress | N
         replays = _decided(run, file.episodes, replays)
         mode = run.detector.mode if run.boundaries == "online" else "top_k"
         for ep, r in zip(file.episodes, replays, strict=True):
-            rows += [{"bag": str(source), **row} for row in segment_rows(ep.index, ep.episode, r, ep.stamps_ns(), mode)]
+            found = segment_rows(ep.index, ep.episode, r, ep.stamps_ns(), mode)
+            rows += [{"bag": str(source), **row} for row in found]
         scores = _merge(scores, episode_scores(eps, replays))
         if writer is not None:
             writer.add_file(file, {ep.index: [b.step for b in r.boundaries]
@@ -173,4 +180,4 @@ def _outputs(out: Path, rows: list[dict[str, Any]], scores: dict[str, list[float
     return summary
 
 
-__all__ = ["BOUNDARIES", "DatasetRun", "segment_dataset"]
+__all__ = ["BOUNDARIES", "DatasetRun", "dataset_spec", "segment_dataset"]

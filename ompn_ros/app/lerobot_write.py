@@ -90,7 +90,8 @@ def share_dataset(source: Path, out: Path, overwrite: bool = False) -> None:
         if not overwrite:
             raise DatasetError(f"{out} exists and is not empty: pass --overwrite to replace it", path=source)
         if not (out / INFO).is_file():
-            raise DatasetError(f"--overwrite replaces only a dataset folder, and {out} has no {INFO}", path=source)
+            raise DatasetError(f"--overwrite replaces only a dataset folder, and {out} has no {INFO}",
+                               path=source)
         shutil.rmtree(out)
     for path in sorted(src.rglob("*")):
         target = dst / path.relative_to(src)
@@ -151,7 +152,8 @@ class SubtaskWriter:
     def _language(self, file: DatasetFile) -> Any:
         pa, _ = pyarrow_modules()
         table = file.table
-        old = table.column("language_persistent").to_pylist() if "language_persistent" in table.column_names else None
+        names = table.column_names
+        old = table.column("language_persistent").to_pylist() if "language_persistent" in names else None
         rows: list[list[dict[str, Any]]] = [[] for _ in range(table.num_rows)]
         for ep in file.episodes:
             kept = [r for r in (old[ep.start] or [])] if old is not None else []
@@ -164,7 +166,7 @@ class SubtaskWriter:
                 rows[i] = merged
         events = (table.column("language_events") if "language_events" in table.column_names
                   else pa.array([[] for _ in range(table.num_rows)], type=pa.list_(_event_row(pa))))
-        table = table.drop_columns([c for c in ("language_persistent", "language_events") if c in table.column_names])
+        table = table.drop_columns([c for c in ("language_persistent", "language_events") if c in names])
         table = table.append_column("language_persistent", pa.array(rows, type=pa.list_(_persistent_row(pa))))
         table = table.append_column("language_events", events)
         metadata = {k: v for k, v in (table.schema.metadata or {}).items() if k != b"huggingface"}
@@ -197,7 +199,8 @@ class SubtaskWriter:
             table = table.drop_columns([c for c in EPISODE_COLUMNS if c in table.column_names])
             found = [self.episodes.get(int(i)) for i in table.column("episode_index").to_pylist()]
             values = {
-                "subtask_names": ([subtask_name(k) for k in range(len(s.starts))] if s else None for s in found),
+                "subtask_names": ([subtask_name(k) for k in range(len(s.starts))] if s else None
+                                  for s in found),
                 "subtask_start_times": (s.start_times if s else None for s in found),
                 "subtask_end_times": (s.end_times if s else None for s in found),
                 "subtask_start_frames": (s.starts if s else None for s in found),
@@ -252,8 +255,8 @@ def _write_subtasks(path: Path, count: int) -> Path:
     pa, _ = pyarrow_modules()
     pandas = {"index_columns": ["subtask"], "column_indexes": [], "creator": {"library": "pyarrow",
               "version": pa.__version__}, "pandas_version": "2.0.0", "columns": [
-        {"name": "subtask_index", "field_name": "subtask_index", "pandas_type": "int64", "numpy_type": "int64",
-         "metadata": None},
+        {"name": "subtask_index", "field_name": "subtask_index", "pandas_type": "int64",
+         "numpy_type": "int64", "metadata": None},
         {"name": "subtask", "field_name": "subtask", "pandas_type": "unicode", "numpy_type": "object",
          "metadata": None}]}
     table = pa.table({"subtask_index": pa.array(range(count), pa.int64()),

@@ -12,10 +12,9 @@ import sys
 from pathlib import Path
 
 from ompn_ros.app.errors import ReplayError
-from ompn_ros.app.lerobot_segment import BOUNDARIES, DatasetRun, segment_dataset
+from ompn_ros.app.lerobot_segment import BOUNDARIES, DatasetRun, dataset_spec, segment_dataset
 from ompn_ros.app.lerobot_write import ALIASES, FORMATS
 from ompn_ros.app.segment_setup import detector_settings, load_stepper
-from ompn_ros.data.lerobot import DatasetSpec
 
 
 def add_dataset_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,8 +30,8 @@ def add_dataset_arguments(parser: argparse.ArgumentParser) -> None:
         "--write-subtasks", metavar="FORMAT", choices=sorted([*ALIASES, *FORMATS]),
         help="with --dataset: write the subtasks back in a LeRobot format: index (per-frame subtask_index "
         "+ meta/subtasks.parquet), language (language_persistent rows, style subtask), episodes (per-episode "
-        "start/end frames in meta/episodes); -v1 names the version; into --annotate DIR (default OUT/dataset, "
-        "sharing the unchanged files) or --in-place (none: the table only)")
+        "start/end frames in meta/episodes); -v1 names the version; into --annotate DIR (default "
+        "OUT/dataset, sharing the unchanged files) or --in-place (none: the table only)")
     parser.add_argument("--in-place", action="store_true",
                         help="with --write-subtasks: rewrite the dataset's own files that change, atomically")
     parser.add_argument(
@@ -44,7 +43,8 @@ def add_dataset_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _check(args: argparse.Namespace) -> None:
     if args.bag or args.bags or args.tune or args.generate:
-        raise ReplayError("--dataset segments a dataset: give it without --bag, --bags, --tune and --generate")
+        raise ReplayError("--dataset segments a dataset: give it without --bag, --bags, --tune and "
+                          "--generate")
     if args.in_place and not args.write_subtasks:
         raise ReplayError("--in-place rewrites the dataset with --write-subtasks FORMAT: give the format")
     if args.in_place and args.annotate:
@@ -56,7 +56,7 @@ def _check(args: argparse.Namespace) -> None:
 def run_dataset_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     """Segment ``--dataset`` (see the module doc); 0 when done."""
     _check(args)
-    spec = DatasetSpec.from_yaml(args.dataset_spec) if args.dataset_spec else DatasetSpec()
+    spec = dataset_spec(args.dataset_spec)
     load_stepper(args.checkpoint, device)  # a bad checkpoint is one line before anything is written
     detector, line = detector_settings(args.checkpoint, args.detector_config)
     print(f"ompn_segment: {line}", file=sys.stderr)

@@ -9,4 +9,5 @@ from .layout import DatasetLayout, pyarrow_modules
 from .read import DatasetEpisode, DatasetFile, DatasetReader
 from .spec import DatasetSpec
 
-__all__ = ["DatasetEpisode", "DatasetFile", "DatasetLayout", "DatasetReader", "DatasetSpec", "pyarrow_modules"]
+__all__ = ["DatasetEpisode", "DatasetFile", "DatasetLayout", "DatasetReader", "DatasetSpec",
+           "pyarrow_modules"]

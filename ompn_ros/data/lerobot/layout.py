@@ -63,8 +63,9 @@ class DatasetLayout:
             raise DatasetError(f"{INFO} cannot be read: {exc}", path=path) from exc
         version = str(info.get("codebase_version", "")) if isinstance(info, dict) else ""
         if not version.startswith("v3."):
-            raise DatasetError(f"{INFO} says codebase_version {version or 'nothing'}: only LeRobot v3 datasets "
-                               "are read (convert older ones with LeRobot's v2.1 -> v3.0 converter)", path=path)
+            raise DatasetError(f"{INFO} says codebase_version {version or 'nothing'}: only LeRobot v3 "
+                               "datasets are read (convert older ones with LeRobot's v2.1 -> v3.0 converter)",
+                               path=path)
         if not isinstance(info.get("features"), dict):
             raise DatasetError(f"{INFO} has no 'features' mapping", path=path)
         return cls(path, info)
@@ -80,7 +81,8 @@ class DatasetLayout:
     @property
     def media_features(self) -> list[str]:
         """The video and image features (left out unless named, and then refused)."""
-        return [k for k, v in self.features.items() if isinstance(v, dict) and v.get("dtype") in ("video", "image")]
+        return [k for k, v in self.features.items()
+                if isinstance(v, dict) and v.get("dtype") in ("video", "image")]
 
     def data_files(self) -> list[Path]:
         """The frame files in chunk and file order."""

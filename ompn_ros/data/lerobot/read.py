@@ -80,12 +80,13 @@ class DatasetReader:
             feature = features.get(name)
             if feature is None:
                 vectors = [k for k, v in features.items() if str(v.get("dtype", "")).startswith(_NUMERIC)]
-                raise DatasetSpecError(f"dataset spec names '{name}', which {self.layout.root} does not have; "
-                                       f"its numeric features: {vectors}")
+                raise DatasetSpecError(f"dataset spec names '{name}', which {self.layout.root} does not "
+                                       f"have; its numeric features: {vectors}")
             dtype = str(feature.get("dtype", ""))
             if dtype in ("video", "image"):
-                raise DatasetSpecError(f"dataset spec names '{name}', a {dtype} feature: name vector features "
-                                       "(e.g. observation.state); video and image features are not read")
+                raise DatasetSpecError(f"dataset spec names '{name}', a {dtype} feature: name vector "
+                                       "features (e.g. observation.state); video and image features are not "
+                                       "read")
             if not dtype.startswith(_NUMERIC):
                 raise DatasetSpecError(f"dataset spec names '{name}' of dtype {dtype}: only numeric features "
                                        "are read")
@@ -98,7 +99,8 @@ class DatasetReader:
     @property
     def columns(self) -> list[str]:
         """The columns a segmentation reads."""
-        return [*dict.fromkeys([*self.spec.features, "timestamp", "frame_index", "episode_index", "task_index"])]
+        return [*dict.fromkeys([*self.spec.features, "timestamp", "frame_index", "episode_index",
+                                "task_index"])]
 
     def files(self, *, whole: bool = False) -> Iterator[DatasetFile]:
         """Each frame file's episodes in order (``whole``: with the file's full table, for writing)."""
@@ -115,7 +117,8 @@ class DatasetReader:
         names = set(pq.read_schema(path).names)
         missing = [c for c in ("timestamp", "episode_index", *self.spec.features) if c not in names]
         if missing:
-            raise DatasetError(f"{self.layout.relative(path)} has no column {missing[0]}", path=self.layout.root)
+            raise DatasetError(f"{self.layout.relative(path)} has no column {missing[0]}",
+                               path=self.layout.root)
         return [c for c in self.columns if c in names]
 
     def episodes(self) -> Iterator[DatasetEpisode]:
@@ -134,10 +137,9 @@ class DatasetReader:
         stops = np.concatenate([starts[1:], [n]])
         columns = {name: _matrix(table, name, n, where) for name in self.spec.features}
         stamps = _scalars(table, "timestamp", n, where).astype(np.float64)
-        frames = (_scalars(table, "frame_index", n, where).astype(np.int64) if "frame_index" in table.column_names
-                  else None)
-        tasks = (_scalars(table, "task_index", n, where).astype(np.int64) if "task_index" in table.column_names
-                 else None)
+        names = table.column_names
+        frames = _scalars(table, "frame_index", n, where).astype(np.int64) if "frame_index" in names else None
+        tasks = _scalars(table, "task_index", n, where).astype(np.int64) if "task_index" in names else None
         found = []
         for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
             number = int(index[start])
@@ -148,27 +150,30 @@ class DatasetReader:
                                self.tasks.get(int(tasks[start]), "") if tasks is not None else "")
             frame = frames[start:stop] if frames is not None else np.arange(stop - start, dtype=np.int64)
             if np.any(np.diff(frame) <= 0):
-                raise DatasetError(f"{where}: episode {number}'s frame_index does not increase", path=self.layout.root)
+                raise DatasetError(f"{where}: episode {number}'s frame_index does not increase",
+                                   path=self.layout.root)
             found.append(DatasetEpisode(number, ep, stamps[start:stop], frame, path, start, stop))
         return found
 
     def _episode(self, columns: dict[str, np.ndarray], start: int, stop: int, number: int, where: Path,
                  task: str) -> Episode:
-        obs = np.concatenate([columns[n][start:stop] for n in self.spec.observation], axis=1).astype(np.float32)
+        parts = [columns[n][start:stop] for n in self.spec.observation]
+        obs = np.concatenate(parts, axis=1).astype(np.float32)
         raw = columns[self.spec.action][start:stop - 1]
         actions = raw[:, 0].astype(np.int64) if self.discrete else raw.astype(np.float32)
         for name, values in ((self.spec.observation[0], obs), (self.spec.action, raw)):
             if not np.all(np.isfinite(values)):
                 raise DatasetError(f"{where}: episode {number} has NaN or infinite values in {name}",
                                    path=self.layout.root)
-        subtask, extras = None, {}
+        subtask: np.ndarray | None = None
+        extras: dict[str, Any] = {}
         if self.spec.labels:
             values = columns[self.spec.labels][start:stop - 1, 0].astype(np.int64)
             if self.spec.label_kind == "id":
                 subtask = np.concatenate([[0], np.cumsum(values[1:] != values[:-1])]).astype(np.int64)
                 extras["subtask_id"] = values
             else:
-                subtask = values
+                subtask = values.astype(np.int64)
         return Episode(observations=obs, actions=actions, subtask=subtask, task=task, seed=-1, extras=extras)
 
 

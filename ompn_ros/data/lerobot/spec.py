@@ -41,7 +41,8 @@ class DatasetSpec:
         if not isinstance(self.action, str) or not self.action:
             raise DatasetSpecError(f"dataset spec: 'action' must name a feature, got {self.action!r}")
         if self.labels is not None and (not isinstance(self.labels, str) or not self.labels):
-            raise DatasetSpecError(f"dataset spec: 'labels' must name a feature or be null, got {self.labels!r}")
+            raise DatasetSpecError(f"dataset spec: 'labels' must name a feature or be null, got "
+                                   f"{self.labels!r}")
         if self.label_kind not in get_args(LabelKind):
             raise DatasetSpecError(f"dataset spec: 'label_kind' must be one of {get_args(LabelKind)}, "
                                    f"got {self.label_kind!r}")
@@ -64,7 +65,8 @@ class DatasetSpec:
         if isinstance(observation, str):
             observation = [observation]
         if not isinstance(observation, (list, tuple)):
-            raise DatasetSpecError(f"dataset spec: 'observation' must be a name or a list, got {observation!r}")
+            raise DatasetSpecError(f"dataset spec: 'observation' must be a name or a list, got "
+                                   f"{observation!r}")
         return cls(observation=tuple(observation), action=data.get("action", cls.action),
                    labels=data.get("labels"), label_kind=data.get("label_kind", "id"))
 
