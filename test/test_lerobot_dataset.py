@@ -207,3 +207,24 @@ def test_not_a_v3_dataset_is_refused_in_one_line(tmp_path: Path, capsys):
     assert segment(["--dataset", str(tmp_path), "--checkpoint", str(shipped_checkpoint("dial")),
                     "--out", str(tmp_path / "o")]) == 2
     assert "only LeRobot v3 datasets" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_lerobot_dataset_trains_and_comes_back_annotated(lab: dict, tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch):
+    """ompn_train --dataset on LeRobot's dataset, then its checkpoint segments it, loaded by LeRobot."""
+    from ompn_ros.cli.train import main as train
+
+    monkeypatch.setenv("OMPN_CACHE_DIR", str(tmp_path / "cache"))
+    run = tmp_path / "run"
+    assert train(["--dataset", str(lab["dataset"]), "--dataset-spec", str(lab["spec"]), "--config",
+                  str(Path(__file__).resolve().parents[1] / "config" / "train_dial.yaml"), "--out", str(run),
+                  "--set", "train.iterations=4", "--set", "train.eval_every=2", "--set", "train.patience=0",
+                  "--set", "model.slot_size=16", "--set", "train.boundary_head=false", "--quiet"]) == 0
+    report = json.loads((run / "read_report.json").read_text())
+    assert report["episodes"] == 2 and "LeRobot dataset" in report["summary"]
+    assert segment(["--dataset", str(lab["dataset"]), "--checkpoint", str(run / "best"), "--out",
+                    str(tmp_path / "seg"), "--write-subtasks", "index"]) == 0
+    loaded = load_dataset(tmp_path / "seg" / "dataset")
+    assert len(loaded) == sum(ep.length + 1 for ep in lab["episodes"])
+    assert "subtask_index" in loaded[0]
