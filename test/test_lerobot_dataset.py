@@ -228,3 +228,25 @@ def test_a_lerobot_dataset_trains_and_comes_back_annotated(lab: dict, tmp_path: 
     loaded = load_dataset(tmp_path / "seg" / "dataset")
     assert len(loaded) == sum(ep.length + 1 for ep in lab["episodes"])
     assert "subtask_index" in loaded[0]
+
+
+def test_video_features_are_left_out_in_one_line_and_refused_when_named(lab: dict, tmp_path: Path, capsys):
+    data = _copy(lab, tmp_path)
+    info = json.loads((data / "meta" / "info.json").read_text())
+    info["features"]["observation.images.top"] = {"dtype": "video", "shape": [48, 64, 3],
+                                                  "names": ["height", "width", "channels"]}
+    (data / "meta" / "info.json").write_text(json.dumps(info, indent=4))
+    out = str(tmp_path / "o")
+    assert segment(["--dataset", str(data), "--checkpoint", lab["checkpoint"], "--out", out]) == 0
+    assert "ompn_segment: video/image features not read: observation.images.top" in capsys.readouterr().err
+    spec = tmp_path / "video.yaml"
+    spec.write_text(yaml.safe_dump({"observation": ["observation.state", "observation.images.top"]}))
+    assert segment(["--dataset", str(data), "--dataset-spec", str(spec), "--checkpoint", lab["checkpoint"],
+                    "--out", str(tmp_path / "o2")]) == 2
+    assert "a video feature" in capsys.readouterr().err
+
+
+def test_select_reads_only_the_episodes_asked_for(lab: dict):
+    found = list(DatasetReader(lab["dataset"], select=lambda index: index == 1).episodes())
+    assert [e.index for e in found] == [1]
+    np.testing.assert_array_equal(found[0].episode.observations, lab["episodes"][1].observations)

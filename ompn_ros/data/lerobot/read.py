@@ -14,7 +14,7 @@ to segment: it is left out and named in :attr:`DatasetReader.notes`.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -61,11 +61,14 @@ class DatasetFile:
 
 
 class DatasetReader:
-    """Episodes of the dataset at ``root`` under ``spec`` (:meth:`files`, :meth:`episodes`)."""
+    """Episodes of the dataset at ``root`` under ``spec`` (:meth:`files`, :meth:`episodes`); ``select``
+    (an ``episode_index`` -> keep) leaves the other episodes out, e.g. those of other shards."""
 
-    def __init__(self, root: str | Path, spec: DatasetSpec | None = None) -> None:
+    def __init__(self, root: str | Path, spec: DatasetSpec | None = None,
+                 select: Callable[[int], bool] | None = None) -> None:
         self.layout = DatasetLayout.open(root)
         self.spec = spec or DatasetSpec()
+        self.select = select
         self._check_spec()
         self.discrete = self._action_is_discrete()
         self.tasks = self.layout.task_names()
@@ -143,6 +146,8 @@ class DatasetReader:
         found = []
         for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
             number = int(index[start])
+            if self.select is not None and not self.select(number):
+                continue
             if stop - start < 2:
                 self.notes.append(f"episode {number} has {stop - start} frame: no step to segment, left out")
                 continue
