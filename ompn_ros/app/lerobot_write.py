@@ -17,6 +17,8 @@ A *format* is named with its version, so that a name keeps its meaning when LeRo
 
 Subtask ``k`` of an episode (0-based, in time order) is named ``"subtask k"``; it covers the frames
 from the one after the previous boundary to its own boundary, and the last one runs to the last frame.
+An episode of one frame (left out of the segmentation) is its subtask 0 in ``index``, and has no rows
+or columns in the other formats.
 
 Where: :func:`share_dataset` makes a new dataset folder of hard links to the unchanged files (symbolic
 links across filesystems; videos are never copied); the files a format changes are then written there
@@ -125,7 +127,8 @@ class SubtaskWriter:
     def add_file(self, file: DatasetFile, steps: dict[int, Sequence[int]]) -> None:
         """Record the subtasks of ``file``'s episodes (boundary steps per episode index) and rewrite the
         frame file for the per-frame formats."""
-        per_frame = np.full(file.table.num_rows if file.table is not None else 0, -1, np.int64)
+        # a frame of no episode read (one frame long: nothing to segment) is that episode's subtask 0
+        per_frame = np.zeros(file.table.num_rows if file.table is not None else 0, np.int64)
         for ep in file.episodes:
             starts, ends = frame_segments(steps.get(ep.index, ()), ep.frames)
             times = ep.timestamps
@@ -181,7 +184,7 @@ class SubtaskWriter:
         features = dict(info["features"])
         if self.fmt == "index-v1":
             features["subtask_index"] = {"dtype": "int64", "shape": [1], "names": None}
-            written.append(_write_subtasks(self.layout.root / SUBTASKS, self.most))
+            written.append(_write_subtasks(self.layout.root / SUBTASKS, max(self.most, 1)))
         elif self.fmt == "language-v1":
             for name in ("language_persistent", "language_events"):
                 features[name] = {"dtype": "language", "shape": [1], "names": None}
