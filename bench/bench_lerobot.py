@@ -6,7 +6,8 @@ walk, 9 actions; the shipped Dial checkpoint) are written twice: as a LeRobot v3
 of ``--per-file`` episodes, written here with pyarrow in LeRobot's layout: LeRobot's own writer takes
 about 2 ms a frame) and as rosbag2 bags of ``--per-file`` episodes each (``write_episodes``).  Then,
 each in a fresh process with one thread, ``ompn_segment --dataset DIR`` and ``ompn_segment --bags DIR
---jobs 1`` segment them (the online detector, the table of segments); the wall time and the
+--jobs 1`` segment them (the online detector, the table of segments); the wall time, the CPU time (on
+a shared machine the figure to compare: the wall time follows the other processes' load) and the
 process's peak resident memory are recorded.  With ``--sizes 100,1000`` the dataset run is repeated
 on both sizes: its peak memory should not grow with the number of episodes.
 
@@ -34,8 +35,8 @@ from ompn_ros.data.episode import Episode
 ROOT = Path(__file__).resolve().parents[1]
 MEASURE = ("import resource, subprocess, sys, time; t = time.perf_counter(); "
            "done = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, "
-           "text=True); sys.stderr.write(done.stderr[-2000:]); print(done.returncode, "
-           "time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+           "text=True); sys.stderr.write(done.stderr[-2000:]); u = resource.getrusage(resource.RUSAGE_CHILDREN); "
+           "print(done.returncode, time.perf_counter() - t, u.ru_utime + u.ru_stime, u.ru_maxrss)")
 
 
 def episodes(count: int, frames: int, seed: int = 0) -> list[Episode]:
@@ -96,10 +97,10 @@ def measure(command: list[str]) -> dict[str, float]:
            "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     done = subprocess.run([sys.executable, "-c", MEASURE, *command], env=env, capture_output=True, text=True,
                           check=True)
-    rc, seconds, peak_kib = done.stdout.split()
+    rc, seconds, cpu, peak_kib = done.stdout.split()
     if rc != "0":
         raise RuntimeError(f"{' '.join(command)} exited {rc}: {done.stderr}")
-    return {"seconds": float(seconds), "peak_mib": int(peak_kib) / 1024}
+    return {"seconds": float(seconds), "cpu_seconds": float(cpu), "peak_mib": int(peak_kib) / 1024}
 
 
 def run(size: int, frames: int, per_file: int, work: Path, bags: bool) -> dict[str, Any]:
@@ -115,6 +116,7 @@ def run(size: int, frames: int, per_file: int, work: Path, bags: bool) -> dict[s
         doc["bags"] = measure([*segment, "--bags", str(work / f"bags_{size}"), "--domain", "dial",
                                "--jobs", "1", "--out", str(work / f"out_bags_{size}")])
         doc["dataset_over_bags_time"] = doc["dataset"]["seconds"] / doc["bags"]["seconds"]
+        doc["dataset_over_bags_cpu"] = doc["dataset"]["cpu_seconds"] / doc["bags"]["cpu_seconds"]
     rows = (work / f"out_dataset_{size}" / "segments.csv").read_text().count("\n") - 1
     doc["segments"] = rows
     return doc
