@@ -35,7 +35,8 @@ from ompn_ros.data.episode import Episode
 ROOT = Path(__file__).resolve().parents[1]
 MEASURE = ("import resource, subprocess, sys, time; t = time.perf_counter(); "
            "done = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, "
-           "text=True); sys.stderr.write(done.stderr[-2000:]); u = resource.getrusage(resource.RUSAGE_CHILDREN); "
+           "text=True); sys.stderr.write(done.stderr[-2000:]); "
+           "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
            "print(done.returncode, time.perf_counter() - t, u.ru_utime + u.ru_stime, u.ru_maxrss)")
 
 
