@@ -88,7 +88,8 @@ def write_dataset(root: Path, episodes: list[Episode], *, fps: int = 25, labels:
             named = labels and ep.subtask is not None
             dataset.add_frame({
                 "observation.state": np.asarray(ep.observations[t], np.float32),
-                "action": np.asarray(ep.actions[step], np.float32),
+                "action": np.asarray(ep.actions[step] if ep.length else np.zeros(first.actions.shape[1]),
+                                     np.float32),
                 "task": f"{task} subtask {int(ep.subtask[step])}" if named else task,  # type: ignore[index]
             })
         dataset.save_episode()

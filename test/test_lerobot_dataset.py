@@ -23,6 +23,7 @@ from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.cli.collect import main as collect
 from ompn_ros.cli.segment import main as segment
 from ompn_ros.data import read_episodes
+from ompn_ros.data.episode import Episode
 from ompn_ros.data.lerobot import DatasetReader, DatasetSpec
 from ompn_ros.data.reader import ReaderSpec
 from ompn_ros.detect.settings import resolve_detector
@@ -250,3 +251,15 @@ def test_select_reads_only_the_episodes_asked_for(lab: dict):
     found = list(DatasetReader(lab["dataset"], select=lambda index: index == 1).episodes())
     assert [e.index for e in found] == [1]
     np.testing.assert_array_equal(found[0].episode.observations, lab["episodes"][1].observations)
+
+
+def test_an_episode_of_one_frame_is_named_and_kept_as_subtask_0(lab: dict, tmp_path: Path, capsys):
+    short = Episode(observations=lab["episodes"][0].observations[:1].copy(),
+                    actions=lab["episodes"][0].actions[:0].copy(), subtask=np.zeros(0, np.int64))
+    data = write_dataset(tmp_path / "short", [lab["episodes"][1], short], labels=False)
+    assert segment(["--dataset", str(data), "--checkpoint", lab["checkpoint"], "--out", str(tmp_path / "o"),
+                    "--write-subtasks", "index"]) == 0
+    assert "episode 1 has 1 frame: no step to segment, left out" in capsys.readouterr().err
+    loaded = load_dataset(tmp_path / "o" / "dataset")
+    assert int(loaded[len(loaded) - 1]["episode_index"]) == 1
+    assert int(loaded[len(loaded) - 1]["subtask_index"]) == 0
