@@ -50,7 +50,8 @@ PYTHON: dict[str, tuple[str | None, str]] = {
 # Imported only inside ``try: ... except ImportError``: a feature that is there when the user has the
 # package, never a dependency.
 OPTIONAL = {
-    "pyarrow": "ompn_segment --bags also writes segments.parquet (experiments/batch_table.py)",
+    "pyarrow": "ompn_segment --bags also writes segments.parquet (experiments/batch_table.py); LeRobot "
+               "datasets (--dataset) are read and written with it (data/lerobot/layout.py)",
 }
 # Needed at run time without an import statement in our sources.
 USED_WITHOUT_IMPORT = {
@@ -60,7 +61,7 @@ USED_WITHOUT_IMPORT = {
     "PIL": "matplotlib's image writer (PNG figures)",
 }
 DEV_TOOLS = ("pytest", "pytest-timeout", "hypothesis", "mcap-ros2-support", "ruff", "mypy",
-             "colcon-common-extensions")
+             "colcon-common-extensions", "lerobot-dataset")
 
 
 def third_party_imports(*roots: Path) -> dict[str, str]:

@@ -24,6 +24,8 @@ from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.cache import EpisodeArrays, load_arrays
 from ompn_ros.data.cache_bags import load_arrays_per_bag
+from ompn_ros.data.cache_dataset import load_dataset_arrays
+from ompn_ros.data.lerobot import DatasetSpec
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
@@ -215,6 +217,23 @@ def bag_data(bags: list[str], data: dict[str, Any], spec: ReaderSpec | None = No
         "cache_hit": bool(arrays.cache_hit),
         "summary": arrays.report,
     }
+    if domain_name not in DOMAINS:
+        return TrainingData(episodes, fields_from_episodes(episodes, data), None, report)
+    dom = DOMAINS[domain_name]
+    sizes = {"obs_dim": dom.obs_dim, "action_type": dom.action_type, "action_dim": dom.action_dim}
+    return TrainingData(episodes, sizes, dom.sketch_vocab, report)
+
+
+def dataset_data(dataset: str, data: dict[str, Any], spec_file: str | None = None) -> TrainingData:
+    """Episodes of the LeRobot dataset at ``dataset`` (cached, read one frame file at a time) under the
+    dataset spec of ``spec_file`` (none: the default features) and the model sizes (``data.domain``'s, else
+    the dataset's, with ``data.action_dim`` for discrete actions)."""
+    spec = DatasetSpec.from_yaml(spec_file) if spec_file else DatasetSpec()
+    arrays = shared_arrays(lambda: load_dataset_arrays(dataset, spec))
+    episodes = arrays.episodes()
+    report = {"dataset": str(dataset), "dataset_spec": spec.to_dict(),
+              "episodes": len(episodes), "cache_hit": bool(arrays.cache_hit), "summary": arrays.report}
+    domain_name = data.get("domain")
     if domain_name not in DOMAINS:
         return TrainingData(episodes, fields_from_episodes(episodes, data), None, report)
     dom = DOMAINS[domain_name]

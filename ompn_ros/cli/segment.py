@@ -4,6 +4,7 @@ Replay (the same class the live node runs):
 
     ompn_segment --bag PATH --checkpoint DIR [--reader-config YAML] [--out DIR] [--detector-config YAML]
     ompn_segment --bags FOLDER|GLOB|LIST --jobs N --checkpoint DIR [--annotate DIR] [--out DIR]
+    ompn_segment --dataset DIR --checkpoint DIR [--dataset-spec YAML] [--write-subtasks FORMAT [--in-place]]
 
 writes pi.npz (per episode ep<i>_{pi,p_hat,pi_end,expected_position,score}), boundaries.json
 (online events and ground truth), metrics.json (online vs offline, when the bag has subtask
@@ -45,6 +46,7 @@ from ompn_ros.app.segment_setup import (
 )
 from ompn_ros.cli._batch import add_batch_arguments, check_batch_arguments, run_batch_cli
 from ompn_ros.cli._common import make_parser, run_cli
+from ompn_ros.cli._dataset import add_dataset_arguments, run_dataset_cli
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,6 +61,7 @@ def _add_input_arguments(p: argparse.ArgumentParser) -> None:
     """What is replayed and how: the bag or bags, the checkpoint, the reader, the detector, the device."""
     p.add_argument("--bag", help="bag file/directory/glob to replay (none: give --bags or --generate)")
     add_batch_arguments(p)
+    add_dataset_arguments(p)
     p.add_argument(
         "--checkpoint",
         required=True,
@@ -154,6 +157,8 @@ def _tune(args: argparse.Namespace, tuned: Tuned) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     device = segment_setup.replay_device(args.device)  # before any bag is read
+    if args.dataset:
+        return run_dataset_cli(args, device)
     check_batch_arguments(args)
     if args.bags:
         return run_batch_cli(args, device)

@@ -3,6 +3,7 @@
 Usage:
 
     ompn_train --bags BAG [BAG ...] --config config/train_dial.yaml --out DIR [--resume] [--set k=v ...]
+    ompn_train --dataset DIR [--dataset-spec YAML] --config config/train_dial.yaml --out DIR
     ompn_train --synthetic discrete --config config/train_craft.yaml --out DIR --set train.iterations=50
     torchrun --nproc_per_node=2 -m ompn_ros.cli.train --synthetic discrete --out DIR ...
 
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ompn_ros.app import training
+from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.app.final_choice import train_auto
 from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.training import apply_overrides, load_config
@@ -44,11 +46,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser = make_parser("ompn_train", __doc__)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--bags", nargs="+", metavar="PATH", help="rosbag2 directories or files to read")
+    source.add_argument("--dataset", metavar="DIR", help="a LeRobot v3 dataset (local folder) to read")
     source.add_argument(
         "--synthetic",
         choices=("discrete", "continuous", "craft_shaped"),
         help="train on a synthetic task instead of bags (smoke runs)",
     )
+    parser.add_argument(
+        "--dataset-spec", metavar="YAML",
+        help="with --dataset: which features are the observation, the action, the labels "
+        "(config/dataset_example.yaml; none: observation.state, action, no labels)")
     parser.add_argument("--episodes", type=int, default=200, help="synthetic episodes to generate")
     parser.add_argument("--config", help="YAML config (sections model/train/data); none = all defaults")
     parser.add_argument("--out", required=True, type=Path, help="output directory (checkpoints, logs)")
@@ -80,7 +87,9 @@ def _run(args: argparse.Namespace) -> int:
     apply_overrides(config, args.overrides)
     training.check_device(config)
     training.prepare_out_dir(args.out, args.resume, args.overwrite)
-    spec = None if args.synthetic else training.reader_spec(config["data"])
+    if args.dataset_spec and not args.dataset:
+        raise TrainSetupError("--dataset-spec goes with --dataset DIR")
+    spec = None if args.synthetic or args.dataset else training.reader_spec(config["data"])
     if spec is not None and spec.final_observation == "auto":
         summary, option = train_auto(args.bags, config, spec, args.out, args.resume, args.quiet,
                                      shown=_print_read)
@@ -88,6 +97,9 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if args.synthetic:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])
+    elif args.dataset:
+        data = training.dataset_data(args.dataset, config["data"], args.dataset_spec)
+        print(data.report["summary"], file=sys.stderr)
     else:
         data = training.bag_data(args.bags, config["data"], spec)
         print(data.report["summary"], file=sys.stderr)

@@ -124,3 +124,16 @@ class ObservationSpecError(OMPNError, ValueError):
 
 class NotEnoughSpace(OMPNError, OSError):
     """Too little free space to start recording (the message names the path and the space)."""
+
+
+class DatasetError(OMPNError, ValueError):
+    """A LeRobot dataset (a local folder, ``data/lerobot/``) that cannot be read or written as asked: the
+    message names the folder, file, feature or episode at fault and the way out."""
+
+    def __init__(self, message: str, *, path: str | Path | None = None) -> None:
+        self.path = str(path) if path is not None else None
+        super().__init__(f"dataset '{self.path}': {message}" if self.path is not None else message)
+
+
+class DatasetSpecError(DatasetError):
+    """A dataset spec (which features are the observation, the action, the labels) is invalid."""

@@ -1,0 +1,78 @@
+"""The episode cache for a LeRobot dataset (``ompn_train --dataset DIR``).
+
+:func:`load_dataset_arrays` reads the dataset one frame file at a time
+(:class:`~ompn_ros.data.lerobot.DatasetReader`) into one cache entry (``EntryWriter``, as bags are),
+so building it holds one frame file in memory; training then reads the entry memory-mapped.  The key is
+a BLAKE2b hash of the cache format, the dataset spec and the bytes of ``meta/info.json`` and every
+frame file: a changed dataset always misses.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from ompn_ros.data.errors import EmptyEntryError
+
+from .cache import EpisodeArrays, default_cache_dir, open_hit
+from .cache_store import CACHE_FORMAT, EntryWriter
+from .lerobot import DatasetReader, DatasetSpec
+from .lerobot.layout import INFO
+
+_CHUNK = 1 << 20
+
+
+def dataset_key(reader: DatasetReader) -> str:
+    """BLAKE2b over the format version, the spec, ``meta/info.json`` and the frame files' bytes."""
+    h = hashlib.blake2b(digest_size=20)
+    doc = {"format": CACHE_FORMAT, "dataset_spec": reader.spec.to_dict()}
+    h.update(json.dumps(doc, sort_keys=True).encode())
+    for file in [reader.layout.root / INFO, *reader.layout.data_files()]:
+        h.update(f"\0{reader.layout.relative(file)}\0{file.stat().st_size}\0".encode())
+        with open(file, "rb") as fh:
+            while chunk := fh.read(_CHUNK):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def _summary(reader: DatasetReader, episodes: int, frames: int) -> str:
+    lines = [f"LeRobot dataset {reader.layout.root}: {episodes} episodes, {frames} frames read "
+             f"(observation {list(reader.spec.observation)}, action {reader.spec.action}, "
+             f"labels {reader.spec.labels or 'none'})"]
+    return "\n".join([*lines, *reader.notes])
+
+
+def build_dataset_entry(reader: DatasetReader, entry: Path) -> None:
+    """Read the dataset file by file into the entry at ``entry``."""
+    writer = EntryWriter(entry)
+    frames = 0
+    try:
+        for file in reader.files():
+            writer.add(e.episode for e in file.episodes)
+            frames += sum(e.frames for e in file.episodes)
+        if len(writer) == 0:
+            raise EmptyEntryError(f"no episode of two frames or more in {reader.layout.root}")
+        writer.finish(_summary(reader, len(writer), frames))
+    except BaseException:
+        writer.abort()
+        raise
+
+
+def load_dataset_arrays(root: str | Path, spec: DatasetSpec | None = None, *,
+                        cache_dir: str | Path | None = None) -> EpisodeArrays:
+    """The episodes of the dataset at ``root`` as memory-mapped :class:`EpisodeArrays` (cached)."""
+    reader = DatasetReader(root, spec)
+    key = dataset_key(reader)
+    entry = (Path(cache_dir) if cache_dir is not None else default_cache_dir()) / f"episodes_lerobot_{key}"
+    hit = open_hit(entry)
+    if hit is None:
+        build_dataset_entry(reader, entry)
+        hit = EpisodeArrays.load(entry)
+    else:
+        hit.cache_hit = True
+    hit.key = key
+    return hit
+
+
+__all__ = ["build_dataset_entry", "dataset_key", "load_dataset_arrays"]
