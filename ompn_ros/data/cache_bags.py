@@ -21,6 +21,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
+from ompn_ros.workers import die_with_parent, started_here
 
 from .cache import EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit
 from .cache_store import EntryWriter
@@ -55,7 +56,8 @@ def build_bag_entries(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError,
         empty = {entry for bag, entry in missing if not _build_one(bag, spec, on_error, entry)}
     else:
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=context) as pool:
+        with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=context,
+                                 initializer=die_with_parent, initargs=started_here()) as pool:
             futures = {entry: pool.submit(_build_one, bag, spec, on_error, entry) for bag, entry in missing}
             for entry, future in futures.items():  # the first bag that fails stops the build, named
                 if not future.result():
