@@ -100,7 +100,7 @@ def bag_keys(paths: list[Path]) -> dict[Path, str]:
     """A unique, file-name-safe key per bag: its path below the folder all share (see module doc)."""
     if not paths:
         return {}
-    absolute = [p.resolve() for p in paths]
+    absolute = [Path(os.path.abspath(p)) for p in paths]  # links kept: a dangling one moves no key
     root = Path(os.path.commonpath([str(p.parent) for p in absolute]))
     keys: dict[Path, str] = {}
     used: set[str] = set()
