@@ -188,10 +188,12 @@ def test_two_link_loops_list_quickly(lab: dict[str, Path], tmp_path: Path) -> No
     shutil.copytree(lab["bags"], folder)
     (folder / "x").symlink_to(".")
     (folder / "y").symlink_to(".")
-    code = f"from ompn_ros.app.batch_bags import list_bags; print(len(list_bags({str(folder)!r})))"
-    done = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True,
+    code = ("import sys; from ompn_ros.app.batch_bags import list_bags; "
+            "print([len(list_bags(source)) for source in sys.argv[1:]])")
+    sources = [str(folder), f"{folder}/**/metadata.yaml"]  # a folder, a recursive glob
+    done = subprocess.run([sys.executable, "-c", code, *sources], env=_env(), capture_output=True, text=True,
                           timeout=60)
-    assert done.returncode == 0 and done.stdout.strip() == "3", done.stderr[-2000:]
+    assert done.returncode == 0 and done.stdout.strip() == "[3, 3]", done.stderr[-2000:]
 
 
 # --- 7: bags that vanish, dangle, cannot be read ---------------------------------------------------

@@ -5,9 +5,11 @@ This is the library behind ``ompn_segment --bags SOURCE --jobs N``.  Every bag i
 :class:`~ompn_ros.segmenter.StreamingSegmenter` the node runs (``app/replay.py``), optionally
 write its annotated copy (``data/annotate.py``), then its record (``batch_bags.py``): the segments, the
 per-episode scores when it has labels, or the one-line reason it was refused.  A bag that fails is
-refused and the others go on.  A rerun skips the bags whose record is complete for the same settings
-and bag files and redoes the rest; the run's table and summary are rebuilt from all records
-(``batch_table.py``), so a killed run loses no completed bag.
+refused and the others go on (a bag that is missing, vanishes, dangles or cannot be read included).
+A rerun skips the bags whose record is complete for the same settings and bag files and redoes the
+rest; the run's table and summary are rebuilt from all records (``batch_table.py``), so a killed run
+loses no completed bag.  The workers, stopping on SIGINT/SIGTERM and the start-up paid once:
+``batch_pool.py``; one shard of the bags per machine: ``shards.py``.
 
 Cost: one model step per observation (O(Σ T) over all bags), plus one pass over a bag for its
 observation stamps; memory: one bag's episodes per worker.

@@ -9,7 +9,8 @@ order and memory-mapped, into one dataset entry ``episodes_set_<key>`` (``key``:
 per-bag keys).  Adding bags to a dataset parses only the new ones; the assembly copies the arrays
 once more (disk: the per-bag entries plus the dataset entry).
 
-``ompn_train`` uses it with ``data.cache_workers: N`` (N >= 1; 0 is the single-entry cache).
+``ompn_train`` uses it with ``data.cache_workers: N`` (N >= 1; 0 is the single-entry cache).  The
+workers end with the process that started them, however it ends (:mod:`ompn_ros.workers`).
 """
 
 from __future__ import annotations

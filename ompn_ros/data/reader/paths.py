@@ -42,7 +42,7 @@ def list_bag_paths(paths: str | Path | Sequence[str | Path]) -> BagListing:
     for item in items:
         text = str(item)
         if any(ch in text for ch in "*?[") and not Path(text).exists():
-            matches = sorted(globmod.glob(text, recursive=True))
+            matches = _glob(text)
             if not matches:
                 raise BagNotFoundError("glob matched nothing", path=text)
             for match in matches:
@@ -50,6 +50,17 @@ def list_bag_paths(paths: str | Path | Sequence[str | Path]) -> BagListing:
         elif not walk.top(Path(text), text):
             raise BagNotFoundError("no rosbag2 bag (metadata.yaml, .mcap or .db3) found", path=text)
     return BagListing(_whole_split_bags(walk.unique()), walk.refused)
+
+
+def _glob(pattern: str) -> list[str]:
+    """The sorted matches of ``pattern``; ``**`` descends into real folders only (a link loop under it
+    would otherwise multiply the matches without end), the other parts follow links."""
+    if "**" not in pattern:
+        return sorted(globmod.glob(pattern))
+    parts = Path(pattern).parts
+    fixed = next(i for i, part in enumerate(parts) if any(ch in part for ch in "*?["))
+    base = Path(*parts[:fixed]) if fixed else Path(".")
+    return sorted(str(p) if fixed else str(p.relative_to(".")) for p in base.glob(str(Path(*parts[fixed:]))))
 
 
 def resolve_bag_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
