@@ -297,15 +297,15 @@ def test_two_writers_of_one_annotated_copy_each_finish_whole(
     pairs = list(zip(stamps, replays, strict=True))
     out = tmp_path / "copies" / "a"
     out.parent.mkdir()
-    write, nested = annotate_module._write, []
+    copy, nested = annotate_module._copy_connections, []
 
-    def write_while_another_writes(*args: Any) -> int:
+    def write_while_another_writes(*args: Any) -> Any:  # the first writer has its bag open
         if not nested:
             nested.append(None)
             nested[0] = annotate_bag(lab["bags"] / "a", out, pairs, overwrite=True)
-        return write(*args)
+        return copy(*args)
 
-    monkeypatch.setattr(annotate_module, "_write", write_while_another_writes)
+    monkeypatch.setattr(annotate_module, "_copy_connections", write_while_another_writes)
     report = annotate_bag(lab["bags"] / "a", out, pairs, overwrite=True)
     assert nested and report.out == nested[0].out == out
     assert sorted(p.name for p in out.parent.iterdir()) == ["a"]  # no staging folder left

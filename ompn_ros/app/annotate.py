@@ -314,11 +314,11 @@ def _open_reader(src: Path) -> Any:
     return reader
 
 
-def _prepare_output(out: Path, src: Path, overwrite: bool) -> Path:
-    """Check ``out`` and return a new staging directory beside it, unique to this writer
-    (``.<name>.tmp-<pid>-<random>``: runs writing into one folder at once never share one; a killed
-    writer's is removed by the next one); the bag is written into ``staging / out.name`` (so its
-    storage file gets ``out``'s own, visible name) and moved to ``out`` once complete."""
+def _prepare_output(out: Path, src: Path, overwrite: bool) -> None:
+    """Check ``out`` and remove the staging directories killed writers left beside it.  Each writer
+    stages in its own directory (``.<name>.tmp-<pid>-<random>``: runs writing into one folder at
+    once never share one), writes the bag into ``staging / out.name`` (so its storage file gets
+    ``out``'s own, visible name) and moves it to ``out`` once complete (:func:`_install`)."""
     o, i = out.resolve(), src.resolve()
     if o == i or i in o.parents or o in i.parents:
         raise AnnotateError("the output must not be the input bag, lie inside it or contain it", path=out)
@@ -328,7 +328,6 @@ def _prepare_output(out: Path, src: Path, overwrite: bool) -> Path:
     if not out.parent.is_dir():
         raise AnnotateError("output's parent directory does not exist", path=out)
     remove_stale_temps(out.parent, out.name)
-    return make_temp_dir(out.parent, out.name)
 
 
 def _install(staged: Path, out: Path) -> None:
@@ -450,9 +449,11 @@ def annotate_bag(
         raise AnnotateError(f"storage must be one of {STORAGES}, got {storage!r}")
     topics, node = output_topics(namespace)
     added, steps = _all_annotations(episodes_outputs, topics, node, labels)
-    tmp = _prepare_output(out, src, overwrite)
+    _prepare_output(out, src, overwrite)
     reader = _open_reader(src)
+    tmp: Path | None = None
     try:
+        tmp = make_temp_dir(out.parent, out.name)
         clash = sorted({c.topic for c in reader.connections} & set(topics.values()))
         if clash:
             raise AnnotateError("the input already has this topic; annotate under another namespace",
@@ -463,7 +464,8 @@ def annotate_bag(
         _install(tmp / out.name, out)
     finally:
         reader.close()
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
     counts = Counter(msg.topic for msg in added)
     return AnnotateReport(out=out, storage=storage, copied=copied,
                           added={topic: counts[topic] for topic in topics.values()},
