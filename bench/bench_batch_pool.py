@@ -9,7 +9,8 @@ Two datasets of another lab's bags (rosbags writer; 39 observation features and 
 Each is segmented with ``--jobs 1`` and ``--jobs 2`` (and, with ``--spawn``, ``--jobs 2`` with
 spawned workers, as before workers were forked warm), side by side in one run, by a randomly
 initialised model of the shipped Dial checkpoint's configuration (the same cost per step).  Wall
-time of the whole command, start-up included.  One torch thread per process.
+time of the whole command, start-up included, and the CPU time of all its processes (what the
+workers' start-up costs, whatever the load).  One torch thread per process.
 
     nice .venv/bin/python bench/bench_batch_pool.py [--long 200 --minutes 2 --short 200 --spawn]
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -74,19 +76,23 @@ def make_dataset(root: Path, count: int, seconds: float, first_seed: int) -> tup
     return root, steps
 
 
-def segment(bags: Path, model: Path, spec: Path, jobs: int, out: Path, spawn: bool = False) -> float:
+def segment(bags: Path, model: Path, spec: Path, jobs: int, out: Path,
+            spawn: bool = False) -> tuple[float, float]:
+    """Wall seconds and CPU seconds (user + system, all its processes) of one batch command."""
     path = f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
     argv = ["--bags", str(bags), "--jobs", str(jobs), "--checkpoint", str(model),
             "--reader-config", str(spec), "--out", str(out)]
     head = ["-c", SPAWN] if spawn else ["-m", "ompn_ros.cli.segment"]
     command = [sys.executable, *head, *argv]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, env=env, cwd=ROOT, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise RuntimeError(done.stderr[-2000:])
-    return wall
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def _load() -> str:
@@ -121,7 +127,8 @@ def main() -> None:
             runs += [("jobs2_spawn", 2, True)] if args.spawn else []
             for label, jobs, spawn in runs:
                 out = root / f"out_{name}_{label}"
-                row[f"{label}_s"] = segment(bags, root / "model", spec, jobs, out, spawn)
+                wall, cpu = segment(bags, root / "model", spec, jobs, out, spawn)
+                row[f"{label}_s"], row[f"{label}_cpu_s"] = wall, cpu
             row["ratio"] = float(row["jobs1_s"]) / float(row["jobs2_s"])
             if args.spawn:
                 row["ratio_spawn"] = float(row["jobs1_s"]) / float(row["jobs2_spawn_s"])

@@ -103,6 +103,21 @@ def test_a_stop_signal_ends_after_the_bags_in_progress_with_the_table(
     assert (summary["segmented"], summary["skipped"]) == (12, records)
 
 
+def test_a_second_ctrl_c_stops_at_once_and_keeps_what_finished(lab: dict[str, Path], tmp_path: Path) -> None:
+    bags, out = _many(tmp_path / "many", 12, steps=300), tmp_path / "seg"
+    proc = _segment(lab, bags, out, "--jobs", "2", start_new_session=True)
+    _wait_for_records(out, proc)
+    workers = _children(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err, err[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert 1 <= summary["segmented"] == len(list((out / "bags").glob("*.json"))) < 12
+    assert not {pid for pid in workers if _running(pid)}
+
+
 # --- 5: workers die with their parent -------------------------------------------------------------
 def _children(pid: int) -> set[int]:
     found = set()
