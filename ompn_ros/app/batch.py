@@ -261,11 +261,11 @@ def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
         else:
             todo.append(bag)
     done = 0
-    for doc in found.values():
-        done += 1
-        if progress is not None:
-            progress(doc, done, len(bags))
     try:
+        for doc in found.values():
+            done += 1
+            if progress is not None:
+                progress(doc, done, len(bags))
         with contextlib.closing(_outcomes(settings, todo, jobs, fingerprint, stop)) as outcomes:
             for doc in outcomes:
                 done += 1
@@ -274,6 +274,8 @@ def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
                     progress(doc, done, len(bags))
     except HardStop:
         pass  # the records of the bags finished are kept; the caller writes them
+    finally:
+        stop.settle()
     return [found[bag.key] for bag in bags if bag.key in found]
 
 

@@ -51,15 +51,23 @@ class Stop:
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        self.armed = True
         self._previous: dict[int, Any] = {}
 
     @property
     def requested(self) -> bool:
         return self.signum is not None
 
+    def settle(self) -> None:
+        """The tasks are over: a later signal only asks for the stop again (the outputs of what
+        finished are being written; nothing is left to stop at once)."""
+        self.armed = False
+
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is not None:
-            raise HardStop
+            if self.armed:
+                raise HardStop
+            return
         self.signum = signum
         print(f"ompn_segment: {signal.Signals(signum).name}: stopping after the bags in progress "
               "(again: stop now)", file=sys.stderr, flush=True)
