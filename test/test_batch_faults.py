@@ -312,7 +312,8 @@ def test_two_writers_of_one_annotated_copy_each_finish_whole(
     pairs = list(zip(stamps, replays, strict=True))
     out = tmp_path / "copies" / "a"
     out.parent.mkdir()
-    copy, nested = annotate_module._copy_connections, []
+    copy = annotate_module._copy_connections
+    nested: list[Any] = []
 
     def write_while_another_writes(*args: Any) -> Any:  # the first writer has its bag open
         if not nested:
@@ -331,9 +332,11 @@ def test_two_writers_of_one_annotated_copy_each_finish_whole(
 def test_two_annotating_runs_into_one_folder(lab: dict[str, Path], tmp_path: Path) -> None:
     folder = _many(tmp_path / "many", 6, steps=30)
     copies = tmp_path / "copies"
-    procs = [_segment(lab, folder, tmp_path / f"seg{i}", "--annotate", str(copies)) for i in range(2)]
+    procs = [_segment(lab, folder, tmp_path / "seg", "--annotate", str(copies)) for _ in range(2)]
     outputs = [proc.communicate(timeout=300) for proc in procs]
     for proc, (_, err) in zip(procs, outputs, strict=True):
         assert proc.returncode == 0 and "Errno" not in err, err[-3000:]
     assert sorted(p.name for p in copies.iterdir()) == [f"run{i:02d}" for i in range(6)]
     assert all((copies / f"run{i:02d}" / "metadata.yaml").is_file() for i in range(6))
+    assert json.loads((tmp_path / "seg" / "summary.json").read_text())["segmented"] == 6
+    assert not [p for p in (tmp_path / "seg" / "bags").iterdir() if p.name.startswith(".")]
