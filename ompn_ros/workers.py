@@ -10,8 +10,9 @@ parent's end, however the parent ended:
   when the thread that started it ends, so it is asked for only when that thread is its process's
   main thread (``parent_main_thread``);
 * everywhere, a daemon thread that checks every :data:`WATCH_S` seconds that the worker's parent is
-  still the process that started it (an orphan is adopted by another process) and otherwise ends the
-  worker at once (``os._exit``: its tasks are abandoned, their outputs are written atomically).
+  still the process that started it (an orphan is adopted by another process), and that the run it
+  works for still runs when that is another process (a fork server's workers), and otherwise ends
+  the worker at once (``os._exit``: its tasks are abandoned, their outputs are written atomically).
 
 Cost: one ``getppid`` per second per worker.
 """
@@ -43,14 +44,30 @@ def _kill_with_parent() -> bool:
         return False
 
 
-def _watch(parent: int) -> None:
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state != "Z"
+
+
+def _watch(parent: int, run: int | None) -> None:
     while True:
-        if os.getppid() != parent:
+        if os.getppid() != parent or (run is not None and not _alive(run)):
             os._exit(ORPHAN_EXIT)
         time.sleep(WATCH_S)
 
 
-def die_with_parent(parent: int, parent_main_thread: bool = True, ignore_stop_signals: bool = False) -> None:
+def die_with_parent(parent: int, parent_main_thread: bool = True, ignore_stop_signals: bool = False,
+                    run: int | None = None) -> None:
     """Make this worker end when process ``parent`` (the pid that started it) ends.
 
     Args:
@@ -60,6 +77,9 @@ def die_with_parent(parent: int, parent_main_thread: bool = True, ignore_stop_si
             death signal is then safe to use; otherwise only the watchdog thread watches).
         ignore_stop_signals: ignore SIGINT and SIGTERM (a Ctrl-C reaches the whole process group: the
             parent decides how the run stops, the worker finishes its task).
+        run: the process the work is for when it is not the parent (a worker forked by a fork
+            server, which lives as long as its workers do): the watchdog also ends the worker when
+            ``run`` ends.
     """
     if ignore_stop_signals:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -68,7 +88,7 @@ def die_with_parent(parent: int, parent_main_thread: bool = True, ignore_stop_si
         _kill_with_parent()
     if os.getppid() != parent:
         os._exit(ORPHAN_EXIT)
-    threading.Thread(target=_watch, args=(parent,), name="die_with_parent", daemon=True).start()
+    threading.Thread(target=_watch, args=(parent, run), name="die_with_parent", daemon=True).start()
 
 
 def started_here() -> tuple[int, bool]:

@@ -49,9 +49,16 @@ def _args(lab: dict[str, Path], out: Path, *more: str) -> list[str]:
     return ["--checkpoint", str(lab["model"]), "--reader-config", str(lab["spec"]), "--out", str(out), *more]
 
 
-def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-            "OMP_NUM_THREADS": "1"}
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+def _env(single_thread: bool = True) -> dict[str, str]:
+    """The children's environment; ``single_thread=False``: none of the thread-count variables, as a
+    user's shell has it (library thread pools start: the workers come from a fork server)."""
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    for name in THREAD_VARIABLES:
+        env.pop(name, None)
+    return {**env, "OMP_NUM_THREADS": "1"} if single_thread else env
 
 
 def _many(root: Path, count: int, steps: int = 60) -> Path:
@@ -60,10 +67,11 @@ def _many(root: Path, count: int, steps: int = 60) -> Path:
     return root
 
 
-def _segment(lab: dict[str, Path], bags: Path, out: Path, *more: str, **popen: Any) -> subprocess.Popen[str]:
+def _segment(lab: dict[str, Path], bags: Path, out: Path, *more: str, single_thread: bool = True,
+             **popen: Any) -> subprocess.Popen[str]:
     command = [sys.executable, "-m", "ompn_ros.cli.segment", "--bags", str(bags), *_args(lab, out), *more]
-    return subprocess.Popen(command, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            **popen)
+    return subprocess.Popen(command, env=_env(single_thread), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, **popen)
 
 
 def _wait_for_records(out: Path, proc: subprocess.Popen[str], count: int = 1, limit: float = 120) -> int:
@@ -77,14 +85,17 @@ def _wait_for_records(out: Path, proc: subprocess.Popen[str], count: int = 1, li
 
 
 # --- 4: SIGINT and SIGTERM ------------------------------------------------------------------------
-@pytest.mark.parametrize(("jobs", "signum", "group"), [(1, signal.SIGINT, False), (2, signal.SIGINT, True),
-                                                        (1, signal.SIGTERM, False)])
+@pytest.mark.parametrize(("jobs", "signum", "group", "single_thread"), [
+    (1, signal.SIGINT, False, True), (2, signal.SIGINT, True, True), (1, signal.SIGTERM, False, True),
+    (2, signal.SIGTERM, True, False)])
 def test_a_stop_signal_ends_after_the_bags_in_progress_with_the_table(
-        lab: dict[str, Path], tmp_path: Path, jobs: int, signum: int, group: bool) -> None:
-    """Ctrl-C (to the whole process group, as a terminal sends it) or SIGTERM after the first bag: no
-    new bag is started, the table and summary of what finished are written, exit 128 + signal."""
+        lab: dict[str, Path], tmp_path: Path, jobs: int, signum: int, group: bool,
+        single_thread: bool) -> None:
+    """Ctrl-C (to the whole process group, as a terminal sends it) or SIGTERM (to the group, as a
+    cluster scheduler sends it) after the first bag: no new bag is started, the table and summary
+    of what finished are written, exit 128 + signal."""
     bags, out = _many(tmp_path / "many", 12), tmp_path / "seg"
-    proc = _segment(lab, bags, out, "--jobs", str(jobs), start_new_session=group)
+    proc = _segment(lab, bags, out, "--jobs", str(jobs), start_new_session=group, single_thread=single_thread)
     at_signal = _wait_for_records(out, proc)
     if group:
         os.killpg(proc.pid, signum)
@@ -107,7 +118,7 @@ def test_a_second_ctrl_c_stops_at_once_and_keeps_what_finished(lab: dict[str, Pa
     bags, out = _many(tmp_path / "many", 12, steps=300), tmp_path / "seg"
     proc = _segment(lab, bags, out, "--jobs", "2", start_new_session=True)
     _wait_for_records(out, proc)
-    workers = _children(proc.pid)
+    workers = _descendants(proc.pid)
     os.killpg(proc.pid, signal.SIGINT)
     time.sleep(0.2)
     os.killpg(proc.pid, signal.SIGINT)
@@ -129,6 +140,15 @@ def _children(pid: int) -> set[int]:
                 continue
             if int(fields[1]) == pid:
                 found.add(int(entry.name))
+    return found
+
+
+def _descendants(pid: int) -> set[int]:
+    found, todo = set(), [pid]
+    while todo:
+        children = _children(todo.pop())
+        found |= children
+        todo.extend(children)
     return found
 
 
@@ -154,12 +174,14 @@ def _kill_and_watch(proc: subprocess.Popen[str], workers: set[int], limit: float
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the workers")
-def test_the_workers_of_a_killed_batch_run_exit(lab: dict[str, Path], tmp_path: Path) -> None:
+@pytest.mark.parametrize("single_thread", [True, False], ids=["forked", "fork_server"])
+def test_the_workers_of_a_killed_batch_run_exit(lab: dict[str, Path], tmp_path: Path,
+                                                single_thread: bool) -> None:
     bags, out = _many(tmp_path / "many", 12), tmp_path / "seg"
-    proc = _segment(lab, bags, out, "--jobs", "2")
+    proc = _segment(lab, bags, out, "--jobs", "2", single_thread=single_thread)
     _wait_for_records(out, proc)
-    workers = _children(proc.pid)
-    assert workers, "the run started no worker"
+    workers = _descendants(proc.pid)
+    assert len(workers) >= 2, "the run started no worker"
     assert not _kill_and_watch(proc, workers)
 
 

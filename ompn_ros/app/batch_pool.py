@@ -4,9 +4,11 @@ outlive it.
 * **Start-up once.**  The run's process imports torch and loads the checkpoint before the pool starts
   (``batch.preload``); on Linux, with the policy on the CPU and a single-threaded parent, the workers
   are forked from it and inherit both, compiled kernel included, so a worker starts in milliseconds
-  instead of seconds (each spawned worker imports torch and loads the checkpoint again).  With a GPU,
-  or where fork is unsafe (another platform, a parent with threads), workers are spawned, and each
-  loads the checkpoint once, for all its tasks.
+  instead of seconds (each spawned worker imports torch and loads the checkpoint again).  A parent
+  with threads (library thread pools, when ``OMP_NUM_THREADS`` and the like are unset) is not
+  forked: a fork server, started single-threaded, imports the batch modules once and forks the
+  workers, which then load the checkpoint once each.  With a GPU, or without fork, workers are
+  spawned, and each loads the checkpoint once, for all its tasks.
 * **Stopping.**  :class:`Stop` turns the first SIGINT or SIGTERM into a request: no task is started
   after it, the running ones finish, and the caller writes what finished (exit ``128 + signal``).
   A second signal stops at once (:class:`HardStop`): the workers are killed, their tasks lost.
@@ -21,6 +23,7 @@ list of work items (bags today); a task's result comes back as it completes.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
 import sys
 import threading
@@ -28,6 +31,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import forkserver
 from multiprocessing.context import BaseContext
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -94,16 +98,53 @@ def _threads() -> int:
     return next((int(line.split()[1]) for line in text.splitlines() if line.startswith("Threads:")), 0)
 
 
+SINGLE_THREAD_ENV = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                             "NUMBA_NUM_THREADS")}
+"""The environment of the fork server: libraries start no thread pools (one thread per worker)."""
+
+
 def pool_context(device: str) -> BaseContext:
-    """Fork from this warm process where that is safe (Linux, CPU policy, one thread), else spawn."""
-    if device == "cpu" and "fork" in multiprocessing.get_all_start_methods() and _threads() == 1:
+    """Where workers come from: forked from this warm process where that is safe (Linux, CPU policy,
+    one thread), else forked from a fork server that imported the batch modules once (started
+    single-threaded), else spawned (and with a GPU, whose context must not cross a fork)."""
+    methods = multiprocessing.get_all_start_methods()
+    if device == "cpu" and "fork" in methods and _threads() == 1:
         return multiprocessing.get_context("fork")
+    if device == "cpu" and "forkserver" in methods:
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(["ompn_ros.app.batch"])
+        _start_fork_server()
+        return context
     return multiprocessing.get_context("spawn")
 
 
-def init_worker(parent: int, parent_main_thread: bool) -> None:
-    """First thing in every worker: die with the run, leave stopping to it, one torch thread."""
-    die_with_parent(parent, parent_main_thread, ignore_stop_signals=True)
+def _start_fork_server() -> None:
+    """Start the fork server single-threaded and deaf to SIGTERM (an ignored signal stays ignored
+    across its exec; SIGINT it ignores itself): a SIGTERM sent to the whole process group, as a
+    cluster scheduler sends it, must not end it under the workers; it ends with the run."""
+    saved = {name: os.environ.get(name) for name in SINGLE_THREAD_ENV}
+    os.environ.update(SINGLE_THREAD_ENV)
+    main = threading.current_thread() is threading.main_thread()
+    term = signal.signal(signal.SIGTERM, signal.SIG_IGN) if main else None
+    try:
+        forkserver.ensure_running()
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, term)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def init_worker(parent: int, parent_main_thread: bool, via_server: bool = False) -> None:
+    """First thing in every worker: die with the run (``parent``, whether it forked the worker or a fork
+    server did: ``via_server``), leave stopping to the run, one torch thread."""
+    if via_server:  # the fork server outlives the run while its workers hold its pipe: watch the run
+        die_with_parent(os.getppid(), True, ignore_stop_signals=True, run=parent)
+    else:
+        die_with_parent(parent, parent_main_thread, ignore_stop_signals=True)
     torch.set_num_threads(1)
 
 
@@ -130,8 +171,10 @@ class Pool(Generic[Item]):
 
     def _one_pool(self, queue: deque[Item]) -> Iterator[dict[str, Any]]:
         """Run ``queue`` on one pool until it is empty, a stop is requested or a worker dies."""
+        context = pool_context(self.device)
+        via_server = context.get_start_method() == "forkserver"
         pool = ProcessPoolExecutor(max_workers=min(self.jobs, len(queue)), initializer=init_worker,
-                                   mp_context=pool_context(self.device), initargs=started_here())
+                                   mp_context=context, initargs=(*started_here(), via_server))
         running: dict[Future[dict[str, Any]], Item] = {}
         broken = False
         try:
