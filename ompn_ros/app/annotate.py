@@ -32,11 +32,14 @@ Complexity: one pass over the input (``O(M)`` messages, each copied once) merged
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import heapq
 import json
 import re
 import shutil
+import tempfile
 from bisect import bisect_right
 from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
@@ -45,9 +48,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from rosbags.rosbag2 import WriterError
 
 from ompn_ros import layout
 from ompn_ros.app.errors import AnnotateError
+from ompn_ros.atomic import make_temp_dir, remove_stale_temps, temp_prefix, write_failure
 from ompn_ros.data import messages as m
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.recorder.bag_writer import storage_plugin
@@ -75,6 +80,7 @@ STORAGES: tuple[Storage, ...] = ("mcap", "sqlite3")
 _ROS_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # order at one stamp: the node publishes events first
 _RANK = {"boundary": 1, "state": 2, "pi": 3, "segment": 4}
+_INSTALL_ATTEMPTS = 20
 
 
 @dataclass(frozen=True)
@@ -308,10 +314,11 @@ def _open_reader(src: Path) -> Any:
     return reader
 
 
-def _prepare_output(out: Path, src: Path, overwrite: bool) -> Path:
-    """Check ``out`` and return the hidden staging directory beside it; the bag is written into
-    ``staging / out.name`` (so its storage file gets ``out``'s own, visible name) and moved to ``out``
-    once complete."""
+def _prepare_output(out: Path, src: Path, overwrite: bool) -> None:
+    """Check ``out`` and remove the staging directories killed writers left beside it.  Each writer
+    stages in its own directory (``.<name>.tmp-<pid>-<random>``: runs writing into one folder at
+    once never share one), writes the bag into ``staging / out.name`` (so its storage file gets
+    ``out``'s own, visible name) and moves it to ``out`` once complete (:func:`_install`)."""
     o, i = out.resolve(), src.resolve()
     if o == i or i in o.parents or o in i.parents:
         raise AnnotateError("the output must not be the input bag, lie inside it or contain it", path=out)
@@ -320,9 +327,30 @@ def _prepare_output(out: Path, src: Path, overwrite: bool) -> Path:
                             path=out)
     if not out.parent.is_dir():
         raise AnnotateError("output's parent directory does not exist", path=out)
-    tmp = out.parent / f".{out.name}.partial"
-    _remove(tmp)
-    return tmp
+    remove_stale_temps(out.parent, out.name)
+
+
+def _install(staged: Path, out: Path) -> None:
+    """Rename the complete bag ``staged`` to ``out`` (atomic), replacing what is there: an older copy
+    is first renamed aside, then removed.  Concurrent writers of one ``out``: the last one wins, each
+    copy whole."""
+    for _ in range(_INSTALL_ATTEMPTS):
+        if out.is_symlink() or out.is_file():
+            out.unlink(missing_ok=True)
+        try:
+            staged.rename(out)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.EEXIST, errno.ENOTEMPTY):
+                raise
+        aside = Path(tempfile.mkdtemp(prefix=temp_prefix(out.name, "old"), dir=out.parent))
+        try:
+            out.rename(aside / out.name)
+        except FileNotFoundError:
+            pass  # another writer moved it first
+        shutil.rmtree(aside, ignore_errors=True)
+    raise AnnotateError(f"could not replace the output in {_INSTALL_ATTEMPTS} attempts: other writers "
+                        "keep replacing it", path=out)
 
 
 def _remove(path: Path) -> None:
@@ -370,10 +398,22 @@ def _all_annotations(episodes_outputs: Sequence[tuple[Episode | np.ndarray | Seq
     return messages, steps
 
 
+def _input(reader: Any, src: Path) -> Iterator[tuple[Any, int, bytes | memoryview]]:
+    """The input's messages; a failed read (a bag that vanished, a corrupt chunk) names the input."""
+    count = 0
+    try:
+        for item in reader.messages():
+            yield item
+            count += 1
+    except Exception as err:
+        raise AnnotateError(f"cannot read message #{count} of the input: {type(err).__name__} {err}",
+                            path=src) from err
+
+
 def _merged(reader: Any, mapping: dict[int, Any], added: list[_Message],
-            out_conns: dict[str, Any]) -> Iterator[tuple[int, int, Any, bytes | memoryview]]:
+            out_conns: dict[str, Any], src: Path) -> Iterator[tuple[int, int, Any, bytes | memoryview]]:
     """Input messages (rank 0: first at equal stamps) merged with the annotations by stamp."""
-    original = ((stamp, 0, mapping[conn.id], data) for conn, stamp, data in reader.messages())
+    original = ((stamp, 0, mapping[conn.id], data) for conn, stamp, data in _input(reader, src))
     extra = ((msg.stamp, msg.rank, out_conns[msg.topic], msg.data) for msg in added)
     return heapq.merge(original, extra, key=lambda item: (item[0], item[1]))
 
@@ -409,25 +449,23 @@ def annotate_bag(
         raise AnnotateError(f"storage must be one of {STORAGES}, got {storage!r}")
     topics, node = output_topics(namespace)
     added, steps = _all_annotations(episodes_outputs, topics, node, labels)
-    tmp = _prepare_output(out, src, overwrite)
+    _prepare_output(out, src, overwrite)
     reader = _open_reader(src)
+    tmp: Path | None = None
     try:
+        tmp = make_temp_dir(out.parent, out.name)
         clash = sorted({c.topic for c in reader.connections} & set(topics.values()))
         if clash:
             raise AnnotateError("the input already has this topic; annotate under another namespace",
                                 path=src, topic=clash[0])
         note = json.dumps({"source": src.name, "namespace": "/" + namespace.strip("/"),
                            "segment_labels": labels})
-        tmp.mkdir()
-        copied = _write(reader, tmp / out.name, storage, topics, added, src, note)
-    except BaseException:
-        _remove(tmp)
-        raise
+        copied = _write(reader, tmp / out.name, storage, topics, added, src, note, out)
+        _install(tmp / out.name, out)
     finally:
         reader.close()
-    _remove(out)
-    (tmp / out.name).rename(out)
-    tmp.rmdir()
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
     counts = Counter(msg.topic for msg in added)
     return AnnotateReport(out=out, storage=storage, copied=copied,
                           added={topic: counts[topic] for topic in topics.values()},
@@ -435,9 +473,10 @@ def annotate_bag(
 
 
 def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], added: list[_Message],
-           src: Path, note: str) -> int:
+           src: Path, note: str, out: Path) -> int:
     """Copy ``reader`` (messages and ``custom_data``) and the annotations into a new bag at ``tmp``,
-    recording ``note`` under ``custom_data[CUSTOM_DATA_KEY]``; the number of copied messages."""
+    recording ``note`` under ``custom_data[CUSTOM_DATA_KEY]``; the number of copied messages.  A
+    failed write (a full disk...) is one :class:`~ompn_ros.errors.WriteFailure` line naming ``out``."""
     from rosbags.rosbag2 import Writer
 
     writer = Writer(tmp, version=9, storage_plugin=storage_plugin(storage))
@@ -446,26 +485,40 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
         if isinstance(key, str) and isinstance(value, str):
             writer.set_custom_data(key, value)
     writer.set_custom_data(CUSTOM_DATA_KEY, note)
-    writer.open()
     try:
-        mapping = _copy_connections(reader, writer, src)
-        ts = m.register_interfaces()
-        types = {"state": m.SUBTASK_STATE, "pi": layout.FLOAT32_ARRAY, "segment": layout.INT32,
-                 "boundary": m.SUBTASK_BOUNDARY}
-        out_conns = {topic: writer.add_connection(topic, types[key], typestore=ts)
-                     for key, topic in topics.items()}
-        copied = 0
-        try:
-            for stamp, rank, conn, data in _merged(reader, mapping, added, out_conns):
-                writer.write(conn, stamp, data)
-                copied += rank == 0
-        except AnnotateError:
-            raise
-        except Exception as err:
-            raise AnnotateError(f"copy failed after {copied} messages: {type(err).__name__} {err}",
-                                path=src) from err
-    finally:
+        writer.open()
+        copied = _copy_all(reader, writer, topics, added, src)
+    except BaseException as exc:
+        with contextlib.suppress(Exception):  # closing a failed copy may fail again: the first error counts
+            writer.close()
+        if isinstance(exc, (OSError, WriterError)) and not isinstance(exc, AnnotateError):
+            raise write_failure(out, exc, "; no copy was written") from exc
+        raise
+    try:
         writer.close()
+    except (OSError, WriterError) as exc:  # the last chunk and metadata.yaml are written here
+        raise write_failure(out, exc, "; no copy was written") from exc
+    return copied
+
+
+def _copy_all(reader: Any, writer: Any, topics: dict[str, str], added: list[_Message], src: Path) -> int:
+    """Copy every input message and the annotations into the open ``writer``; the number copied."""
+    mapping = _copy_connections(reader, writer, src)
+    ts = m.register_interfaces()
+    types = {"state": m.SUBTASK_STATE, "pi": layout.FLOAT32_ARRAY, "segment": layout.INT32,
+             "boundary": m.SUBTASK_BOUNDARY}
+    out_conns = {topic: writer.add_connection(topic, types[key], typestore=ts)
+                 for key, topic in topics.items()}
+    copied = 0
+    try:
+        for stamp, rank, conn, data in _merged(reader, mapping, added, out_conns, src):
+            writer.write(conn, stamp, data)
+            copied += rank == 0
+    except (AnnotateError, OSError, WriterError):
+        raise  # a full or read-only disk: write_failure names the space left
+    except Exception as err:
+        raise AnnotateError(f"copy failed after {copied} messages: {type(err).__name__} {err}",
+                            path=src) from err
     return copied
 
 

@@ -5,9 +5,11 @@ This is the library behind ``ompn_segment --bags SOURCE --jobs N``.  Every bag i
 :class:`~ompn_ros.segmenter.StreamingSegmenter` the node runs (``app/replay.py``), optionally
 write its annotated copy (``data/annotate.py``), then its record (``batch_bags.py``): the segments, the
 per-episode scores when it has labels, or the one-line reason it was refused.  A bag that fails is
-refused and the others go on.  A rerun skips the bags whose record is complete for the same settings
-and bag files and redoes the rest; the run's table and summary are rebuilt from all records
-(``batch_table.py``), so a killed run loses no completed bag.
+refused and the others go on (a bag that is missing, vanishes, dangles or cannot be read included).
+A rerun skips the bags whose record is complete for the same settings and bag files and redoes the
+rest; the run's table and summary are rebuilt from all records (``batch_table.py``), so a killed run
+loses no completed bag.  The workers, stopping on SIGINT/SIGTERM and the start-up paid once:
+``batch_pool.py``; one shard of the bags per machine: ``shards.py``.
 
 Cost: one model step per observation (O(Σ T) over all bags), plus one pass over a bag for its
 observation stamps; memory: one bag's episodes per worker.
@@ -15,15 +17,14 @@ observation stamps; memory: one bag's episodes per worker.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import hashlib
 import json
-import multiprocessing
 import sys
 import time
 import traceback
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,8 +35,10 @@ import torch
 from ompn_ros.app import batch_bags as records
 from ompn_ros.app.annotate import annotate_bag, observation_stamps
 from ompn_ros.app.batch_bags import BatchBag
+from ompn_ros.app.batch_pool import HardStop, Pool, Stop
 from ompn_ros.app.errors import AnnotateError, ReplayError
 from ompn_ros.app.replay import check_finite, reader_spec, replay_all
+from ompn_ros.app.segment_setup import load_stepper
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import OnError, read_episodes
@@ -90,10 +93,20 @@ _STEPPERS: dict[tuple[str, str], Stepper] = {}
 
 
 def _stepper(checkpoint: str, device: str = "cpu") -> Stepper:
-    """One stepper per checkpoint, device and process (loaded by the first task of a worker)."""
+    """One stepper per checkpoint, device and process (loaded by :func:`preload`, or by the first
+    task of a spawned worker)."""
     if (checkpoint, device) not in _STEPPERS:
         backend: Backend = "jit" if device == "cpu" else "torch"
         _STEPPERS[checkpoint, device] = stepper_from_checkpoint(checkpoint, backend, device)
+    return _STEPPERS[checkpoint, device]
+
+
+def preload(checkpoint: str, device: str = "cpu") -> Stepper:
+    """Load the stepper of this process before any task (a bad checkpoint refuses the run, not every
+    bag; forked workers inherit it: ``batch_pool.py``)."""
+    torch.set_num_threads(1)
+    if (checkpoint, device) not in _STEPPERS:
+        _STEPPERS[checkpoint, device] = load_stepper(checkpoint, device)
     return _STEPPERS[checkpoint, device]
 
 
@@ -102,7 +115,10 @@ def is_complete(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, A
     doc = records.read_record(settings.out, bag.key)
     if doc is None or bag.path is None or doc.get("status") != "segmented":
         return False
-    if doc.get("settings") != fingerprint or doc.get("bag_stamp") != records.bag_stamp(bag.path):
+    try:
+        if doc.get("settings") != fingerprint or doc.get("bag_stamp") != records.bag_stamp(bag.path):
+            return False
+    except OSError:  # gone or unreadable: redone, and refused on its own line
         return False
     return settings.annotate is None or (settings.annotate / bag.key / "metadata.yaml").is_file()
 
@@ -177,14 +193,15 @@ def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, An
 
 
 def segment_bag(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, Any]) -> dict[str, Any]:
-    """Segment one bag and write its record; returns the record.  Never raises for a bad bag."""
+    """Segment one bag and write its record; returns the record.  Never raises for a bad bag (one that
+    is missing, vanishes, dangles or cannot be read included)."""
     start = time.perf_counter()
     doc: dict[str, Any] = {"key": bag.key, "bag": str(bag.path or bag.key), "settings": fingerprint}
     if bag.path is None:
         return {**doc, "status": "refused", "reason": bag.problem, "read": False}
-    doc["bag_stamp"] = records.bag_stamp(bag.path)
-    doc["bytes"] = doc["bag_stamp"][0]
     try:
+        doc["bag_stamp"] = records.bag_stamp(bag.path)
+        doc["bytes"] = doc["bag_stamp"][0]
         doc.update(_segment(settings, bag, bag.path), status="segmented")
     except KNOWN_ERRORS as exc:  # a bad bag: the one-line reason of the commands
         doc.update(status="refused", reason=error_line(exc))
@@ -198,42 +215,44 @@ def segment_bag(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, A
     return doc
 
 
-def _init_worker() -> None:
-    torch.set_num_threads(1)
+def _died(bag: BatchBag, reason: str) -> dict[str, Any]:
+    """The result of a bag whose worker died (no record: the bag is redone by a rerun)."""
+    return {"key": bag.key, "bag": str(bag.path or bag.key), "status": "refused", "read": False,
+            "reason": reason}
 
 
-def _outcomes(settings: BatchSettings, todo: Sequence[BatchBag], jobs: int,
-              fingerprint: dict[str, Any]) -> Iterator[dict[str, Any]]:
-    """Records of ``todo`` as they complete: in this process (``jobs == 1``) or over a process pool."""
-    if jobs <= 1:
-        _init_worker()
+def _outcomes(settings: BatchSettings, todo: Sequence[BatchBag], jobs: int, fingerprint: dict[str, Any],
+              stop: Stop) -> Generator[dict[str, Any], None, None]:
+    """Records of ``todo`` as they complete: in this process (``jobs == 1``) or over a pool
+    (``batch_pool.py``); none is started once a stop is requested."""
+    if jobs <= 1 or len(todo) <= 1:
         for bag in todo:
+            if stop.requested:
+                return
             yield segment_bag(settings, bag, fingerprint)
         return
-    context = multiprocessing.get_context("spawn")  # no torch or numba state crosses a fork
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_init_worker) as pool:
-        futures = {pool.submit(segment_bag, settings, bag, fingerprint): bag for bag in todo}
-        for future in as_completed(futures):
-            bag = futures[future]
-            try:
-                yield future.result()
-            except BrokenProcessPool as exc:  # a worker died (killed, out of memory): refuse, not record
-                yield {"key": bag.key, "bag": str(bag.path or bag.key), "status": "refused", "read": False,
-                       "reason": f"the worker process died ({error_line(exc)})"}
+    task = functools.partial(segment_bag, settings, fingerprint=fingerprint)
+    yield from Pool(task, _died, jobs, settings.device, stop).run(todo)
 
 
 Progress = Callable[[dict[str, Any], int, int], None]
 
 
 def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
-              progress: Progress | None = None) -> list[dict[str, Any]]:
-    """Segment ``bags`` (``jobs`` worker processes) skipping the complete ones; returns every bag's
-    record in the order of ``bags`` (a skipped bag's with ``skipped: True``).  ``progress(record,
-    done, total)`` is called as each bag finishes."""
+              progress: Progress | None = None, stop: Stop | None = None,
+              clean: bool = True) -> list[dict[str, Any]]:
+    """Segment ``bags`` (``jobs`` worker processes) skipping the complete ones; returns the record of
+    every bag done or skipped, in the order of ``bags`` (a skipped bag's with ``skipped: True``): all of
+    them unless ``stop`` was requested (then those finished before it).  ``progress(record, done,
+    total)`` is called as each bag finishes.  ``clean``: remove the temporary records of killed runs
+    first (by process id: not where other machines write into ``settings.out`` too)."""
     if jobs < 1:
         raise ReplayError(f"--jobs must be at least 1, got {jobs}")
-    records.clean_temporaries(settings.out)
+    stop = stop or Stop()
+    if clean:
+        records.clean_temporaries(settings.out)
     fingerprint = settings.fingerprint()
+    preload(settings.checkpoint, settings.device)
     found: dict[str, dict[str, Any]] = {}
     todo = []
     for bag in bags:
@@ -242,17 +261,23 @@ def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
         else:
             todo.append(bag)
     done = 0
-    for doc in found.values():
-        done += 1
-        if progress is not None:
-            progress(doc, done, len(bags))
-    for doc in _outcomes(settings, todo, jobs, fingerprint):
-        done += 1
-        found[doc["key"]] = doc
-        if progress is not None:
-            progress(doc, done, len(bags))
-    return [found[bag.key] for bag in bags]
+    try:
+        for doc in found.values():
+            done += 1
+            if progress is not None:
+                progress(doc, done, len(bags))
+        with contextlib.closing(_outcomes(settings, todo, jobs, fingerprint, stop)) as outcomes:
+            for doc in outcomes:
+                done += 1
+                found[doc["key"]] = doc
+                if progress is not None:
+                    progress(doc, done, len(bags))
+    except HardStop:
+        pass  # the records of the bags finished are kept; the caller writes them
+    finally:
+        stop.settle()
+    return [found[bag.key] for bag in bags if bag.key in found]
 
 
-__all__ = ["BatchSettings", "episode_scores", "is_complete", "run_batch", "segment_bag",
+__all__ = ["BatchSettings", "episode_scores", "is_complete", "preload", "run_batch", "segment_bag",
            "segment_rows"]

@@ -20,7 +20,7 @@ from typing import Any
 
 from ompn_ros.atomic import atomic_write_text, remove_stale_temps
 from ompn_ros.data.errors import BagError
-from ompn_ros.data.reader import STORAGE_SUFFIXES, resolve_bag_paths
+from ompn_ros.data.reader import STORAGE_SUFFIXES, list_bag_paths
 
 RECORDS = "bags"
 RECORD_FORMAT = "ompn_ros.batch_bag"
@@ -56,25 +56,40 @@ def _entries(source: str) -> tuple[list[str], Path | None]:
 
 
 def list_bags(source: str) -> list[BatchBag]:
-    """The bags of ``source`` in order, each with its key; an entry of a list file that names no bag
-    becomes a refused :class:`BatchBag` (the others still run).  A folder or glob that names no bag
-    raises :class:`~ompn_ros.data.errors.BagError`."""
+    """The bags of ``source`` in order, each with its key; an entry of a list file that names no bag,
+    and an entry below a listed folder that cannot be looked at, become a refused :class:`BatchBag`
+    (the others still run).  Each real folder is listed once and each bag appears once
+    (:func:`~ompn_ros.data.reader.list_bag_paths`).  A folder or glob that names no bag raises
+    :class:`~ompn_ros.data.errors.BagError`."""
     entries, base = _entries(source)
     found: list[Path | str] = []
-    problems: dict[str, str] = {}
+    problems: dict[Path | str, str] = {}
     for entry in entries:
         target = str(base / entry) if base is not None and not Path(entry).is_absolute() else entry
         try:
-            found.extend(resolve_bag_paths(target))
+            listing = list_bag_paths(target)
         except BagError as exc:
             if base is None:
                 raise
             found.append(entry)
             problems[entry] = str(exc)
-    paths = list(dict.fromkeys(found))
+            continue
+        found.extend(listing.bags)
+        for path, reason in listing.refused:
+            found.append(path)
+            problems[path] = f"{path}: {reason}"
+    paths = _unique(found)
     keys = bag_keys([p for p in paths if isinstance(p, Path)])
-    return [BatchBag(key=keys[p], path=p) if isinstance(p, Path) else
-            BatchBag(key=_safe(p), path=None, problem=problems[p]) for p in paths]
+    return [BatchBag(key=keys[p], path=None if p in problems else p, problem=problems.get(p, ""))
+            if isinstance(p, Path) else BatchBag(key=_safe(p), path=None, problem=problems[p]) for p in paths]
+
+
+def _unique(found: list[Path | str]) -> list[Path | str]:
+    """Each bag once (by real path: two list entries may reach one bag), in first-seen order."""
+    seen: dict[str, Path | str] = {}
+    for item in found:
+        seen.setdefault(os.path.realpath(item) if isinstance(item, Path) else f"\0{item}", item)
+    return list(seen.values())
 
 
 def _safe(text: str) -> str:
@@ -85,7 +100,7 @@ def bag_keys(paths: list[Path]) -> dict[Path, str]:
     """A unique, file-name-safe key per bag: its path below the folder all share (see module doc)."""
     if not paths:
         return {}
-    absolute = [p.resolve() for p in paths]
+    absolute = [Path(os.path.abspath(p)) for p in paths]  # links kept: a dangling one moves no key
     root = Path(os.path.commonpath([str(p.parent) for p in absolute]))
     keys: dict[Path, str] = {}
     used: set[str] = set()
@@ -103,7 +118,7 @@ def bag_keys(paths: list[Path]) -> dict[Path, str]:
 
 def bag_stamp(path: Path) -> list[int]:
     """Size and newest modification time (ns) of the files of a bag (or any folder): a changed bag is
-    redone."""
+    redone.  Raises ``OSError`` when the bag is gone or cannot be looked at."""
     files = [f for f in sorted(path.rglob("*")) if f.is_file()] if path.is_dir() else [path]
     stats = [f.stat() for f in files]
     return [sum(s.st_size for s in stats), max((s.st_mtime_ns for s in stats), default=0)]

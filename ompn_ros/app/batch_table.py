@@ -102,8 +102,13 @@ def write_outputs(out: Path, docs: Sequence[dict[str, Any]], seconds: float) -> 
     if metrics is not None:
         summary["metrics"] = metrics
         _write_atomic(out / METRICS, (json.dumps(metrics, indent=1) + "\n").encode())
-    _write_atomic(out / SUMMARY, (json.dumps(summary, indent=1) + "\n").encode())
+    write_summary(out, summary)
     return summary
+
+
+def write_summary(out: Path, summary: dict[str, Any]) -> None:
+    """``summary.json`` in ``out`` (atomically)."""
+    _write_atomic(out / SUMMARY, (json.dumps(summary, indent=1) + "\n").encode())
 
 
 def status_line(doc: dict[str, Any], done: int, total: int, elapsed: float | None = None) -> str:
@@ -128,4 +133,4 @@ def summary_line(summary: dict[str, Any]) -> str:
 
 
 __all__ = ["COLUMNS", "batch_metrics", "status_line", "summarize", "summary_line", "table_rows",
-           "write_outputs", "write_table"]
+           "write_outputs", "write_summary", "write_table"]

@@ -1,22 +1,31 @@
 """``ompn_segment --bags SOURCE --jobs N``: segment many bags over a pool of processes.
 
-The options and the command-line shell of batch mode; the work is ``app/batch.py``
-(tasks, resuming) and ``app/batch_table.py`` (table, summary, metrics).
+The options and the command-line shell of batch mode, its shards and ``ompn_segment aggregate``;
+the work is ``app/batch.py`` (tasks, resuming), ``app/batch_pool.py`` (workers, stopping),
+``app/shards.py`` (assignment, merge) and ``app/batch_table.py`` (table, summary, metrics).
+
+SIGINT (Ctrl-C) or SIGTERM stops a run after the bags in progress: the table and summary of what
+finished are written and the command exits ``128 + signal`` (130, 143); a rerun finishes the rest.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
-from ompn_ros.app import batch_table
-from ompn_ros.app.batch import BatchSettings, run_batch
+from ompn_ros.app import batch_table, shards
+from ompn_ros.app.batch import BatchSettings, preload, run_batch
 from ompn_ros.app.batch_bags import BatchBag, list_bags
+from ompn_ros.app.batch_pool import Stop
 from ompn_ros.app.errors import ReplayError
-from ompn_ros.app.segment_setup import detector_settings, load_stepper
+from ompn_ros.app.segment_setup import detector_settings
+from ompn_ros.cli._common import make_parser
 
 SOME_REFUSED = 1
 """Exit status of a batch run in which some bags were refused (2: the run itself could not start)."""
@@ -29,6 +38,12 @@ def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
         "segmented into OUT/segments.csv, OUT/summary.json, OUT/metrics.json (labels) and "
         "OUT/bags/<key>.json; a rerun skips complete bags (none: one --bag)")
     parser.add_argument("--jobs", type=int, default=1, help="batch mode: worker processes, one bag per task")
+    parser.add_argument(
+        "--num-shards", type=int, metavar="N",
+        help="batch mode: split the bags into N shards by a hash of each bag's key and run only shard "
+        "--shard-index (one machine or array task each; then ompn_segment aggregate OUT...; none: all bags)")
+    parser.add_argument("--shard-index", type=int, metavar="I",
+                        help="batch mode: the shard to run, 0..N-1 (none: all bags)")
 
 
 def check_batch_arguments(args: argparse.Namespace) -> None:
@@ -37,6 +52,9 @@ def check_batch_arguments(args: argparse.Namespace) -> None:
         raise ReplayError("--bags replays many bags: give it without --bag, --tune and --generate")
     if args.jobs < 1:
         raise ReplayError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.num_shards is not None and not args.bags:
+        raise ReplayError("--num-shards splits the bags of --bags: give --bags")
+    shards.check_shard(args.num_shards, args.shard_index)
 
 
 def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
@@ -51,9 +69,9 @@ def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
 
 
 def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
-    """Segment the bags of ``--bags`` on ``device`` ('cpu' or 'cuda'); 0 when every bag was segmented,
-    :data:`SOME_REFUSED` otherwise."""
-    load_stepper(args.checkpoint, device)  # a bad checkpoint refuses the run, not every bag
+    """Segment the bags of ``--bags`` (or of one shard of them) on ``device`` ('cpu' or 'cuda'); 0 when
+    every bag was segmented, :data:`SOME_REFUSED` otherwise, ``128 + signal`` when stopped."""
+    preload(args.checkpoint, device)  # a bad checkpoint refuses the run, not every bag
     detector, line = detector_settings(args.checkpoint, args.detector_config)
     print(f"ompn_segment: {line}", file=sys.stderr)
     settings = BatchSettings(
@@ -63,11 +81,70 @@ def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
         reader_config=args.reader_config, domain=args.domain, on_error=args.on_error, device=device)
     bags = list_bags(args.bags)
     _check_copies(settings.annotate, bags)
+    shard = args.num_shards, args.shard_index
+    mine = shards.select(bags, lambda bag: bag.key, *shard) if args.num_shards else list(enumerate(bags))
+    todo = [bag for _, bag in mine]
+    note = functools.partial(_manifest, settings, shard, [(p, b.key) for p, b in mine], len(bags))
+    note("running")
     start = time.perf_counter()
-    docs = run_batch(settings, bags, args.jobs, progress=lambda doc, done, total: print(
-        "ompn_segment: " + batch_table.status_line(doc, done, total, time.perf_counter() - start),
-        file=sys.stderr, flush=True))
-    summary = batch_table.write_outputs(settings.out, docs, time.perf_counter() - start)
+
+    def progress(doc: dict[str, Any], done: int, total: int) -> None:
+        print("ompn_segment: " + batch_table.status_line(doc, done, total, time.perf_counter() - start),
+              file=sys.stderr, flush=True)
+
+    with Stop() as stop:
+        docs = run_batch(settings, todo, args.jobs, progress, stop, clean=args.num_shards is None)
+        folder = shards.shard_dir(settings.out, *shard) if args.num_shards else settings.out
+        summary = batch_table.write_outputs(folder, docs, time.perf_counter() - start)
+        note("interrupted" if stop.requested else "complete")
     print(json.dumps(summary, indent=1))
     print(f"ompn_segment: {batch_table.summary_line(summary)}", file=sys.stderr)
+    if stop.signum is not None:
+        name = signal.Signals(stop.signum).name
+        print(f"ompn_segment: stopped by {name} after {len(docs)} of {len(todo)} bags; the same command "
+              "finishes the rest (complete bags are skipped)", file=sys.stderr)
+        return 128 + stop.signum
     return SOME_REFUSED if summary["refused"] else 0
+
+
+def _manifest(settings: BatchSettings, shard: tuple[int | None, int | None], mine: list[tuple[int, str]],
+              total: int, status: str) -> None:
+    count, index = shard
+    if count is not None and index is not None:
+        shards.write_manifest(settings.out, count, index, mine, total, settings.fingerprint(), status)
+
+
+AGGREGATE_DOC = """ompn_segment aggregate: merge the shards of a batch run into one table.
+
+    ompn_segment aggregate OUT [OUT ...] [--out DIR]
+
+reads OUT/shards/<i>-of-<n>/manifest.json and the bags' records under every OUT given (one folder the
+shards shared, or one per machine) and writes DIR/segments.csv (rows in the order of an unsharded run),
+DIR/summary.json and DIR/metrics.json; missing or failed shards are named, one line each (exit 1).
+"""
+
+
+def aggregate_parser() -> argparse.ArgumentParser:
+    parser = make_parser("ompn_segment aggregate", AGGREGATE_DOC)
+    parser.add_argument("folders", nargs="+", metavar="OUT", help="the --out folder(s) of the shards")
+    parser.add_argument("--out", help="where the merged outputs go (none: the first OUT)")
+    return parser
+
+
+def run_aggregate(args: argparse.Namespace) -> int:
+    """Merge the shards under ``args.folders``: 0 when every shard finished and no bag was refused."""
+    folders = [Path(f) for f in args.folders]
+    out = Path(args.out) if args.out else folders[0]
+    result = shards.aggregate(folders)
+    shards.merge_outputs(result, folders, out)
+    summary = batch_table.write_outputs(out, result.docs, sum(d.get("seconds", 0.0) for d in result.docs))
+    problems = shards.shard_lines(result)
+    summary["shards"] = {"count": result.count, "complete": result.complete, "missing": result.missing,
+                         "failed": {str(k): v for k, v in result.failed.items()}}
+    batch_table.write_summary(out, summary)
+    print(json.dumps(summary, indent=1))
+    print(f"ompn_segment: {len(result.complete)} of {result.count} shards complete; "
+          f"{batch_table.summary_line(summary)}", file=sys.stderr)
+    for line in problems:
+        print(f"ompn_segment: {line}", file=sys.stderr)
+    return SOME_REFUSED if problems or summary["refused"] else 0

@@ -5,6 +5,7 @@ Replay (the same class the live node runs):
     ompn_segment --bag PATH --checkpoint DIR [--reader-config YAML] [--out DIR] [--detector-config YAML]
     ompn_segment --bags FOLDER|GLOB|LIST --jobs N --checkpoint DIR [--annotate DIR] [--out DIR]
     ompn_segment --dataset DIR --checkpoint DIR [--dataset-spec YAML] [--write-subtasks FORMAT [--in-place]]
+    ompn_segment --bags ... --num-shards N --shard-index I ...;  ompn_segment aggregate OUT [OUT ...]
 
 writes pi.npz (per episode ep<i>_{pi,p_hat,pi_end,expected_position,score}), boundaries.json
 (online events and ground truth), metrics.json (online vs offline, when the bag has subtask
@@ -44,7 +45,13 @@ from ompn_ros.app.segment_setup import (
     MAX_LAG,
     OBJECTIVES,
 )
-from ompn_ros.cli._batch import add_batch_arguments, check_batch_arguments, run_batch_cli
+from ompn_ros.cli._batch import (
+    add_batch_arguments,
+    aggregate_parser,
+    check_batch_arguments,
+    run_aggregate,
+    run_batch_cli,
+)
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.cli._dataset import add_dataset_arguments, run_dataset_cli
 
@@ -195,7 +202,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_cli(build_parser(), _run, argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    if words[:1] == ["aggregate"]:
+        return run_cli(aggregate_parser(), run_aggregate, words[1:])
+    return run_cli(build_parser(), _run, words)
 
 
 if __name__ == "__main__":

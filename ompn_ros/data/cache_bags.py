@@ -9,7 +9,8 @@ order and memory-mapped, into one dataset entry ``episodes_set_<key>`` (``key``:
 per-bag keys).  Adding bags to a dataset parses only the new ones; the assembly copies the arrays
 once more (disk: the per-bag entries plus the dataset entry).
 
-``ompn_train`` uses it with ``data.cache_workers: N`` (N >= 1; 0 is the single-entry cache).
+``ompn_train`` uses it with ``data.cache_workers: N`` (N >= 1; 0 is the single-entry cache).  The
+workers end with the process that started them, however it ends (:mod:`ompn_ros.workers`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
+from ompn_ros.workers import die_with_parent, started_here
 
 from .cache import EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit, with_notes
 from .cache_store import EntryWriter, remove_stale_entries
@@ -58,7 +60,8 @@ def build_bag_entries(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError,
         empty = {entry for bag, entry, key in missing if not _build_one(bag, spec, on_error, entry, key)}
     else:
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=context) as pool:
+        with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=context,
+                                 initializer=die_with_parent, initargs=started_here()) as pool:
             futures = {entry: pool.submit(_build_one, bag, spec, on_error, entry, key)
                        for bag, entry, key in missing}
             for entry, future in futures.items():  # the first bag that fails stops the build, named

@@ -79,7 +79,7 @@ messages), ``plan`` / ``columns`` (the step topic decoded while the bag is read,
 
 from __future__ import annotations
 
-from .paths import STORAGE_SUFFIXES, resolve_bag_paths, storage_files
+from .paths import STORAGE_SUFFIXES, BagListing, list_bag_paths, resolve_bag_paths, storage_files
 from .read import iter_raw_messages, read_bag, read_episodes
 from .report import BagReport, ReadReport, ReadResult, final_row_guessed
 from .spec import (
@@ -97,6 +97,7 @@ __all__ = [
     "ACTION_TYPES",
     "STORAGE_SUFFIXES",
     "VECTOR_TYPES",
+    "BagListing",
     "BagReport",
     "FinalObservation",
     "LabelKind",
@@ -108,6 +109,7 @@ __all__ = [
     "VectorSource",
     "final_row_guessed",
     "iter_raw_messages",
+    "list_bag_paths",
     "read_bag",
     "read_episodes",
     "resolve_bag_paths",

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import glob as globmod
+import os
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
@@ -17,24 +19,57 @@ from .spec import ReaderSpec
 STORAGE_SUFFIXES = (".mcap", ".db3")
 
 
-def resolve_bag_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
-    """Expand files, bag directories, directories of bags and globs into a sorted list of bags."""
+@dataclass(frozen=True)
+class BagListing:
+    """What a listing found: ``bags`` in order, and ``refused``: ``(path, reason)`` of every entry
+    inside a listed folder that could not be looked at (unreadable, vanished), each on its own."""
+
+    bags: list[Path]
+    refused: list[tuple[Path, str]] = field(default_factory=list)
+
+
+def list_bag_paths(paths: str | Path | Sequence[str | Path]) -> BagListing:
+    """Expand files, bag directories, directories of bags and globs into the bags they hold, in order.
+
+    Symbolic links are followed, each real directory once (a link back up the tree, or a second link
+    to a folder already listed, adds nothing), and a bag reached by several paths is listed once, by
+    its first path.  An entry below a listed folder that cannot be looked at is refused on its own
+    (:attr:`BagListing.refused`); a given path or glob that names no bag raises
+    :class:`~ompn_ros.data.errors.BagNotFoundError`.  O(entries of the listed folders).
+    """
     items = [paths] if isinstance(paths, (str, Path)) else list(paths)
-    out: list[Path] = []
+    walk = _Walk()
     for item in items:
         text = str(item)
         if any(ch in text for ch in "*?[") and not Path(text).exists():
-            matches = sorted(globmod.glob(text, recursive=True))
+            matches = _glob(text)
             if not matches:
                 raise BagNotFoundError("glob matched nothing", path=text)
             for match in matches:
-                out.extend(_expand(Path(match)))
-        else:
-            found = _expand(Path(text))
-            if not found:
-                raise BagNotFoundError("no rosbag2 bag (metadata.yaml, .mcap or .db3) found", path=text)
-            out.extend(found)
-    return _whole_split_bags(list(dict.fromkeys(out)))
+                walk.top(Path(match), text)
+        elif not walk.top(Path(text), text):
+            raise BagNotFoundError("no rosbag2 bag (metadata.yaml, .mcap or .db3) found", path=text)
+    return BagListing(_whole_split_bags(walk.unique()), walk.refused)
+
+
+def _glob(pattern: str) -> list[str]:
+    """The sorted matches of ``pattern``; ``**`` descends into real folders only (a link loop under it
+    would otherwise multiply the matches without end), the other parts follow links."""
+    if "**" not in pattern:
+        return sorted(globmod.glob(pattern))
+    parts = Path(pattern).parts
+    fixed = next(i for i, part in enumerate(parts) if any(ch in part for ch in "*?["))
+    base = Path(*parts[:fixed]) if fixed else Path(".")
+    return sorted(str(p) if fixed else str(p.relative_to(".")) for p in base.glob(str(Path(*parts[fixed:]))))
+
+
+def resolve_bag_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
+    """:func:`list_bag_paths`, where any entry that cannot be looked at refuses the whole listing."""
+    listing = list_bag_paths(paths)
+    if listing.refused:
+        path, reason = listing.refused[0]
+        raise BagNotFoundError(reason, path=path)
+    return listing.bags
 
 
 def _whole_split_bags(bags: list[Path]) -> list[Path]:
@@ -59,26 +94,56 @@ def _whole_split_bags(bags: list[Path]) -> list[Path]:
     return list(dict.fromkeys(out))
 
 
-def _expand(path: Path) -> list[Path]:
-    if not path.exists():
-        raise BagNotFoundError("no such file or directory", path=path)
-    if path.is_file():
-        if path.suffix in STORAGE_SUFFIXES:
-            return [path]
-        if path.name == "metadata.yaml":
-            return [path.parent]
-        raise BagNotFoundError(f"not a bag storage file (expected {STORAGE_SUFFIXES})", path=path)
-    if (path / "metadata.yaml").is_file() or needs_reindex(path):
-        return [path]  # a bag; a split bag without metadata.yaml is reindexed while read
-    found: list[Path] = []
-    for child in sorted(path.iterdir()):
-        if child.name.startswith("."):
-            continue  # temp parts of ompn_collect, hidden directories
-        if child.is_dir():
-            found.extend(_expand(child))
-        elif child.suffix in STORAGE_SUFFIXES:
-            found.append(child)
-    return found
+class _Walk:
+    """One listing: the bags found, the real directories entered, the entries refused."""
+
+    def __init__(self) -> None:
+        self.found: list[Path] = []
+        self.entered: set[tuple[int, int]] = set()
+        self.refused: list[tuple[Path, str]] = []
+
+    def top(self, path: Path, given: str) -> bool:
+        """List ``path`` as given by the user (missing or not a bag: raises); True when it held bags."""
+        if not path.exists():
+            raise BagNotFoundError("no such file or directory", path=path)
+        before = len(self.found) + len(self.refused)
+        if path.is_file():
+            if path.suffix in STORAGE_SUFFIXES:
+                self.found.append(path)
+            elif path.name == "metadata.yaml":
+                self.found.append(path.parent)
+            else:
+                raise BagNotFoundError(f"not a bag storage file (expected {STORAGE_SUFFIXES})", path=path)
+        else:
+            self._folder(path)
+        return len(self.found) + len(self.refused) > before
+
+    def _folder(self, path: Path) -> None:
+        """A bag directory, or a folder whose bags (and folders) are listed, each real directory once."""
+        info = path.stat()
+        if (info.st_dev, info.st_ino) in self.entered:
+            return  # a symbolic link loop, or a folder reached by a second link
+        self.entered.add((info.st_dev, info.st_ino))
+        if (path / "metadata.yaml").is_file() or needs_reindex(path):
+            self.found.append(path)  # a bag; a split bag without metadata.yaml is reindexed while read
+            return
+        for child in sorted(path.iterdir()):
+            if child.name.startswith("."):
+                continue  # temp parts of ompn_collect, hidden directories
+            try:
+                if child.is_dir():
+                    self._folder(child)
+                elif child.suffix in STORAGE_SUFFIXES:
+                    self.found.append(child)  # a dangling link too: refused when read, on its own
+            except OSError as exc:
+                self.refused.append((child, f"cannot be listed: {exc.strerror or exc}"))
+
+    def unique(self) -> list[Path]:
+        """The bags found, each real path once (its first path kept)."""
+        seen: dict[str, Path] = {}
+        for bag in self.found:
+            seen.setdefault(os.path.realpath(bag), bag)
+        return list(seen.values())
 
 
 def storage_files(bag: Path) -> list[Path]:

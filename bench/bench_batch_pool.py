@@ -1,0 +1,143 @@
+"""Benchmark of ``ompn_segment --bags --jobs N``: does a second worker double the throughput?
+
+Two datasets of another lab's bags (rosbags writer; 39 observation features and 9 action values at
+50 Hz, the shipped Dial model's sizes; episodes of 20 s split by 2 s pauses):
+
+* ``long``: ``--long`` bags of ``--minutes`` minutes each (default 200 x 2 min);
+* ``short``: ``--short`` bags of 2 s each (default 200): start-up and per-bag costs dominate.
+
+Each is segmented with ``--jobs 1`` and ``--jobs 2`` (and, with ``--spawn``, ``--jobs 2`` with
+spawned workers, as before workers were forked warm), side by side in one run, by a randomly
+initialised model of the shipped Dial checkpoint's configuration (the same cost per step).  Wall
+time of the whole command, start-up included, and the CPU time of all its processes (what the
+workers' start-up costs, whatever the load).  One torch thread per process.
+
+    nice .venv/bin/python bench/bench_batch_pool.py [--long 200 --minutes 2 --short 200 --spawn]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ompn_ros import layout
+from ompn_ros.data import messages as m
+from ompn_ros.model.build import build_policy
+from ompn_ros.model.checkpoint import save_checkpoint
+from ompn_ros.model.config import OMPNConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+HZ = 50
+EPISODE_S = 20.0
+SPEC = {"reader": {
+    "namespace": "/lab", "observation": {"topic": "features", "type": layout.FLOAT32_ARRAY},
+    "action": {"topic": "cmd", "type": layout.FLOAT32_ARRAY, "dim": 9}, "subtask": None, "labels": "none",
+    "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5, "tolerance": 0.03, "stamp": "log",
+    "task": "lab", "final_observation": "duplicate"}}
+SPAWN = ("import multiprocessing, sys\n"
+         "from ompn_ros.app import batch_pool\n"
+         "batch_pool.pool_context = lambda device: multiprocessing.get_context('spawn')\n"
+         "from ompn_ros.cli.segment import main\n"
+         "sys.exit(main(sys.argv[1:]))\n")
+
+
+def write_bag(path: Path, seed: int, seconds: float) -> int:
+    """A bag of ``seconds`` of 50 Hz features and commands, episodes of 20 s; returns its steps."""
+    from rosbags.rosbag2 import Writer
+
+    rng = np.random.default_rng(seed)
+    t, steps = 1_700_000_000_000_000_000 + seed * 10**12, int(seconds * HZ)
+    per_episode = int(EPISODE_S * HZ)
+    with Writer(path, version=9) as w:
+        ts = m.typestore()
+        obs = w.add_connection("/lab/features", layout.FLOAT32_ARRAY, typestore=ts)
+        cmd = w.add_connection("/lab/cmd", layout.FLOAT32_ARRAY, typestore=ts)
+        for k in range(steps):
+            w.write(obs, t, m.serialize(m.float32_array(rng.standard_normal(39))))
+            w.write(cmd, t + 5_000_000, m.serialize(m.float32_array(rng.standard_normal(9), "cmd")))
+            t += 1_000_000_000 // HZ
+            if (k + 1) % per_episode == 0:
+                t += 2_000_000_000
+    return steps
+
+
+def make_dataset(root: Path, count: int, seconds: float, first_seed: int) -> tuple[Path, int]:
+    steps = sum(write_bag(root / f"bag{i:04d}", first_seed + i, seconds) for i in range(count))
+    return root, steps
+
+
+def segment(bags: Path, model: Path, spec: Path, jobs: int, out: Path,
+            spawn: bool = False) -> tuple[float, float]:
+    """Wall seconds and CPU seconds (user + system, all its processes) of one batch command."""
+    path = f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
+    argv = ["--bags", str(bags), "--jobs", str(jobs), "--checkpoint", str(model),
+            "--reader-config", str(spec), "--out", str(out)]
+    head = ["-c", SPAWN] if spawn else ["-m", "ompn_ros.cli.segment"]
+    command = [sys.executable, *head, *argv]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run(command, env=env, cwd=ROOT, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise RuntimeError(done.stderr[-2000:])
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _load() -> str:
+    try:
+        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+    except OSError:
+        return "unknown"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--long", type=int, default=200, help="bags of --minutes each")
+    parser.add_argument("--minutes", type=float, default=2.0)
+    parser.add_argument("--short", type=int, default=200, help="bags of 2 s each")
+    parser.add_argument("--spawn", action="store_true", help="also --jobs 2 with spawned workers (before)")
+    parser.add_argument("--out", help="JSON results file (none: print only)")
+    args = parser.parse_args()
+    results: dict[str, dict[str, float | str]] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_batch_pool_") as tmp:
+        root = Path(tmp)
+        config = OMPNConfig(obs_dim=39, action_type="continuous", action_dim=9, n_slots=2, slot_size=64)
+        save_checkpoint(root / "model", build_policy(config))
+        spec = root / "reader.yaml"
+        spec.write_text(yaml.safe_dump(SPEC))
+        sets = [("long", args.long, args.minutes * 60), ("short", args.short, 2.0)]
+        for name, count, seconds in sets:
+            if count <= 0:
+                continue
+            bags, steps = make_dataset(root / name, count, seconds, 1000 if name == "long" else 5000)
+            row: dict[str, float | str] = {"bags": count, "steps": steps, "load_before": _load()}
+            runs = [("jobs1", 1, False), ("jobs2", 2, False)]
+            runs += [("jobs2_spawn", 2, True)] if args.spawn else []
+            for label, jobs, spawn in runs:
+                out = root / f"out_{name}_{label}"
+                wall, cpu = segment(bags, root / "model", spec, jobs, out, spawn)
+                row[f"{label}_s"], row[f"{label}_cpu_s"] = wall, cpu
+            row["ratio"] = float(row["jobs1_s"]) / float(row["jobs2_s"])
+            if args.spawn:
+                row["ratio_spawn"] = float(row["jobs1_s"]) / float(row["jobs2_spawn_s"])
+            row["load_after"] = _load()
+            results[name] = row
+            print(json.dumps({name: row}), flush=True)
+    if args.out:
+        Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

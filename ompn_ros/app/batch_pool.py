@@ -1,0 +1,201 @@
+"""The worker pool of a batch run: start-up paid once, a run that stops cleanly, workers that never
+outlive it.
+
+* **Start-up once.**  The run's process imports torch and loads the checkpoint before the pool starts
+  (``batch.preload``); on Linux, with the policy on the CPU and a single-threaded parent, the workers
+  are forked from it and inherit both, compiled kernel included, so a worker starts in milliseconds
+  instead of seconds (each spawned worker imports torch and loads the checkpoint again).  A parent
+  with threads (library thread pools, when ``OMP_NUM_THREADS`` and the like are unset) is not
+  forked: a fork server, started single-threaded, imports the batch modules once and forks the
+  workers, which then load the checkpoint once each.  With a GPU, or without fork, workers are
+  spawned, and each loads the checkpoint once, for all its tasks.
+* **Stopping.**  :class:`Stop` turns the first SIGINT or SIGTERM into a request: no task is started
+  after it, the running ones finish, and the caller writes what finished (exit ``128 + signal``).
+  A second signal stops at once (:class:`HardStop`): the workers are killed, their tasks lost.
+  Workers ignore both signals (a Ctrl-C reaches the whole process group; the parent decides).
+* **No orphans.**  Every worker dies with the run's process, however it ended
+  (:func:`ompn_ros.workers.die_with_parent`).
+
+At most ``jobs`` tasks are in flight, so a stop request waits for those only.  The pool runs any
+list of work items (bags today); a task's result comes back as it completes.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import forkserver
+from multiprocessing.context import BaseContext
+from pathlib import Path
+from types import FrameType, TracebackType
+from typing import Any, Generic, TypeVar
+
+import torch
+
+from ompn_ros.workers import die_with_parent, started_here
+
+Item = TypeVar("Item")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class HardStop(KeyboardInterrupt):
+    """A second stop signal: stop now, losing the tasks in flight."""
+
+
+class Stop:
+    """Stop requests of a run (a context manager: installs SIGINT/SIGTERM handlers in the main thread
+    and restores the previous ones on exit).  ``signum`` is the first signal received (None: none)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self.armed = True
+        self._previous: dict[int, Any] = {}
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    def settle(self) -> None:
+        """The tasks are over: a later signal only asks for the stop again (the outputs of what
+        finished are being written; nothing is left to stop at once)."""
+        self.armed = False
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.signum is not None:
+            if self.armed:
+                raise HardStop
+            return
+        self.signum = signum
+        print(f"ompn_segment: {signal.Signals(signum).name}: stopping after the bags in progress "
+              "(again: stop now)", file=sys.stderr, flush=True)
+
+    def __enter__(self) -> Stop:
+        if threading.current_thread() is threading.main_thread():
+            for signum in STOP_SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+
+def _threads() -> int:
+    """Threads of this process (0: unknown)."""
+    try:
+        text = Path("/proc/self/status").read_text()
+    except OSError:
+        return 0
+    return next((int(line.split()[1]) for line in text.splitlines() if line.startswith("Threads:")), 0)
+
+
+SINGLE_THREAD_ENV = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                                             "NUMBA_NUM_THREADS")}
+"""The environment of the fork server: libraries start no thread pools (one thread per worker)."""
+
+
+def pool_context(device: str) -> BaseContext:
+    """Where workers come from: forked from this warm process where that is safe (Linux, CPU policy,
+    one thread), else forked from a fork server that imported the batch modules once (started
+    single-threaded), else spawned (and with a GPU, whose context must not cross a fork)."""
+    methods = multiprocessing.get_all_start_methods()
+    if device == "cpu" and "fork" in methods and _threads() == 1:
+        return multiprocessing.get_context("fork")
+    if device == "cpu" and "forkserver" in methods:
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(["ompn_ros.app.batch"])
+        _start_fork_server()
+        return context
+    return multiprocessing.get_context("spawn")
+
+
+def _start_fork_server() -> None:
+    """Start the fork server single-threaded and deaf to SIGTERM (an ignored signal stays ignored
+    across its exec; SIGINT it ignores itself): a SIGTERM sent to the whole process group, as a
+    cluster scheduler sends it, must not end it under the workers; it ends with the run."""
+    saved = {name: os.environ.get(name) for name in SINGLE_THREAD_ENV}
+    os.environ.update(SINGLE_THREAD_ENV)
+    main = threading.current_thread() is threading.main_thread()
+    term = signal.signal(signal.SIGTERM, signal.SIG_IGN) if main else None
+    try:
+        forkserver.ensure_running()
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, term)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def init_worker(parent: int, parent_main_thread: bool, via_server: bool = False) -> None:
+    """First thing in every worker: die with the run (``parent``, whether it forked the worker or a fork
+    server did: ``via_server``), leave stopping to the run, one torch thread."""
+    if via_server:  # the fork server outlives the run while its workers hold its pipe: watch the run
+        die_with_parent(os.getppid(), True, ignore_stop_signals=True, run=parent)
+    else:
+        die_with_parent(parent, parent_main_thread, ignore_stop_signals=True)
+    torch.set_num_threads(1)
+
+
+def _kill(pool: ProcessPoolExecutor) -> None:
+    processes = getattr(pool, "_processes", None) or {}
+    for process in list(processes.values()):
+        process.kill()
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
+class Pool(Generic[Item]):
+    """``task(item)`` for each item over ``jobs`` worker processes (see the module docstring);
+    ``died(item, reason)`` is the result of an item whose worker died (killed, out of memory)."""
+
+    def __init__(self, task: Callable[[Item], dict[str, Any]], died: Callable[[Item, str], dict[str, Any]],
+                 jobs: int, device: str, stop: Stop) -> None:
+        self.task, self.died, self.jobs, self.device, self.stop = task, died, jobs, device, stop
+
+    def run(self, items: Sequence[Item]) -> Iterator[dict[str, Any]]:
+        """Results as tasks complete; ends early (no new task started) once a stop is requested."""
+        queue = deque(items)
+        while queue and not self.stop.requested:
+            yield from self._one_pool(queue)
+
+    def _one_pool(self, queue: deque[Item]) -> Iterator[dict[str, Any]]:
+        """Run ``queue`` on one pool until it is empty, a stop is requested or a worker dies."""
+        context = pool_context(self.device)
+        via_server = context.get_start_method() == "forkserver"
+        pool = ProcessPoolExecutor(max_workers=min(self.jobs, len(queue)), initializer=init_worker,
+                                   mp_context=context, initargs=(*started_here(), via_server))
+        running: dict[Future[dict[str, Any]], Item] = {}
+        broken = False
+        try:
+            while queue or running:
+                while queue and len(running) < self.jobs and not (self.stop.requested or broken):
+                    item = queue.popleft()
+                    running[pool.submit(self.task, item)] = item
+                if not running:
+                    break
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    item = running.pop(future)
+                    try:
+                        yield future.result()
+                    except BrokenProcessPool as exc:
+                        broken = True
+                        yield self.died(item, f"the worker process died ({exc})")
+        except BaseException:
+            _kill(pool)
+            raise
+        pool.shutdown(wait=True)
+
+
+__all__ = ["STOP_SIGNALS", "HardStop", "Pool", "Stop", "init_worker", "pool_context"]
