@@ -16,7 +16,9 @@ obs_dim, action_type and action_dim come from data.domain (ompn_ros.layout) or, 
 from the synthetic task; --set section.key=value overrides any entry (values are parsed as YAML).
 --out sets train.out_dir and must be empty unless --resume or --overwrite is given.  With
 data.on_error=skip_tail, a bag with a corrupt tail keeps the episodes before it; what the reader
-kept and dropped is printed and stored as OUT/read_report.json (and .txt).  With the reader's
+kept and dropped is printed and stored as OUT/read_report.json (and .txt), with whether the data is
+likely enough (demonstrations against the smallest measured runs); the last lines before the JSON
+summary say what to expect of the checkpoint.  With the reader's
 final_observation: auto, one run per option of final_options trains under OUT/final_observation/ and
 the one validation prefers is kept (OUT/final_observation.json).
 """
@@ -32,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from ompn_ros.app import training
+from ompn_ros.app.data_amount import data_amount, expectation
 from ompn_ros.app.final_choice import train_auto
 from ompn_ros.app.read_report import write_read_report
 from ompn_ros.app.training import apply_overrides, load_config
@@ -90,11 +93,18 @@ def _run(args: argparse.Namespace) -> int:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])
     else:
         data = training.bag_data(args.bags, config["data"], spec)
-        print(data.report["summary"], file=sys.stderr)
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)
+    amount = data_amount(data.episodes, train_config.val_ratio, training.labelled(train_config, data))
     if data.report:
+        data.report["summary"] = "\n".join([data.report["summary"], *amount.lines()])
+        data.report["data_amount"] = amount.to_dict()
+        print(data.report["summary"], file=sys.stderr)
         write_read_report(args.out, data.report)
-    _print_summary(training.run_training(data, model_config, train_config, args.out))
+    summary = training.run_training(data, model_config, train_config, args.out)
+    if summary is not None:
+        selection = train_config.selection if amount.labelled else "agreement"
+        print("\n".join(expectation(amount, selection, summary["best"])), file=sys.stderr)
+    _print_summary(summary)
     return 0
 
 
