@@ -11,12 +11,13 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ompn_ros.app import batch_table
-from ompn_ros.app.batch import BatchSettings, run_batch
-from ompn_ros.app.batch_bags import BatchBag, list_bags
 from ompn_ros.app.errors import ReplayError
 from ompn_ros.app.segment_setup import detector_settings, load_stepper
+
+if TYPE_CHECKING:  # the batch services load when a batch runs, not for --help
+    from ompn_ros.app.batch_bags import BatchBag
 
 SOME_REFUSED = 1
 """Exit status of a batch run in which some bags were refused (2: the run itself could not start)."""
@@ -53,6 +54,10 @@ def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
 def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     """Segment the bags of ``--bags`` on ``device`` ('cpu' or 'cuda'); 0 when every bag was segmented,
     :data:`SOME_REFUSED` otherwise."""
+    from ompn_ros.app import batch_table
+    from ompn_ros.app.batch import BatchSettings, run_batch
+    from ompn_ros.app.batch_bags import list_bags
+
     load_stepper(args.checkpoint, device)  # a bad checkpoint refuses the run, not every bag
     detector, line = detector_settings(args.checkpoint, args.detector_config)
     print(f"ompn_segment: {line}", file=sys.stderr)

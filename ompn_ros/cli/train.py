@@ -31,14 +31,12 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ompn_ros.app import training
-from ompn_ros.app.data_amount import data_amount, expectation
-from ompn_ros.app.final_choice import train_auto
-from ompn_ros.app.read_report import write_read_report
-from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
+
+if TYPE_CHECKING:  # the services load when training runs, not for --help (torch: seconds)
+    from ompn_ros.app.training import TrainingData
 
 __all__ = ["build_parser", "main"]
 
@@ -75,6 +73,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ompn_ros.app import training
+    from ompn_ros.app.data_amount import data_amount, expectation
+    from ompn_ros.app.final_choice import train_auto
+    from ompn_ros.app.read_report import write_read_report
+    from ompn_ros.app.training import apply_overrides, load_config
+
     logging.basicConfig(
         level=logging.WARNING if args.quiet else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s: %(message)s",
@@ -108,7 +112,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_read(option: str, data: training.TrainingData) -> None:
+def _print_read(option: str, data: TrainingData) -> None:
     print(f"final_observation: auto, row T read as '{option}':\n{data.report['summary']}", file=sys.stderr)
 
 

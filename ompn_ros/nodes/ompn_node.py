@@ -109,7 +109,6 @@ from ompn_ros.detect.settings import (
 )
 from ompn_ros.errors import OMPNError
 from ompn_ros.model.errors import CheckpointError, ConfigError
-from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
@@ -265,7 +264,9 @@ class OMPNNode(NodeInputs):
         return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
-        import torch
+        import torch  # torch and the model load here, not at import: --help stays light
+
+        from ompn_ros.model.load import stepper_from_checkpoint
 
         torch.set_num_threads(int(self.values["torch_threads"]))
         spec = load_spec(str(self.values["observation_spec"]), self.get_namespace())
