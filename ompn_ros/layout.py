@@ -135,7 +135,8 @@ def topic_types(domain: DomainLayout) -> dict[str, str]:
         ACTION: domain.action_msg,
         SUBTASK: INT32,
         SKETCH: INT32_ARRAY,
-        EPISODE: DIAGNOSTIC_ARRAY,
+        EPISODE_MARKER: EPISODE_MARKER_TYPE,
+        EPISODE: DIAGNOSTIC_ARRAY,  # deprecated, published for one release beside EPISODE_MARKER
     }
     if domain.has_joint_states:
         types[JOINT_STATES] = JOINT_STATE

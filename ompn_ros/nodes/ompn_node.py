@@ -113,7 +113,7 @@ from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_checkpoint import check_model, default_sketch, resolve_checkpoint
-from ompn_ros.nodes.ompn_node_inputs import NodeInputs
+from ompn_ros.nodes.ompn_node_inputs import MarkerTwins, NodeInputs
 from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, joint_input, load_spec
 from ompn_ros.nodes.ompn_node_params import EXECUTORS, OBS_SOURCES, SPECS
 from ompn_ros.ros.params import ParameterError, ParamTable
@@ -167,6 +167,7 @@ class OMPNNode(NodeInputs):
         self._fq_name = self.get_fully_qualified_name()  # the node field of ~/boundary
         self._frame_id = ""  # the observation's header.frame_id (JointState input)
         self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
+        self._twins = MarkerTwins()  # a marker's typed and deprecated forms: one is handled
         self._n_slots = 0
         self._active = False
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits

@@ -38,6 +38,7 @@ bags (docs/design.md#final-observation); Dial ``auto``, the choice on validation
 SPLITS = ("auto", "markers", "gaps", "topic", "idle", "bag")
 VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
+MARKER_TYPES = (layout.EPISODE_MARKER_TYPE, layout.DIAGNOSTIC_ARRAY)  # typed; string-keyed (deprecated)
 
 
 @dataclass(frozen=True)
