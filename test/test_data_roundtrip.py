@@ -61,7 +61,7 @@ def test_step_contract_order_and_stamps(tmp_path: Path) -> None:
         seq = [(c.topic.lstrip("/"), stamp) for c, stamp, _ in reader.messages()]
     names = [t for t, _ in seq]
     step = ["observation", "joint_states", "subtask", "action"]
-    one = ["episode", "sketch"] + step * 3 + ["observation", "joint_states", "episode"]
+    one = ["episode_marker", "sketch"] + step * 3 + ["observation", "joint_states", "episode_marker"]
     assert names == one + one
     t0 = layout.EPISODE_GAP_NS
     assert seq[0][1] == t0 and seq[1][1] == t0 + layout.TOPIC_OFFSET_NS

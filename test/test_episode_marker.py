@@ -93,8 +93,8 @@ def test_the_reader_splits_on_either_form(tmp_path: Path, typed: bool, legacy: b
 
 
 def test_typed_markers_are_the_ones_read_when_a_bag_has_both(tmp_path: Path) -> None:
-    """ompn_collect writes both forms for one release; the reader takes the typed ones (the deprecated
-    ones here name other seeds, so a mix-up shows)."""
+    """bag_recorder records both forms of the sims' markers for one release; the reader takes the typed
+    ones (the deprecated ones here name other seeds, so a mix-up shows)."""
     store = m.register_interfaces()
     _lab_bag(tmp_path / "bag", typed=True, legacy=False)
     with Writer(tmp_path / "both", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -112,10 +112,10 @@ def test_typed_markers_are_the_ones_read_when_a_bag_has_both(tmp_path: Path) -> 
     assert [ep.seed for ep in read_episodes(tmp_path / "both", spec=_spec()).episodes] == [100, 101, 102]
 
 
-def test_ompn_collect_bags_carry_both_forms_and_read_back(tmp_path: Path) -> None:
+def test_ompn_collect_bags_carry_typed_markers_and_read_back(tmp_path: Path) -> None:
     episodes = make_dataset("craft_shaped", 2, seed=0)
     stats = write_episodes(tmp_path / "bag", episodes, "craft")
-    assert stats.messages["/episode_marker"] == 4 and stats.messages["/episode"] == 4
+    assert stats.messages["/episode_marker"] == 4 and "/episode" not in stats.messages
     back = read_episodes(tmp_path / "bag").episodes
     assert [ep.length for ep in back] == [ep.length for ep in episodes]
 

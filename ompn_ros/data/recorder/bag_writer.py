@@ -104,8 +104,8 @@ class EpisodeBagWriter:
         self._writer.open()
         ts = m.register_interfaces()  # EpisodeMarker
         for name, typename in layout.topic_types(self.domain).items():
-            if name == layout.RENDER:
-                continue  # ompn_collect has no renderer; live sims publish it
+            if name in (layout.RENDER, layout.EPISODE):
+                continue  # no renderer; the markers are typed (the sims also publish the deprecated form)
             topic = resolve_topic(name, self.namespace)
             self._conns[name] = self._writer.add_connection(topic, typename, typestore=ts)
             self.stats.messages[topic] = 0
@@ -124,10 +124,8 @@ class EpisodeBagWriter:
         self.close()
 
     def _markers(self, kind: str, stamp: int, values: dict[str, object]) -> None:
-        """An episode marker as the sims publish it: typed, and for one release its deprecated
-        ``DiagnosticArray`` twin."""
+        """An episode marker, typed (``EpisodeMarker`` on ``episode_marker``)."""
         self._write(layout.EPISODE_MARKER, stamp, m.encode_typed_marker(kind, stamp, values))
-        self._write(layout.EPISODE, stamp, m.serialize(m.episode_marker(kind, stamp, values)))
 
     def _write(self, name: str, stamp: int, raw: bytes) -> None:
         conn = self._conns[name]
