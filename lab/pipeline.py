@@ -40,6 +40,7 @@ from lab.sweeps import k_sweep, threshold_sweep
 from ompn_ros.data.episode import Episode
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.errors import CheckpointError
+from ompn_ros.train.threads import resolve_threads
 
 T = TypeVar("T")
 Split = tuple[list[Episode], list[Episode]]
@@ -106,7 +107,9 @@ def prepare(spec: ReproduceSpec) -> State:
     pin_fixed_length(base, spec.domain, spec.config is None)
     if spec.threads is not None:
         base["train"]["threads"] = spec.threads
-    torch.set_num_threads(int(base["train"].get("threads", 2)) or 2)
+    threads = resolve_threads(base["train"].get("threads", "auto"))
+    if threads:
+        torch.set_num_threads(threads)
     state = State(spec, base)
     previous = spec.results / f"{spec.domain}.json"
     state.old_results = json.loads(previous.read_text()) if previous.is_file() else {}

@@ -48,7 +48,7 @@ def _episodes(reader: Any, episode_topic: str) -> Iterator[tuple[list[Message], 
     inside = False
     for conn, stamp, raw in reader.messages():
         if conn.topic == episode_topic:
-            marker = m.parse_marker(raw)
+            marker = m.parse_marker(raw, conn.msgtype)
             kind = marker[0] if marker else ""
             if kind == layout.EPISODE_START and not inside:
                 if group:
@@ -81,13 +81,16 @@ def strip_final_observations(
     if out.exists():
         raise StripError("output exists; the stripping tool never overwrites a bag", path=out)
     action = resolve_topic(layout.ACTION, namespace)
-    episode_topic = resolve_topic(layout.EPISODE, namespace)
     dropped = {resolve_topic(layout.OBSERVATION, namespace), resolve_topic(layout.JOINT_STATES, namespace)}
     stats = StripStats()
-    ts = m.typestore()
+    ts = m.register_interfaces()  # EpisodeMarker
     with Reader(src) as reader:
-        if not any(c.topic == episode_topic for c in reader.connections):
-            raise StripError(f"no {episode_topic} topic: episodes cannot be delimited", path=src)
+        # the typed markers, or in older bags the deprecated DiagnosticArray ones
+        topics = {c.topic for c in reader.connections}
+        names = [resolve_topic(name, namespace) for name in (layout.EPISODE_MARKER, layout.EPISODE)]
+        episode_topic = next((name for name in names if name in topics), "")
+        if not episode_topic:
+            raise StripError(f"no {names[0]} topic: episodes cannot be delimited", path=src)
         writer = DurableWriter(out, version=9, storage_plugin=storage_plugin(storage))
         writer.open()
         try:

@@ -33,6 +33,7 @@ INT32: Final = "std_msgs/msg/Int32"
 STRING: Final = "std_msgs/msg/String"
 JOINT_STATE: Final = "sensor_msgs/msg/JointState"
 DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
+EPISODE_MARKER_TYPE: Final = "ompn_interfaces/msg/EpisodeMarker"  # the typed episode marker
 FLOAT64_ARRAY: Final = "std_msgs/msg/Float64MultiArray"  # with the next four: a user's observation topics
 FLOAT32: Final = "std_msgs/msg/Float32"
 FLOAT64: Final = "std_msgs/msg/Float64"
@@ -46,7 +47,8 @@ ACTION: Final = "action"  # the action label of the step: Float32MultiArray (dia
 # is added only to what is executed). In policy mode it is the received cmd_action that was executed.
 SUBTASK: Final = "subtask"  # Int32: ground-truth subtask ordinal within the episode (0-based)
 SKETCH: Final = "sketch"  # Int32MultiArray: subtask ids of the episode's task, once per episode
-EPISODE: Final = "episode"  # DiagnosticArray episode marker, see EpisodeMarker keys below
+EPISODE_MARKER: Final = "episode_marker"  # ompn_interfaces/msg/EpisodeMarker: episode start / end
+EPISODE: Final = "episode"  # deprecated: DiagnosticArray episode marker (keys below), read for one release
 JOINT_STATES: Final = "joint_states"  # JointState, dial only (9 joints, stamped with sim time)
 RENDER: Final = "render"  # String: human-readable ANSI rendering (craft)
 
@@ -133,7 +135,8 @@ def topic_types(domain: DomainLayout) -> dict[str, str]:
         ACTION: domain.action_msg,
         SUBTASK: INT32,
         SKETCH: INT32_ARRAY,
-        EPISODE: DIAGNOSTIC_ARRAY,
+        EPISODE_MARKER: EPISODE_MARKER_TYPE,
+        EPISODE: DIAGNOSTIC_ARRAY,  # deprecated, published for one release beside EPISODE_MARKER
     }
     if domain.has_joint_states:
         types[JOINT_STATES] = JOINT_STATE

@@ -83,6 +83,11 @@ from ompn_ros.ros.run import NodeProcess
 from sim_nodes import SEED_MAX, derive_seed
 from sim_nodes.human import DEMONSTRATORS, HumanLike, HumanLikeError, parse_human
 
+try:
+    from ompn_interfaces.msg import EpisodeMarker
+except ImportError:  # an ompn_interfaces built before the message: the deprecated markers only
+    EpisodeMarker = None
+
 SIM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=100,
@@ -263,14 +268,22 @@ class LayoutPublisher:
         self.subtask_pub = node.create_publisher(Int32, layout.SUBTASK, SIM_QOS)
         self.action_pub = node.create_publisher(action_msg_type(domain), layout.ACTION, SIM_QOS)
         self.sketch_pub = node.create_publisher(Int32MultiArray, layout.SKETCH, SIM_QOS)
+        # Episode markers, typed on 'episode_marker'; for one release also the deprecated string-keyed
+        # DiagnosticArray on 'episode' (ompn_node, the reader and bag_recorder read either).
+        self.marker_pub = None if EpisodeMarker is None else \
+            node.create_publisher(EpisodeMarker, layout.EPISODE_MARKER, SIM_QOS)
         self.episode_pub = node.create_publisher(DiagnosticArray, layout.EPISODE, SIM_QOS)
+        if self.marker_pub is None:
+            node.get_logger().warning(
+                "ompn_interfaces has no EpisodeMarker (built before it): publishing the deprecated "
+                "DiagnosticArray markers on 'episode' only; rebuild it (ompn_interfaces/build_venv.py)")
 
     def topic_names(self) -> list[str]:
         return list(layout.topic_types(self.domain))
 
     def episode_start(self, index: int, start: EpisodeStart, stamp_ns: int) -> None:
         values = messages.start_marker_values(index, start.task, start.seed, start.sketch)
-        self.episode_pub.publish(encode_marker(stamp_ns, layout.EPISODE_START, values))
+        self._marker(stamp_ns, layout.EPISODE_START, values)
         self.sketch_pub.publish(encode_sketch(start.sketch))
 
     def observation(self, obs: np.ndarray) -> None:
@@ -284,7 +297,13 @@ class LayoutPublisher:
 
     def episode_end(self, index: int, start: EpisodeStart, steps: int, success: bool, stamp_ns: int) -> None:
         values = messages.end_marker_values(index, start.task, start.seed, steps, success)
-        self.episode_pub.publish(encode_marker(stamp_ns, layout.EPISODE_END, values))
+        self._marker(stamp_ns, layout.EPISODE_END, values)
+
+    def _marker(self, stamp_ns: int, kind: str, values: dict[str, object]) -> None:
+        """The typed marker first, then its deprecated twin (a reader of both keeps the first)."""
+        if self.marker_pub is not None:
+            self.marker_pub.publish(messages.encode_typed_marker(kind, stamp_ns, values))
+        self.episode_pub.publish(encode_marker(stamp_ns, kind, values))
 
 
 class SimNode(Node):

@@ -38,7 +38,7 @@ def test_pytest_session_is_contained():
     assert Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).is_file()
 
 
-@pytest.mark.parametrize("domain", ["150", "", "abc", "42"])
+@pytest.mark.parametrize("domain", ["150", "", "abc", "42", "0", "230", "233"])
 def test_child_env_gives_this_process_and_its_children_one_domain(monkeypatch: pytest.MonkeyPatch,
                                                                    capsys: pytest.CaptureFixture[str],
                                                                    domain: str):
@@ -48,14 +48,16 @@ def test_child_env_gives_this_process_and_its_children_one_domain(monkeypatch: p
     monkeypatch.setenv("ROS_LOCALHOST_ONLY", "1")
     env = child_env()
     assert env["ROS_DOMAIN_ID"] == os.environ["ROS_DOMAIN_ID"]
-    assert 1 <= int(env["ROS_DOMAIN_ID"]) <= 100
     assert containment.problems(os.environ) == [] and containment.problems(env) == []
     assert env.get("LD_LIBRARY_PATH") == os.environ.get("LD_LIBRARY_PATH")
     note = capsys.readouterr().err
-    if domain == "42":
-        assert env["ROS_DOMAIN_ID"] == "42" and note == ""
-    elif domain:
-        assert f"ROS_DOMAIN_ID={domain} is outside 1..100" in note
+    if domain in ("42", "0", "230"):  # the user's own domain when ROS can use it (before: 0, 230 replaced)
+        assert env["ROS_DOMAIN_ID"] == domain and note == ""
+        return
+    assert 1 <= int(env["ROS_DOMAIN_ID"]) <= 100
+    if domain:
+        assert note.count("\n") == 1
+        assert f"ROS_DOMAIN_ID={domain} is not a domain ROS can use here (0..101 or 215..232)" in note
 
 
 def _node_sockets(env: dict[str, str]) -> list[containment.BoundSocket]:

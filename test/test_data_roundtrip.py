@@ -61,7 +61,7 @@ def test_step_contract_order_and_stamps(tmp_path: Path) -> None:
         seq = [(c.topic.lstrip("/"), stamp) for c, stamp, _ in reader.messages()]
     names = [t for t, _ in seq]
     step = ["observation", "joint_states", "subtask", "action"]
-    one = ["episode", "sketch"] + step * 3 + ["observation", "joint_states", "episode"]
+    one = ["episode_marker", "sketch"] + step * 3 + ["observation", "joint_states", "episode_marker"]
     assert names == one + one
     t0 = layout.EPISODE_GAP_NS
     assert seq[0][1] == t0 and seq[1][1] == t0 + layout.TOPIC_OFFSET_NS
@@ -92,11 +92,12 @@ def test_independent_mcap_decoder(tmp_path: Path) -> None:
                 obs.append(np.asarray(msg.data, dtype=np.float32))
             elif channel.topic == "/action":
                 actions.append(np.asarray(msg.data, dtype=np.float32))
-            elif channel.topic == "/episode":
-                st = msg.status[0]
-                markers.append((st.message, {kv.key: kv.value for kv in st.values}))
+            elif channel.topic == "/episode_marker":  # EpisodeMarker, decoded from its embedded schema
+                values = {layout.KEY_STEPS: str(msg.steps), layout.KEY_SKETCH: ",".join(map(str, msg.sketch))}
+                markers.append((("start", "end")[msg.kind], values))
     assert schemas["/observation"] == "std_msgs/msg/Float32MultiArray"
     assert schemas["/joint_states"] == "sensor_msgs/msg/JointState"
+    assert schemas["/episode_marker"] == "ompn_interfaces/msg/EpisodeMarker"
     np.testing.assert_array_equal(np.stack(obs), np.concatenate([e.observations for e in episodes]))
     np.testing.assert_array_equal(np.stack(actions), np.concatenate([e.actions for e in episodes]))
     assert [k for k, _ in markers] == ["start", "end"] * 3

@@ -49,6 +49,21 @@ def test_parameters_doc_is_current() -> None:
     assert DOC.read_text() == render(), "docs/parameters.md is stale: run python test/test_docs_parameters.py"
 
 
+def test_defaults_declared_by_type_read_as_unset() -> None:
+    """Before: array parameters declared by their type printed as `Type.STRING_ARRAY` (``<Type.STRING_ARRAY:
+    9>`` in ``--help``)."""
+    pytest.importorskip("rclpy")
+    from ompn_ros.ros.params import help_text
+    from sim_nodes.dial.node import DIAL_PARAMS
+    from sim_nodes.ros_common import COMMON_PARAMS
+
+    assert "Type." not in render()
+    assert "| `human` | `unset (string array)` |" in render()
+    text = help_text("dial_sim", "", [*COMMON_PARAMS, *DIAL_PARAMS])
+    assert "<Type" not in text and "human (default unset (string array); startup)" in text
+    assert "sketch (default unset (integer array); startup)" in text
+
+
 if __name__ == "__main__":
     DOC.write_text(render())
     print(f"wrote {DOC}")

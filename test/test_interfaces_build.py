@@ -16,15 +16,20 @@ PUBSUB = """
 import sys, time
 import rclpy
 import ompn_interfaces
-from ompn_interfaces.msg import SubtaskBoundary, SubtaskState
+from ompn_interfaces.msg import EpisodeMarker, SubtaskBoundary, SubtaskState
 assert ompn_interfaces.__file__.startswith(sys.argv[1]), ompn_interfaces.__file__
 rclpy.init()
 node = rclpy.create_node("interfaces_probe")
 got = {}
-for cls, topic in ((SubtaskBoundary, "probe_boundary"), (SubtaskState, "probe_state")):
+for cls, topic in ((SubtaskBoundary, "probe_boundary"), (SubtaskState, "probe_state"),
+                   (EpisodeMarker, "probe_marker")):
     node.create_subscription(cls, topic, lambda m, t=topic: got.setdefault(t, m), 10)
 pubs = [node.create_publisher(SubtaskBoundary, "probe_boundary", 10),
-        node.create_publisher(SubtaskState, "probe_state", 10)]
+        node.create_publisher(SubtaskState, "probe_state", 10),
+        node.create_publisher(EpisodeMarker, "probe_marker", 10)]
+marker = EpisodeMarker(kind=EpisodeMarker.END, episode=2, task="dial", seed=-1, sketch=[3, 1, 4, 1],
+                       steps=120, success=True)
+marker.header.stamp.sec = 9
 boundary = SubtaskBoundary(node="/a/ompn_node", episode=3, step=41, subtask=2, subtask_id=7, score=0.25,
                            memory_level=2, decided_step=42, final=True)
 boundary.header.frame_id = "base_link"
@@ -32,12 +37,14 @@ boundary.header.stamp.sec = 12
 boundary.decided_stamp.nanosec = 5
 state = SubtaskState(episode=3, step=41, pi=[0.5, 0.25, 0.25], expected_position=1.75, pi_end=0.125)
 deadline = time.monotonic() + 20
-while len(got) < 2 and time.monotonic() < deadline:
+while len(got) < 3 and time.monotonic() < deadline:
     pubs[0].publish(boundary)
     pubs[1].publish(state)
+    pubs[2].publish(marker)
     rclpy.spin_once(node, timeout_sec=0.1)
 assert got.get("probe_boundary") == boundary, got
 assert got.get("probe_state") == state, got
+assert got.get("probe_marker") == marker, got
 print("roundtrip ok")
 """
 

@@ -27,16 +27,16 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from ompn_ros.app.errors import ClosedLoopError
 from ompn_ros.data.still import StillRuns
-from ompn_ros.model.build import PolicyModule
-from ompn_ros.model.checkpoint import load_checkpoint
-from ompn_ros.model.load import build_stepper
 from sim_nodes.registry import CRAFT_TASKS, CraftEnv, DialEnv, dial_episode_sketch
+
+if TYPE_CHECKING:  # the model (torch) loads with the first checkpoint, not for ompn_closed_loop --help
+    from ompn_ros.model.build import PolicyModule
 
 EVAL_SEED_BASE = 10_000
 """First evaluation seed; see the module docstring."""
@@ -116,6 +116,8 @@ def eval_seeds(n: int, base: int = EVAL_SEED_BASE) -> list[int]:
 def load_evaluated(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
     """The policy of checkpoint ``path`` and its record in the evaluation report (the checkpoint, its
     model config and the training iteration it was saved at)."""
+    from ompn_ros.model.checkpoint import load_checkpoint
+
     policy, extra = load_checkpoint(path)
     record = {"checkpoint": str(path), "config": policy.config.to_dict(), "iteration": extra.get("iteration")}
     return policy, record
@@ -124,6 +126,8 @@ def load_evaluated(path: str | Path) -> tuple[PolicyModule, dict[str, Any]]:
 def policy_agent(policy: PolicyModule) -> Agent:
     """The in-process agent of ``policy``: its streaming stepper
     (:func:`ompn_ros.model.load.build_stepper`), behind the still rule when the model has one."""
+    from ompn_ros.model.load import build_stepper
+
     stepper = build_stepper(policy)
     tolerance = float(getattr(policy.config, "still_tolerance", 0.0))
     return StillAgent(stepper, tolerance) if tolerance > 0 else stepper

@@ -17,15 +17,15 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ompn_ros.app import batch_table, shards
-from ompn_ros.app.batch import BatchSettings, preload, run_batch
-from ompn_ros.app.batch_bags import BatchBag, list_bags
-from ompn_ros.app.batch_pool import Stop
 from ompn_ros.app.errors import ReplayError
 from ompn_ros.app.segment_setup import detector_settings
 from ompn_ros.cli._common import make_parser
+
+if TYPE_CHECKING:  # the batch services load when a batch runs, not for --help
+    from ompn_ros.app.batch import BatchSettings
+    from ompn_ros.app.batch_bags import BatchBag
 
 SOME_REFUSED = 1
 """Exit status of a batch run in which some bags were refused (2: the run itself could not start)."""
@@ -54,6 +54,8 @@ def check_batch_arguments(args: argparse.Namespace) -> None:
         raise ReplayError(f"--jobs must be at least 1, got {args.jobs}")
     if args.num_shards is not None and not args.bags:
         raise ReplayError("--num-shards splits the bags of --bags: give --bags")
+    from ompn_ros.app import shards
+
     shards.check_shard(args.num_shards, args.shard_index)
 
 
@@ -71,6 +73,11 @@ def _check_copies(annotate: Path | None, bags: list[BatchBag]) -> None:
 def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     """Segment the bags of ``--bags`` (or of one shard of them) on ``device`` ('cpu' or 'cuda'); 0 when
     every bag was segmented, :data:`SOME_REFUSED` otherwise, ``128 + signal`` when stopped."""
+    from ompn_ros.app import batch_table, shards
+    from ompn_ros.app.batch import BatchSettings, preload, run_batch
+    from ompn_ros.app.batch_bags import list_bags
+    from ompn_ros.app.batch_pool import Stop
+
     preload(args.checkpoint, device)  # a bad checkpoint refuses the run, not every bag
     detector, line = detector_settings(args.checkpoint, args.detector_config)
     print(f"ompn_segment: {line}", file=sys.stderr)
@@ -109,6 +116,8 @@ def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
 
 def _manifest(settings: BatchSettings, shard: tuple[int | None, int | None], mine: list[tuple[int, str]],
               total: int, status: str) -> None:
+    from ompn_ros.app import shards
+
     count, index = shard
     if count is not None and index is not None:
         shards.write_manifest(settings.out, count, index, mine, total, settings.fingerprint(), status)
@@ -133,6 +142,8 @@ def aggregate_parser() -> argparse.ArgumentParser:
 
 def run_aggregate(args: argparse.Namespace) -> int:
     """Merge the shards under ``args.folders``: 0 when every shard finished and no bag was refused."""
+    from ompn_ros.app import batch_table, shards
+
     folders = [Path(f) for f in args.folders]
     out = Path(args.out) if args.out else folders[0]
     result = shards.aggregate(folders)

@@ -3,7 +3,8 @@
 A known error (:data:`ompn_ros.errors.KNOWN_ERRORS`: the package's own errors, ``OMPNError``, and the
 ``OSError`` s a path given by the user raises) is printed as one line ``<prog>: error: <message>``
 on stderr and the command exits with code 2; ``--debug`` shows the traceback instead.  Anything
-else, a plain ``ValueError`` included, is a bug and keeps its traceback.
+else, a plain ``ValueError`` included, is a bug and keeps its traceback.  Ctrl-C prints one line
+(what was kept, for ``ompn_train``: :mod:`ompn_ros.train.interrupt`) and exits with code 130.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from collections.abc import Callable, Sequence
 from ompn_ros.errors import KNOWN_ERRORS, error_line
 
 Body = Callable[[argparse.Namespace], int]
+INTERRUPTED = 130
+"""Exit code after Ctrl-C (128 + SIGINT, what a shell reports for a process SIGINT ended)."""
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
@@ -78,3 +81,8 @@ def run_cli(
             raise
         print(f"{parser.prog}: error: {error_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        if getattr(args, "debug", False):
+            raise
+        print(f"{parser.prog}: {error_line(exc) if str(exc) else 'interrupted'}", file=sys.stderr)
+        return INTERRUPTED

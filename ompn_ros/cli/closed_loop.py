@@ -21,8 +21,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from ompn_ros.app.closed_loop import (
     CRAFT_EVAL_TASKS,
     ClosedLoopReport,
@@ -102,6 +100,8 @@ def _evaluate(args: argparse.Namespace, meta: dict[str, Any]) -> dict[str, Close
 
 
 def _run(args: argparse.Namespace) -> int:
+    import torch  # here: --help stays light
+
     torch.set_num_threads(max(1, args.threads))
     meta: dict[str, Any] = {}
     try:

@@ -17,7 +17,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from ompn_ros.app.ensemble import write_ensemble_dir
 from ompn_ros.cli._common import make_parser, run_cli
 
 
@@ -29,6 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ompn_ros.app.ensemble import write_ensemble_dir  # here: --help stays light
+
     target, config = write_ensemble_dir(args.out, args.members, {"command": args.command_line})
     print(
         f"wrote {target}: {len(args.members)} members, obs_dim={config.obs_dim} n_slots={config.n_slots} "

@@ -29,14 +29,9 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
-
-from ompn_ros.app import replay, segment_setup
-from ompn_ros.app.detector_tuning import Tuned, tune_detector, write_tuned
-from ompn_ros.app.errors import ReplayError
-from ompn_ros.app.read_report import write_read_report
-from ompn_ros.app.replay import replay_all
+from ompn_ros.app import segment_setup
 from ompn_ros.app.segment_setup import (
     DEFAULT_OBJECTIVE,
     DEVICES,
@@ -54,6 +49,9 @@ from ompn_ros.cli._batch import (
 )
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.cli._dataset import add_dataset_arguments, run_dataset_cli
+
+if TYPE_CHECKING:
+    from ompn_ros.app.detector_tuning import Tuned
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -154,6 +152,9 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _tune(args: argparse.Namespace, tuned: Tuned) -> int:
+    from ompn_ros.app import replay
+    from ompn_ros.app.detector_tuning import write_tuned
+
     print(json.dumps(replay.json_safe(tuned.doc()), indent=1))
     if args.write_config:
         source = args.bag or f"{args.generate} generated {args.domain} episodes (seeds from {args.seed})"
@@ -163,6 +164,14 @@ def _tune(args: argparse.Namespace, tuned: Tuned) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import torch  # here, not at the top: --help stays light (bench/bench_startup.py)
+
+    from ompn_ros.app import replay
+    from ompn_ros.app.detector_tuning import tune_detector
+    from ompn_ros.app.errors import ReplayError
+    from ompn_ros.app.read_report import write_read_report
+    from ompn_ros.app.replay import replay_all
+
     device = segment_setup.replay_device(args.device)  # before any bag is read
     if args.dataset:
         return run_dataset_cli(args, device)

@@ -17,7 +17,9 @@ obs_dim, action_type and action_dim come from data.domain (ompn_ros.layout) or, 
 from the synthetic task; --set section.key=value overrides any entry (values are parsed as YAML).
 --out sets train.out_dir and must be empty unless --resume or --overwrite is given.  With
 data.on_error=skip_tail, a bag with a corrupt tail keeps the episodes before it; what the reader
-kept and dropped is printed and stored as OUT/read_report.json (and .txt).  With the reader's
+kept and dropped is printed and stored as OUT/read_report.json (and .txt), with whether the data is
+likely enough (demonstrations against the smallest measured runs); the last lines before the JSON
+summary say what to expect of the checkpoint.  With the reader's
 final_observation: auto, one run per option of final_options trains under OUT/final_observation/ and
 the one validation prefers is kept (OUT/final_observation.json).
 """
@@ -30,14 +32,12 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ompn_ros.app import training
-from ompn_ros.app.errors import TrainSetupError
-from ompn_ros.app.final_choice import train_auto
-from ompn_ros.app.read_report import write_read_report
-from ompn_ros.app.training import apply_overrides, load_config
 from ompn_ros.cli._common import make_parser, run_cli
+
+if TYPE_CHECKING:  # the services load when training runs, not for --help (torch: seconds)
+    from ompn_ros.app.training import TrainingData
 
 __all__ = ["build_parser", "main"]
 
@@ -79,6 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ompn_ros.app import training
+    from ompn_ros.app.data_amount import data_amount, expectation
+    from ompn_ros.app.errors import TrainSetupError
+    from ompn_ros.app.final_choice import train_auto
+    from ompn_ros.app.read_report import write_read_report
+    from ompn_ros.app.training import apply_overrides, load_config
+
     logging.basicConfig(
         level=logging.WARNING if args.quiet else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s: %(message)s",
@@ -102,15 +109,22 @@ def _run(args: argparse.Namespace) -> int:
         print(data.report["summary"], file=sys.stderr)
     else:
         data = training.bag_data(args.bags, config["data"], spec)
-        print(data.report["summary"], file=sys.stderr)
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)
+    amount = data_amount(data.episodes, train_config.val_ratio, training.labelled(train_config, data))
     if data.report:
+        data.report["summary"] = "\n".join([data.report["summary"], *amount.lines()])
+        data.report["data_amount"] = amount.to_dict()
+        print(data.report["summary"], file=sys.stderr)
         write_read_report(args.out, data.report)
-    _print_summary(training.run_training(data, model_config, train_config, args.out))
+    summary = training.run_training(data, model_config, train_config, args.out)
+    if summary is not None:
+        selection = train_config.selection if amount.labelled else "agreement"
+        print("\n".join(expectation(amount, selection, summary["best"])), file=sys.stderr)
+    _print_summary(summary)
     return 0
 
 
-def _print_read(option: str, data: training.TrainingData) -> None:
+def _print_read(option: str, data: TrainingData) -> None:
     print(f"final_observation: auto, row T read as '{option}':\n{data.report['summary']}", file=sys.stderr)
 
 

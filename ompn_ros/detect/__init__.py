@@ -1,30 +1,58 @@
 """Subtask-boundary detectors over expansion distributions (offline; the online ones live in
 ``ompn_ros.detect.online``) and the scoring and tuning of the online detector (``ompn_ros.detect.tune``)."""
 
-from ompn_ros.detect.errors import DetectorError, TuneError
-from ompn_ros.detect.offline import (
-    FALLBACK_THRESHOLD,
-    AutoThreshold,
-    auto_threshold,
-    auto_threshold_boundaries,
-    boundaries_from_threshold,
-    constrained_top_k_boundaries,
-    depth_scores,
-    pi_avg,
-    standardise,
-    threshold_boundaries,
-    top_k_boundaries,
-)
-from ompn_ros.detect.tune import (
-    DEFAULT_OBJECTIVE,
-    OBJECTIVES,
-    choose_on_replays,
-    compare_on_replays,
-    default_grid,
-    load_detector_yaml,
-    score_online,
-    write_node_config,
-)
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
+    from ompn_ros.detect.errors import DetectorError, TuneError
+    from ompn_ros.detect.offline import (
+        FALLBACK_THRESHOLD,
+        AutoThreshold,
+        auto_threshold,
+        auto_threshold_boundaries,
+        boundaries_from_threshold,
+        constrained_top_k_boundaries,
+        depth_scores,
+        pi_avg,
+        standardise,
+        threshold_boundaries,
+        top_k_boundaries,
+    )
+    from ompn_ros.detect.tune import (
+        DEFAULT_OBJECTIVE,
+        OBJECTIVES,
+        choose_on_replays,
+        compare_on_replays,
+        default_grid,
+        load_detector_yaml,
+        score_online,
+        write_node_config,
+    )
+
+_LAZY = {
+    "DetectorError": "ompn_ros.detect.errors",
+    "TuneError": "ompn_ros.detect.errors",
+    "FALLBACK_THRESHOLD": "ompn_ros.detect.offline",
+    "AutoThreshold": "ompn_ros.detect.offline",
+    "auto_threshold": "ompn_ros.detect.offline",
+    "auto_threshold_boundaries": "ompn_ros.detect.offline",
+    "boundaries_from_threshold": "ompn_ros.detect.offline",
+    "constrained_top_k_boundaries": "ompn_ros.detect.offline",
+    "depth_scores": "ompn_ros.detect.offline",
+    "pi_avg": "ompn_ros.detect.offline",
+    "standardise": "ompn_ros.detect.offline",
+    "threshold_boundaries": "ompn_ros.detect.offline",
+    "top_k_boundaries": "ompn_ros.detect.offline",
+    "DEFAULT_OBJECTIVE": "ompn_ros.detect.tune",
+    "OBJECTIVES": "ompn_ros.detect.tune",
+    "choose_on_replays": "ompn_ros.detect.tune",
+    "compare_on_replays": "ompn_ros.detect.tune",
+    "default_grid": "ompn_ros.detect.tune",
+    "load_detector_yaml": "ompn_ros.detect.tune",
+    "score_online": "ompn_ros.detect.tune",
+    "write_node_config": "ompn_ros.detect.tune",
+}
 
 __all__ = [
     "DEFAULT_OBJECTIVE",
@@ -49,3 +77,12 @@ __all__ = [
     "top_k_boundaries",
     "write_node_config",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value

@@ -26,7 +26,7 @@ import itertools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import yaml
@@ -38,14 +38,12 @@ from ompn_ros.detect.errors import TuneError
 from ompn_ros.detect.factory import make_detector
 from ompn_ros.detect.head import BoundaryHead, HeadDetector, decode_all
 from ompn_ros.detect.head_duration import HeadDurationDetector, decode_head_duration
+from ompn_ros.detect.online import DEFAULT_OBJECTIVE as DEFAULT_OBJECTIVE  # defined there: light for --help
 from ompn_ros.detect.online import MAX_OFFSET, MODES, BoundaryEvent, DetectorConfig, run_detector
+from ompn_ros.detect.online import OBJECTIVES as OBJECTIVES
+from ompn_ros.detect.online import Objective as Objective
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
-Objective = Literal["f1", "align"]
-OBJECTIVES: tuple[Objective, ...] = ("f1", "align")
-"""What tuning maximises first: boundary F1 at tolerance 1, or strict alignment accuracy."""
-DEFAULT_OBJECTIVE: dict[str, Objective] = {"craft": "f1", "dial": "align"}
-"""Per domain, the paper's headline metric (Craft: F1 of the boundaries; Dial: alignment)."""
 MATCH_TOLERANCE = 2
 """A detection within this many steps of a true boundary counts as that boundary (for delays)."""
 

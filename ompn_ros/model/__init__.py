@@ -4,20 +4,47 @@ Loading has one path: ``build.py`` (config -> model), ``checkpoint.py`` (files <
 ``load.py`` (path -> stepper: checkpoints, ensembles, the shipped checkpoint of a domain).
 """
 
-from ompn_ros.model.build import build_policy
-from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
-from ompn_ros.model.config import OMPNConfig
-from ompn_ros.model.errors import (
-    CheckpointError,
-    ConfigError,
-    LossInputError,
-    ModelInputError,
-    StreamingInputError,
-)
-from ompn_ros.model.load import Stepper, build_stepper, shipped_stepper, stepper_from_checkpoint
-from ompn_ros.model.loss import bc_loss
-from ompn_ros.model.policy import MemoryState, OMPNPolicy, SequenceOutput, StepTensors
-from ompn_ros.model.streaming import StepOutput, StreamingPolicy
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
+    from ompn_ros.model.build import build_policy
+    from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
+    from ompn_ros.model.config import OMPNConfig
+    from ompn_ros.model.errors import (
+        CheckpointError,
+        ConfigError,
+        LossInputError,
+        ModelInputError,
+        StreamingInputError,
+    )
+    from ompn_ros.model.load import Stepper, build_stepper, shipped_stepper, stepper_from_checkpoint
+    from ompn_ros.model.loss import bc_loss
+    from ompn_ros.model.policy import MemoryState, OMPNPolicy, SequenceOutput, StepTensors
+    from ompn_ros.model.streaming import StepOutput, StreamingPolicy
+
+_LAZY = {
+    "build_policy": "ompn_ros.model.build",
+    "load_checkpoint": "ompn_ros.model.checkpoint",
+    "save_checkpoint": "ompn_ros.model.checkpoint",
+    "OMPNConfig": "ompn_ros.model.config",
+    "CheckpointError": "ompn_ros.model.errors",
+    "ConfigError": "ompn_ros.model.errors",
+    "LossInputError": "ompn_ros.model.errors",
+    "ModelInputError": "ompn_ros.model.errors",
+    "StreamingInputError": "ompn_ros.model.errors",
+    "Stepper": "ompn_ros.model.load",
+    "build_stepper": "ompn_ros.model.load",
+    "shipped_stepper": "ompn_ros.model.load",
+    "stepper_from_checkpoint": "ompn_ros.model.load",
+    "bc_loss": "ompn_ros.model.loss",
+    "MemoryState": "ompn_ros.model.policy",
+    "OMPNPolicy": "ompn_ros.model.policy",
+    "SequenceOutput": "ompn_ros.model.policy",
+    "StepTensors": "ompn_ros.model.policy",
+    "StepOutput": "ompn_ros.model.streaming",
+    "StreamingPolicy": "ompn_ros.model.streaming",
+}
 
 __all__ = [
     "CheckpointError",
@@ -41,3 +68,12 @@ __all__ = [
     "shipped_stepper",
     "stepper_from_checkpoint",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value

@@ -89,8 +89,8 @@ from ompn_ros.ros.run import NodeProcess, run_node
 NODE_NAME = "bag_recorder"
 USAGE = "[TOPIC ...] [-o OUTPUT] [-s {mcap,sqlite3}]"
 DEFAULT_TOPICS = [
-    layout.EPISODE, layout.SKETCH, layout.OBSERVATION, layout.JOINT_STATES, layout.SUBTASK,
-    layout.ACTION, layout.RENDER,
+    layout.EPISODE_MARKER, layout.EPISODE, layout.SKETCH, layout.OBSERVATION, layout.JOINT_STATES,
+    layout.SUBTASK, layout.ACTION, layout.RENDER,
 ]
 # The single table behind the declared parameters and --help (ompn_ros.ros.params).
 PARAMS: tuple[ParamSpec, ...] = (

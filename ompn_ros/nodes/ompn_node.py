@@ -109,12 +109,11 @@ from ompn_ros.detect.settings import (
 )
 from ompn_ros.errors import OMPNError
 from ompn_ros.model.errors import CheckpointError, ConfigError
-from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_checkpoint import check_model, default_sketch, resolve_checkpoint
-from ompn_ros.nodes.ompn_node_inputs import NodeInputs
+from ompn_ros.nodes.ompn_node_inputs import MarkerTwins, NodeInputs
 from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, joint_input, load_spec
 from ompn_ros.nodes.ompn_node_params import EXECUTORS, OBS_SOURCES, SPECS
 from ompn_ros.ros.params import ParameterError, ParamTable
@@ -170,6 +169,7 @@ class OMPNNode(NodeInputs):
         self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
         self._missed_warned: set[str] = set()  # input topics whose first unreceived messages were warned
         self._lost_warned: set[str] = set()  # topics whose first middleware loss was warned
+        self._twins = MarkerTwins()  # a marker's typed and deprecated forms: one is handled
         self._n_slots = 0
         self._active = False
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits
@@ -267,7 +267,9 @@ class OMPNNode(NodeInputs):
         return TransitionCallbackReturn.SUCCESS
 
     def _configure(self) -> None:
-        import torch
+        import torch  # torch and the model load here, not at import: --help stays light
+
+        from ompn_ros.model.load import stepper_from_checkpoint
 
         torch.set_num_threads(int(self.values["torch_threads"]))
         spec = load_spec(str(self.values["observation_spec"]), self.get_namespace())

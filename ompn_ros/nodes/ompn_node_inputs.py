@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32MultiArray
 
 from ompn_ros import layout
-from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array
+from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array, parse_typed_marker
 from ompn_ros.data.obs import Decided, Drop
 from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, drop_line
 from ompn_ros.nodes.ompn_node_outputs import NodeOutputs
@@ -31,6 +31,34 @@ from ompn_ros.stream.rule import classify_stamp
 from ompn_ros.validate import BadStamp, FutureStamp, InvalidInput, MalformedMessage, WrongObservationLength
 
 MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
+MARKER_TOPICS = (layout.EPISODE_MARKER, layout.EPISODE)
+
+try:
+    from ompn_interfaces.msg import EpisodeMarker
+except ImportError:  # an ompn_interfaces built before the message: the deprecated markers only
+    EpisodeMarker = None
+
+
+class MarkerTwins:
+    """Keeps one of the two forms of one marker: the sims publish each marker typed (``episode_marker``)
+    and, for one release, as the deprecated ``DiagnosticArray`` (``episode``); DDS may deliver either
+    first.  A marker equal to the one just handled but of the other form is its twin and is dropped."""
+
+    def __init__(self) -> None:
+        self._last: tuple[bool, tuple[str, tuple[tuple[str, str], ...]]] | None = None
+        self.typed_seen = False
+        self.deprecated_handled = 0
+
+    def keep(self, typed: bool, kind: str, values: dict[str, str]) -> bool:
+        """Whether to handle this marker (``typed``: from ``episode_marker``)."""
+        identity = (kind, tuple(sorted(values.items())))
+        self.typed_seen = self.typed_seen or typed
+        if self._last is not None and self._last[1] == identity and self._last[0] != typed:
+            self._last = None
+            return False
+        self._last = (typed, identity)
+        self.deprecated_handled += not typed
+        return True
 
 
 class NodeInputs(NodeOutputs):
@@ -43,6 +71,7 @@ class NodeInputs(NodeOutputs):
     _sizes_reported: set[str]
     _missed_warned: set[str]  # topics whose first sequence gap was warned
     _lost_warned: set[str]  # topics whose first middleware loss was warned
+    _twins: MarkerTwins
 
     def subscribe_inputs(self) -> None:
         """The subscriptions of the configured input (on activation)."""
@@ -55,7 +84,10 @@ class NodeInputs(NodeOutputs):
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
-        self._subscribe(DiagnosticArray, layout.EPISODE, self._on_episode, markers, None)
+        if EpisodeMarker is not None:
+            self._subscribe(EpisodeMarker, layout.EPISODE_MARKER, self._on_typed_marker, markers, None,
+                            raw=True)
+        self._subscribe(DiagnosticArray, layout.EPISODE, self._on_episode, markers, None)  # deprecated
         self._subscribe(Int32MultiArray, layout.SKETCH, self._on_sketch, markers, None)
         if self.assembled is not None:
             self._subscribe_spec(self.assembled, inputs)
@@ -88,7 +120,7 @@ class NodeInputs(NodeOutputs):
     ) -> None:
         """Subscribe ``callback`` (``with_info``: it takes the message info too).  The input topics (those
         of ``obs_qos``) count the samples they never received (:meth:`_counted`)."""
-        lost = ("messages_lost", "markers_lost") if topic == layout.EPISODE else ("messages_lost",)
+        lost = ("messages_lost", "markers_lost") if topic in MARKER_TOPICS else ("messages_lost",)
         gaps = SequenceGaps() if param == "obs_qos" else None
         events = SubscriptionEventCallbacks(
             incompatible_qos=lambda info: self._qos_mismatch(topic, param, info),
@@ -328,12 +360,30 @@ class NodeInputs(NodeOutputs):
             "publish what the model was trained on, or use a checkpoint trained on this robot")
 
     # --- markers and sketches --------------------------------------------------------------------
+    def _on_typed_marker(self, raw: bytes) -> None:
+        try:
+            kind, values = parse_typed_marker(raw)
+        except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
+            self._reject(MalformedMessage(f"undecodable EpisodeMarker ({len(raw)} bytes): {exc}"))
+            return
+        self._on_marker(True, kind, values)
+
     def _on_episode(self, msg: DiagnosticArray) -> None:
-        self._release_held(None, flush=True)  # held steps belong to the episode before the marker
+        """The deprecated string-keyed marker (read for one release)."""
         for status in msg.status:
-            if status.name != layout.EPISODE_STATUS_NAME or self.stream.segmenter is None or not self._active:
-                continue
-            self.stream.marker(status.message, {kv.key: kv.value for kv in status.values})
+            if status.name == layout.EPISODE_STATUS_NAME:
+                self._on_marker(False, status.message, {kv.key: kv.value for kv in status.values})
+
+    def _on_marker(self, typed: bool, kind: str, values: dict[str, str]) -> None:
+        if self.stream.segmenter is None or not self._active or not self._twins.keep(typed, kind, values):
+            return
+        self._release_held(None, flush=True)  # held steps belong to the episode before the marker
+        if not self._twins.typed_seen and self._twins.deprecated_handled == 2:
+            self.get_logger().warning(
+                f"episode markers on '{layout.EPISODE}' (diagnostic_msgs/DiagnosticArray) are deprecated, "
+                f"read for one release: publish ompn_interfaces/msg/EpisodeMarker on "
+                f"'{layout.EPISODE_MARKER}'")
+        self.stream.marker(kind, values)
 
     def _on_sketch(self, msg: Int32MultiArray) -> None:
         if self.stream.segmenter is not None and self._active and len(msg.data) > 0:

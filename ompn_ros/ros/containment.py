@@ -39,10 +39,17 @@ def loopback_profile() -> Path:
     return config_file(PROFILE_NAME)
 
 
-def contain(env: MutableMapping[str, str]) -> MutableMapping[str, str]:
+def usable_domain(text: str) -> bool:
+    """Whether ``text`` is a domain ID ROS 2 can use on Linux: 0..101 or 215..232 (the others map to
+    ports inside the kernel's ephemeral range, where a participant may fail to bind)."""
+    return text.isdigit() and (0 <= int(text) <= 101 or 215 <= int(text) <= 232)
+
+
+def contain(env: MutableMapping[str, str], keep_user_domain: bool = False) -> MutableMapping[str, str]:
     """Set the contained DDS environment in ``env`` (in place; also returned).
 
-    Keeps a ``ROS_DOMAIN_ID`` in 1..100, else picks one at random.
+    Keeps a ``ROS_DOMAIN_ID`` in 1..100, else picks one at random; with ``keep_user_domain`` (the
+    commands a user runs: ``make demo``) any :func:`usable_domain` the user set is kept, 0 included.
     """
     profile = str(loopback_profile())
     for name in PROFILE_VARS:
@@ -51,6 +58,8 @@ def contain(env: MutableMapping[str, str]) -> MutableMapping[str, str]:
     env["ROS_STATIC_PEERS"] = ""
     env.pop("ROS_LOCALHOST_ONLY", None)
     domain = env.get("ROS_DOMAIN_ID", "")
+    if keep_user_domain and usable_domain(domain):
+        return env
     if not domain.isdigit() or not 1 <= int(domain) <= 100:
         env["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
     return env

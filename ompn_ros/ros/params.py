@@ -25,6 +25,7 @@ from typing import Any, Literal
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from ompn_ros.errors import OMPNError
 
@@ -135,6 +136,16 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]
     return ParamTable(specs).declare(node)
 
 
+def shown_default(default: Any) -> str:
+    """A default as ``--help`` and docs/parameters.md show it: a parameter declared by its type only (a
+    ``Parameter.Type``, e.g. an array that starts unset) as ``unset (string array)``, a string quoted,
+    anything else as written."""
+    if isinstance(default, Parameter.Type):
+        kind = default.name.lower().replace("_", " ")
+        return f"unset ({kind})"
+    return repr(default)
+
+
 def markdown_table(specs: Iterable[ParamSpec]) -> str:
     """The parameters as a Markdown table (name, default, allowed values, when a change applies,
     meaning): ``docs/parameters.md`` is generated from the nodes' own tables with this."""
@@ -143,7 +154,7 @@ def markdown_table(specs: Iterable[ParamSpec]) -> str:
         bounds = spec.int_range or spec.float_range
         allowed = (f"{bounds[0]:g} to {bounds[1]:g}" if bounds is not None
                    else ", ".join(f"`{c}`" if c else "`''`" for c in spec.choices) if spec.choices else "")
-        default = spec.default if not isinstance(spec.default, str) else f"'{spec.default}'"
+        default = shown_default(spec.default)
         text = spec.description.replace("|", "\\|")
         rows.append(f"| `{spec.name}` | `{default}` | {allowed} | {spec.apply} | {text} |")
     return "\n".join(rows)
@@ -159,7 +170,8 @@ def help_text(prog: str, description: str, specs: Iterable[ParamSpec], usage: st
         bounds = spec.int_range or spec.float_range
         rule = (f", {bounds[0]:g} to {bounds[1]:g}" if bounds is not None
                 else f", one of {list(spec.choices)}" if spec.choices else "")
-        lines.append(f"  {spec.name} (default {spec.default!r}{rule}; {spec.apply}): {spec.description}")
+        lines.append(f"  {spec.name} (default {shown_default(spec.default)}{rule}; {spec.apply}): "
+                     f"{spec.description}")
     return "\n".join(lines)
 
 

@@ -1,9 +1,23 @@
 """Offline behaviour-cloning training of the OMPN (single process or DDP under torchrun)."""
 
-from ompn_ros.train.config import TrainConfig
-from ompn_ros.train.errors import TrainConfigError, TrainDataError
-from ompn_ros.train.evaluation import decomposition_metrics, evaluate
-from ompn_ros.train.trainer import TrainResult, train
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
+    from ompn_ros.train.config import TrainConfig
+    from ompn_ros.train.errors import TrainConfigError, TrainDataError
+    from ompn_ros.train.evaluation import decomposition_metrics, evaluate
+    from ompn_ros.train.trainer import TrainResult, train
+
+_LAZY = {
+    "TrainConfig": "ompn_ros.train.config",
+    "TrainConfigError": "ompn_ros.train.errors",
+    "TrainDataError": "ompn_ros.train.errors",
+    "decomposition_metrics": "ompn_ros.train.evaluation",
+    "evaluate": "ompn_ros.train.evaluation",
+    "TrainResult": "ompn_ros.train.trainer",
+    "train": "ompn_ros.train.trainer",
+}
 
 __all__ = [
     "TrainConfig",
@@ -14,3 +28,12 @@ __all__ = [
     "evaluate",
     "train",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value

@@ -19,6 +19,7 @@ from ompn_ros.model.config import ACTION_NORMS, ActionNorm
 from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.device import DEVICES, Device
 from ompn_ros.train.errors import TrainConfigError
+from ompn_ros.train.threads import Threads, check_threads
 
 Selection = Literal["align", "f1_tol1", "val_loss", "agreement"]
 Labels = Literal["auto", "none"]
@@ -42,7 +43,7 @@ def _is_number(value: Any) -> bool:
 
 # TrainConfig's checks, by kind of field (__post_init__); the numbers are stored as floats
 _POSITIVE_INTS = ("batch_size", "bptt", "iterations", "eval_every", "eval_batch_size")
-_COUNTS = ("seed", "threads", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts")
+_COUNTS = ("seed", "eval_episodes", "patience", "agreement_warmup", "restart_at", "restarts")
 _AT_LEAST_ONE = ("candidates", "candidates_no_final")
 _FLAGS = ("resume", "tensorboard", "no_done_loss", "progress", "bf16", "force_bf16", "boundary_head")
 _NUMBERS: dict[str, tuple[Callable[[float], bool], str]] = {
@@ -93,7 +94,9 @@ class TrainConfig:
         resume: continue from ``out_dir/train_state`` if present.
         tensorboard: write TensorBoard scalars to ``out_dir/tb`` (if tensorboard is installed).
         no_done_loss: the "No Done" ablation (done steps leave the loss numerator).
-        threads: ``torch.set_num_threads`` value (0 = leave torch's default).
+        threads: torch threads: ``'auto'`` (the default: from the cores this process may use and the
+            machine's load, 1 per process when several train; :mod:`ompn_ros.train.threads`), an int
+            (``torch.set_num_threads``) or 0 (leave torch's default).
         selection: best-checkpoint criterion, one of ``SELECTIONS`` (see :mod:`ompn_ros.train.trainer`).
             ``'align'`` and ``'f1_tol1'`` need validation labels; without them (or with ``labels='none'``)
             ``'agreement'`` is used instead.
@@ -192,7 +195,7 @@ class TrainConfig:
     resume: bool = False
     tensorboard: bool = False
     no_done_loss: bool = False
-    threads: int = 1
+    threads: Threads = "auto"
     selection: Selection = "align"
     labels: Labels = "auto"
     patience: int = 0
@@ -232,6 +235,7 @@ class TrainConfig:
             need(_is_int(getattr(self, name)) and getattr(self, name) > 0, name, "must be a positive int")
         for name in _COUNTS:
             need(_is_int(getattr(self, name)) and getattr(self, name) >= 0, name, "must be an int >= 0")
+        check_threads(self.threads)
         for name in _AT_LEAST_ONE:
             need(_is_int(getattr(self, name)) and getattr(self, name) >= 1, name, "must be an int >= 1")
         need(

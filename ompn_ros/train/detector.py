@@ -58,6 +58,8 @@ from ompn_ros.detect.calibrate import (
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import DurationModelError
 from ompn_ros.detect.head import BoundaryHead
+from ompn_ros.detect.online import DURATION_DELAY as DURATION_DELAY  # defined with the detector, light
+from ompn_ros.detect.online import DURATION_LAG as DURATION_LAG
 from ompn_ros.detect.online import DURATION_MODE, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
 from ompn_ros.train.boundary_head import HeadChoice, fit_and_choose
@@ -71,12 +73,6 @@ LABEL_FREE_REFERENCE_MIN_LENGTH = 3
 """``min_length`` of its pooled constrained Top-K (docs/design.md#label-free-calibration)."""
 LABEL_FREE_MIN_LENGTH = 2
 """``min_length`` stored with label-free settings (the constrained Top-K's default)."""
-DURATION_LAG = 1
-"""Default ``train.detector_lag``: the 'hsmm' detector publishes a boundary at least ``lag + 1`` steps
-after its step (docs/design.md#duration-decoder)."""
-DURATION_DELAY = 6.0
-"""Default ``train.detector_delay``: the mean delay in steps the 'hsmm' detector's threshold may cost
-(docs/design.md#delay-budget)."""
 DURATION_GAIN = 0.01
 """Validation alignment the 'hsmm' detector must gain, and F1@1 it may lose at most, to be chosen."""
 

@@ -14,11 +14,12 @@ batch-1 replay is faster there).
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal, TypeVar, get_args
-
-import torch
+from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 from ompn_ros.train.errors import DeviceError
+
+if TYPE_CHECKING:  # torch loads when a function runs: DEVICES is offered by --help, which must stay light
+    import torch
 
 Device = Literal["auto", "cpu", "cuda"]
 DEVICES: tuple[Device, ...] = get_args(Device)
@@ -27,6 +28,8 @@ T = TypeVar("T")
 
 def resolve_device(name: str, setting: str = "train.device") -> torch.device:
     """The torch device of ``name``; :class:`DeviceError` for ``cuda`` without a GPU or an unknown name."""
+    import torch
+
     if name not in DEVICES:
         raise DeviceError(f"{setting} must be one of {DEVICES}, got {name!r}")
     if name == "auto":
@@ -39,6 +42,8 @@ def resolve_device(name: str, setting: str = "train.device") -> torch.device:
 
 def batch_to(batch: T, device: torch.device) -> T:
     """A copy of the dataclass ``batch`` with every tensor field on ``device`` (others kept as they are)."""
+    import torch
+
     assert dataclasses.is_dataclass(batch) and not isinstance(batch, type)
     moved = {f.name: getattr(batch, f.name).to(device) for f in dataclasses.fields(batch)
              if isinstance(getattr(batch, f.name), torch.Tensor)}
@@ -47,12 +52,16 @@ def batch_to(batch: T, device: torch.device) -> T:
 
 def device_of(module: torch.nn.Module) -> torch.device:
     """The device of ``module``'s first parameter (CPU for a module without any)."""
+    import torch
+
     return next((p.device for p in module.parameters()), torch.device("cpu"))
 
 
 def stray_tensors(module: torch.nn.Module, device: torch.device) -> list[str]:
     """Names of ``module``'s tensors not on ``device``: parameters, buffers and plain tensor attributes
     of every submodule (``Module.to`` moves only the first two)."""
+    import torch
+
     stray = [name for name, t in [*module.named_parameters(), *module.named_buffers()] if t.device != device]
     for prefix, sub in module.named_modules():
         for name, value in vars(sub).items():

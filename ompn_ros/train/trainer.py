@@ -41,7 +41,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, NoReturn, cast
 
 import numpy as np
 import torch
@@ -81,6 +81,7 @@ from ompn_ros.train.distributed import (
 )
 from ompn_ros.train.errors import TrainConfigError, TrainDataError, TrainStateError
 from ompn_ros.train.evaluation import evaluate, teacher_forced_outputs
+from ompn_ros.train.interrupt import StopRequest, TrainingInterrupted
 from ompn_ros.train.precision import resolve_bf16
 from ompn_ros.train.restart import (
     attempt_config,
@@ -102,6 +103,7 @@ from ompn_ros.train.state import (
     read_state,
     save_state,
 )
+from ompn_ros.train.threads import resolve_threads
 
 LOG = logging.getLogger("ompn_ros.train")
 
@@ -582,6 +584,11 @@ def _save_all(out_dir: Path, models: _Models, done: _Selected, extra: dict[str, 
     if is_best:
         save_checkpoint(out_dir / "best", evaluated, extra=extra)
     save_checkpoint(out_dir / "last", evaluated, extra=extra)
+    _save_state(out_dir, models, done, extra)
+
+
+def _save_state(out_dir: Path, models: _Models, done: _Selected, extra: dict[str, Any]) -> None:
+    """The resumable state of ``done.iteration`` (weights, Adam state, selection record)."""
     payload = {
         "frames": done.frames,
         "best_iteration": done.best_iteration,
@@ -593,7 +600,7 @@ def _save_all(out_dir: Path, models: _Models, done: _Selected, extra: dict[str, 
     def save_models(model_dir: Path) -> None:
         save_checkpoint(model_dir, models.policy, extra=extra)
         if models.average is not None:
-            save_checkpoint(model_dir.parent / "ema", evaluated, extra=extra)
+            save_checkpoint(model_dir.parent / "ema", models.evaluated, extra=extra)
 
     save_state(out_dir / "train_state", done.iteration, save_models, models.optimizer, payload)
 
@@ -612,8 +619,9 @@ class _Attempt:
         model_config = _with_action_norm(model_config, cfg.action_norm)
         _check_episodes(episodes, model_config)
         _check_dropout_range(cfg, model_config)
-        if cfg.threads:
-            torch.set_num_threads(cfg.threads)
+        self.threads = resolve_threads(cfg.threads)
+        if self.threads:
+            torch.set_num_threads(self.threads)
         torch.manual_seed(cfg.seed)
         self.cfg, self.model_config, self.attempt = cfg, model_config, attempt
         self.ctx, self.callback = ctx, callback
@@ -688,22 +696,52 @@ class _Attempt:
             progress = tqdm(total=cfg.iterations, initial=done.iteration, desc="train", unit="it",
                             leave=False)
         try:
-            while done.iteration < cfg.iterations and not stopped_early:
-                done.iteration += 1
-                stats = self._update(done.iteration, per_epoch)
-                if progress is not None:
-                    progress.update(1)
-                    progress.set_postfix(loss=f"{stats['loss']:.3f}")
-                if self.callback is not None:
-                    self.callback(done.iteration, stats)
-                if done.iteration % cfg.eval_every == 0 or done.iteration == cfg.iterations:
-                    stopped_early = self._evaluate(done.iteration, stats)
+            with StopRequest(enabled=self.ctx.world_size == 1) as stop:
+                if self.ctx.is_main and self.attempt == 0:
+                    LOG.info("training from iteration %d, torch threads: %d (train.threads=%s; Ctrl-C "
+                             "stops after the update under way)", done.iteration, torch.get_num_threads(),
+                             cfg.threads)
+                while done.iteration < cfg.iterations and not stopped_early:
+                    done.iteration += 1
+                    stats = self._update(done.iteration, per_epoch)
+                    if progress is not None:
+                        progress.update(1)
+                        progress.set_postfix(loss=f"{stats['loss']:.3f}")
+                    if self.callback is not None:
+                        self.callback(done.iteration, stats)
+                    if done.iteration % cfg.eval_every == 0 or done.iteration == cfg.iterations:
+                        stopped_early = self._evaluate(done.iteration, stats)
+                    if stop.requested:
+                        self._interrupted(saved=True)
+        except TrainingInterrupted:
+            raise
+        except KeyboardInterrupt:
+            self._interrupted(saved=False)
         finally:
             if progress is not None:
                 progress.close()
             if self.sinks is not None:
                 self.sinks.close()
         return stopped_early
+
+    def _interrupted(self, saved: bool) -> NoReturn:
+        """Ctrl-C (:mod:`ompn_ros.train.interrupt`): save the state of the update just finished
+        (``saved``) and raise :class:`TrainingInterrupted` naming what a resume continues from."""
+        iteration = self.done.iteration
+        if self.out_dir is None or not self.ctx.is_main:
+            raise TrainingInterrupted(f"interrupted at iteration {iteration} (nothing is kept without an "
+                                      "output directory)")
+        if saved:
+            _save_state(self.out_dir, self.models, self.done, {**self.extra_base, "iteration": iteration,
+                                                               "metrics": self.done.last_metrics})
+        latest = latest_state_dir(self.out_dir / "train_state")
+        if latest is None:
+            raise TrainingInterrupted(f"interrupted at iteration {iteration}, before the first saved state: "
+                                      "run the command again to start over")
+        kept = int(json.loads((latest / "state.json").read_text(encoding="utf-8"))["iteration"])
+        raise TrainingInterrupted(f"interrupted: the state of iteration {kept} is in "
+                                  f"{self.out_dir / 'train_state'}; add --resume to the same command to "
+                                  "go on")
 
     def run(self) -> TrainResult:
         """Train, bundle the detectors with ``best/`` and ``last/`` and say whether the restart rule

@@ -1,13 +1,15 @@
 """The messages of ``ompn_interfaces`` without ROS: field values, CDR encoders and the typestore entry.
 
 ``ompn_node`` publishes ``ompn_interfaces/msg/SubtaskBoundary`` on ``~/boundary`` and
-``ompn_interfaces/msg/SubtaskState`` on ``~/state``; ``ompn_segment --annotate`` writes the same
-types into annotated bags (the fields: ``ompn_interfaces/msg/*.msg``).  Both sides build the CDR
-here, so a consumer reads live and recorded events alike.  The encoders write the little-endian CDR
-layout of the ``.msg`` files directly (the boundary is the node's latency-critical output); rclpy and
-the ``rosbags`` typestore decode their bytes to the fields they were built from (tested).  Decoding
-here goes through the ``rosbags`` typestore, with the definitions read from the package's ``.msg``
-files (:func:`register_interfaces`).
+``ompn_interfaces/msg/SubtaskState`` on ``~/state``; the sims publish
+``ompn_interfaces/msg/EpisodeMarker`` on ``episode_marker`` (:func:`encode_typed_marker`, read back by
+:func:`parse_typed_marker` into the key/value form of the deprecated ``DiagnosticArray`` marker, so one
+code path reads both); ``ompn_segment --annotate`` writes the same types into annotated bags (the
+fields: ``ompn_interfaces/msg/*.msg``). Both sides build the CDR here, so a consumer reads live and
+recorded events alike. The encoders write the little-endian CDR layout of the ``.msg`` files directly
+(the boundary is the node's latency-critical output); rclpy and the ``rosbags`` typestore decode their
+bytes to the fields they were built from (tested). Decoding here goes through the ``rosbags`` typestore,
+with the definitions read from the package's ``.msg`` files (:func:`register_interfaces`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import os
 import struct
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -22,12 +25,25 @@ from typing import Any, Final, Protocol
 
 import numpy as np
 
-from .cdr import CDR_LE_HEADER, STAMP, U32, deserialize, split_stamp, stamp_to_ns, typestore
+from .cdr import (
+    CDR_LE_HEADER,
+    STAMP,
+    U32,
+    deserialize,
+    msg_class,
+    serialize,
+    split_stamp,
+    stamp_to_ns,
+    typestore,
+)
 
 INTERFACES_PACKAGE: Final = "ompn_interfaces"
 SUBTASK_BOUNDARY: Final = f"{INTERFACES_PACKAGE}/msg/SubtaskBoundary"
 SUBTASK_STATE: Final = f"{INTERFACES_PACKAGE}/msg/SubtaskState"
-INTERFACE_MESSAGES: Final = (SUBTASK_BOUNDARY, SUBTASK_STATE)
+EPISODE_MARKER: Final = f"{INTERFACES_PACKAGE}/msg/EpisodeMarker"
+INTERFACE_MESSAGES: Final = (SUBTASK_BOUNDARY, SUBTASK_STATE, EPISODE_MARKER)
+MARKER_KINDS: Final = ("start", "end")
+"""``EpisodeMarker.kind`` 0 and 1 by name (``layout.EPISODE_START``, ``layout.EPISODE_END``)."""
 SUBTASK_ID_UNKNOWN: Final = -1
 
 _BOUNDARY_MIDDLE = struct.Struct("<IIIifB3x")  # episode, step, subtask, subtask_id, score, level, pad
@@ -127,6 +143,41 @@ def encode_subtask_state(stamp_ns: int, frame_id: str, episode: int, step: int, 
         _STATE_COUNTS.pack(episode, step, values.size), values.tobytes(),
         struct.pack("<ff", expected_position, pi_end),
     ))  # fmt: skip
+
+
+# --- episode markers ------------------------------------------------------------------------------
+def encode_typed_marker(kind: str, stamp_ns: int, values: Mapping[str, object]) -> bytes:
+    """CDR of an ``EpisodeMarker``: ``kind`` ``'start'`` or ``'end'``, ``values`` the marker's keys
+    (``layout.KEY_*``: episode, task, seed, sketch at the start, steps and success at the end; missing
+    ones take the message's 'not known' values)."""
+    register_interfaces()
+    sketch = np.asarray(values.get("sketch", []), dtype=np.int32).reshape(-1)
+    msg = msg_class(EPISODE_MARKER)(
+        header=msg_class("std_msgs/msg/Header")(
+            stamp=msg_class("builtin_interfaces/msg/Time")(*split_stamp(stamp_ns)), frame_id=""),
+        kind=MARKER_KINDS.index(kind), episode=int(values.get("episode", 0)),  # type: ignore[call-overload]
+        task=str(values.get("task", "")), seed=int(values.get("seed", -1)),  # type: ignore[call-overload]
+        sketch=sketch, steps=int(values.get("steps", 0)),  # type: ignore[call-overload]
+        success=bool(values.get("success", False)),
+    )  # fmt: skip
+    return serialize(msg)
+
+
+def parse_typed_marker(raw: bytes | memoryview) -> tuple[str, dict[str, str]]:
+    """An ``EpisodeMarker`` CDR as ``(kind, values)``: the key/value strings the ``DiagnosticArray``
+    marker carries (the start's episode, task, seed, sketch; the end's episode, task, seed, steps,
+    success).  :class:`~.cdr.CdrError` on bytes that are not one, ``ValueError`` on an unknown kind."""
+    register_interfaces()
+    msg = deserialize(raw, EPISODE_MARKER)
+    if msg.kind >= len(MARKER_KINDS):
+        raise ValueError(f"EpisodeMarker kind {msg.kind} is neither START (0) nor END (1)")
+    kind = MARKER_KINDS[msg.kind]
+    values = {"episode": str(msg.episode), "task": str(msg.task), "seed": str(msg.seed)}
+    if kind == "start":
+        values["sketch"] = ",".join(str(int(v)) for v in msg.sketch)
+    else:
+        values.update(steps=str(msg.steps), success="true" if msg.success else "false")
+    return kind, values
 
 
 # --- the typestore entry --------------------------------------------------------------------------

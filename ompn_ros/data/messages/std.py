@@ -23,6 +23,7 @@ from ompn_ros import layout
 from ompn_ros.validate import parse_sketch_text
 
 from .cdr import CDR_LE_HEADER, I32, INT32_MAX, INT32_MIN, CdrWriter, deserialize, msg_class, split_stamp
+from .interfaces import parse_typed_marker
 
 
 # --- builders -------------------------------------------------------------------------------------
@@ -239,8 +240,13 @@ def encode_episode_marker(kind: str, stamp_ns: int, values: Mapping[str, object]
 
 
 # --- parsers --------------------------------------------------------------------------------------
-def parse_marker(raw: bytes | memoryview) -> tuple[str, dict[str, str]] | None:
-    """Decode an episode marker: ``(kind, values)`` or ``None`` if it is not an episode status."""
+def parse_marker(raw: bytes | memoryview, msgtype: str = layout.DIAGNOSTIC_ARRAY
+                 ) -> tuple[str, dict[str, str]] | None:
+    """Decode an episode marker of either form: ``(kind, values)``, or ``None`` for a ``DiagnosticArray``
+    without an episode status.  ``msgtype``: ``layout.EPISODE_MARKER`` (the typed marker) or
+    ``layout.DIAGNOSTIC_ARRAY`` (the string-keyed form, deprecated, still read)."""
+    if msgtype == layout.EPISODE_MARKER_TYPE:
+        return parse_typed_marker(raw)
     msg = deserialize(raw, layout.DIAGNOSTIC_ARRAY)
     for status in msg.status:
         if status.name == layout.EPISODE_STATUS_NAME:

@@ -18,7 +18,7 @@ from ..messages.types import TypeDefinitionError, ensure, known
 from ..obs.spec import ObservationSpec, canonical_type
 from .raw import RawBag
 from .report import BagReport
-from .spec import ACTION_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
+from .spec import ACTION_TYPES, MARKER_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
 
 
 @dataclass(frozen=True)
@@ -165,6 +165,17 @@ class BagContext:
         self.report.notes.append(f"spec topic '{name}' ({topic}) is not in the bag: not used")
         return None
 
+    def _episode_topic(self) -> str | None:
+        """The episode markers' topic: with the spec's default name (``episode``), the typed
+        ``episode_marker`` when the bag has it; otherwise the topic the spec names."""
+        spec = self.spec
+        if spec.episode == layout.EPISODE:
+            typed = resolve_topic(layout.EPISODE_MARKER, spec.namespace)
+            suffixed = [t for t in self.raw.types if t.endswith("/" + layout.EPISODE_MARKER)]
+            if typed in self.raw.types or len(suffixed) == 1:
+                return self.resolve(layout.EPISODE_MARKER, False)
+        return self.resolve(spec.episode, spec.split == "markers")
+
     def resolve_all(self) -> Topics:
         """Resolve and type-check every topic of the spec (raises on a missing required one)."""
         spec = self.spec
@@ -180,14 +191,16 @@ class BagContext:
             act_type=self.check_source(act, spec.action, ACTION_TYPES),
             sub=sub, labels=labels,
             sketch=self.resolve(spec.sketch, False),
-            episode=self.resolve(spec.episode, spec.split == "markers"),
+            episode=self._episode_topic(),
             joints=self.resolve(spec.joint_states, False),
             split=self.resolve(spec.split_topic, True) if spec.split == "topic" else None,
         )
-        for topic, kind in ((topics.sketch, layout.INT32_ARRAY), (topics.episode, layout.DIAGNOSTIC_ARRAY),
-                            (topics.joints, layout.JOINT_STATE)):
+        for topic, kind in ((topics.sketch, layout.INT32_ARRAY), (topics.joints, layout.JOINT_STATE)):
             if topic:
                 self.check_type(topic, (kind,), kind)
+        if topics.episode:  # the typed marker, or the DiagnosticArray form (deprecated, still read)
+            m.register_interfaces()
+            self.check_type(topics.episode, MARKER_TYPES, None)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
             if spec.subtask_field is not None:
                 label = VectorSource(sub, spec.subtask_type, field=spec.subtask_field)

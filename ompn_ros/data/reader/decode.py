@@ -280,7 +280,7 @@ def _markers(ctx: BagContext, topic: str) -> list[Marker]:
     markers: list[Marker] = []
     for i, data in enumerate(raws):
         try:
-            parsed = m.parse_marker(data)
+            parsed = m.parse_marker(data, ctx.raw.types[topic])
         except Exception as err:  # rosbags raises several types on bad CDR
             raise CorruptBagError(f"cannot decode episode marker: {err}", path=ctx.path, topic=topic,
                                   index=i, stamp=int(stamps[i])) from err

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import yaml
 
+from ompn_ros import layout
 from ompn_ros.layout import resolve_topic
 
 from ..errors import BagNotFoundError
@@ -181,4 +182,6 @@ def spec_topic_names(spec: ReaderSpec) -> list[str]:
     observed = list(spec.assemble.topics) if spec.assemble is not None else [spec.observation.topic]
     names = [*observed, spec.action.topic, spec.subtask, spec.sketch, spec.episode, spec.joint_states,
              spec.split_topic]
+    if spec.episode == layout.EPISODE:  # the typed markers, read instead when the bag has them
+        names.append(layout.EPISODE_MARKER)
     return [n for n in names if n is not None]

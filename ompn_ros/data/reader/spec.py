@@ -42,6 +42,7 @@ VECTOR_TYPES = (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
 ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout.JOINT_STATE)
 """The types read without a ``field`` path (the hand-written fast parsers); any other type is read
 through a ``field`` path (:mod:`ompn_ros.data.messages.fieldpath`, docs/specs.md)."""
+MARKER_TYPES = (layout.EPISODE_MARKER_TYPE, layout.DIAGNOSTIC_ARRAY)  # typed; string-keyed (deprecated)
 
 
 @dataclass(frozen=True)

@@ -102,10 +102,10 @@ class EpisodeBagWriter:
             raise BagError("output exists; the writer never overwrites a bag", path=self.path)
         self._writer = DurableWriter(self.path, version=9, storage_plugin=self._plugin)
         self._writer.open()
-        ts = m.typestore()
+        ts = m.register_interfaces()  # EpisodeMarker
         for name, typename in layout.topic_types(self.domain).items():
-            if name == layout.RENDER:
-                continue  # ompn_collect has no renderer; live sims publish it
+            if name in (layout.RENDER, layout.EPISODE):
+                continue  # no renderer; the markers are typed (the sims also publish the deprecated form)
             topic = resolve_topic(name, self.namespace)
             self._conns[name] = self._writer.add_connection(topic, typename, typestore=ts)
             self.stats.messages[topic] = 0
@@ -122,6 +122,10 @@ class EpisodeBagWriter:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+    def _markers(self, kind: str, stamp: int, values: dict[str, object]) -> None:
+        """An episode marker, typed (``EpisodeMarker`` on ``episode_marker``)."""
+        self._write(layout.EPISODE_MARKER, stamp, m.encode_typed_marker(kind, stamp, values))
 
     def _write(self, name: str, stamp: int, raw: bytes) -> None:
         conn = self._conns[name]
@@ -144,8 +148,8 @@ class EpisodeBagWriter:
         off = layout.TOPIC_OFFSET_NS
         sketch = None if episode.sketch is None else np.asarray(episode.sketch, dtype=np.int64)
 
-        self._write(layout.EPISODE, t0, m.serialize(m.episode_marker(
-            layout.EPISODE_START, t0, m.start_marker_values(index, episode.task, episode.seed, sketch))))
+        start = m.start_marker_values(index, episode.task, episode.seed, sketch)
+        self._markers(layout.EPISODE_START, t0, start)
         if sketch is not None:
             self._write(layout.SKETCH, t0 + off, m.serialize(m.int32_array(sketch)))
 
@@ -170,9 +174,8 @@ class EpisodeBagWriter:
                 self._write(layout.SUBTASK, base + slot[layout.SUBTASK] * off, m.encode_int32(sub[t]))
             self._write(layout.ACTION, base + slot[layout.ACTION] * off, act_raw[t])
         end = t0 + (T + 1) * layout.STEP_NS + END_MARKER_OFFSET_NS
-        self._write(layout.EPISODE, end, m.serialize(m.episode_marker(
-            layout.EPISODE_END, end,
-            m.end_marker_values(index, episode.task, episode.seed, T, episode.success))))
+        self._markers(layout.EPISODE_END, end, m.end_marker_values(index, episode.task, episode.seed, T,
+                                                                   episode.success))
         self._cursor = end + layout.EPISODE_GAP_NS
         self.stats.episodes += 1
         self.stats.steps += T
