@@ -52,7 +52,7 @@ def _arm_bag(path: Path, episodes: list) -> list[np.ndarray]:
                 joint_state(t - 3 * MS, names, position=obs.astype(np.float64)),
             )
             bag.add(
-                "/arm/first", "std_msgs/msg/Float32", t + 1000, scalar("std_msgs/msg/Float32", float(obs[0]))
+                "/arm/first", "std_msgs/msg/Float32", t - MS, scalar("std_msgs/msg/Float32", float(obs[0]))
             )
             if row < ep.length:
                 bag.add(
@@ -73,7 +73,7 @@ def _spec(path: Path, assemble: bool) -> Path:
     observation = (
         {"assemble": {"step_topic": "joint_states", "tolerance_s": 0.01, "stamp": "receive", "fields": [
             {"topic": "joint_states", "type": "sensor_msgs/msg/JointState", "field": "position"},
-            {"topic": "first", "type": "std_msgs/msg/Float32"}]}}
+            {"topic": "first", "type": "std_msgs/msg/Float32", "field": "data"}]}}
         if assemble else
         {"observation": {"topic": "joint_states", "type": "sensor_msgs/msg/JointState",
                          "fields": ["position"]}, "stamp": "header"})  # fmt: skip
@@ -242,9 +242,9 @@ node = rclpy.create_node("bag_player")
 with Reader(bag) as reader:
     conn = next(c for c in reader.connections if c.topic == topic)
     qos = conn.ext.offered_qos_profiles[0]
-    profile = QoSProfile(depth=qos.depth, history=HistoryPolicy(int(qos.history)),
-                         reliability=ReliabilityPolicy(int(qos.reliability)),
-                         durability=DurabilityPolicy(int(qos.durability)))
+    profile = QoSProfile(depth=qos.depth, history=HistoryPolicy(qos.history.value),
+                         reliability=ReliabilityPolicy(qos.reliability.value),
+                         durability=DurabilityPolicy(qos.durability.value))
     raws = [bytes(raw) for _, _, raw in reader.messages(connections=[conn])]
 pub = node.create_publisher(SubtaskBoundary, topic, profile)
 deadline = time.monotonic() + 60

@@ -250,8 +250,9 @@ def test_refuses_mismatched_replay_outputs(recorded, tmp_path: Path) -> None:
     backwards = [(stamps[0][::-1].copy(), results[0])]
     with pytest.raises(AnnotateError, match="episode #0: observation stamps are not strictly increasing"):
         annotate_bag(bag, tmp_path / "o", backwards)
+    bare = dataclasses.replace(episodes[0], extras={})  # stamps neither given nor read with it
     with pytest.raises(AnnotateError, match=r"episode #0 .*extras\['obs_stamp_ns'\]"):
-        annotate_bag(bag, tmp_path / "o", [(episodes[0], results[0])])
+        annotate_bag(bag, tmp_path / "o", [(bare, results[0])])
     assert not (tmp_path / "o").exists()
 
 
