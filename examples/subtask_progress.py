@@ -11,38 +11,35 @@ prints, per boundary, e.g.::
     [/ompn_node] episode 3: subtask 2 (id 7) done at step 41, score 0.83, decided 1 step later
     [/ompn_node] episode 3 finished: 4 subtasks, last step 57
 
-Every episode ends with exactly one ``final`` boundary; when the node had already published the
-boundary at the episode's last step, the final one repeats it (same episode and subtask): it is
-counted once here.  Only rclpy and ``ompn_interfaces`` are needed.
+One message per finished subtask (``kind`` ``SUBTASK_END``), never repeated; every episode ends with
+exactly one ``final`` message: its last subtask's end, or an ``EPISODE_END`` that reports no subtask
+(the end of the last subtask came before).  No deduplication is needed.  Only rclpy and
+``ompn_interfaces`` are needed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
+EPISODE_END = 1  # SubtaskBoundary.EPISODE_END (the constant of the message, kept ROS-free here)
 
-@dataclass
+
 class Progress:
     """Turns boundaries into progress lines (ROS-free: the node below feeds it messages)."""
-
-    seen: set[tuple[str, int, int]] = field(default_factory=set)  # (node, episode, subtask)
 
     def lines(self, msg: Any) -> list[str]:
         """The lines for one ``SubtaskBoundary`` (``msg`` has its fields as attributes)."""
         out = []
-        key = (msg.node, msg.episode, msg.subtask)
-        if key not in self.seen:
-            self.seen.add(key)
+        ended_subtask = msg.kind != EPISODE_END
+        if ended_subtask:
             known = f" (id {msg.subtask_id})" if msg.subtask_id >= 0 else ""
             lag = msg.decided_step - msg.step
             out.append(f"[{msg.node}] episode {msg.episode}: subtask {msg.subtask}{known} done at step "
                        f"{msg.step}, score {msg.score:.2f}, decided {lag} step{'s' * (lag != 1)} later")
-        if msg.final:
-            subtasks = sum(1 for n, e, _ in self.seen if (n, e) == (msg.node, msg.episode))
+        if msg.final:  # the episode's subtasks: ordinals 0 .. subtask (an episode end carries the count)
+            subtasks = msg.subtask + 1 if ended_subtask else msg.subtask
             out.append(f"[{msg.node}] episode {msg.episode} finished: {subtasks} subtasks, "
                        f"last step {msg.step}")
-            self.seen = {k for k in self.seen if k[:2] != (msg.node, msg.episode)}
         return out
 
 

@@ -62,6 +62,24 @@ STATE: Final = "~/state"  # ompn_interfaces/msg/SubtaskState: ~/pi with named fi
 BOUNDARY: Final = "~/boundary"  # ompn_interfaces/msg/SubtaskBoundary boundary event
 DIAGNOSTICS: Final = "/diagnostics"  # DiagnosticArray node health (counters)
 
+
+@dataclass(frozen=True)
+class OutputQos:
+    """The QoS ``ompn_node`` offers on one output topic: RELIABLE and KEEP_LAST always, ``depth`` deep,
+    TRANSIENT_LOCAL or VOLATILE.  The node builds its publishers from these values and annotated bags
+    record them as the topic's ``offered_qos_profiles``, so a player that honours them (``ros2 bag
+    play``) offers what the node offers."""
+
+    depth: int
+    transient_local: bool = False
+
+
+PER_STEP_QOS: Final = OutputQos(depth=100)  # ~/pi, ~/state, cmd_action (depth: parameter qos_depth)
+BOUNDARY_QOS: Final = {  # ~/boundary by parameter boundary_replay
+    "last": OutputQos(depth=1, transient_local=True),  # a late subscriber gets the last event
+    "none": OutputQos(depth=100),  # VOLATILE: nothing old is replayed
+}
+
 # --- episode marker keys (DiagnosticStatus.name == EPISODE_STATUS_NAME) ----------------------------
 EPISODE_STATUS_NAME: Final = "episode"
 EPISODE_START: Final = "start"  # DiagnosticStatus.message

@@ -47,12 +47,13 @@ def f1_with_tolerance(pred: Sequence[int] | np.ndarray, gt: Sequence[int] | np.n
     ``precision = #{p ∈ pred : ∃ g ∈ gt, |p − g| ≤ tol} / #pred`` and
     ``recall = #{g ∈ gt : ∃ p ∈ pred, |g − p| ≤ tol} / #gt``; ``F1 = 2PR / (P + R)`` or 0 if
     ``P + R = 0``.  **Not one-to-one**: one prediction may cover several ground-truth boundaries and
-    vice versa (the authors' definition; the paper labels the recall formula "precision").  An empty
-    ``pred`` gives precision 0; an empty ``gt`` gives recall 0.
+    vice versa (the authors' definition; the paper labels the recall formula "precision").  A step
+    predicted twice is one boundary (an episode end at the step of the last subtask's end:
+    docs/design.md#episode-end).  An empty ``pred`` gives precision 0; an empty ``gt`` gives recall 0.
     """
     if int(tol) != tol or tol < 0:
         raise MetricError(f"tol must be a non-negative integer, got {tol!r}")
-    p = _as_index_array(pred, "pred")
+    p = np.unique(_as_index_array(pred, "pred"))
     g = _as_index_array(gt, "gt")
     if p.size == 0 or g.size == 0:
         # no prediction: nothing is precise and no GT boundary is found; no GT: nothing to recall and

@@ -223,8 +223,9 @@ class StreamingSegmenter:
         return SegmenterOutput(out, boundary, self._step_index, score, level)
 
     def end_episode(self, last_step: int | None = None) -> list[BoundaryEvent]:
-        """Close the current episode: the boundaries that close it, the final one last (see
-        ``OnlineDetector.end_episode``; the duration decoder also decides the steps still in its lag).
+        """Close the current episode: the events that close it, the ``final`` one last (the last
+        segment's boundary or the episode end, see ``OnlineDetector.end_episode``; the duration decoder
+        also decides the steps still in its lag).
 
         ``last_step`` lets the caller exclude the final 'done' observation: with the layout's step
         contract an episode of ``T`` real steps publishes ``T + 1`` observations, so pass ``T - 1``.
@@ -280,10 +281,13 @@ class ReplayResult:
     expected_position: np.ndarray  # [T]
     scores: np.ndarray  # [T]
     boundaries: list[BoundaryEvent] = field(default_factory=list)
+    """One event per subtask the episode reported, within its ``T`` real steps (a boundary decided on
+    the final observation, row T, ends step T - 1); the episode end is not among them."""
     actions: list[Any] = field(default_factory=list)
     published: list[BoundaryEvent] = field(default_factory=list)
-    """Every boundary ``ompn_node`` publishes for the episode, in order: ``boundaries``, one the
-    detector commits at the done step (row T), and the last one again with ``final`` set."""
+    """Every event ``ompn_node`` publishes on ``~/boundary`` for the episode, in order: one per subtask,
+    the last event ``final`` (the episode end when no subtask ended with the episode,
+    docs/design.md#episode-end)."""
     outputs: np.ndarray | None = None
     """``[T, n + 1 + A]``: what the boundary head reads (:func:`~ompn_ros.detect.head.head_outputs`)."""
     run_ends: np.ndarray | None = None
@@ -293,4 +297,7 @@ class ReplayResult:
 
     @property
     def boundary_steps(self) -> np.ndarray:
-        return np.array([b.step for b in self.boundaries], dtype=np.int64)
+        """The boundaries the metrics score: every subtask's end and the episode's last step ``T - 1``
+        (Algorithm 1 appends it), each step once, sorted."""
+        steps = [b.step for b in self.boundaries] + ([len(self.scores) - 1] if len(self.scores) else [])
+        return np.unique(np.array(steps, dtype=np.int64))

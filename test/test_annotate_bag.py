@@ -30,7 +30,7 @@ from ompn_ros.app.errors import AnnotateError  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.reader import read_episodes  # noqa: E402
 from ompn_ros.data.recorder.bag_writer import write_episodes  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.policy import OMPNPolicy  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
@@ -162,7 +162,7 @@ def test_boundary_events_match_the_replay(recorded, annotated) -> None:
     out, report = annotated
     events = _decoded(out, BOUNDARY)
     want = [(i + 1, st, b)
-            for i, (st, r) in enumerate(zip(stamps, results)) for b in with_final(r.boundaries)]
+            for i, (st, r) in enumerate(zip(stamps, results)) for b in r.published]
     assert len(events) == len(want) == report.added[BOUNDARY]
     assert sum(b.final for *_, b in want) == len(results)  # one final boundary per episode
     for (log_time, msg), (episode, st, b) in zip(events, want):
@@ -218,7 +218,7 @@ def test_sqlite3_input(tmp_path: Path) -> None:
     with AnyReader([tmp_path / "out_db"]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert db3.copied == report.copied and counts[PI] == report.steps
-    assert counts[BOUNDARY] == sum(len(with_final(r.boundaries)) for _, r in outputs)
+    assert counts[BOUNDARY] == sum(len(r.published) for _, r in outputs)
 
 
 def test_refuses_bad_input_and_existing_output(recorded, annotated, tmp_path: Path) -> None:
@@ -250,8 +250,9 @@ def test_refuses_mismatched_replay_outputs(recorded, tmp_path: Path) -> None:
     backwards = [(stamps[0][::-1].copy(), results[0])]
     with pytest.raises(AnnotateError, match="episode #0: observation stamps are not strictly increasing"):
         annotate_bag(bag, tmp_path / "o", backwards)
+    bare = dataclasses.replace(episodes[0], extras={})  # stamps neither given nor read with it
     with pytest.raises(AnnotateError, match=r"episode #0 .*extras\['obs_stamp_ns'\]"):
-        annotate_bag(bag, tmp_path / "o", [(episodes[0], results[0])])
+        annotate_bag(bag, tmp_path / "o", [(bare, results[0])])
     assert not (tmp_path / "o").exists()
 
 

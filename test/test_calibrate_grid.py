@@ -38,7 +38,7 @@ def test_grid_masks_equal_the_online_detector() -> None:
     marks = detect_grid(scores, grid)
     for g in range(0, len(grid), 7):
         for e, s in enumerate(scores):
-            steps = [ev.step for ev in detect_sequence(s, grid[g])]
+            steps = sorted({ev.step for ev in detect_sequence(s, grid[g])})  # the episode end once
             assert np.flatnonzero(marks[g, e]).tolist() == steps, (grid[g], e)
 
 
@@ -48,7 +48,7 @@ def test_grid_masks_with_an_offset_equal_the_online_detector() -> None:
     marks = detect_grid(scores, grid)
     for g, cfg in enumerate(grid):
         for e, s in enumerate(scores):
-            steps = [ev.step for ev in detect_sequence(s, cfg)]
+            steps = sorted({ev.step for ev in detect_sequence(s, cfg)})
             assert np.flatnonzero(marks[g, e]).tolist() == steps, (cfg, e)
 
 

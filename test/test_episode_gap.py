@@ -24,7 +24,7 @@ from test_node_poison import active_node as poison_active_node  # noqa: E402 (pu
 
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.ros.params import ParameterError  # noqa: E402
@@ -99,7 +99,7 @@ def replay(ckpt: Path, obs: np.ndarray, stamps: list[int]) -> list[tuple[int, st
         event = seg.step(x, s).boundary
         if event is not None:
             out.append(event)
-    out = with_final(out + seg.end_episode(len(obs) - 1))
+    out = out + seg.end_episode(len(obs) - 1)
     return [(e.step, f"{float(np.float32(e.score)):.6f}", e.stamp_ns, str(e.final).lower()) for e in out]
 
 

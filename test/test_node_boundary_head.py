@@ -21,7 +21,7 @@ from ompn_ros.detect.calibrate import scores_from_p_hats  # noqa: E402
 from ompn_ros.detect.duration import fit_duration_model  # noqa: E402
 from ompn_ros.detect.head import HeadDetector, decode_rows  # noqa: E402
 from ompn_ros.detect.head_duration import HeadDurationDetector, decode_head_duration  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig, subtask_ends  # noqa: E402
 from ompn_ros.detect.settings import load_detector_settings, save_detector_settings  # noqa: E402
 from ompn_ros.model.checkpoint import load_checkpoint  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
@@ -70,7 +70,7 @@ def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: 
         replay = replay_episode(offline, stream, include_done_step=True)
         want = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in replay.published]
         assert got == want, (i, got, want)
-        end = replay.boundaries[-1].detected_at  # the episode end decides its last steps
+        end = replay.published[-1].detected_at  # the episode end decides its last steps
         lag = seg.detector_config.lag
         if mode == "head":
             assert all(b.detected_at in (b.step + lag + 1, end) for b in replay.boundaries)
@@ -81,7 +81,8 @@ def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: 
         rows = seg.head.probabilities(replay.outputs)
         batch = (decode_rows(rows, seg.detector_config, seg.head.peak) if mode == "head"
                  else decode_head_duration(seg.duration_model, rows, seg.detector_config))  # type: ignore[arg-type]
-        assert [b.step for b in batch] == [b.step for b in replay.boundaries]
+        assert [b.step for b in subtask_ends(batch)] == [b.step for b in replay.boundaries]
+        assert batch[-1].final and [b.episode_end for b in batch] == [b.episode_end for b in replay.published]
     assert inner > 3
     if mode == "head":
         result = node.set_parameters([Parameter("detector_lag", value=seg.head.max_lag + 1)])[0]

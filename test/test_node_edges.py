@@ -54,11 +54,11 @@ def test_a_joint_count_mismatch_is_one_error_then_counted(ctx, ckpt: Path, capfd
     node.destroy_node()
 
 
-def test_an_episode_whose_last_boundary_came_early_still_ends_with_a_final_one(ctx, ckpt: Path) -> None:
-    """The detector published the boundary at the episode's last step before the end marker, so
-    closing the episode adds nothing: the node repeats that boundary with final set (issue: 'final'
-    came with the end of only some episodes)."""
-    from ompn_ros.data.messages import decode_subtask_boundary
+def test_an_episode_whose_last_boundary_came_early_ends_with_one_episode_end(ctx, ckpt: Path) -> None:
+    """The detector published the boundary at the episode's last step before the end marker, so the
+    episode's end closes no subtask: the node publishes one EPISODE_END (final, the subtask count, no
+    id), never the last boundary again (docs/design.md#episode-end)."""
+    from ompn_ros.data.messages import EPISODE_END, SUBTASK_END, decode_subtask_boundary
     from ompn_ros.detect.online import BoundaryEvent
 
     overrides = [Parameter("checkpoint", value=str(ckpt)), Parameter("max_stamp_lead", value=0.0)]
@@ -72,11 +72,11 @@ def test_an_episode_whose_last_boundary_came_early_still_ends_with_a_final_one(c
         node.process_observation(torch.zeros(OBS_DIM).numpy(), (t + 1) * 10**9)
     early = BoundaryEvent(step=2, detected_at=2, subtask=0, score=0.9, level=1, stamp_ns=3 * 10**9)
     node.publish_boundary(early)  # as the detector does at the done step
-    node.segmenter.end_episode = lambda last_step=None: []  # nothing left to close
+    closing = BoundaryEvent(step=2, detected_at=2, subtask=1, score=0.0, level=0, stamp_ns=3 * 10**9,
+                            final=True, episode_end=True)  # what the detector closes it with
+    node.segmenter.end_episode = lambda last_step=None: [closing]
     node.stream.close_episode(None)
     got = [decode_subtask_boundary(raw) for raw in sent]
-    assert [(b.step, b.subtask, b.final, b.decided_stamp_ns) for b in got] == [
-        (2, 0, False, 3 * 10**9), (2, 0, True, 3 * 10**9)]
-    node.stream.close_episode(None)  # a second close adds no second final boundary
-    assert len(sent) == 2
+    assert [(b.step, b.subtask, b.subtask_id, b.final, b.kind, b.decided_stamp_ns) for b in got] == [
+        (2, 0, -1, False, SUBTASK_END, 3 * 10**9), (2, 1, -1, True, EPISODE_END, 3 * 10**9)]
     node.destroy_node()

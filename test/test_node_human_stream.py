@@ -23,7 +23,6 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.episode import Episode, observation_copies  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
-from ompn_ros.detect.online import with_final  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 from ompn_ros.stream.replay import replay_episode  # noqa: E402
@@ -99,8 +98,11 @@ def test_live_output_on_a_human_like_stream_equals_its_replay(ctx, domain: str) 
         replay = replay_episode(offline, stream, include_done_step=True)
         want = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in replay.published]
         assert got == want, (i, got, want)
-        inner = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in with_final(replay.boundaries)]
+        inner = [(b.step, b.subtask, b.detected_at, f"{b.score:.6f}") for b in replay.boundaries]
         assert want[:len(inner) - 1] == inner[:-1]  # the published boundaries of the T real steps
+        # one event per subtask, then the episode end when no subtask ended with the episode
+        assert [b.subtask for b in replay.published] == list(range(len(replay.published)))
+        assert [b.final for b in replay.published] == [False] * (len(replay.published) - 1) + [True]
         assert len(pis) == len(stream.observations)
         np.testing.assert_allclose(pis[:-1, -1], replay.pi_end, atol=1e-6)
         np.testing.assert_allclose(pis[:-1, -2], replay.expected_position, atol=1e-5)

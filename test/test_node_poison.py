@@ -28,7 +28,7 @@ from std_msgs.msg import Int32MultiArray  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
@@ -121,7 +121,7 @@ def replay(ckpt: Path, sketch: list[int], obs: np.ndarray, stamps_ns: list[int])
         pis.append(np.concatenate([so.pi, [so.expected_position, so.pi_end]]).astype(np.float32))
         if out.boundary is not None:
             events.append(out.boundary)
-    events = with_final(events + seg.end_episode(len(obs) - 2))  # the node ends it with a final one
+    events = events + seg.end_episode(len(obs) - 2)  # the node ends it with one final event
     return [(e.step, f"{float(np.float32(e.score)):.6f}", e.stamp_ns) for e in events], np.array(pis)
 
 

@@ -20,7 +20,7 @@ from test_node_poison import active_node  # noqa: E402 (publishers that record)
 from ompn_ros.data import ReaderSpec, read_episodes  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
@@ -64,7 +64,7 @@ def replay(ckpt: Path, obs: np.ndarray, stamps: np.ndarray) -> list[tuple[int, s
     seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DetectorConfig(high=0.3, low=0.3))
     seg.reset(None)
     out = [e for x, s in zip(obs, stamps, strict=True) if (e := seg.step(x, int(s)).boundary) is not None]
-    out = with_final(out + seg.end_episode(len(obs) - 2))  # every episode ends with a final boundary
+    out = out + seg.end_episode(len(obs) - 2)  # every episode ends with one final event
     return [(e.step, f"{e.score:.6f}", e.stamp_ns, str(e.final).lower()) for e in out]
 
 

@@ -32,7 +32,7 @@ from std_msgs.msg import Float32MultiArray  # noqa: E402
 from ompn_interfaces.msg import SubtaskBoundary, SubtaskState  # noqa: E402
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data.messages import stamp_to_ns  # noqa: E402
-from ompn_ros.detect.online import DetectorConfig, with_final  # noqa: E402
+from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.metrics import mean_f1  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 from ompn_ros.ros import containment  # noqa: E402
@@ -179,7 +179,7 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
             want_rows = np.column_stack([replay.pi, replay.expected_position, replay.pi_end])
             np.testing.assert_allclose(got_rows, want_rows, rtol=0, atol=1e-5)
             got = [e for e in events if e.episode == i + 1]
-            want = with_final(replay.boundaries)
+            want = replay.published
             assert [(e.node, e.header.frame_id, e.step, e.subtask, e.subtask_id, e.memory_level,
                      e.decided_step, e.final, stamp_to_ns(e.header.stamp), stamp_to_ns(e.decided_stamp))
                     for e in got] == [

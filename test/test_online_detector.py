@@ -14,6 +14,7 @@ from ompn_ros.detect.online import (
     expansion_level,
     expansion_score,
     expansion_scores,
+    subtask_ends,
 )
 
 
@@ -99,7 +100,9 @@ def test_end_episode_with_done_step_excluded() -> None:
         det.update(s)
     falling = det.update(0.1)  # falling edge at the done step commits step 4 = T-1
     assert falling is not None and falling.step == 4
-    assert det.end_episode(last_step=4) is None  # already closed, no duplicate
+    end = det.end_episode(last_step=4)  # the last subtask's end is out: the episode end, no repeat
+    assert end is not None and end.episode_end and end.final
+    assert (end.step, end.subtask, end.score, end.level) == (4, 2, 0.0, 0)  # subtask: the count
     det.reset()
     for s in [0.0, 0.1, 0.1, 0.1]:
         det.update(s)
@@ -184,3 +187,30 @@ def test_offset_raised_inside_an_episode_names_the_oldest_step_kept() -> None:
     assert detector.update(0.9) is None
     event = detector.update(0.1)  # the rule's boundary is 11; 1 is older than the 4 steps kept
     assert event is not None and event.step == 8 and event.detected_at == 12
+
+
+def test_a_commit_whose_run_lasts_to_the_end_is_the_last_subtask_once() -> None:
+    """Rising edge (Dial's shipped detector): the last press starts a run 1-4 steps before the episode
+    ends; the episode's end closes the subtask that run ended, it adds no subtask of its own."""
+    scores = [0.0, 0.1, 0.9, 0.8, 0.1, 0.1, 0.1, 0.1, 0.9, 0.9, 0.8]  # 2 presses, the last still on
+    for mode in ("rising_edge", "peak"):
+        events = detect_sequence(scores, DetectorConfig(high=0.5, mode=mode))
+        ends = subtask_ends(events)
+        assert [e.subtask for e in ends] == [0, 1], (mode, events)
+        last = events[-1]
+        assert last.episode_end and last.final and (last.step, last.subtask) == (10, 2)
+        assert sum(e.final for e in events) == 1
+    # the run ended before the episode did: the steps after it are a subtask of their own
+    events = detect_sequence([*scores[:10], 0.1, 0.1, 0.1], DetectorConfig(high=0.5, mode="rising_edge"))
+    assert [(e.step, e.subtask, e.final, e.episode_end) for e in events] == [
+        (2, 0, False, False), (8, 1, False, False), (12, 2, True, False)]
+
+
+def test_a_tail_shorter_than_min_segment_length_is_no_subtask() -> None:
+    scores = [0.0, 0.1, 0.9, 0.1, 0.1, 0.1, 0.9, 0.1, 0.1]
+    events = detect_sequence(scores, DetectorConfig(high=0.5, min_segment_length=3))
+    assert [(e.step, e.subtask) for e in subtask_ends(events)] == [(2, 0), (6, 1)]
+    assert events[-1].episode_end and events[-1].step == 8
+    # without a boundary the episode is one subtask, however short
+    events = detect_sequence([0.0, 0.1], DetectorConfig(high=0.5, min_segment_length=3))
+    assert [(e.step, e.subtask, e.final, e.episode_end) for e in events] == [(1, 0, True, False)]

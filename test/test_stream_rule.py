@@ -15,7 +15,7 @@ torch = pytest.importorskip("torch")
 
 from random_checkpoint import random_checkpoint  # noqa: E402
 
-from ompn_ros.detect.online import BoundaryEvent, DetectorConfig, with_final  # noqa: E402
+from ompn_ros.detect.online import BoundaryEvent, DetectorConfig  # noqa: E402
 from ompn_ros.model.load import stepper_from_checkpoint  # noqa: E402
 from ompn_ros.segmenter import StreamingSegmenter  # noqa: E402
 from ompn_ros.stream.replay import StreamRecord, replay_stream  # noqa: E402
@@ -53,7 +53,7 @@ def fresh_episode(ckpt: Path, obs: np.ndarray, stamps: list[int], closed: bool) 
     """One episode on a fresh segmenter, closed at its last step (by the next episode's cut) or open."""
     seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DETECTOR)
     events = [e for x, s in zip(obs, stamps, strict=True) if (e := seg.step(x, s).boundary) is not None]
-    return with_final(events + seg.end_episode(len(obs) - 1)) if closed else events
+    return events + seg.end_episode(len(obs) - 1) if closed else events
 
 
 def test_replay_cuts_the_stream_where_the_rules_say(ckpt: Path) -> None:

@@ -2,8 +2,11 @@
 
 :func:`annotate_bag` copies every message of a rosbag2 (mcap or sqlite3; topic names, types,
 message definitions, QoS, log stamps and CDR bytes kept exactly) into a new rosbag2 (metadata v9,
-mcap by default) and adds, for every replayed step of every episode, what the live node would have
-published while that recording played:
+mcap by default, ``ros_distro: jazzy`` as the recorder writes it) and adds, for every replayed step
+of every episode, what the live node would have published while that recording played, each topic
+with the QoS the node offers on it as its ``offered_qos_profiles`` (``layout.BOUNDARY_QOS['last']``:
+RELIABLE, TRANSIENT_LOCAL, depth 1 for ``boundary``; ``layout.PER_STEP_QOS`` for the others), so
+``ros2 bag play`` replays them to the subscribers the node serves:
 
 * ``<ns>/state`` (``ompn_interfaces/msg/SubtaskState``, the node's ``~/state``: episode, step, π_1..π_n
   lowest slot first, the expected position Σ i·π_i (Lu et al., ICLR 2021, §3.3 π_avg), π_end) and
@@ -12,7 +15,8 @@ published while that recording played:
 * ``<ns>/segment`` (``std_msgs/Int32``): the segment ordinal of the step (see :data:`SegmentLabels`);
 * ``<ns>/boundary`` (``ompn_interfaces/msg/SubtaskBoundary``, the node's ``~/boundary`` event, built by
   :mod:`ompn_ros.data.messages`: node = ``<ns>``, episode = the episode's number from 1,
-  ``subtask_id`` from the episode's sketch when it has one, the last boundary ``final``) logged at
+  ``subtask_id`` from the episode's sketch when it has one, the episode's last event ``final``, the
+  episode end included: :func:`~ompn_ros.stream.replay.replay_episode`'s ``published``) logged at
   the stamp of the step where the online detector committed it (``decided_step``; a boundary
   committed on the done step is logged at the final observation's stamp when the episode's stamps
   include it, else at the last real step's).  ``header.frame_id`` is empty.
@@ -54,9 +58,10 @@ from ompn_ros import layout
 from ompn_ros.app.errors import AnnotateError
 from ompn_ros.atomic import make_temp_dir, remove_stale_temps, temp_prefix, write_failure
 from ompn_ros.data import messages as m
-from ompn_ros.data.episode import Episode
+from ompn_ros.data.episode import OBS_STAMPS, Episode
 from ompn_ros.data.recorder.bag_writer import storage_plugin
-from ompn_ros.detect.online import BoundaryEvent, with_final
+from ompn_ros.data.recorder.storage import DurableWriter, output_qos
+from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.layout import resolve_topic
 from ompn_ros.segmenter import ReplayResult
 
@@ -70,8 +75,9 @@ SegmentLabels = Literal["boundary", "causal"]
   (``b.detected_at <= t``) and ending before ``t``.  It lags ``'boundary'`` by the commit lag.
 """
 
-STAMPS_KEY = "obs_stamp_ns"
-"""``Episode.extras`` key of the observation log stamps (int64 ``[T + 1]`` or ``[T]``)."""
+STAMPS_KEY = OBS_STAMPS
+"""``Episode.extras`` key of the observation log stamps (int64 ``[T + 1]`` or ``[T]``; the bag reader
+fills it for every observation kind: Float32MultiArray, JointState, assembled topics)."""
 
 CUSTOM_DATA_KEY = "ompn_ros.annotation"
 """``metadata.yaml`` ``custom_data`` key of the output: JSON with source, namespace, segment_labels."""
@@ -183,13 +189,13 @@ def episode_messages(stamps: np.ndarray, result: ReplayResult, number: int, topi
                             f"steps (expected {steps} or {steps + 1} with the final observation)")
     out: list[_Message] = []
     n_slots = rows.shape[1] - 2
-    for b in with_final(result.boundaries):
-        if not 0 <= b.step <= b.detected_at or b.step >= steps or b.detected_at > steps:
+    for b in result.published or result.boundaries:  # what the node publishes, the episode end included
+        if not 0 <= b.step <= b.detected_at or b.step > steps or b.detected_at > steps:
             raise AnnotateError(f"episode #{number}: boundary at step {b.step} detected at "
                                 f"{b.detected_at} lies outside its {steps} steps")
         log_stamp = int(stamps[min(b.detected_at, len(stamps) - 1)])
         out.append(_Message(log_stamp, _RANK["boundary"], topics["boundary"], boundary_message(
-            b, int(stamps[b.step]), node, number + 1, sketch, log_stamp)))
+            b, int(stamps[min(b.step, len(stamps) - 1)]), node, number + 1, sketch, log_stamp)))
     segments = segment_labels(result.boundaries, steps, labels)
     for t in range(steps):
         stamp = int(stamps[t])
@@ -384,13 +390,15 @@ def _copy_connections(reader: Any, writer: Any, src: Path) -> dict[int, Any]:
 
 
 def _all_annotations(episodes_outputs: Sequence[tuple[Episode | np.ndarray | Sequence[int], ReplayResult]],
-                     topics: dict[str, str], node: str,
-                     labels: SegmentLabels) -> tuple[list[_Message], int]:
+                     topics: dict[str, str], node: str, labels: SegmentLabels,
+                     sketches: Sequence[np.ndarray | None] | None = None) -> tuple[list[_Message], int]:
     messages: list[_Message] = []
     steps = 0
     for number, (source, result) in enumerate(episodes_outputs):
         stamps = episode_stamps(source, number)
         sketch = source.sketch if isinstance(source, Episode) else None
+        if sketches is not None and number < len(sketches):
+            sketch = sketches[number]
         part = episode_messages(stamps, result, number, topics, node, labels, sketch)
         steps += len(result.pi)
         messages.extend(part)
@@ -427,6 +435,7 @@ def annotate_bag(
     storage: Storage = "mcap",
     overwrite: bool = False,
     labels: SegmentLabels = "boundary",
+    sketches: Sequence[np.ndarray | None] | None = None,
 ) -> AnnotateReport:
     """Write ``out``: a copy of bag ``src`` plus the node's ``pi``/``segment``/``boundary`` topics.
 
@@ -440,6 +449,8 @@ def annotate_bag(
         storage: ``'mcap'`` (default) or ``'sqlite3'``.
         overwrite: replace an existing ``out`` (refused otherwise).
         labels: the ``segment`` labelling rule (:data:`SegmentLabels`).
+        sketches: per episode, its sketch (``subtask_id`` of the boundary events); by default the
+            sketch of an ``Episode`` given as the stamps, else none (``subtask_id`` −1).
 
     Raises:
         AnnotateError: naming the bag, topic or episode at fault; ``out`` is then left untouched.
@@ -448,7 +459,7 @@ def annotate_bag(
     if storage not in STORAGES:
         raise AnnotateError(f"storage must be one of {STORAGES}, got {storage!r}")
     topics, node = output_topics(namespace)
-    added, steps = _all_annotations(episodes_outputs, topics, node, labels)
+    added, steps = _all_annotations(episodes_outputs, topics, node, labels, sketches)
     _prepare_output(out, src, overwrite)
     reader = _open_reader(src)
     tmp: Path | None = None
@@ -477,9 +488,7 @@ def _write(reader: Any, tmp: Path, storage: Storage, topics: dict[str, str], add
     """Copy ``reader`` (messages and ``custom_data``) and the annotations into a new bag at ``tmp``,
     recording ``note`` under ``custom_data[CUSTOM_DATA_KEY]``; the number of copied messages.  A
     failed write (a full disk...) is one :class:`~ompn_ros.errors.WriteFailure` line naming ``out``."""
-    from rosbags.rosbag2 import Writer
-
-    writer = Writer(tmp, version=9, storage_plugin=storage_plugin(storage))
+    writer = DurableWriter(tmp, version=9, storage_plugin=storage_plugin(storage), commit_period=None)
     custom = getattr(getattr(reader.storage, "metadata", None), "custom", None) or {}
     for key, value in custom.items():
         if isinstance(key, str) and isinstance(value, str):
@@ -507,7 +516,9 @@ def _copy_all(reader: Any, writer: Any, topics: dict[str, str], added: list[_Mes
     ts = m.register_interfaces()
     types = {"state": m.SUBTASK_STATE, "pi": layout.FLOAT32_ARRAY, "segment": layout.INT32,
              "boundary": m.SUBTASK_BOUNDARY}
-    out_conns = {topic: writer.add_connection(topic, types[key], typestore=ts)
+    qos = {key: layout.PER_STEP_QOS for key in types} | {"boundary": layout.BOUNDARY_QOS["last"]}
+    out_conns = {topic: writer.add_connection(topic, types[key], typestore=ts,
+                                              offered_qos_profiles=[output_qos(qos[key])])
                  for key, topic in topics.items()}
     copied = 0
     try:

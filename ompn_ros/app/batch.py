@@ -125,19 +125,25 @@ def is_complete(settings: BatchSettings, bag: BatchBag, fingerprint: dict[str, A
 
 def segment_rows(number: int, ep: Episode, r: ReplayResult, stamps: np.ndarray | None,
                  detector: str) -> list[dict[str, Any]]:
-    """One row per online segment of episode ``number`` (see ``batch_table.COLUMNS``)."""
+    """One row per subtask the episode reported (see ``batch_table.COLUMNS``): each ends at its
+    boundary, the last at the episode's last step (the episode's end closes it, docs/design.md#episode-end);
+    an episode without a boundary is one row, its ``score`` empty."""
     rows, start = [], 0
-    for b in sorted(r.boundaries, key=lambda e: e.step):
+    ends = sorted(r.boundaries, key=lambda e: e.step)
+    last = ep.length - 1
+    for i, b in enumerate(ends or [None]):
+        end = last if i == len(ends) - 1 or b is None else int(b.step)
+        subtask = i if b is None else int(b.subtask)
         sketch = ep.sketch
-        known = int(sketch[b.subtask]) if sketch is not None and 0 <= b.subtask < len(sketch) else None
+        known = int(sketch[subtask]) if sketch is not None and 0 <= subtask < len(sketch) else None
         rows.append({
-            "episode": number, "task": ep.task, "start_step": start, "end_step": int(b.step),
+            "episode": number, "task": ep.task, "start_step": start, "end_step": end,
             "start_stamp_ns": int(stamps[start]) if stamps is not None else None,
-            "end_stamp_ns": int(stamps[b.step]) if stamps is not None else None,
-            "subtask": int(b.subtask), "subtask_id": known,
-            "score": float(b.score), "detector": detector,
+            "end_stamp_ns": int(stamps[end]) if stamps is not None else None,
+            "subtask": subtask, "subtask_id": known,
+            "score": None if b is None else float(b.score), "detector": detector,
         })
-        start = int(b.step) + 1
+        start = end + 1
     return rows
 
 
@@ -184,7 +190,8 @@ def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, An
     if settings.annotate is not None and stamps is not None:
         settings.annotate.mkdir(parents=True, exist_ok=True)
         pairs = list(zip(stamps, replays, strict=True))
-        annotate_bag(path, settings.annotate / bag.key, pairs, overwrite=True)
+        annotate_bag(path, settings.annotate / bag.key, pairs, overwrite=True,
+                     sketches=[ep.sketch for ep in episodes])
     rows = [row for i, (ep, r) in enumerate(zip(episodes, replays, strict=True))
             for row in segment_rows(i, ep, r, None if stamps is None else stamps[i], settings.detector.mode)]
     return {**doc, "steps": sum(ep.length for ep in episodes), "rows": rows,

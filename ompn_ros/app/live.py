@@ -22,7 +22,7 @@ import numpy as np
 from ompn_ros import layout
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import boundaries_from_labels
-from ompn_ros.data.messages import SubtaskBoundary, decode_subtask_boundary
+from ompn_ros.data.messages import EPISODE_END, SubtaskBoundary, decode_subtask_boundary
 from ompn_ros.detect.online import expansion_scores
 from ompn_ros.metrics import alignment_accuracy, f1_with_tolerance
 from ompn_ros.paths import config_file
@@ -82,6 +82,9 @@ class Streams:
         received = time.monotonic_ns()
         event = decode_subtask_boundary(raw)
         self.boundaries.append((event, received))
+        if event.kind == EPISODE_END:  # no subtask ended with the episode: its count
+            print(f"   episode end:        step {event.step:4d} ({event.subtask} subtasks)", flush=True)
+            return
         final = " (episode end)" if event.final else ""
         print(f"   detected boundary: step {event.step:4d} (subtask {event.subtask}){final}", flush=True)
 
@@ -103,7 +106,8 @@ class Streams:
             for event, received in groups[i] if i < len(groups) else []:
                 step, seen_at = event.step, event.decided_step
                 # A boundary on the final (done) observation closes the last subtask, whose last real
-                # step is T - 1: the same rule as the offline replay (ompn_ros.stream.replay.replay_episode).
+                # step is T - 1: the same rule as the offline replay (ompn_ros.stream.replay.replay_episode);
+                # the episode end (at T - 1) counts as the metrics' last boundary (Algorithm 1).
                 step = min(step, max(steps - 1, 0))
                 if step in ep.boundaries:
                     continue

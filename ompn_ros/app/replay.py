@@ -22,12 +22,12 @@ from ompn_ros.app.annotate import AnnotateReport, annotate_bag, observation_stam
 from ompn_ros.app.errors import ReplayError
 from ompn_ros.app.final_record import resolve_final
 from ompn_ros.atomic import atomic_write, atomic_write_text
-from ompn_ros.data.episode import Episode
+from ompn_ros.data.episode import OBS_STAMPS, Episode
 from ompn_ros.data.reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
 from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
-from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.online import BoundaryEvent, DetectorConfig
 from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays
 from ompn_ros.plotting import plot_episode
@@ -135,12 +135,24 @@ def json_safe(value: Any) -> Any:
 
 
 def _episode_doc(i: int, ep: Episode, r: ReplayResult) -> dict[str, Any]:
+    """One episode of ``boundaries.json``: a boundary per subtask, with the bag log stamps of its step
+    and of the step it was decided at when the reader gave them (``stamp_ns`` 0 and ``decided_stamp_ns``
+    absent otherwise)."""
+    stamps = ep.extras.get(OBS_STAMPS)
+
+    def stamped(b: BoundaryEvent) -> dict[str, Any]:
+        doc = asdict(b)
+        if stamps is not None and len(stamps):
+            doc["stamp_ns"] = int(stamps[min(b.step, len(stamps) - 1)])
+            doc["decided_stamp_ns"] = int(stamps[min(b.detected_at, len(stamps) - 1)])
+        return doc
+
     return {
         "episode": i,
         "task": ep.task,
         "seed": ep.seed,
         "steps": ep.length,
-        "boundaries": [asdict(b) for b in r.boundaries],
+        "boundaries": [stamped(b) for b in r.boundaries],
         "true_boundaries": ep.boundaries.tolist() if ep.subtask is not None else None,
     }
 
@@ -170,7 +182,8 @@ def annotate(bag: str, out: Path, episodes: Sequence[Episode], replays: Sequence
     if len(bags) != 1:
         raise ReplayError(f"--annotate writes a copy of one bag, but '{bag}' names {len(bags)} bags")
     stamps = observation_stamps(bags[0], episodes, topic=spec.observation.topic, namespace=spec.namespace)
-    return annotate_bag(bags[0], out, list(zip(stamps, replays, strict=True)), overwrite=overwrite)
+    return annotate_bag(bags[0], out, list(zip(stamps, replays, strict=True)), overwrite=overwrite,
+                        sketches=[ep.sketch for ep in episodes])
 
 
 def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, provenance: str,

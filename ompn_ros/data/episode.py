@@ -11,6 +11,10 @@ OBSERVATION_COPIES = "observation_copies"
 """``Episode.extras`` key: int ``[T + 1]``, how many times each observation message is published or written
 (0 = dropped, 2 = duplicated; absent = once each).  The arrays of the episode stay complete."""
 
+OBS_STAMPS = "obs_stamp_ns"
+"""``Episode.extras`` key: int64 ``[T + 1]`` (or ``[T]``), the bag log stamp of each observation row's
+message, in ns (the bag reader fills it; annotated bags and offline tables place their outputs there)."""
+
 DONE_ACTION = -1
 """Marker meaning 'the done step' where an integer action is needed in generic code.
 

@@ -111,7 +111,8 @@ def _padded(scores: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 def detect_grid(scores: Sequence[np.ndarray], grid: Sequence[DetectorConfig]) -> np.ndarray:
     """Boundary masks ``[G, E, T_max]`` of every setting on every episode (episode end closed).
 
-    Equal to running :func:`~ompn_ros.detect.online.detect_sequence` per setting and episode.
+    Equal to the steps of :func:`~ompn_ros.detect.online.detect_sequence`'s events per setting and
+    episode, each once (the episode end, at ``T - 1``, may share its step with the last boundary).
     """
     padded, lengths = _padded(scores)
     n_eps, t_max = padded.shape

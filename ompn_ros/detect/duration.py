@@ -54,6 +54,7 @@ from ompn_ros.detect.online import (
     EpisodeLog,
     _StepRecord,
     run_detector,
+    subtask_ends,
 )
 
 SCORE_BINS = 100
@@ -398,23 +399,26 @@ class DurationDetector(EpisodeLog):
     def close(self, last_step: int | None = None) -> list[BoundaryEvent]:
         """Close the episode at ``last_step`` (default: the last step seen): the held step is decided
         when it lies within the episode (dropped when it is the 'done' step after ``last_step``), then
-        the segments still open get their most probable ends, the last at ``last_step`` (none when a
-        boundary already ends at or after it).  Call :meth:`reset` afterwards."""
+        the segments still open get their most probable ends, the last at ``last_step`` (the episode
+        end, no subtask, when a boundary already ends at or after it: docs/design.md#episode-end).
+        Call :meth:`reset` afterwards."""
         end = self._close_at(last_step)
         held, self._held = self._held, None
         events = []
         if end is not None and held is not None and held[0] <= end:
             event = self._decide(*held)
             events += [] if event is None else [event]
-        if end is None or end <= self._last_boundary:
+        if end is None:
             return events
+        if end <= self._last_boundary:
+            return [*events, self._closing(end)]
         decided = self._step if held is None or held[0] <= end else held[0] - 1
         start = decided - len(self._span) + 1
         if end >= start and self._n_boundaries < self.model.subtasks - 1:
             path = _closing_path(*self.model.lengths, *self._evidence(start, end - start + 1),
                                  self._n_boundaries, start - self._last_boundary - 1, 1 if start == 0 else 0)
             events += [self._emit(start + int(i), end, self._record(start + int(i))) for i in path[:-1]]
-        events.append(self._emit(end, self._step, self._record(end), final=True))
+        events.append(self._closing(end))
         return events
 
 
@@ -423,7 +427,7 @@ def decode_episode(model: DurationModel, scores: np.ndarray, lag: int, threshold
     included), for calibration and tests.  O(T · K · n²), n <= MAX_SPAN the steps since the
     last published boundary."""
     events = run_detector(DurationDetector(model, lag, threshold), scores)
-    return np.asarray([e.step for e in events], dtype=np.int64)
+    return np.asarray([e.step for e in subtask_ends(events)], dtype=np.int64)
 
 
 __all__ = ["DurationDetector", "DurationModel", "decode_episode", "fit_duration_model"]

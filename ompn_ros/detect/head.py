@@ -283,7 +283,9 @@ class HeadDecoder(EpisodeLog):
 
     def close(self, last_step: int | None = None) -> list[BoundaryEvent]:
         """Close the episode at ``last_step`` (default: the last step seen): the boundaries its last
-        row still places, then the final one (none when a boundary already ends there)."""
+        row still places, then the final event: the last segment's boundary, or the episode end (no
+        subtask) when a boundary already ends there or fewer than ``min_segment_length`` steps before
+        (docs/design.md#episode-end)."""
         end = self._close_at(last_step)
         if end is None:
             return []
@@ -295,8 +297,7 @@ class HeadDecoder(EpisodeLog):
         for s in range(max(1, end + 1 - self.lag), end):
             if end in rows and self._fires(rows[end], s, end - s):
                 events.append(self._emit(s, self._step, self._record(s)))
-        if self._last_boundary < end:
-            events.append(self._emit(end, self._step, self._record(end), final=True))
+        events.append(self._closing(end, min_length=self.config.min_segment_length))
         return events
 
 

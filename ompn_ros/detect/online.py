@@ -21,7 +21,11 @@ the threshold"), made causal:
   ``score_t < score_{t-1}``); same lag, but long plateaus (Dial) commit before the run ends;
 * ``mode='rising_edge'``: commit the first in-run step immediately (lag 0);
 * a candidate that would make a segment shorter than ``min_segment_length`` steps is dropped;
-* ``end_episode`` always closes the last segment (Algorithm 1 appends ``L - 1``);
+* ``end_episode`` closes the episode with one event (docs/design.md#episode-end): the last segment's
+  boundary at ``L - 1`` (Algorithm 1 appends it), or, when the end of the last subtask was published
+  already, an *episode end* that reports no subtask: a boundary at or after ``L - 1``, a rising-edge or
+  peak commit whose run lasts to the end (the expansion the episode ends in was counted once), or a
+  tail shorter than ``min_segment_length`` after the last boundary;
 * ``offset``: a committed boundary is reported that many steps earlier than its rule places it (never
   at or before the previous boundary), with that step's score, level and stamp; it is published at
   the same step as without the offset.  Calibrated on validation episodes when the score's runs end a
@@ -46,7 +50,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -182,7 +186,11 @@ class BoundaryEvent:
         level: hierarchy level at ``step``: the argmax of p_hat mapped to paper slot numbers
             (1 = bottom ... n = top, n + 1 = pi_end); 0 when unknown.
         stamp_ns: stamp of the observation of ``step`` (0 when unknown).
-        final: True for the boundary that closes the episode (``end_episode``).
+        final: True for the event that closes the episode (exactly one per episode that had a step, its
+            last): the closing boundary, or the episode end.
+        episode_end: True for an episode end that reports no subtask (``SubtaskBoundary.EPISODE_END``):
+            the end of the episode's last subtask was published before.  ``step`` is then the episode's
+            last step, ``subtask`` the number of subtasks the episode reported, ``score`` and ``level`` 0.
     """
 
     step: int
@@ -192,16 +200,12 @@ class BoundaryEvent:
     level: int
     stamp_ns: int
     final: bool = False
+    episode_end: bool = False
 
 
-def with_final(events: list[BoundaryEvent]) -> list[BoundaryEvent]:
-    """An episode's boundaries with the last one ``final``: when the detector published the boundary
-    at the episode's end before the episode closed (``StreamingSegmenter.end_episode`` then has
-    nothing to add), that boundary comes again with ``final`` set (same step, subtask and decision).
-    Every episode with a boundary thus ends with exactly one ``final`` boundary, live and offline."""
-    if not events or events[-1].final:
-        return events
-    return [*events, replace(events[-1], final=True)]
+def subtask_ends(events: Sequence[BoundaryEvent]) -> list[BoundaryEvent]:
+    """The events of ``events`` that report a subtask (one per subtask: every event but the episode end)."""
+    return [event for event in events if not event.episode_end]
 
 
 def expansion_score(p_hat: np.ndarray | Sequence[float]) -> float:
@@ -299,6 +303,19 @@ class EpisodeLog:
         self._n_boundaries += 1
         return event
 
+    def _closing(self, end: int, decided: bool = False, min_length: int = 1) -> BoundaryEvent:
+        """The event that closes the episode at step ``end`` (docs/design.md#episode-end): the final
+        boundary of the last segment, or the episode end (no subtask) when the end of the last subtask
+        was published already: a boundary at or after ``end``, ``decided`` (the detector's rule says
+        the last boundary is the end the episode closes in), or fewer than ``min_length`` steps since
+        the last boundary.  An episode without a boundary always closes with one."""
+        tail = end - self._last_boundary
+        if self._n_boundaries and (tail <= 0 or decided or tail < min_length):
+            record = self._record(end)
+            return BoundaryEvent(step=end, detected_at=self._step, subtask=self._n_boundaries, score=0.0,
+                                 level=0, stamp_ns=record.stamp_ns, final=True, episode_end=True)
+        return self._emit(end, self._step, self._record(end), final=True)
+
 
 @dataclass
 class OnlineDetector(EpisodeLog):
@@ -314,6 +331,8 @@ class OnlineDetector(EpisodeLog):
         self._start(keep=KEPT_STEPS + self.config.offset)
         self._in_run = False
         self._run_committed = False
+        self._run_boundary = -1  # the boundary the current (or last) run committed; -1: none
+        self._run_last = -1  # the last step of the last run that ended
         self._prev: _StepRecord | None = None
 
     def update(self, score: float, level: int = 0, stamp_ns: int = 0) -> BoundaryEvent | None:
@@ -326,6 +345,7 @@ class OnlineDetector(EpisodeLog):
             if current.score > cfg.high:
                 self._in_run = True
                 self._run_committed = False
+                self._run_boundary = -1
                 if cfg.mode == "rising_edge":
                     event = self._commit(t, current, t)
                     self._run_committed = True
@@ -334,11 +354,14 @@ class OnlineDetector(EpisodeLog):
             assert prev is not None
             if current.score <= cfg.low_threshold:
                 self._in_run = False
+                self._run_last = t - 1
                 if not self._run_committed:
                     event = self._commit(t - 1, prev, t)
             elif cfg.mode == "peak" and not self._run_committed and current.score < prev.score:
                 event = self._commit(t - 1, prev, t)
                 self._run_committed = True
+        if event is not None:
+            self._run_boundary = event.step
         self._prev = current
         self._recent.append((t, current))
         return event
@@ -354,17 +377,22 @@ class OnlineDetector(EpisodeLog):
         return [] if event is None else [event]
 
     def end_episode(self, last_step: int | None = None) -> BoundaryEvent | None:
-        """Close the last segment at ``last_step`` (default: the last step seen).
+        """Close the episode at ``last_step`` (default: the last step seen) with its ``final`` event.
 
-        Returns ``None`` when no step was seen or a boundary already ends at or after
-        ``last_step`` (e.g. the falling edge at the done step). A ``last_step`` older than the last
-        few steps kept (a marker that disagrees with the stream) closes at the last step seen, so
-        the event always carries a real score and stamp. Call :meth:`reset` afterwards.
+        That is the last segment's boundary at ``last_step``, or the episode end (no subtask) when the
+        end of the last subtask was published already: a boundary at or after ``last_step`` (e.g. the
+        falling edge at the done step), a rising-edge or peak commit whose run was still on at
+        ``last_step``, or a tail shorter than ``min_segment_length``.  ``None`` when no step was seen.
+        A ``last_step`` older than the last few steps kept (a marker that disagrees with the stream)
+        closes at the last step seen, so the event always carries a real stamp. Call :meth:`reset`
+        afterwards.
         """
         end = self._close_at(last_step)
-        if end is None or self._last_boundary >= end:
+        if end is None:
             return None
-        return self._emit(end, self._step, self._record(end), final=True)
+        run_open = self._in_run or self._run_last >= end
+        decided = self._run_committed and run_open and 0 <= self._run_boundary == self._last_boundary
+        return self._closing(end, decided, self.config.min_segment_length)
 
     def _commit(self, step: int, record: _StepRecord, detected_at: int) -> BoundaryEvent | None:
         if step - self._last_boundary < self.config.min_segment_length:

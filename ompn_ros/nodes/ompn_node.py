@@ -53,8 +53,9 @@ Publications (per accepted observation, except one that a model with ``still_tol
     ``~/boundary``    ompn_interfaces/msg/SubtaskBoundary: header (stamp = the boundary step's input
                       stamp, frame_id = the observation's), node, episode, step, subtask, subtask_id (from
                       the sketch, -1 unknown), score, memory_level, decided_step and decided_stamp, final
-                      (every episode's last boundary; when the detector published it before the episode
-                      ended, it comes again with final set: :func:`ompn_ros.detect.online.with_final`).
+                      (the episode's last message), kind: one SUBTASK_END per subtask, never repeated,
+                      or, closing an episode whose last subtask's end was out already, an EPISODE_END
+                      (docs/design.md#episode-end).
                       RELIABLE; a late subscriber gets the last event only
                       (``boundary_replay='last'``, TRANSIENT_LOCAL depth 1) or nothing old ('none').
     ``/diagnostics``  periodic DiagnosticArray, one status named '<fully qualified node name>: segmenter'

@@ -131,6 +131,9 @@ class NodeOutputs(LifecycleNode):
         self.stream.emit_boundary(event, decided_ns, log)
 
     def log_boundary(self, event: BoundaryEvent) -> None:
+        if event.episode_end:
+            self.get_logger().info(f"episode end: step={event.step} subtasks={event.subtask}")
+            return
         self.get_logger().info(
             f"subtask boundary: step={event.step} subtask={event.subtask} score={event.score:.3f} "
             f"level={event.level} detected_at={event.detected_at}{' (episode end)' if event.final else ''}"

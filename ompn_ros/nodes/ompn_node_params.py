@@ -50,7 +50,7 @@ EXECUTORS: Final = ("single", "events")
 OBS_QOS: Final = ("best_effort", "reliable", "sensor_data")
 BOUNDARY_REPLAY: Final = ("last", "none")
 MIN_EPISODE_GAP: Final = 0.01  # seconds; the silence timer polls every quarter of the gap
-BOUNDARY_QOS_DEPTH: Final = 100  # history of a VOLATILE ~/boundary writer (nothing is replayed)
+BOUNDARY_QOS_DEPTH: Final = layout.BOUNDARY_QOS["none"].depth  # history of a VOLATILE ~/boundary writer
 
 
 def _sketch_rule(value: Any) -> str | None:
@@ -121,8 +121,8 @@ SPECS: Final = (
     ParamSpec("done_threshold", 0.5, "discrete: publish done (= action_dim) when pi_end exceeds this",
               float_range=(0.0, 1.0), apply="live"),
     ParamSpec("auto_start", True, "configure and activate at start-up"),
-    ParamSpec("qos_depth", 100, "depth of the input and per-step output queues", int_range=(1, 100_000),
-              apply="configure"),
+    ParamSpec("qos_depth", layout.PER_STEP_QOS.depth, "depth of the input and per-step output queues",
+              int_range=(1, 100_000), apply="configure"),
     ParamSpec("obs_qos", "best_effort", "QoS of the observation / joint_states subscription",
               choices=OBS_QOS, apply="configure"),
     ParamSpec("boundary_replay", "last", "what a late ~/boundary subscriber receives",
@@ -166,18 +166,13 @@ def input_qos(kind: str, depth: int) -> QoSProfile:
 
 
 def boundary_qos(replay: str) -> QoSProfile:
-    """QoS of ``~/boundary`` for ``boundary_replay`` = ``replay`` (module docstring)."""
-    if replay == "last":
-        return QoSProfile(
-            depth=1,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-            history=HistoryPolicy.KEEP_LAST,
-        )
+    """QoS of ``~/boundary`` for ``boundary_replay`` = ``replay`` (module docstring;
+    ``layout.BOUNDARY_QOS``, which annotated bags record too)."""
+    qos = layout.BOUNDARY_QOS["last" if replay == "last" else "none"]
     return QoSProfile(
-        depth=BOUNDARY_QOS_DEPTH,
+        depth=qos.depth,
         reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE,
         history=HistoryPolicy.KEEP_LAST,
     )
 

@@ -19,7 +19,7 @@ import numpy as np
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.still import StillRuns
 from ompn_ros.detect.head import step_outputs
-from ompn_ros.detect.online import BoundaryEvent
+from ompn_ros.detect.online import BoundaryEvent, subtask_ends
 from ompn_ros.segmenter import ReplayResult, SegmenterOutput, StreamingSegmenter
 from ompn_ros.stream.rule import StreamLimits, StreamRule
 from ompn_ros.validate import InvalidInput
@@ -113,9 +113,6 @@ def _episode_result(record: StreamRecord, T: int, runs: StillRuns | None = None)
     if runs is not None and runs.steps:
         record.steps, run_ends = _on_rows(record.steps, runs, T)
     published = [event for _, _, event in record.boundaries]
-    events = list(published)
-    if len(events) > 1 and not events[-2].final and events[-1] == dataclasses.replace(events[-2], final=True):
-        events.pop()  # the node repeats the last boundary as final (with_final); the episode has it once
     outs = [out for _, _, out in record.steps[:T]]
     sos = [out.step_output for out in outs]
     return ReplayResult(
@@ -124,12 +121,28 @@ def _episode_result(record: StreamRecord, T: int, runs: StillRuns | None = None)
         pi_end=np.array([float(so.pi_end) for so in sos]),
         expected_position=np.array([float(so.expected_position) for so in sos]),
         scores=np.array([out.score for out in outs]),
-        boundaries=[event for event in events if event.step <= T - 1],
+        boundaries=_subtasks(published, outs, record.steps, T),
         actions=[so.action for so in sos],
         published=published,
         outputs=np.array([step_outputs(so) for so in sos]),
         run_ends=run_ends,
     )
+
+
+def _subtasks(published: list[BoundaryEvent], outs: list[SegmenterOutput],
+              steps: list[tuple[int, int, SegmenterOutput]], T: int) -> list[BoundaryEvent]:
+    """One event per subtask of the episode (the episode end left out), in the ``T`` real steps: a
+    boundary the detector decided on the final observation (row ``T``) ends the last real step, with
+    that step's score, level and stamp."""
+    out = []
+    for event in subtask_ends(published):
+        if event.step > T - 1 and T > 0:
+            last = outs[T - 1] if len(outs) >= T else None
+            stamp = steps[T - 1][1] if len(steps) >= T and event.stamp_ns else event.stamp_ns
+            event = dataclasses.replace(event, step=T - 1, stamp_ns=stamp, score=last.score if last else 0.0,
+                                        level=last.level if last else 0)
+        out.append(event)
+    return out
 
 
 def _on_rows(steps: list[tuple[int, int, SegmenterOutput]], runs: StillRuns, T: int

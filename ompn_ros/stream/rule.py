@@ -39,7 +39,7 @@ from ompn_ros import layout
 from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.data.repeats import Repeats
 from ompn_ros.data.still import StillRuns
-from ompn_ros.detect.online import BoundaryEvent, with_final
+from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import SegmenterOutput, StreamingSegmenter
 from ompn_ros.stream.gap import IdleGate, SilenceWatch, gap_ends_episode
 from ompn_ros.validate import BadSketch, FutureStamp, InvalidInput, SketchError, validate_sketch
@@ -125,7 +125,6 @@ class StreamRule:
         self.episode_sketch: np.ndarray | None = None
         self.last_stamp_ns = 0  # of the last accepted step (0: none in this episode, or no stamp)
         self.last_receive_ns = 0  # of receive_stamp()
-        self.last_boundary: tuple[BoundaryEvent, int] | None = None  # (event, decided stamp) of the episode
         self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
         self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
         self.still: StillRuns | None = None  # the episode's still rule (the model's still_tolerance)
@@ -254,7 +253,6 @@ class StreamRule:
         """Give ``event`` to the sink, decided at ``decided_ns`` (default: the last step's stamp)."""
         decided = self.last_stamp_ns if decided_ns is None else decided_ns
         self.sink.boundary_out(event, decided, self.events["episodes"], log)
-        self.last_boundary = (event, decided)
         self.events["boundaries"] += 1
 
     # --- episodes --------------------------------------------------------------------------------
@@ -284,14 +282,14 @@ class StreamRule:
         seg.reset(sketch)
         seg.forget_stamps()
         self.still = None
-        self.last_boundary = None
         self.last_receive_ns = 0
         self.last_stamp_ns = 0
         self.episode_sketch = sketch
 
     def close_episode(self, steps: int | None) -> None:
-        """Close the last segment at ``steps - 1`` (the marker's count; the last step seen if unknown).
-        The boundary last given to the sink comes again with ``final`` set when closing adds none."""
+        """Close the episode at ``steps - 1`` (the marker's count; the last step seen if unknown): the
+        boundaries the detector still decides, the last ``final`` (the last segment's boundary, or the
+        episode end when the end of the last subtask was published before: docs/design.md#episode-end)."""
         seg = self.segmenter
         assert seg is not None
         runs = self.still
@@ -311,10 +309,6 @@ class StreamRule:
             mapped = self._on_rows(event, last_row)
             assert mapped is not None
             self.emit_boundary(mapped)
-        if self.last_boundary is not None:
-            last_event, decided = self.last_boundary
-            for event in with_final([last_event])[1:]:
-                self.emit_boundary(event, decided_ns=decided)
 
     def restart_episode(self) -> bool:
         """A clock restart: close the open episode, start the next (counted); False if it cannot start."""

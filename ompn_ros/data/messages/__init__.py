@@ -31,9 +31,11 @@ from .cdr import (
     typestore,
 )
 from .interfaces import (
+    EPISODE_END,
     INTERFACE_MESSAGES,
     INTERFACES_PACKAGE,
     SUBTASK_BOUNDARY,
+    SUBTASK_END,
     SUBTASK_ID_UNKNOWN,
     SUBTASK_STATE,
     DetectedBoundary,
@@ -85,6 +87,7 @@ from .std import (
 
 __all__ = [
     "CDR_LE_HEADER",
+    "EPISODE_END",
     "INT32_MAX",
     "INT32_MIN",
     "INTERFACES_PACKAGE",
@@ -93,6 +96,7 @@ __all__ = [
     "STAMP_NS_MAX",
     "STAMP_NS_MIN",
     "SUBTASK_BOUNDARY",
+    "SUBTASK_END",
     "SUBTASK_ID_UNKNOWN",
     "SUBTASK_STATE",
     "CdrError",

@@ -45,9 +45,13 @@ INTERFACE_MESSAGES: Final = (SUBTASK_BOUNDARY, SUBTASK_STATE, EPISODE_MARKER)
 MARKER_KINDS: Final = ("start", "end")
 """``EpisodeMarker.kind`` 0 and 1 by name (``layout.EPISODE_START``, ``layout.EPISODE_END``)."""
 SUBTASK_ID_UNKNOWN: Final = -1
+SUBTASK_END: Final = 0
+"""``SubtaskBoundary.kind``: the message reports the end of a subtask."""
+EPISODE_END: Final = 1
+"""``SubtaskBoundary.kind``: the episode ended and no subtask with it (docs/design.md#episode-end)."""
 
 _BOUNDARY_MIDDLE = struct.Struct("<IIIifB3x")  # episode, step, subtask, subtask_id, score, level, pad
-_BOUNDARY_TAIL = struct.Struct("<IiIB")  # decided_step, decided_stamp, final
+_BOUNDARY_TAIL = struct.Struct("<IiIBB")  # decided_step, decided_stamp, final, kind
 _STATE_COUNTS = struct.Struct("<III")  # episode, step, len(pi)
 _ZEROS = (b"", b"\0", b"\0\0", b"\0\0\0")
 
@@ -55,7 +59,7 @@ _ZEROS = (b"", b"\0", b"\0\0", b"\0\0\0")
 class DetectedBoundary(Protocol):
     """What a boundary message takes from a detector's event (``ompn_ros.detect.online.BoundaryEvent``):
     the boundary's step, the step it was decided at, the subtask it ends, its score and memory level,
-    the step's stamp and whether it closes the episode."""
+    the step's stamp, whether it closes the episode and whether it is the episode end (no subtask)."""
 
     @property
     def step(self) -> int: ...
@@ -71,6 +75,8 @@ class DetectedBoundary(Protocol):
     def stamp_ns(self) -> int: ...
     @property
     def final(self) -> bool: ...
+    @property
+    def episode_end(self) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -89,20 +95,22 @@ class SubtaskBoundary:
     decided_step: int
     decided_stamp_ns: int
     final: bool
+    kind: int = SUBTASK_END
 
     @classmethod
     def from_event(cls, event: DetectedBoundary, *, node: str, episode: int, frame_id: str = "",
                    sketch: np.ndarray | None = None, decided_stamp_ns: int = 0,
                    stamp_ns: int | None = None) -> SubtaskBoundary:
         """The message of ``event``: ``stamp_ns`` defaults to the event's, ``subtask_id`` is
-        ``sketch[event.subtask]`` when the sketch has that entry."""
-        known = sketch is not None and 0 <= event.subtask < len(sketch)
+        ``sketch[event.subtask]`` when the sketch has that entry (unknown for the episode end)."""
+        end = bool(event.episode_end)
+        known = sketch is not None and 0 <= event.subtask < len(sketch) and not end
         return cls(
             stamp_ns=event.stamp_ns if stamp_ns is None else stamp_ns, frame_id=frame_id, node=node,
             episode=episode, step=event.step, subtask=event.subtask,
             subtask_id=int(sketch[event.subtask]) if known and sketch is not None else SUBTASK_ID_UNKNOWN,
             score=event.score, memory_level=min(max(event.level, 0), 255), decided_step=event.detected_at,
-            decided_stamp_ns=decided_stamp_ns, final=event.final,
+            decided_stamp_ns=decided_stamp_ns, final=event.final, kind=EPISODE_END if end else SUBTASK_END,
         )  # fmt: skip
 
 
@@ -129,7 +137,7 @@ def encode_subtask_boundary(msg: SubtaskBoundary) -> bytes:
         CDR_LE_HEADER, STAMP.pack(*split_stamp(msg.stamp_ns)), _boundary_strings(msg.frame_id, msg.node),
         _BOUNDARY_MIDDLE.pack(msg.episode, msg.step, msg.subtask, msg.subtask_id, msg.score,
                               msg.memory_level),
-        _BOUNDARY_TAIL.pack(msg.decided_step, *split_stamp(msg.decided_stamp_ns), msg.final),
+        _BOUNDARY_TAIL.pack(msg.decided_step, *split_stamp(msg.decided_stamp_ns), msg.final, msg.kind),
     ))  # fmt: skip
 
 
@@ -220,5 +228,5 @@ def decode_subtask_boundary(raw: bytes | memoryview) -> SubtaskBoundary:
         stamp_ns=stamp_to_ns(msg.header.stamp), frame_id=msg.header.frame_id, node=msg.node,
         episode=msg.episode, step=msg.step, subtask=msg.subtask, subtask_id=msg.subtask_id,
         score=float(msg.score), memory_level=msg.memory_level, decided_step=msg.decided_step,
-        decided_stamp_ns=stamp_to_ns(msg.decided_stamp), final=bool(msg.final),
+        decided_stamp_ns=stamp_to_ns(msg.decided_stamp), final=bool(msg.final), kind=int(msg.kind),
     )  # fmt: skip

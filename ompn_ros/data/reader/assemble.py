@@ -17,7 +17,7 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
-from ..episode import Episode
+from ..episode import OBS_STAMPS, Episode
 from ..errors import AlignmentError
 from ..idle import still_by_speed
 from .align import (
@@ -246,6 +246,10 @@ def _episode(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, 
     subtask, extras = _labels(ctx, topics, dec, partners, w, steps, sketch, number)
     if dec.assembled is not None:
         extras["obs_names"] = list(dec.assembled.names)
+    if dec.obs_log_stamps is not None and len(dec.obs_log_stamps) == len(dec.obs):
+        stamps = np.asarray(dec.obs_log_stamps[rows], dtype=np.int64)
+        # a final observation copied from the last step's message has no stamp of its own
+        extras[OBS_STAMPS] = stamps[:-1] if len(stamps) > 1 and stamps[-1] <= stamps[-2] else stamps
     if partners.joints is not None and dec.joints is not None:
         extras.update(_joint_extras(ctx, topics.joints or "", partners.joints, dec.joints, steps, final))
     task = w.start.get(layout.KEY_TASK, ctx.spec.task)

@@ -57,6 +57,7 @@ class Decoded:
     obs_order: np.ndarray | None = None  # bag message index of each observation row (header clock)
     nonfinite: list[tuple[int, NonFiniteValueError]] = field(default_factory=list)  # (obs row, error)
     assembled: AssembledRows | None = None  # ReaderSpec.assemble: kept rows, names, drops by reason
+    obs_log_stamps: np.ndarray | None = None  # bag log stamp of each observation row (rows as obs)
 
 
 def decode_bag(ctx: BagContext, topics: Topics, on_error: OnError) -> Decoded:
@@ -111,12 +112,14 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
     if topics.assemble is not None:
         out.assembled = rows = assembled_rows(ctx, topics.assemble)  # drops, never raises, on bad messages
         out.obs, out.obs_stamps, out.obs_order = rows.values, rows.stamps, rows.order
+        out.obs_log_stamps = rows.stamps
         # rows and ctx.data() are both the step messages stably sorted by log stamp: no reorder for actions
         obs: ObsParts | None = (rows.values, rows.stamps, None, ctx.stamps(topics.obs), None)
     else:
         obs = _guard(errors, lambda: _observations(ctx, topics))
         if obs is not None:
             out.obs, out.obs_stamps, out.obs_order = obs[0], obs[1], obs[2]
+            out.obs_log_stamps = obs[3] if obs[2] is None else obs[3][obs[2]]
     act = _guard(errors, lambda: _actions(ctx, topics, obs))  # decoded even after a bad observation
     if act is not None:
         out.act, out.act_stamps = act

@@ -35,6 +35,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Writer
 
+from ompn_ros.layout import OutputQos
+
 # Chunk record: opcode (1) + record length (8) + message_start_time, message_end_time,
 # uncompressed_size (3 x 8), then uncompressed_crc (4): MCAP specification, "Chunk (op=0x06)".
 _CHUNK_CRC_OFFSET = 1 + 8 + 3 * 8
@@ -72,6 +74,16 @@ def offered_qos(profiles: Iterable[Any]) -> list[Qos]:
                 liveliness_lease_duration=_qos_time(p.liveliness_lease_duration),
                 avoid_ros_namespace_conventions=bool(p.avoid_ros_namespace_conventions))
             for p in profiles]
+
+
+def output_qos(qos: OutputQos) -> Qos:
+    """The ``offered_qos_profiles`` entry of a topic ``ompn_node`` publishes with ``qos``
+    (:class:`~ompn_ros.layout.OutputQos`: RELIABLE, KEEP_LAST, TRANSIENT_LOCAL or VOLATILE)."""
+    never = QosTime(0, 0)  # rosbag2's "default" (infinite) deadline, lifespan and lease
+    return Qos(history=QosHistory.KEEP_LAST, depth=int(qos.depth), reliability=QosReliability.RELIABLE,
+               durability=QosDurability.TRANSIENT_LOCAL if qos.transient_local else QosDurability.VOLATILE,
+               deadline=never, lifespan=never, liveliness=QosLiveliness.AUTOMATIC,
+               liveliness_lease_duration=never, avoid_ros_namespace_conventions=False)
 
 
 class CrcMcapWriter(McapWriter):
@@ -217,4 +229,5 @@ def refresh_chunk_crcs(path: str | Path, *, clear: bool = False) -> int:
     return changed
 
 
-__all__ = ["CommittingSqlite3Writer", "CrcMcapWriter", "DurableWriter", "chunk_crcs", "refresh_chunk_crcs"]
+__all__ = ["CommittingSqlite3Writer", "CrcMcapWriter", "DurableWriter", "chunk_crcs", "offered_qos",
+           "output_qos", "refresh_chunk_crcs"]
