@@ -90,8 +90,9 @@ def _run(args: argparse.Namespace) -> int:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])
     else:
         data = training.bag_data(args.bags, config["data"], spec)
-        print(data.report["summary"], file=sys.stderr)
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)
+    if "summary" in data.report:  # with the still tolerance build_configs chose
+        print(data.report["summary"], file=sys.stderr)
     if data.report:
         write_read_report(args.out, data.report)
     _print_summary(training.run_training(data, model_config, train_config, args.out))
