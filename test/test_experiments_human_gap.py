@@ -33,7 +33,8 @@ def test_each_family_changes_only_what_it_names(domain: str) -> None:
 def test_the_variant_arms_train_on_their_own_bag_sets() -> None:
     variants = [a for a in ARMS.values() if a.demonstrator not in ("expert", "human")]
     assert variants and {a.demonstrator for a in variants} == set(HUMAN_VARIANTS) - {"human"}
-    assert all(a.data == f"craft_full_{a.demonstrator}" for a in variants if a.demonstrator != "human_boundaries")
+    assert all(a.data == f"craft_full_{a.demonstrator}" for a in variants
+               if a.demonstrator != "human_boundaries")
     boundaries = {a.data for a in variants if a.demonstrator == "human_boundaries"}
     assert boundaries == {"craft_full_human_boundaries", "craft_partial_human_boundaries",
                           "dial_full_human_boundaries"}
