@@ -16,9 +16,10 @@ alone, offline (Top-K alignment and F1@1, teacher-forced):
   change per step is its velocity; Dial: the recorded joint velocities), and runs of at least 7 idle
   frames are dropped;
 * ``still``: the product's still rule at ``still_tolerance: auto`` chosen from the family's episodes;
-* ``fold``: an offline pass that folds a trip out and back: an observation within T (the same auto T)
-  of one of the last :data:`FOLD_WINDOW` kept observations undoes what followed it, which is dropped
-  (the still rule is its window of 1);
+* ``fold``: an offline pass that folds a trip out and back: an observation within T of one of the last
+  :data:`FOLD_WINDOW` kept observations undoes what followed it, which is dropped (the still rule is
+  its window of 1); T is auto's noise-floor tolerance even where auto keeps 0 for want of still steps
+  (a family without pauses still has detours);
 * ``persist``: the still rule, and a boundary needs the new subtask's evidence to persist: a step
   whose move, or the next step's move, is undone within :data:`PERSIST_STEPS` steps (the observation
   returns within T of the one before it) cannot end a subtask (online, a delay of that many steps);
@@ -46,7 +47,7 @@ import torch
 from lab.human_gap import SEED_BASE, _boundaries, default_count
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.still import choose_tolerance, drop_still, run_ends
+from ompn_ros.data.still import choose_tolerance, drop_still, noise_margin, run_ends
 from ompn_ros.detect.offline import depth_scores, top_k_boundaries
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
@@ -115,11 +116,15 @@ def memory(policy: Any, eps: Sequence[Episode]) -> dict[str, float]:
 def fold_rows(obs: np.ndarray, tolerance: float, window: int) -> np.ndarray:
     """The first row of each run after folding (module docstring): a row within ``tolerance`` (every
     element) of one of the last ``window`` kept rows drops the kept rows after that one and joins its
-    run.  Row 0 is always kept.  O(T · window)."""
+    run.  A walk back the way it came unwinds the same way (without labels it looks like a detour).  Row
+    0 is always kept.  O(T · window)."""
     kept = [0]
     for t in range(1, len(obs)):
         back = None
         for j in range(len(kept) - 1, max(len(kept) - 1 - window, -1), -1):
+            if np.all(np.abs(obs[t] - obs[kept[j]]) < tolerance):
+                back = j
+                break
             if np.all(np.abs(obs[t] - obs[kept[j]]) < tolerance):
                 back = j
                 break
@@ -182,18 +187,18 @@ def reduce(ep: Episode, firsts: np.ndarray) -> Episode:
 Arm = Callable[[Episode], tuple[np.ndarray, np.ndarray | None]]
 
 
-def arms(domain: str, tolerance: float) -> dict[str, Arm]:
+def arms(domain: str, tolerance: float, fold_t: float) -> dict[str, Arm]:
     """Each remedy as ``episode -> (first rows of the runs the model steps, steps barred from ending a
-    subtask or None)``."""
+    subtask or None)``: the still rule at ``tolerance``, folds and the persistence test at ``fold_t``."""
     def still(ep: Episode) -> np.ndarray:
         return drop_still(ep, tolerance)[1] if tolerance > 0 else np.arange(ep.length)
 
     def fold(ep: Episode) -> np.ndarray:
-        return fold_rows(ep.observations[: ep.length], tolerance, FOLD_WINDOW) if tolerance > 0 else \
+        return fold_rows(ep.observations[: ep.length], fold_t, FOLD_WINDOW) if fold_t > 0 else \
             np.arange(ep.length)
 
     def barred(ep: Episode) -> np.ndarray | None:
-        return undone(ep.observations[: ep.length + 1], tolerance, PERSIST_STEPS) if tolerance > 0 else None
+        return undone(ep.observations[: ep.length + 1], fold_t, PERSIST_STEPS) if fold_t > 0 else None
 
     return {"as is": lambda ep: (np.arange(ep.length), None),
             "droid": lambda ep: (droid_rows(ep, domain), None),
@@ -229,9 +234,10 @@ def remedies(domain: str, checkpoint: Path, count: int, names: Sequence[str]) ->
     for name in names:
         eps = family_episodes(domain, FAMILIES[name], count)
         choice = choose_tolerance(eps)
+        fold_t = choice.noise * noise_margin(int(eps[0].observations.shape[1]))
         row = {"domain": domain, "checkpoint": str(checkpoint), "family": name, "episodes": count,
-               "still_tolerance_auto": round(choice.tolerance, 6)}
-        for arm, plan in arms(domain, choice.tolerance).items():
+               "still_tolerance_auto": round(choice.tolerance, 6), "fold_tolerance": round(fold_t, 6)}
+        for arm, plan in arms(domain, choice.tolerance, fold_t).items():
             row[arm] = score(policy, domain, eps, plan)
         rows.append(row)
         print(json.dumps(row), flush=True)
