@@ -21,7 +21,9 @@ rule (:mod:`ompn_ros.stream.rule`) runs it live and maps boundaries back with :m
 ``still_tolerance: auto`` (``ompn_train``'s default) chooses T from the training episodes, without labels
 (:func:`choose_tolerance`, docs/design.md#still-observations): T sits above the observations' own noise
 floor, so a held pose is still and a move is not, and it is 0 when the data has no noise floor (a
-scripted demonstrator on a noise-free sim) or when almost nothing would be still at T.
+scripted demonstrator on a noise-free sim), when almost nothing would be still at T, or when pauses
+cannot be told from slow motion (continuous control whose slow approach moves by a few noise floors a
+step: thinning it would drop moving steps too).
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ AUTO_MARGIN = 2.0
 """Noise floors above the largest of ``n`` noise differences that T adds (:func:`choose_tolerance`)."""
 AUTO_MIN_STILL_SHARE = 0.01
 """``auto`` keeps T = 0 when fewer than this share of the steps would be still at the chosen T."""
+AUTO_BAND = 4.0
+"""``auto`` keeps T = 0 when at least :data:`AUTO_MIN_STILL_SHARE` of the steps change by between T and
+this many T (in their largest element): slow motion that a tolerance would thin like a pause."""
 AUTO_SAMPLE_STEPS = 20000
 """At most this many steps (whole episodes, spread over the data) estimate the noise floor."""
 _QUARTER = 0.25
@@ -127,7 +132,9 @@ def noise_floor(episodes: Sequence[Episode], limit: int = AUTO_SAMPLE_STEPS) -> 
 def choose_tolerance(episodes: Sequence[Episode], limit: int = AUTO_SAMPLE_STEPS) -> StillChoice:
     """``still_tolerance: auto``: T = noise · :func:`noise_margin` of the ``n`` observation elements (the
     largest of ``n`` pure-noise changes stays below it), 0 without a noise floor or when
-    fewer than :data:`AUTO_MIN_STILL_SHARE` of the sampled steps would be still.  No labels are read."""
+    fewer than :data:`AUTO_MIN_STILL_SHARE` of the sampled steps would be still, or when at least that
+    share changes by between T and :data:`AUTO_BAND` T (pauses and moves not separated).  No labels are
+    read."""
     sample = [ep for ep in episodes if ep.length > 0]
     if not sample:
         return StillChoice(0.0, 0.0, 0.0, "no steps to measure")
@@ -141,6 +148,13 @@ def choose_tolerance(episodes: Sequence[Episode], limit: int = AUTO_SAMPLE_STEPS
     steps = sum(ep.length for ep in picked)
     still = steps - sum(drop_still(ep, tolerance)[0].length for ep in picked)
     share = still / max(steps, 1)
+    changes = np.concatenate([np.abs(np.diff(np.asarray(ep.observations[: ep.length], dtype=np.float64),
+                                                    axis=0)).max(axis=1, initial=0.0) for ep in picked])
+    band = float(np.mean((changes >= tolerance) & (changes < AUTO_BAND * tolerance))) if changes.size else 0.0
+    if band >= AUTO_MIN_STILL_SHARE:
+        return StillChoice(0.0, noise, share, f"noise floor {noise:.3g}; {100 * band:.1f} % of the steps "
+                           f"move by {tolerance:.3g} to {AUTO_BAND:g}x that: slow moves look like pauses: "
+                           "off")
     if share < AUTO_MIN_STILL_SHARE:
         return StillChoice(0.0, noise, share, f"noise floor {noise:.3g}; only {100 * share:.1f} % of the "
                            f"steps still at {tolerance:.3g}, below {100 * AUTO_MIN_STILL_SHARE:.0f} %: off")
