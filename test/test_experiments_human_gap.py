@@ -88,10 +88,12 @@ def test_collapse_idle_can_watch_the_first_features_only() -> None:
 def test_the_still_arms_train_with_the_products_rule(tmp_path) -> None:
     from lab.own_data import STILL_TOLERANCE, arm_configs
 
-    still = [a for a in ARMS.values() if a.still]
+    still = [a for a in ARMS.values() if a.still and a.still != "auto"]
     assert {a.data for a in still} == {"craft_full_human", "craft_partial_human"} and len(still) == 10
     model, _ = arm_configs(ARMS["human_craft_full_still_seed10"], tmp_path, 1)
     assert model.still_tolerance == STILL_TOLERANCE > 0
+    auto = [a for a in ARMS.values() if a.still == "auto"]  # chosen from the pool when training (§56)
+    assert len(auto) == 25 and arm_configs(auto[0], tmp_path, 1)[0].still_tolerance == 0
     assert arm_configs(ARMS["human_craft_full_complete_seed10"], tmp_path, 1)[0].still_tolerance == 0
 
 
