@@ -30,6 +30,7 @@ its run, as the still rule places it.  Held-out episodes are :mod:`lab.human_gap
 
     python -m lab.detours memory
     python -m lab.detours remedies --domain craft [--checkpoint DIR]
+    python -m lab.detours collate --out results/detours.json memory.jsonl craft.jsonl ... [--arm A.json]
 """
 
 from __future__ import annotations
@@ -244,6 +245,22 @@ def remedies(domain: str, checkpoint: Path, count: int, names: Sequence[str]) ->
     return rows
 
 
+def collate(out: Path, rows: Sequence[Path], arms_done: Sequence[Path], command: list[str]) -> Path:
+    """Gather the JSON lines of ``memory`` / ``remedies`` runs and the rows of own-data arms
+    (``lab.own_data``) into one results document."""
+    doc: dict[str, Any] = {"study": "detours and still observations (docs/experiments.md §56)",
+                           "command": command, "memory": [], "remedies": [], "arms": []}
+    for path in rows:
+        for line in path.read_text(encoding="utf-8").splitlines():
+            if line.strip():
+                row = json.loads(line)
+                doc["memory" if "score_detour" in row else "remedies"].append(row)
+    doc["arms"] = [json.loads(p.read_text(encoding="utf-8")) for p in arms_done]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="study", required=True)
@@ -254,8 +271,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     for p in (m, r):
         p.add_argument("--checkpoint", type=Path, default=None, help="default: the shipped checkpoint")
         p.add_argument("--episodes", type=int, default=None, help="held-out episodes (Craft 150, Dial 60)")
+    c = sub.add_parser("collate", help="gather JSON lines and arm rows into one results file")
+    c.add_argument("--out", type=Path, required=True)
+    c.add_argument("rows", type=Path, nargs="+", help="JSON lines of memory / remedies")
+    c.add_argument("--arm", type=Path, action="append", default=[], help="an own-data arm's row (JSON)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
+    if args.study == "collate":
+        print(collate(args.out, args.rows, args.arm, ["python", "-m", "lab.detours",
+                                                      *(argv if argv is not None else sys.argv[1:])]))
+        return 0
     if args.study == "memory":
         policy, _ = load_checkpoint(args.checkpoint or shipped_checkpoint("craft"))
         for name in ("human-like", "human-like without pauses", "pauses at boundaries"):
