@@ -255,6 +255,9 @@ def collate(out: Path, rows: Sequence[Path], arms_done: Sequence[Path], command:
             if line.strip():
                 row = json.loads(line)
                 doc["memory" if "score_detour" in row else "remedies"].append(row)
+    for row in doc["remedies"]:  # a shipped checkpoint by its name, never by this machine's path
+        if Path(row["checkpoint"]).is_absolute():
+            row["checkpoint"] = f"shipped {row['domain']} checkpoint"
     doc["arms"] = [json.loads(p.read_text(encoding="utf-8")) for p in arms_done]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
