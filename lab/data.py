@@ -19,14 +19,16 @@ from ompn_ros.app.collect import MANIFEST, collect, human_settings
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import ReaderSpec
+from sim_nodes.human import BOUNDARY_MODE
 
 HUMAN_VARIANTS: dict[str, tuple[str, ...]] = {
     "human": (),
     "human_nopauses": ("pause_rate=0", "hesitation_rate=0"),
     "human_nodetours": ("overshoot_rate=0", "wrong_move_rate=0"),
+    "human_boundaries": BOUNDARY_MODE,
 }
 """Human-like demonstrators of the lab: the defaults, and the defaults without one perturbation
-(docs/experiments.md §54)."""
+(docs/experiments.md §54), and pauses at subtask changes (§57)."""
 
 
 def collect_bags(

@@ -44,7 +44,7 @@ from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat
-from sim_nodes.human import parse_human
+from sim_nodes.human import BOUNDARY_MODE, parse_human
 from sim_nodes.registry import default_tasks, expert_episode
 
 SEED_BASE = 60000
@@ -65,6 +65,7 @@ def families(domain: str) -> dict[str, tuple[str, ...] | None]:
         others = [o for n in names if n != name for o in _OFF[n] if o not in _OFF[name]]
         out[f"{name} only"] = (*others, *_MESSAGES)
         out[f"human-like without {name}"] = _OFF[name]
+    out["pauses at boundaries"] = BOUNDARY_MODE  # pauses where people make them (§57)
     return out
 
 

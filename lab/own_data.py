@@ -51,6 +51,7 @@ from ompn_ros.data.cache import load_arrays
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import FinalObservation, ReaderSpec
+from ompn_ros.data.still import choose_tolerance
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import build_stepper
 from ompn_ros.train.config import TrainConfig
@@ -71,7 +72,7 @@ from .report_own import OWN_DATA
 from .strip import strip_bags
 
 Study = Literal["labels", "final_observation", "length", "demonstrator"]
-Demonstrator = Literal["expert", "human", "human_nopauses", "human_nodetours"]
+Demonstrator = Literal["expert", "human", "human_nopauses", "human_nodetours", "human_boundaries"]
 Bags = Literal["complete", "drop_last_step", "duplicate", "blank", "extrapolate"]
 Length = Literal["patience", "fixed"]
 DATA_SEED = 0
@@ -101,9 +102,11 @@ class Arm:
     idle: bool = True
     """False: the training and validation episodes lose their idle steps (:func:`lab.data.collapse_idle`,
     docs/experiments.md §54); the test episodes keep them."""
-    still: float = 0.0
+    still: float | Literal["auto"] = 0.0
     """``model.still_tolerance``: the product's rule for still observations (:mod:`ompn_ros.data.still`),
-    applied by ``ompn_train`` and every replay; the run is scored through the node's replay."""
+    applied by ``ompn_train`` and every replay; the run is scored through the node's replay.  ``'auto'``:
+    chosen from the training pool as ``ompn_train`` chooses it
+    (:func:`ompn_ros.data.still.choose_tolerance`)."""
 
     @property
     def data(self) -> str:
@@ -202,8 +205,16 @@ def _arms() -> dict[str, Arm]:
             # the same through the product's model.still_tolerance (§55)
             arms.append(Arm(f"human_craft_{obs}_still_seed{seed}", "demonstrator", "craft", partial=partial,
                             length="fixed", seed=seed, demonstrator="human", still=STILL_TOLERANCE))
+            # still_tolerance: auto, on the defaults and on pauses at subtask changes (§57)
+            for demonstrator in ("human", "human_boundaries"):
+                tag = "auto" if demonstrator == "human" else "boundaries_auto"
+                arms.append(Arm(f"human_craft_{obs}_{tag}_seed{seed}", "demonstrator", "craft",
+                                partial=partial, length="fixed", seed=seed,
+                                demonstrator=demonstrator, still="auto"))  # type: ignore[arg-type]
     for seed in range(5, 10):
         arms += [
+            Arm(f"human_dial_boundaries_auto_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
+                demonstrator="human_boundaries", still="auto"),
             Arm(f"human_dial_complete_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
                 demonstrator="human"),
             Arm(f"human_dial_extrapolate_seed{seed}", "demonstrator", "dial", length="fixed",
@@ -282,7 +293,8 @@ def arm_configs(arm: Arm, work: Path, threads: int) -> tuple[Any, TrainConfig]:
         base["train"]["restart_at"] = 0
     spec = RunSpec(domain=arm.domain, setting=setting, seed=arm.seed)
     model, train = build_configs(spec, base, work / "runs" / arm.name)
-    return (replace(model, still_tolerance=arm.still) if arm.still else model), train
+    fixed = arm.still if isinstance(arm.still, float) else 0.0  # 'auto' is chosen from the pool (train_arm)
+    return (replace(model, still_tolerance=fixed) if fixed else model), train
 
 
 def train_arm(
@@ -297,6 +309,12 @@ def train_arm(
     ``resume``: continue what ``<work>/runs/<arm>/`` holds (e.g. a candidate copied in from the single
     run of the same seed, which is candidate 0)."""
     model_cfg, train_cfg = arm_configs(arm, work, threads)
+    chosen: dict[str, Any] = {}
+    if arm.still == "auto":
+        choice = choose_tolerance(pool)
+        model_cfg = replace(model_cfg, still_tolerance=choice.tolerance)
+        chosen = {"still_auto": choice.as_dict()}
+        print(f"   {arm.name}: {choice.summary()}", file=sys.stderr)
     out = work / "runs" / arm.name
     earlier = 0.0
     if resume:
@@ -320,6 +338,7 @@ def train_arm(
         "iteration_cap": train_cfg.iterations,
         **({"resumed_from": resume_from.name} if resume_from is not None else {}),
         **({"candidates": result.candidates} if result.candidates else {}),
+        **chosen,
     }
 
 

@@ -11,6 +11,12 @@ expert and perturbs it the way a teleoperated demonstration differs from a scrip
   approach point, then back to it (per subtask);
 * **wrong moves undone**: Craft a step away and back (per move); Dial the approach of a
   neighbouring key first, then the right one (per subtask);
+* **sidetracks at subtask changes** (``boundary_rate`` per subtask change, default 0): where people
+  make them (pauses, exploration and mistakes cluster at task-phase changes): at a change the
+  demonstrator pauses ``pause_steps`` and then corrects itself on the new subtask's first move (an
+  overshoot or a wrong move undone, in the ratio of ``overshoot_rate`` to ``wrong_move_rate``, even
+  when both are 0).  :data:`BOUNDARY_MODE` moves the random pauses there (``pause_rate=0``,
+  ``boundary_rate=0.5``: half the changes);
 * **sensor noise**: Gaussian, standard deviation ``sensor_noise``, on every recorded observation
   (and Dial's joint states); the demonstrator itself acts on the true state;
 * **dropped and duplicated observation messages** (``drop_rate``, ``duplicate_rate`` per message,
@@ -22,7 +28,7 @@ Labels stay exact: a step carries the subtask in progress in the env, so a pause
 belongs to the subtask it interrupts.  Everything is drawn from the episode seed (its own streams),
 so a human-like episode is as reproducible as an expert one.  ``extras['human_events']`` counts
 what happened (``pauses``, ``hesitations``, ``pause_steps``, ``overshoots``, ``wrong_moves``,
-``opportunities_*``).
+``sidetracks``, ``opportunities_*``).
 """
 
 from __future__ import annotations
@@ -40,7 +46,12 @@ DEMONSTRATORS = ("expert", "human")
 EVENTS_KEY = "human_events"
 _BEHAVIOUR_STREAM = 0x4855
 _RECORDING_STREAM = 0x4856
-_RATES = ("pause_rate", "hesitation_rate", "overshoot_rate", "wrong_move_rate", "drop_rate", "duplicate_rate")
+_RATES = ("pause_rate", "hesitation_rate", "overshoot_rate", "wrong_move_rate", "drop_rate", "duplicate_rate",
+          "boundary_rate")
+BOUNDARY_MODE = ("pause_rate=0", "boundary_rate=0.5")
+"""Pauses where people make them: the human-like defaults with the random pauses moved to subtask
+changes, half of which carry a sidetrack (a pause, then a correction); ``--demonstrator human`` with
+these parameters (docs/craft.md §2.6, docs/dial.md §3.9)."""
 
 
 class HumanLikeError(ValueError):
@@ -65,6 +76,7 @@ class HumanLike:
     sensor_noise: float = 0.002
     drop_rate: float = 0.01
     duplicate_rate: float = 0.01
+    boundary_rate: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (*_RATES, "sensor_noise"):
@@ -86,7 +98,17 @@ class HumanLike:
         return int(rng.integers(lo, hi + 1))
 
     def as_dict(self) -> dict[str, Any]:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        out = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        if not self.boundary_rate:
+            del out["boundary_rate"]  # off: the settings of demonstrations made before it existed
+        return out
+
+    def correction(self, rng: np.random.Generator) -> str:
+        """The correction of a sidetrack: 'overshoot' or 'wrong', in the ratio of ``overshoot_rate`` to
+        ``wrong_move_rate`` (even odds when both are 0)."""
+        total = self.overshoot_rate + self.wrong_move_rate
+        share = self.overshoot_rate / total if total > 0 else 0.5
+        return "overshoot" if rng.random() < share else "wrong"
 
 
 _DEFAULTS = {
@@ -144,7 +166,8 @@ def behaviour_rng(seed: int) -> np.random.Generator:
 
 def new_events() -> dict[str, int]:
     names = ("pauses", "hesitations", "pause_steps", "overshoots", "wrong_moves", "opportunities_pause",
-             "opportunities_hesitation", "opportunities_detour")  # fmt: skip
+             "opportunities_hesitation", "opportunities_detour", "sidetracks",
+             "opportunities_sidetrack")  # fmt: skip
     return dict.fromkeys(names, 0)
 
 

@@ -33,7 +33,12 @@ def test_each_family_changes_only_what_it_names(domain: str) -> None:
 def test_the_variant_arms_train_on_their_own_bag_sets() -> None:
     variants = [a for a in ARMS.values() if a.demonstrator not in ("expert", "human")]
     assert variants and {a.demonstrator for a in variants} == set(HUMAN_VARIANTS) - {"human"}
-    assert all(a.data == f"craft_full_{a.demonstrator}" for a in variants)
+    assert all(a.data == f"craft_full_{a.demonstrator}" for a in variants
+               if a.demonstrator != "human_boundaries")
+    boundaries = {a.data for a in variants if a.demonstrator == "human_boundaries"}
+    assert boundaries == {"craft_full_human_boundaries", "craft_partial_human_boundaries",
+                          "dial_full_human_boundaries"}
+    assert all(a.still == "auto" for a in variants if a.demonstrator == "human_boundaries")
     assert ARMS["human_craft_full_complete_seed10"].data == "craft_full_human"
     noidle = [a for a in ARMS.values() if not a.idle]
     assert {a.data for a in noidle} == {"craft_full_human", "craft_partial_human"}
@@ -83,10 +88,12 @@ def test_collapse_idle_can_watch_the_first_features_only() -> None:
 def test_the_still_arms_train_with_the_products_rule(tmp_path) -> None:
     from lab.own_data import STILL_TOLERANCE, arm_configs
 
-    still = [a for a in ARMS.values() if a.still]
+    still = [a for a in ARMS.values() if a.still and a.still != "auto"]
     assert {a.data for a in still} == {"craft_full_human", "craft_partial_human"} and len(still) == 10
     model, _ = arm_configs(ARMS["human_craft_full_still_seed10"], tmp_path, 1)
     assert model.still_tolerance == STILL_TOLERANCE > 0
+    auto = [a for a in ARMS.values() if a.still == "auto"]  # chosen from the pool when training (§57)
+    assert len(auto) == 25 and arm_configs(auto[0], tmp_path, 1)[0].still_tolerance == 0
     assert arm_configs(ARMS["human_craft_full_complete_seed10"], tmp_path, 1)[0].still_tolerance == 0
 
 

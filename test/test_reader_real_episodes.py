@@ -150,8 +150,15 @@ def test_idle_spec_is_validated(tmp_path: Path) -> None:
         _spec(split="idle", idle_s=0.0)
     _demo_bag(tmp_path / "bag", np.random.default_rng(4))
     action = {"topic": "joint_states", "type": JOINT_STATE, "fields": ["velocity"], "joint_names": JOINTS}
-    result = read_episodes(tmp_path / "bag", spec=_spec(split="idle", action=action))
+    result = read_episodes(tmp_path / "bag", spec=_spec(split="idle", action=action, idle_speed=0))
     assert len(result.episodes) == 1 and any("set idle_speed" in n for n in result.report.bags[0].notes)
+    with pytest.raises(ReaderSpecError, match="idle_speed must be 'auto'"):
+        _spec(split="idle", idle_speed="fast")
+    # the default, idle_speed: auto, sees the robot still from the bag's own noise floor
+    result = read_episodes(tmp_path / "bag", spec=_spec(split="idle", action=action,
+                                                        final_observation="drop_last_step"))
+    assert [e.length for e in result.episodes] == [n + 1 for n in DEMOS]
+    assert "idle_speed auto -> " in result.report.summary()
 
 
 def test_splitter_holds_a_short_pause_and_trims_a_long_one() -> None:

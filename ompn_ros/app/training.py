@@ -4,13 +4,15 @@ The config has three sections (``model``: :class:`~ompn_ros.model.config.OMPNCon
 :class:`~ompn_ros.train.config.TrainConfig`, ``data``: ``domain``, ``reader_spec``, ``on_error``,
 ``cache``, ``cache_workers``: per-bag cache entries built in parallel, ``action_dim``);
 ``section.key=value`` overrides are parsed as YAML.  What the bag reader used and dropped is printed
-and stored with the run (``read_report.json`` / ``.txt``).
+and stored with the run (``read_report.json`` / ``.txt``), with the tolerance ``model.still_tolerance:
+auto`` (the default) chose from the episodes (:func:`resolve_still`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import shutil
 from collections.abc import Callable
@@ -27,6 +29,7 @@ from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.data.cache_dataset import load_dataset_arrays
 from ompn_ros.data.lerobot import DatasetSpec
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
+from ompn_ros.data.still import AUTO, check_setting, choose_tolerance
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
@@ -36,6 +39,7 @@ from ompn_ros.train.distributed import DistContext, broadcast_text, init_distrib
 from ompn_ros.train.synthetic import SyntheticKind, make_dataset, synthetic_spec
 from ompn_ros.train.trainer import train
 
+LOG = logging.getLogger("ompn_ros.train")
 SECTIONS = ("model", "train", "data")
 RUN_OUTPUTS = (
     "best",
@@ -273,8 +277,10 @@ def weights_hash(policy: Any) -> str:
 def build_configs(
     config: dict[str, dict[str, Any]], data: TrainingData, out: Path, resume: bool, quiet: bool
 ) -> tuple[OMPNConfig, TrainConfig]:
-    """The validated model and training configs: the file's sections, the data's sizes, the CLI's flags."""
+    """The validated model and training configs: the file's sections, the data's sizes, the CLI's flags
+    (``model.still_tolerance: auto`` resolved from the episodes, :func:`resolve_still`)."""
     model_fields = {**config["model"], **data.fields}
+    model_fields["still_tolerance"] = resolve_still(model_fields.get("still_tolerance", AUTO), data)
     if model_fields.get("sketch_mode") == "sum" and not model_fields.get("sketch_vocab") and data.vocab:
         model_fields["sketch_vocab"] = data.vocab
     train_fields = {**config["train"], "out_dir": str(out), "resume": bool(resume)}
@@ -284,6 +290,25 @@ def build_configs(
     guessed = final_row_guessed(str(data.report.get("summary", "")))
     return OMPNConfig.from_dict(model_fields), resolve_candidates(train_config, guessed,
                                                                   labelled(train_config, data))
+
+
+def resolve_still(setting: Any, data: TrainingData) -> float:
+    """``model.still_tolerance`` as a number: a given one as it is, ``auto`` (the default) chosen from
+    ``data``'s episodes without labels (:func:`ompn_ros.data.still.choose_tolerance`); the choice joins the
+    read report (``still`` and a line of its ``summary``), and the checkpoint stores the number."""
+    try:
+        value = check_setting(setting, "model.still_tolerance")
+    except ValueError as exc:
+        raise TrainSetupError(str(exc)) from None
+    if value != AUTO:
+        return float(value)
+    choice = choose_tolerance(data.episodes)
+    LOG.info("%s", choice.summary())
+    if data.report.get("still") != choice.as_dict():
+        data.report["still"] = choice.as_dict()
+        if "summary" in data.report:
+            data.report["summary"] = f"{data.report['summary']}\n{choice.summary()}"
+    return choice.tolerance
 
 
 def labelled(train_config: TrainConfig, data: TrainingData) -> bool:

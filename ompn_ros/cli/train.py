@@ -106,7 +106,6 @@ def _run(args: argparse.Namespace) -> int:
         data = training.synthetic_data(args.synthetic, args.episodes, config["data"])
     elif args.dataset:
         data = training.dataset_data(args.dataset, config["data"], args.dataset_spec)
-        print(data.report["summary"], file=sys.stderr)
     else:
         data = training.bag_data(args.bags, config["data"], spec)
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)

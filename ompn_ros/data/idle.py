@@ -4,10 +4,16 @@ Real drivers publish joint states continuously, also while the robot waits betwe
 a time gap never appears.  The rule here cuts such a stream instead, one step at a time, so the bag
 reader and the live node cut in the same places (``ReaderSpec.split``):
 
-* a step is **still** when the caller says so: its observation changed by less than ``idle_speed``
-  per second since the previous step (:func:`still_by_speed`, the largest element change divided by
-  the time between the two stamps; the first step of a stream counts as still), or, in the reader,
-  when it has no command attached;
+* a step is **still** when the caller says so: its speed is below ``idle_speed`` (:func:`still_by_speed`;
+  the first step of a stream counts as still), or, in the reader, when it has no command attached;
+* the **speed** of a step (:class:`SpeedElements`) is the joint speed in the observation's own units
+  per second (rad/s for joint positions): for an observation made of JointState fields, the largest
+  change of a joint *position* per second since the previous step and the largest measured joint
+  *velocity* (read as a speed, never differentiated: a velocity's change per second is an
+  acceleration), efforts ignored; for any other observation, the largest change of any element per
+  second.  ``idle_speed: auto`` (the reader's default) derives the threshold from the stream's own
+  noise floor (:func:`derive_idle_speed`, the notion of ``still_tolerance: auto``,
+  :mod:`ompn_ros.data.still`);
 * still steps inside an episode are held; when the robot moves again before ``idle_s`` passed they
   are steps of the episode (a short pause, e.g. while the gripper closes);
 * once the held still steps span ``idle_s`` (or two steps lie more than ``idle_s`` apart) the episode
@@ -26,6 +32,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+
+from ompn_ros.data.still import element_noise, noise_margin
 
 Kind = Literal["start", "step", "end"]
 
@@ -111,27 +119,110 @@ class IdleSplitter:
         return [Cut("end", final)]
 
 
-def still_by_speed(stamps_ns: np.ndarray, values: np.ndarray, idle_speed: float) -> np.ndarray:
-    """Per step, whether the observation changed by less than ``idle_speed`` per second since the
-    previous one (largest element change / time between the stamps; the first step is still)."""
+EXACT_SPEED = 1e-9
+"""``idle_speed: auto`` on a stream without noise floor: still only when nothing changes at all."""
+
+
+@dataclass(frozen=True)
+class SpeedElements:
+    """Which observation elements give a step's speed (module docstring).
+
+    ``fields``: the JointState fields the observation concatenates, in order (each one value per joint);
+    ``None``: any other observation, every element differentiated.  Positions are differentiated,
+    velocities read as speeds, efforts ignored; fields without a position or velocity fall back to
+    every element."""
+
+    fields: tuple[str, ...] | None = None
+
+    def split(self, width: int) -> tuple[np.ndarray | None, np.ndarray]:
+        """``(differentiated elements, None = all; velocity elements)`` of a ``width``-element observation."""
+        fields = self.fields
+        if not fields or width % len(fields) or not {"position", "velocity"} & set(fields):
+            return None, np.zeros(0, dtype=np.int64)
+        joints = width // len(fields)
+        block = {name: np.arange(k * joints, (k + 1) * joints) for k, name in enumerate(fields)}
+        empty = np.zeros(0, dtype=np.int64)
+        return block.get("position", empty), block.get("velocity", empty)
+
+    def describe(self) -> str:
+        if not self.fields or not {"position", "velocity"} & set(self.fields):
+            return "every observation element, per second"
+        return " and ".join(n for n in ("position", "velocity") if n in self.fields).join(
+            ("joint ", " (rad/s for revolute joints)"))
+
+
+ALL_ELEMENTS = SpeedElements()
+
+
+def speeds(stamps_ns: np.ndarray, values: np.ndarray, elements: SpeedElements = ALL_ELEMENTS) -> np.ndarray:
+    """Per step, its speed (module docstring); the first step's is 0 (a stream's first step is still)."""
+    values = np.asarray(values, dtype=np.float64)
     n = len(stamps_ns)
-    still = np.ones(n, dtype=bool)
-    if n < 2:
-        return still
-    dt = np.maximum(np.diff(stamps_ns).astype(np.float64), 1.0) / 1e9
-    change = np.abs(np.diff(np.asarray(values, dtype=np.float64), axis=0))
-    still[1:] = change.max(axis=1, initial=0.0) < idle_speed * dt
+    out = np.zeros(n)
+    if n == 0:
+        return out
+    moved, velocity = elements.split(values.shape[1] if values.ndim == 2 else 1)
+    if n > 1:
+        dt = np.maximum(np.diff(stamps_ns).astype(np.float64), 1.0) / 1e9
+        diffs = np.abs(np.diff(values if moved is None else values[:, moved], axis=0))
+        out[1:] = diffs.max(axis=1, initial=0.0) / dt
+    if velocity.size:
+        out[1:] = np.maximum(out[1:], np.abs(values[1:, velocity]).max(axis=1))
+    return out
+
+
+def still_by_speed(stamps_ns: np.ndarray, values: np.ndarray, idle_speed: float,
+                   elements: SpeedElements = ALL_ELEMENTS) -> np.ndarray:
+    """Per step, whether its speed (:func:`speeds`) is below ``idle_speed`` (the first step is still)."""
+    still = speeds(stamps_ns, values, elements) < idle_speed
+    if len(still):
+        still[0] = True
     return still
 
 
 def step_still(prev: np.ndarray | None, prev_ns: int | None, obs: np.ndarray, stamp_ns: int,
-               idle_speed: float) -> bool:
+               idle_speed: float, elements: SpeedElements = ALL_ELEMENTS) -> bool:
     """:func:`still_by_speed` for one step (``prev`` = the previous observation, ``None`` at the start)."""
     if prev is None or prev_ns is None or prev.shape != obs.shape:
         return True
-    dt = max(stamp_ns - prev_ns, 1) / 1e9
-    change = np.abs(np.asarray(obs, dtype=np.float64) - np.asarray(prev, dtype=np.float64))
-    return bool(change.max(initial=0.0) < idle_speed * dt)
+    pair = np.stack([np.asarray(prev, dtype=np.float64).ravel(), np.asarray(obs, dtype=np.float64).ravel()])
+    return bool(speeds(np.array([prev_ns, stamp_ns]), pair, elements)[1] < idle_speed)
+
+
+@dataclass(frozen=True)
+class IdleSpeed:
+    """What ``idle_speed: auto`` derived: the threshold, the two noise floors it rests on (of a position's
+    change per second, of a velocity reading) and the read summary's words."""
+
+    speed: float
+    position_noise: float
+    velocity_noise: float
+    text: str
+
+
+def derive_idle_speed(stamps_ns: np.ndarray, values: np.ndarray,
+                      elements: SpeedElements = ALL_ELEMENTS) -> IdleSpeed:
+    """``idle_speed: auto``: the stream's own noise floor (:func:`ompn_ros.data.still.element_noise`, the
+    median over the speed's elements: a held joint's position change per second, a held joint's velocity
+    reading) times :func:`ompn_ros.data.still.noise_margin` of their count, so the largest speed of a
+    held robot stays below it; :data:`EXACT_SPEED` for a noise-free stream.  Labels are never read."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim != 2 or len(values) < 3:
+        return IdleSpeed(EXACT_SPEED, 0.0, 0.0, f"idle_speed auto -> {EXACT_SPEED:g}: too few steps")
+    moved, velocity = elements.split(values.shape[1])
+    dt = float(np.median(np.maximum(np.diff(stamps_ns).astype(np.float64), 1.0))) / 1e9
+    pos = element_noise(values if moved is None else values[:, moved])
+    vel = element_noise(values[:, velocity]) / np.sqrt(2.0) if velocity.size else np.zeros(0)
+    pos_floor = float(np.median(pos)) / dt if pos.size else 0.0
+    vel_floor = float(np.median(vel)) if vel.size else 0.0
+    count = (values.shape[1] if moved is None else moved.size) + velocity.size
+    speed = max(pos_floor, vel_floor) * noise_margin(count)
+    where = elements.describe()
+    if not speed > 0:
+        return IdleSpeed(EXACT_SPEED, 0.0, 0.0, f"idle_speed auto -> {EXACT_SPEED:g} on {where}: no noise "
+                         "floor, still only when nothing changes")
+    return IdleSpeed(speed, pos_floor, vel_floor, f"idle_speed auto -> {speed:.4g} on {where} (noise floor "
+                     f"{pos_floor:.3g} per second of position change, {vel_floor:.3g} of velocity reading)")
 
 
 def idle_windows(stamps_ns: np.ndarray, still: np.ndarray,
@@ -159,4 +250,5 @@ def _apply(cut: Cut, first: int, windows: list[tuple[int, int]]) -> int:
     return first
 
 
-__all__ = ["Cut", "IdleSplitter", "idle_windows", "step_still", "still_by_speed"]
+__all__ = ["ALL_ELEMENTS", "EXACT_SPEED", "Cut", "IdleSpeed", "IdleSplitter", "SpeedElements",
+           "derive_idle_speed", "idle_windows", "speeds", "step_still", "still_by_speed"]

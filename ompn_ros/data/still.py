@@ -17,17 +17,59 @@ offline replay and ``ompn_node``:
 :class:`StillRuns` is the rule for one observation at a time (O(1) per observation, no allocation but a
 copy of the stepped observation); :func:`drop_still` runs it over a whole :class:`Episode`; the stream
 rule (:mod:`ompn_ros.stream.rule`) runs it live and maps boundaries back with :meth:`StillRuns.end_of`.
+
+``still_tolerance: auto`` (``ompn_train``'s default) chooses T from the training episodes, without labels
+(:func:`choose_tolerance`, docs/design.md#still-observations): T sits above the observations' own noise
+floor, so a held pose is still and a move is not, and it is 0 when the data has no noise floor (a
+scripted demonstrator on a noise-free sim), when almost nothing would be still at T, or when pauses
+cannot be told from slow motion (continuous control whose slow approach moves by a few noise floors a
+step: thinning it would drop moving steps too).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ompn_ros.data.episode import Episode
 
-__all__ = ["StillRuns", "check_tolerance", "drop_still", "run_ends"]
+__all__ = ["AUTO", "StillChoice", "StillRuns", "check_setting", "check_tolerance", "choose_tolerance",
+           "drop_still", "element_noise", "noise_floor", "noise_margin", "run_ends"]
+
+AUTO = "auto"
+"""``still_tolerance: auto``: T chosen from the training episodes (:func:`choose_tolerance`)."""
+AUTO_MARGIN = 2.0
+"""Noise floors above the largest of ``n`` noise differences that T adds (:func:`choose_tolerance`)."""
+AUTO_MIN_STILL_SHARE = 0.01
+"""``auto`` keeps T = 0 when fewer than this share of the steps would be still at the chosen T."""
+AUTO_BAND = 4.0
+"""``auto`` keeps T = 0 when at least :data:`AUTO_MIN_STILL_SHARE` of the steps change by between T and
+this many T (in their largest element): slow motion that a tolerance would thin like a pause."""
+AUTO_SAMPLE_STEPS = 20000
+"""At most this many steps (whole episodes, spread over the data) estimate the noise floor."""
+_QUARTER = 0.25
+_QUARTER_TO_STD = 1.0 / 0.3186  # |N(0, s)|: its lower quartile is 0.3186 s
+
+
+def element_noise(values: np.ndarray) -> np.ndarray:
+    """Per element of ``values`` ``[steps, elements]`` (one stream in time order), the noise of its change
+    per step: the standard deviation the change would have if nothing moved, from the lower quartile of
+    the absolute second differences (a smooth motion barely bends them, white sensor noise of standard
+    deviation s gives changes of s·√2 and second differences of s·√6; the quartile reads the floor even
+    when most steps move).  0 where the element repeats exactly; empty with fewer than 3 steps."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim != 2 or len(values) < 3:
+        return np.zeros(0)
+    bends = np.abs(np.diff(values, n=2, axis=0))
+    return np.quantile(bends, _QUARTER, axis=0) * _QUARTER_TO_STD / np.sqrt(3.0)
+
+
+def noise_margin(elements: int) -> float:
+    """How many noise floors lie above the largest of ``elements`` pure-noise changes:
+    √(2 ln 2n) + :data:`AUTO_MARGIN` (the factor of ``still_tolerance: auto`` and ``idle_speed: auto``)."""
+    return float(np.sqrt(2.0 * np.log(2.0 * max(int(elements), 1))) + AUTO_MARGIN)
 
 
 def check_tolerance(value: object, name: str = "still_tolerance") -> float:
@@ -35,6 +77,89 @@ def check_tolerance(value: object, name: str = "still_tolerance") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
         raise ValueError(f"{name} must be a finite number >= 0 (0 = off), got {value!r}")
     return float(value)
+
+
+def check_setting(value: object, name: str = "still_tolerance") -> float | str:
+    """A config's setting: ``'auto'`` or a tolerance (:func:`check_tolerance`); a ValueError naming
+    ``name`` and both forms otherwise."""
+    if isinstance(value, str) and value.strip().lower() == AUTO:
+        return AUTO
+    try:
+        return check_tolerance(value, name)
+    except ValueError:
+        raise ValueError(f"{name} must be 'auto' (chosen from the training data) or a finite number >= 0 "
+                         f"(0 = off), got {value!r}") from None
+
+
+@dataclass(frozen=True)
+class StillChoice:
+    """What ``still_tolerance: auto`` chose: ``tolerance`` (0 = off), the ``noise`` floor it rests on (the
+    robust standard deviation of one element's change per step while nothing moves), the share of steps
+    still at ``tolerance``, and why, in words (the read summary's line)."""
+
+    tolerance: float
+    noise: float
+    still_share: float
+    reason: str
+
+    def summary(self) -> str:
+        """One line for the read summary."""
+        return f"still_tolerance: auto -> {self.tolerance:.6g} ({self.reason})"
+
+    def as_dict(self) -> dict[str, object]:
+        return {"tolerance": self.tolerance, "noise": self.noise, "still_share": self.still_share,
+                "reason": self.reason}
+
+
+def _sample(episodes: Sequence[Episode], limit: int) -> list[np.ndarray]:
+    """The real-step observations of whole episodes spread evenly over ``episodes``, ≤ ``limit`` steps
+    (at least one episode)."""
+    total = sum(ep.length for ep in episodes)
+    stride = max(1, int(np.ceil(total / max(limit, 1))))
+    return [np.asarray(ep.observations[: ep.length], dtype=np.float64) for ep in episodes[::stride]]
+
+
+def noise_floor(episodes: Sequence[Episode], limit: int = AUTO_SAMPLE_STEPS) -> float:
+    """The observations' noise floor: the median over elements of :func:`element_noise`, over the
+    episodes' second differences (never across two episodes).  0 for noise-free data."""
+    bends = [np.abs(np.diff(obs, n=2, axis=0)) for obs in _sample(episodes, limit) if len(obs) >= 3]
+    if not bends:
+        return 0.0
+    per_element = np.quantile(np.concatenate(bends), _QUARTER, axis=0) * _QUARTER_TO_STD / np.sqrt(3.0)
+    return float(np.median(per_element))
+
+
+def choose_tolerance(episodes: Sequence[Episode], limit: int = AUTO_SAMPLE_STEPS) -> StillChoice:
+    """``still_tolerance: auto``: T = noise · :func:`noise_margin` of the ``n`` observation elements (the
+    largest of ``n`` pure-noise changes stays below it), 0 without a noise floor or when
+    fewer than :data:`AUTO_MIN_STILL_SHARE` of the sampled steps would be still, or when at least that
+    share changes by between T and :data:`AUTO_BAND` T (pauses and moves not separated).  No labels are
+    read."""
+    sample = [ep for ep in episodes if ep.length > 0]
+    if not sample:
+        return StillChoice(0.0, 0.0, 0.0, "no steps to measure")
+    noise = noise_floor(sample, limit)
+    if not noise > 0:
+        return StillChoice(0.0, 0.0, 0.0, "no noise floor: the observations repeat exactly, none held still")
+    elements = int(sample[0].observations.shape[1]) if sample[0].observations.ndim == 2 else 1
+    tolerance = noise * noise_margin(elements)
+    stride = max(1, int(np.ceil(sum(ep.length for ep in sample) / max(limit, 1))))
+    picked = sample[::stride]
+    steps = sum(ep.length for ep in picked)
+    still = steps - sum(drop_still(ep, tolerance)[0].length for ep in picked)
+    share = still / max(steps, 1)
+    changes = np.concatenate([np.abs(np.diff(np.asarray(ep.observations[: ep.length], dtype=np.float64),
+                                                    axis=0)).max(axis=1, initial=0.0) for ep in picked])
+    band = float(np.mean((changes >= tolerance) & (changes < AUTO_BAND * tolerance))) if changes.size else 0.0
+    if band >= AUTO_MIN_STILL_SHARE:
+        return StillChoice(0.0, noise, share, f"noise floor {noise:.3g}; {100 * band:.1f} % of the steps "
+                           f"move by {tolerance:.3g} to {AUTO_BAND:g}x that: slow moves look like pauses: "
+                           "off")
+    if share < AUTO_MIN_STILL_SHARE:
+        return StillChoice(0.0, noise, share, f"noise floor {noise:.3g}; only {100 * share:.1f} % of the "
+                           f"steps still at {tolerance:.3g}, below {100 * AUTO_MIN_STILL_SHARE:.0f} %: off")
+    return StillChoice(tolerance, noise, share, f"noise floor {noise:.3g} per element and step; "
+                       f"{100 * share:.1f} % of the steps still")
 
 
 @dataclass

@@ -55,7 +55,8 @@ class OMPNConfig:
         still_tolerance: 0 (every observation is a step) or the tolerance below which an observation
             that changed no element since the last stepped one is not stepped, in training, the replay
             and ``ompn_node`` alike (:mod:`ompn_ros.data.still`, docs/design.md#still-observations).
-            Absent in older configs: 0.
+            Always a number here: ``ompn_train``'s ``auto`` (its default) is resolved from the training
+            episodes before the config is built.  Absent in older configs: 0.
     """
 
     obs_dim: int

@@ -27,8 +27,9 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       (the node's clock), ends the episode like an end marker and starts the next
                       (:mod:`ompn_ros.stream.gap`, the bag reader's ``split: gaps`` rule).
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
-                      episode once the observation changed by less than ``idle_speed`` per second for
-                      ``idle_s`` (the reader's ``split: idle``; still steps are held, then stepped or
+                      episode once its speed stayed below ``idle_speed`` for ``idle_s`` (joint speed
+                      in rad/s with ``obs_source: joint_state``; the reader's ``split: idle``, whose
+                      end boundary is decided ``idle_s`` later; still steps are held, then stepped or
                       trimmed, counted ``idle_trimmed``; a marker or ``~/reset`` ends the held ones as
                       the end of a bag does: the first is the final observation, the others trimmed).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).

@@ -149,8 +149,10 @@ SPECS: Final = (
               "episode markers whose driver keeps publishing between demonstrations (the reader's split: "
               "idle; still steps are held, then stepped or trimmed; 0 = off)", float_range=(0.0, 1e6),
               apply="configure"),
-    ParamSpec("idle_speed", 0.01, "idle_s: a step is still when its observation changed by less than this "
-              "per second (largest element)", float_range=(0.0, 1e9), apply="configure"),
+    ParamSpec("idle_speed", 0.01, "idle_s: a step is still when its speed is below this: with obs_source "
+              "joint_state the joint speed in rad/s (positions' change per second, velocities as measured), "
+              "else any element's change per second; ompn_train's read summary names the bag's (idle_speed: "
+              "auto)", float_range=(0.0, 1e9), apply="configure"),
     ParamSpec("executor", "events", "callback executor", choices=EXECUTORS),
     ParamSpec("torch_threads", 1, "torch intra-op threads", int_range=(1, 64), apply="configure"),
 )  # fmt: skip

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ompn_ros.data.idle import IdleSplitter, step_still
+from ompn_ros.data.idle import ALL_ELEMENTS, IdleSplitter, SpeedElements, step_still
 
 GAP_TIMER_FRACTION = 0.25
 """Period of the silence timer as a fraction of ``episode_gap`` (the end lags by at most this much)."""
@@ -64,28 +64,35 @@ class SilenceWatch:
 
 class IdleGate:
     """``idle_s``: the reader's ``split: idle`` rule (:class:`ompn_ros.data.idle.IdleSplitter`) over the
-    node's observations, still by :func:`ompn_ros.data.idle.step_still` (the node sees no commands, so
-    only ``idle_speed`` makes a step still).  Still observations are held until the rule decides them:
-    :meth:`push` returns ``(kind, observation, stamp)`` in order, ``kind`` ``start`` (reset, then step
-    it), ``step`` (step it) or ``end`` (step it when given, then close the episode; ``None``: the last
-    stepped observation is the final one).  O(1) per step, amortised."""
+    node's observations, still by :func:`ompn_ros.data.idle.step_still` on ``elements`` (the node sees no
+    commands, so only ``idle_speed`` makes a step still).  Still observations are held until the rule
+    decides them: :meth:`push` returns ``(kind, observation, stamp)`` in order, ``kind`` ``start``
+    (reset, then step it), ``step`` (step it) or ``end`` (step it when given, then close the episode;
+    ``None``: the last stepped observation is the final one).  After an ``end`` that :meth:`push` gave,
+    :attr:`decided` is ``(observations from the final one to the one that decided, its stamp)``: the
+    rule waits ``idle_s`` before it can end an episode.  O(1) per step, amortised."""
 
-    def __init__(self, idle_ns: int, idle_speed: float) -> None:
+    def __init__(self, idle_ns: int, idle_speed: float, elements: SpeedElements = ALL_ELEMENTS) -> None:
         self.idle_speed = float(idle_speed)
+        self.elements = elements
         self.splitter = IdleSplitter(idle_ns)
+        self.decided: tuple[int, int] | None = None
         self._prev: tuple[np.ndarray, int] | None = None
         self._pending: dict[int, tuple[np.ndarray, int]] = {}
 
     def push(self, obs: np.ndarray, stamp_ns: int) -> list[tuple[str, np.ndarray | None, int]]:
         prev_obs, prev_ns = self._prev if self._prev is not None else (None, None)
-        still = step_still(prev_obs, prev_ns, obs, stamp_ns, self.idle_speed)
+        still = step_still(prev_obs, prev_ns, obs, stamp_ns, self.idle_speed, self.elements)
         self._prev = (obs, stamp_ns)
         cuts = self.splitter.push(stamp_ns, still)
-        self._pending[self.splitter.rows - 1] = (obs, stamp_ns)
+        row = self.splitter.rows - 1
+        self._pending[row] = (obs, stamp_ns)
         out: list[tuple[str, np.ndarray | None, int]] = []
         for cut in cuts:
             x, s = self._pending.pop(cut.row, (None, stamp_ns))
             out.append((cut.kind, x, s))
+            if cut.kind == "end":
+                self.decided = (row - cut.row, stamp_ns)
         # Every held row is pending, and a row stops being held only in a push that decides it (a cut,
         # popped above) or ends the episode (nothing held after it): so the pending rows are the held
         # ones once the undecided rest is dropped, which happens only when nothing is held (O(1)
@@ -101,6 +108,7 @@ class IdleGate:
         other held ones are trimmed, and the next observation is judged afresh."""
         last_ns = self._prev[1] if self._prev is not None else 0
         out: list[tuple[str, np.ndarray | None, int]] = []
+        self.decided = None
         for cut in self.splitter.finish():
             x, s = self._pending.get(cut.row, (None, last_ns))
             out.append((cut.kind, x, s))
@@ -115,7 +123,7 @@ class IdleGate:
         """Forget the held observations and the open episode (the episode was ended otherwise)."""
         trimmed = self.splitter.trimmed + len(self._pending)
         self.splitter = IdleSplitter(self.splitter.idle_ns, trimmed=trimmed)
-        self._prev, self._pending = None, {}
+        self._prev, self._pending, self.decided = None, {}, None
 
 
 __all__ = ["GAP_TIMER_FRACTION", "IdleGate", "SilenceWatch", "gap_ends_episode"]

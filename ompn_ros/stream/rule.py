@@ -36,6 +36,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.data.idle import ALL_ELEMENTS, SpeedElements
 from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.data.repeats import Repeats
 from ompn_ros.data.still import StillRuns
@@ -71,9 +72,11 @@ class StreamLimits:
     """The stream parameters in seconds (as given: they appear in the warnings) and in ns (per step)."""
 
     def __init__(self, *, clock_jump_back: float = 1.0, max_stamp_lead: float = 0.0,
-                 episode_gap: float = 0.0, idle_s: float = 0.0, idle_speed: float = 0.01) -> None:
+                 episode_gap: float = 0.0, idle_s: float = 0.0, idle_speed: float = 0.01,
+                 idle_elements: SpeedElements = ALL_ELEMENTS) -> None:
         self.clock_jump_back, self.max_stamp_lead = clock_jump_back, max_stamp_lead
         self.episode_gap, self.idle_s, self.idle_speed = episode_gap, idle_s, float(idle_speed)
+        self.idle_elements = idle_elements  # the joint speed of a JointState observation, else every element
         self.jump_back_ns = int(float(clock_jump_back) * 1e9)
         self.max_lead_ns = int(float(max_stamp_lead) * 1e9)
         self.gap_ns = round(float(episode_gap) * 1e9)
@@ -83,7 +86,9 @@ class StreamLimits:
     def of(cls, values: Mapping[str, Any]) -> StreamLimits:
         """The limits of ``ompn_node``'s parameter values."""
         names = ("clock_jump_back", "max_stamp_lead", "episode_gap", "idle_s", "idle_speed")
-        return cls(**{name: values[name] for name in names})
+        joint = values.get("obs_source") == "joint_state" and not values.get("observation_spec")
+        elements = SpeedElements(tuple(values["joint_fields"])) if joint else ALL_ELEMENTS
+        return cls(**{name: values[name] for name in names}, idle_elements=elements)
 
 
 class StreamSink(Protocol):
@@ -133,7 +138,8 @@ class StreamRule:
         """Start the pause and idle rules the limits ask for (the node: on activation)."""
         limits = self.limits
         self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
-        self.idle = IdleGate(limits.idle_ns, limits.idle_speed) if float(limits.idle_s) > 0 else None
+        self.idle = (IdleGate(limits.idle_ns, limits.idle_speed, limits.idle_elements)
+                     if float(limits.idle_s) > 0 else None)
 
     def disarm(self) -> None:
         self.silence = self.idle = None
@@ -236,7 +242,8 @@ class StreamRule:
                        stamp_ns=stamp if event.stamp_ns else event.stamp_ns)
 
     def _idle_decided(self, decided: list[tuple[str, np.ndarray | None, int]]) -> None:
-        """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``)."""
+        """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``); an episode
+        the rule ended is decided where the rule decided it (``IdleGate.decided``: ``idle_s`` later)."""
         for kind, x, stamp in decided:
             seg = self.segmenter
             if seg is None:
@@ -247,7 +254,9 @@ class StreamRule:
                 self._step(seg, x, stamp)
             if kind == "end" and seg.step_index >= 0 and not seg.detector.closed:
                 # the final observation (row T) is the last one given to the segmenter
-                self.close_episode(seg.step_index if self.still is None else self.still.rows - 1)
+                final = seg.step_index if self.still is None else self.still.rows - 1
+                held = self.idle.decided if self.idle is not None else None
+                self.close_episode(final, None if held is None else (final + held[0], held[1]))
 
     def emit_boundary(self, event: BoundaryEvent, decided_ns: int | None = None, log: bool = True) -> None:
         """Give ``event`` to the sink, decided at ``decided_ns`` (default: the last step's stamp)."""
@@ -286,10 +295,12 @@ class StreamRule:
         self.last_stamp_ns = 0
         self.episode_sketch = sketch
 
-    def close_episode(self, steps: int | None) -> None:
+    def close_episode(self, steps: int | None, decided: tuple[int, int] | None = None) -> None:
         """Close the episode at ``steps - 1`` (the marker's count; the last step seen if unknown): the
         boundaries the detector still decides, the last ``final`` (the last segment's boundary, or the
-        episode end when the end of the last subtask was published before: docs/design.md#episode-end)."""
+        episode end when the end of the last subtask was published before: docs/design.md#episode-end).
+        ``decided``: ``(row, stamp)`` of the observation that decided the end, when later than the last
+        one stepped (the idle rule's); the closing boundaries carry it as their decided step and stamp."""
         seg = self.segmenter
         assert seg is not None
         runs = self.still
@@ -308,7 +319,9 @@ class StreamRule:
         for event in closing:
             mapped = self._on_rows(event, last_row)
             assert mapped is not None
-            self.emit_boundary(mapped)
+            if decided is not None:
+                mapped = replace(mapped, detected_at=max(mapped.detected_at, decided[0]))
+            self.emit_boundary(mapped, decided_ns=None if decided is None else decided[1])
 
     def restart_episode(self) -> bool:
         """A clock restart: close the open episode, start the next (counted); False if it cannot start."""

@@ -7,7 +7,10 @@ counts as used only right after its USE) is never fooled, and every replacement 
 * a pause or hesitation step is a no-op: USE facing an empty cell or the boundary, otherwise a move
   toward the (occupied) cell faced, which only turns the agent to where it already looks;
 * an overshoot takes the expert's move, one more cell the same way, then one back (only when both
-  cells are empty); a wrong move takes one step to another empty side and back.
+  cells are empty); a wrong move takes one step to another empty side and back;
+* a sidetrack (``boundary_rate``) at a subtask change queues a pause, and the new subtask's first moves
+  try its correction until one fits (an overshoot needs two empty cells ahead, a wrong move an empty
+  side).
 
 The bot plans afresh from wherever the agent stands afterwards.  Labels come from the world, so a
 detour belongs to the subtask in progress.
@@ -43,6 +46,7 @@ class _HumanCraft:
         self.rng = behaviour_rng(seed)
         self.queue: list[int] = []
         self.subtask_seen = -1
+        self.sidetrack: str | None = None  # the correction a sidetrack still owes ('overshoot' | 'wrong')
         self.events = new_events()
 
     def _pause(self, kind: str) -> None:
@@ -58,21 +62,53 @@ class _HumanCraft:
         return int(world.direction)
 
     def _detour(self, move: int) -> None:
-        """After the expert chose ``move``: maybe queue an overshoot or a wrong move instead."""
-        h, world = self.human, self.world
+        """After the expert chose ``move``: maybe queue an overshoot or a wrong move instead (a sidetrack's
+        correction first, when one is owed)."""
+        h = self.human
+        if self.sidetrack is not None:
+            if self._correct(move, self.sidetrack):
+                self.sidetrack = None
+            return
         self.events["opportunities_detour"] += 1
         draw = self.rng.random()
-        first = _ahead(world.pos, move)
         if draw < h.overshoot_rate:
+            self._correct(move, "overshoot")
+        elif draw < h.overshoot_rate + h.wrong_move_rate:
+            self._correct(move, "wrong")
+
+    def _correct(self, move: int, kind: str) -> bool:
+        """Queue an overshoot of ``move`` or a wrong move undone, if the cells allow it."""
+        world = self.world
+        if kind == "overshoot":
+            first = _ahead(world.pos, move)
             if _empty(world, first) and _empty(world, _ahead(first, move)):
                 self.events["overshoots"] += 1
                 self.queue.extend([move, move, _OPPOSITE[move]])
-        elif draw < h.overshoot_rate + h.wrong_move_rate:
-            sides = [d for d in range(4) if d != move and _empty(world, _ahead(world.pos, d))]
-            if sides:
-                wrong = sides[int(self.rng.integers(len(sides)))]
-                self.events["wrong_moves"] += 1
-                self.queue.extend([wrong, _OPPOSITE[wrong]])
+                return True
+            return False
+        sides = [d for d in range(4) if d != move and _empty(world, _ahead(world.pos, d))]
+        if not sides:
+            return False
+        wrong = sides[int(self.rng.integers(len(sides)))]
+        self.events["wrong_moves"] += 1
+        self.queue.extend([wrong, _OPPOSITE[wrong]])
+        return True
+
+    def _changed(self) -> None:
+        """A new subtask: maybe a sidetrack (``boundary_rate``, not at the first subtask), then maybe a
+        hesitation."""
+        h = self.human
+        if h.boundary_rate > 0 and self.subtask_seen >= 0:
+            self.events["opportunities_sidetrack"] += 1
+            self.sidetrack = None
+            if self.rng.random() < h.boundary_rate:
+                self.events["sidetracks"] += 1
+                self._pause("pauses")
+                self.sidetrack = h.correction(self.rng)
+        self.subtask_seen = self.world.sketch_index
+        self.events["opportunities_hesitation"] += 1
+        if self.rng.random() < h.hesitation_rate:
+            self._pause("hesitations")
 
     def _plan(self) -> int:
         move = self.bot.act(bot_observation(self.world, self.bot.full_obs))
@@ -80,10 +116,7 @@ class _HumanCraft:
             return move  # USE and DONE are never replaced
         h = self.human
         if self.world.sketch_index != self.subtask_seen:
-            self.subtask_seen = self.world.sketch_index
-            self.events["opportunities_hesitation"] += 1
-            if self.rng.random() < h.hesitation_rate:
-                self._pause("hesitations")
+            self._changed()
         if not self.queue:
             self.events["opportunities_pause"] += 1
             if self.rng.random() < h.pause_rate:

@@ -10,7 +10,9 @@ It acts on the reference the PID follows (:class:`~sim_nodes.dial.expert.DialExp
   15-35 % past the key's approach posture (joint space, at most 0.15 rad per joint), a *wrong key*
   aims at the approach posture of one of the three keys nearest the right one; it holds there
   :data:`DETOUR_HOLD` steps and then approaches the right key.  No press can complete on a detour:
-  the env counts only the target key, and approach points lie above the keys.
+  the env counts only the target key, and approach points lie above the keys;
+* a sidetrack (``boundary_rate``) at a subtask change (not the first) holds the reference
+  ``pause_steps`` and makes that subtask's detour certain.
 
 Labels come from the env (the subtask in progress), so a detour belongs to its subtask.
 """
@@ -70,6 +72,12 @@ class HumanDialExpert(DialExpert):
         wrong_upto = h.overshoot_rate + h.wrong_move_rate
         self.planned = "overshoot" if draw < h.overshoot_rate else "wrong" if draw < wrong_upto else None
         self.approach_seen = False
+        if h.boundary_rate > 0 and self.env.subtasks_done > 0:
+            self.events["opportunities_sidetrack"] += 1
+            if rng.random() < h.boundary_rate:
+                self.events["sidetracks"] += 1
+                self._pause("pauses")
+                self.planned = h.correction(rng)
 
     def _start_detour(self) -> None:
         digit = self.env.target_digit

@@ -19,7 +19,7 @@ from ompn_ros import layout
 from .. import messages as m
 from ..episode import OBS_STAMPS, Episode
 from ..errors import AlignmentError
-from ..idle import still_by_speed
+from ..idle import ALL_ELEMENTS, SpeedElements, derive_idle_speed, still_by_speed
 from .align import (
     Window,
     attach,
@@ -156,16 +156,32 @@ def _windows(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners) 
     return windows
 
 
+def speed_elements(spec: Any) -> SpeedElements:
+    """The elements whose speed tells stillness (:class:`ompn_ros.data.idle.SpeedElements`): a JointState
+    observation's fields, every element of any other (an assembled one included)."""
+    src = spec.observation
+    if spec.assemble is None and src.type == layout.JOINT_STATE:
+        return SpeedElements(tuple(src.fields))
+    return ALL_ELEMENTS
+
+
 def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
-    """``split: idle``: per observation, whether the robot is still (no command attached, or the
-    observation changed by less than ``idle_speed`` per second; :mod:`ompn_ros.data.idle`)."""
+    """``split: idle``: per observation, whether the robot is still (no command attached, or its speed
+    below ``idle_speed``, derived from the bag with ``auto``; :mod:`ompn_ros.data.idle`)."""
     still = partners.act < 0 if dec.act_stamps is not None else np.zeros(len(dec.obs_stamps), dtype=bool)
-    if dec.act_stamps is None and ctx.spec.idle_speed <= 0:
+    elements = speed_elements(ctx.spec)
+    speed = ctx.spec.idle_speed
+    if speed == "auto":
+        derived = derive_idle_speed(dec.obs_stamps, dec.obs, elements)
+        speed = derived.speed
+        ctx.report.idle_rule = derived.text
+    else:
+        ctx.report.idle_rule = f"idle_speed {float(speed):g} on {elements.describe()}"
+    if dec.act_stamps is None and float(speed) <= 0:
         ctx.report.notes.append("split: idle cannot see the robot still: every observation carries its "
-                                "action and idle_speed is 0; set idle_speed (the observation's change per "
-                                "second)")
-    if ctx.spec.idle_speed > 0:
-        still = still | still_by_speed(dec.obs_stamps, dec.obs, ctx.spec.idle_speed)
+                                "action and idle_speed is 0; set idle_speed (rad/s of joint speed) or auto")
+    if float(speed) > 0:
+        still = still | still_by_speed(dec.obs_stamps, dec.obs, float(speed), elements)
     return still
 
 

@@ -32,6 +32,7 @@ class BagReport:
     steps: int = 0
     split: str = ""  # 'markers' | 'time_gap' | 'topic' | 'idle' | 'bag'
     idle_trimmed: int = 0  # split: idle: still observations that belong to no episode
+    idle_rule: str = ""  # split: idle: the speed threshold used (derived with idle_speed: auto) and on what
     messages: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)  # steps lacking a partner, per topic
     duplicates: dict[str, int] = field(default_factory=dict)  # extra partners for one step
@@ -75,6 +76,8 @@ class BagReport:
             text += f"; last observation duplicated as row T in {self.final_duplicated} episodes"
         for handling, episodes in self.adjusted.items():
             text += f"; {handling} in {len(episodes)} episodes"
+        if self.idle_rule:
+            text += f"; {self.idle_rule}"
         return text
 
 

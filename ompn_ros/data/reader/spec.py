@@ -220,11 +220,15 @@ class ReaderSpec:
             ``stop off false 0 pause end``); on starts an episode, off ends it (observations while
             off are not used).  Any other topic: every message starts an episode (stamps only).
         idle_s: ``split: idle``: seconds the robot must be still to end an episode (> 0).
-        idle_speed: ``split: idle``: a step is still when its observation changed by less than this
-            per second since the previous step (largest element; 0 = never by speed).  A step with
-            no command attached (an action topic other than the observation's) is still as well.
+        idle_speed: ``split: idle``: a step is still when its speed is below this: the joint speed
+            of a JointState observation (positions' change per second and measured velocities, rad/s
+            for revolute joints; efforts ignored), any element's change per second otherwise
+            (:class:`ompn_ros.data.idle.SpeedElements`).  ``auto`` (default): derived per bag from its
+            own noise floor and named in the read report (:func:`ompn_ros.data.idle.derive_idle_speed`);
+            0 = never by speed.  A step with no command attached (an action topic other than the
+            observation's) is still as well.
         types: where message types come from beyond ROS 2 Jazzy's and the bag's own definitions
-            (rosbag2 stores them in the bag; older bags lack them): folders of ``.msg`` files
+            (rosbags stores them in the bag; older bags lack them): folders of ``.msg`` files
             (``<pkg>/msg/<Name>.msg`` below each) or installed interface package names
             (:mod:`ompn_ros.data.messages.types`, docs/specs.md).
     """
@@ -249,7 +253,7 @@ class ReaderSpec:
     split: Split = "auto"
     split_topic: str | None = None
     idle_s: float = 1.0
-    idle_speed: float = 0.0
+    idle_speed: float | Literal["auto"] = "auto"
     types: tuple[str, ...] = ()  # a list is accepted
     subtask_type: str | None = None  # YAML: subtask: {topic, type, field}
     subtask_field: str | None = None
@@ -334,9 +338,16 @@ class ReaderSpec:
             raise ReaderSpecError(f"split must be one of {SPLITS}, got '{self.split}'")
         if self.split == "topic" and not self.split_topic:
             raise ReaderSpecError("split: topic needs split_topic (the topic whose messages start episodes)")
-        if self.idle_s <= 0 or self.idle_speed < 0:
-            raise ReaderSpecError(f"idle_s must be > 0 and idle_speed >= 0 (got {self.idle_s}, "
-                                  f"{self.idle_speed})")
+        speed = self.idle_speed
+        if isinstance(speed, str):
+            if speed.strip().lower() != "auto":
+                raise ReaderSpecError(f"idle_speed must be 'auto' (from the bag's noise floor) or a number "
+                                      f">= 0 (rad/s of joint speed; 0 = never by speed), got {speed!r}")
+            object.__setattr__(self, "idle_speed", "auto")
+        elif isinstance(speed, bool) or not isinstance(speed, (int, float)) or not speed >= 0:
+            raise ReaderSpecError(f"idle_speed must be 'auto' or a number >= 0, got {speed!r}")
+        if self.idle_s <= 0:
+            raise ReaderSpecError(f"idle_s must be > 0 (got {self.idle_s})")
         if self.split == "markers" and not self.episode:
             raise ReaderSpecError("split: markers needs the episode topic (key 'episode')")
         if self.labels in ("ordinal", "id", "boundary") and not self.subtask:
