@@ -434,15 +434,20 @@ class SimNode(Node):
             return True
         answered = self._cmd_sub is None or self._cmd_sub.get_publisher_count() >= 1
         if self._ready_since is None and answered and all(
-            p.get_subscription_count() >= wanted for p in self._waited_publishers()
+            max(p.get_subscription_count() for p in group) >= wanted for group in self._waited_groups()
         ):
             # The subscriber's other topics are matched a moment later: settle before publishing.
             self._ready_since = time.monotonic() + _SETTLE_S
         return False
 
-    def _waited_publishers(self) -> list[Any]:
+    def _waited_groups(self) -> list[list[Any]]:
+        """The publishers waited for, one group per topic a consumer reads: the typed episode marker and
+        its deprecated twin are one (a consumer subscribes to either form)."""
         resolved = {self.resolve_topic_name(t) for t in self._wait_topic_names}
-        return [p for p in self.publishers if p.topic_name in resolved]
+        markers = {self.resolve_topic_name(t) for t in (layout.EPISODE_MARKER, layout.EPISODE)}
+        waited = [p for p in self.publishers if p.topic_name in resolved]
+        twins = [p for p in waited if p.topic_name in markers]
+        return [[p] for p in waited if p.topic_name not in markers] + ([twins] if twins else [])
 
     def observation_copies(self) -> int:
         """How many times the current observation is published (the human-like demonstrator drops and

@@ -146,7 +146,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL)
 node.create_subscription(EpisodeMarker, "episode_marker", got.append, qos)
 sim = __import__("subprocess").Popen([sys.executable, "-m", "sim_nodes.dial.node", "--ros-args", "-p",
-                                      "episodes:=1", "-p", "rate:=200.0"])
+                                      "episodes:=1", "-p", "rate:=200.0", "-p", "wait_for_subscribers:=1",
+                                      "-p", "wait_topics:=[episode_marker]"])
 deadline = time.monotonic() + 60
 while len(got) < 2 and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.1)

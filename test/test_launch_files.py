@@ -479,9 +479,8 @@ def test_a_broken_name_fails_the_check(install: Install, tmp_path: Path, name: s
 
 
 @pytest.mark.parametrize(("old", "new", "error"), [
-    ("detector_high:", "detector_hi:", r"\['detector_hi'\] are not declared by ompn_node"),
-    ("detector_high: 0.1", "detector_high: 1",
-     "detector_high: 1 is a int, but ompn_node declares it as float"),
+    ("domain:", "domian:", r"\['domian'\] are not declared by ompn_node"),
+    ("domain: dial", "domain: 1", "domain: 1 is a int, but ompn_node declares it as str"),
 ])
 def test_a_broken_params_file_fails_the_check(install: Install, tmp_path: Path, old: str, new: str,
                                               error: str):

@@ -91,8 +91,17 @@ def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: 
 
 
 @pytest.mark.parametrize("mode", ["head", "head_hsmm"])
-def test_the_head_modes_are_refused_for_a_checkpoint_without_a_head(ctx, mode: str) -> None:
-    node = OMPNNode(context=ctx, parameter_overrides=[Parameter("domain", value="craft")])
+def test_the_head_modes_are_refused_for_a_checkpoint_without_a_head(ctx, mode: str, tmp_path: Path) -> None:
+    import dataclasses
+    import shutil
+
+    from ompn_ros.checkpoints import shipped_checkpoint
+
+    plain = Path(shutil.copytree(shipped_checkpoint("craft"), tmp_path / "craft"))
+    settings = load_detector_settings(plain)
+    (plain / "boundary_head.safetensors").unlink(missing_ok=True)
+    save_detector_settings(plain, dataclasses.replace(settings, head=None))
+    node = OMPNNode(context=ctx, parameter_overrides=[Parameter("checkpoint", value=str(plain))])
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS, node.last_error
     both = [Parameter("detector_mode", value=mode), Parameter("detector_lag", value=2)]
     result = node.set_parameters(both)[0]

@@ -88,7 +88,7 @@ def test_live_output_on_a_human_like_stream_equals_its_replay(ctx, domain: str) 
     node._pubs = {k: Recorder() for k in node._pubs}
     seg = node.segmenter
     assert seg is not None
-    offline = StreamingSegmenter(seg.policy, seg.detector_config, seg.duration_model)
+    offline = StreamingSegmenter(seg.policy, seg.detector_config, seg.duration_model, seg.head)
     t0 = (int(time.time()) - 10_000) * 1_000_000_000
     n_events = copies_seen = 0
     for i, ep in enumerate(_episodes(domain)):

@@ -239,7 +239,9 @@ def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Pat
     """Header stamps: a step is stepped once the wrench topic offered a message stamped at or after it,
     with the wrench stamped before it even when delivered after it; the wait ends on the node's clock;
     an episode marker or ~/reset first steps what is held."""
-    from diagnostic_msgs.msg import DiagnosticArray
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    from ompn_ros import layout
 
     node = active_node(ctx, ckpt, spec=SPEC_TEXT)
     seen: list[tuple[np.ndarray, int]] = []
@@ -258,7 +260,8 @@ def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Pat
     node._release_held(None)
     assert len(seen) == 2 and node.counters()["obs.late"] == 1
     feed(node, [(GRIP, gripper(4)), (WRENCH, wrench(4, 1199)), (STEP, joint_state(4, 1200))], start_ms=1198)
-    node._on_episode(DiagnosticArray())
+    end = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message="end")
+    node._on_episode(DiagnosticArray(status=[end]))
     feed(node, [(GRIP, gripper(5)), (WRENCH, wrench(5, 1299)), (STEP, joint_state(5, 1300))], start_ms=1298)
     assert node._on_reset(Trigger.Request(), Trigger.Response()).success
     assert [s // MS for _, s in seen] == [1002, 1010, 1200, 1300] and node.counters()["obs.late"] == 3

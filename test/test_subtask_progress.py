@@ -66,7 +66,8 @@ def test_a_whole_dial_episode_reports_its_four_subtasks() -> None:
 
     checkpoint = shipped_checkpoint("dial")
     settings = load_detector_settings(checkpoint)
-    segmenter = StreamingSegmenter(stepper_from_checkpoint(str(checkpoint), "jit", "cpu"), settings.online)
+    segmenter = StreamingSegmenter(stepper_from_checkpoint(str(checkpoint), "jit", "cpu"), settings.online,
+                                   settings.duration_model, settings.head)
     progress = _example().Progress()
     for seed in (30001, 30003):  # last press decided at the last step / 2 steps before the end
         episode = expert_episode("dial", seed)

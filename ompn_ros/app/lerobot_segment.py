@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
@@ -30,7 +30,7 @@ import torch
 from ompn_ros.app import batch_table
 from ompn_ros.app.batch import episode_scores, segment_rows
 from ompn_ros.app.errors import ReplayError
-from ompn_ros.app.lerobot_write import SubtaskWriter, resolve_format, share_dataset
+from ompn_ros.app.lerobot_write import BOUNDARIES, Boundaries, SubtaskWriter, resolve_format, share_dataset
 from ompn_ros.app.replay import check_finite, replay_all
 from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.lerobot import DatasetEpisode, DatasetReader, DatasetSpec
@@ -40,9 +40,6 @@ from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.segmenter import ReplayResult
-
-Boundaries = Literal["online", "top_k"]
-BOUNDARIES: tuple[Boundaries, ...] = ("online", "top_k")
 
 
 @dataclass(frozen=True)

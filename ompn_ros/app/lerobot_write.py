@@ -34,7 +34,7 @@ import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from ompn_ros.data.errors import DatasetError
 from ompn_ros.data.lerobot import DatasetFile, DatasetLayout, pyarrow_modules
 from ompn_ros.data.lerobot.layout import INFO
 
+Boundaries = Literal["online", "top_k"]
+BOUNDARIES: tuple[Boundaries, ...] = ("online", "top_k")
+"""Where the written subtasks come from: the online segmenter (what the node publishes) or Top-K."""
 FORMATS = ("index-v1", "language-v1", "episodes-v1")
 ALIASES = {"index": "index-v1", "language": "language-v1", "episodes": "episodes-v1"}
 SUBTASKS = Path("meta/subtasks.parquet")

@@ -12,9 +12,7 @@ import sys
 from pathlib import Path
 
 from ompn_ros.app.errors import ReplayError
-from ompn_ros.app.lerobot_segment import BOUNDARIES, DatasetRun, dataset_spec, segment_dataset
-from ompn_ros.app.lerobot_write import ALIASES, FORMATS
-from ompn_ros.app.segment_setup import detector_settings, load_stepper
+from ompn_ros.app.lerobot_write import ALIASES, BOUNDARIES, FORMATS
 
 
 def add_dataset_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,6 +53,9 @@ def _check(args: argparse.Namespace) -> None:
 
 def run_dataset_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     """Segment ``--dataset`` (see the module doc); 0 when done."""
+    from ompn_ros.app.lerobot_segment import DatasetRun, dataset_spec, segment_dataset
+    from ompn_ros.app.segment_setup import detector_settings, load_stepper
+
     _check(args)
     spec = dataset_spec(args.dataset_spec)
     load_stepper(args.checkpoint, device)  # a bad checkpoint is one line before anything is written

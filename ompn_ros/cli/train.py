@@ -111,7 +111,7 @@ def _run(args: argparse.Namespace) -> int:
     model_config, train_config = training.build_configs(config, data, args.out, args.resume, args.quiet)
     amount = data_amount(data.episodes, train_config.val_ratio, training.labelled(train_config, data))
     if data.report:
-        data.report["summary"] = "\n".join([data.report["summary"], *amount.lines()])
+        data.report["summary"] = "\n".join([*filter(None, [data.report.get("summary")]), *amount.lines()])
         data.report["data_amount"] = amount.to_dict()
         print(data.report["summary"], file=sys.stderr)
         write_read_report(args.out, data.report)
