@@ -27,7 +27,7 @@ from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect.calibrate import scores_from_p_hats
 from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
-from ompn_ros.detect.online import DURATION_MODE, DetectorConfig
+from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import (
     DEFAULT_OBJECTIVE,
@@ -113,6 +113,16 @@ def duration_metrics(
     return row
 
 
+HEAD_MODES = (HEAD_MODE, HEAD_DURATION_MODE)
+"""The modes that decode with a boundary head."""
+
+
+def _overrides_detector(node_config: Path) -> bool:
+    """Whether an ompn_node params file sets a ``detector_*`` key (it then overrides the checkpoint's)."""
+    text = node_config.read_text(encoding="utf-8")
+    return any(line.strip().startswith("detector_") for line in text.splitlines())
+
+
 def online_metrics(
     test: Sequence[Episode], domain: str, stepper: Any, val: Sequence[Episode] = ()
 ) -> tuple[dict[str, float], list[ReplayResult], DetectorTuning | None]:
@@ -121,21 +131,27 @@ def online_metrics(
     Two detector settings are scored on the same replays: the shipped one of ``domain``
     (``online_shipped_*``) and one tuned for this checkpoint on ``val`` by the grid search of
     :mod:`ompn_ros.detect.tune` with the domain's default objective (``online_*``).  Without
-    ``val`` the shipped setting is reported under both names.  A shipped setting of mode 'hsmm' decodes
-    with the shipped checkpoint's duration model.
+    ``val`` the shipped setting is reported under both names.  The shipped setting is the one the node
+    runs with: the shipped checkpoint's ``detector.json`` (the node configs hold no ``detector_*`` key
+    unless they override it); one of mode 'hsmm' decodes with that checkpoint's duration model, one of
+    mode 'head' with its boundary head.
     """
-    shipped = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
-    model = None
-    if shipped.mode == DURATION_MODE:
-        model = load_detector_settings(shipped_checkpoint(domain)).duration_model
+    settings = load_detector_settings(shipped_checkpoint(domain))
+    shipped, model, head = settings.online, settings.duration_model, settings.head
+    if _overrides_detector(config_file(f"ompn_node_{domain}.yaml")):
+        shipped = load_detector_yaml(config_file(f"ompn_node_{domain}.yaml"))
+    if shipped.mode not in DURATION_MODES:
+        model = None
+    if shipped.mode not in HEAD_MODES:
+        head = None
     configs = {"shipped": shipped}
     tuning = None
     if val:
         tuned, _, on_val = choose_detector(stepper, list(val), objective=DEFAULT_OBJECTIVE[domain])
         configs["tuned"] = tuned
         tuning = DetectorTuning(tuned, on_val, len(val))
-    replays = replay_all(stepper, test, configs.get("tuned", shipped), model)
-    scores = compare_detectors(stepper, test, configs, replays=replays, duration_model=model)
+    replays = replay_all(stepper, test, configs.get("tuned", shipped), model, head)
+    scores = compare_detectors(stepper, test, configs, replays=replays, duration_model=model, head=head)
     row = {f"online_shipped_{k}": v for k, v in scores["shipped"].items()}
     row.update({f"online_{k}": v for k, v in scores["tuned" if tuning else "shipped"].items()})
     return row, replays, tuning

@@ -152,6 +152,20 @@ def _descendants(pid: int) -> set[int]:
     return found
 
 
+def _started(pid: int) -> set[int]:
+    """The children of ``pid`` with more than one thread (a pool worker past ``die_with_parent``)."""
+    found = set()
+    for child in _children(pid):
+        try:
+            status = Path(f"/proc/{child}/status").read_text()
+        except OSError:
+            continue
+        threads = [line.split()[1] for line in status.splitlines() if line.startswith("Threads:")]
+        if threads and int(threads[0]) > 1:
+            found.add(child)
+    return found
+
+
 def _running(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -198,15 +212,18 @@ load_arrays_per_bag(sys.argv[1], spec=spec, cache_dir=sys.argv[3], workers=2)
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the workers")
 def test_the_cache_workers_of_a_killed_training_exit(lab: dict[str, Path], tmp_path: Path) -> None:
     """``data.cache_workers: 2``: the per-bag cache's worker processes end with a killed ``ompn_train``."""
-    bags = _many(tmp_path / "many", 12, steps=90)
+    bags = _many(tmp_path / "many", 24, steps=90)
     proc = subprocess.Popen([sys.executable, "-c", _CACHE_BUILD, str(bags), str(lab["spec"]),
                              str(tmp_path / "cache")], env=_env(), text=True)
+    # Killed once two workers have run their initializer (die_with_parent starts a watchdog thread),
+    # not after a fixed sleep: the workers import no torch, a bag takes them milliseconds and a
+    # second's wait outlasted the whole build.
     deadline = time.monotonic() + 60
-    while len(_children(proc.pid)) < 2 and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(1.0)  # the workers import and start on their bags
+    while len(_started(proc.pid)) < 2 and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.01)
     workers = _children(proc.pid)
-    assert proc.poll() is None and len(workers) >= 2, "the cache build started no workers"
+    assert proc.poll() is None and len(_started(proc.pid)) >= 2, "the cache build started no workers"
+    assert not list((tmp_path / "cache").glob("episodes_set_*")), "killed after the build"
     assert not _kill_and_watch(proc, workers)
 
 

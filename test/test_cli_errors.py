@@ -147,13 +147,16 @@ def test_an_invalid_config_is_one_line_and_debug_shows_the_traceback(
 
 BUG_OR_KNOWN = """
 import sys
+from ompn_ros.app import training
 from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.cli import train
 
 def load_config(path):
     raise {error}("load_config failed")
 
-train.load_config = load_config
+# patched where ompn_train looks it up: the command imports its services when it runs (--help loads
+# no torch), from ompn_ros.app.training
+training.load_config = load_config
 sys.exit(train.main(["--synthetic", "discrete", "--out", sys.argv[1]]))
 """
 

@@ -12,6 +12,7 @@ from test_data_common import assert_same_episode, dial_episode
 from ompn_ros.app.collect import collect, episode_seed
 from ompn_ros.app.errors import CollectError
 from ompn_ros.cli import collect as collect_mod
+from ompn_ros.cli._common import INTERRUPTED
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data.episode import Episode
 
@@ -81,12 +82,18 @@ def test_refuses_to_overwrite(tmp_path: Path, fake: FakeDial, capsys: pytest.Cap
     assert (foreign / "precious.txt").exists()
 
 
-def test_resume_after_interruption(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_resume_after_interruption(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "out"
     interrupted = FakeDial(fail_after=4)
     monkeypatch.setattr(collect_mod, "default_generator", lambda domain, human=None: interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        collect_mod.main(_argv(out, "--split-every", "3"))
+    # Ctrl-C ends the command with one line on stderr and exit code 130 (ompn_ros.cli._common)
+    assert collect_mod.main(_argv(out, "--split-every", "3")) == INTERRUPTED == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "ompn_collect: simulated interruption" and "Traceback" not in err
+    with pytest.raises(KeyboardInterrupt):  # --debug keeps the traceback
+        collect_mod.main(_argv(tmp_path / "debug", "--split-every", "3", "--debug"))
     assert (out / "part_000").is_dir() and not (out / "part_001").exists()
     assert (out / ".part_001.tmp").exists()  # the half-written part, never read
     assert len(read_episodes(out).episodes) == 3

@@ -295,7 +295,8 @@ def build_configs(
 def resolve_still(setting: Any, data: TrainingData) -> float:
     """``model.still_tolerance`` as a number: a given one as it is, ``auto`` (the default) chosen from
     ``data``'s episodes without labels (:func:`ompn_ros.data.still.choose_tolerance`); the choice joins the
-    read report (``still`` and a line of its ``summary``), and the checkpoint stores the number."""
+    read report when the data has one (``still`` and a line of its ``summary``; synthetic data has none, so
+    ``ompn_train --synthetic`` prints and writes no read summary), and the checkpoint stores the number."""
     try:
         value = check_setting(setting, "model.still_tolerance")
     except ValueError as exc:
@@ -304,7 +305,7 @@ def resolve_still(setting: Any, data: TrainingData) -> float:
         return float(value)
     choice = choose_tolerance(data.episodes)
     LOG.info("%s", choice.summary())
-    if data.report.get("still") != choice.as_dict():
+    if data.report and data.report.get("still") != choice.as_dict():
         data.report["still"] = choice.as_dict()
         if "summary" in data.report:
             data.report["summary"] = f"{data.report['summary']}\n{choice.summary()}"
