@@ -29,6 +29,7 @@ LIGHT_HELP = {
     "ompn_ros.cli.train": "the training services (torch) load when the command runs",
     "ompn_ros.cli.ensemble": "the ensemble service (torch) loads when the command runs",
     "ompn_ros.cli._batch": "the batch services load when a batch runs",
+    "ompn_ros.cli._dataset": "the LeRobot dataset services (torch) load when a dataset is segmented",
     "ompn_ros.app.segment_setup": "offers ompn_segment's choices; what it sets up loads on use",
     "ompn_ros.app.closed_loop": "offers ompn_closed_loop's tasks; the model loads with a checkpoint",
     "ompn_ros.nodes.ompn_node": "torch and the model load at configure",

@@ -1,7 +1,8 @@
 """Episodes and their rosbag2 storage: writer, reader (with alignment report), cache, errors."""
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ompn_ros.lazy import lazy_names
 
 if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
     from .cache import EpisodeArrays, load_arrays
@@ -22,6 +23,7 @@ if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a su
     )
     from .reader import BagReport, ReaderSpec, ReadReport, ReadResult, VectorSource, read_episodes
     from .recorder.bag_writer import EpisodeBagWriter, write_episodes
+
 
 _LAZY = {
     "EpisodeArrays": "ompn_ros.data.cache",
@@ -58,10 +60,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_LAZY[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, globals(), _LAZY)

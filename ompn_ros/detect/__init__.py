@@ -1,8 +1,9 @@
 """Subtask-boundary detectors over expansion distributions (offline; the online ones live in
 ``ompn_ros.detect.online``) and the scoring and tuning of the online detector (``ompn_ros.detect.tune``)."""
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ompn_ros.lazy import lazy_names
 
 if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
     from ompn_ros.detect.errors import DetectorError, TuneError
@@ -29,6 +30,7 @@ if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a su
         score_online,
         write_node_config,
     )
+
 
 _LAZY = {
     "DetectorError": "ompn_ros.detect.errors",
@@ -79,10 +81,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_LAZY[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, globals(), _LAZY)

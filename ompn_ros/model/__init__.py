@@ -4,8 +4,9 @@ Loading has one path: ``build.py`` (config -> model), ``checkpoint.py`` (files <
 ``load.py`` (path -> stepper: checkpoints, ensembles, the shipped checkpoint of a domain).
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ompn_ros.lazy import lazy_names
 
 if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
     from ompn_ros.model.build import build_policy
@@ -22,6 +23,7 @@ if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a su
     from ompn_ros.model.loss import bc_loss
     from ompn_ros.model.policy import MemoryState, OMPNPolicy, SequenceOutput, StepTensors
     from ompn_ros.model.streaming import StepOutput, StreamingPolicy
+
 
 _LAZY = {
     "build_policy": "ompn_ros.model.build",
@@ -70,10 +72,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_LAZY[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, globals(), _LAZY)

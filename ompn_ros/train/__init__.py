@@ -1,13 +1,15 @@
 """Offline behaviour-cloning training of the OMPN (single process or DDP under torchrun)."""
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ompn_ros.lazy import lazy_names
 
 if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
     from ompn_ros.train.config import TrainConfig
     from ompn_ros.train.errors import TrainConfigError, TrainDataError
     from ompn_ros.train.evaluation import decomposition_metrics, evaluate
     from ompn_ros.train.trainer import TrainResult, train
+
 
 _LAZY = {
     "TrainConfig": "ompn_ros.train.config",
@@ -30,10 +32,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Import the submodule that defines ``name`` on first use (the package itself imports nothing)."""
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_LAZY[name]), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, globals(), _LAZY)
