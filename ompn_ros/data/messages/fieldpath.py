@@ -266,11 +266,7 @@ def _take_field(w: _Walk, node: Any, pos: int, here: list[Want], leaves: bool = 
         for steps, slot in here:
             end = _walk_type(w, detail, pos, [(steps[1:], slot)])
         return end
-    elem = detail[0]
-    if kind == ARRAY:
-        n = detail[1]
-    else:
-        n, pos = w.count(pos)
+    elem, n, pos = _sequence(w, kind, detail, pos)
     if elem[0] == BASE and elem[1][0] in NUMERIC:
         size = SIZES[elem[1][0]]
         start = _align(pos, size) if n else pos
@@ -321,6 +317,15 @@ def _take_base(w: _Walk, prim: str, pos: int, slots: list[int], leaves: bool) ->
             w.segs[slot].append((start, max(n - 1, 0), "S"))
     return start + n
 
+def _sequence(w: _Walk, kind: str, detail: Any, pos: int) -> tuple[Any, int, int]:
+    """An array's element type, its length (fixed, or the CDR count read at ``pos``) and where its
+    elements start."""
+    if kind == ARRAY:
+        return detail[0], detail[1], pos
+    n, pos = w.count(pos)
+    return detail[0], n, pos
+
+
 
 def _skip(w: _Walk, node: Any, pos: int) -> int:
     kind, detail = node
@@ -334,11 +339,7 @@ def _skip(w: _Walk, node: Any, pos: int) -> int:
         for _, sub in fields_of(detail):
             pos = _skip(w, sub, pos)
         return pos
-    elem = detail[0]
-    if kind == ARRAY:
-        n = detail[1]
-    else:
-        n, pos = w.count(pos)
+    elem, n, pos = _sequence(w, kind, detail, pos)
     if elem[0] == BASE and elem[1][0] in NUMERIC:
         size = SIZES[elem[1][0]]
         return (_align(pos, size) + n * size) if n else pos
@@ -511,3 +512,4 @@ def _columns(block: np.ndarray, segs: list[Segment], big: bool, path: str) -> np
     if not parts:
         return np.zeros((block.shape[0], 0))
     return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
