@@ -1,7 +1,7 @@
 """Benchmark of the idle gate (``ompn_node``'s ``idle_s``): time per observation against the still steps held.
 
 A robot that waits keeps its driver publishing; with ``idle_s`` every still observation is held until
-the rule decides it (:class:`ompn_ros.stream.gap.IdleGate`).  The figure is the time of one
+the rule decides it (:class:`ompn_ros.data.cuts.IdleGate`).  The figure is the time of one
 ``IdleGate.push`` of a still observation (the median of ``--pushes`` pushes) after ``held`` still
 observations were held, for each ``held`` of ``--held``: it should stay flat from 0 to 100 000.
 Observations of 39 values (Dial's size) at 500 Hz stamps; ``idle_s`` beyond every pause.
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ompn_ros.stream.gap import IdleGate
+from ompn_ros.data.cuts import IdleGate
 
 STEP_NS = 2_000_000  # 500 Hz
 

@@ -2,7 +2,7 @@
 against them, each against a DROID-style idle filter (docs/experiments.md §57).
 
 A detour (an overshoot, a wrong move undone: docs/craft.md §2.6) changes the observation twice and
-returns it, so the still rule (:mod:`ompn_ros.data.still`) cannot see it.  ``memory``: where the
+returns it, so the still rule (:mod:`ompn_ros.data.cuts.still`) cannot see it.  ``memory``: where the
 shipped Craft checkpoint puts its boundary score (Top-K's expected expansion height over the memory
 depth, 0 to 1: the memory is told to close a subtask) on detour steps, against true boundaries and
 ordinary steps, and what share of its Top-K boundaries fall on a detour.  ``remedies``: a checkpoint
@@ -47,8 +47,8 @@ import torch
 
 from lab.human_gap import SEED_BASE, _boundaries, default_count
 from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.data.cuts import choose_tolerance, drop_still, noise_margin, run_ends
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.still import choose_tolerance, drop_still, noise_margin, run_ends
 from ompn_ros.detect.offline import depth_scores, top_k_boundaries
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 from ompn_ros.model.checkpoint import load_checkpoint

@@ -48,10 +48,10 @@ from lab.spec import (
 )
 from ompn_ros.app.replay import compare_detectors
 from ompn_ros.data.cache import load_arrays
+from ompn_ros.data.cuts import choose_tolerance
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import FinalObservation, ReaderSpec
-from ompn_ros.data.still import choose_tolerance
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import build_stepper
 from ompn_ros.train.config import TrainConfig
@@ -103,10 +103,10 @@ class Arm:
     """False: the training and validation episodes lose their idle steps (:func:`lab.data.collapse_idle`,
     docs/experiments.md §54); the test episodes keep them."""
     still: float | Literal["auto"] = 0.0
-    """``model.still_tolerance``: the product's rule for still observations (:mod:`ompn_ros.data.still`),
+    """``model.still_tolerance``: the product's rule for still observations (:mod:`ompn_ros.data.cuts.still`),
     applied by ``ompn_train`` and every replay; the run is scored through the node's replay.  ``'auto'``:
     chosen from the training pool as ``ompn_train`` chooses it
-    (:func:`ompn_ros.data.still.choose_tolerance`)."""
+    (:func:`ompn_ros.data.cuts.choose_tolerance`)."""
 
     @property
     def data(self) -> str:

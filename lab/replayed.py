@@ -3,7 +3,7 @@ step included, as live) with the detector ``ompn_train`` bundled, and the domain
 detector read from the same replays (docs/experiments.md §55).
 
 This is the one scoring that holds for a model with ``model.still_tolerance``: the replay steps only the
-observations that moved and maps every boundary back to the stream's rows (:mod:`ompn_ros.data.still`),
+observations that moved and maps every boundary back to the stream's rows (:mod:`ompn_ros.data.cuts.still`),
 where the teacher-forced evaluation of the other studies would step every row.
 """
 

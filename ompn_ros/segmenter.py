@@ -292,7 +292,7 @@ class ReplayResult:
     """``[T, n + 1 + A]``: what the boundary head reads (:func:`~ompn_ros.detect.head.head_outputs`)."""
     run_ends: np.ndarray | None = None
     """A model with ``still_tolerance``: the rows that hold a step's output (the last row of each run,
-    :mod:`ompn_ros.data.still`), in step order; ``None`` when every row is a step.  A detector decoded
+    :mod:`ompn_ros.data.cuts.still`), in step order; ``None`` when every row is a step.  A detector decoded
     again from the arrays reads these rows and maps its steps back to them, as the node does."""
 
     @property

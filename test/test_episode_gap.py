@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from random_checkpoint import random_checkpoint
 
+from ompn_ros.data.cuts import SilenceWatch, gap_ends_episode
 from ompn_ros.data.reader.align import windows_from_gaps
-from ompn_ros.stream.gap import SilenceWatch, gap_ends_episode
 
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")

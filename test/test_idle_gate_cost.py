@@ -15,8 +15,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from ompn_ros.data.idle import IdleSplitter
-from ompn_ros.stream.gap import IdleGate
+from ompn_ros.data.cuts import IdleGate, IdleSplitter
 
 MS = 1_000_000
 RATE_NS = 2 * MS  # 500 Hz

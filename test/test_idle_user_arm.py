@@ -16,7 +16,7 @@ import pytest
 from driver_bags import BEST_EFFORT, JOINT_STATE, MS, BagWriter, S, joint_state
 
 from ompn_ros.data import ReaderSpec, read_episodes
-from ompn_ros.data.idle import SpeedElements, derive_idle_speed, still_by_speed
+from ompn_ros.data.cuts import SpeedElements, derive_idle_speed, idle_by_speed
 
 JOINTS = [f"joint_{k}" for k in range(1, 7)]
 PERIOD = 20 * MS  # 50 Hz
@@ -110,7 +110,7 @@ def test_the_derived_threshold_sits_between_a_held_arm_and_a_moving_one() -> Non
     elements = SpeedElements(("position", "velocity"))
     derived = derive_idle_speed(stamps, rows, elements)
     held = ~np.any(commands != 0, axis=1)
-    still = still_by_speed(stamps, rows, derived.speed, elements)
+    still = idle_by_speed(stamps, rows, derived.speed, elements)
     assert still[held].mean() > 0.99  # a held arm is still (noise stays below the threshold)
     assert still[~held].mean() < 0.05  # a moving one is not
     assert derived.velocity_noise == pytest.approx(VELOCITY_NOISE, rel=0.3)

@@ -1,5 +1,5 @@
 """ompn_node and a driver that publishes the same message twice: one step, as the bag reader reads it
-once (docs/bags.md, ``ompn_ros.data.repeats``); counted ``repeated_messages``."""
+once (docs/bags.md, ``ompn_ros.data.cuts.repeats``); counted ``repeated_messages``."""
 
 from __future__ import annotations
 

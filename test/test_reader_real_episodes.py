@@ -10,8 +10,8 @@ import pytest
 from driver_bags import BEST_EFFORT, JOINT_STATE, MS, BagWriter, S, joint_state, scalar
 
 from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data.cuts import Cut, IdleSplitter, idle_by_speed, idle_windows
 from ompn_ros.data.errors import ReaderSpecError
-from ompn_ros.data.idle import Cut, IdleSplitter, idle_windows, still_by_speed
 
 JOINTS = ["shoulder", "elbow", "wrist"]
 DEMOS = (20, 25, 18)
@@ -183,7 +183,7 @@ def test_silence_longer_than_idle_ends_the_episode() -> None:
     assert splitter.push(500 * MS, False) == [Cut("end", 1), Cut("start", 2)]
 
 
-def test_still_by_speed() -> None:
+def test_idle_by_speed() -> None:
     stamps = np.asarray([0, 100, 200, 300], np.int64) * MS
     values = np.asarray([[0.0, 0.0], [0.0005, 0.0], [0.0005, 0.01], [0.0005, 0.01]])
-    assert still_by_speed(stamps, values, 0.01).tolist() == [True, True, False, True]
+    assert idle_by_speed(stamps, values, 0.01).tolist() == [True, True, False, True]

@@ -1,4 +1,4 @@
-"""Still observations (``still_tolerance``, ompn_ros.data.still): one rule for training, replay, node."""
+"""Still observations (``still_tolerance``, ompn_ros.data.cuts.still): one rule for training, replay, node."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ torch = pytest.importorskip("torch")
 
 from random_checkpoint import random_checkpoint  # noqa: E402
 
+from ompn_ros.data.cuts import StillRuns, check_tolerance, drop_still, run_ends  # noqa: E402
 from ompn_ros.data.episode import Episode  # noqa: E402
-from ompn_ros.data.still import StillRuns, check_tolerance, drop_still, run_ends  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.errors import ConfigError  # noqa: E402

@@ -1,5 +1,5 @@
 """``model.still_tolerance: auto`` (``ompn_train``'s default): T from the training episodes' own noise floor,
-without labels (ompn_ros.data.still.choose_tolerance, docs/design.md#still-observations).
+without labels (ompn_ros.data.cuts.choose_tolerance, docs/design.md#still-observations).
 
 Designed on Craft full observation (expert and human-like defaults); the sims' other families here were
 kept out of its design: Craft partial observation, Dial (expert and human-like), pauses at subtask
@@ -14,8 +14,8 @@ import pytest
 
 from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.app.training import TrainingData, build_configs
+from ompn_ros.data.cuts.still import AUTO_MIN_STILL_SHARE, choose_tolerance, drop_still
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.still import AUTO_MIN_STILL_SHARE, choose_tolerance, drop_still
 from sim_nodes.human import BOUNDARY_MODE, parse_human
 from sim_nodes.registry import default_tasks, expert_episode
 

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from ompn_ros.app.errors import ClosedLoopError
-from ompn_ros.data.still import StillRuns
+from ompn_ros.data.cuts import StillRuns, still_runs
 from sim_nodes.registry import CRAFT_TASKS, CraftEnv, DialEnv, dial_episode_sketch
 
 if TYPE_CHECKING:  # the model (torch) loads with the first checkpoint, not for ompn_closed_loop --help
@@ -129,18 +129,18 @@ def policy_agent(policy: PolicyModule) -> Agent:
     from ompn_ros.model.load import build_stepper
 
     stepper = build_stepper(policy)
-    tolerance = float(getattr(policy.config, "still_tolerance", 0.0))
-    return StillAgent(stepper, tolerance) if tolerance > 0 else stepper
+    runs = still_runs(float(getattr(policy.config, "still_tolerance", 0.0)))
+    return StillAgent(stepper, runs) if runs is not None else stepper
 
 
 class StillAgent:
     """A model with ``still_tolerance`` in the loop: an observation that moved nothing since the last
-    stepped one is not stepped (:mod:`ompn_ros.data.still`, as in training and ``ompn_node``) and the
-    last step's output, its action included, is given again."""
+    stepped one is not stepped (:meth:`ompn_ros.data.cuts.StillRuns.apply`, as in training and
+    ``ompn_node``) and the last step's output, its action included, is given again."""
 
-    def __init__(self, stepper: Any, tolerance: float) -> None:
+    def __init__(self, stepper: Any, runs: StillRuns) -> None:
         self.stepper, self.config = stepper, stepper.config
-        self.runs = StillRuns(tolerance)
+        self.runs = runs
         self.last: Any = None
 
     def reset(self, sketch: np.ndarray | None = None) -> None:
@@ -149,8 +149,9 @@ class StillAgent:
         self.last = None
 
     def step(self, obs: np.ndarray) -> Any:
-        if self.runs.push(np.asarray(obs, dtype=np.float32).ravel()) or self.last is None:
-            self.last = self.stepper.step(obs)
+        out = self.runs.apply(np.asarray(obs, dtype=np.float32).ravel(), 0, lambda _: self.stepper.step(obs))
+        if out is not None or self.last is None:
+            self.last = out if out is not None else self.stepper.step(obs)
         return self.last
 
 

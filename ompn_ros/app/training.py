@@ -27,9 +27,9 @@ from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.cache import EpisodeArrays, load_arrays
 from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.data.cache_dataset import load_dataset_arrays
+from ompn_ros.data.cuts import AUTO, check_setting, choose_tolerance
 from ompn_ros.data.lerobot import DatasetSpec
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
-from ompn_ros.data.still import AUTO, check_setting, choose_tolerance
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
@@ -294,7 +294,7 @@ def build_configs(
 
 def resolve_still(setting: Any, data: TrainingData) -> float:
     """``model.still_tolerance`` as a number: a given one as it is, ``auto`` (the default) chosen from
-    ``data``'s episodes without labels (:func:`ompn_ros.data.still.choose_tolerance`); the choice joins the
+    ``data``'s episodes without labels (:func:`ompn_ros.data.cuts.choose_tolerance`); the choice joins the
     read report when the data has one (``still`` and a line of its ``summary``; synthetic data has none, so
     ``ompn_train --synthetic`` prints and writes no read summary), and the checkpoint stores the number."""
     try:

@@ -6,7 +6,7 @@ import json
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
-from ompn_ros.data.still import check_tolerance
+from ompn_ros.data.cuts import check_tolerance
 from ompn_ros.model.errors import ConfigError
 
 CONFIG_VERSION = 1
@@ -54,7 +54,7 @@ class OMPNConfig:
             is taken on the standardised residual).  Absent in older configs: ``'none'``.
         still_tolerance: 0 (every observation is a step) or the tolerance below which an observation
             that changed no element since the last stepped one is not stepped, in training, the replay
-            and ``ompn_node`` alike (:mod:`ompn_ros.data.still`, docs/design.md#still-observations).
+            and ``ompn_node`` alike (:mod:`ompn_ros.data.cuts.still`, docs/design.md#still-observations).
             Always a number here: ``ompn_train``'s ``auto`` (its default) is resolved from the training
             episodes before the config is built.  Absent in older configs: 0.
     """

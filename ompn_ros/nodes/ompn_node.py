@@ -25,7 +25,7 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       Without markers, ``episode_gap`` > 0 splits episodes at pauses: a step stamped
                       more than ``episode_gap`` s after the previous one, or that long without a step
                       (the node's clock), ends the episode like an end marker and starts the next
-                      (:mod:`ompn_ros.stream.gap`, the bag reader's ``split: gaps`` rule).
+                      (:mod:`ompn_ros.data.cuts.gap`, the bag reader's ``split: gaps`` rule).
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
                       episode once its speed stayed below ``idle_speed`` for ``idle_s`` (joint speed
                       in rad/s with ``obs_source: joint_state``; the reader's ``split: idle``, whose
@@ -42,7 +42,7 @@ Lifecycle: every transition is logged; a request the current state does not offe
 the process (exit 0).
 
 Publications (per accepted observation, except one that a model with ``still_tolerance`` does not step:
-:mod:`ompn_ros.data.still`, counted ``still_observations``; built by :mod:`ompn_ros.data.messages`, the
+:mod:`ompn_ros.data.cuts.still`, counted ``still_observations``; built by :mod:`ompn_ros.data.messages`, the
 ``ompn_interfaces`` types included):
     ``cmd_action``    Int32 (discrete: argmax env action, or ``action_dim`` = 'done' when
                       π_end > ``done_threshold``) or Float32MultiArray (continuous: Gaussian mean).
@@ -98,6 +98,7 @@ from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
+from ompn_ros.data.cuts import GAP_TIMER_FRACTION
 from ompn_ros.data.obs import ObservationSpecError
 from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError
 from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE
@@ -121,7 +122,6 @@ from ompn_ros.nodes.ompn_node_params import EXECUTORS, OBS_SOURCES, SPECS
 from ompn_ros.ros.params import ParameterError, ParamTable
 from ompn_ros.ros.run import NodeProcess, run_node
 from ompn_ros.segmenter import StreamingSegmenter
-from ompn_ros.stream.gap import GAP_TIMER_FRACTION
 from ompn_ros.stream.rule import StreamLimits, StreamRule
 
 NODE_NAME = "ompn_node"

@@ -165,10 +165,10 @@ class NodeOutputs(LifecycleNode):
         bad_end_markers, qos_incompatible (and duplicate_names on /diagnostics); with ``observation_spec``
         also the assembler's ``obs.*`` counters (steps, kept, dropped by reason, rejected partner
         messages by topic and reason), ``obs_type_reports`` (wrong advertised types seen) and
-        ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (still observations in no episode), with
+        ``obs_size_mismatch``; with ``idle_s`` ``idle_trimmed`` (idle observations in no episode), with
         ``joint_merge`` ``joint_missing`` (steps dropped for a joint without a recent value); with a model's
         ``still_tolerance`` ``still_observations`` (observations that moved nothing: not stepped);
-        ``repeated_messages``: messages a driver sent twice, stepped once (:mod:`ompn_ros.data.repeats`)."""
+        ``repeated_messages``: messages a driver sent twice, stepped once (:mod:`ompn_ros.data.cuts`)."""
         stream, seg = self.stream, self.stream.segmenter
         out = {"accepted": 0, "rejected": 0}
         if seg is not None:

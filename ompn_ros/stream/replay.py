@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from ompn_ros.data.cuts import StillRuns
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.still import StillRuns
 from ompn_ros.detect.head import step_outputs
 from ompn_ros.detect.online import BoundaryEvent, subtask_ends
 from ompn_ros.segmenter import ReplayResult, SegmenterOutput, StreamingSegmenter
@@ -108,10 +108,11 @@ def replay_episode(
 
 def _episode_result(record: StreamRecord, T: int, runs: StillRuns | None = None) -> ReplayResult:
     """The ``T`` real steps of ``record`` (one episode) as arrays, with its boundaries up to step T - 1;
-    with ``runs`` (a model's ``still_tolerance``) a row per observation of the stream: :func:`_on_rows`."""
+    with ``runs`` (a model's ``still_tolerance``) a row per observation of the stream
+    (:func:`_outputs_on_rows`)."""
     run_ends = None
     if runs is not None and runs.steps:
-        record.steps, run_ends = _on_rows(record.steps, runs, T)
+        record.steps, run_ends = _outputs_on_rows(record.steps, runs, T)
     published = [event for _, _, event in record.boundaries]
     outs = [out for _, _, out in record.steps[:T]]
     sos = [out.step_output for out in outs]
@@ -145,19 +146,18 @@ def _subtasks(published: list[BoundaryEvent], outs: list[SegmenterOutput],
     return out
 
 
-def _on_rows(steps: list[tuple[int, int, SegmenterOutput]], runs: StillRuns, T: int
-             ) -> tuple[list[tuple[int, int, SegmenterOutput]], np.ndarray]:
+def _outputs_on_rows(steps: list[tuple[int, int, SegmenterOutput]], runs: StillRuns, T: int
+                     ) -> tuple[list[tuple[int, int, SegmenterOutput]], np.ndarray]:
     """The stepped outputs spread over the ``T`` rows of the stream they came from, and the row of each
-    step's output: the last row of its run (where its boundary lies, :mod:`ompn_ros.data.still`); the
+    step's output: the last row of its run (where its boundary lies, :meth:`StillRuns.run_of`); the
     run's earlier rows hold its memory read-out with no expansion (``p_hat`` all on the bottom slot,
     score 0)."""
     rows: list[tuple[int, int, SegmenterOutput]] = []
     ends: list[int] = []
     for j, (episode, stamp, out) in enumerate(steps):
-        first = runs.firsts[j]
-        if first > T - 1:
+        if runs.firsts[j] > T - 1:
             break
-        last = min(runs.ends[j], T - 1)
+        first, last = runs.run_of(j, T - 1)
         if last > first:
             so = out.step_output
             still_p_hat = np.zeros_like(np.asarray(so.p_hat))

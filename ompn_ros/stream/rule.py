@@ -13,11 +13,11 @@ The rules, in the order a stamped observation meets them (``docs/parameters.md``
 * one more than ``clock_jump_back`` behind the last step is a clock restart (a restarted simulation, a
   bag played in a loop): the open episode is closed and a new one starts (``clock_jumps``);
 * with ``episode_gap``, a step stamped more than that after the previous one ends the episode and
-  starts the next (the bag reader's ``split: gaps``, :mod:`ompn_ros.stream.gap`), as does a silence of
+  starts the next (the bag reader's ``split: gaps``, :mod:`ompn_ros.data.cuts.gap`), as does a silence of
   that long on the receiver's clock (:meth:`StreamRule.check_silence`);
-* with ``idle_s``, still observations are held until the reader's ``split: idle`` rule decides them;
+* with ``idle_s``, idle observations are held until the reader's ``split: idle`` rule decides them;
 * with a model whose ``still_tolerance`` is above 0, an observation that moved nothing since the last
-  stepped one is not stepped (:mod:`ompn_ros.data.still`); steps and boundaries keep the stream's rows;
+  stepped one is not stepped (:mod:`ompn_ros.data.cuts.still`); steps and boundaries keep the stream's rows;
 * a smaller step back, like any invalid observation, is rejected by the segmenter without a step.
 
 Episode markers ('start' with an optional sketch, 'end' with the step count), sketch messages and
@@ -36,13 +36,19 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from ompn_ros import layout
-from ompn_ros.data.idle import ALL_ELEMENTS, SpeedElements
+from ompn_ros.data.cuts import (
+    ALL_ELEMENTS,
+    IdleGate,
+    Repeats,
+    SilenceWatch,
+    SpeedElements,
+    StillRuns,
+    gap_ends_episode,
+    still_runs,
+)
 from ompn_ros.data.messages import parse_sketch_value
-from ompn_ros.data.repeats import Repeats
-from ompn_ros.data.still import StillRuns
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import SegmenterOutput, StreamingSegmenter
-from ompn_ros.stream.gap import IdleGate, SilenceWatch, gap_ends_episode
 from ompn_ros.validate import BadSketch, FutureStamp, InvalidInput, SketchError, validate_sketch
 
 __all__ = ["StampClass", "StreamLimits", "StreamRule", "StreamSink", "classify_stamp"]
@@ -206,11 +212,12 @@ class StreamRule:
             if runs is None:
                 out = seg.step(obs, stamp_ns)
             else:  # still_tolerance: a still observation joins the open run, no step
-                arr = seg.checked(obs, stamp_ns)
-                if not runs.push(arr, 0 if stamp_ns is None else int(stamp_ns)):
+                stepped = runs.apply(seg.checked(obs, stamp_ns), 0 if stamp_ns is None else int(stamp_ns),
+                                     lambda arr: seg.step_checked(arr, stamp_ns))
+                if stepped is None:
                     self.events["still_observations"] += 1
                     return
-                out = seg.step_checked(arr, stamp_ns)
+                out = stepped
         except InvalidInput as exc:
             self.sink.skipped(exc, True)
             return
@@ -218,21 +225,22 @@ class StreamRule:
         if out.step_index == 0:
             self.events["episodes"] += 1
         if runs is not None:  # the rows and stamps of the recorded stream
-            out = replace(out, boundary=self._on_rows(out.boundary), step_index=runs.firsts[-1])
+            out = replace(out, boundary=self._event_rows(out.boundary), step_index=runs.firsts[-1])
         # The boundary event goes out first: it is the latency-critical product of the node.
         if out.boundary is not None:
             self.emit_boundary(out.boundary, log=False)
         self.sink.step_out(out, self.last_stamp_ns, self.events["episodes"])
 
     def _runs(self, seg: StreamingSegmenter) -> StillRuns | None:
-        """The episode's still rule when the model has a ``still_tolerance`` (:mod:`ompn_ros.data.still`)."""
+        """The episode's still rule when the model has a ``still_tolerance`` (:func:`still_runs`)."""
         if self.still is None and seg.still_tolerance > 0:
-            self.still = StillRuns(seg.still_tolerance)
+            self.still = still_runs(seg.still_tolerance)
         return self.still
 
-    def _on_rows(self, event: BoundaryEvent | None, last_row: int | None = None) -> BoundaryEvent | None:
-        """``event`` with its steps as rows of the stream: a step's boundary at the last row of its run
-        (``last_row``: at most the episode's last real step); unchanged without ``still_tolerance``."""
+    def _event_rows(self, event: BoundaryEvent | None, last_row: int | None = None) -> BoundaryEvent | None:
+        """``event`` with its steps as rows of the stream (:meth:`StillRuns.end_of`): a step's boundary at
+        the last row of its run (``last_row``: at most the episode's last real step); unchanged without
+        ``still_tolerance``."""
         runs = self.still
         if event is None or runs is None or runs.steps == 0:
             return event
@@ -317,7 +325,7 @@ class StreamRule:
         closing = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
         self.events["episodes_ended"] += 1
         for event in closing:
-            mapped = self._on_rows(event, last_row)
+            mapped = self._event_rows(event, last_row)
             assert mapped is not None
             if decided is not None:
                 mapped = replace(mapped, detected_at=max(mapped.detected_at, decided[0]))

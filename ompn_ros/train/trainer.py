@@ -47,8 +47,8 @@ import numpy as np
 import torch
 
 from ompn_ros.atomic import write_failure
+from ompn_ros.data.cuts import drop_still
 from ompn_ros.data.episode import Episode
-from ompn_ros.data.still import drop_still
 from ompn_ros.detect.calibrate import agreement
 from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.build import PolicyModule, build_policy
@@ -408,7 +408,7 @@ def train(
 
 def _without_still(episodes: Sequence[Episode], tolerance: float, ctx: DistContext) -> Sequence[Episode]:
     """The episodes as the model is stepped on them: with ``still_tolerance`` > 0 without their still
-    observations (:func:`~ompn_ros.data.still.drop_still`; idempotent, so nested calls cost only time)."""
+    observations (:func:`~ompn_ros.data.cuts.drop_still`; idempotent, so nested calls cost only time)."""
     if tolerance <= 0:
         return episodes
     reduced = [drop_still(ep, tolerance)[0] for ep in episodes]

@@ -14,9 +14,8 @@ import numpy as np
 
 from ompn_ros import layout
 
+from ..cuts import REPEAT_NS, gap_windows, idle_windows
 from ..errors import AlignmentError
-from ..idle import idle_windows
-from ..repeats import REPEAT_NS
 from .context import BagContext
 from .decode import Marker
 
@@ -103,13 +102,9 @@ def windows_from_markers(ctx: BagContext, markers: list[Marker], obs_stamps: np.
 
 
 def windows_from_gaps(gap_s: float, obs_stamps: np.ndarray) -> list[Window]:
-    """Split where consecutive observations are more than ``gap_s`` seconds apart."""
-    if obs_stamps.size == 0:
-        return []
-    gap = round(gap_s * 1e9)
-    cuts = np.flatnonzero(np.diff(obs_stamps) > gap) + 1
-    bounds = np.concatenate([[0], cuts, [obs_stamps.size]])
-    return [Window(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
+    """``split: gaps`` (:func:`ompn_ros.data.cuts.gap_windows`): split where consecutive observations are
+    more than ``gap_s`` seconds apart."""
+    return [Window(a, b) for a, b in gap_windows(obs_stamps, round(gap_s * 1e9))]
 
 
 def windows_from_topic(split_stamps: np.ndarray, obs_stamps: np.ndarray,
@@ -137,6 +132,6 @@ def windows_from_topic(split_stamps: np.ndarray, obs_stamps: np.ndarray,
 
 
 def windows_from_idle(idle_s: float, obs_stamps: np.ndarray, still: np.ndarray) -> tuple[list[Window], int]:
-    """``split: idle`` (:func:`ompn_ros.data.idle.idle_windows`): windows and trimmed still steps."""
+    """``split: idle`` (:func:`ompn_ros.data.cuts.idle_windows`): windows and trimmed idle steps."""
     pairs, trimmed = idle_windows(obs_stamps, still, idle_s)
     return [Window(a, b) for a, b in pairs], trimmed

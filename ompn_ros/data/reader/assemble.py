@@ -17,9 +17,9 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
+from ..cuts import ALL_ELEMENTS, SpeedElements, derive_idle_speed, idle_by_speed
 from ..episode import OBS_STAMPS, Episode
 from ..errors import AlignmentError
-from ..idle import ALL_ELEMENTS, SpeedElements, derive_idle_speed, still_by_speed
 from .align import (
     Window,
     attach,
@@ -157,7 +157,7 @@ def _windows(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners) 
 
 
 def speed_elements(spec: Any) -> SpeedElements:
-    """The elements whose speed tells stillness (:class:`ompn_ros.data.idle.SpeedElements`): a JointState
+    """The elements whose speed tells stillness (:class:`ompn_ros.data.cuts.SpeedElements`): a JointState
     observation's fields, every element of any other (an assembled one included)."""
     src = spec.observation
     if spec.assemble is None and src.type == layout.JOINT_STATE:
@@ -167,7 +167,7 @@ def speed_elements(spec: Any) -> SpeedElements:
 
 def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
     """``split: idle``: per observation, whether the robot is still (no command attached, or its speed
-    below ``idle_speed``, derived from the bag with ``auto``; :mod:`ompn_ros.data.idle`)."""
+    below ``idle_speed``, derived from the bag with ``auto``; :mod:`ompn_ros.data.cuts.idle`)."""
     still = partners.act < 0 if dec.act_stamps is not None else np.zeros(len(dec.obs_stamps), dtype=bool)
     elements = speed_elements(ctx.spec)
     speed = ctx.spec.idle_speed
@@ -181,7 +181,7 @@ def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
         ctx.report.notes.append("split: idle cannot see the robot still: every observation carries its "
                                 "action and idle_speed is 0; set idle_speed (rad/s of joint speed) or auto")
     if float(speed) > 0:
-        still = still | still_by_speed(dec.obs_stamps, dec.obs, float(speed), elements)
+        still = still | idle_by_speed(dec.obs_stamps, dec.obs, float(speed), elements)
     return still
 
 

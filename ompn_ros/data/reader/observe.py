@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from rosbags.rosbag2 import Reader
 
+from ..cuts import Repeats
 from ..obs import ObservationSpec
-from ..repeats import Repeats
 from .columns import AssemblySink
 from .context import BagContext
 from .raw import bag_messages

@@ -17,10 +17,10 @@ import numpy as np
 from rosbags.interfaces import Connection, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader
 
+from ..cuts import Repeats, unrepeated
 from ..errors import CorruptBagError, UnknownTypeError
 from ..messages.types import TypeDefinitionError, builtin, register_definition
 from ..obs import ObservationSpec
-from ..repeats import Repeats, unrepeated
 from .columns import AssemblySink, Float32Column
 from .compressed import NOTE as compressed_note
 from .compressed import decompress, is_compressed
@@ -121,7 +121,7 @@ class RawBag:
     assembly: AssemblySink | None = None  # the assembler's rows when they were built while reading
     cut: int | None = None  # truncate(): messages stamped at or after it are dropped
     notes: list[str] = field(default_factory=list)  # for the bag's report (e.g. a QoS string mismatch)
-    repeats: Repeats = field(default_factory=Repeats)  # messages sent twice, dropped (data.repeats)
+    repeats: Repeats = field(default_factory=Repeats)  # messages sent twice, dropped (data.cuts.repeats)
 
     def append(self, wanted: set[str] | None, topic: str, msgtype: str, stamp: int, data: bytes) -> None:
         """Add one message when its topic is wanted."""

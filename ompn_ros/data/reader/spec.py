@@ -211,7 +211,7 @@ class ReaderSpec:
             the ``episode`` topic, required), ``gaps`` (observations more than ``time_gap``
             seconds apart), ``topic`` (every message on ``split_topic`` starts an episode at the
             next observation; observations before the first one are not used), ``idle`` (the
-            robot is still for ``idle_s``: :mod:`ompn_ros.data.idle`, the rule ``ompn_node``'s
+            robot is still for ``idle_s``: :mod:`ompn_ros.data.cuts.idle`, the rule ``ompn_node``'s
             ``idle_s`` applies live), ``bag`` (one bag per demonstration: each bag of a folder is
             one episode) or ``auto`` (default: markers when the bag has any, else gaps).
         split_topic: the topic for ``split: topic``.  A recording switch marks on and off: a
@@ -223,8 +223,8 @@ class ReaderSpec:
         idle_speed: ``split: idle``: a step is still when its speed is below this: the joint speed
             of a JointState observation (positions' change per second and measured velocities, rad/s
             for revolute joints; efforts ignored), any element's change per second otherwise
-            (:class:`ompn_ros.data.idle.SpeedElements`).  ``auto`` (default): derived per bag from its
-            own noise floor and named in the read report (:func:`ompn_ros.data.idle.derive_idle_speed`);
+            (:class:`ompn_ros.data.cuts.SpeedElements`).  ``auto`` (default): derived per bag from its
+            own noise floor and named in the read report (:func:`ompn_ros.data.cuts.derive_idle_speed`);
             0 = never by speed.  A step with no command attached (an action topic other than the
             observation's) is still as well.
         types: where message types come from beyond ROS 2 Jazzy's and the bag's own definitions

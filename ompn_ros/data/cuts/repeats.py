@@ -4,11 +4,13 @@ stepping, counted per topic (docs/bags.md).
 A message is a *repeat* when its bytes equal those of the previous message of the same topic and
 either its type starts with a ``std_msgs/Header`` whose stamp is not zero (the same sample sent
 again, however late) or it was logged at most :data:`REPEAT_NS` after it (a headerless message:
-two equal states of a still robot one driver period apart stay two observations).  Repeats are
+two equal states of an idle robot one driver period apart stay two observations).  Repeats are
 counted in the read report's ``duplicates`` table and named in a note; the same rule holds in strict
 and non-strict reads.  Live, the receive time (or the DDS source timestamp) takes the log stamp's
 place, and a decoded JointState is compared by header stamp and data (:meth:`Repeats.seen_sample`),
-counted ``repeated_messages``.  Cost: one bytes comparison per message; memory: the last message per topic.
+counted ``repeated_messages``.  :func:`unrepeated` is the rule over a bag's messages (the reader);
+:class:`Repeats` is the rule for one message (both forms run it).  Cost: one bytes comparison per
+message; memory: the last message per topic.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from functools import cache
 
 from rosbags.interfaces import Connection
 
-from . import messages as m
+from .. import messages as m
 
 REPEAT_NS = 100_000
 """Headerless messages with equal bytes logged at most this far apart (ns) are one message sent twice

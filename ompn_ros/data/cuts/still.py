@@ -15,8 +15,13 @@ offline replay and ``ompn_node``:
   follows in the stream, and every boundary keeps the row and stamp of the original stream.
 
 :class:`StillRuns` is the rule for one observation at a time (O(1) per observation, no allocation but a
-copy of the stepped observation); :func:`drop_still` runs it over a whole :class:`Episode`; the stream
-rule (:mod:`ompn_ros.stream.rule`) runs it live and maps boundaries back with :meth:`StillRuns.end_of`.
+copy of the stepped observation) and its one applier: :func:`still_runs` turns it on for a tolerance,
+:meth:`StillRuns.apply` steps a model only on the observations that moved (the stream rule of
+``ompn_node`` and the replay, :mod:`ompn_ros.stream.rule`; the closed loop), :func:`drop_still` pushes a
+whole :class:`Episode` through it (training).  It is also the one row mapper: :meth:`StillRuns.end_of`
+gives the row and stamp a step's output and boundary belong to, :meth:`StillRuns.run_of` the rows of
+its run.  "Still" is this rule's word only; the idle rule's word for a step that does not move is
+"idle" (:mod:`.idle`).
 
 ``still_tolerance: auto`` (``ompn_train``'s default) chooses T from the training episodes, without labels
 (:func:`choose_tolerance`, docs/design.md#still-observations): T sits above the observations' own noise
@@ -28,15 +33,18 @@ step: thinning it would drop moving steps too).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
 from ompn_ros.data.episode import Episode
 
 __all__ = ["AUTO", "StillChoice", "StillRuns", "check_setting", "check_tolerance", "choose_tolerance",
-           "drop_still", "element_noise", "noise_floor", "noise_margin", "run_ends"]
+           "drop_still", "element_noise", "noise_floor", "noise_margin", "run_ends", "still_runs"]
+
+Out = TypeVar("Out")
 
 AUTO = "auto"
 """``still_tolerance: auto``: T chosen from the training episodes (:func:`choose_tolerance`)."""
@@ -195,6 +203,11 @@ class StillRuns:
         last = self._last
         return last is not None and bool(np.all(np.abs(obs - last) < self.tolerance))
 
+    def apply(self, obs: np.ndarray, stamp_ns: int, step: Callable[[np.ndarray], Out]) -> Out | None:
+        """The rule in front of a model: ``step(obs)`` when ``obs`` moved (it starts a run), None when it
+        is still (it joins the open run, the model is not stepped)."""
+        return step(obs) if self.push(obs, stamp_ns) else None
+
     def push(self, obs: np.ndarray, stamp_ns: int = 0) -> bool:
         """One observation of the episode: True when it is stepped (it starts a run), False when it is
         still (it extends the open run)."""
@@ -227,9 +240,20 @@ class StillRuns:
                 return last_row, self.priors[j]
         return self.ends[j], self.stamps[j]
 
+    def run_of(self, step: int, last_row: int) -> tuple[int, int]:
+        """``(first, last)`` rows of step ``step``'s run (``firsts[step] <= last_row``), the last at most
+        ``last_row`` (:meth:`end_of`)."""
+        return self.firsts[step], self.end_of(step, last_row)[0]
+
     def steps_before(self, row: int) -> int:
         """How many stepped observations lie at rows ``< row`` (an end marker's step count, mapped)."""
         return int(np.searchsorted(np.asarray(self.firsts), row, side="left"))
+
+
+def still_runs(tolerance: float) -> StillRuns | None:
+    """The still rule of a model whose ``still_tolerance`` is ``tolerance`` (checked): a fresh
+    :class:`StillRuns`, or None when it is off (0: every observation is stepped)."""
+    return StillRuns(tolerance) if check_tolerance(tolerance) > 0 else None
 
 
 def run_ends(first_rows: np.ndarray, length: int) -> np.ndarray:
@@ -246,9 +270,9 @@ def drop_still(episode: Episode, tolerance: float) -> tuple[Episode, np.ndarray]
     With a tolerance of 0 the episode is returned as it is.
     """
     T = episode.length
-    if check_tolerance(tolerance) == 0 or T == 0:
+    runs = still_runs(tolerance)
+    if runs is None or T == 0:
         return episode, np.arange(T, dtype=np.int64)
-    runs = StillRuns(tolerance)
     first = np.array([t for t in range(T) if runs.push(episode.observations[t])], dtype=np.int64)
     last = run_ends(first, T)
     obs_rows = np.append(first, T)
