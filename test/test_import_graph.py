@@ -285,3 +285,22 @@ def test_the_command_lines_import_only_the_app_layer():
         if target != "ompn_ros.errors" and _room(target) not in CLI_MAY_IMPORT
     ]
     assert not offenders, "command-line shells importing below the app layer:\n" + "\n".join(offenders)
+
+
+CUTS = "ompn_ros.data.cuts"
+"""The package of the rules that cut a stream (gap, idle, still, repeats), each in one module."""
+
+
+def test_the_cuts_of_a_stream_have_one_room_reached_through_its_face():
+    edges, _ = _graph()
+    old_homes = {"ompn_ros.data.idle", "ompn_ros.data.still", "ompn_ros.data.repeats", "ompn_ros.stream.gap"}
+    assert not old_homes & set(MODULES), "a cut rule outside ompn_ros/data/cuts/"
+    assert {f"{CUTS}.{rule}" for rule in ("gap", "idle", "still", "repeats")} <= set(MODULES)
+    bypassing = [
+        f"{name} -> {target}"
+        for name, targets in sorted(edges.items())
+        if not name.startswith(CUTS)
+        for target in sorted(targets)
+        if target.startswith(CUTS + ".")
+    ]
+    assert not bypassing, f"imports around the face of {CUTS}:\n" + "\n".join(bypassing)

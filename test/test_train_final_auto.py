@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from ompn_ros.app.errors import ReplayError, TrainSetupError
-from ompn_ros.app.final_choice import FINAL_DIR, FINAL_FILE, OptionRun, Validated, choose, train_auto
+from ompn_ros.app.final_choice import FINAL_DIR, OptionRun, Validated, choose, train_auto
 from ompn_ros.app.final_record import RECORD_FILE, record_final, resolve_final, trained_final
 from ompn_ros.app.training import load_config
 from ompn_ros.cli.segment import main as segment_main
@@ -68,7 +68,7 @@ def test_stripped_bags_train_every_option_and_publish_the_one_validation_keeps(
     assert main(_args(bags[1], spec, out)) == 0
     captured = capsys.readouterr()
     shown = json.loads(captured.out.strip().splitlines()[-1])
-    doc = json.loads((out / FINAL_FILE).read_text())
+    doc = json.loads((out / RECORD_FILE).read_text())
     assert [r["option"] for r in doc["options"]] == ["blank", "duplicate"] and doc["objective"] == "f1"
     assert shown["final_observation"] == doc["chosen"] == _kept_by_rule(doc["options"], "f1")
     assert "row T read as 'blank'" in captured.err and "row T read as 'duplicate'" in captured.err
@@ -92,7 +92,7 @@ def test_stripped_bags_train_every_option_and_publish_the_one_validation_keeps(
                              "--plot-episodes", "0"]) == 0
         assert guess in (replayed / "read_report.txt").read_text()
     assert main(_args(bags[1], spec, out, "--overwrite", "--set", "train.seed=4")) == 0
-    assert json.loads((out / FINAL_FILE).read_text())["options"] != doc["options"]  # retrained afresh
+    assert json.loads((out / RECORD_FILE).read_text())["options"] != doc["options"]  # retrained afresh
 
 
 def test_nothing_to_choose_trains_the_first_option_alone(
@@ -102,7 +102,7 @@ def test_nothing_to_choose_trains_the_first_option_alone(
     assert main(_args(bags[0], spec, tmp_path / "complete")) == 0  # every final observation recorded
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["final_observation"] == "duplicate"
     assert not (tmp_path / "complete" / FINAL_DIR).exists()
-    assert not (tmp_path / "complete" / FINAL_FILE).exists()
+    assert not (tmp_path / "complete" / RECORD_FILE).exists()
     assert trained_final(tmp_path / "complete" / "best") == "duplicate"
     assert main(_args(bags[1], spec, tmp_path / "unlabelled", "--set", "train.labels=none")) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["final_observation"] == "duplicate"
@@ -127,10 +127,22 @@ def test_a_checkpoint_record_sets_auto_and_a_bad_one_is_refused_in_one_line(tmp_
     fixed = ReaderSpec(final_observation="duplicate")
     assert resolve_final(fixed, tmp_path) == fixed  # a fixed option is the user's choice
     for text in ("{", json.dumps({"format": "other", "final_observation": "blank"}),
-                 json.dumps({"format": "ompn_ros.final_guess", "final_observation": "auto"})):
+                 json.dumps({"format": "ompn_ros.final_observation", "chosen": "auto"})):
         (tmp_path / RECORD_FILE).write_text(text)
         with pytest.raises(ReplayError, match=RECORD_FILE):
             trained_final(tmp_path)
+
+
+def test_the_choice_has_one_record_beside_a_checkpoint_and_with_the_comparison(tmp_path: Path) -> None:
+    record_final(tmp_path, "duplicate")
+    (tmp_path / "out").mkdir()
+    record_final(tmp_path / "out", "blank", {"objective": "f1", "options": [{"option": "blank"}]})
+    plain, compared = (json.loads((d / RECORD_FILE).read_text()) for d in (tmp_path, tmp_path / "out"))
+    assert plain["format"] == compared["format"] == "ompn_ros.final_observation"
+    assert (plain["chosen"], compared["chosen"]) == ("duplicate", "blank")
+    assert compared["options"] == [{"option": "blank"}] and "options" not in plain
+    assert (trained_final(tmp_path), trained_final(tmp_path / "out")) == ("duplicate", "blank")
+    assert not list(tmp_path.glob("final_guess*"))  # one file name for the choice
 
 
 def test_other_readers_read_auto_as_the_first_option(tmp_path: Path, bags: tuple[Path, Path]) -> None:

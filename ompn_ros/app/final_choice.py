@@ -11,8 +11,8 @@ each run's bundled online detector on its own validation episodes and keeps the 
 :func:`~ompn_ros.detect.tune.pick_within_error` prefers: the best validation objective (the domain's
 headline metric) within one standard error, then the other metric, the rule that tunes the detector
 itself.  The winner's checkpoints, log and reports are copied into ``OUT``;
-``OUT/final_observation.json`` records every option's validation figures and the choice, and each
-run's ``best/`` and ``last/`` name the option they were trained with
+``OUT/final_observation.json`` records the choice with every option's validation figures, and each
+run's ``best/`` and ``last/`` the option they were trained with, in the one record of the choice
 (:mod:`ompn_ros.app.final_record`), which later readers of the ``auto`` spec apply.
 
 The first option trains alone when no episode lacks its final observation (nothing to choose) or
@@ -54,7 +54,6 @@ from ompn_ros.train.trainer import train_val_episodes
 LOG = logging.getLogger("ompn_ros.train")
 
 FINAL_DIR = "final_observation"
-FINAL_FILE = "final_observation.json"
 PUBLISHED = ("best", "last", "log.jsonl", "candidates", "candidates.json", "read_report.json",
              "read_report.txt")
 """What the chosen option's run contributes to ``OUT`` (``summary.json`` is written anew)."""
@@ -185,7 +184,8 @@ def _record(run_dir: Path, option: str) -> None:
 
 
 def _publish(out: Path, runs: Sequence[OptionRun], winner: int) -> None:
-    """Copy the winner's outputs into ``out``; write ``summary.json`` and ``final_observation.json``."""
+    """Copy the winner's outputs into ``out``; write ``summary.json`` and the record of the choice with
+    the comparison (:func:`~ompn_ros.app.final_record.record_final`)."""
     chosen = runs[winner]
     copy_outputs(chosen.out_dir, out, PUBLISHED)
     summary = {**chosen.summary, "final_observation": chosen.option,
@@ -199,15 +199,14 @@ def _publish(out: Path, runs: Sequence[OptionRun], winner: int) -> None:
              "standard_error": standard_error(r.validated.per_episode, r.validated.lengths,
                                               objective)}
             for r in runs]
-    doc = {"chosen": chosen.option, "objective": objective,
-           "validation_episodes": len(chosen.validated.lengths),
-           "rule": "the bundled online detector on validation, best objective within one standard error, "
-                   "then the other metric (docs/design.md#final-observation-auto)",
-           "options": rows}
-    atomic_write_text(out / FINAL_FILE, json.dumps(doc, indent=1) + "\n")
+    record_final(out, chosen.option, {
+        "objective": objective, "validation_episodes": len(chosen.validated.lengths),
+        "rule": "the bundled online detector on validation, best objective within one standard error, then "
+                "the other metric (docs/design.md#final-observation-auto)",
+        "options": rows})
     LOG.info("final_observation: auto: %s; kept '%s'",
              ", ".join(f"{r['option']}: F1@1 {r['val_f1_1']:.3f} align {r['val_align']:.3f}" for r in rows),
              chosen.option)
 
 
-__all__ = ["FINAL_DIR", "FINAL_FILE", "OptionRun", "Validated", "choose", "train_auto", "validate_online"]
+__all__ = ["FINAL_DIR", "OptionRun", "Validated", "choose", "train_auto", "validate_online"]

@@ -29,7 +29,7 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
                       episode once its speed stayed below ``idle_speed`` for ``idle_s`` (joint speed
                       in rad/s with ``obs_source: joint_state``; the reader's ``split: idle``, whose
-                      end boundary is decided ``idle_s`` later; still steps are held, then stepped or
+                      end boundary is decided ``idle_s`` later; idle steps are held, then stepped or
                       trimmed, counted ``idle_trimmed``; a marker or ``~/reset`` ends the held ones as
                       the end of a bag does: the first is the final observation, the others trimmed).
     ``sketch``        Int32MultiArray: sketch of the coming episode (resets again if no step yet).

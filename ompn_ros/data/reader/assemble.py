@@ -138,7 +138,7 @@ def _windows(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners) 
         windows = windows_from_topic(dec.split_stamps, dec.obs_stamps, dec.split_switch)
     elif split == "idle":
         ctx.report.split = "idle"
-        windows, trimmed = windows_from_idle(ctx.spec.idle_s, dec.obs_stamps, _still(ctx, dec, partners))
+        windows, trimmed = windows_from_idle(ctx.spec.idle_s, dec.obs_stamps, _idle(ctx, dec, partners))
         ctx.report.idle_trimmed += trimmed
     elif split == "bag":
         ctx.report.split = "bag"
@@ -157,7 +157,7 @@ def _windows(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners) 
 
 
 def speed_elements(spec: Any) -> SpeedElements:
-    """The elements whose speed tells stillness (:class:`ompn_ros.data.cuts.SpeedElements`): a JointState
+    """The elements whose speed tells an idle step (:class:`ompn_ros.data.cuts.SpeedElements`): a JointState
     observation's fields, every element of any other (an assembled one included)."""
     src = spec.observation
     if spec.assemble is None and src.type == layout.JOINT_STATE:
@@ -165,10 +165,10 @@ def speed_elements(spec: Any) -> SpeedElements:
     return ALL_ELEMENTS
 
 
-def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
-    """``split: idle``: per observation, whether the robot is still (no command attached, or its speed
+def _idle(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
+    """``split: idle``: per observation, whether the robot is idle (no command attached, or its speed
     below ``idle_speed``, derived from the bag with ``auto``; :mod:`ompn_ros.data.cuts.idle`)."""
-    still = partners.act < 0 if dec.act_stamps is not None else np.zeros(len(dec.obs_stamps), dtype=bool)
+    idle = partners.act < 0 if dec.act_stamps is not None else np.zeros(len(dec.obs_stamps), dtype=bool)
     elements = speed_elements(ctx.spec)
     speed = ctx.spec.idle_speed
     if speed == "auto":
@@ -178,11 +178,11 @@ def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
     else:
         ctx.report.idle_rule = f"idle_speed {float(speed):g} on {elements.describe()}"
     if dec.act_stamps is None and float(speed) <= 0:
-        ctx.report.notes.append("split: idle cannot see the robot still: every observation carries its "
+        ctx.report.notes.append("split: idle cannot see the robot idle: every observation carries its "
                                 "action and idle_speed is 0; set idle_speed (rad/s of joint speed) or auto")
     if float(speed) > 0:
-        still = still | idle_by_speed(dec.obs_stamps, dec.obs, float(speed), elements)
-    return still
+        idle = idle | idle_by_speed(dec.obs_stamps, dec.obs, float(speed), elements)
+    return idle
 
 
 def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w: Window,

@@ -31,7 +31,7 @@ class BagReport:
     episodes: int = 0
     steps: int = 0
     split: str = ""  # 'markers' | 'time_gap' | 'topic' | 'idle' | 'bag'
-    idle_trimmed: int = 0  # split: idle: still observations that belong to no episode
+    idle_trimmed: int = 0  # split: idle: idle observations that belong to no episode
     idle_rule: str = ""  # split: idle: the speed threshold used (derived with idle_speed: auto) and on what
     messages: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)  # steps lacking a partner, per topic

@@ -211,7 +211,7 @@ class ReaderSpec:
             the ``episode`` topic, required), ``gaps`` (observations more than ``time_gap``
             seconds apart), ``topic`` (every message on ``split_topic`` starts an episode at the
             next observation; observations before the first one are not used), ``idle`` (the
-            robot is still for ``idle_s``: :mod:`ompn_ros.data.cuts.idle`, the rule ``ompn_node``'s
+            robot is idle for ``idle_s``: :mod:`ompn_ros.data.cuts.idle`, the rule ``ompn_node``'s
             ``idle_s`` applies live), ``bag`` (one bag per demonstration: each bag of a folder is
             one episode) or ``auto`` (default: markers when the bag has any, else gaps).
         split_topic: the topic for ``split: topic``.  A recording switch marks on and off: a
@@ -219,14 +219,14 @@ class ReaderSpec:
             ``String`` holding only on/off words (``start on true 1 record begin`` /
             ``stop off false 0 pause end``); on starts an episode, off ends it (observations while
             off are not used).  Any other topic: every message starts an episode (stamps only).
-        idle_s: ``split: idle``: seconds the robot must be still to end an episode (> 0).
-        idle_speed: ``split: idle``: a step is still when its speed is below this: the joint speed
+        idle_s: ``split: idle``: seconds the robot must be idle to end an episode (> 0).
+        idle_speed: ``split: idle``: a step is idle when its speed is below this: the joint speed
             of a JointState observation (positions' change per second and measured velocities, rad/s
             for revolute joints; efforts ignored), any element's change per second otherwise
             (:class:`ompn_ros.data.cuts.SpeedElements`).  ``auto`` (default): derived per bag from its
             own noise floor and named in the read report (:func:`ompn_ros.data.cuts.derive_idle_speed`);
             0 = never by speed.  A step with no command attached (an action topic other than the
-            observation's) is still as well.
+            observation's) is idle as well.
         types: where message types come from beyond ROS 2 Jazzy's and the bag's own definitions
             (rosbags stores them in the bag; older bags lack them): folders of ``.msg`` files
             (``<pkg>/msg/<Name>.msg`` below each) or installed interface package names
