@@ -3,7 +3,7 @@
 Real drivers publish joint states continuously, also while the robot waits between demonstrations, so
 a time gap never appears.  The rule here cuts such a stream instead, one step at a time, so the bag
 reader and the live node cut in the same places (``ReaderSpec.split``).  "Idle" is this rule's word
-for a step that does not move; "still" is the model's (``still_tolerance``, :mod:`.still`):
+for a step that does not move (the package's words: :mod:`ompn_ros.data.cuts`):
 
 * a step is **idle** when the caller says so: its speed is below ``idle_speed`` (:func:`idle_by_speed`;
   the first step of a stream counts as idle), or, in the reader, when it has no command attached;
@@ -13,7 +13,7 @@ for a step that does not move; "still" is the model's (``still_tolerance``, :mod
   *velocity* (read as a speed, never differentiated: a velocity's change per second is an
   acceleration), efforts ignored; for any other observation, the largest change of any element per
   second.  ``idle_speed: auto`` (the reader's default) derives the threshold from the stream's own
-  noise floor (:func:`derive_idle_speed`, on the noise floor of ``still_tolerance: auto``,
+  noise floor (:func:`derive_idle_speed`, on the noise estimate the still rule's ``auto`` uses,
   :func:`.still.element_noise`);
 * idle steps inside an episode are held; when the robot moves again before ``idle_s`` passed they
   are steps of the episode (a short pause, e.g. while the gripper closes);
