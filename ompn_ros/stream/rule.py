@@ -365,7 +365,7 @@ class StreamRule:
 
     # --- markers, sketches, resets ---------------------------------------------------------------
     def input_ends(self) -> None:
-        """Before an episode marker or a reset: with ``idle_s`` the held still observations end the
+        """Before an episode marker or a reset: with ``idle_s`` the held idle observations end the
         open episode as at the end of a bag (the first is its final observation, the others trimmed);
         the next message is never a repeat of one before."""
         self.repeats.forget()

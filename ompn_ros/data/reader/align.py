@@ -131,7 +131,7 @@ def windows_from_topic(split_stamps: np.ndarray, obs_stamps: np.ndarray,
     return [w for w in windows if w.stop_obs > w.first_obs]
 
 
-def windows_from_idle(idle_s: float, obs_stamps: np.ndarray, still: np.ndarray) -> tuple[list[Window], int]:
+def windows_from_idle(idle_s: float, obs_stamps: np.ndarray, idle: np.ndarray) -> tuple[list[Window], int]:
     """``split: idle`` (:func:`ompn_ros.data.cuts.idle_windows`): windows and trimmed idle steps."""
-    pairs, trimmed = idle_windows(obs_stamps, still, idle_s)
+    pairs, trimmed = idle_windows(obs_stamps, idle, idle_s)
     return [Window(a, b) for a, b in pairs], trimmed
