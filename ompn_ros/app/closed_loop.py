@@ -149,9 +149,12 @@ class StillAgent:
         self.last = None
 
     def step(self, obs: np.ndarray) -> Any:
+        """A step of the model when ``obs`` moved, else the last step's output again."""
         out = self.runs.apply(np.asarray(obs, dtype=np.float32).ravel(), 0, lambda _: self.stepper.step(obs))
-        if out is not None or self.last is None:
-            self.last = out if out is not None else self.stepper.step(obs)
+        if out is None and self.last is None:  # still, yet no output to repeat (the last step raised)
+            out = self.stepper.step(obs)
+        if out is not None:
+            self.last = out
         return self.last
 
 

@@ -2,9 +2,9 @@
 
 Each rule keeps its batch form (over a bag's arrays: the reader, training) and its live form (one
 step at a time: the stream rule of ``ompn_node`` and the replay) in one module, so the two cannot
-drift apart.  One word, one meaning: a step is *idle* when the robot does not move by the idle rule's
-speed test (``idle_speed``), an observation is *still* when the model is not stepped on it
-(``still_tolerance``).
+drift apart (docs/design.md#cuts-of-a-stream).  One word, one meaning: a step is *idle* when the
+robot does not move by the idle rule's speed test (``idle_speed``), an observation is *still* when the
+model is not stepped on it (``still_tolerance``).
 
 * :mod:`.gap`: a pause between two steps ends an episode (the reader's ``split: gaps``, the node's
   ``episode_gap``; :class:`SilenceWatch` for a pause on the receiver's clock).
