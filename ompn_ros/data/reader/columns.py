@@ -25,6 +25,7 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
+from ..errors import ObservationSpecError
 from ..obs import Drop, ObservationAssembler, ObservationSpec
 
 
@@ -113,13 +114,26 @@ class AssemblySink:
         self.kept: list[bool] = []
         self.step_stamps: list[int] = []
         self._values: np.ndarray | None = None
+        self._types = spec.topics
+        self._declared: set[str] = set()
+        self.unfit = False
 
-    def add(self, topic: str, stamp: int, raw: bytes | memoryview) -> None:
-        """Feed one message of a topic of the spec (record order)."""
-        if topic != self.spec.step_topic:
-            self.asm.offer(topic, stamp, raw)
+    def add(self, topic: str, stamp: int, raw: bytes | memoryview, msgtype: str | None = None) -> None:
+        """Feed one message of a topic of the spec (record order); ``msgtype``: its own type (a topic
+        recorded under several types is read per connection).  A type that cannot give the spec's
+        fields sets ``unfit`` (the bag's read then refuses the spec in one line: ``BagContext``)."""
+        if msgtype is not None and msgtype != self._types[topic] and msgtype not in self._declared:
+            try:
+                self.asm.for_type(topic, msgtype)
+            except ObservationSpecError:
+                self.unfit = True
+            self._declared.add(msgtype)
+        if self.unfit:
             return
-        result = self.asm.step(stamp, raw)
+        if topic != self.spec.step_topic:
+            self.asm.offer(topic, stamp, raw, msgtype)
+            return
+        result = self.asm.step(stamp, raw, msgtype)
         self.step_stamps.append(int(stamp))
         self.kept.append(not isinstance(result, Drop))
         if not isinstance(result, Drop):
