@@ -61,10 +61,15 @@ class BagContext:
         """The time base of ``topic``: ``ReaderSpec.stamps`` for it, else ``ReaderSpec.stamp``; topics
         without a header the reader uses (all but JointState and the types read through a field path
         that have a ``header``) are always on the bag's receive clock."""
-        types = self.topic_types(topic)
-        if (not types or any(t != layout.JOINT_STATE for t in types)) and not self._generic_header(topic):
-            return "log"  # a topic under several types: each of them has the header
+        if not self._has_header(topic):
+            return "log"
         return self._clocks.get(topic, self.spec.stamp)
+
+    def _has_header(self, topic: str) -> bool:
+        """Whether the reader can take ``header.stamp`` of every message of ``topic`` (a topic under
+        several types: of each type)."""
+        types = self.topic_types(topic)
+        return bool(types) and (all(t == layout.JOINT_STATE for t in types) or self._generic_header(topic))
 
     def _generic_header(self, topic: str) -> bool:
         """Whether ``topic`` is read through a field path and each of its types has ``header.stamp``."""
@@ -217,11 +222,11 @@ class BagContext:
             if topic is not None:
                 self._clocks[topic] = base
         for topic, clock in self._clocks.items():
-            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE \
-                    and not self._generic_header(topic):
-                raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "
-                                     "its time base to log in the reader spec's stamps", path=self.path,
-                                     topic=topic, index=0)
+            if clock == "header" and not self._has_header(topic):
+                types = " and ".join(self.topic_types(topic))
+                raise TopicTypeError(f"'{types}' has no header stamp the reader uses: set its time base "
+                                     "to log in the reader spec's stamps", path=self.path, topic=topic,
+                                     index=0)
         return topics
 
     def _check_switch(self, topic: str) -> None:
