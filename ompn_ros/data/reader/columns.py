@@ -4,12 +4,15 @@ Keeping every raw message and decoding afterwards holds the bag twice (raw CDR, 
 copy).  While the bag is read, each message of the step topic is decoded at once and its bytes
 dropped:
 
-* :class:`Float32Column`: a ``std_msgs/Float32MultiArray`` observation topic.  A message whose CDR
+* :class:`Float32Column`: a ``std_msgs/Float32MultiArray`` observation topic, or action topic of its
+  own (about 1 µs a message more than in bulk, for less than half the reader's peak memory: the
+  raw messages are never held beside their rows, docs/design.md#any-message-type).  A message whose CDR
   has the first message's length and layout prefix (always the case for one topic of a recorder) is
   copied into the next row.  Any other message (another length or layout, undecodable CDR, a first
   message of another size than the spec's) ends the streaming: the rows so far are turned back
   into their exact raw bytes (the prefix followed by the row's bytes) and the topic is kept raw, so
-  the batch decoder reports the same error on the same message as without streaming.
+  the batch decoder reports the same error on the same message as without streaming.  A message of
+  another type (a topic recorded under two types) ends it the same way (``TopicData.type_of``).
 * :class:`AssemblySink`: ``ReaderSpec.assemble``; the messages of the spec's topics are fed to the
   live :class:`~ompn_ros.data.obs.ObservationAssembler` in record order (the order
   :func:`~ompn_ros.data.obs.assemble_stream` sees them in) and each step's row written in place.
