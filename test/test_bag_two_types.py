@@ -313,3 +313,29 @@ def test_header_clock_of_a_custom_state_that_changes_type(tmp_path: Path, storag
     for ep, o, a in zip(got, want_obs, want_act):
         np.testing.assert_array_equal(ep.observations, o)
         np.testing.assert_array_equal(ep.actions, a)
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_an_assembled_step_topic_under_two_types(tmp_path: Path, storage: str) -> None:
+    """The step topic itself changes type (the state driver publishes Float64MultiArray from the
+    second file on): every step is read by its own type (was: refused)."""
+    demo = demos(LENGTHS, seed=25)
+    cut = _cut(demo)
+    messages: list[Message] = []
+    k = 0
+    states = np.concatenate(demo.observations)
+    for stamp, topic, raw in demo.messages:
+        if topic == STATE:
+            if stamp >= cut:
+                raw = _multiarray(F64, states[k].astype(np.float64))
+            messages.append((stamp, topic, F32 if stamp < cut else F64, raw))
+            k += 1
+        else:
+            messages.append((stamp, topic, F32, raw))
+    bag = write_split(tmp_path / "bag", messages, cut, storage)
+    spec = ReaderSpec.from_dict({
+        "assemble": {"step_topic": STATE, "stamp": "receive", "fields": [
+            {"topic": STATE, "type": F32, "field": "data", "size": OBS_DIM}]},
+        "action": {"topic": CMD, "type": F32, "dim": ACT_DIM},
+        "subtask": None, "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5})
+    check_episodes(read_episodes(bag, spec=spec).episodes, demo)
