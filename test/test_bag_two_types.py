@@ -339,3 +339,29 @@ def test_an_assembled_step_topic_under_two_types(tmp_path: Path, storage: str) -
         "action": {"topic": CMD, "type": F32, "dim": ACT_DIM},
         "subtask": None, "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5})
     check_episodes(read_episodes(bag, spec=spec).episodes, demo)
+
+
+def test_the_assembler_reads_a_declared_second_type_and_keeps_the_pinned_size() -> None:
+    """``ObservationAssembler.for_type``: a partner's Float64MultiArray message gives the field of a
+    Float32MultiArray spec; its size is held to the one the first message pinned; a type without the
+    field is refused naming it; an undeclared type is a bug (ValueError)."""
+    from ompn_ros.data.errors import ObservationSpecError
+    from ompn_ros.data.obs import Drop, FieldSpec, ObservationAssembler, ObservationSpec
+
+    spec = ObservationSpec(STATE, (FieldSpec(STATE, F32, "data"), FieldSpec("/lab/grip", F32, "data")),
+                           stamp="receive", tolerance_s=1.0)
+    asm = ObservationAssembler(spec)
+    asm.for_type("/lab/grip", F64)
+    state = m.serialize(m.float32_array(np.array([1.0, 2.0], np.float32), "s"))
+    grip = m.serialize(m.float32_array(np.array([0.5, 0.25], np.float32), "g"))
+    assert asm.offer("/lab/grip", 1, grip) is None
+    assert np.asarray(asm.step(2, state)).tolist() == [1.0, 2.0, 0.5, 0.25]
+    assert asm.offer("/lab/grip", 3, _multiarray(F64, np.array([1.0, 2.0])), F64) is None
+    row = asm.step(4, state)
+    assert np.asarray(row).tolist() == [1.0, 2.0, 1.0, 2.0]  # not [0.0, 1.875] (Float64 read as Float32)
+    rejected = asm.offer("/lab/grip", 5, _multiarray(F64, np.array([1.0, 2.0, 3.0])), F64)
+    assert isinstance(rejected, Drop) and rejected.reason == "wrong_size"
+    with pytest.raises(ObservationSpecError, match=r"JointState.*data"):
+        asm.for_type("/lab/grip", layout.JOINT_STATE)
+    with pytest.raises(ValueError, match="Int32"):
+        asm.offer("/lab/grip", 6, b"", "std_msgs/msg/Int32")
