@@ -365,3 +365,24 @@ def test_the_assembler_reads_a_declared_second_type_and_keeps_the_pinned_size() 
         asm.for_type("/lab/grip", layout.JOINT_STATE)
     with pytest.raises(ValueError, match="Int32"):
         asm.offer("/lab/grip", 6, b"", "std_msgs/msg/Int32")
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_a_switch_then_start_events_on_one_topic_is_refused(tmp_path: Path, storage: str) -> None:
+    """``Bool`` on/off in the first file, ``std_msgs/Header`` start events in the second: neither rule
+    reads both, so one line names the two types and the change (was: the headers read as Bool)."""
+    demo = demos(LENGTHS, seed=26)
+    cut, messages = _cut(demo), _lab(demo)
+    for start in _starts(demo):
+        if start < cut:
+            messages.append((start - 5_000_000, "/lab/recording", "std_msgs/msg/Bool",
+                             _cdr("std_msgs/msg/Bool", data=True)))
+        else:
+            messages.append((start - 5_000_000, "/lab/recording", "std_msgs/msg/Header",
+                             bytes(TS.serialize_cdr(_header(start), "std_msgs/msg/Header"))))
+    bag = write_split(tmp_path / "bag", messages, cut, storage)
+    with pytest.raises(TopicTypeError) as err:
+        read_episodes(bag, spec=_spec(split="topic", split_topic="/lab/recording"))
+    line = str(err.value)
+    assert "changes type from std_msgs/msg/Bool to std_msgs/msg/Header at message #1" in line, line
+    assert "separate bags" in line and "\n" not in line, line
