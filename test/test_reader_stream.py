@@ -173,3 +173,40 @@ def test_nonfinite_rows_in_blocks() -> None:
     for block in (1, 28, 100, 1 << 22):
         np.testing.assert_array_equal(nonfinite_rows(values, block), expected)
     assert nonfinite_rows(np.zeros((3, 2), np.int64)).size == 0
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+@pytest.mark.parametrize("bad", [None, 0, 11])
+def test_float32_commands_decoded_while_read(tmp_path: Path, storage: str, bad: int | None,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Another lab's ``Float32MultiArray`` command topic is a column too (its bytes are never held
+    beside their rows: the reader's peak memory); a command of another length (``bad``: its index)
+    ends the column and gives the batch decoder's error on the same message."""
+    from compat_corpus import CMD, SPEC, check_episodes, demos, write_rosbags
+
+    demo = demos([12, 9, 14], seed=31)
+    if bad is not None:
+        at = [i for i, x in enumerate(demo.messages) if x[1] == CMD][bad]
+        stamp, topic, _ = demo.messages[at]
+        demo.messages[at] = (stamp, topic, m.serialize(m.float32_array(np.zeros(5, np.float32), "cmd")))
+    bag = write_rosbags(tmp_path / "bag", demo, storage=storage)
+    raw = read_raw(bag, SPEC, "raise")
+    column = raw.topics[CMD].column
+    if bad is None:
+        assert column is not None and raw.topics[CMD].raws == []
+        assert column.n == sum(len(a) for a in demo.actions)
+        result = read_episodes(bag, spec=SPEC)
+        check_episodes(result.episodes, demo)
+        bases = [ep.actions.base for ep in result.episodes]
+        assert bases[0] is not None and all(b is bases[0] for b in bases)  # views of one array, no copies
+        _identical(result, _batch(monkeypatch, bag, SPEC))
+        return
+    assert column is None and len(raw.topics[CMD].raws) == sum(len(a) for a in demo.actions)
+    errors = []
+    for read in (lambda: read_episodes(bag, spec=SPEC), lambda: _batch(monkeypatch, bag, SPEC)):
+        with pytest.raises(BagError) as info:
+            read()
+        errors.append((type(info.value), str(info.value)))
+    assert errors[0] == errors[1] and f"message #{bad}" in errors[0][1], errors
+    skipped = read_episodes(bag, spec=SPEC, on_error="skip_tail")
+    _identical(skipped, _batch(monkeypatch, bag, SPEC, "skip_tail"))

@@ -379,15 +379,24 @@ def stack_float32_arrays(
 
 def _same_prefix_block(raws: Sequence[bytes | memoryview], start: int, dim: int) -> np.ndarray | None:
     """float32 ``[N, dim]`` of messages of one length whose bytes before ``start`` (header, layout and
-    padding elements) are the same; ``None`` otherwise."""
+    padding elements) are the same; ``None`` otherwise.  Joined :data:`BLOCK_MESSAGES` at a time and
+    written into the result in place, so the messages' bytes are never held twice."""
     size = len(raws[0])
     if any(len(r) != size for r in raws):
         return None
-    block = np.frombuffer(b"".join(raws), dtype=np.uint8).reshape(len(raws), size)
-    prefix = block[:, :start]
-    if not np.array_equal(prefix, np.broadcast_to(prefix[0], prefix.shape)):
-        return None
-    return np.ascontiguousarray(block[:, start:start + 4 * dim]).view("<f4").astype(np.float32)
+    out = np.empty((len(raws), dim), dtype=np.float32)
+    first = np.frombuffer(bytes(raws[0][:start]), dtype=np.uint8)
+    for at in range(0, len(raws), BLOCK_MESSAGES):
+        part = raws[at:at + BLOCK_MESSAGES]
+        block = np.frombuffer(b"".join(part), dtype=np.uint8).reshape(len(part), size)
+        if not np.array_equal(block[:, :start], np.broadcast_to(first, (len(part), start))):
+            return None
+        out[at:at + len(part)] = block[:, start:start + 4 * dim].view("<f4")
+    return out
+
+
+BLOCK_MESSAGES = 4096
+"""Messages joined at once by :func:`_same_prefix_block` (a few MB for the usual sizes)."""
 
 
 def parse_float32_array_checked(

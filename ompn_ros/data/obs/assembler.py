@@ -270,11 +270,19 @@ class ObservationAssembler:
             self._count_rejected(topic, "wrong_type")
         return problem
 
-    def offer(self, topic: str, stamp_ns: int, raw: bytes | memoryview) -> Drop | None:
+    def for_type(self, topic: str, msgtype: str) -> None:
+        """Accept messages of ``msgtype`` on ``topic`` besides the spec's type (a bag topic recorded
+        under several types), each read by its own type (``msgtype`` of :meth:`offer`, :meth:`step`);
+        raises :class:`~ompn_ros.data.errors.ObservationSpecError` when the type lacks a field."""
+        self._ex[topic].for_type(msgtype)
+
+    def offer(self, topic: str, stamp_ns: int, raw: bytes | memoryview,
+              msgtype: str | None = None) -> Drop | None:
         """Feed a message of a partner topic; returns its rejection (counted) or ``None``.
 
         ``stamp_ns`` is the receive time (live) or the log time (offline).  Messages of topics the
         spec does not use are ignored (counted); a step-topic message must go to :meth:`step`.
+        ``msgtype``: the message's type when :meth:`for_type` declared it (``None``: the spec's).
         """
         hist = self._hist.get(topic)
         if hist is None:
@@ -288,7 +296,7 @@ class ObservationAssembler:
         if not isinstance(raw, bytes):  # the kept vectors may view the bytes: never a reusable buffer
             raw = bytes(raw)
         try:
-            header, vectors = self._ex[topic].extract(raw)
+            header, vectors = self._ex[topic].extract(raw, msgtype)
         except ExtractError as err:
             rejection = Drop(err.reason, topic, int(stamp_ns), err.detail)
             self._add(topic, hist, int(stamp_ns), rejection)
@@ -303,14 +311,14 @@ class ObservationAssembler:
             last = self._frontier[topic]
             self._frontier[topic] = stamp if last is None or stamp > last else last
 
-    def step(self, stamp_ns: int, raw: bytes | memoryview) -> np.ndarray | Drop:
+    def step(self, stamp_ns: int, raw: bytes | memoryview, msgtype: str | None = None) -> np.ndarray | Drop:
         """Feed a message of the step topic and decide it at once, without waiting: its observation
         (float32 ``[dim]``, a new array) or the counted :class:`Drop`.  ``stamp_ns`` as in
-        :meth:`offer`.  Not to be mixed with :meth:`hold` while steps are held."""
+        :meth:`offer` (``msgtype`` too).  Not to be mixed with :meth:`hold` while steps are held."""
         if self._held:
             raise ValueError("step() while steps are held: release(flush=True) first, or use hold()")
         self.stats.steps += 1
-        stamp, on_time, parsed = self._parse_step(int(stamp_ns), raw)
+        stamp, on_time, parsed = self._parse_step(int(stamp_ns), raw, msgtype)
         return self._decide(int(stamp_ns), stamp, on_time, parsed)
 
     def hold(self, stamp_ns: int, raw: bytes | memoryview) -> None:
@@ -360,7 +368,8 @@ class ObservationAssembler:
                 return False
         return True
 
-    def _parse_step(self, receive: int, raw: bytes | memoryview) -> tuple[int, int, list[np.ndarray] | Drop]:
+    def _parse_step(self, receive: int, raw: bytes | memoryview,
+                    msgtype: str | None = None) -> tuple[int, int, list[np.ndarray] | Drop]:
         """``(stamp under the stamp rule, on-time reception, the step's vectors or its Drop)``; sets
         ``last_stamp_ns``.  The on-time reception is ``receive`` unless the stamp is the header's."""
         topic = self.spec.step_topic
@@ -368,7 +377,7 @@ class ObservationAssembler:
         if topic in self._wrong_type:
             return receive, receive, Drop("wrong_type", topic, receive, self._wrong_type[topic])
         try:
-            header, vectors = self._step_ex.extract(raw)
+            header, vectors = self._step_ex.extract(raw, msgtype)
         except ExtractError as err:
             return receive, receive, Drop(err.reason, topic, receive, err.detail)
         if header is not None and self._header:

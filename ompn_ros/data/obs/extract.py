@@ -12,7 +12,7 @@ Complexity per message: O(message size + joints) (joint-name lookups are cached 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -31,7 +31,7 @@ from ompn_ros.layout import (
 from ..errors import ObservationSpecError
 from ..messages.fieldpath import NAME, FieldPathError, FieldReader, fields_of
 from ..messages.types import known
-from .spec import FieldSpec, ObservationSpec
+from .spec import FieldSpec, ObservationSpec, canonical_type
 
 ExtractReason = Literal["malformed", "wrong_size"]
 Parsed = tuple[int | None, dict[str, np.ndarray], tuple[str, ...] | None]
@@ -99,38 +99,61 @@ class _FieldState:
     last_index: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class _Kind:
+    """How messages of one type give the fields: the parser and the fields read through a path."""
+
+    type: str
+    parse: Callable[[bytes | memoryview], Parsed]
+    paths: frozenset[str]  # the fields read through the type's definition (field paths)
+
+
 class TopicExtractor:
-    """Extracts every spec field of one topic from raw CDR bytes (one parse per message)."""
+    """Extracts every spec field of one topic from raw CDR bytes (one parse per message).
+
+    A topic recorded under several types (a split bag where a driver changed type) is read message by
+    message with its own type (:meth:`extract`'s ``msgtype``); what a first message pins is shared."""
 
     def __init__(self, topic: str, fields: Sequence[FieldSpec]) -> None:
         if not fields or any(f.topic != topic or f.type != fields[0].type for f in fields):
             raise ValueError(f"TopicExtractor('{topic}') needs fields of that topic and one type")
         self.topic = topic
         self.type = fields[0].type
-        generic = [f for f in fields if f.generic]
-        self._paths: FieldReader | None = None
-        if generic:  # field paths: one walk per message over the type's definition
-            self._paths = path_reader(self.type, [f.field for f in generic])
+        self._specs = tuple(fields)
+        main = self._kind_of(self._specs)
+        self._kinds: dict[str, _Kind] = {self.type: main}
+        self._main = main
         self.has_header = self.type in (JOINT_STATE, WRENCH_STAMPED, POSE_STAMPED) or (
-            self._paths is not None and self._paths.paths[-1] == "header.stamp")
-        fast = len(generic) < len(fields)
-        self._parse = (m.JointStateParser().parse if self.type == JOINT_STATE else PARSERS[self.type]) \
-            if fast else self._parse_paths
-        if generic and fast:
-            self._parse = _both(self._parse, self._parse_paths)
+            "header.stamp" in main.paths)
         self._fields = [_FieldState(f, f.declared_size, f.names) for f in fields]
         for state in self._fields:
             if state.size is not None:
                 state.labels = state.spec.labels(state.size)
 
-    def _parse_paths(self, raw: bytes | memoryview) -> Parsed:
-        assert self._paths is not None
-        values = self._paths.values(raw)  # CdrError on bytes that do not fit: 'malformed' in extract()
-        stamp = None
-        if self._paths.paths[-1] == "header.stamp":
-            sec, nanosec = values.pop()
-            stamp = int(sec) * 1_000_000_000 + int(nanosec)
-        return stamp, dict(zip(self._paths.paths, values)), None
+    def _kind_of(self, specs: Sequence[FieldSpec]) -> _Kind:
+        """The parser of ``specs`` (fields of one type): fast parsers, field paths, or both."""
+        msgtype = specs[0].type
+        generic = [f.field for f in specs if f.generic]
+        fast = len(generic) < len(specs)
+        parse: Callable[[bytes | memoryview], Parsed] | None = None
+        if fast:
+            parse = m.JointStateParser().parse if msgtype == JOINT_STATE else PARSERS[msgtype]
+        paths: frozenset[str] = frozenset()
+        if generic:  # field paths: one walk per message over the type's definition
+            reader = path_reader(msgtype, generic)
+            paths = frozenset(reader.paths)
+            by_path = _paths_parser(reader)
+            parse = by_path if parse is None else _both(parse, by_path)
+        assert parse is not None
+        return _Kind(msgtype, parse, paths)
+
+    def for_type(self, msgtype: str) -> None:
+        """Read messages of ``msgtype`` too (a topic under several types); raises
+        :class:`ObservationSpecError` naming the field ``msgtype`` cannot give."""
+        if msgtype not in self._kinds:
+            full = canonical_type(msgtype) or msgtype
+            same = self._kinds.get(full)
+            self._kinds[msgtype] = same or self._kind_of([replace(f, type=full) for f in self._specs])
 
     @property
     def sizes(self) -> list[int | None]:
@@ -142,29 +165,35 @@ class TopicExtractor:
         """Element labels of each field (``None`` until a first message decides them)."""
         return [s.labels for s in self._fields]
 
-    def extract(self, raw: bytes | memoryview) -> tuple[int | None, list[np.ndarray]]:
+    def extract(self, raw: bytes | memoryview,
+                msgtype: str | None = None) -> tuple[int | None, list[np.ndarray]]:
         """``(header stamp ns or None, one float vector per field)``; raises :class:`ExtractError`.
 
-        The header stamp is ``None`` for header-less types and for a zero stamp (unset by the driver).
+        ``msgtype``: the message's own type when it may differ from the spec's (:meth:`for_type`
+        first; ``None``: the spec's).  The header stamp is ``None`` for header-less types and for a
+        zero stamp (unset by the driver).
         """
+        kind = self._main if msgtype is None or msgtype == self.type else self._kinds.get(msgtype)
+        if kind is None:
+            raise ValueError(f"topic '{self.topic}': type {msgtype} not declared (call for_type first)")
         try:
-            stamp, values, names = self._parse(raw)
+            stamp, values, names = kind.parse(raw)
         except Exception as err:  # struct, rosbags and numpy raise several types on bad bytes
-            detail = f"cannot decode {self.type}: {type(err).__name__}: {err}"
+            detail = f"cannot decode {kind.type}: {type(err).__name__}: {err}"
             raise ExtractError("malformed", detail) from err
-        out = [self._field(state, values, names) for state in self._fields]
+        out = [self._field(state, values, names, kind) for state in self._fields]
         return (stamp or None), out
 
     def _field(
-        self, state: _FieldState, values: dict[str, np.ndarray], names: tuple[str, ...] | None
+        self, state: _FieldState, values: dict[str, np.ndarray], names: tuple[str, ...] | None, kind: _Kind
     ) -> np.ndarray:
         spec = state.spec
-        if spec.generic:
+        if spec.field in kind.paths:
             vec = values[spec.field]
-        elif self.type == JOINT_STATE:
+        elif kind.type == JOINT_STATE:
             vec = self._joint_field(state, values[spec.field], names or ())
-        elif (self.type, spec.field) in _SLICES:
-            vec = values["all"][_SLICES[(self.type, spec.field)]]
+        elif (kind.type, spec.field) in _SLICES:
+            vec = values["all"][_SLICES[(kind.type, spec.field)]]
         else:
             vec = values["data"]
         if state.size is None:  # first good message pins the size
@@ -218,6 +247,19 @@ def path_reader(typename: str, paths: list[str]) -> FieldReader:
         return FieldReader(typename, [*paths, *(["header.stamp"] if header else [])])
     except FieldPathError as err:
         raise ObservationSpecError(str(err)) from err
+
+
+def _paths_parser(reader: FieldReader) -> Callable[[bytes | memoryview], Parsed]:
+    """The parser of the field paths of ``reader`` (``header.stamp`` last when the type has one)."""
+    def parse(raw: bytes | memoryview) -> Parsed:
+        values = reader.values(raw)  # CdrError on bytes that do not fit: 'malformed' in extract()
+        stamp = None
+        if reader.paths[-1] == "header.stamp":
+            sec, nanosec = values.pop()
+            stamp = int(sec) * 1_000_000_000 + int(nanosec)
+        return stamp, dict(zip(reader.paths, values)), None
+
+    return parse
 
 
 def _both(fast: Callable[[bytes | memoryview], Parsed],

@@ -70,7 +70,7 @@ dropped.  A wrong message type, a missing required topic, labels that do not fit
 Modules
 -------
 ``spec`` (what to read), ``paths`` (where the bags are), ``raw`` / ``salvage`` (undecoded
-messages), ``plan`` / ``columns`` (the step topic decoded while the bag is read, its bytes dropped),
+messages), ``plan`` / ``columns`` (the step and action topics decoded while the bag is read, bytes dropped),
 ``context`` (topic resolution and type checks), ``decode`` / ``joints`` / ``vectors``
 (arrays, corrupt tail), ``observe`` (observations from several topics, ``ReaderSpec.assemble``),
 ``align`` (partners, episode windows), ``assemble`` (episodes), ``report`` (what was used), ``read``

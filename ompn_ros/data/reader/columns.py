@@ -4,12 +4,15 @@ Keeping every raw message and decoding afterwards holds the bag twice (raw CDR, 
 copy).  While the bag is read, each message of the step topic is decoded at once and its bytes
 dropped:
 
-* :class:`Float32Column`: a ``std_msgs/Float32MultiArray`` observation topic.  A message whose CDR
+* :class:`Float32Column`: a ``std_msgs/Float32MultiArray`` observation topic, or action topic of its
+  own (about 1 µs a message more than in bulk, for less than half the reader's peak memory: the
+  raw messages are never held beside their rows, docs/design.md#any-message-type).  A message whose CDR
   has the first message's length and layout prefix (always the case for one topic of a recorder) is
   copied into the next row.  Any other message (another length or layout, undecodable CDR, a first
   message of another size than the spec's) ends the streaming: the rows so far are turned back
   into their exact raw bytes (the prefix followed by the row's bytes) and the topic is kept raw, so
-  the batch decoder reports the same error on the same message as without streaming.
+  the batch decoder reports the same error on the same message as without streaming.  A message of
+  another type (a topic recorded under two types) ends it the same way (``TopicData.type_of``).
 * :class:`AssemblySink`: ``ReaderSpec.assemble``; the messages of the spec's topics are fed to the
   live :class:`~ompn_ros.data.obs.ObservationAssembler` in record order (the order
   :func:`~ompn_ros.data.obs.assemble_stream` sees them in) and each step's row written in place.
@@ -25,6 +28,7 @@ import numpy as np
 from ompn_ros import layout
 
 from .. import messages as m
+from ..errors import ObservationSpecError
 from ..obs import Drop, ObservationAssembler, ObservationSpec
 
 
@@ -113,13 +117,26 @@ class AssemblySink:
         self.kept: list[bool] = []
         self.step_stamps: list[int] = []
         self._values: np.ndarray | None = None
+        self._types = spec.topics
+        self._declared: set[str] = set()
+        self.unfit = False
 
-    def add(self, topic: str, stamp: int, raw: bytes | memoryview) -> None:
-        """Feed one message of a topic of the spec (record order)."""
-        if topic != self.spec.step_topic:
-            self.asm.offer(topic, stamp, raw)
+    def add(self, topic: str, stamp: int, raw: bytes | memoryview, msgtype: str | None = None) -> None:
+        """Feed one message of a topic of the spec (record order); ``msgtype``: its own type (a topic
+        recorded under several types is read per connection).  A type that cannot give the spec's
+        fields sets ``unfit`` (the bag's read then refuses the spec in one line: ``BagContext``)."""
+        if msgtype is not None and msgtype != self._types[topic] and msgtype not in self._declared:
+            try:
+                self.asm.for_type(topic, msgtype)
+            except ObservationSpecError:
+                self.unfit = True
+            self._declared.add(msgtype)
+        if self.unfit:
             return
-        result = self.asm.step(stamp, raw)
+        if topic != self.spec.step_topic:
+            self.asm.offer(topic, stamp, raw, msgtype)
+            return
+        result = self.asm.step(stamp, raw, msgtype)
         self.step_stamps.append(int(stamp))
         self.kept.append(not isinstance(result, Drop))
         if not isinstance(result, Drop):

@@ -12,13 +12,13 @@ from ompn_ros import layout
 from ompn_ros.layout import resolve_topic
 
 from .. import messages as m
-from ..errors import MissingTopicError, TopicTypeError, UnknownTypeError
+from ..errors import MissingTopicError, ObservationSpecError, TopicTypeError, UnknownTypeError
 from ..messages.fieldpath import NAME, FieldPathError, describe, fields_of
 from ..messages.types import TypeDefinitionError, ensure, known
 from ..obs.spec import ObservationSpec, canonical_type
 from .raw import RawBag
 from .report import BagReport
-from .spec import ACTION_TYPES, MARKER_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
+from .spec import ACTION_TYPES, MARKER_TYPES, SWITCH_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
 
 
 @dataclass(frozen=True)
@@ -61,19 +61,25 @@ class BagContext:
         """The time base of ``topic``: ``ReaderSpec.stamps`` for it, else ``ReaderSpec.stamp``; topics
         without a header the reader uses (all but JointState and the types read through a field path
         that have a ``header``) are always on the bag's receive clock."""
-        if self.raw.types.get(topic) != layout.JOINT_STATE and not self._generic_header(topic):
+        if not self._has_header(topic):
             return "log"
         return self._clocks.get(topic, self.spec.stamp)
 
+    def _has_header(self, topic: str) -> bool:
+        """Whether the reader can take ``header.stamp`` of every message of ``topic`` (a topic under
+        several types: of each type)."""
+        types = self.topic_types(topic)
+        return bool(types) and (all(t == layout.JOINT_STATE for t in types) or self._generic_header(topic))
+
     def _generic_header(self, topic: str) -> bool:
-        """Whether ``topic`` is read through a field path and its one type has ``header.stamp``."""
+        """Whether ``topic`` is read through a field path and each of its types has ``header.stamp``."""
         spec = self.spec
         sources = [s for s in (spec.observation, spec.action) if s.field is not None
                    and self.resolve_quiet(s.topic) == topic]
         types = self.topic_types(topic)
-        if not sources or len(types) != 1 or not known(types[0]):
+        if not sources or not types or not all(known(t) for t in types):
             return False
-        return dict(fields_of(types[0])).get("header") == (NAME, "std_msgs/msg/Header")
+        return all(dict(fields_of(t)).get("header") == (NAME, "std_msgs/msg/Header") for t in types)
 
     def resolve_quiet(self, name: str) -> str:
         """``name`` resolved in the spec's namespace (no suffix match, no note)."""
@@ -131,7 +137,9 @@ class BagContext:
                    f"{layout.FLOAT64_ARRAY}"
         return None
 
-    def _type_change(self, topic: str, types: list[str], why: dict[str, str]) -> TopicTypeError:
+    def _type_change(self, topic: str, types: list[str], why: dict[str, str],
+                     way_out: str = "give a field path both types have, or read the parts as separate "
+                                    "bags") -> TopicTypeError:
         """The one line of a topic recorded under several types that the spec reads only some of."""
         tdata = self.raw.topics[topic]
         assert tdata.kinds is not None  # several types
@@ -142,8 +150,8 @@ class BagContext:
         return TopicTypeError(
             f"the topic changes type from {before} to {after} at message #{change} (stamp "
             f"{tdata.stamps[change] / 1e9:.3f} s); the reader spec fits {' and '.join(good) or 'neither'}, "
-            f"not {' and '.join(bad)} ({why[bad[0]]}): give a field path both types have, or read the "
-            "parts as separate bags", path=self.path, topic=topic, index=change, stamp=None)
+            f"not {' and '.join(bad)} ({why[bad[0]]}): {way_out}", path=self.path, topic=topic, index=change,
+            stamp=None)
 
 
     def resolve(self, name: str | None, required: bool) -> str | None:
@@ -195,6 +203,8 @@ class BagContext:
             joints=self.resolve(spec.joint_states, False),
             split=self.resolve(spec.split_topic, True) if spec.split == "topic" else None,
         )
+        if topics.split:
+            self._check_switch(topics.split)
         for topic, kind in ((topics.sketch, layout.INT32_ARRAY), (topics.joints, layout.JOINT_STATE)):
             if topic:
                 self.check_type(topic, (kind,), kind)
@@ -212,12 +222,22 @@ class BagContext:
             if topic is not None:
                 self._clocks[topic] = base
         for topic, clock in self._clocks.items():
-            if clock == "header" and self.raw.types.get(topic, layout.JOINT_STATE) != layout.JOINT_STATE \
-                    and not self._generic_header(topic):
-                raise TopicTypeError(f"'{self.raw.types[topic]}' has no header stamp the reader uses: set "
-                                     "its time base to log in the reader spec's stamps", path=self.path,
-                                     topic=topic, index=0)
+            if clock == "header" and not self._has_header(topic):
+                types = " and ".join(self.topic_types(topic))
+                raise TopicTypeError(f"'{types}' has no header stamp the reader uses: set its time base "
+                                     "to log in the reader spec's stamps", path=self.path, topic=topic,
+                                     index=0)
         return topics
+
+    def _check_switch(self, topic: str) -> None:
+        """A recording on/off topic under several types: all switch types (each message read by its
+        own) or none (each message an episode start); a mix is refused in one line."""
+        types = self.topic_types(topic)
+        switch = [t for t in types if t in SWITCH_TYPES]
+        if switch and len(switch) < len(types):
+            why = {t: f"its messages would start episodes while those of {switch[0]} switch recording on "
+                      "and off" for t in types if t not in SWITCH_TYPES}
+            raise self._type_change(topic, types, why, way_out="read the parts as separate bags")
 
     def _resolve_assemble(self) -> ObservationSpec | None:
         """``spec.assemble`` with bag topic names; each topic resolved (required) and type-checked."""
@@ -234,15 +254,29 @@ class BagContext:
             except TypeDefinitionError as err:
                 raise UnknownTypeError(str(err), path=self.path, topic=topic, index=0) from None
             types = self.topic_types(topic)
-            if len(types) > 1 and any(canonical_type(t) != want for t in types):
-                why = {t: f"the assemble block reads {want}" for t in types if canonical_type(t) != want}
+            if want not in [canonical_type(t) for t in types]:
+                raise TopicTypeError(f"carries '{' and '.join(types)}', the reader spec's assemble block "
+                                     f"expects '{want}'", path=self.path, topic=topic, index=0)
+            why = {t: reason for t in types if (reason := self._assemble_unfit(asm, name, t)) is not None}
+            if why:  # a topic under several types: each is read by its own type where the fields fit
                 raise self._type_change(topic, types, why)
-            if canonical_type(got) != want:
-                raise TopicTypeError(f"carries '{got}', the reader spec's assemble block expects '{want}'",
-                                     path=self.path, topic=topic, index=0)
             names[name] = topic
         fields = tuple(replace(f, topic=names[f.topic]) for f in asm.fields)
         return replace(asm, step_topic=names[asm.step_topic], fields=fields)
+
+    def _assemble_unfit(self, asm: ObservationSpec, name: str, msgtype: str) -> str | None:
+        """Why messages of ``msgtype`` cannot give the assemble block's fields of topic ``name``
+        (``None``: they can; the spec's own type always can)."""
+        if canonical_type(msgtype) == asm.type_of(name):
+            return None
+        try:
+            ensure(msgtype, self.spec.types)
+            for f in asm.fields:
+                if f.topic == name:
+                    replace(f, type=msgtype)  # checks the field (path) against the type
+        except (TypeDefinitionError, ObservationSpecError) as err:
+            return str(err)
+        return None
 
     def _label_topic(self) -> tuple[str | None, str]:
         """The subtask topic and the effective label kind (``labels: None`` = ordinal if present)."""
@@ -289,17 +323,31 @@ class BagContext:
         return stamps, tdata.column.values
 
     def check_type(self, topic: str, allowed: Sequence[str], expected: str | None) -> str:
-        """The topic's message type, after checking it is decodable and what the spec expects."""
+        """The topic's message type, after checking it is decodable and what the spec expects; a topic
+        recorded under several types must have each fit (each message is decoded by its own type),
+        else one line names both types and where the change happens."""
+        types = self.topic_types(topic)
+        if len(types) > 1:
+            why = {t: reason for t in types if (reason := self._type_unfit(t, allowed, expected)) is not None}
+            if why:
+                raise self._type_change(topic, types, why, way_out="read the parts as separate bags")
+            return types[0]
         msgtype = self.raw.types[topic]
-        if msgtype not in m.typestore().types:
-            raise UnknownTypeError(f"message type '{msgtype}' is not in the ROS 2 Jazzy typestore nor the "
-                                   "bag's definitions: name its .msg folder with `types: DIR` in the reader "
-                                   "spec and read a field of it with `field:` (docs/specs.md)",
-                                   path=self.path, topic=topic, index=0)
-        if expected is not None and msgtype != expected:
-            raise TopicTypeError(f"carries '{msgtype}', the reader spec expects '{expected}'",
-                                 path=self.path, topic=topic, index=0)
-        if msgtype not in allowed:
-            raise TopicTypeError(f"carries '{msgtype}', expected one of {list(allowed)}",
-                                 path=self.path, topic=topic, index=0)
+        reason = self._type_unfit(msgtype, allowed, expected)
+        if reason is not None:
+            kind = UnknownTypeError if msgtype not in m.typestore().types else TopicTypeError
+            raise kind(reason, path=self.path, topic=topic, index=0)
         return msgtype
+
+    @staticmethod
+    def _type_unfit(msgtype: str, allowed: Sequence[str], expected: str | None) -> str | None:
+        """Why a topic role of ``allowed`` types (``expected``: the spec's) cannot take ``msgtype``."""
+        if msgtype not in m.typestore().types:
+            return (f"message type '{msgtype}' is not in the ROS 2 Jazzy typestore nor the bag's "
+                    "definitions: name its .msg folder with `types: DIR` in the reader spec and read a field "
+                    "of it with `field:` (docs/specs.md)")
+        if expected is not None and msgtype != expected:
+            return f"carries '{msgtype}', the reader spec expects '{expected}'"
+        if msgtype not in allowed:
+            return f"carries '{msgtype}', expected one of {list(allowed)}"
+        return None

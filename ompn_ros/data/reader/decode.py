@@ -29,7 +29,7 @@ from . import generic
 from .context import BagContext, Topics
 from .joints import JointBlock, decode_joint_states, joint_vectors, merge_publishers
 from .observe import AssembledRows, assembled_rows
-from .spec import OnError, VectorSource
+from .spec import SWITCH_TYPES, OnError, VectorSource
 from .steps import check_header_steps
 from .vectors import stack_float64_arrays
 from .verify import nonfinite_rows
@@ -134,7 +134,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
     if topics.split:
         split = topics.split
         out.split_stamps = ctx.stamps(split)
-        if ctx.raw.types.get(split) in SWITCH_TYPES:
+        if set(ctx.topic_types(split)) <= SWITCH_TYPES:  # several types: each switches (resolve_all)
             out.split_switch = _guard(errors, lambda: _switch(ctx, split))  # None: start events
     if topics.joints:
         js = topics.joints
@@ -182,6 +182,9 @@ def _actions(ctx: BagContext, topics: Topics, obs: ObsParts | None) -> tuple[np.
             raws = ctx.data(topics.obs)[1]
             values = _vectors(ctx, topics.act, topics.act_type, spec.action, obs_log, raws)[0]
         return (values if obs_order is None else values[obs_order]), None
+    column = ctx.column(topics.act) if topics.act_type == layout.FLOAT32_ARRAY else None
+    if column is not None:  # decoded while reading (reader.columns), as the observation column
+        return column[1], column[0]
     stamps, raws = ctx.data(topics.act)
     if topics.act_type == layout.INT32:
         return m.stack_int32(raws, path=ctx.path, topic=topics.act, stamps=stamps), stamps
@@ -213,7 +216,7 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
         values = generic.vectors(ctx, topic, src, stamps, raws, ctx.message_types(topic))
         if ctx.clock(topic) != "header":
             return values, stamps, None, stamps
-        robot = generic.header_stamps(ctx, topic, raws, ctx.topic_types(topic)[0])
+        robot = generic.header_stamps(ctx, topic, raws, ctx.message_types(topic))
         ctx.header_lag[topic] = stamps - robot
         return values, robot, None, stamps
     if msgtype == layout.FLOAT32_ARRAY:
@@ -248,9 +251,6 @@ def _header_clock(ctx: BagContext, topic: str, block: JointBlock, log: np.ndarra
     return block.header
 
 
-SWITCH_TYPES = frozenset({"std_msgs/msg/Bool", "std_msgs/msg/String"} | {
-    f"std_msgs/msg/{kind}{bits}" for kind in ("Int", "UInt") for bits in (8, 16, 32, 64)})
-"""Types of a recording on/off topic (``ReaderSpec.split_topic``)."""
 SWITCH_ON = frozenset({"start", "on", "true", "1", "record", "recording", "begin"})
 SWITCH_OFF = frozenset({"stop", "off", "false", "0", "pause", "paused", "end"})
 
@@ -260,30 +260,27 @@ def _switch(ctx: BagContext, topic: str) -> np.ndarray | None:
     values are no switch (a String other than the on/off words, an integer other than 0/1: then each
     message is an episode start, as for any other type)."""
     stamps, raws = ctx.data(topic)
-    msgtype = ctx.raw.types[topic]
-    values = []
+    types = ctx.message_types(topic)  # each message by its own type (a split bag may change it)
+    words: list[str] = []
     for i, data in enumerate(raws):
         try:
-            values.append(m.deserialize(data, msgtype).data)
+            value = m.deserialize(data, types[i]).data
         except Exception as err:  # rosbags raises several types on bad CDR
-            raise CorruptBagError(f"cannot decode {msgtype}: {err}", path=ctx.path, topic=topic,
+            raise CorruptBagError(f"cannot decode {types[i]}: {err}", path=ctx.path, topic=topic,
                                   index=i, stamp=int(stamps[i])) from err
-    if msgtype.endswith("/String"):
-        words = [str(v).strip().lower() for v in values]
-        if not set(words) <= SWITCH_ON | SWITCH_OFF:
-            return None
-        return np.asarray([w in SWITCH_ON for w in words], dtype=bool)
-    if msgtype.endswith("/Bool") or {int(v) for v in values} <= {0, 1}:
-        return np.asarray([bool(v) for v in values], dtype=bool)
-    return None
+        words.append(str(value).strip().lower() if types[i].endswith("/String") else str(int(value)))
+    if not set(words) <= SWITCH_ON | SWITCH_OFF:
+        return None
+    return np.asarray([w in SWITCH_ON for w in words], dtype=bool)
 
 
 def _markers(ctx: BagContext, topic: str) -> list[Marker]:
     stamps, raws = ctx.data(topic)
+    types = ctx.message_types(topic)  # each message by its own type: typed markers and the old form
     markers: list[Marker] = []
     for i, data in enumerate(raws):
         try:
-            parsed = m.parse_marker(data, ctx.raw.types[topic])
+            parsed = m.parse_marker(data, types[i])
         except Exception as err:  # rosbags raises several types on bad CDR
             raise CorruptBagError(f"cannot decode episode marker: {err}", path=ctx.path, topic=topic,
                                   index=i, stamp=int(stamps[i])) from err

@@ -118,15 +118,20 @@ def _one_type(
     return values.astype(np.float32)
 
 
-def header_stamps(ctx: BagContext, topic: str, raws: list[bytes], msgtype: str) -> np.ndarray:
-    """``header.stamp`` (ns) of every message of a generic-typed topic (the ``header`` time base)."""
-    reader = field_reader(ctx, topic, msgtype, ["header.stamp"])
-    try:
-        return reader.stamps(raws)
-    except RowError as err:
-        raise CorruptBagError(
-            f"cannot read header.stamp of {msgtype}: {err.detail}", path=ctx.path, topic=topic, index=err.row
-        ) from err
+def header_stamps(ctx: BagContext, topic: str, raws: list[bytes], types: list[str]) -> np.ndarray:
+    """``header.stamp`` (ns) of every message of a generic-typed topic (the ``header`` time base);
+    ``types``: each message's type (a topic under several types is read per connection)."""
+    out = np.zeros(len(raws), dtype=np.int64)
+    for msgtype in dict.fromkeys(types):
+        rows = [i for i, t in enumerate(types) if t == msgtype]
+        reader = field_reader(ctx, topic, msgtype, ["header.stamp"])
+        try:
+            out[rows] = reader.stamps([raws[i] for i in rows])
+        except RowError as err:
+            raise CorruptBagError(
+                f"cannot read header.stamp of {msgtype}: {err.detail}", path=ctx.path, topic=topic,
+                index=rows[err.row]) from err
+    return out
 
 
 def labels(ctx: BagContext, topic: str, stamps: np.ndarray, raws: list[bytes], kind: str) -> np.ndarray:

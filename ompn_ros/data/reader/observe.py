@@ -51,20 +51,24 @@ class AssembledRows:
     rejected: dict[str, int] = field(default_factory=dict)
 
 
-def record_order(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[tuple[str, int, bytes]]:
-    """``(topic, log_stamp, raw)`` of the messages of ``topics`` in the bag's record order."""
-    merged: list[tuple[int, str, int, bytes]] = []
+Message = tuple[str, int, bytes, str]  # topic, log stamp, raw CDR, the message's own type
+
+
+def record_order(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[Message]:
+    """``(topic, log_stamp, raw, type)`` of the messages of ``topics`` in the bag's record order."""
+    merged: list[tuple[int, str, int, bytes, str]] = []
     for topic in dict.fromkeys(topics):
         tdata = ctx.raw.topics.get(topic)
         if tdata is not None:
             raws = ctx.data(topic)[1]  # first: it may reorder the topic's stamps and positions
-            merged.extend(zip(tdata.seqs, [topic] * len(tdata.seqs), tdata.stamps, raws))
+            kinds = tdata.message_types()
+            merged.extend(zip(tdata.seqs, [topic] * len(tdata.seqs), tdata.stamps, raws, kinds))
     merged.sort(key=lambda item: item[0])
-    for _, topic, stamp, raw in merged:
-        yield topic, int(stamp), raw
+    for _, topic, stamp, raw, msgtype in merged:
+        yield topic, int(stamp), raw, msgtype
 
 
-def reread(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[tuple[str, int, bytes]]:
+def reread(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[Message]:
     """The messages of ``topics`` read again from the storage, in record order: the same messages
     as the first read (its first ``raw.count`` wanted messages), those stamped at or after
     ``raw.cut`` left out.  Used when their bytes were not kept (decoded while reading).  The messages
@@ -77,7 +81,7 @@ def reread(ctx: BagContext, topics: tuple[str, ...]) -> Iterator[tuple[str, int,
             if n >= ctx.raw.count:
                 break
             if conn.topic in wanted and (cut is None or stamp < cut):
-                yield conn.topic, int(stamp), data
+                yield conn.topic, int(stamp), data, conn.msgtype
 
 
 def assembled_rows(ctx: BagContext, spec: ObservationSpec) -> AssembledRows:
@@ -88,8 +92,8 @@ def assembled_rows(ctx: BagContext, spec: ObservationSpec) -> AssembledRows:
         messages = record_order(ctx, tuple(spec.topics)) if kept_bytes else reread(ctx, tuple(spec.topics))
         sink = AssemblySink(spec, len(ctx.raw.topics[spec.step_topic].stamps)
                             if spec.step_topic in ctx.raw.topics else 0)
-        for topic, stamp, raw in messages:
-            sink.add(topic, stamp, raw)
+        for topic, stamp, raw, msgtype in messages:
+            sink.add(topic, stamp, raw, msgtype)
     values, kept = sink.values, np.asarray(sink.kept, bool)
     stamps = np.asarray(sink.step_stamps, dtype=np.int64)
     order = None

@@ -22,9 +22,11 @@ from .spec import ReaderSpec
 def stream_plan(bag: Path, spec: ReaderSpec, types: dict[str, str]) -> StreamPlan | None:
     """The plan for ``spec`` over a bag whose topics have ``types`` (``None``: keep every topic raw).
 
-    The observation topic is decoded as read when it is a ``Float32MultiArray`` topic used for
-    nothing else; with ``ReaderSpec.assemble`` the assembler runs while reading and only the
-    topics another role also uses (action, labels, markers, ...) keep their raw bytes.
+    The observation topic, and the action topic, is decoded as read when it is a
+    ``Float32MultiArray`` topic used for nothing else (its bytes are not held beside their decoded
+    copy: the reader's peak memory stays about the wanted topics' bytes); with
+    ``ReaderSpec.assemble`` the assembler runs while reading and only the topics another role also
+    uses (action, labels, markers, ...) keep their raw bytes.
     """
     ctx = BagContext(RawBag(bag, dict(types), {}), spec, BagReport(str(bag)))
     try:
@@ -35,6 +37,12 @@ def stream_plan(bag: Path, spec: ReaderSpec, types: dict[str, str]) -> StreamPla
                           topics.split) if t}
     if topics.assemble is not None:
         return StreamPlan(assemble=topics.assemble, keep_raw=frozenset(set(topics.assemble.topics) & others))
-    if topics.obs_type == layout.FLOAT32_ARRAY and topics.obs not in others and not spec.observation.generic:
-        return StreamPlan(column=topics.obs, dim=spec.observation.dim)
-    return None
+    obs = topics.obs_type == layout.FLOAT32_ARRAY and topics.obs not in others \
+        and not spec.observation.generic
+    others.discard(topics.act)
+    act = topics.act_type == layout.FLOAT32_ARRAY and topics.act not in others | {topics.obs} \
+        and spec.action.field is None
+    if not obs and not act:
+        return None
+    return StreamPlan(column=topics.obs if obs else None, dim=spec.observation.dim,
+                      act_column=topics.act if act else None, act_dim=spec.action.dim)

@@ -34,6 +34,9 @@ class StreamPlan:
     Attributes:
         column: a ``Float32MultiArray`` observation topic to decode into a :class:`Float32Column`.
         dim: the spec's observation size for ``column`` (``None``: the first message's).
+        act_column: a ``Float32MultiArray`` action topic of its own, decoded the same way (its bytes
+            would otherwise be held beside their decoded copy: the reader's peak memory).
+        act_dim: the spec's action size for ``act_column``.
         assemble: ``ReaderSpec.assemble`` with bag topic names, fed to an :class:`AssemblySink`.
         keep_raw: topics whose raw bytes are still needed (e.g. a partner topic that is also the
             action topic); every other topic of the plan keeps stamps and record positions only.
@@ -41,6 +44,8 @@ class StreamPlan:
 
     column: str | None = None
     dim: int | None = None
+    act_column: str | None = None
+    act_dim: int | None = None
     assemble: ObservationSpec | None = None
     keep_raw: frozenset[str] = frozenset()
 
@@ -201,7 +206,7 @@ def collect_rosbags(bag: Path, wanted: set[str] | None, planner: Planner | None 
                 tdata.add(stamp, data, read, conn.msgtype)
                 if topic in fed:
                     assert sink is not None
-                    sink.add(topic, stamp, data)
+                    sink.add(topic, stamp, data, conn.msgtype)
                 read += 1
     except Exception as err:  # any storage error ends the read; the caller decides what to keep
         raw.corrupt = CorruptBagError(f"read failed after {read} messages: {type(err).__name__} {err}",
@@ -288,8 +293,9 @@ def _apply_plan(raw: RawBag, plan: StreamPlan | None, counts: dict[str, int]) ->
     """Set the column and the assembler sink of ``plan`` on the topics read (``None``: no sink)."""
     if plan is None:
         return None
-    if plan.column is not None and plan.column in raw.topics:
-        raw.topics[plan.column].column = Float32Column(plan.dim, counts.get(plan.column, 0))
+    for topic, dim in ((plan.column, plan.dim), (plan.act_column, plan.act_dim)):
+        if topic is not None and topic in raw.topics:
+            raw.topics[topic].column = Float32Column(dim, counts.get(topic, 0))
     if plan.assemble is None or not set(plan.assemble.topics) <= set(raw.topics):
         return None
     for topic in plan.assemble.topics:

@@ -43,6 +43,10 @@ ACTION_TYPES = (layout.INT32, layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY, layout
 """The types read without a ``field`` path (the hand-written fast parsers); any other type is read
 through a ``field`` path (:mod:`ompn_ros.data.messages.fieldpath`, docs/specs.md)."""
 MARKER_TYPES = (layout.EPISODE_MARKER_TYPE, layout.DIAGNOSTIC_ARRAY)  # typed; string-keyed (deprecated)
+SWITCH_TYPES = frozenset({"std_msgs/msg/Bool", "std_msgs/msg/String"} | {
+    f"std_msgs/msg/{kind}{bits}" for kind in ("Int", "UInt") for bits in (8, 16, 32, 64)})
+"""Types of a recording on/off topic (``ReaderSpec.split_topic``); any other type: each message starts
+an episode."""
 
 
 @dataclass(frozen=True)
