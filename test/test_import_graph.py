@@ -57,7 +57,7 @@ MODULES = _modules()
 
 
 def _is_package(name: str) -> bool:
-    return MODULES[name].name == "__init__.py"
+    return name in MODULES and MODULES[name].name == "__init__.py"
 
 
 def _imports(module: str, tree: ast.Module) -> Iterator[tuple[str, bool, int]]:
@@ -285,3 +285,29 @@ def test_the_command_lines_import_only_the_app_layer():
         if target != "ompn_ros.errors" and _room(target) not in CLI_MAY_IMPORT
     ]
     assert not offenders, "command-line shells importing below the app layer:\n" + "\n".join(offenders)
+
+
+FACES = ("ompn_ros.data.cache",)
+"""Packages with one face: every module outside the package (product, lab, benchmarks, tests)
+imports the package itself, never one of its modules."""
+CALLER_TREES = ("ompn_ros", "sim_nodes", "lab", "bench", "test")
+
+
+def _deep_imports(face: str) -> list[str]:
+    """``file:line -> module`` for each import of a module inside ``face`` from outside it."""
+    found = []
+    for tree_name in CALLER_TREES:
+        for path in sorted((ROOT / tree_name).rglob("*.py")):
+            module = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            if module == face or module.startswith(face + "."):
+                continue
+            for target, _, line in _imports(module, ast.parse(path.read_text(), str(path))):
+                if target.startswith(face + "."):
+                    found.append(f"{path.relative_to(ROOT)}:{line} -> {target}")
+    return found
+
+
+def test_packages_with_one_face_are_entered_through_it():
+    assert any(name.startswith("ompn_ros.data.cache.") for name in MODULES), "the cache is a package"
+    offenders = [entry for face in FACES for entry in _deep_imports(face)]
+    assert not offenders, "imports around a package's face:\n" + "\n".join(offenders)

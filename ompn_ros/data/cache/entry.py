@@ -1,6 +1,6 @@
 """The episode cache's on-disk entry: a directory of uncompressed ``.npy`` files and ``index.json``.
 
-An entry holds one ``.npy`` file per array (see :class:`~ompn_ros.data.cache.EpisodeArrays`, with
+An entry holds one ``.npy`` file per array (see :class:`~.arrays.EpisodeArrays`, with
 ``obs_names``: the observation's element names, ``Episode.extras['obs_names']``, empty when the
 episodes do not name them alike) and ``index.json`` (format version, every array's file, dtype and
 shape, the reader's report).  It is
@@ -15,7 +15,7 @@ renamed into place, so a reader never sees half an entry; the temporary of a kil
 by the next run that finds its process gone (:func:`remove_stale_entries`).
 
 An entry defends itself (format 5): ``index.json`` holds the entry's **key** (the identity of its bags
-and reader settings, :func:`~ompn_ros.data.cache.content_key`) and a BLAKE2b checksum of every file.
+and reader settings, :func:`~.key.content_key`) and a BLAKE2b checksum of every file.
 :func:`open_entry` verifies both before anything is mapped, so garbage values, another bag's entry
 copied under this key, a truncated or edited offsets file are a :class:`CacheEntryError` (the
 caller rebuilds the entry with a note), never data trained on.  Verifying reads every byte once per
@@ -36,10 +36,10 @@ from typing import Any, Literal
 import numpy as np
 
 from ompn_ros.atomic import make_temp_dir, remove_stale_temps, umask_mode
-from ompn_ros.data.errors import CacheEntryError, CacheFormatError
 
-from .episode import Episode
-from .npy_append import NpyAppender
+from ..episode import Episode
+from ..errors import CacheEntryError, CacheFormatError
+from .npy import NpyAppender
 
 CACHE_FORMAT = 5  # 5: + key and checksums; 4: + obs_names; 3: .npy files, memory-mapped (2: one .npz)
 LEGACY_TEMP = re.compile(r"^\.tmp_")  # temporaries of format 4 and before: no owner recorded
