@@ -17,12 +17,18 @@ at module level.
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("ompn_ros", "sim_nodes")
-LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backend only"}
+LOCAL_IMPORTS = {
+    "ompn_ros.model.streaming": "numba, for the 'jit' backend only",
+    "ompn_ros.app.replay": "the sims (MuJoCo, gymnasium), for --generate only: a bag's replay loads none",
+}
 """The function-local project imports allowed (module -> why)."""
 LIGHT_HELP = {
     "ompn_ros.cli.segment": "the replay and tuning services (torch) load when the command runs",
@@ -311,3 +317,21 @@ def test_packages_with_one_face_are_entered_through_it():
     assert any(name.startswith("ompn_ros.data.cache.") for name in MODULES), "the cache is a package"
     offenders = [entry for face in FACES for entry in _deep_imports(face)]
     assert not offenders, "imports around a package's face:\n" + "\n".join(offenders)
+
+
+BAG_RUN = (
+    "ompn_ros.cli.segment", "ompn_ros.app.replay", "ompn_ros.app.detector_tuning", "ompn_ros.app.errors",
+    "ompn_ros.app.read_report", "ompn_ros.app.segment_setup", "ompn_ros.model.load",
+    "ompn_ros.detect.settings", "ompn_ros.detect.tune",
+)
+"""What ``ompn_segment --bag`` imports (``cli/segment.py``'s ``_run`` and the setup it calls)."""
+SIMS = ("mujoco", "gymnasium", "sim_nodes")
+
+
+def test_segmenting_a_bag_loads_no_simulator():
+    code = (f"import importlib, sys\nfor m in {BAG_RUN!r}: importlib.import_module(m)\n"
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {SIMS!r}))")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
+                         timeout=300, check=True)
+    assert out.stdout.strip() == "[]", f"ompn_segment on a bag loads the sims: {out.stdout.strip()}"
