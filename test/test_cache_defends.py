@@ -11,7 +11,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -143,15 +142,10 @@ def test_a_killed_runs_temporaries_are_removed_by_the_next_run(bags: dict[str, P
     assert done.returncode == -signal.SIGKILL and "writing" in done.stdout, done.stderr
     left = [p for p in cache.iterdir() if p.name.startswith(".")]
     assert len(left) == 1 and left[0].is_dir()
-    legacy_old, legacy_new = cache / ".tmp_old", cache / ".tmp_recent"  # an older version's, untagged
-    for path in (legacy_old, legacy_new):
-        path.mkdir()
-    day_ago = time.time() - 2 * 24 * 3600
-    os.utime(legacy_old, (day_ago, day_ago))
     from ompn_ros.data.cache import EntryWriter
 
     running = EntryWriter(cache / "episodes_4567")  # a writer of this process, still at work
     load_arrays(bags["a"], cache_dir=cache)
     hidden = sorted(p.name for p in cache.iterdir() if p.name.startswith("."))
-    assert hidden == sorted([running.tmp.name, legacy_new.name]), hidden
+    assert hidden == [running.tmp.name], hidden
     running.abort()

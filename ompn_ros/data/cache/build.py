@@ -18,10 +18,12 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
+from ompn_ros.atomic import remove_stale_temps
+
 from ..errors import CacheEntryError, CacheFormatError, EmptyEntryError, MixedBagsError, NpyAppendError
 from ..reader import OnError, ReaderSpec, ReadReport, read_episodes
 from .arrays import EpisodeArrays
-from .entry import CACHE_FORMAT, INDEX, EntryWriter, remove_stale_entries
+from .entry import CACHE_FORMAT, INDEX, EntryWriter
 from .key import content_key
 
 
@@ -46,7 +48,7 @@ def load_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, root: 
     """The episodes of ``bags`` from their entry under ``root``, built when missing or stale (then with
     the bags parsed one at a time); the step arrays are memory-mapped either way."""
     key = content_key(bags, spec, on_error)
-    remove_stale_entries(root)
+    remove_stale_temps(root)
     entry = root / f"episodes_{key}"
     notes: list[str] = []
     hit = open_hit(entry, key, notes)

@@ -21,13 +21,14 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from ompn_ros.atomic import remove_stale_temps
 from ompn_ros.workers import die_with_parent, started_here
 
 from ..errors import EmptyEntryError, MixedBagsError, NpyAppendError
 from ..reader import OnError, ReaderSpec
 from .arrays import EpisodeArrays
 from .build import build_entry, open_hit, with_notes
-from .entry import EntryWriter, remove_stale_entries
+from .entry import EntryWriter
 from .key import content_key
 
 BAGS_DIR = "bags"
@@ -52,7 +53,7 @@ def build_bag_entries(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError,
     how many bags were parsed; a broken entry is rebuilt with a line in ``notes``."""
     if workers < 1:
         raise ValueError(f"data.cache_workers must be at least 1 for per-bag entries, got {workers}")
-    remove_stale_entries(root / BAGS_DIR)
+    remove_stale_temps(root / BAGS_DIR)
     keys = [content_key([bag], spec, on_error) for bag in bags]
     entries = [root / BAGS_DIR / f"bag_{key}" for key in keys]
     missing = [(bag, entry, key) for bag, entry, key in zip(bags, entries, keys, strict=True)
@@ -111,7 +112,7 @@ def load_per_bag(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, root
                  workers: int = 1) -> EpisodeArrays:
     """The episodes of ``bags`` through per-bag entries under ``root`` (see the module doc); ``built``
     bags are counted in the result's ``report`` header."""
-    remove_stale_entries(root)
+    remove_stale_temps(root)
     notes: list[str] = []
     entries, built = build_bag_entries(bags, spec, on_error, root, workers, notes)
     key = hashlib.blake2b("\n".join(e.name for e in entries).encode(), digest_size=20).hexdigest()
