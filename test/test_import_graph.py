@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -335,3 +336,12 @@ def test_segmenting_a_bag_loads_no_simulator():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
                          timeout=300, check=True)
     assert out.stdout.strip() == "[]", f"ompn_segment on a bag loads the sims: {out.stdout.strip()}"
+
+
+def test_the_lab_indexes_every_module():
+    """``lab/__init__.py`` and ``lab/README.md`` (study -> module -> results -> log) name every module."""
+    modules = {p.stem for p in (ROOT / "lab").glob("*.py") if p.stem != "__init__"}
+    indexed = set(re.findall(r"~lab\.(\w+)", (ROOT / "lab" / "__init__.py").read_text()))
+    in_readme = set(re.findall(r"`(\w+)`", (ROOT / "lab" / "README.md").read_text())) & modules
+    assert indexed == modules, f"lab/__init__.py: {sorted(modules ^ indexed)} missing or gone"
+    assert in_readme == modules, f"lab/README.md misses {sorted(modules - in_readme)}"
