@@ -51,8 +51,8 @@ setup(
         "console_scripts": [
             "ompn_node = ompn_ros.nodes.ompn_node:main",
             "bag_recorder = ompn_ros.nodes.bag_recorder:main",
-            "smoke_talker = ompn_ros.nodes.smoke:talker_main",
-            "smoke_listener = ompn_ros.nodes.smoke:listener_main",
+            "smoke_talker = ompn_ros.nodes.dds_probe:talker_main",
+            "smoke_listener = ompn_ros.nodes.dds_probe:listener_main",
             "craft_sim = sim_nodes.craft.node:main",
             "dial_sim = sim_nodes.dial.node:main",
             "ompn_train = ompn_ros.cli.train:main",

@@ -28,7 +28,6 @@ from pathlib import Path
 
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data import ReaderSpec, load_arrays, write_episodes
-from ompn_ros.data.cache_bags import load_arrays_per_bag
 from sim_nodes.registry import default_tasks, expert_episode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,10 +75,10 @@ def cache(bags: Path, extra: Path, tmp: Path) -> dict[str, float]:
     load_arrays(base, spec=spec, cache_dir=tmp / "serial")
     serial = time.perf_counter() - start
     start = time.perf_counter()
-    load_arrays_per_bag(base, spec=spec, cache_dir=tmp / "perbag", workers=2)
+    load_arrays(base, spec=spec, cache_dir=tmp / "perbag", workers=2)
     parallel = time.perf_counter() - start
     start = time.perf_counter()
-    load_arrays_per_bag(base + sorted(extra.iterdir()), spec=spec, cache_dir=tmp / "perbag", workers=2)
+    load_arrays(base + sorted(extra.iterdir()), spec=spec, cache_dir=tmp / "perbag", workers=2)
     incremental = time.perf_counter() - start
     return {"bags": len(base), "serial_s": serial, "workers2_s": parallel,
             "added": len(list(extra.iterdir())), "incremental_s": incremental}

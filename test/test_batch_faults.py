@@ -202,10 +202,10 @@ def test_the_workers_of_a_killed_batch_run_exit(lab: dict[str, Path], tmp_path: 
 _CACHE_BUILD = """
 import sys
 from ompn_ros.data import ReaderSpec
-from ompn_ros.data.cache_bags import load_arrays_per_bag
+from ompn_ros.data.cache import load_arrays
 import yaml
 spec = ReaderSpec.from_dict(yaml.safe_load(open(sys.argv[2])))
-load_arrays_per_bag(sys.argv[1], spec=spec, cache_dir=sys.argv[3], workers=2)
+load_arrays(sys.argv[1], spec=spec, cache_dir=sys.argv[3], workers=2)
 """
 
 

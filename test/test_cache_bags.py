@@ -10,10 +10,8 @@ import pytest
 import yaml
 from test_segment_batch import SPEC, write_lab_bag
 
-from ompn_ros.data import ReaderSpec
-from ompn_ros.data import cache as cache_module
-from ompn_ros.data.cache import load_arrays
-from ompn_ros.data.cache_bags import load_arrays_per_bag
+from ompn_ros.data import ReaderSpec, read_episodes
+from ompn_ros.data.cache import EpisodeArrays, load_arrays
 from ompn_ros.data.reader import final_row_guessed
 
 
@@ -25,7 +23,7 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def _same(a: cache_module.EpisodeArrays, b: cache_module.EpisodeArrays) -> None:
+def _same(a: EpisodeArrays, b: EpisodeArrays) -> None:
     assert len(a) == len(b)
     for x, y in zip(a.episodes(), b.episodes(), strict=True):
         np.testing.assert_array_equal(x.observations, y.observations)
@@ -38,12 +36,12 @@ def _same(a: cache_module.EpisodeArrays, b: cache_module.EpisodeArrays) -> None:
 def test_parallel_per_bag_entries_hold_the_same_episodes(bags: Path, tmp_path: Path) -> None:
     spec = ReaderSpec.from_dict(SPEC)
     serial = load_arrays(bags, spec=spec, cache_dir=tmp_path / "one")
-    two = load_arrays_per_bag(bags, spec=spec, cache_dir=tmp_path / "two", workers=2)
+    two = load_arrays(bags, spec=spec, cache_dir=tmp_path / "two", workers=2)
     _same(serial, two)
     assert len(list((tmp_path / "two" / "bags").iterdir())) == 6
     assert two.report.startswith("read 6 bag(s) through per-bag cache entries: 12 episode(s)")
     assert final_row_guessed(two.report) == final_row_guessed(serial.report)
-    again = load_arrays_per_bag(bags, spec=spec, cache_dir=tmp_path / "two", workers=2)
+    again = load_arrays(bags, spec=spec, cache_dir=tmp_path / "two", workers=2)
     assert again.cache_hit and again.cache_path == two.cache_path
 
 
@@ -51,18 +49,18 @@ def test_adding_bags_parses_only_the_new_ones(bags: Path, tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
     spec = ReaderSpec.from_dict(SPEC)
     parsed: list[str] = []
-    read = cache_module.read_episodes
+    read = read_episodes
 
     def counting(paths, **kw):  # type: ignore[no-untyped-def]
         parsed.extend(str(Path(p).name) for p in paths)
         return read(paths, **kw)
 
-    monkeypatch.setattr(cache_module, "read_episodes", counting)
+    monkeypatch.setattr("ompn_ros.data.cache.build.read_episodes", counting)  # the parse the cache runs
     first = sorted(bags.iterdir())[:4]
-    load_arrays_per_bag(first, spec=spec, cache_dir=tmp_path, workers=1)
+    load_arrays(first, spec=spec, cache_dir=tmp_path, workers=1)
     assert parsed == ["day0", "day1", "day2", "day3"]
     parsed.clear()
-    grown = load_arrays_per_bag(sorted(bags.iterdir()), spec=spec, cache_dir=tmp_path, workers=1)
+    grown = load_arrays(sorted(bags.iterdir()), spec=spec, cache_dir=tmp_path, workers=1)
     assert parsed == ["day4", "day5"] and not grown.cache_hit
     _same(grown, load_arrays(bags, spec=spec, cache_dir=tmp_path / "single"))
 

@@ -11,7 +11,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,7 +19,6 @@ import pytest
 
 from ompn_ros import layout
 from ompn_ros.data.cache import EpisodeArrays, load_arrays
-from ompn_ros.data.cache_bags import load_arrays_per_bag
 from ompn_ros.data.recorder.bag_writer import write_episodes
 from ompn_ros.train import synthetic
 
@@ -71,7 +69,7 @@ def _offsets(entry: Path, other: Path) -> None:
 
 def _offsets_and_checksum(entry: Path, other: Path) -> None:
     """Edited by hand, the index's checksum recomputed too: the offsets rule still catches it."""
-    from ompn_ros.data.cache_store import file_digest
+    from ompn_ros.data.cache import file_digest
 
     _offsets(entry, other)
     index = json.loads((entry / "index.json").read_text())
@@ -114,12 +112,12 @@ def test_a_spoiled_entry_is_rebuilt_with_a_note(bags: dict[str, Path], tmp_path:
 
 def test_a_spoiled_per_bag_entry_is_rebuilt_with_a_note(bags: dict[str, Path], tmp_path: Path) -> None:
     cache = tmp_path / "cache"
-    first = load_arrays_per_bag([bags["a"], bags["b"]], cache_dir=cache)
+    first = load_arrays([bags["a"], bags["b"]], cache_dir=cache, workers=1)
     want = np.array(first.observations)
     (bag_a,) = [p for p in (cache / "bags").iterdir() if p.name.startswith("bag_")][:1]
     _nan(bag_a, bag_a)
     del first
-    again = load_arrays_per_bag([bags["a"], bags["b"]], cache_dir=cache)
+    again = load_arrays([bags["a"], bags["b"]], cache_dir=cache, workers=1)
     np.testing.assert_array_equal(np.asarray(again.observations), want)
     assert len(again.notes) == 1 and "checksum" in again.notes[0]
 
@@ -128,7 +126,7 @@ KILLED_WRITER = """
 import os, signal, sys
 from pathlib import Path
 import numpy as np
-from ompn_ros.data.cache_store import EntryWriter
+from ompn_ros.data.cache import EntryWriter
 writer = EntryWriter(Path(sys.argv[1]) / "episodes_0123")
 writer._cols["observations"].append(np.zeros((4, 3), np.float32))
 print("writing", flush=True)
@@ -144,15 +142,10 @@ def test_a_killed_runs_temporaries_are_removed_by_the_next_run(bags: dict[str, P
     assert done.returncode == -signal.SIGKILL and "writing" in done.stdout, done.stderr
     left = [p for p in cache.iterdir() if p.name.startswith(".")]
     assert len(left) == 1 and left[0].is_dir()
-    legacy_old, legacy_new = cache / ".tmp_old", cache / ".tmp_recent"  # an older version's, untagged
-    for path in (legacy_old, legacy_new):
-        path.mkdir()
-    day_ago = time.time() - 2 * 24 * 3600
-    os.utime(legacy_old, (day_ago, day_ago))
-    from ompn_ros.data.cache_store import EntryWriter
+    from ompn_ros.data.cache import EntryWriter
 
     running = EntryWriter(cache / "episodes_4567")  # a writer of this process, still at work
     load_arrays(bags["a"], cache_dir=cache)
     hidden = sorted(p.name for p in cache.iterdir() if p.name.startswith("."))
-    assert hidden == sorted([running.tmp.name, legacy_new.name]), hidden
+    assert hidden == [running.tmp.name], hidden
     running.abort()

@@ -10,11 +10,8 @@ import pytest
 from test_data_common import assert_same_episode, make_episodes
 
 from ompn_ros.data import ReaderSpec, load_arrays, read_episodes, write_episodes
-from ompn_ros.data import cache as cache_mod
-from ompn_ros.data.cache import EpisodeArrays
-from ompn_ros.data.cache_store import CACHE_FORMAT, INDEX, EntryWriter
+from ompn_ros.data.cache import CACHE_FORMAT, INDEX, EntryWriter, EpisodeArrays, NpyAppender
 from ompn_ros.data.errors import CacheFormatError, NpyAppendError
-from ompn_ros.data.npy_append import NpyAppender
 
 
 def _bags(tmp_path: Path) -> tuple[Path, list]:  # type: ignore[type-arg]
@@ -65,13 +62,13 @@ def test_a_stale_format_is_rebuilt(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     with pytest.raises(CacheFormatError, match="format"):
         EpisodeArrays.load(first.cache_path)
     calls = {"n": 0}
-    real = cache_mod.read_episodes
+    real = read_episodes
 
     def counting(*args, **kwargs):  # type: ignore[no-untyped-def]
         calls["n"] += 1
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(cache_mod, "read_episodes", counting)
+    monkeypatch.setattr("ompn_ros.data.cache.build.read_episodes", counting)  # the parse the cache runs
     again = load_arrays(bags, spec=spec, cache_dir=tmp_path / "cache")
     assert not again.cache_hit and calls["n"] == 2
     assert json.loads(index.read_text())["format"] == CACHE_FORMAT

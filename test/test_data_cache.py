@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_data_common import assert_same_episode, make_episodes
 
-from ompn_ros.data import ReaderSpec, load_arrays, write_episodes
+from ompn_ros.data import ReaderSpec, load_arrays, read_episodes, write_episodes
 from ompn_ros.data import cache as cache_mod
 from ompn_ros.data.recorder.storage import refresh_chunk_crcs
 
@@ -29,13 +29,13 @@ def test_cache_hit_and_content_miss(tmp_path: Path, monkeypatch: pytest.MonkeyPa
         assert_same_episode(a, b)
 
     calls = {"n": 0}
-    real = cache_mod.read_episodes
+    real = read_episodes
 
     def counting(*args, **kwargs):  # type: ignore[no-untyped-def]
         calls["n"] += 1
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(cache_mod, "read_episodes", counting)
+    monkeypatch.setattr("ompn_ros.data.cache.build.read_episodes", counting)  # the parse the cache runs
     second = load_arrays(tmp_path / "bags", spec=spec, cache_dir=cache_dir)
     assert second.cache_hit and calls["n"] == 0 and second.key == first.key
     assert second.report == first.report and "5 episode(s)" in second.report

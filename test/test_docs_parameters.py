@@ -24,7 +24,7 @@ the reason.
 
 def render() -> str:
     sys.path.insert(0, str(ROOT))
-    from ompn_ros.nodes import bag_recorder, episode_monitor, ompn_node_params, smoke
+    from ompn_ros.nodes import bag_recorder, dds_probe, episode_monitor, ompn_node_params
     from ompn_ros.ros.params import markdown_table
     from sim_nodes.craft.node import CRAFT_PARAMS
     from sim_nodes.dial.node import DIAL_PARAMS
@@ -37,8 +37,8 @@ def render() -> str:
         ("dial_sim (its `rate` replaces the common one)", DIAL_PARAMS),
         ("bag_recorder", bag_recorder.PARAMS),
         ("episode_monitor", episode_monitor.PARAMS.specs.values()),
-        ("smoke_talker", smoke.TALKER_PARAMS.specs.values()),
-        ("smoke_listener", smoke.LISTENER_PARAMS.specs.values()),
+        ("smoke_talker", dds_probe.TALKER_PARAMS.specs.values()),
+        ("smoke_listener", dds_probe.LISTENER_PARAMS.specs.values()),
     ]
     body = "\n\n".join(f"## {title}\n{markdown_table(specs)}" for title, specs in sections)
     return f"{HEADER}\n{body}\n"

@@ -17,12 +17,19 @@ at module level.
 from __future__ import annotations
 
 import ast
+import os
+import re
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("ompn_ros", "sim_nodes")
-LOCAL_IMPORTS = {"ompn_ros.model.streaming": "numba, for the 'jit' backend only"}
+LOCAL_IMPORTS = {
+    "ompn_ros.model.streaming": "numba, for the 'jit' backend only",
+    "ompn_ros.app.replay": "the sims (MuJoCo, gymnasium), for --generate only: a bag's replay loads none",
+}
 """The function-local project imports allowed (module -> why)."""
 LIGHT_HELP = {
     "ompn_ros.cli.segment": "the replay and tuning services (torch) load when the command runs",
@@ -57,7 +64,7 @@ MODULES = _modules()
 
 
 def _is_package(name: str) -> bool:
-    return MODULES[name].name == "__init__.py"
+    return name in MODULES and MODULES[name].name == "__init__.py"
 
 
 def _imports(module: str, tree: ast.Module) -> Iterator[tuple[str, bool, int]]:
@@ -304,3 +311,56 @@ def test_the_cuts_of_a_stream_have_one_room_reached_through_its_face():
         if target.startswith(CUTS + ".")
     ]
     assert not bypassing, f"imports around the face of {CUTS}:\n" + "\n".join(bypassing)
+
+
+FACES = ("ompn_ros.data.cache",)
+"""Packages with one face: every module outside the package (product, lab, benchmarks, tests)
+imports the package itself, never one of its modules."""
+CALLER_TREES = ("ompn_ros", "sim_nodes", "lab", "bench", "test")
+
+
+def _deep_imports(face: str) -> list[str]:
+    """``file:line -> module`` for each import of a module inside ``face`` from outside it."""
+    found = []
+    for tree_name in CALLER_TREES:
+        for path in sorted((ROOT / tree_name).rglob("*.py")):
+            module = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            if module == face or module.startswith(face + "."):
+                continue
+            for target, _, line in _imports(module, ast.parse(path.read_text(), str(path))):
+                if target.startswith(face + "."):
+                    found.append(f"{path.relative_to(ROOT)}:{line} -> {target}")
+    return found
+
+
+def test_packages_with_one_face_are_entered_through_it():
+    assert any(name.startswith("ompn_ros.data.cache.") for name in MODULES), "the cache is a package"
+    offenders = [entry for face in FACES for entry in _deep_imports(face)]
+    assert not offenders, "imports around a package's face:\n" + "\n".join(offenders)
+
+
+BAG_RUN = (
+    "ompn_ros.cli.segment", "ompn_ros.app.replay", "ompn_ros.app.detector_tuning", "ompn_ros.app.errors",
+    "ompn_ros.app.read_report", "ompn_ros.app.segment_setup", "ompn_ros.model.load",
+    "ompn_ros.detect.settings", "ompn_ros.detect.tune",
+)
+"""What ``ompn_segment --bag`` imports (``cli/segment.py``'s ``_run`` and the setup it calls)."""
+SIMS = ("mujoco", "gymnasium", "sim_nodes")
+
+
+def test_segmenting_a_bag_loads_no_simulator():
+    code = (f"import importlib, sys\nfor m in {BAG_RUN!r}: importlib.import_module(m)\n"
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {SIMS!r}))")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
+                         timeout=300, check=True)
+    assert out.stdout.strip() == "[]", f"ompn_segment on a bag loads the sims: {out.stdout.strip()}"
+
+
+def test_the_lab_indexes_every_module():
+    """``lab/__init__.py`` and ``lab/README.md`` (study -> module -> results -> log) name every module."""
+    modules = {p.stem for p in (ROOT / "lab").glob("*.py") if p.stem != "__init__"}
+    indexed = set(re.findall(r"~lab\.(\w+)", (ROOT / "lab" / "__init__.py").read_text()))
+    in_readme = set(re.findall(r"`(\w+)`", (ROOT / "lab" / "README.md").read_text())) & modules
+    assert indexed == modules, f"lab/__init__.py: {sorted(modules ^ indexed)} missing or gone"
+    assert in_readme == modules, f"lab/README.md misses {sorted(modules - in_readme)}"

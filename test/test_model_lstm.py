@@ -163,3 +163,13 @@ def test_trainer_trains_the_lstm(tmp_path) -> None:  # type: ignore[no-untyped-d
     assert last < first
     loaded, _ = load_checkpoint(tmp_path / "run" / "last")
     assert isinstance(loaded, LSTMPolicy) and loaded.config.arch == "lstm"
+
+
+def test_the_lstm_stepper_names_its_one_backend() -> None:
+    """The LSTM steps with torch: ``backend='torch'``; the old name 'numpy' is one line naming it."""
+    policy = LSTMPolicy(lstm_config())
+    assert LSTMStreamingPolicy(policy, backend="torch").backend == "torch"
+    assert build_stepper(policy, backend="jit").backend == "torch"  # whatever the OMPN kernel asked
+    with pytest.raises(StreamingInputError) as err:
+        LSTMStreamingPolicy(policy, backend="numpy")
+    assert "backend='torch'" in str(err.value) and "\n" not in str(err.value)

@@ -234,7 +234,7 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
 @pytest.mark.parametrize(
     ("module", "param"),
     [("ompn_ros.nodes.ompn_node", "detector_high:=2.0"), ("ompn_ros.nodes.ompn_node", "obs_qos:=fast"),
-     ("ompn_ros.nodes.episode_monitor", "timeout:=-1.0"), ("ompn_ros.nodes.smoke", "count:=0")],
+     ("ompn_ros.nodes.episode_monitor", "timeout:=-1.0"), ("ompn_ros.nodes.dds_probe", "count:=0")],
 )
 def test_invalid_start_up_parameter_exits_2_with_one_line(module: str, param: str,
                                                           ros_env: dict[str, str]) -> None:

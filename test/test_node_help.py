@@ -16,7 +16,7 @@ NODES = {
     "dial_sim": ("sim_nodes.dial.node", "press_tolerance"),
     "craft_sim": ("sim_nodes.craft.node", "full_obs"),
     "episode_monitor": ("ompn_ros.nodes.episode_monitor", "record_actions"),
-    "smoke": ("ompn_ros.nodes.smoke", "wait_for_subscriber"),
+    "smoke_talker": ("ompn_ros.nodes.dds_probe", "wait_for_subscriber"),
 }
 
 

@@ -9,7 +9,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from ompn_ros.nodes.smoke import SmokeTalker  # noqa: E402
+from ompn_ros.nodes.dds_probe import SmokeTalker  # noqa: E402
 
 
 @pytest.fixture

@@ -2,7 +2,7 @@
 (:mod:`.training`), ensemble directories (:mod:`.ensemble`), replay of bags through the segmenter
 (:mod:`.segment_setup`, :mod:`.replay`), detector tuning (:mod:`.detector_tuning`), many bags at once
 (:mod:`.batch`, :mod:`.batch_bags`, :mod:`.batch_table`), annotated copies of bags (:mod:`.annotate`),
-the live demo (:mod:`.live`), the DDS self-check (:mod:`.smoke`) and closed-loop evaluation
+the live demo (:mod:`.live`), the DDS self-check (:mod:`.dds_check`) and closed-loop evaluation
 (:mod:`.closed_loop`, :mod:`.closed_loop_ros`).
 
 The command-line shells in :mod:`ompn_ros.cli` import only these (and :mod:`ompn_ros.errors`): the

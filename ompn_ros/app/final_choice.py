@@ -4,7 +4,7 @@ run validation prefers kept.
 Bags recorded without the observation after the last command leave row T of every episode to a guess
 (:attr:`~ompn_ros.data.reader.ReaderSpec.final_observation`).  Which guess trains best depends on the
 data: ``extrapolate`` (``2 s_T - s_{T-1}``) was the best option on our scripted Dial demonstrations and
-lost 9 points of online F1@1 on human-like ones (docs/design.md#final-observation-auto).  With ``auto``,
+among the worst on human-like ones (docs/design.md#final-observation-auto).  With ``auto``,
 :func:`train_auto` reads the bags once per option of ``final_options``, trains each on the same split
 (``OUT/final_observation/<option>/``, a whole ``ompn_train`` run each, ``candidates`` included), scores
 each run's bundled online detector on its own validation episodes and keeps the option

@@ -33,7 +33,6 @@ from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter
 from ompn_ros.stream.replay import replay_episode
-from sim_nodes.registry import DOMAINS, default_tasks, expert_episode
 
 
 def reader_spec(reader_config: str | None, domain: str | None, checkpoint: str | None = None) -> ReaderSpec:
@@ -57,6 +56,8 @@ def read_bag_episodes(
 def generate_episodes(domain: str, count: int, seed: int) -> list[Episode]:
     """``count`` fresh expert episodes of ``domain`` with seeds ``seed, seed + 1, ...`` (Craft: the
     paper's tasks in turn, as in the training data)."""
+    from sim_nodes.registry import DOMAINS, default_tasks, expert_episode  # the sims load for --generate only
+
     if domain not in DOMAINS:
         raise ReplayError(f"--generate needs --domain craft|dial, got {domain!r}")
     if seed < 0:

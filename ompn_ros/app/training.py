@@ -24,9 +24,7 @@ import yaml
 
 from ompn_ros.app.errors import TrainSetupError
 from ompn_ros.atomic import atomic_write_text
-from ompn_ros.data.cache import EpisodeArrays, load_arrays
-from ompn_ros.data.cache_bags import load_arrays_per_bag
-from ompn_ros.data.cache_dataset import load_dataset_arrays
+from ompn_ros.data.cache import EpisodeArrays, load_arrays, load_dataset_arrays
 from ompn_ros.data.cuts import AUTO, check_setting, choose_tolerance
 from ompn_ros.data.lerobot import DatasetSpec
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
@@ -206,11 +204,8 @@ def bag_data(bags: list[str], data: dict[str, Any], spec: ReaderSpec | None = No
     workers, cached = _data_int(data, "cache_workers", 0), bool(data.get("cache", True))
     if workers < 0:
         raise TrainSetupError(f"data.cache_workers must be >= 0 (0: one entry for all bags), got {workers}")
-    if workers and cached:  # per-bag entries: parallel, reused when bags are added
-        arrays = shared_arrays(lambda: load_arrays_per_bag(bags, spec=spec, on_error=on_error,
-                                                           workers=workers))
-    else:
-        arrays = shared_arrays(lambda: load_arrays(bags, spec=spec, on_error=on_error, use_cache=cached))
+    arrays = shared_arrays(lambda: load_arrays(bags, spec=spec, on_error=on_error, use_cache=cached,
+                                               workers=workers))  # workers: per-bag entries
     episodes = arrays.episodes()
     if not episodes:
         raise TrainSetupError(f"no episodes found in {bags}")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ompn_ros.app.smoke import run_smoke
+from ompn_ros.app.dds_check import run_dds_check
 from ompn_ros.cli._common import make_parser, run_cli
 from ompn_ros.cli._live import add_live_demo_arguments, run_live_demo
 
@@ -21,7 +21,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    return run_smoke() if args.smoke else run_live_demo(args)
+    return run_dds_check() if args.smoke else run_live_demo(args)
 
 
 def main(argv: list[str] | None = None) -> int:

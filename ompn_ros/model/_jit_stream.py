@@ -1,8 +1,8 @@
 """Compiled batch-1 OMPN step (the ``'jit'`` backend of ``streaming.py``, via numba).
 
-The numpy kernel (:mod:`ompn_ros.model._fast_stream`) spends about half of a Craft step in the
-~90 numpy calls it makes (≈ 1 µs each); the matrix-vector products themselves are bound by reading
-the weights (≈ 5 MB for Craft, n = 2, m = 128, at ≈ 50 GB/s).  Here the whole step is one compiled
+The numpy kernel (:mod:`ompn_ros.model._fast_stream`) spends much of a step in the fixed cost of
+each of its many numpy calls; the matrix-vector products themselves are bound by reading the weights
+(the figures: docs/design.md#fast-model-paths).  Here the whole step is one compiled
 call: same weights (prepared by :class:`~ompn_ros.model._fast_stream.NumpyStepper`, stacked per cell
 kind), same arithmetic (paper §3.1 and appendix A: bottom-up ComCells, stick-breaking π, top-down
 DecomCells, the memory update of Eq. (2) or the authors' code), the matrix-vector products through

@@ -3,8 +3,8 @@
 What makes it fast (numerically equivalent to the eager reference up to float32 rounding):
 
 * **Length sorting / packing**: episodes are sorted by length and step t only runs the b_t
-  episodes still alive, so padded steps cost nothing (the authors' code runs them: ~44% of the
-  work for Craft batches).  A step's outputs never depend on later steps, so this is exact.
+  episodes still alive, so padded steps cost nothing (the authors' code runs them,
+  docs/design.md#fast-model-paths).  A step's outputs never depend on later steps, so this is exact.
 * **Hoisted input projections**: every layer that reads ``u = [x; e]`` (the n ComCells, n-1
   DecomCells, the score MLP and the action head) gets its x-part from ONE matrix product over all
   valid frames of the batch, and its e-part from one product per episode.  Inside the recurrence

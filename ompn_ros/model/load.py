@@ -35,13 +35,14 @@ def build_stepper(
 ) -> StreamingPolicy | LSTMStreamingPolicy:
     """The streaming stepper of ``policy`` (compiled OMPN stepper, or the LSTM's stepper).
 
-    The LSTM has no compiled kernel: ``'jit'`` selects its numpy path.  ``device`` (default CPU) is
-    where the OMPN ``'torch'`` backend steps; the LSTM's stepper runs on the CPU only.
+    ``backend`` picks the OMPN stepper's kernel; the LSTM has one, torch, whatever ``backend``.
+    ``device`` (default CPU) is where the OMPN ``'torch'`` backend steps; the LSTM's stepper runs on
+    the CPU only.
     """
     if isinstance(policy, LSTMPolicy):
         if torch.device(device).type != "cpu":
             raise StreamingInputError(f"the LSTM stepper runs on the CPU only, not on {device}: use the CPU")
-        return LSTMStreamingPolicy(policy, backend="numpy" if backend == "jit" else backend)
+        return LSTMStreamingPolicy(policy, backend="torch")
     return StreamingPolicy(policy, backend=backend, device=device)
 
 

@@ -123,13 +123,16 @@ class LSTMStreamingPolicy:
     """Stateful batch-1 stepping of an :class:`LSTMPolicy` with numpy in and out.
 
     Same interface as :class:`~ompn_ros.model.streaming.StreamingPolicy` (``reset(sketch)``,
-    ``step(obs) -> StepOutput``, ``config``); torch under ``inference_mode``.  ``backend`` is
-    accepted for compatibility; only ``'torch'`` semantics exist (``'numpy'`` maps to it).
+    ``step(obs) -> StepOutput``, ``config``); torch under ``inference_mode``, its one ``backend``
+    (``'torch'``).
     """
 
     def __init__(self, policy: LSTMPolicy, backend: str = "torch") -> None:
-        if backend not in ("numpy", "torch"):
-            raise StreamingInputError(f"backend must be 'numpy' or 'torch', got {backend!r}")
+        if backend == "numpy":
+            raise StreamingInputError("the LSTM stepper has no backend 'numpy': it steps with torch, "
+                                      "backend='torch'")
+        if backend != "torch":
+            raise StreamingInputError(f"the LSTM stepper's backend is 'torch', got {backend!r}")
         self.policy = policy
         self.config = policy.config
         self.backend = backend

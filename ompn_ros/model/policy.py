@@ -136,8 +136,8 @@ class PolicyInputs:
     def register_inputs(self) -> None:
         """The sketch embedding (``sketch_mode='sum'``, else None), the ``obs_mean`` / ``obs_scale``
         buffers and, with ``config.action_norm='standard'``, the buffers ``action_mean`` (zeros) and
-        ``action_std`` (ones) of size ``action_dim`` (none otherwise, so older checkpoints keep their
-        tensor set).  A policy's ``__init__`` calls it after its layers, so parameters keep their
+        ``action_std`` (ones) of size ``action_dim`` (none otherwise: a checkpoint holds the tensors its
+        config uses).  A policy's ``__init__`` calls it after its layers, so parameters keep their
         order and initialisation."""
         config, module = self.config, cast(nn.Module, self)
         self.sketch_embedding = None

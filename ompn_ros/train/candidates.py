@@ -2,10 +2,9 @@
 
 Some initialisations find a worse segmentation than others, and which ones cannot be known before
 training.  Bags without the observation after the last action (the reader guesses row T) make this
-more likely: on Craft with the ``blank`` row T, 4 of 20 seeds ended below 85 held-out alignment
-(std 6.7 points) against 1 of 20 with complete bags (std 3.3), and the weak runs had the lowest best
-validation alignment (docs/design.md#best-of-two).  Keeping the better of two runs by that
-validation criterion avoids most of them.
+more likely: on Craft with the ``blank`` row T, more seeds ended weak than with complete bags, and
+the weak runs had the lowest best validation alignment (docs/design.md#best-of-two).  Keeping the
+better of two runs by that validation criterion avoids most of them.
 
 Layout: candidate ``k`` trains in ``OUT/candidates/<k>/`` with seed ``seed + CANDIDATE_SEED_STRIDE ·
 k`` on the split of ``seed`` (candidate 0 is exactly the single run of ``seed``).  The winner's

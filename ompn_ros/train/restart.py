@@ -1,11 +1,9 @@
 """The restart rule of :func:`ompn_ros.train.trainer.train`: a second initialisation for a weak start.
 
-Some initialisations never find the subtask structure. With a sketch, Craft training seed 2 of five
-expands its top slot at the wrong steps (for 36 % of the true boundaries the nearest one Top-K takes
-is 2 or more steps away, against 6 % for a good run) and its validation alignment never rises above
-0.62 (full) / 0.59 (partial), where the other runs stand at 0.75–0.93 by iteration 120
-(docs/design.md#restart-rule).  The run is decided early: its best validation alignment of the run comes
-at iteration 60 (full) / 80 (partial).
+Some initialisations never find the subtask structure. With a sketch, one Craft training seed of
+five expands its top slot at the wrong steps and its validation alignment stays well below the other
+runs' (docs/design.md#restart-rule).  The run is decided early: its best validation alignment comes
+early in the run.
 
 The rule: at its first evaluation at or after iteration ``restart_at``, a run whose best validation
 criterion so far is below ``restart_below`` has a *weak start*.  It trains to the end all the same,

@@ -10,9 +10,9 @@
    and container CPU sets) less the machine's one-minute load average, rounded down, at least 1.
 
 Rule 3 is deliberately conservative.  torch's intra-op threads meet at a barrier after every
-operation, so one thread that waits for a busy core stalls all of them: on a 2-core machine already
-busy with other work, 2 threads ran an iteration in 75 s against 3.75 s with 1 thread, while on idle
-cores a second thread saves at most half the time (docs/design.md#training-threads; measured by
+operation, so one thread that waits for a busy core stalls all of them: on a machine already busy
+with other work, 2 threads ran an iteration many times slower than 1 thread, while on idle cores a
+second thread saves at most half the time (docs/design.md#training-threads; measured by
 ``bench/bench_threads.py``).  ``0`` leaves torch's own default; a number is used as given.
 """
 

@@ -110,7 +110,7 @@ def register_folder(folder: str | Path) -> list[str]:
     from rosbags.typesys import get_types_from_msg
 
     root = Path(folder)
-    files = sorted(root.rglob("*.msg"))
+    files = _msg_files(root)
     if not files:
         raise TypeDefinitionError(f"types: no .msg file below '{root}' (expected <pkg>/msg/<Name>.msg)")
     types: dict[str, Any] = {}
@@ -124,6 +124,18 @@ def register_folder(folder: str | Path) -> list[str]:
                 f"types: '{file}' is not a valid .msg definition of {name}: {err}"
             ) from err
     return _register(types)
+
+
+def _msg_files(root: Path) -> list[Path]:
+    return sorted(root.rglob("*.msg"))
+
+
+def source_files(source: str) -> list[Path]:
+    """The ``.msg`` files the ``types:`` source names, as :func:`register_sources` registers them (a
+    folder's, or an installed package's ``share/<pkg>/msg``); none for a source that names neither
+    (refused in one line when one of its types is needed).  What the episode cache's key covers."""
+    root = Path(source) if Path(source).is_dir() else package_share(source)
+    return _msg_files(root) if root is not None else []
 
 
 def package_share(package: str) -> Path | None:

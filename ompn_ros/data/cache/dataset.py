@@ -1,39 +1,21 @@
 """The episode cache for a LeRobot dataset (``ompn_train --dataset DIR``).
 
 :func:`load_dataset_arrays` reads the dataset one frame file at a time
-(:class:`~ompn_ros.data.lerobot.DatasetReader`) into one cache entry (``EntryWriter``, as bags are),
-so building it holds one frame file in memory; training then reads the entry memory-mapped.  The key is
-a BLAKE2b hash of the cache format, the dataset spec and the bytes of ``meta/info.json`` and every
-frame file: a changed dataset always misses.
+(:class:`~ompn_ros.data.lerobot.DatasetReader`) into one cache entry (:class:`~.entry.EntryWriter`, as
+bags are), so building it holds one frame file in memory; training then reads the entry
+memory-mapped.  The key is :func:`~.key.dataset_key`: a changed dataset always misses.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 from pathlib import Path
 
-from ompn_ros.data.errors import EmptyEntryError
-
-from .cache import EpisodeArrays, default_cache_dir, open_hit
-from .cache_store import CACHE_FORMAT, EntryWriter
-from .lerobot import DatasetReader, DatasetSpec
-from .lerobot.layout import INFO
-
-_CHUNK = 1 << 20
-
-
-def dataset_key(reader: DatasetReader) -> str:
-    """BLAKE2b over the format version, the spec, ``meta/info.json`` and the frame files' bytes."""
-    h = hashlib.blake2b(digest_size=20)
-    doc = {"format": CACHE_FORMAT, "dataset_spec": reader.spec.to_dict()}
-    h.update(json.dumps(doc, sort_keys=True).encode())
-    for file in [reader.layout.root / INFO, *reader.layout.data_files()]:
-        h.update(f"\0{reader.layout.relative(file)}\0{file.stat().st_size}\0".encode())
-        with open(file, "rb") as fh:
-            while chunk := fh.read(_CHUNK):
-                h.update(chunk)
-    return h.hexdigest()
+from ..errors import EmptyEntryError
+from ..lerobot import DatasetReader, DatasetSpec
+from .arrays import EpisodeArrays
+from .build import default_cache_dir, open_hit
+from .entry import EntryWriter
+from .key import dataset_key
 
 
 def _summary(reader: DatasetReader, episodes: int, frames: int) -> str:
@@ -75,4 +57,4 @@ def load_dataset_arrays(root: str | Path, spec: DatasetSpec | None = None, *,
     return hit
 
 
-__all__ = ["build_dataset_entry", "dataset_key", "load_dataset_arrays"]
+__all__ = ["build_dataset_entry", "load_dataset_arrays"]

@@ -1,6 +1,6 @@
 """The episode cache's on-disk entry: a directory of uncompressed ``.npy`` files and ``index.json``.
 
-An entry holds one ``.npy`` file per array (see :class:`~ompn_ros.data.cache.EpisodeArrays`, with
+An entry holds one ``.npy`` file per array (see :class:`~.arrays.EpisodeArrays`, with
 ``obs_names``: the observation's element names, ``Episode.extras['obs_names']``, empty when the
 episodes do not name them alike) and ``index.json`` (format version, every array's file, dtype and
 shape, the reader's report).  It is
@@ -12,10 +12,10 @@ trained on; the per-episode arrays (offsets, seeds, ...) are small and read into
 files at once, so memory holds one bag's episodes at a time, never the dataset.  Entries are
 written into a temporary directory (``.<entry>.tmp-<pid>-<random>``, :mod:`ompn_ros.atomic`) and
 renamed into place, so a reader never sees half an entry; the temporary of a killed writer is removed
-by the next run that finds its process gone (:func:`remove_stale_entries`).
+by the next run that finds its process gone (:func:`ompn_ros.atomic.remove_stale_temps`).
 
 An entry defends itself (format 5): ``index.json`` holds the entry's **key** (the identity of its bags
-and reader settings, :func:`~ompn_ros.data.cache.content_key`) and a BLAKE2b checksum of every file.
+and reader settings, :func:`~.key.content_key`) and a BLAKE2b checksum of every file.
 :func:`open_entry` verifies both before anything is mapped, so garbage values, another bag's entry
 copied under this key, a truncated or edited offsets file are a :class:`CacheEntryError` (the
 caller rebuilds the entry with a note), never data trained on.  Verifying reads every byte once per
@@ -26,24 +26,20 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import shutil
-import time
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from ompn_ros.atomic import make_temp_dir, remove_stale_temps, umask_mode
-from ompn_ros.data.errors import CacheEntryError, CacheFormatError
+from ompn_ros.atomic import make_temp_dir, umask_mode
 
-from .episode import Episode
-from .npy_append import NpyAppender
+from ..episode import Episode
+from ..errors import CacheEntryError, CacheFormatError
+from .npy import NpyAppender
 
 CACHE_FORMAT = 5  # 5: + key and checksums; 4: + obs_names; 3: .npy files, memory-mapped (2: one .npz)
-LEGACY_TEMP = re.compile(r"^\.tmp_")  # temporaries of format 4 and before: no owner recorded
-LEGACY_TEMP_AGE_S = 24 * 3600  # such a temporary older than this is a killed run's
 _CHUNK = 1 << 20
 INDEX = "index.json"
 JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")  # [T + 1] extras
@@ -77,24 +73,6 @@ def _save(directory: Path, name: str, arr: np.ndarray) -> dict[str, Any]:
         raise CacheFormatError(f"array '{name}' holds Python objects; the cache stores plain arrays only")
     np.save(directory / f"{name}.npy", arr, allow_pickle=False)
     return {"file": f"{name}.npy", "dtype": arr.dtype.str, "shape": list(arr.shape)}
-
-
-def remove_stale_entries(root: Path) -> list[Path]:
-    """Delete the temporaries of killed writers in ``root``: those whose process no longer runs
-    (:func:`ompn_ros.atomic.remove_stale_temps`) and untagged ``.tmp_*`` ones of older versions not
-    touched for :data:`LEGACY_TEMP_AGE_S`.  A running writer's temporary is never touched."""
-    removed = remove_stale_temps(root)
-    if not root.is_dir():
-        return removed
-    for entry in root.iterdir():
-        try:
-            old = LEGACY_TEMP.match(entry.name) and time.time() - entry.stat().st_mtime > LEGACY_TEMP_AGE_S
-        except OSError:
-            continue
-        if old:
-            shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
-            removed.append(entry)
-    return removed
 
 
 def file_digest(path: Path) -> str:
@@ -273,5 +251,4 @@ def _extra(ep: Episode, name: str) -> Any:
 
 
 __all__ = ["CACHE_FORMAT", "EntryWriter", "common_obs_names", "file_digest",
-           "open_entry", "read_index", "remove_stale_entries",
-           "write_entry"]
+           "open_entry", "read_index", "write_entry"]

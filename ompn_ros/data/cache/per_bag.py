@@ -1,9 +1,9 @@
 """The episode cache for many bags: one entry per bag, built in parallel, reused when bags are added.
 
-:func:`load_arrays_per_bag` keeps an entry per bag under ``<cache_dir>/bags/`` (the key of
-:func:`~ompn_ros.data.cache.content_key` over that bag alone: its bytes, the reader spec,
-``on_error``), builds the missing ones over ``workers`` processes (one bag per task, each parsed as
-:func:`~ompn_ros.data.cache.load_arrays` parses one, so a process holds one bag's parse at a time:
+:func:`load_per_bag` keeps an entry per bag under ``<cache_dir>/bags/`` (the key of
+:func:`~.key.content_key` over that bag alone: its bytes, the reader spec, ``on_error``, the
+``types:`` definitions), builds the missing ones over ``workers`` processes (one bag per task, each
+parsed as :func:`~.build.load_entry` parses one, so a process holds one bag's parse at a time:
 about 1.5x the largest bag, times ``workers`` in all), then appends the per-bag entries, in bag
 order and memory-mapped, into one dataset entry ``episodes_set_<key>`` (``key``: a hash of the
 per-bag keys).  Adding bags to a dataset parses only the new ones; the assembly copies the arrays
@@ -21,12 +21,15 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from ompn_ros.data.errors import EmptyEntryError, MixedBagsError, NpyAppendError
+from ompn_ros.atomic import remove_stale_temps
 from ompn_ros.workers import die_with_parent, started_here
 
-from .cache import EpisodeArrays, build_entry, content_key, default_cache_dir, open_hit, with_notes
-from .cache_store import EntryWriter, remove_stale_entries
-from .reader import OnError, ReaderSpec, resolve_bag_paths
+from ..errors import EmptyEntryError, MixedBagsError, NpyAppendError
+from ..reader import OnError, ReaderSpec
+from .arrays import EpisodeArrays
+from .build import build_entry, open_hit, with_notes
+from .entry import EntryWriter
+from .key import content_key
 
 BAGS_DIR = "bags"
 MAX_REPORT_LINES = 40
@@ -50,7 +53,7 @@ def build_bag_entries(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError,
     how many bags were parsed; a broken entry is rebuilt with a line in ``notes``."""
     if workers < 1:
         raise ValueError(f"data.cache_workers must be at least 1 for per-bag entries, got {workers}")
-    remove_stale_entries(root / BAGS_DIR)
+    remove_stale_temps(root / BAGS_DIR)
     keys = [content_key([bag], spec, on_error) for bag in bags]
     entries = [root / BAGS_DIR / f"bag_{key}" for key in keys]
     missing = [(bag, entry, key) for bag, entry, key in zip(bags, entries, keys, strict=True)
@@ -105,15 +108,11 @@ def assemble(entries: Sequence[Path], target: Path, key: str = "") -> None:
         raise
 
 
-def load_arrays_per_bag(paths: str | Path | Sequence[str | Path], *, spec: ReaderSpec | None = None,
-                        cache_dir: str | Path | None = None, on_error: OnError = "raise",
-                        workers: int = 1) -> EpisodeArrays:
-    """Episodes of ``paths`` like :func:`~ompn_ros.data.cache.load_arrays`, through per-bag entries (see
-    the module doc); ``built`` bags are counted in the result's ``report`` header."""
-    spec = spec or ReaderSpec()
-    bags = resolve_bag_paths(paths)
-    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    remove_stale_entries(root)
+def load_per_bag(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, root: Path,
+                 workers: int = 1) -> EpisodeArrays:
+    """The episodes of ``bags`` through per-bag entries under ``root`` (see the module doc); ``built``
+    bags are counted in the result's ``report`` header."""
+    remove_stale_temps(root)
     notes: list[str] = []
     entries, built = build_bag_entries(bags, spec, on_error, root, workers, notes)
     key = hashlib.blake2b("\n".join(e.name for e in entries).encode(), digest_size=20).hexdigest()
@@ -127,4 +126,4 @@ def load_arrays_per_bag(paths: str | Path | Sequence[str | Path], *, spec: Reade
     return with_notes(hit, notes)
 
 
-__all__ = ["assemble", "build_bag_entries", "load_arrays_per_bag", "merged_report"]
+__all__ = ["assemble", "build_bag_entries", "load_per_bag", "merged_report"]

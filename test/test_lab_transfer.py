@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from test_experiments_own_data import _row
+from test_lab_own_data import _row
 
 from lab import report, report_own, transfer
 

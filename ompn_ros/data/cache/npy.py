@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ompn_ros.data.errors import NpyAppendError
+from ..errors import NpyAppendError
 
 _MAGIC = b"\x93NUMPY\x01\x00"
 _PLACEHOLDER_ROWS = 10**17  # widest row count the placeholder header leaves room for
