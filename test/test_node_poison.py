@@ -249,7 +249,7 @@ def test_reset_service_clears_the_last_stamp(ctx, ckpt: Path) -> None:
     from std_srvs.srv import Trigger
 
     response = node._on_reset(Trigger.Request(), Trigger.Response())
-    assert response.success and node.segmenter.last_stamp is None and node.segmenter.step_index == -1
+    assert response.success and node.stream.last_stamp is None and node.segmenter.step_index == -1
     node._on_raw_array(m.encode_float32_array(np.zeros(OBS_DIM)), 9_000_000_000)
     assert node.counters()["accepted"] == 2 and node.counters()["episodes"] == 2
     node.destroy_node()
