@@ -15,6 +15,10 @@ The rules, in the order a stamped observation meets them (``docs/parameters.md``
 * with ``episode_gap``, a step stamped more than that after the previous one ends the episode and
   starts the next (the bag reader's ``split: gaps``, :mod:`ompn_ros.stream.gap`), as does a silence of
   that long on the receiver's clock (:meth:`StreamRule.check_silence`);
+* unless the stamps are header stamps (:attr:`StreamLimits.header_topic`) and the receiver's clock did
+  not move with them: then the robot's clock stepped (an NTP correction), which reshapes no episode:
+  it goes on in arrival order, the step counted (``clock_steps``) and warned once
+  (:mod:`ompn_ros.data.clock_steps`, the bag reader's rule; docs/specs.md, "Clocks");
 * with ``idle_s``, still observations are held until the reader's ``split: idle`` rule decides them;
 * with a model whose ``still_tolerance`` is above 0, an observation that moved nothing since the last
   stepped one is not stepped (:mod:`ompn_ros.data.still`); steps and boundaries keep the stream's rows;
@@ -36,6 +40,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.data.clock_steps import LiveClockSteps
 from ompn_ros.data.idle import ALL_ELEMENTS, SpeedElements
 from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.data.repeats import Repeats
@@ -69,11 +74,15 @@ def classify_stamp(
 
 
 class StreamLimits:
-    """The stream parameters in seconds (as given: they appear in the warnings) and in ns (per step)."""
+    """The stream parameters in seconds (as given: they appear in the warnings) and in ns (per step).
+
+    ``header_topic``: the topic whose ``header.stamp`` stamps the observations ('' when they are
+    stamped otherwise: at reception, by the middleware, by a sim's clock); its clock's steps are told
+    from clock restarts and pauses against the receiver's clock."""
 
     def __init__(self, *, clock_jump_back: float = 1.0, max_stamp_lead: float = 0.0,
                  episode_gap: float = 0.0, idle_s: float = 0.0, idle_speed: float = 0.01,
-                 idle_elements: SpeedElements = ALL_ELEMENTS) -> None:
+                 idle_elements: SpeedElements = ALL_ELEMENTS, header_topic: str = "") -> None:
         self.clock_jump_back, self.max_stamp_lead = clock_jump_back, max_stamp_lead
         self.episode_gap, self.idle_s, self.idle_speed = episode_gap, idle_s, float(idle_speed)
         self.idle_elements = idle_elements  # the joint speed of a JointState observation, else every element
@@ -81,6 +90,7 @@ class StreamLimits:
         self.max_lead_ns = int(float(max_stamp_lead) * 1e9)
         self.gap_ns = round(float(episode_gap) * 1e9)
         self.idle_ns = round(float(idle_s) * 1e9)
+        self.header_topic = header_topic
 
     @classmethod
     def of(cls, values: Mapping[str, Any]) -> StreamLimits:
@@ -88,7 +98,8 @@ class StreamLimits:
         names = ("clock_jump_back", "max_stamp_lead", "episode_gap", "idle_s", "idle_speed")
         joint = values.get("obs_source") == "joint_state" and not values.get("observation_spec")
         elements = SpeedElements(tuple(values["joint_fields"])) if joint else ALL_ELEMENTS
-        return cls(**{name: values[name] for name in names}, idle_elements=elements)
+        return cls(**{name: values[name] for name in names}, idle_elements=elements,
+                   header_topic=layout.JOINT_STATES if joint else "")
 
 
 class StreamSink(Protocol):
@@ -137,6 +148,7 @@ class StreamRule:
         self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
         self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
         self.still: StillRuns | None = None  # the episode's still rule (the model's still_tolerance)
+        self.header_clock: LiveClockSteps | None = None  # header stamps: their clock's steps, armed by arm()
 
     @property
     def segmenter(self) -> StreamingSegmenter | None:
@@ -154,9 +166,10 @@ class StreamRule:
         self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
         self.idle = (IdleGate(limits.idle_ns, limits.idle_speed, limits.idle_elements)
                      if float(limits.idle_s) > 0 else None)
+        self.header_clock = LiveClockSteps() if limits.header_topic else None
 
     def disarm(self) -> None:
-        self.silence = self.idle = None
+        self.silence = self.idle = self.header_clock = None
 
     def receive_stamp(self, now_ns: int) -> int:
         """A stamp from the receiver's clock, kept strictly increasing (a clock that stands still, e.g.
@@ -192,10 +205,11 @@ class StreamRule:
         return self.step_index >= 0 and not self.closed
 
     def _stamp_usable(self, stamp_ns: int, now_ns: int | None) -> bool:
-        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
+        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned), a step of
+        the header clock changes nothing but the stamp the next ones follow (counted, warned)."""
         limits = self.limits
         if now_ns is None:
-            now_ns = self.clock() if limits.max_lead_ns > 0 else 0
+            now_ns = self.clock() if limits.max_lead_ns > 0 or self.header_clock is not None else 0
         verdict = classify_stamp(
             stamp_ns, self.last_stamp, now_ns, jump_back_ns=limits.jump_back_ns,
             max_lead_ns=limits.max_lead_ns
@@ -204,6 +218,10 @@ class StreamRule:
             self.reject(FutureStamp(f"stamp {stamp_ns} ns is more than max_stamp_lead="
                                     f"{limits.max_stamp_lead} s ahead of the node's clock"))
             return False
+        stepped = 0 if self.header_clock is None else self.header_clock.step(stamp_ns, now_ns)
+        gap = bool(limits.gap_ns) and gap_ends_episode(stamp_ns, self.last_stamp, limits.gap_ns)
+        if stepped and (verdict == "jump_back" or gap):
+            return self._header_stepped(stepped)
         if verdict == "jump_back":
             self.events["clock_jumps"] += 1
             self.sink.warning(
@@ -211,8 +229,20 @@ class StreamRule:
                 f"clock_jump_back={limits.clock_jump_back} s): starting a new episode"
             )
             return self.restart_episode()
-        if limits.gap_ns and gap_ends_episode(stamp_ns, self.last_stamp, limits.gap_ns):  # off: one test
+        if gap:
             return self.end_at_pause()
+        return True
+
+    def _header_stepped(self, size: int) -> bool:
+        """The header clock stepped by ``size`` ns and the receiver's did not: no cut, no reorder; the
+        next stamps follow this one (counted and warned, one line per step)."""
+        self.events["clock_steps"] += 1
+        self.sink.warning(
+            f"the header clock of '{self.limits.header_topic}' steps {'back' if size < 0 else 'forward'} "
+            f"{abs(size) / 1e9:.3f} s and the node's clock does not (an NTP correction on the robot?): the "
+            "episode goes on in arrival order; a robot clock kept in step (chrony) avoids it"
+        )
+        self.last_stamp = None
         return True
 
     def _step(self, seg: StreamingSegmenter, data: Any, stamp_ns: int | None) -> None:
