@@ -4,18 +4,21 @@ The stream rule (:mod:`ompn_ros.stream`: stamps, episode cuts, markers) drives t
 ``ompn_node`` and for the offline replay (``ompn_segment``) alike, so live and offline segmentation
 cannot drift apart.
 
-Input validation happens *before* the model is touched: a rejected observation raises a subclass
-of :class:`InvalidInput` and leaves the ordered memory, the step counter, the detector and the
-last stamp exactly as they were (the next valid observation gives the same output as if the bad
-one had never arrived).  Rejections are counted by reason in :attr:`StreamingSegmenter.rejected`.
+One entry point, :meth:`StreamingSegmenter.step`, validates, steps and detects.  Validation happens
+*before* the model is touched: a rejected observation raises a subclass of :class:`InvalidInput` and
+leaves the ordered memory, the step counter and the detector exactly as they were (the next valid
+observation gives the same output as if the bad one had never arrived).  Rejections are counted by
+reason in :attr:`StreamingSegmenter.rejected`.  The segmenter keeps no stamps: the caller names the
+stamp an observation must follow (the stream rule owns the episode and its last stamp).
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, overload
 
 import numpy as np
 from numba import njit
@@ -122,7 +125,6 @@ class StreamingSegmenter:
         self.rejected: Counter[str] = Counter({reason: 0 for reason in REJECT_REASONS})
         self.accepted = 0
         self.episodes = 0
-        self._last_stamp: int | None = None
         self._step_index = -1
         self._sketch: np.ndarray | None = None
         self._ready = False
@@ -150,12 +152,14 @@ class StreamingSegmenter:
     def sketch(self) -> np.ndarray | None:
         return self._sketch
 
-    def reset(self, sketch: np.ndarray | None = None) -> None:
-        """Start a new episode: clear the memory (initialised from ``sketch`` if the model uses one).
+    @property
+    def sketch_vocab(self) -> int | None:
+        """The model's sketch vocabulary (``None``: not limited)."""
+        vocab = getattr(self.policy.config, "sketch_vocab", None)
+        return None if vocab is None else int(vocab)
 
-        Stamps of the new episode are checked against the previous episode's too (a stream never
-        goes back in time); call :meth:`forget_stamps` to allow that (e.g. replaying several bags).
-        """
+    def reset(self, sketch: np.ndarray | None = None) -> None:
+        """Start a new episode: clear the memory (initialised from ``sketch`` if the model uses one)."""
         sketch_arr = self._validate_sketch(sketch)
         self.policy.reset(sketch_arr)
         if self._detector_changed:
@@ -167,51 +171,37 @@ class StreamingSegmenter:
         self._ready = True
         self.episodes += 1
 
-    @property
-    def last_stamp(self) -> int | None:
-        """Stamp of the last accepted step (``None`` before the first or after :meth:`forget_stamps`)."""
-        return self._last_stamp
-
     def stop(self) -> None:
         """Leave the current episode without starting another: steps are rejected as ``no_sketch``
         until the next :meth:`reset` (an episode start whose sketch was refused)."""
         self._ready = False
         self._step_index = -1
 
-    def forget_stamps(self) -> None:
-        """Accept any stamp on the next step (used between independent recordings)."""
-        self._last_stamp = None
+    @overload
+    def step(self, obs: Any, stamp_ns: int | None = None, *, after_ns: int | None = None,
+             hold: None = None) -> SegmenterOutput: ...
 
-    def validate(self, obs: Any, stamp_ns: int | None = None) -> np.ndarray:
-        """Return ``obs`` as float32 ``[obs_dim]`` or raise an :class:`InvalidInput` subclass."""
-        if not self._ready:
-            raise MissingSketch("no episode started: the model needs a sketch (reset(sketch)) first")
-        if self.detector.closed:
-            raise EpisodeClosed("the episode was ended (end_episode); reset() starts the next one")
-        arr = validate_observation(obs, self.obs_dim, _all_finite)
-        if stamp_ns is not None and self._last_stamp is not None and int(stamp_ns) <= self._last_stamp:
-            raise OutOfOrderStamp(
-                f"observation stamp {int(stamp_ns)} ns is not after the previous step's {self._last_stamp} ns"
-            )
-        return arr
+    @overload
+    def step(self, obs: Any, stamp_ns: int | None = None, *, after_ns: int | None = None,
+             hold: Callable[[np.ndarray, int], bool]) -> SegmenterOutput | None: ...
 
-    def step(self, obs: Any, stamp_ns: int | None = None) -> SegmenterOutput:
-        """Validate and consume one observation; raises :class:`InvalidInput` without side effects."""
-        return self.step_checked(self.checked(obs, stamp_ns), stamp_ns)
+    def step(self, obs: Any, stamp_ns: int | None = None, *, after_ns: int | None = None,
+             hold: Callable[[np.ndarray, int], bool] | None = None) -> SegmenterOutput | None:
+        """Validate and consume one observation: the policy's step and the detector's update.
 
-    def checked(self, obs: Any, stamp_ns: int | None = None) -> np.ndarray:
-        """:meth:`validate`, a rejection counted by its reason (then raised)."""
+        ``after_ns``: the stamp ``stamp_ns`` must be later than (the previous step's; ``None``: any).
+        ``hold(observation, stamp)``: asked with the validated observation whether it is stepped;
+        False returns ``None`` without a step (the still rule, :mod:`ompn_ros.data.cuts.still`).  An
+        invalid input raises its :class:`InvalidInput`, counted by reason, without side effects."""
         try:
-            return self.validate(obs, stamp_ns)
+            arr = self._validate(obs, stamp_ns, after_ns)
         except InvalidInput as exc:
             self.rejected[exc.reason] += 1
             raise
-
-    def step_checked(self, arr: np.ndarray, stamp_ns: int | None = None) -> SegmenterOutput:
-        """Consume an observation :meth:`checked` has just returned (same stamp, nothing in between)."""
+        stamp = 0 if stamp_ns is None else int(stamp_ns)
+        if hold is not None and not hold(arr, stamp):
+            return None
         out = self._step_policy(arr)
-        if stamp_ns is not None:
-            self._last_stamp = int(stamp_ns)
         self._step_index += 1
         self.accepted += 1
         p_hat = np.asarray(out.p_hat)
@@ -219,8 +209,21 @@ class StreamingSegmenter:
         level = expansion_level(p_hat)
         if isinstance(self.detector, FedByHead):  # the head reads the whole output, not the score
             self.detector.feed(step_outputs(out))
-        boundary = self.detector.update(score, level, 0 if stamp_ns is None else int(stamp_ns))
+        boundary = self.detector.update(score, level, stamp)
         return SegmenterOutput(out, boundary, self._step_index, score, level)
+
+    def _validate(self, obs: Any, stamp_ns: int | None, after_ns: int | None) -> np.ndarray:
+        """``obs`` as float32 ``[obs_dim]`` (as it is when it already is one), or an :class:`InvalidInput`."""
+        if not self._ready:
+            raise MissingSketch("no episode started: the model needs a sketch (reset(sketch)) first")
+        if self.detector.closed:
+            raise EpisodeClosed("the episode was ended (end_episode); reset() starts the next one")
+        arr = validate_observation(obs, self.obs_dim, _all_finite)
+        if stamp_ns is not None and after_ns is not None and int(stamp_ns) <= after_ns:
+            raise OutOfOrderStamp(
+                f"observation stamp {int(stamp_ns)} ns is not after the previous step's {after_ns} ns"
+            )
+        return arr
 
     def end_episode(self, last_step: int | None = None) -> list[BoundaryEvent]:
         """Close the current episode: the events that close it, the ``final`` one last (the last
@@ -266,8 +269,7 @@ class StreamingSegmenter:
             return None
         if mode == "none":
             return None  # a sketch may be published, but this model ignores it
-        vocab = getattr(self.policy.config, "sketch_vocab", None)
-        return validate_sketch(sketch, None if vocab is None else int(vocab))
+        return validate_sketch(sketch, self.sketch_vocab)
 
 
 @dataclass

@@ -98,7 +98,6 @@ def recorded(tmp_path_factory: pytest.TempPathFactory):
     seg = _segmenter(episodes[0].observations.shape[1], high)
     results = []
     for ep, st in zip(episodes, stamps):
-        seg.forget_stamps()
         results.append(replay_episode(seg, ep, include_done_step=True, stamps_ns=st))
     assert sum(len(r.boundaries) for r in results) > len(results)  # more than the final boundaries
     return root, bag, episodes, stamps, results

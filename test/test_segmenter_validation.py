@@ -103,7 +103,7 @@ def test_bad_input_raises_named_error_and_leaves_memory_untouched(obs, stamp, er
         if i == 1:
             memory_before = dirty.policy.memory.copy()
             with pytest.raises(error) as info:
-                dirty.step(obs, stamp_ns=stamp)
+                dirty.step(obs, stamp_ns=stamp, after_ns=10)  # the previous step's stamp
             assert isinstance(info.value, InvalidInput) and info.value.reason == reason
             np.testing.assert_array_equal(dirty.policy.memory, memory_before)
             assert dirty.step_index == 0
@@ -117,13 +117,24 @@ def test_bad_input_raises_named_error_and_leaves_memory_untouched(obs, stamp, er
 
 def test_contiguous_float32_input_is_used_as_is_and_other_input_converted() -> None:
     seg = make_segmenter()
+    stepped: list[np.ndarray] = []
+
+    def held(arr: np.ndarray, stamp: int) -> bool:  # what step() hands on, seen through its hold
+        stepped.append(arr)
+        return False
+
+    def validated(obs: object) -> np.ndarray:
+        assert seg.step(obs, hold=held) is None
+        return stepped[-1]
+
     flat = np.arange(4, dtype=np.float32)
-    assert seg.validate(flat) is flat  # the node's parsed messages: no copy, no conversion
+    assert validated(flat) is flat  # the node's parsed messages: no copy, no conversion
     column = np.arange(8, dtype=np.float64).reshape(4, 2)[:, 0]  # strided float64
-    out = seg.validate(column)
+    out = validated(column)
     assert out.dtype == np.float32 and out.flags.c_contiguous
     np.testing.assert_array_equal(out, [0, 2, 4, 6])
-    np.testing.assert_array_equal(seg.validate([[1, 2], [3, 4]]), [1, 2, 3, 4])
+    np.testing.assert_array_equal(validated([[1, 2], [3, 4]]), [1, 2, 3, 4])
+    assert seg.step_index == -1 and seg.accepted == 0  # held: no step
 
 
 def test_error_messages_name_the_problem() -> None:
@@ -134,19 +145,17 @@ def test_error_messages_name_the_problem() -> None:
         seg.step([0.0, np.nan, 0.0, 0.0])
     seg.step(np.zeros(4), stamp_ns=100)
     with pytest.raises(OutOfOrderStamp, match=r"99 ns.*100 ns"):
-        seg.step(np.zeros(4), stamp_ns=99)
+        seg.step(np.zeros(4), stamp_ns=99, after_ns=100)
 
 
-def test_stamps_checked_across_episodes_until_forgotten() -> None:
-    seg = make_segmenter()
+def test_stamps_checked_against_the_stamp_the_caller_names() -> None:
+    seg = make_segmenter()  # the segmenter keeps no stamp: the stream rule owns the episode's last one
     seg.step(np.zeros(4), stamp_ns=100)
-    seg.reset()
     with pytest.raises(OutOfOrderStamp):
-        seg.step(np.zeros(4), stamp_ns=50)
-    seg.forget_stamps()
-    assert seg.step(np.zeros(4), stamp_ns=50).step_index == 0
+        seg.step(np.zeros(4), stamp_ns=50, after_ns=100)
+    assert seg.step(np.zeros(4), stamp_ns=50).step_index == 1
     # unstamped steps are always accepted
-    assert seg.step(np.zeros(4)).step_index == 1
+    assert seg.step(np.zeros(4), after_ns=100).step_index == 2
 
 
 def test_sketch_is_validated_against_the_model() -> None:

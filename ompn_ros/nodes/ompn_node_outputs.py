@@ -38,7 +38,7 @@ LEVEL_OK, LEVEL_WARN = 0, 1
 EVENT_COUNTERS = (
     "episodes", "episode_starts", "episodes_ended", "episode_gaps", "markers", "markers_lost",
     "messages_lost", "boundaries", "clock_jumps", "clock_jumps_forward", "clock_stalls", "clock_negative",
-    "bad_end_markers", "qos_incompatible", "messages_missed",
+    "bad_end_markers", "qos_incompatible", "messages_missed", "clock_steps",
 )  # fmt: skip
 """The event counters on ``/diagnostics``, in this order (:meth:`NodeOutputs.counters`)."""
 
@@ -160,6 +160,7 @@ class NodeOutputs(LifecycleNode):
         topics, reported by the middleware), messages_missed (input messages a publisher sent that the
         node never received: gaps in its sequence numbers, :mod:`ompn_ros.stream.delivery`),
         boundaries published, clock_jumps (input stamps back by more than ``clock_jump_back``),
+        clock_steps (steps of the robot's header clock that cut nothing, docs/specs.md "Clocks"),
         clock_jumps_forward (``/clock`` ahead by more than ``clock_jump_forward``), clock_stalls (``/clock``
         stood still for ``clock_stall``), clock_negative (negative ``/clock`` times dropped),
         bad_end_markers, qos_incompatible (and duplicate_names on /diagnostics); with ``observation_spec``

@@ -65,17 +65,22 @@ def replay_stream(
     stamps_ns: Sequence[int],
     limits: StreamLimits,
     sketch: np.ndarray | None = None,
+    receive_ns: Sequence[int] | None = None,
 ) -> StreamRecord:
     """Replay a recorded stream without markers, stamps as recorded: the steps and boundaries the node
-    publishes for it (its clock unknown, so no stamp counts as from the future).  The last episode
-    stays open, as in the node until a marker, a pause or a reset ends it."""
+    publishes for it.  ``receive_ns``: the receiver's clock at each observation (a bag's log stamps
+    beside header stamps), as the node reads it: it tells a step of the header clock from a pause or
+    a restart (``limits.header_topic``) and is what ``max_stamp_lead`` is checked against; without
+    it the clock is unknown (no stamp counts as from the future, no clock step is seen).  The last
+    episode stays open, as in the node until a marker, a pause or a reset ends it."""
     record = StreamRecord()
     rule = StreamRule(record, lambda: 0, limits)
     rule.segmenter, rule.default_sketch = segmenter, sketch
     rule.arm()
     rule.start_episode(sketch)
-    for obs, stamp in zip(observations, stamps_ns, strict=True):
-        rule.observe(obs, int(stamp), 0)
+    receive = [0] * len(stamps_ns) if receive_ns is None else receive_ns
+    for obs, stamp, now in zip(observations, stamps_ns, receive, strict=True):
+        rule.observe(obs, int(stamp), int(now))
     record.events = dict(rule.events)
     return record
 

@@ -15,6 +15,10 @@ The rules, in the order a stamped observation meets them (``docs/parameters.md``
 * with ``episode_gap``, a step stamped more than that after the previous one ends the episode and
   starts the next (the bag reader's ``split: gaps``, :mod:`ompn_ros.data.cuts.gap`), as does a silence of
   that long on the receiver's clock (:meth:`StreamRule.check_silence`);
+* unless the stamps are header stamps (:attr:`StreamLimits.header_topic`) and the receiver's clock did
+  not move with them: then the robot's clock stepped (an NTP correction), which reshapes no episode:
+  it goes on in arrival order, the step counted (``clock_steps``) and warned once
+  (:mod:`ompn_ros.data.clock_steps`, the bag reader's rule; docs/specs.md, "Clocks");
 * with ``idle_s``, idle observations are held until the reader's ``split: idle`` rule decides them;
 * with a model whose ``still_tolerance`` is above 0, an observation that moved nothing since the last
   stepped one is not stepped (:mod:`ompn_ros.data.cuts.still`); steps and boundaries keep the stream's rows;
@@ -36,6 +40,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from ompn_ros import layout
+from ompn_ros.data.clock_steps import LiveClockSteps
 from ompn_ros.data.cuts import (
     ALL_ELEMENTS,
     IdleGate,
@@ -75,11 +80,15 @@ def classify_stamp(
 
 
 class StreamLimits:
-    """The stream parameters in seconds (as given: they appear in the warnings) and in ns (per step)."""
+    """The stream parameters in seconds (as given: they appear in the warnings) and in ns (per step).
+
+    ``header_topic``: the topic whose ``header.stamp`` stamps the observations ('' when they are
+    stamped otherwise: at reception, by the middleware, by a sim's clock); its clock's steps are told
+    from clock restarts and pauses against the receiver's clock."""
 
     def __init__(self, *, clock_jump_back: float = 1.0, max_stamp_lead: float = 0.0,
                  episode_gap: float = 0.0, idle_s: float = 0.0, idle_speed: float = 0.01,
-                 idle_elements: SpeedElements = ALL_ELEMENTS) -> None:
+                 idle_elements: SpeedElements = ALL_ELEMENTS, header_topic: str = "") -> None:
         self.clock_jump_back, self.max_stamp_lead = clock_jump_back, max_stamp_lead
         self.episode_gap, self.idle_s, self.idle_speed = episode_gap, idle_s, float(idle_speed)
         self.idle_elements = idle_elements  # the joint speed of a JointState observation, else every element
@@ -87,6 +96,7 @@ class StreamLimits:
         self.max_lead_ns = int(float(max_stamp_lead) * 1e9)
         self.gap_ns = round(float(episode_gap) * 1e9)
         self.idle_ns = round(float(idle_s) * 1e9)
+        self.header_topic = header_topic
 
     @classmethod
     def of(cls, values: Mapping[str, Any]) -> StreamLimits:
@@ -94,7 +104,8 @@ class StreamLimits:
         names = ("clock_jump_back", "max_stamp_lead", "episode_gap", "idle_s", "idle_speed")
         joint = values.get("obs_source") == "joint_state" and not values.get("observation_spec")
         elements = SpeedElements(tuple(values["joint_fields"])) if joint else ALL_ELEMENTS
-        return cls(**{name: values[name] for name in names}, idle_elements=elements)
+        return cls(**{name: values[name] for name in names}, idle_elements=elements,
+                   header_topic=layout.JOINT_STATES if joint else "")
 
 
 class StreamSink(Protocol):
@@ -119,26 +130,41 @@ class StreamSink(Protocol):
 class StreamRule:
     """The stamp and episode rules over one segmenter, with the counters they keep (:attr:`events`).
 
-    ``clock`` gives the receiver's clock in ns (0: unknown, the future check is off).  The segmenter
-    is set once the model is loaded (:attr:`segmenter`); every entry point but :meth:`receive_stamp`
-    and :meth:`start_episode` expects it.
+    The rule owns the episode: whether one is open (:attr:`episode_open`), the index of its last step,
+    the last stamp stepped, the still runs and the mapping of steps to the stream's rows; the segmenter
+    validates, steps and detects (:meth:`StreamingSegmenter.step`).  ``clock`` gives the receiver's
+    clock in ns (0: unknown, the future check is off).  The segmenter is set once the model is loaded
+    (:attr:`segmenter`); every entry point but :meth:`receive_stamp` and :meth:`start_episode` expects it.
     """
 
     def __init__(self, sink: StreamSink, clock: Callable[[], int],
                  limits: StreamLimits | None = None) -> None:
         self.sink, self.clock = sink, clock
         self.limits = limits or StreamLimits()
-        self.segmenter: StreamingSegmenter | None = None
+        self._segmenter: StreamingSegmenter | None = None
         self.events: Counter[str] = Counter()
         self.repeats = Repeats()  # messages a driver sent twice: one step (the reader's rule)
         self.default_sketch: np.ndarray | None = None
         self.latest_sketch: np.ndarray | None = None
         self.episode_sketch: np.ndarray | None = None
-        self.last_stamp_ns = 0  # of the last accepted step (0: none in this episode, or no stamp)
+        self.last_stamp: int | None = None  # of the last stamped step of this episode (None: none yet)
+        self.step_index = -1  # of the episode's last step (-1: none yet)
+        self.closed = False  # the episode was closed (close_episode); the next starts it again
         self.last_receive_ns = 0  # of receive_stamp()
         self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
         self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
         self.still: StillRuns | None = None  # the episode's still rule (the model's still_tolerance)
+        self.header_clock: LiveClockSteps | None = None  # header stamps: their clock's steps, armed by arm()
+
+    @property
+    def segmenter(self) -> StreamingSegmenter | None:
+        """The model's segmenter (``None`` until one is loaded); a new one starts with no step."""
+        return self._segmenter
+
+    @segmenter.setter
+    def segmenter(self, segmenter: StreamingSegmenter | None) -> None:
+        self._segmenter = segmenter
+        self.last_stamp, self.step_index, self.closed, self.still = None, -1, False, None
 
     def arm(self) -> None:
         """Start the pause and idle rules the limits ask for (the node: on activation)."""
@@ -146,9 +172,10 @@ class StreamRule:
         self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
         self.idle = (IdleGate(limits.idle_ns, limits.idle_speed, limits.idle_elements)
                      if float(limits.idle_s) > 0 else None)
+        self.header_clock = LiveClockSteps() if limits.header_topic else None
 
     def disarm(self) -> None:
-        self.silence = self.idle = None
+        self.silence = self.idle = self.header_clock = None
 
     def receive_stamp(self, now_ns: int) -> int:
         """A stamp from the receiver's clock, kept strictly increasing (a clock that stands still, e.g.
@@ -165,7 +192,7 @@ class StreamRule:
         it already), held by the idle rule or stepped, its outputs given to the sink."""
         seg = self.segmenter
         assert seg is not None
-        if stamp_ns is not None and not self._stamp_usable(seg, stamp_ns, now_ns):
+        if stamp_ns is not None and not self._stamp_usable(stamp_ns, now_ns):
             return
         if self.idle is not None and stamp_ns is not None:
             self._idle_decided(self.idle.push(np.array(data, dtype=np.float32), stamp_ns))
@@ -178,50 +205,67 @@ class StreamRule:
         self.segmenter.count_rejection(error)
         self.sink.skipped(error, False)
 
-    def _stamp_usable(self, seg: StreamingSegmenter, stamp_ns: int, now_ns: int | None) -> bool:
-        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned)."""
+    @property
+    def episode_open(self) -> bool:
+        """An episode has a step and was not closed yet (a pause, a marker or a restart closes it)."""
+        return self.step_index >= 0 and not self.closed
+
+    def _stamp_usable(self, stamp_ns: int, now_ns: int | None) -> bool:
+        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned), a step of
+        the header clock changes nothing but the stamp the next ones follow (counted, warned)."""
         limits = self.limits
         if now_ns is None:
-            now_ns = self.clock() if limits.max_lead_ns > 0 else 0
+            now_ns = self.clock() if limits.max_lead_ns > 0 or self.header_clock is not None else 0
         verdict = classify_stamp(
-            stamp_ns, seg.last_stamp, now_ns, jump_back_ns=limits.jump_back_ns, max_lead_ns=limits.max_lead_ns
+            stamp_ns, self.last_stamp, now_ns, jump_back_ns=limits.jump_back_ns,
+            max_lead_ns=limits.max_lead_ns
         )
         if verdict == "future":
             self.reject(FutureStamp(f"stamp {stamp_ns} ns is more than max_stamp_lead="
                                     f"{limits.max_stamp_lead} s ahead of the node's clock"))
             return False
+        stepped = 0 if self.header_clock is None else self.header_clock.step(stamp_ns, now_ns)
+        gap = bool(limits.gap_ns) and gap_ends_episode(stamp_ns, self.last_stamp, limits.gap_ns)
+        if stepped and (verdict == "jump_back" or gap):
+            return self._header_stepped(stepped)
         if verdict == "jump_back":
             self.events["clock_jumps"] += 1
             self.sink.warning(
-                f"input clock jumped back from {seg.last_stamp} to {stamp_ns} ns (more than "
+                f"input clock jumped back from {self.last_stamp} to {stamp_ns} ns (more than "
                 f"clock_jump_back={limits.clock_jump_back} s): starting a new episode"
             )
             return self.restart_episode()
-        if limits.gap_ns and gap_ends_episode(stamp_ns, seg.last_stamp, limits.gap_ns):  # off: one test
+        if gap:
             return self.end_at_pause()
         return True
 
+    def _header_stepped(self, size: int) -> bool:
+        """The header clock stepped by ``size`` ns and the receiver's did not: no cut, no reorder; the
+        next stamps follow this one (counted and warned, one line per step)."""
+        self.events["clock_steps"] += 1
+        self.sink.warning(
+            f"the header clock of '{self.limits.header_topic}' steps {'back' if size < 0 else 'forward'} "
+            f"{abs(size) / 1e9:.3f} s and the node's clock does not (an NTP correction on the robot?): the "
+            "episode goes on in arrival order; a robot clock kept in step (chrony) avoids it"
+        )
+        self.last_stamp = None
+        return True
+
     def _step(self, seg: StreamingSegmenter, data: Any, stamp_ns: int | None) -> None:
+        packed = isinstance(data, array.array) and data.typecode == "f"
+        obs = np.frombuffer(data, dtype=np.float32) if packed else data
+        runs = self._runs(seg)  # still_tolerance: a still observation joins the open run, no step
         try:
-            obs = (
-                np.frombuffer(data, dtype=np.float32)
-                if isinstance(data, array.array) and data.typecode == "f"
-                else data
-            )
-            runs = self._runs(seg)
-            if runs is None:
-                out = seg.step(obs, stamp_ns)
-            else:  # still_tolerance: a still observation joins the open run, no step
-                stepped = runs.apply(seg.checked(obs, stamp_ns), 0 if stamp_ns is None else int(stamp_ns),
-                                     lambda arr: seg.step_checked(arr, stamp_ns))
-                if stepped is None:
-                    self.events["still_observations"] += 1
-                    return
-                out = stepped
+            out = seg.step(obs, stamp_ns, after_ns=self.last_stamp, hold=None if runs is None else runs.push)
         except InvalidInput as exc:
             self.sink.skipped(exc, True)
             return
-        self.last_stamp_ns = 0 if stamp_ns is None else int(stamp_ns)
+        if out is None:
+            self.events["still_observations"] += 1
+            return
+        if stamp_ns is not None:
+            self.last_stamp = int(stamp_ns)
+        self.step_index = out.step_index
         if out.step_index == 0:
             self.events["episodes"] += 1
         if runs is not None:  # the rows and stamps of the recorded stream
@@ -229,7 +273,7 @@ class StreamRule:
         # The boundary event goes out first: it is the latency-critical product of the node.
         if out.boundary is not None:
             self.emit_boundary(out.boundary, log=False)
-        self.sink.step_out(out, self.last_stamp_ns, self.events["episodes"])
+        self.sink.step_out(out, 0 if stamp_ns is None else int(stamp_ns), self.events["episodes"])
 
     def _runs(self, seg: StreamingSegmenter) -> StillRuns | None:
         """The episode's still rule when the model has a ``still_tolerance`` (:func:`still_runs`)."""
@@ -260,15 +304,15 @@ class StreamRule:
                 self.start_episode(self.episode_sketch, count_bad=False)
             if x is not None:
                 self._step(seg, x, stamp)
-            if kind == "end" and seg.step_index >= 0 and not seg.detector.closed:
+            if kind == "end" and self.episode_open:
                 # the final observation (row T) is the last one given to the segmenter
-                final = seg.step_index if self.still is None else self.still.rows - 1
+                final = self.step_index if self.still is None else self.still.rows - 1
                 held = self.idle.decided if self.idle is not None else None
                 self.close_episode(final, None if held is None else (final + held[0], held[1]))
 
     def emit_boundary(self, event: BoundaryEvent, decided_ns: int | None = None, log: bool = True) -> None:
         """Give ``event`` to the sink, decided at ``decided_ns`` (default: the last step's stamp)."""
-        decided = self.last_stamp_ns if decided_ns is None else decided_ns
+        decided = (self.last_stamp or 0) if decided_ns is None else decided_ns
         self.sink.boundary_out(event, decided, self.events["episodes"], log)
         self.events["boundaries"] += 1
 
@@ -282,7 +326,7 @@ class StreamRule:
         try:
             self.begin_episode(sketch)
         except SketchError as exc:
-            seg.stop()
+            self._stop(seg)
             if count_bad:
                 seg.count_rejection(BadSketch(str(exc)))
             self.sink.warning(f"episode start rejected: {exc}; waiting for the next valid start")
@@ -297,11 +341,15 @@ class StreamRule:
         if sketch is None or sketch.size == 0:
             sketch = self.latest_sketch if self.latest_sketch is not None else self.default_sketch
         seg.reset(sketch)
-        seg.forget_stamps()
         self.still = None
         self.last_receive_ns = 0
-        self.last_stamp_ns = 0
+        self.last_stamp, self.step_index, self.closed = None, -1, False
         self.episode_sketch = sketch
+
+    def _stop(self, seg: StreamingSegmenter) -> None:
+        """An episode start was refused: no steps until the next valid start."""
+        seg.stop()
+        self.step_index = -1
 
     def close_episode(self, steps: int | None, decided: tuple[int, int] | None = None) -> None:
         """Close the episode at ``steps - 1`` (the marker's count; the last step seen if unknown): the
@@ -312,7 +360,7 @@ class StreamRule:
         seg = self.segmenter
         assert seg is not None
         runs = self.still
-        last = seg.step_index if runs is None else runs.rows - 1
+        last = self.step_index if runs is None else runs.rows - 1
         if steps is not None and steps < last:  # fewer steps than observed: the marker is wrong
             self.events["bad_end_markers"] += 1
             self.sink.warning(
@@ -323,6 +371,7 @@ class StreamRule:
         if runs is not None and steps is not None:  # the marker counts rows; the detector, steps
             steps = runs.steps_before(steps)
         closing = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
+        self.closed = True
         self.events["episodes_ended"] += 1
         for event in closing:
             mapped = self._event_rows(event, last_row)
@@ -333,9 +382,7 @@ class StreamRule:
 
     def restart_episode(self) -> bool:
         """A clock restart: close the open episode, start the next (counted); False if it cannot start."""
-        seg = self.segmenter
-        assert seg is not None
-        if seg.detector.steps_seen > 0 and not seg.detector.closed:
+        if self.episode_open:
             self.close_episode(None)
         started = self.start_episode(self.episode_sketch, count_bad=False)
         self.events["episode_starts"] += int(started)
@@ -343,9 +390,7 @@ class StreamRule:
 
     def end_at_pause(self) -> bool:
         """``episode_gap``: close the open episode as an end marker would and start the next one."""
-        seg = self.segmenter
-        assert seg is not None
-        if seg.detector.steps_seen > 0 and not seg.detector.closed:
+        if self.episode_open:
             self.close_episode(None)
         self.events["episode_gaps"] += 1
         if self.silence is not None:
@@ -359,8 +404,7 @@ class StreamRule:
         seg, watch = self.segmenter, self.silence
         if seg is None or watch is None:
             return
-        open_episode = seg.ready and seg.step_index >= 0 and not seg.detector.closed
-        if watch.quiet(self.clock(), seg.step_index, open_episode):
+        if watch.quiet(self.clock(), self.step_index, seg.ready and self.episode_open):
             self.end_at_pause()
 
     # --- markers, sketches, resets ---------------------------------------------------------------
@@ -382,7 +426,7 @@ class StreamRule:
             self.start_marker(values.get(layout.KEY_SKETCH, ""))
         elif kind == layout.EPISODE_END and seg.ready:
             steps = _int_or_none(values.get(layout.KEY_STEPS, ""))
-            if not seg.detector.closed:
+            if not self.closed:
                 self.close_episode(steps)
             self.start_episode(self.episode_sketch, count_bad=False)  # steps before the next start
 
@@ -390,13 +434,12 @@ class StreamRule:
         """A 'start' marker whose sketch value is ``text`` ('' = none: the latest sketch or the default)."""
         seg = self.segmenter
         assert seg is not None
-        vocab = getattr(seg.policy.config, "sketch_vocab", None) if seg.needs_sketch else None
         try:
-            sketch = parse_sketch_value(text, None if vocab is None else int(vocab))
+            sketch = parse_sketch_value(text, seg.sketch_vocab if seg.needs_sketch else None)
         except SketchError as exc:
             seg.count_rejection(BadSketch(str(exc)))
             if seg.needs_sketch:
-                seg.stop()
+                self._stop(seg)
                 self.sink.warning(f"episode start rejected: marker {exc}; waiting for the next valid start")
                 return
             sketch = None  # this model ignores sketches: the episode starts anyway
@@ -410,15 +453,14 @@ class StreamRule:
         assert seg is not None
         sketch = np.asarray(values, dtype=np.int64)
         if seg.needs_sketch:
-            vocab = getattr(seg.policy.config, "sketch_vocab", None)
             try:
-                sketch = validate_sketch(sketch, None if vocab is None else int(vocab))
+                sketch = validate_sketch(sketch, seg.sketch_vocab)
             except SketchError as exc:
                 seg.count_rejection(BadSketch(str(exc)))
                 self.sink.warn_throttled(f"sketch message rejected: {exc}")
                 return
         self.latest_sketch = sketch
-        if not seg.ready or seg.step_index < 0:  # no step yet: the episode starts with this sketch
+        if not seg.ready or self.step_index < 0:  # no step yet: the episode starts with this sketch
             self.start_episode(sketch)
 
     def reset(self) -> bool:

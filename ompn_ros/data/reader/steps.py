@@ -20,7 +20,8 @@ A step is a change of the log − header lag of at least :data:`STEP_NS` that la
 the :data:`SETTLE` messages after it differs from that of the ones before by as much: a message
 delivered late is no step), or a stamp at least :data:`STEP_NS` earlier than the one recorded before
 it on the same topic.  The clock that moved is the one whose interval differs from its topic's
-period; a pause shows on both clocks alike.  A forward jump of the log clock in a bag without header
+period; a pause shows on both clocks alike (:mod:`ompn_ros.data.clock_steps`, the rule the node
+applies live too).  A forward jump of the log clock in a bag without header
 stamps looks exactly like a pause: it is read as one.  Cost: one pass over the message indexes
 (16 bytes a message) and O(N) per topic.
 """
@@ -36,12 +37,11 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
+from ..clock_steps import STEP_NS, header_moved
 from ..errors import ClockStepError
 from .raw import RawBag
 from .verify import open_readonly
 
-STEP_NS = 100_000_000
-"""A clock step is at least this large (0.1 s): delivery jitter stays far below it."""
 SETTLE = 5
 """Messages on each side of a lag change whose medians must show it (a late message is no step)."""
 MAX_STEPS = 8
@@ -252,8 +252,7 @@ def lag_steps(topic: str, log: np.ndarray, header: np.ndarray,
         after = np.median(lag[i + 1: i + 1 + SETTLE])
         if abs((after - before) - dlag[i]) > STEP_NS // 2:
             continue  # a message delivered late, not a step
-        header_moved = dhead[i] < 0 or (dlog[i] >= 0 and abs(dhead[i] - phead) > abs(dlog[i] - plog))
-        if header_moved:
+        if header_moved(int(dlog[i]), int(dhead[i]), plog, phead):
             out.append((Step(topic, i + 1, int(dhead[i] - phead), int(header[i + 1])), "header"))
         else:
             out.append((Step(topic, i + 1, int(dlog[i] - plog), int(log[i + 1])), "log"))
