@@ -194,9 +194,14 @@ Merger = Callable[[Aggregate, MergeTarget], dict[str, Any]]
 
 
 def _merge_bags(result: Aggregate, target: MergeTarget) -> dict[str, Any]:
-    """The table of the bags' records; the annotated copies need no merge (one folder per bag)."""
+    """The table of the bags' records; the annotated copies need no merge (one folder per bag, on the
+    machine that segmented it): the summary lists them (``annotated``: bag key and copy)."""
     seconds = sum(d.get("seconds", 0.0) for d in result.docs)
-    return batch_table.write_outputs(target.out, result.docs, seconds)
+    summary = batch_table.write_outputs(target.out, result.docs, seconds)
+    copies = [{"bag": d["key"], "copy": d["annotated"]} for d in result.docs if d.get("annotated")]
+    if copies:
+        summary["annotated"] = copies
+    return summary
 
 
 MERGERS: dict[str, Merger] = {"bags": _merge_bags}
