@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -124,7 +125,13 @@ def test_language_rows_and_episode_columns_merge_as_one_run(lab: dict, tmp_path:
     for index in range(SHARDS):
         assert segment([*_args(lab, shared, fmt), "--num-shards", str(SHARDS), "--shard-index",
                         str(index)]) == 0
-    assert segment(["aggregate", str(shared), "--out", str(tmp_path / "merged")]) == 0
+    # the aggregating machine has the dataset elsewhere; the annotated one goes where it is told
+    moved = tmp_path / "elsewhere" / "my_arm"
+    shutil.copytree(lab["dataset"], moved)
+    assert segment(["aggregate", str(shared), "--out", str(tmp_path / "table"), "--dataset", str(moved),
+                    "--annotate", str(tmp_path / "merged" / "dataset")]) == 0
+    assert not (tmp_path / "table" / "dataset").exists()
+    assert (tmp_path / "table" / "segments.csv").read_text() == (whole / "segments.csv").read_text()
     folder = "data" if fmt == "language" else "meta/episodes"
     columns = ["language_persistent", "language_events"] if fmt == "language" else [
         "episode_index", "subtask_names", "subtask_start_frames", "subtask_end_frames", "subtask_start_times",
@@ -168,9 +175,9 @@ def test_a_killed_shard_resumes_and_a_missing_shard_is_named(lab: dict, tmp_path
     capsys.readouterr()
     if _state(out, 1) == "running":  # a shard that did not finish is named, nothing is written
         assert segment(["aggregate", str(out), "--out", str(tmp_path / "early")]) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert err == ["ompn_segment aggregate: error: shard 1 of 3 failed: did not finish (running); rerun "
-                       "it to complete it"]
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert lines == ["ompn_segment aggregate: error: shard 1 of 3 failed: did not finish (running); "
+                         "rerun it to complete it"]
         assert not (tmp_path / "early").exists()
 
     assert segment([*_args(lab, out), "--num-shards", str(SHARDS), "--shard-index", "1"]) == 0  # resumes
