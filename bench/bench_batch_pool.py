@@ -10,7 +10,9 @@ Each is segmented with ``--jobs 1`` and ``--jobs 2`` (and, with ``--spawn``, ``-
 spawned workers, as before workers were forked warm), side by side in one run, by a randomly
 initialised model of the shipped Dial checkpoint's configuration (the same cost per step).  Wall
 time of the whole command, start-up included, and the CPU time of all its processes (what the
-workers' start-up costs, whatever the load).  One torch thread per process.
+workers' start-up costs, whatever the load), split into the command's own process (``parent``:
+start-up, listing, collecting, the table) and its workers; ``startup`` is the command on one short
+bag with ``--jobs 1``: the serial part no number of workers shortens.  One torch thread per process.
 
     nice .venv/bin/python bench/bench_batch_pool.py [--long 200 --minutes 2 --short 200 --spawn]
 """
@@ -44,11 +46,23 @@ SPEC = {"reader": {
     "action": {"topic": "cmd", "type": layout.FLOAT32_ARRAY, "dim": 9}, "subtask": None, "labels": "none",
     "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5, "tolerance": 0.03, "stamp": "log",
     "task": "lab", "final_observation": "duplicate"}}
-SPAWN = ("import multiprocessing, sys\n"
+SPAWN = ("import multiprocessing\n"
          "from ompn_ros.app import batch_pool\n"
-         "batch_pool.pool_context = lambda device: multiprocessing.get_context('spawn')\n"
-         "from ompn_ros.cli.segment import main\n"
-         "sys.exit(main(sys.argv[1:]))\n")
+         "batch_pool.pool_context = lambda device: multiprocessing.get_context('spawn')\n")
+COMMAND = ("import resource, sys\n"
+           "{setup}"
+           "from ompn_ros.cli import segment\n"
+           "def report():\n"
+           "    own = resource.getrusage(resource.RUSAGE_SELF)\n"
+           "    print('bench_parent_cpu_s', own.ru_utime + own.ru_stime, file=sys.stderr, flush=True)\n"
+           "end = getattr(segment, 'end_batch_command', None)\n"
+           "if end is not None:\n"
+           "    segment.end_batch_command = lambda code: (report(), end(code))\n"
+           "code = segment.main()\n"
+           "report()\n"
+           "sys.exit(code)\n")
+"""The command as its console script runs it (``main()`` reads ``sys.argv``), printing the CPU time
+of its own process (not its workers', nor its exit's) when its work is done."""
 
 
 def write_bag(path: Path, seed: int, seconds: float) -> int:
@@ -77,14 +91,14 @@ def make_dataset(root: Path, count: int, seconds: float, first_seed: int) -> tup
 
 
 def segment(bags: Path, model: Path, spec: Path, jobs: int, out: Path,
-            spawn: bool = False) -> tuple[float, float]:
-    """Wall seconds and CPU seconds (user + system, all its processes) of one batch command."""
+            spawn: bool = False) -> tuple[float, float, float]:
+    """Wall seconds, CPU seconds (user + system, all its processes) and CPU seconds of its own
+    process of one batch command."""
     path = f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": path}
     argv = ["--bags", str(bags), "--jobs", str(jobs), "--checkpoint", str(model),
             "--reader-config", str(spec), "--out", str(out)]
-    head = ["-c", SPAWN] if spawn else ["-m", "ompn_ros.cli.segment"]
-    command = [sys.executable, *head, *argv]
+    command = [sys.executable, "-c", COMMAND.format(setup=SPAWN if spawn else ""), *argv]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, env=env, cwd=ROOT, capture_output=True, text=True, check=False)
@@ -92,7 +106,8 @@ def segment(bags: Path, model: Path, spec: Path, jobs: int, out: Path,
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise RuntimeError(done.stderr[-2000:])
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    parent = float(done.stderr.rsplit("bench_parent_cpu_s", 1)[1].split()[0])
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), parent
 
 
 def _load() -> str:
@@ -127,8 +142,14 @@ def main() -> None:
             runs += [("jobs2_spawn", 2, True)] if args.spawn else []
             for label, jobs, spawn in runs:
                 out = root / f"out_{name}_{label}"
-                wall, cpu = segment(bags, root / "model", spec, jobs, out, spawn)
+                wall, cpu, parent = segment(bags, root / "model", spec, jobs, out, spawn)
                 row[f"{label}_s"], row[f"{label}_cpu_s"] = wall, cpu
+                row[f"{label}_parent_cpu_s"], row[f"{label}_workers_cpu_s"] = parent, cpu - parent
+            if name == "short":
+                one = root / "one_bag.txt"
+                one.write_text(f"{sorted(bags.iterdir())[0]}\n")
+                wall, cpu, _ = segment(one, root / "model", spec, 1, root / "out_startup")
+                row["startup_s"], row["startup_cpu_s"] = wall, cpu
             row["ratio"] = float(row["jobs1_s"]) / float(row["jobs2_s"])
             if args.spawn:
                 row["ratio_spawn"] = float(row["jobs1_s"]) / float(row["jobs2_spawn_s"])

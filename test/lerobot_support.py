@@ -65,7 +65,7 @@ def ledataset_or_skip() -> Any:
 
 
 def write_dataset(root: Path, episodes: list[Episode], *, fps: int = 25, labels: bool = True,
-                  task: str = "demo") -> Path:
+                  task: str = "demo", file_mb: float | None = None) -> Path:
     """``episodes`` as a LeRobot v3.0 dataset at ``root`` written by LeRobot's own writer.
 
     Frame ``t`` holds observation row ``t`` and action ``t``; an episode of ``T`` steps gives ``T + 1``
@@ -73,7 +73,8 @@ def write_dataset(root: Path, episodes: list[Episode], *, fps: int = 25, labels:
     on every frame).  With ``labels`` each frame's ``task`` is its subtask (``"<task> subtask <k>"``), so
     ``task_index`` changes where the subtask does: features of shape ``(1,)`` of one's own cannot be
     written by ``ledataset`` 0.4.4 beside numpy 2.4 (``int()`` of a one-element array), hence no
-    discrete actions and no label feature of their own here."""
+    discrete actions and no label feature of their own here.  ``file_mb``: LeRobot's cap on a frame
+    file's size (``data_files_size_in_mb``), set small to spread the episodes over several files."""
     lerobot = ledataset_or_skip()
     first = episodes[0]
     features: dict[str, Any] = {
@@ -82,6 +83,8 @@ def write_dataset(root: Path, episodes: list[Episode], *, fps: int = 25, labels:
     }
     dataset = lerobot.LeRobotDataset.create(repo_id="lab/demo", fps=fps, root=root, features=features,
                                             use_videos=False)
+    if file_mb is not None:  # the writer starts a new frame file once a file would pass the cap
+        dataset.meta.info["data_files_size_in_mb"] = file_mb
     for ep in episodes:
         for t in range(ep.length + 1):
             step = min(t, ep.length - 1)

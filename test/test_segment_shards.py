@@ -132,3 +132,22 @@ def test_aggregate_without_shards_is_one_line(tmp_path: Path, capsys: pytest.Cap
     assert main(["aggregate", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "no shard manifest" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_annotated_bags_of_shards_are_listed_and_a_missing_shard_named(lab: dict[str, Path], tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]
+                                                                      ) -> None:
+    out, copies = tmp_path / "seg", tmp_path / "copies"
+    argv = [*_args(lab, out), "--annotate", str(copies), "--num-shards", str(SHARDS)]
+    for index in (0, 2):  # shard 1 never ran
+        assert main([*argv, "--shard-index", str(index)]) == 0
+    capsys.readouterr()
+    assert main(["aggregate", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "shard 1 of 3 is missing: run it with --num-shards 3 --shard-index 1" in err
+    listed = json.loads((out / "summary.json").read_text())["annotated"]
+    manifests = [json.loads((out / "shards" / f"{i}-of-{SHARDS}" / "manifest.json").read_text())
+                 for i in (0, 2)]
+    keys = [item["key"] for manifest in manifests for item in manifest["items"]]
+    assert sorted(entry["bag"] for entry in listed) == sorted(keys) and 0 < len(keys) < 9
+    assert all(Path(entry["copy"]).is_dir() and Path(entry["copy"]).parent == copies for entry in listed)

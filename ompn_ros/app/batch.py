@@ -41,7 +41,7 @@ from ompn_ros.app.replay import check_finite, reader_spec, replay_all
 from ompn_ros.app.segment_setup import load_stepper
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
-from ompn_ros.data.reader import OnError, read_episodes
+from ompn_ros.data.reader import OnError, ReaderSpec, read_episodes
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import DetectorConfig
@@ -99,6 +99,18 @@ def _stepper(checkpoint: str, device: str = "cpu") -> Stepper:
         backend: Backend = "jit" if device == "cpu" else "torch"
         _STEPPERS[checkpoint, device] = stepper_from_checkpoint(checkpoint, backend, device)
     return _STEPPERS[checkpoint, device]
+
+
+_SPECS: dict[tuple[str | None, str | None, str], ReaderSpec] = {}
+
+
+def _reader_spec(settings: BatchSettings) -> ReaderSpec:
+    """The reader spec of a run, read once per process (the parent reads it before the workers are
+    forked, :func:`run_batch`): not twice per bag, YAML and checkpoint config each time."""
+    key = settings.reader_config, settings.domain, settings.checkpoint
+    if key not in _SPECS:
+        _SPECS[key] = reader_spec(*key)
+    return _SPECS[key]
 
 
 def preload(checkpoint: str, device: str = "cpu") -> Stepper:
@@ -167,7 +179,7 @@ def episode_scores(episodes: Sequence[Episode],
 
 def _stamps(settings: BatchSettings, path: Path, episodes: Sequence[Episode]) -> list[np.ndarray] | None:
     """The observation stamps of ``episodes`` (None when the bag cannot give them and no copy is due)."""
-    spec = reader_spec(settings.reader_config, settings.domain, settings.checkpoint)
+    spec = _reader_spec(settings)
     try:
         return observation_stamps(path, episodes, topic=spec.observation.topic, namespace=spec.namespace)
     except AnnotateError:
@@ -177,7 +189,7 @@ def _stamps(settings: BatchSettings, path: Path, episodes: Sequence[Episode]) ->
 
 
 def _segment(settings: BatchSettings, bag: BatchBag, path: Path) -> dict[str, Any]:
-    spec = reader_spec(settings.reader_config, settings.domain, settings.checkpoint)
+    spec = _reader_spec(settings)
     result = read_episodes(path, spec=spec, on_error=settings.on_error)
     episodes = list(result.episodes)
     doc: dict[str, Any] = {"read": True, "read_summary": result.report.summary(), "episodes": len(episodes)}
@@ -260,6 +272,8 @@ def run_batch(settings: BatchSettings, bags: Sequence[BatchBag], jobs: int = 1,
         records.clean_temporaries(settings.out)
     fingerprint = settings.fingerprint()
     preload(settings.checkpoint, settings.device)
+    with contextlib.suppress(*KNOWN_ERRORS):  # a bad spec: each bag is refused with its line, as before
+        _reader_spec(settings)
     found: dict[str, dict[str, Any]] = {}
     todo = []
     for bag in bags:

@@ -33,12 +33,12 @@ from ompn_ros.app.errors import ReplayError
 from ompn_ros.app.lerobot_write import BOUNDARIES, Boundaries, SubtaskWriter, resolve_format, share_dataset
 from ompn_ros.app.replay import check_finite, replay_all
 from ompn_ros.atomic import atomic_write_text
-from ompn_ros.data.lerobot import DatasetEpisode, DatasetReader, DatasetSpec
+from ompn_ros.data.lerobot import DatasetEpisode, DatasetFile, DatasetReader, DatasetSpec
 from ompn_ros.detect import offline
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig
-from ompn_ros.model.load import stepper_from_checkpoint
+from ompn_ros.model.load import Stepper, stepper_from_checkpoint
 from ompn_ros.segmenter import ReplayResult
 
 
@@ -111,6 +111,51 @@ def _target(run: DatasetRun, dataset: Path) -> Path:
 
 
 Progress = Callable[[str], None]
+POSITION_STRIDE = 1 << 40
+"""An episode's place in the dataset is ``file ordinal * POSITION_STRIDE + its first row in the file``:
+the order of a whole run's rows, known to a shard that reads only its own episodes."""
+
+
+@dataclass
+class EpisodeDone:
+    """One segmented episode: its ``index`` (``episode_index``), ``position`` (:data:`POSITION_STRIDE`),
+    ``frames``, its table ``rows``, its ``scores`` (None without labels) and boundary ``steps``."""
+
+    index: int
+    position: int
+    frames: int
+    rows: list[dict[str, Any]]
+    scores: dict[str, list[float]] | None
+    steps: list[int]
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> EpisodeDone:
+        return cls(int(doc["index"]), int(doc["position"]), int(doc["frames"]), list(doc["rows"]),
+                   doc["scores"], [int(s) for s in doc["steps"]])
+
+
+def load_dataset_stepper(run: DatasetRun) -> Stepper:
+    """The model a dataset run steps (one torch thread)."""
+    torch.set_num_threads(1)
+    return stepper_from_checkpoint(run.checkpoint, "jit" if run.device == "cpu" else "torch", run.device)
+
+
+def segment_file(run: DatasetRun, stepper: Stepper, file: DatasetFile, ordinal: int,
+                 source: str) -> list[EpisodeDone]:
+    """Segment the episodes of ``file`` (the ``ordinal``-th frame file of the dataset ``source``)."""
+    eps = [e.episode for e in file.episodes]
+    if not eps:
+        return []
+    replays = replay_all(stepper, eps, run.detector, run.duration_model, run.head)
+    check_finite(replays, eps)
+    replays = _decided(run, file.episodes, replays)
+    mode = run.detector.mode if run.boundaries == "online" else "top_k"
+    done = []
+    for ep, r in zip(file.episodes, replays, strict=True):
+        rows = [{"bag": source, **row} for row in segment_rows(ep.index, ep.episode, r, ep.stamps_ns(), mode)]
+        done.append(EpisodeDone(ep.index, ordinal * POSITION_STRIDE + ep.start, ep.frames, rows,
+                                episode_scores([ep.episode], [r]), [int(b.step) for b in r.boundaries]))
+    return done
 
 
 def segment_dataset(run: DatasetRun, dataset: str | Path, progress: Progress | None = None) -> dict[str, Any]:
@@ -122,53 +167,45 @@ def segment_dataset(run: DatasetRun, dataset: str | Path, progress: Progress | N
     if fmt is not None:
         reader = DatasetReader(_target(run, source), run.spec)
     writer = SubtaskWriter(reader.layout, fmt) if fmt is not None else None
-    torch.set_num_threads(1)
-    stepper = stepper_from_checkpoint(run.checkpoint, "jit" if run.device == "cpu" else "torch", run.device)
-    rows: list[dict[str, Any]] = []
-    scores: dict[str, list[float]] | None = {}
-    episodes = frames = 0
-    for file in reader.files(whole=fmt in ("index-v1", "language-v1")):
-        eps = [e.episode for e in file.episodes]
-        replays = replay_all(stepper, eps, run.detector, run.duration_model, run.head)
-        check_finite(replays, eps)
-        replays = _decided(run, file.episodes, replays)
-        mode = run.detector.mode if run.boundaries == "online" else "top_k"
-        for ep, r in zip(file.episodes, replays, strict=True):
-            found = segment_rows(ep.index, ep.episode, r, ep.stamps_ns(), mode)
-            rows += [{"bag": str(source), **row} for row in found]
-        scores = _merge(scores, episode_scores(eps, replays))
+    stepper = load_dataset_stepper(run)
+    done: list[EpisodeDone] = []
+    for ordinal, file in enumerate(reader.files(whole=fmt in ("index-v1", "language-v1"))):
+        found = segment_file(run, stepper, file, ordinal, str(source))
+        done += found
         if writer is not None:
-            writer.add_file(file, {ep.index: [b.step for b in r.boundaries]
-                                   for ep, r in zip(file.episodes, replays, strict=True)})
-        episodes, frames = episodes + len(eps), frames + sum(e.frames for e in file.episodes)
+            writer.add_file(file, {e.index: e.steps for e in found})
         if progress is not None:
-            progress(f"{reader.layout.relative(file.path)}: {len(eps)} episodes, {episodes} so far")
-    if episodes == 0:
+            progress(f"{reader.layout.relative(file.path)}: {len(found)} episodes, {len(done)} so far")
+    if not done:
         raise ReplayError(f"no episode of two frames or more in {source}")
-    summary: dict[str, Any] = {"dataset": str(source), "episodes": episodes, "frames": frames,
-                               "segments": len(rows), "boundaries": run.boundaries, "notes": reader.notes}
+    summary = dataset_summary(str(source), done, run.boundaries, reader.notes)
     if writer is not None:
-        writer.finish({"checkpoint": str(Path(run.checkpoint).resolve()), "boundaries": run.boundaries,
-                       "detector": run.detector.to_dict()})
+        writer.finish(provenance(run))
         summary.update(format=fmt, written=str(reader.layout.root), in_place=run.in_place)
-    return _outputs(run.out, rows, scores, summary, time.perf_counter() - start)
+    return write_dataset_outputs(run.out, done, summary, time.perf_counter() - start)
 
 
-def _merge(into: dict[str, list[float]] | None, found: dict[str, list[float]] | None
-           ) -> dict[str, list[float]] | None:
-    """Per-episode scores merged over files (None once an episode has no labels)."""
-    if into is None or found is None:
-        return None
-    for key, values in found.items():
-        into.setdefault(key, []).extend(values)
-    return into
+def provenance(run: DatasetRun) -> dict[str, Any]:
+    """What ``meta/ompn_subtasks.json`` records of the run besides the format."""
+    return {"checkpoint": str(Path(run.checkpoint).resolve()), "boundaries": run.boundaries,
+            "detector": run.detector.to_dict()}
 
 
-def _outputs(out: Path, rows: list[dict[str, Any]], scores: dict[str, list[float]] | None,
-             summary: dict[str, Any], seconds: float) -> dict[str, Any]:
+def dataset_summary(source: str, done: list[EpisodeDone], boundaries: str,
+                    notes: list[str]) -> dict[str, Any]:
+    """The summary of the episodes ``done`` (before the table and the times are added)."""
+    return {"dataset": source, "episodes": len(done), "frames": sum(e.frames for e in done),
+            "segments": sum(len(e.rows) for e in done), "boundaries": boundaries, "notes": notes}
+
+
+def write_dataset_outputs(out: Path, done: list[EpisodeDone], summary: dict[str, Any],
+                          seconds: float) -> dict[str, Any]:
+    """The table, ``metrics.json`` (labels) and ``summary.json`` of the episodes ``done``, in their order."""
     out.mkdir(parents=True, exist_ok=True)
-    summary["table"] = [str(p) for p in batch_table.write_table(out, rows)]
-    metrics = batch_table.batch_metrics([{"status": "segmented", "scores": scores}]) if scores else None
+    summary["table"] = [str(p) for p in batch_table.write_table(out, [row for e in done for row in e.rows])]
+    unlabelled = any(e.scores is None for e in done)
+    scores = None if unlabelled else [{"status": "segmented", "scores": e.scores} for e in done]
+    metrics = batch_table.batch_metrics(scores) if scores else None
     if metrics is not None:
         summary["metrics"] = metrics
         atomic_write_text(out / batch_table.METRICS, json.dumps(metrics, indent=1) + "\n")
@@ -177,4 +214,5 @@ def _outputs(out: Path, rows: list[dict[str, Any]], scores: dict[str, list[float
     return summary
 
 
-__all__ = ["BOUNDARIES", "DatasetRun", "dataset_spec", "segment_dataset"]
+__all__ = ["BOUNDARIES", "POSITION_STRIDE", "DatasetRun", "EpisodeDone", "dataset_spec", "dataset_summary",
+           "load_dataset_stepper", "provenance", "segment_dataset", "segment_file", "write_dataset_outputs"]

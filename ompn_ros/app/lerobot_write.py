@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -127,7 +127,7 @@ class SubtaskWriter:
     episodes: dict[int, EpisodeSubtasks] = field(default_factory=dict)
     most: int = 0  # the largest number of subtasks of an episode
 
-    def add_file(self, file: DatasetFile, steps: dict[int, Sequence[int]]) -> None:
+    def add_file(self, file: DatasetFile, steps: Mapping[int, Sequence[int]]) -> None:
         """Record the subtasks of ``file``'s episodes (boundary steps per episode index) and rewrite the
         frame file for the per-frame formats."""
         # a frame of no episode read (one frame long: nothing to segment) is that episode's subtask 0

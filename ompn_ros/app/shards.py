@@ -7,14 +7,18 @@ assignment, without talking to the others, and an item keeps its shard when othe
 shard writes its items' records where an unsharded run would (``OUT/bags/<key>.json``, so a shard is
 resumable and idempotent as a run is: a rerun skips its complete items) and, instead of the run's
 table, a *manifest* (``OUT/shards/<I>-of-<N>/manifest.json``: its items with their position in the
-whole listing, the settings, whether it finished) beside its own table and summary.
+whole listing, the settings, whether it finished) beside its own table and summary.  The shards of
+a LeRobot dataset's episodes (kind ``episodes``, ``app/lerobot_shards.py``) write the same manifest;
+their items are the frame files, each with the path of its record (``record``, below ``OUT``).
 
 ``ompn_segment aggregate OUT [OUT ...]`` reads the manifests under the given folders (one shared
 folder, or one per machine), checks that they are shards of one run, and writes the table, summary
 and metrics of the whole run, rows in the order of the listing (the table of an unsharded run, row
 for row); a shard that is missing, did not finish, or lacks records is named.  Outputs that are more
 than the table (one annotated dataset from the shards' parts) are merged by :data:`MERGERS`, per
-kind of work item; the annotated copies of bags need no merge (one folder per bag).
+kind of work item; the annotated copies of bags need no merge (one folder per bag).  Kinds whose
+output cannot be partial (one annotated dataset) are merged only when every shard is complete
+(:data:`PARTIAL`).
 
 Cost: one hash per item; the aggregate reads every record once.
 """
@@ -30,6 +34,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from ompn_ros.app import batch_bags as records
+from ompn_ros.app import batch_table
 from ompn_ros.app.errors import ReplayError
 from ompn_ros.atomic import atomic_write_text
 
@@ -37,11 +42,9 @@ SHARDS = "shards"
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "ompn_ros.batch_shard"
 Item = TypeVar("Item")
-Merger = Callable[[Sequence[Path], Path], None]
-MERGERS: dict[str, Merger] = {"bags": lambda folders, out: None}
-"""Per kind of work item (the manifest's ``kind``): how the shards' outputs beyond the table are
-merged, ``merger(shard folders, aggregate folder)``.  Bags: nothing to merge (``--annotate`` writes
-one copy per bag)."""
+PARTIAL = frozenset({"bags"})
+"""The kinds whose aggregate may hold the shards that finished only (a table of bags); the others
+(one annotated dataset) are merged only when every shard is complete, and else nothing is written."""
 
 
 def check_shard(count: int | None, index: int | None) -> None:
@@ -69,13 +72,15 @@ def shard_dir(out: Path, count: int, index: int) -> Path:
 
 
 def write_manifest(out: Path, count: int, index: int, mine: Sequence[tuple[int, str]], total: int,
-                   settings: dict[str, Any], status: str, kind: str = "bags") -> Path:
+                   settings: dict[str, Any], status: str, kind: str = "bags",
+                   record: Callable[[str], str] | None = None) -> Path:
     """The manifest of shard ``index``: its items ``(position, key)`` among ``total``, its settings
-    and ``status`` ('running', 'complete' or 'interrupted'); written atomically."""
+    and ``status`` ('running', 'complete' or 'interrupted'); written atomically.  ``record``: the path
+    of an item's record below ``out`` (none: a bag's, ``OUT/bags/<key>.json``)."""
     path = shard_dir(out, count, index) / MANIFEST
+    items = [{"position": p, "key": k, **({"record": record(k)} if record else {})} for p, k in mine]
     doc = {"format": MANIFEST_FORMAT, "kind": kind, "shards": count, "shard": index, "total": total,
-           "status": status, "settings": settings, "items": [{"position": p, "key": k} for p, k in mine],
-           "written": time.time()}
+           "status": status, "settings": settings, "items": items, "written": time.time()}
     atomic_write_text(path, json.dumps(doc))
     return path
 
@@ -83,7 +88,7 @@ def write_manifest(out: Path, count: int, index: int, mine: Sequence[tuple[int, 
 @dataclass
 class Aggregate:
     """What :func:`aggregate` found: the records in listing order, the shards complete, missing and
-    failed (with the reason)."""
+    failed (with the reason), and the settings of a complete shard."""
 
     docs: list[dict[str, Any]]
     count: int
@@ -91,6 +96,7 @@ class Aggregate:
     complete: list[int] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
     failed: dict[int, str] = field(default_factory=dict)
+    settings: dict[str, Any] = field(default_factory=dict)  # a complete shard's
 
 
 def _manifests(folders: Sequence[Path]) -> list[tuple[Path, dict[str, Any]]]:
@@ -105,21 +111,23 @@ def _manifests(folders: Sequence[Path]) -> list[tuple[Path, dict[str, Any]]]:
                 found.append((folder, doc))
     if not found:
         raise ReplayError(f"no shard manifest (shards/<i>-of-<n>/{MANIFEST}) under "
-                          f"{', '.join(map(str, folders))}: run the shards first (ompn_segment --bags ... "
-                          "--num-shards N --shard-index I)")
+                          f"{', '.join(map(str, folders))}: run the shards first (ompn_segment --bags or "
+                          "--dataset ... --num-shards N --shard-index I)")
     return found
 
 
-PORTABLE = ("detector", "reader", "on_error", "annotate")
-"""The settings every shard of one run shares (the checkpoint's path and file times may differ
-between machines)."""
+PORTABLE = {"bags": ("detector", "reader", "on_error", "annotate"),
+            "episodes": ("detector", "spec", "boundaries", "subtasks", "format")}
+"""Per kind, the settings every shard of one run shares (the checkpoint's path and file times, the
+dataset's path may differ between machines)."""
 
 
 def _one_run(found: list[tuple[Path, dict[str, Any]]]) -> tuple[int, str]:
     """The shard count and kind all manifests share (else one line naming the odd one)."""
     def signature(doc: dict[str, Any]) -> tuple[Any, ...]:
         settings = doc.get("settings") or {}
-        return (doc["shards"], doc.get("kind", "bags"), *(json.dumps(settings.get(k)) for k in PORTABLE))
+        kind = doc.get("kind", "bags")
+        return (doc["shards"], kind, *(json.dumps(settings.get(k)) for k in PORTABLE.get(kind, ())))
 
     first = signature(found[0][1])
     for folder, doc in found:
@@ -134,7 +142,7 @@ def aggregate(folders: Sequence[Path]) -> Aggregate:
     found = _manifests(folders)
     count, kind = _one_run(found)
     result = Aggregate(docs=[], count=count, kind=kind)
-    placed: dict[int, dict[str, Any]] = {}
+    placed: dict[tuple[int, int], dict[str, Any]] = {}
     seen: set[int] = set()
     for folder, doc in sorted(found, key=lambda pair: int(pair[1]["shard"])):
         index = int(doc["shard"])
@@ -143,28 +151,71 @@ def aggregate(folders: Sequence[Path]) -> Aggregate:
         seen.add(index)
         lacking = []
         for item in doc["items"]:
-            record = records.read_record(folder, item["key"])
+            record = _read_item(folder, item)
             if record is None or record.get("settings") != doc["settings"]:
                 lacking.append(item["key"])
             else:
-                placed[int(item["position"])] = record
+                placed[int(item["position"]), index] = record
         if doc["status"] != "complete":
             result.failed[index] = f"did not finish ({doc['status']}); rerun it to complete it"
         elif lacking:
             result.failed[index] = f"{len(lacking)} record(s) missing, first {lacking[0]}; rerun it"
         else:
             result.complete.append(index)
+            result.settings = result.settings or doc["settings"]
     result.missing = [i for i in range(count) if i not in seen]
     result.docs = [placed[p] for p in sorted(placed)]
     return result
 
 
-def merge_outputs(result: Aggregate, folders: Sequence[Path], out: Path) -> None:
-    """Merge the shards' outputs beyond the table (:data:`MERGERS`)."""
+def _read_item(folder: Path, item: dict[str, Any]) -> dict[str, Any] | None:
+    """The record of a manifest's item (None when it is missing or unreadable)."""
+    if "record" not in item:
+        return records.read_record(folder, item["key"])
+    try:
+        doc = json.loads((folder / item["record"]).read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+@dataclass(frozen=True)
+class MergeTarget:
+    """Where :data:`MERGERS` write: ``out`` (the table, summary, metrics), ``annotate`` (an annotated
+    dataset; none: ``out/dataset``) and ``source`` (where this machine has the input the shards read;
+    none: the path they recorded)."""
+
+    out: Path
+    annotate: Path | None = None
+    source: Path | None = None
+
+
+Merger = Callable[[Aggregate, MergeTarget], dict[str, Any]]
+
+
+def _merge_bags(result: Aggregate, target: MergeTarget) -> dict[str, Any]:
+    """The table of the bags' records; the annotated copies need no merge (one folder per bag, on the
+    machine that segmented it): the summary lists them (``annotated``: bag key and copy)."""
+    seconds = sum(d.get("seconds", 0.0) for d in result.docs)
+    summary = batch_table.write_outputs(target.out, result.docs, seconds)
+    copies = [{"bag": d["key"], "copy": d["annotated"]} for d in result.docs if d.get("annotated")]
+    if copies:
+        summary["annotated"] = copies
+    return summary
+
+
+MERGERS: dict[str, Merger] = {"bags": _merge_bags}
+"""Per kind of work item (the manifest's ``kind``): how the shards' records become the outputs of the
+whole run, ``merger(aggregate, target) -> summary``.  ``app/lerobot_shards.py`` adds ``episodes``
+(the table and the one annotated dataset) when it is imported."""
+
+
+def merge_outputs(result: Aggregate, target: MergeTarget) -> dict[str, Any]:
+    """Write the outputs of the whole run (:data:`MERGERS`); returns its summary."""
     merger = MERGERS.get(result.kind)
     if merger is None:
         raise ReplayError(f"shards of kind '{result.kind}' cannot be merged by this version")
-    merger([shard_dir(f, result.count, i) for f in folders for i in result.complete], out)
+    return merger(result, target)
 
 
 def shard_lines(result: Aggregate) -> list[str]:
@@ -174,5 +225,5 @@ def shard_lines(result: Aggregate) -> list[str]:
     return lines + [f"shard {i} of {result.count} failed: {why}" for i, why in sorted(result.failed.items())]
 
 
-__all__ = ["MERGERS", "Aggregate", "aggregate", "check_shard", "merge_outputs", "select", "shard_dir",
-           "shard_lines", "shard_of", "write_manifest"]
+__all__ = ["MERGERS", "PARTIAL", "Aggregate", "MergeTarget", "aggregate", "check_shard", "merge_outputs",
+           "select", "shard_dir", "shard_lines", "shard_of", "write_manifest"]

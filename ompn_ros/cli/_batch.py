@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import os
 import signal
 import sys
 import time
@@ -40,10 +41,11 @@ def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="batch mode: worker processes, one bag per task")
     parser.add_argument(
         "--num-shards", type=int, metavar="N",
-        help="batch mode: split the bags into N shards by a hash of each bag's key and run only shard "
-        "--shard-index (one machine or array task each; then ompn_segment aggregate OUT...; none: all bags)")
+        help="--bags or --dataset: split the bags (by a hash of each bag's key) or the episodes "
+        "(episode_index mod N) into N shards and run only shard --shard-index (one machine or array task "
+        "each; then ompn_segment aggregate OUT...; none: all of them)")
     parser.add_argument("--shard-index", type=int, metavar="I",
-                        help="batch mode: the shard to run, 0..N-1 (none: all bags)")
+                        help="with --num-shards: the shard to run, 0..N-1 (none: all bags or episodes)")
 
 
 def check_batch_arguments(args: argparse.Namespace) -> None:
@@ -53,7 +55,7 @@ def check_batch_arguments(args: argparse.Namespace) -> None:
     if args.jobs < 1:
         raise ReplayError(f"--jobs must be at least 1, got {args.jobs}")
     if args.num_shards is not None and not args.bags:
-        raise ReplayError("--num-shards splits the bags of --bags: give --bags")
+        raise ReplayError("--num-shards splits the bags of --bags or the episodes of --dataset: give one")
     from ompn_ros.app import shards
 
     shards.check_shard(args.num_shards, args.shard_index)
@@ -114,6 +116,20 @@ def run_batch_cli(args: argparse.Namespace, device: str = "cpu") -> int:
     return SOME_REFUSED if summary["refused"] else 0
 
 
+def is_batch_command(words: list[str]) -> bool:
+    """True when the command line ``words`` runs batch mode (``--bags``)."""
+    return any(word == "--bags" or word.startswith("--bags=") for word in words)
+
+
+def end_batch_command(code: int) -> None:
+    """End the batch command's process with ``code`` without the interpreter's teardown of torch,
+    numba and the loaded modules (about 0.7 s of CPU, serial after the last bag; docs/scale.md): every
+    output is written and closed by now; stdout and stderr are flushed first."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def _manifest(settings: BatchSettings, shard: tuple[int | None, int | None], mine: list[tuple[int, str]],
               total: int, status: str) -> None:
     from ompn_ros.app import shards
@@ -123,13 +139,16 @@ def _manifest(settings: BatchSettings, shard: tuple[int | None, int | None], min
         shards.write_manifest(settings.out, count, index, mine, total, settings.fingerprint(), status)
 
 
-AGGREGATE_DOC = """ompn_segment aggregate: merge the shards of a batch run into one table.
+AGGREGATE_DOC = """ompn_segment aggregate: merge the shards of a run into one table (and one dataset).
 
-    ompn_segment aggregate OUT [OUT ...] [--out DIR]
+    ompn_segment aggregate OUT [OUT ...] [--out DIR] [--dataset DIR] [--annotate DIR]
 
-reads OUT/shards/<i>-of-<n>/manifest.json and the bags' records under every OUT given (one folder the
+reads OUT/shards/<i>-of-<n>/manifest.json and the shards' records under every OUT given (one folder the
 shards shared, or one per machine) and writes DIR/segments.csv (rows in the order of an unsharded run),
-DIR/summary.json and DIR/metrics.json; missing or failed shards are named, one line each (exit 1).
+DIR/summary.json and DIR/metrics.json.  Shards of bags: missing or failed shards are named, one line
+each, and the table holds the others (exit 1).  Shards of a dataset's episodes: with --write-subtasks,
+also the one annotated dataset (--annotate, default DIR/dataset), equal to an unsharded run's; a
+missing or failed shard is named, one line each, and nothing is written (exit 2).
 """
 
 
@@ -137,25 +156,39 @@ def aggregate_parser() -> argparse.ArgumentParser:
     parser = make_parser("ompn_segment aggregate", AGGREGATE_DOC)
     parser.add_argument("folders", nargs="+", metavar="OUT", help="the --out folder(s) of the shards")
     parser.add_argument("--out", help="where the merged outputs go (none: the first OUT)")
+    parser.add_argument("--dataset", metavar="DIR",
+                        help="shards of a dataset: where this machine has the dataset (none: the path the "
+                        "shards recorded)")
+    parser.add_argument("--annotate", metavar="DIR",
+                        help="shards of a dataset run with --write-subtasks: the annotated dataset (none: "
+                        "OUT/dataset of --out; a previous one written there is replaced)")
     return parser
 
 
 def run_aggregate(args: argparse.Namespace) -> int:
     """Merge the shards under ``args.folders``: 0 when every shard finished and no bag was refused."""
-    from ompn_ros.app import batch_table, shards
+    from ompn_ros.app import batch_table, lerobot_shards, shards
+
+    del lerobot_shards  # imported for the episodes' merger it adds to shards.MERGERS
 
     folders = [Path(f) for f in args.folders]
     out = Path(args.out) if args.out else folders[0]
     result = shards.aggregate(folders)
-    shards.merge_outputs(result, folders, out)
-    summary = batch_table.write_outputs(out, result.docs, sum(d.get("seconds", 0.0) for d in result.docs))
     problems = shards.shard_lines(result)
+    if problems and result.kind not in shards.PARTIAL:
+        for line in problems:
+            print(f"ompn_segment aggregate: error: {line}", file=sys.stderr)
+        return 2  # one annotated dataset cannot be partial: nothing was written
+    target = shards.MergeTarget(out, Path(args.annotate) if args.annotate else None,
+                                Path(args.dataset) if args.dataset else None)
+    summary = shards.merge_outputs(result, target)
     summary["shards"] = {"count": result.count, "complete": result.complete, "missing": result.missing,
                          "failed": {str(k): v for k, v in result.failed.items()}}
     batch_table.write_summary(out, summary)
     print(json.dumps(summary, indent=1))
-    print(f"ompn_segment: {len(result.complete)} of {result.count} shards complete; "
-          f"{batch_table.summary_line(summary)}", file=sys.stderr)
+    line = batch_table.summary_line(summary) if result.kind == "bags" else (
+        f"{summary['episodes']} episodes, {summary['segments']} segments")
+    print(f"ompn_segment: {len(result.complete)} of {result.count} shards complete; {line}", file=sys.stderr)
     for line in problems:
         print(f"ompn_segment: {line}", file=sys.stderr)
-    return SOME_REFUSED if problems or summary["refused"] else 0
+    return SOME_REFUSED if problems or summary.get("refused") else 0

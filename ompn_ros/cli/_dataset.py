@@ -49,6 +49,14 @@ def _check(args: argparse.Namespace) -> None:
         raise ReplayError("--in-place writes into the dataset itself: give it without --annotate")
     if args.subtasks is not None and (args.boundaries != "top_k" or args.subtasks < 1):
         raise ReplayError("--subtasks K (K >= 1) goes with --boundaries top_k")
+    if args.num_shards is not None or args.shard_index is not None:
+        from ompn_ros.app import shards
+
+        shards.check_shard(args.num_shards, args.shard_index)
+        if args.in_place or args.annotate:
+            raise ReplayError("a shard writes no dataset: give --num-shards without --in-place and "
+                              "--annotate; ompn_segment aggregate writes the annotated dataset "
+                              "(its --annotate DIR)")
 
 
 def run_dataset_cli(args: argparse.Namespace, device: str = "cpu") -> int:
@@ -66,8 +74,15 @@ def run_dataset_cli(args: argparse.Namespace, device: str = "cpu") -> int:
         head=detector.head, out=Path(args.out), spec=spec, boundaries=args.boundaries, subtasks=args.subtasks,
         fmt=args.write_subtasks, annotate=Path(args.annotate) if args.annotate else None,
         in_place=args.in_place, overwrite=args.overwrite, device=device)
-    summary = segment_dataset(run, args.dataset, progress=lambda text: print(
-        f"ompn_segment: {text}", file=sys.stderr, flush=True))
+    def progress(text: str) -> None:
+        print(f"ompn_segment: {text}", file=sys.stderr, flush=True)
+
+    if args.num_shards is not None:
+        from ompn_ros.app.lerobot_shards import run_shard
+
+        summary = run_shard(run, args.dataset, args.num_shards, args.shard_index, progress)
+    else:
+        summary = segment_dataset(run, args.dataset, progress)
     for note in summary["notes"]:
         print(f"ompn_segment: {note}", file=sys.stderr)
     print(json.dumps(summary, indent=1))

@@ -44,6 +44,8 @@ from ompn_ros.cli._batch import (
     add_batch_arguments,
     aggregate_parser,
     check_batch_arguments,
+    end_batch_command,
+    is_batch_command,
     run_aggregate,
     run_batch_cli,
 )
@@ -214,7 +216,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
     if words[:1] == ["aggregate"]:
         return run_cli(aggregate_parser(), run_aggregate, words[1:])
-    return run_cli(build_parser(), _run, words)
+    code = run_cli(build_parser(), _run, words)
+    if argv is None and is_batch_command(words):  # the command itself, not a caller in this process
+        end_batch_command(code)
+    return code
 
 
 if __name__ == "__main__":

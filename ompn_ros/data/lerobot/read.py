@@ -107,14 +107,18 @@ class DatasetReader:
 
     def files(self, *, whole: bool = False) -> Iterator[DatasetFile]:
         """Each frame file's episodes in order (``whole``: with the file's full table, for writing)."""
-        _, pq = pyarrow_modules()
         for path in self.layout.data_files():
-            try:
-                table = pq.read_table(path, columns=None if whole else self._present(pq, path))
-            except (OSError, ValueError) as exc:  # pyarrow's ArrowInvalid is a ValueError
-                raise DatasetError(f"{self.layout.relative(path)} cannot be read: {exc}",
-                                   path=self.layout.root) from exc
-            yield DatasetFile(path, self._episodes(path, table), table if whole else None)
+            yield self.read_file(path, whole=whole)
+
+    def read_file(self, path: Path, *, whole: bool = False) -> DatasetFile:
+        """The episodes of the frame file ``path`` (``whole``: with its full table, for writing)."""
+        _, pq = pyarrow_modules()
+        try:
+            table = pq.read_table(path, columns=None if whole else self._present(pq, path))
+        except (OSError, ValueError) as exc:  # pyarrow's ArrowInvalid is a ValueError
+            raise DatasetError(f"{self.layout.relative(path)} cannot be read: {exc}",
+                               path=self.layout.root) from exc
+        return DatasetFile(path, self._episodes(path, table), table if whole else None)
 
     def _present(self, pq: Any, path: Path) -> list[str]:
         names = set(pq.read_schema(path).names)
