@@ -69,7 +69,8 @@ class DetectorParameters:
             self.explicit |= names & set(NODE_PARAMETERS)
         return bool(names & set(DETECTOR_PARAMETERS))
 
-    def load(self, checkpoint: str, apply: Callable[[dict[str, Any]], None]) -> tuple[DetectorSettings, str]:
+    def load(self, checkpoint: str,
+             apply: Callable[[dict[str, Any]], object]) -> tuple[DetectorSettings, str]:
         """Read ``checkpoint``'s ``detector.json`` and ``apply`` its values to the parameters nobody gave
         explicitly (the ROS parameters then show what runs); the settings (their duration model and
         boundary head) and the line to log: which settings run, where they came from, what overrides

@@ -98,6 +98,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
+from ompn_ros.data.idle import IdleSpeed
 from ompn_ros.data.obs import ObservationSpecError
 from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError
 from ompn_ros.detect.parameters import DetectorParameters
@@ -107,8 +108,9 @@ from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_checkpoint import check_model, default_sketch, resolve_checkpoint
+from ompn_ros.nodes.ompn_node_idle import IdleProbe, chosen_idle_speed
 from ompn_ros.nodes.ompn_node_inputs import NodeInputs
-from ompn_ros.nodes.ompn_node_obs import AssembledInput, joint_input, load_spec
+from ompn_ros.nodes.ompn_node_obs import AssembledInput, joint_input, load_spec, spec_line
 from ompn_ros.nodes.ompn_node_outputs import NodePublishers
 from ompn_ros.nodes.ompn_node_params import EXECUTORS, OBS_SOURCES, SPECS
 from ompn_ros.ros.params import ParameterError, ParamTable
@@ -128,11 +130,9 @@ class NodeConfigError(OMPNError, ValueError):
 class OMPNNode(LifecycleNode):
     """Lifecycle node: configure = load + validate the checkpoint, activate = subscribe and run.
 
-    It owns its parts: :attr:`outputs` (:class:`~ompn_ros.nodes.ompn_node_outputs.NodePublishers`, the
-    publishers and the stream rule they publish for, :attr:`stream`, shared with the offline replay),
-    :attr:`inputs` (:class:`~ompn_ros.nodes.ompn_node_inputs.NodeInputs`, the subscriptions) and
-    :attr:`detector` (:class:`~ompn_ros.detect.parameters.DetectorParameters`, the detector parameters'
-    precedence and checks)."""
+    It owns its parts: :attr:`outputs` (``NodePublishers``: the publishers and the stream rule they
+    publish for, :attr:`stream`, shared with the offline replay), :attr:`inputs` (``NodeInputs``: the
+    subscriptions) and :attr:`detector` (``DetectorParameters``: the detector parameters' precedence)."""
 
     def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -145,7 +145,7 @@ class OMPNNode(LifecycleNode):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.outputs = NodePublishers(self, self.values, lambda: self.get_clock().now().nanoseconds)
         self.stream = self.outputs.stream
-        self.inputs = NodeInputs(self, self.values, self.outputs)
+        self.inputs = NodeInputs(self, self.values, self.outputs, self._idle_found)
         self.events = self.stream.events  # the node's counters (counters())
         self.last_error = ""
         self.configure_error: Exception | None = None  # of the last failed configure
@@ -155,6 +155,7 @@ class OMPNNode(LifecycleNode):
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits
         self._clock_watch = ClockWatch()
         self._duplicates = 0  # other nodes with this node's full name (seen on the graph)
+        self._idle_speed: float | None = None  # idle_speed resolved (auto: at configure or from the stream)
         self._cache_limits()
         guard_clock_topic(self, self._on_clock)  # a negative /clock is dropped, not fatal
         guard_change_state(self, self.get_logger().warning)  # an invalid request is refused, not fatal
@@ -172,7 +173,10 @@ class OMPNNode(LifecycleNode):
 
     def _cache_limits(self) -> None:
         """The stream limits in ns and the default sketch, read once per change rather than once per step."""
-        self.stream.limits = StreamLimits.of(self.values)
+        # without a known idle speed (auto, measured once active) the idle rule waits: idle_s 0 until then
+        known = self._idle_speed is not None
+        self.stream.limits = StreamLimits.of({**self.values, "idle_speed": self._idle_speed if known else 0.0,
+                                              "idle_s": self.values["idle_s"] if known else 0.0})
         self.stream.default_sketch = default_sketch(self.values)
         self._clock_watch.stall_ns = round(float(self.values["clock_stall"]) * 1e9)
         self._clock_watch.jump_forward_ns = round(float(self.values["clock_jump_forward"]) * 1e9)
@@ -196,9 +200,6 @@ class OMPNNode(LifecycleNode):
             config = self.detector.config(self.values)
             when = self.segmenter.set_detector(config)  # checked by _on_set_parameters
             self.get_logger().info(f"detector now {config} ({when})")
-
-    def _set_from_checkpoint(self, values: dict[str, Any]) -> None:
-        self.set_parameters([Parameter(name, value=value) for name, value in values.items()])
 
     # --- lifecycle -----------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -229,8 +230,13 @@ class OMPNNode(LifecycleNode):
             path = resolve_checkpoint(self.values)
         except ValueError as exc:
             raise NodeConfigError(str(exc)) from exc
-        stored, line = self.detector.load(path, self._set_from_checkpoint)
+        stored, line = self.detector.load(
+            path, lambda taken: self.set_parameters([Parameter(n, value=v) for n, v in taken.items()]))
         self.get_logger().info(line)
+        self._idle_speed, line = chosen_idle_speed(self.values, path, self.stream.limits.idle_elements)
+        self._cache_limits()
+        if line:
+            self.get_logger().info(line)
         policy = stepper_from_checkpoint(path)
         try:
             check_model(self.values, policy.config)
@@ -253,10 +259,7 @@ class OMPNNode(LifecycleNode):
             f"detector={segmenter.detector_config}"
         )
         if spec is not None:
-            self.get_logger().info(
-                f"observation_spec: step topic {spec.step_topic}, topics {list(spec.topics)}, tolerance "
-                f"{spec.tolerance_s} s, stamp {spec.stamp}, size {spec.declared_dim() or 'from the data'}"
-            )
+            self.get_logger().info(spec_line(spec))
 
     def _unload(self) -> None:
         """Forget the model and the configured input (a failed configure, cleanup)."""
@@ -268,7 +271,8 @@ class OMPNNode(LifecycleNode):
         if self.segmenter is None:
             self.last_error = "activate without a configured segmenter"
             return TransitionCallbackReturn.FAILURE
-        self.inputs.subscribe()
+        measure = float(self.values["idle_s"]) > 0 and self._idle_speed is None  # idle_speed auto, no record
+        self.inputs.subscribe(IdleProbe(self.stream.limits.idle_elements) if measure else None)
         # the steady clock: /diagnostics (and the stall check) go on while a simulator's /clock stands still
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         period = float(self.values["diagnostics_period"])
@@ -319,12 +323,17 @@ class OMPNNode(LifecycleNode):
             response.success = False
             response.message = f"not reset: the node is '{state}'; ~/reset starts episodes only while active"
             return response
-        assembled = self.inputs.assembled
-        if assembled is not None:  # held steps are stepped first: they came before the request
-            self.inputs.step_decided(assembled, assembled.asm.reset(), self.get_clock().now().nanoseconds)
+        self.inputs.release_all()  # held steps are stepped first: they came before the request
         response.success = self.stream.reset()
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
         return response
+
+    def _idle_found(self, derived: IdleSpeed, rows: int) -> None:
+        """``idle_speed: auto`` measured on the stream's first ``rows`` observations: the idle rule runs."""
+        self._idle_speed = derived.speed
+        self.get_logger().info(f"{derived.text}, from the stream's first {rows} observations")
+        self._cache_limits()
+        self.stream.arm()  # nothing was stepped while the probe held the observations
 
     # --- health --------------------------------------------------------------------------------
     def counters(self) -> dict[str, int]:
@@ -348,8 +357,7 @@ class OMPNNode(LifecycleNode):
                 f"/clock jumped ahead to {clock_ns(msg)} ns (more than clock_jump_forward="
                 f"{self.values['clock_jump_forward']} s): starting a new episode"
             )
-            seg = self.segmenter
-            if seg is not None and self.inputs.active and seg.ready:
+            if self.segmenter is not None and self.inputs.active and self.segmenter.ready:
                 self.stream.restart_episode()
         return True
 

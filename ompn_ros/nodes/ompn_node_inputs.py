@@ -10,6 +10,7 @@ stamps and QoS: the module docstring of :mod:`ompn_ros.nodes.ompn_node`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -22,8 +23,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32MultiArray
 
 from ompn_ros import layout
+from ompn_ros.data.idle import IdleSpeed
 from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array, parse_typed_marker
 from ompn_ros.data.obs import Decided, Drop
+from ompn_ros.nodes.ompn_node_idle import IdleProbe
 from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, drop_line
 from ompn_ros.nodes.ompn_node_outputs import NodePublishers
 from ompn_ros.nodes.ompn_node_params import input_qos
@@ -71,9 +74,12 @@ class NodeInputs:
         outputs: the node's publishers: their stream rule is fed, their warnings are used.
     """
 
-    def __init__(self, node: LifecycleNode, values: dict[str, Any], outputs: NodePublishers) -> None:
+    def __init__(self, node: LifecycleNode, values: dict[str, Any], outputs: NodePublishers,
+                 idle_found: Callable[[IdleSpeed, int], None]) -> None:
         self.node, self.values, self.outputs = node, values, outputs
         self.stream = outputs.stream
+        self.probe: IdleProbe | None = None  # idle_speed auto measured on the stream: observations held
+        self._idle_found = idle_found  # the node's: the probe derived the idle speed (and from how many)
         self.active = False  # subscribed (between subscribe() and unsubscribe())
         self.assembled: AssembledInput | None = None  # observation_spec input (None: single topic)
         self.joints: JointInput | None = None  # obs_source 'joint_state'
@@ -113,8 +119,10 @@ class NodeInputs:
         """Steps the assembler dropped (0 without ``observation_spec``)."""
         return self.assembled.dropped_total if self.assembled is not None else 0
 
-    def subscribe(self) -> None:
-        """The subscriptions of the configured input (on activation); active from then on."""
+    def subscribe(self, probe: IdleProbe | None = None) -> None:
+        """The subscriptions of the configured input (on activation); active from then on, the
+        observations held by ``probe`` until it measured the idle speed."""
+        self.probe = probe
         inputs = input_qos(str(self.values["obs_qos"]), int(self.values["qos_depth"]))
         # KEEP_ALL: a full queue refuses new markers, and the reliable publisher resends them once the
         # node has read some, rather than the queue overwriting unread ones; what the middleware still
@@ -144,6 +152,7 @@ class NodeInputs:
         """Destroy the subscriptions and timers (deactivate, cleanup, shutdown); held steps are decided
         (counted) but not stepped."""
         self.active = False
+        self.probe = None  # what it held is not stepped (inactive); the next activation measures again
         for sub in self._subs:
             self.node.destroy_subscription(sub)
         self._subs = []
@@ -381,6 +390,27 @@ class NodeInputs:
 
         ``now_ns``: the node's clock at reception when the caller read it already."""
         if self.stream.segmenter is not None and self.active:
+            if self.probe is not None and stamp_ns is not None:
+                if self.probe.hold(data, stamp_ns, now_ns):
+                    self.end_probe()
+                return
+            self.stream.observe(data, stamp_ns, now_ns)
+
+    def release_all(self) -> None:
+        """Before ``~/reset``: the steps the assembler and the idle probe hold are stepped, in order."""
+        assembled = self.assembled
+        if assembled is not None:
+            self.step_decided(assembled, assembled.asm.reset(), self.node.get_clock().now().nanoseconds)
+        self.end_probe()
+
+    def end_probe(self) -> None:
+        """``idle_speed: auto`` measured on the stream: derive it from the held observations (all there
+        are: an episode marker or ``~/reset`` ends the probe early), then step them in order."""
+        probe, self.probe = self.probe, None
+        if probe is None:
+            return
+        self._idle_found(probe.derive(), len(probe.held))
+        for data, stamp_ns, now_ns in probe.held:
             self.stream.observe(data, stamp_ns, now_ns)
 
     def _reject(self, error: InvalidInput) -> None:
@@ -406,6 +436,7 @@ class NodeInputs:
         if self.stream.segmenter is None or not self.active or not self._twins.keep(typed, kind, values):
             return
         self.release_held(None, flush=True)  # held steps belong to the episode before the marker
+        self.end_probe()
         if not self._twins.typed_seen and self._twins.deprecated_handled == 2:
             self.node.get_logger().warning(
                 f"episode markers on '{layout.EPISODE}' (diagnostic_msgs/DiagnosticArray) are deprecated, "
@@ -415,6 +446,7 @@ class NodeInputs:
 
     def on_sketch(self, msg: Int32MultiArray) -> None:
         if self.stream.segmenter is not None and self.active and len(msg.data) > 0:
+            self.end_probe()
             self.stream.sketch_message(msg.data)
 
 
