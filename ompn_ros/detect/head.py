@@ -246,10 +246,11 @@ class HeadDecoder(EpisodeLog):
 
     def check(self, config: DetectorConfig) -> None:
         if config.mode != HEAD_MODE:
-            raise BoundaryHeadError(f"the boundary head decodes mode '{HEAD_MODE}', got mode '{config.mode}'")
+            raise BoundaryHeadError(f"the boundary head decodes mode '{HEAD_MODE}' with lag 0 … "
+                                    f"{self.max_lag}, got mode '{config.mode}'")
         if not 0 <= config.lag <= self.max_lag:
             raise BoundaryHeadError(f"detector_lag {config.lag} is beyond this boundary head's lags "
-                                    f"(0 … {self.max_lag})")
+                                    f"(lag 0 … {self.max_lag})")
 
     def configure(self, config: DetectorConfig) -> None:
         """Run ``config`` (same lag) from the next step on."""
