@@ -222,7 +222,8 @@ def test_a_clock_restart_starts_a_new_episode_segmented_like_a_fresh_replay(ctx,
     node.inputs.on_episode(marker("start", sketch="1,3,2"))
     rng = np.random.default_rng(8)
     for t in range(12):
-        node.inputs.on_raw_array(m.encode_float32_array(rng.normal(size=OBS_DIM)), 500_000_000_000 + t * 40_000_000)
+        x = m.encode_float32_array(rng.normal(size=OBS_DIM))
+        node.inputs.on_raw_array(x, 500_000_000_000 + t * 40_000_000)
     obs = rng.normal(size=(9, OBS_DIM)).astype(np.float32)
     stamps = [t * 40_000_000 for t in range(9)]  # the sim restarted: its clock starts at 0 again
     b0, p0 = len(node.outputs.pubs["boundary"].raws), len(node.outputs.pubs["pi"].raws)

@@ -28,7 +28,9 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       (:mod:`ompn_ros.stream.gap`, the bag reader's ``split: gaps`` rule).
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
                       episode once its speed stayed below ``idle_speed`` for ``idle_s`` (joint speed
-                      in rad/s with ``obs_source: joint_state``; the reader's ``split: idle``, whose
+                      in rad/s with ``obs_source: joint_state``; ``auto``: the training read's value,
+                      else measured on the stream's first 10 s, :mod:`ompn_ros.nodes.ompn_node_idle`;
+                      the reader's ``split: idle``, whose
                       end boundary is decided ``idle_s`` later; still steps are held, then stepped or
                       trimmed, counted ``idle_trimmed``; a marker or ``~/reset`` ends the held ones as
                       the end of a bag does: the first is the final observation, the others trimmed).
