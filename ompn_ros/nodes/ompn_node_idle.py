@@ -55,9 +55,8 @@ def chosen_idle_speed(values: Mapping[str, Any], checkpoint: str | Path,
     record = trained_idle_speed(checkpoint)
     if record is None:
         why = "the checkpoint has no idle speed from its training read"
-    elif record.fields != elements.fields:
-        why = (f"the checkpoint's training read measured it on {record.describe()}, this node on "
-               f"{elements.describe()}")
+    elif record.on != elements.describe():
+        why = f"the checkpoint's training read measured it on {record.on}, this node on {elements.describe()}"
     else:
         return record.speed, (f"idle_speed auto -> {record.speed:.4g} from the checkpoint's training read "
                               f"({record.source})")

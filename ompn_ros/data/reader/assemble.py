@@ -177,8 +177,6 @@ def _still(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
         ctx.report.idle_rule = derived.text
     else:
         ctx.report.idle_rule = f"idle_speed {float(speed):g} on {elements.describe()}"
-    ctx.report.idle_speed = float(speed)
-    ctx.report.idle_fields = None if elements.fields is None else list(elements.fields)
     if dec.act_stamps is None and float(speed) <= 0:
         ctx.report.notes.append("split: idle cannot see the robot still: every observation carries its "
                                 "action and idle_speed is 0; set idle_speed (rad/s of joint speed) or auto")

@@ -33,8 +33,6 @@ class BagReport:
     split: str = ""  # 'markers' | 'time_gap' | 'topic' | 'idle' | 'bag'
     idle_trimmed: int = 0  # split: idle: still observations that belong to no episode
     idle_rule: str = ""  # split: idle: the speed threshold used (derived with idle_speed: auto) and on what
-    idle_speed: float | None = None  # split: idle: that threshold (ompn_train records it for ompn_node)
-    idle_fields: list[str] | None = None  # the JointState fields it was measured on (None: every element)
     messages: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)  # steps lacking a partner, per topic
     duplicates: dict[str, int] = field(default_factory=dict)  # extra partners for one step
