@@ -5,12 +5,13 @@ The reader derives ``idle_speed: auto`` from the whole bag's noise floor
 
 1. the threshold its checkpoint was trained with: ``ompn_train`` records the one its read used (derived
    or given, the median over the bags) beside the checkpoint (:mod:`ompn_ros.app.idle_record`), when
-   that read measured the speed on the same elements as the node does (a JointState's fields, else
-   every element);
+   that read judged the same speed as the node does (a JointState's joint speed, else every element's
+   change per second);
 2. else the stream's own noise floor: the first :data:`PROBE_S` seconds of observations (at most
    :data:`PROBE_ROWS`) are held, the threshold is derived from them as the reader derives it from a bag,
    and then they go through the idle rule with it, in order, as if it had been known from the start
-   (an episode marker, ``~/reset`` or deactivation ends the probe early, on what it holds).
+   (an episode marker, a sketch message or ``~/reset`` ends the probe early, on what it holds;
+   deactivation drops what it holds, as held input is never stepped while inactive).
 
 Either way the node logs one line naming the value and where it came from (docs/design.md#idle-speed-live).
 """
