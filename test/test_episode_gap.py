@@ -84,7 +84,7 @@ def active_node(ctx, ckpt: Path, **params: Any) -> OMPNNode:
 
 def events(node: OMPNNode) -> list[tuple[int, str, int, str]]:
     out = []
-    for raw in node._pubs["boundary"].raws:
+    for raw in node.outputs.pubs["boundary"].raws:
         b = decode_subtask_boundary(raw)
         out.append((b.step, f"{b.score:.6f}", b.stamp_ns, str(b.final).lower()))
     return out
@@ -110,7 +110,7 @@ def test_a_pause_between_stamps_ends_the_episode_like_a_marker(ctx, ckpt: Path) 
     t1 = [100 * S + 40_000_000 * t for t in range(len(first))]
     t2 = [t1[-1] + S + 40_000_000 * t for t in range(len(second))]  # 1 s pause, then the next episode
     for x, s in zip(np.concatenate([first, second]), t1 + t2, strict=True):
-        node._on_raw_array(m.encode_float32_array(x.astype(np.float32)), s)
+        node.inputs.on_raw_array(m.encode_float32_array(x.astype(np.float32)), s)
     got = events(node)
     want_first = replay(ckpt, first, t1)
     assert got[: len(want_first)] == want_first  # closed by the pause, at its last step, final
@@ -130,12 +130,12 @@ def test_silence_ends_the_open_episode_from_the_timer(ctx, ckpt: Path) -> None:
     obs = rng.normal(size=(7, OBS_DIM)).astype(np.float32)
     stamps = [50 * S + 40_000_000 * t for t in range(len(obs))]
     for x, s in zip(obs, stamps, strict=True):
-        node._on_raw_array(m.encode_float32_array(x), s)
-    before = len(node._pubs["boundary"].raws)
+        node.inputs.on_raw_array(m.encode_float32_array(x), s)
+    before = len(node.outputs.pubs["boundary"].raws)
     for now in (0, S // 4, S // 2 - 1):  # quiet for just under half a second of the node's clock
         clock.ns = now
         node._check_silence()
-    assert len(node._pubs["boundary"].raws) == before
+    assert len(node.outputs.pubs["boundary"].raws) == before
     clock.ns = S // 2
     node._check_silence()
     assert events(node)[-1] == replay(ckpt, obs, stamps)[-1]  # the final boundary, at the last step
@@ -150,7 +150,7 @@ def test_without_episode_gap_a_pause_is_just_time(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
     assert node._gap_timer is None
     for t, s in enumerate([S, 2 * S, 30 * S]):
-        node._on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t, np.float32)), s)
+        node.inputs.on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t, np.float32)), s)
     assert node.counters()["episode_gaps"] == 0 and node.segmenter.step_index == 2
     node.destroy_node()
 
@@ -166,7 +166,7 @@ def test_the_node_splits_only_beyond_the_gap_like_the_reader(ctx, ckpt: Path) ->
     node = active_node(ctx, ckpt, episode_gap=0.5)
     stamps = [10 * S, 10 * S + S // 2, 11 * S + 1]  # exactly the gap: same episode; 1 ns more: a new one
     for t, s in enumerate(stamps):
-        node._on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t, np.float32)), s)
+        node.inputs.on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t, np.float32)), s)
     cuts = [i for i in range(1, len(stamps)) if gap_ends_episode(stamps[i], stamps[i - 1], S // 2)]
     assert cuts == [2] and node.counters()["episode_gaps"] == 1 and node.segmenter.step_index == 0
     node.destroy_node()

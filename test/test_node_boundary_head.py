@@ -56,7 +56,7 @@ def test_the_head_runs_live_as_it_replays_on_a_human_like_stream(ctx, tmp_path: 
     node = OMPNNode(context=ctx, parameter_overrides=[Parameter("checkpoint", value=str(path))])
     ok = TransitionCallbackReturn.SUCCESS
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
-    node._pubs = {k: Recorder() for k in node._pubs}
+    node.outputs.pubs = {k: Recorder() for k in node.outputs.pubs}
     seg = node.segmenter
     assert seg is not None and seg.head is not None
     assert isinstance(seg.detector, HeadDetector if mode == "head" else HeadDurationDetector)

@@ -42,14 +42,14 @@ def test_a_joint_count_mismatch_is_one_error_then_counted(ctx, ckpt: Path, capfd
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
     capfd.readouterr()
     for t in range(20):  # a 4-joint arm for a 6-value model
-        node._on_joint_state(_joints(4, t))
+        node.inputs.on_joint_state(_joints(4, t))
     err = capfd.readouterr().err
     lines = [line for line in err.splitlines() if "values" in line and "obs_dim" in line]
     assert len(lines) == 1, err
     assert "[ERROR]" in lines[0] and "observation has 4 values, the model expects obs_dim=6" in lines[0]
     assert "'joint_states' fields ['position']" in lines[0] and "trained on this robot" in lines[0]
     assert node.counters()["rejected_wrong_length"] == 20
-    node._on_joint_state(_joints(6, 20))  # the right size is stepped
+    node.inputs.on_joint_state(_joints(6, 20))  # the right size is stepped
     assert node.counters()["accepted"] == 1
     node.destroy_node()
 
@@ -66,12 +66,12 @@ def test_an_episode_whose_last_boundary_came_early_ends_with_one_episode_end(ctx
     ok = TransitionCallbackReturn.SUCCESS
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
     sent: list[bytes] = []
-    node._pubs["boundary"].publish = sent.append
+    node.outputs.pubs["boundary"].publish = sent.append
     for t in range(3):
         # the array path: three observations, stamps 1..3 s
-        node.process_observation(torch.zeros(OBS_DIM).numpy(), (t + 1) * 10**9)
+        node.inputs.process_observation(torch.zeros(OBS_DIM).numpy(), (t + 1) * 10**9)
     early = BoundaryEvent(step=2, detected_at=2, subtask=0, score=0.9, level=1, stamp_ns=3 * 10**9)
-    node.publish_boundary(early)  # as the detector does at the done step
+    node.outputs.publish_boundary(early)  # as the detector does at the done step
     closing = BoundaryEvent(step=2, detected_at=2, subtask=1, score=0.0, level=0, stamp_ns=3 * 10**9,
                             final=True, episode_end=True)  # what the detector closes it with
     node.segmenter.end_episode = lambda last_step=None: [closing]

@@ -59,16 +59,16 @@ def received(ep: Episode) -> Episode:
 
 
 def live(node: OMPNNode, stream: Episode, t0_ns: int) -> tuple[list[tuple[Any, ...]], np.ndarray]:
-    b0, p0 = len(node._pubs["boundary"].raws), len(node._pubs["pi"].raws)
-    node._on_episode(marker(layout.EPISODE_START, sketch=",".join(map(str, stream.sketch))))
+    b0, p0 = len(node.outputs.pubs["boundary"].raws), len(node.outputs.pubs["pi"].raws)
+    node.inputs.on_episode(marker(layout.EPISODE_START, sketch=",".join(map(str, stream.sketch))))
     for t, row in enumerate(stream.observations):
-        node._on_raw_array(m.encode_float32_array(row), t0_ns + t * STEP_NS)
-    node._on_episode(marker(layout.EPISODE_END, steps=str(stream.length)))
+        node.inputs.on_raw_array(m.encode_float32_array(row), t0_ns + t * STEP_NS)
+    node.inputs.on_episode(marker(layout.EPISODE_END, steps=str(stream.length)))
     events = []
-    for raw in node._pubs["boundary"].raws[b0:]:
+    for raw in node.outputs.pubs["boundary"].raws[b0:]:
         b = decode_subtask_boundary(raw)
         events.append((b.step, b.subtask, b.decided_step, f"{b.score:.6f}"))
-    return events, np.array([m.parse_float32_array(r) for r in node._pubs["pi"].raws[p0:]])
+    return events, np.array([m.parse_float32_array(r) for r in node.outputs.pubs["pi"].raws[p0:]])
 
 
 def _episodes(domain: str) -> list[Episode]:
@@ -85,7 +85,7 @@ def test_live_output_on_a_human_like_stream_equals_its_replay(ctx, domain: str) 
     node = OMPNNode(context=ctx, parameter_overrides=[Parameter("domain", value=domain)])
     ok = TransitionCallbackReturn.SUCCESS
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
-    node._pubs = {k: Recorder() for k in node._pubs}
+    node.outputs.pubs = {k: Recorder() for k in node.outputs.pubs}
     seg = node.segmenter
     assert seg is not None
     offline = StreamingSegmenter(seg.policy, seg.detector_config, seg.duration_model, seg.head)

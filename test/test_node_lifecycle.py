@@ -90,7 +90,7 @@ class Harness:
             lambda: (
                 pub.get_subscription_count() > 0
                 and self.node.count_publishers(topic) > 0
-                and self.node._pubs["pi"].get_subscription_count() > 0
+                and self.node.outputs.pubs["pi"].get_subscription_count() > 0
             )
         ), "discovery timed out"
         # endpoint matching can lag the graph: probe with empty (rejected) messages until one arrives
@@ -328,8 +328,8 @@ def test_receive_stamps_stay_increasing_when_the_clock_stands_still(ctx, ckpt: P
     assert node.get_clock().now().nanoseconds == 0
     obs = np.random.default_rng(5).normal(size=(4, OBS_DIM)).astype(np.float32)
     for x in obs:
-        node._on_array(encode_float32_array(x))
-    node._on_array(b"\x00\x01\x00\x00garbage")  # undecodable: counted, never fatal
+        node.inputs.on_array(encode_float32_array(x))
+    node.inputs.on_array(b"\x00\x01\x00\x00garbage")  # undecodable: counted, never fatal
     seg = node.segmenter
     assert seg.accepted == 4 and seg.rejected["out_of_order_stamp"] == 0
     assert seg.rejected["malformed"] == 1
@@ -347,11 +347,11 @@ def test_a_late_boundary_subscriber_gets_the_last_event_only(ctx, ckpt: Path) ->
     assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
     for _ in range(3):
         start = DiagnosticStatus(name="episode", message="start", values=[KeyValue(key="sketch", value="")])
-        node._on_episode(DiagnosticArray(status=[start]))
+        node.inputs.on_episode(DiagnosticArray(status=[start]))
         for t in range(4):
-            node._on_array(encode_float32_array(np.full(OBS_DIM, t, np.float32)))
+            node.inputs.on_array(encode_float32_array(np.full(OBS_DIM, t, np.float32)))
         end = DiagnosticStatus(name="episode", message="end", values=[KeyValue(key="steps", value="3")])
-        node._on_episode(DiagnosticArray(status=[end]))
+        node.inputs.on_episode(DiagnosticArray(status=[end]))
     assert node.counters()["boundaries"] >= 3
     h = Harness(ctx, node)  # subscribes ~/boundary TRANSIENT_LOCAL depth 1000 only now
     h.pump(lambda: len(h.boundaries) > 1, timeout=2.0)

@@ -52,7 +52,7 @@ def msg(head: int, names: list[str], position: Any, velocity: Any = ()) -> Joint
 
 def events(node: Any) -> list[tuple[int, str, int, str]]:
     out = []
-    for raw in node._pubs["boundary"].raws:
+    for raw in node.outputs.pubs["boundary"].raws:
         b = decode_subtask_boundary(raw)
         out.append((b.step, f"{b.score:.6f}", b.stamp_ns, str(b.final).lower()))
     return out
@@ -105,7 +105,7 @@ def test_idle_rule_live_cuts_where_the_reader_cuts(ctx, ckpts: dict[int, Path], 
     node = active_node(ctx, ckpts[3], obs_source="joint_state", idle_s=0.5, idle_speed=0.01,
                        max_stamp_lead=0.0)
     for head, pos, vel in stream:
-        node._on_joint_state(msg(head, ARM, pos, vel))
+        node.inputs.on_joint_state(msg(head, ARM, pos, vel))
     want, start = [], 0
     stamps = np.asarray([h for h, _, _ in stream])
     positions = stream_pos(stream)
@@ -153,11 +153,11 @@ def test_two_publishers_merge_live_like_the_reader(ctx, ckpts: dict[int, Path], 
     node = active_node(ctx, ckpts[4], obs_source="joint_state", joint_names=ARM + GRIPPER, joint_merge=0.05,
                        max_stamp_lead=0.0)
     for _, head, names, pos in arrivals:
-        node._on_joint_state(msg(head, names, pos))
+        node.inputs.on_joint_state(msg(head, names, pos))
     counters = node.counters()
     assert counters["accepted"] == len(episode.observations) and counters["rejected"] == 0
     assert counters["joint_missing"] == offline.report.bags[0].missing["/joint_states[finger]"] == 11
-    pis = np.array([m.parse_float32_array(r) for r in node._pubs["pi"].raws])
+    pis = np.array([m.parse_float32_array(r) for r in node.outputs.pubs["pi"].raws])
     seg = StreamingSegmenter(stepper_from_checkpoint(ckpts[4]), DetectorConfig(high=0.3, low=0.3))
     seg.reset(None)
     want = [seg.step(x, None).step_output.pi for x in episode.observations]
@@ -169,8 +169,8 @@ def test_empty_velocity_is_one_line_live(ctx, ckpts: dict[int, Path]) -> None:
     node = active_node(ctx, ckpts[3], obs_source="joint_state", joint_fields=["position", "velocity"],
                        max_stamp_lead=0.0)
     warnings: list[str] = []
-    node.warn_throttled = lambda text, with_total=True: warnings.append(text)  # type: ignore[method-assign]
-    node._on_joint_state(msg(NOW_S * S, ARM[:1] + ARM[1:], [0.1, 0.2, 0.3]))  # positions only
+    node.outputs.warn_throttled = lambda text, with_total=True: warnings.append(text)  # type: ignore[method-assign]
+    node.inputs.on_joint_state(msg(NOW_S * S, ARM[:1] + ARM[1:], [0.1, 0.2, 0.3]))  # positions only
     counters = node.counters()
     assert counters["accepted"] == 0 and counters["rejected_malformed"] == 1
     assert len(warnings) == 1 and "velocity is empty" in warnings[0] and "remove 'velocity'" in warnings[0]

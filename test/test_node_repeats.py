@@ -26,9 +26,9 @@ def _run(node: Any, source: str, obs: np.ndarray, repeat: bool) -> None:
         t = NOW_S * S + k * 40 * MS
         for copy in range(2 if repeat and k in REPEATED else 1):
             if source == "array":  # the copy: the same bytes, 2 µs later (source timestamp)
-                node._on_raw_array(m.encode_float32_array(x, "obs"), t + copy * 2000)
+                node.inputs.on_raw_array(m.encode_float32_array(x, "obs"), t + copy * 2000)
             else:  # the copy: the same header stamp and data
-                node._on_joint_state(msg(t, ARM, x))
+                node.inputs.on_joint_state(msg(t, ARM, x))
 
 
 @pytest.mark.parametrize("source", ["array", "joint_state"])

@@ -159,13 +159,13 @@ def test_the_node_live_publishes_what_the_replay_gives_on_a_paused_stream(ctx, c
     ep, moved = paused_episode()
     stamps = np.array([100 * 10**9 + 40 * MS * t for t in range(ep.length + 1)])
     node = active_node(ctx, ckpt, detector_high=0.4, detector_hysteresis=0.02, max_stamp_lead=0.0)
-    node._on_episode(marker("start"))
+    node.inputs.on_episode(marker("start"))
     for x, s in zip(ep.observations, stamps, strict=True):
-        node._on_raw_array(m.encode_float32_array(x), int(s))
-    node._on_episode(marker("end", steps=str(ep.length)))
+        node.inputs.on_raw_array(m.encode_float32_array(x), int(s))
+    node.inputs.on_episode(marker("end", steps=str(ep.length)))
     live = [(b.step, b.subtask, b.final, b.stamp_ns)
-            for b in map(decode_subtask_boundary, node._pubs["boundary"].raws)]
-    states, node_counters = len(node._pubs["state"].raws), node.counters()
+            for b in map(decode_subtask_boundary, node.outputs.pubs["boundary"].raws)]
+    states, node_counters = len(node.outputs.pubs["state"].raws), node.counters()
     node.destroy_node()
     seg = StreamingSegmenter(stepper_from_checkpoint(ckpt), DETECTOR)
     replay = replay_episode(seg, ep, include_done_step=True, stamps_ns=stamps)
@@ -231,7 +231,7 @@ def test_the_node_with_the_tolerance_on_a_human_like_craft_stream_equals_its_rep
     node = OMPNNode(context=ctx, parameter_overrides=[Parameter("checkpoint", value=str(still_dir))])
     ok = TransitionCallbackReturn.SUCCESS
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
-    node._pubs = {k: Recorder() for k in node._pubs}
+    node.outputs.pubs = {k: Recorder() for k in node.outputs.pubs}
     seg = node.segmenter
     assert seg is not None and seg.still_tolerance == TOL
     offline = StreamingSegmenter(seg.policy, seg.detector_config, seg.duration_model, seg.head)

@@ -80,13 +80,13 @@ def node_outputs(ctx, ckpt: Path, obs: np.ndarray, stamps: list[int]) -> tuple[l
 
     node = active_node(ctx, ckpt, max_stamp_lead=0.0, clock_jump_back=1.0, episode_gap=0.5)
     for x, s in zip(obs, stamps, strict=True):
-        node._on_raw_array(m.encode_float32_array(x), s)
+        node.inputs.on_raw_array(m.encode_float32_array(x), s)
     boundaries = []
-    for raw in node._pubs["boundary"].raws:
+    for raw in node.outputs.pubs["boundary"].raws:
         b = decode_subtask_boundary(raw)
         boundaries.append((b.episode, b.step, b.subtask, b.final, b.stamp_ns, b.decided_stamp_ns,
                            np.float32(b.score)))
-    pis = np.array([m.parse_float32_array(raw) for raw in node._pubs["pi"].raws])
+    pis = np.array([m.parse_float32_array(raw) for raw in node.outputs.pubs["pi"].raws])
     assert node.counters()["rejected_out_of_order_stamp"] == 1
     config = node.segmenter.detector_config
     node.destroy_node()

@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from ompn_ros.app.errors import TrainSetupError
+from ompn_ros.app.idle_record import read_idle_speed, record_idle_speed
 from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.cache import EpisodeArrays, load_arrays, load_dataset_arrays
 from ompn_ros.data.cuts import AUTO, check_setting, choose_tolerance
@@ -312,6 +313,15 @@ def labelled(train_config: TrainConfig, data: TrainingData) -> bool:
     return train_config.labels == "auto" and all(ep.subtask is not None for ep in data.episodes)
 
 
+def _record_idle(out: Path, report: dict[str, Any]) -> None:
+    """The idle speed the read used, beside ``best/`` and ``last/`` (for ``ompn_node``'s ``idle_speed:
+    auto``, :mod:`ompn_ros.app.idle_record`)."""
+    record = read_idle_speed(report)
+    for name in ("best", "last"):
+        if record is not None and (out / name).is_dir():
+            record_idle_speed(out / name, record)
+
+
 def run_training(
     data: TrainingData, model_config: OMPNConfig, train_config: TrainConfig, out: Path
 ) -> dict[str, Any] | None:
@@ -336,6 +346,7 @@ def run_training(
             "world_size": ctx.world_size,
         }
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, sort_keys=True))
+        _record_idle(out, data.report)
         return summary
     finally:
         shutdown(ctx)

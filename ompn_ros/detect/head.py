@@ -245,9 +245,12 @@ class HeadDecoder(EpisodeLog):
         return int(self.config.lag)
 
     def check(self, config: DetectorConfig) -> None:
-        if config.mode != HEAD_MODE or not 0 <= config.lag <= self.max_lag:
+        if config.mode != HEAD_MODE:
             raise BoundaryHeadError(f"the boundary head decodes mode '{HEAD_MODE}' with lag 0 … "
-                                    f"{self.max_lag}, got mode '{config.mode}' lag {config.lag}")
+                                    f"{self.max_lag}, got mode '{config.mode}'")
+        if not 0 <= config.lag <= self.max_lag:
+            raise BoundaryHeadError(f"detector_lag {config.lag} is beyond this boundary head's lags "
+                                    f"(lag 0 … {self.max_lag})")
 
     def configure(self, config: DetectorConfig) -> None:
         """Run ``config`` (same lag) from the next step on."""

@@ -28,7 +28,9 @@ Subscriptions (while active; names from :mod:`ompn_ros.layout`, relative to the 
                       (:mod:`ompn_ros.data.cuts.gap`, the bag reader's ``split: gaps`` rule).
                       A driver that keeps publishing while the robot waits: ``idle_s`` > 0 ends an
                       episode once its speed stayed below ``idle_speed`` for ``idle_s`` (joint speed
-                      in rad/s with ``obs_source: joint_state``; the reader's ``split: idle``, whose
+                      in rad/s with ``obs_source: joint_state``; ``auto``: the training read's value,
+                      else measured on the stream's first 10 s, :mod:`ompn_ros.nodes.ompn_node_idle`;
+                      the reader's ``split: idle``, whose
                       end boundary is decided ``idle_s`` later; idle steps are held, then stepped or
                       trimmed, counted ``idle_trimmed``; a marker or ``~/reset`` ends the held ones as
                       the end of a bag does: the first is the final observation, the others trimmed).
@@ -94,35 +96,29 @@ from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
-from ompn_ros.data.cuts import GAP_TIMER_FRACTION
+from ompn_ros.data.cuts import GAP_TIMER_FRACTION, IdleSpeed
 from ompn_ros.data.obs import ObservationSpecError
 from ompn_ros.detect.errors import DetectorConfigError, DetectorSettingsError
-from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE
-from ompn_ros.detect.settings import (
-    DETECTOR_PARAMETERS,
-    NODE_PARAMETERS,
-    DetectorSettings,
-    detector_config,
-    node_parameters,
-    resolve_detector,
-)
+from ompn_ros.detect.parameters import DetectorParameters
 from ompn_ros.errors import OMPNError
 from ompn_ros.model.errors import CheckpointError, ConfigError
 from ompn_ros.nodes.clock_watch import ClockWatch, clock_ns, guard_clock_topic
 from ompn_ros.nodes.duplicate_name import duplicate_line, same_name_count
 from ompn_ros.nodes.lifecycle_guard import guard_change_state
 from ompn_ros.nodes.ompn_node_checkpoint import check_model, default_sketch, resolve_checkpoint
-from ompn_ros.nodes.ompn_node_inputs import MarkerTwins, NodeInputs
-from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, joint_input, load_spec
+from ompn_ros.nodes.ompn_node_idle import IdleProbe, chosen_idle_speed
+from ompn_ros.nodes.ompn_node_inputs import NodeInputs
+from ompn_ros.nodes.ompn_node_obs import AssembledInput, joint_input, load_spec, spec_line
+from ompn_ros.nodes.ompn_node_outputs import NodePublishers
 from ompn_ros.nodes.ompn_node_params import EXECUTORS, OBS_SOURCES, SPECS
 from ompn_ros.ros.params import ParameterError, ParamTable
 from ompn_ros.ros.run import NodeProcess, run_node
 from ompn_ros.segmenter import StreamingSegmenter
-from ompn_ros.stream.rule import StreamLimits, StreamRule
+from ompn_ros.stream.rule import StreamLimits
 
 NODE_NAME = "ompn_node"
 __all__ = ["EXECUTORS", "NODE_NAME", "OBS_SOURCES", "NodeConfigError", "OMPNNode", "main"]
@@ -132,51 +128,35 @@ class NodeConfigError(OMPNError, ValueError):
     """A parameter or the checkpoint does not fit; the message is the transition's failure reason."""
 
 
-class OMPNNode(NodeInputs):
+class OMPNNode(LifecycleNode):
     """Lifecycle node: configure = load + validate the checkpoint, activate = subscribe and run.
 
-    The stamp and episode rules are :attr:`stream` (:class:`ompn_ros.stream.rule.StreamRule`, shared
-    with the offline replay); the inputs and outputs are the base classes
-    (:mod:`ompn_ros.nodes.ompn_node_inputs`, :mod:`ompn_ros.nodes.ompn_node_outputs`)."""
+    It owns its parts: :attr:`outputs` (``NodePublishers``: the publishers and the stream rule they
+    publish for, :attr:`stream`, shared with the offline replay), :attr:`inputs` (``NodeInputs``: the
+    subscriptions) and :attr:`detector` (``DetectorParameters``: the detector parameters' precedence)."""
 
     def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = ParamTable(SPECS)
         self.values = self.params.declare(self)  # ParameterError on an invalid start-up value
-        detector_config(self.values)  # cross-checks the detector parameters as a whole
+        # detector parameters given on the command line or in a params file win over the checkpoint's
+        self.detector = DetectorParameters(getattr(self, "_parameter_overrides", {}))
+        self.detector.config(self.values)  # cross-checks the detector parameters as a whole
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        # detector parameters given on the command line, in a params file or set later: these win over
-        # the checkpoint's own detector.json (explicit > checkpoint > defaults)
-        overrides = getattr(self, "_parameter_overrides", {})
-        self._explicit: set[str] = {name for name in NODE_PARAMETERS if name in overrides}
-        self._from_checkpoint = False
-        self.stream = StreamRule(self, lambda: self.get_clock().now().nanoseconds)
+        self.outputs = NodePublishers(self, self.values, lambda: self.get_clock().now().nanoseconds)
+        self.stream = self.outputs.stream
+        self.inputs = NodeInputs(self, self.values, self.outputs, self._idle_found)
         self.events = self.stream.events  # the node's counters (counters())
-        self.assembled: AssembledInput | None = None  # observation_spec input (None: single topic)
         self.last_error = ""
         self.configure_error: Exception | None = None  # of the last failed configure
         self.quiet_configure = False
-        self.qos_warnings: list[str] = []
-        self._pubs: dict[str, Any] = {}
-        self._subs: list[Any] = []
         self._timer: Any = None
-        self._graph_timer: Any = None
-        self._hold_timer: Any = None
         self._gap_timer: Any = None
-        self._joints: JointInput | None = None  # obs_source 'joint_state'
-        self._last_warn = -float("inf")
-        self._fq_name = self.get_fully_qualified_name()  # the node field of ~/boundary
-        self._frame_id = ""  # the observation's header.frame_id (JointState input)
-        self._sizes_reported: set[str] = set()  # observation size mismatches logged (once each)
-        self._missed_warned: set[str] = set()  # input topics whose first unreceived messages were warned
-        self._lost_warned: set[str] = set()  # topics whose first middleware loss was warned
-        self._twins = MarkerTwins()  # a marker's typed and deprecated forms: one is handled
-        self._n_slots = 0
-        self._active = False
         self.finished = threading.Event()  # set by the shutdown transition: main() then exits
         self._clock_watch = ClockWatch()
         self._duplicates = 0  # other nodes with this node's full name (seen on the graph)
+        self._idle_speed: float | None = None  # idle_speed resolved (auto: at configure or from the stream)
         self._cache_limits()
         guard_clock_topic(self, self._on_clock)  # a negative /clock is dropped, not fatal
         guard_change_state(self, self.get_logger().warning)  # an invalid request is refused, not fatal
@@ -187,67 +167,40 @@ class OMPNNode(NodeInputs):
         """The configured segmenter (``None`` before configure and after cleanup)."""
         return self.stream.segmenter
 
+    @property
+    def assembled(self) -> AssembledInput | None:
+        """The ``observation_spec`` input (``None``: a single topic, or not configured)."""
+        return self.inputs.assembled
+
     def _cache_limits(self) -> None:
         """The stream limits in ns and the default sketch, read once per change rather than once per step."""
-        self.stream.limits = StreamLimits.of(self.values)
+        # without a known idle speed (auto, measured once active) the idle rule waits: idle_s 0 until then
+        known = self._idle_speed is not None
+        self.stream.limits = StreamLimits.of({**self.values, "idle_speed": self._idle_speed if known else 0.0,
+                                              "idle_s": self.values["idle_s"] if known else 0.0})
         self.stream.default_sketch = default_sketch(self.values)
         self._clock_watch.stall_ns = round(float(self.values["clock_stall"]) * 1e9)
         self._clock_watch.jump_forward_ns = round(float(self.values["clock_jump_forward"]) * 1e9)
 
     # --- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
-        result = self.params.check_changes(params, active=self._active)
+        result = self.params.check_changes(params, active=self.inputs.active)
         if not result.successful:
             return result
         merged = dict(self.values)
         merged.update({p.name: p.value for p in params if p.name in self.params.specs})
-        try:
-            config = detector_config(merged)
-        except DetectorConfigError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        seg = self.segmenter
-        if seg is None or self._from_checkpoint:
-            return result
-        if config.mode in DURATION_MODES and seg.duration_model is None:
-            return SetParametersResult(successful=False, reason=(
-                f"detector_mode '{config.mode}' needs a duration model, and this checkpoint's "
-                "detector.json has none (ompn_train writes one)"))
-        if config.mode in (HEAD_MODE, HEAD_DURATION_MODE) and seg.head is None:
-            return SetParametersResult(successful=False, reason=(
-                f"detector_mode '{config.mode}' needs a boundary head, and this checkpoint's detector.json "
-                "has none (ompn_train fits one on labelled bags)"))
-        if config.mode == HEAD_MODE and seg.head is not None and config.lag > seg.head.max_lag:
-            return SetParametersResult(successful=False, reason=(
-                f"detector_lag {config.lag} is beyond this boundary head's lags (0 … {seg.head.max_lag})"))
-        return result
+        reason = self.detector.refusal(merged)
+        return result if reason is None else SetParametersResult(successful=False, reason=reason)
 
     def _apply_parameters(self, params: list[Any]) -> None:
         """Post-set: remember the values; live detector changes apply from the next step."""
         names = {p.name for p in params if p.name in self.params.specs}
-        if not self._from_checkpoint:
-            self._explicit |= names & set(NODE_PARAMETERS)
         self.values.update({p.name: p.value for p in params if p.name in self.params.specs})
         self._cache_limits()
-        if names & set(DETECTOR_PARAMETERS) and self.segmenter is not None:
-            config = detector_config(self.values)
+        if self.detector.changed(names) and self.segmenter is not None:
+            config = self.detector.config(self.values)
             when = self.segmenter.set_detector(config)  # checked by _on_set_parameters
             self.get_logger().info(f"detector now {config} ({when})")
-
-    def _apply_checkpoint_detector(self, path: str) -> DetectorSettings:
-        """Fill the detector parameters nobody set explicitly from the checkpoint's ``detector.json``
-        (``ompn_ros.detect.settings``) and log which settings run and where they came from; the
-        settings (their duration model and boundary head, if any)."""
-        settings, line = resolve_detector(path)
-        stored = node_parameters(settings)
-        take = [Parameter(n, value=stored[n]) for n in NODE_PARAMETERS if n not in self._explicit]
-        self._from_checkpoint = True
-        try:
-            self.set_parameters(take)  # the ROS parameters show what runs
-        finally:
-            self._from_checkpoint = False
-        explicit = sorted(self._explicit)
-        self.get_logger().info(f"{line}; overridden by parameters: {explicit}" if explicit else line)
-        return settings
 
     # --- lifecycle -----------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -258,8 +211,7 @@ class OMPNNode(NodeInputs):
             self.configure_error = exc
             if not self.quiet_configure:  # main() reports an auto-start failure itself, in one line
                 self.get_logger().error(f"configure failed: {self.last_error}")
-            self.stream.segmenter = None
-            self.assembled = None
+            self._unload()
             return TransitionCallbackReturn.FAILURE
         self.last_error = ""
         # Everything alive now (torch, numba, the model: ~280 000 objects for Craft) leaves the cyclic
@@ -279,39 +231,49 @@ class OMPNNode(NodeInputs):
             path = resolve_checkpoint(self.values)
         except ValueError as exc:
             raise NodeConfigError(str(exc)) from exc
-        stored = self._apply_checkpoint_detector(path)
+        stored, line = self.detector.load(
+            path, lambda taken: self.set_parameters([Parameter(n, value=v) for n, v in taken.items()]))
+        self.get_logger().info(line)
+        self._idle_speed, line = chosen_idle_speed(self.values, path, self.stream.limits.idle_elements)
+        self._cache_limits()
+        if line:
+            self.get_logger().info(line)
         policy = stepper_from_checkpoint(path)
         try:
             check_model(self.values, policy.config)
-            self._joints = joint_input(self.values)
+            joints = joint_input(self.values)
         except ValueError as exc:
             raise NodeConfigError(str(exc)) from exc
-        depth = int(self.values["qos_depth"])
-        self.assembled = None if spec is None else AssembledInput(spec, int(policy.config.obs_dim), depth)
-        segmenter = StreamingSegmenter(policy, detector_config(self.values), stored.duration_model,
+        obs_dim, depth = int(policy.config.obs_dim), int(self.values["qos_depth"])
+        self.inputs.configure(None if spec is None else AssembledInput(spec, obs_dim, depth), joints)
+        segmenter = StreamingSegmenter(policy, self.detector.config(self.values), stored.duration_model,
                                        stored.head)
         default = self.stream.default_sketch
         if segmenter.needs_sketch and default is not None:
             segmenter.reset(default)
             self.stream.episode_sketch = default
         self.stream.segmenter = segmenter
-        self.create_outputs(policy.config)
+        self.outputs.create(policy.config, self.inputs.source())
         self.get_logger().info(
-            f"configured: checkpoint={path} obs_dim={policy.config.obs_dim} n_slots={self._n_slots} "
+            f"configured: checkpoint={path} obs_dim={policy.config.obs_dim} n_slots={policy.config.n_slots} "
             f"action={policy.config.action_type} sketch_mode={policy.config.sketch_mode} "
             f"detector={segmenter.detector_config}"
         )
         if spec is not None:
-            self.get_logger().info(
-                f"observation_spec: step topic {spec.step_topic}, topics {list(spec.topics)}, tolerance "
-                f"{spec.tolerance_s} s, stamp {spec.stamp}, size {spec.declared_dim() or 'from the data'}"
-            )
+            self.get_logger().info(spec_line(spec))
+
+    def _unload(self) -> None:
+        """Forget the model and the configured input (a failed configure, cleanup)."""
+        self.stream.segmenter = None
+        self.inputs.configure(None, self.inputs.joints)
+        self.detector.unload()
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self.segmenter is None:
             self.last_error = "activate without a configured segmenter"
             return TransitionCallbackReturn.FAILURE
-        self.subscribe_inputs()
+        measure = float(self.values["idle_s"]) > 0 and self._idle_speed is None  # idle_speed auto, no record
+        self.inputs.subscribe(IdleProbe(self.stream.limits.idle_elements) if measure else None)
         # the steady clock: /diagnostics (and the stall check) go on while a simulator's /clock stands still
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         period = float(self.values["diagnostics_period"])
@@ -320,7 +282,6 @@ class OMPNNode(NodeInputs):
         gap_ns = self.stream.limits.gap_ns
         if gap_ns > 0:  # the node's clock: simulated time under use_sim_time
             self._gap_timer = self.create_timer(gap_ns * GAP_TIMER_FRACTION / 1e9, self._check_silence)
-        self._active = True
         self.get_logger().info("activated")
         return super().on_activate(state)
 
@@ -332,11 +293,8 @@ class OMPNNode(NodeInputs):
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._teardown_inputs()
         gc.unfreeze()  # the model being dropped can be collected again
-        for pub in self._pubs.values():
-            self.destroy_lifecycle_publisher(pub)
-        self._pubs = {}
-        self.stream.segmenter = None
-        self.assembled = None
+        self.outputs.destroy()
+        self._unload()
         self.get_logger().info("cleaned up")
         return TransitionCallbackReturn.SUCCESS
 
@@ -347,43 +305,52 @@ class OMPNNode(NodeInputs):
         return TransitionCallbackReturn.SUCCESS
 
     def _teardown_inputs(self) -> None:
-        self._active = False
-        for sub in self._subs:
-            self.destroy_subscription(sub)
-        self._subs = []
-        for timer in (self._timer, self._graph_timer, self._hold_timer, self._gap_timer):
+        self.inputs.unsubscribe()
+        for timer in (self._timer, self._gap_timer):
             if timer is not None:
                 self.destroy_timer(timer)
-        self._timer = self._graph_timer = self._hold_timer = self._gap_timer = None
+        self._timer = self._gap_timer = None
         self.stream.disarm()
-        if self.assembled is not None:
-            self.assembled.asm.reset()  # held steps are decided (counted) but not stepped: inactive
 
     # --- episodes ------------------------------------------------------------------------------
     def _check_silence(self) -> None:
         """Timer of ``episode_gap``: end an open episode that had no step for ``episode_gap`` s."""
-        if self._active:
+        if self.inputs.active:
             self.stream.check_silence()
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if not self._active:
+        if not self.inputs.active:
             state = self._state_machine.current_state[1]
             response.success = False
             response.message = f"not reset: the node is '{state}'; ~/reset starts episodes only while active"
             return response
-        if self.assembled is not None:  # held steps are stepped first: they came before the request
-            self._step_decided(self.assembled, self.assembled.asm.reset(), self.get_clock().now().nanoseconds)
+        self.inputs.release_all()  # held steps are stepped first: they came before the request
         response.success = self.stream.reset()
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
         return response
 
+    def _idle_found(self, derived: IdleSpeed, rows: int) -> None:
+        """``idle_speed: auto`` measured on the stream's first ``rows`` observations: the idle rule runs."""
+        self._idle_speed = derived.speed
+        self.get_logger().info(f"{derived.text}, from the stream's first {rows} observations")
+        self._cache_limits()
+        self.stream.arm()  # nothing was stepped while the probe held the observations
+
     # --- health --------------------------------------------------------------------------------
+    def counters(self) -> dict[str, int]:
+        """Health counters, also on /diagnostics (:meth:`NodePublishers.counters` names them)."""
+        return self.outputs.counters(self.inputs.counters())
+
+    def publish_diagnostics(self) -> None:
+        """Publish the counters on /diagnostics (silently skipped once the context is shutting down)."""
+        self.outputs.publish_diagnostics(self.counters(), self.inputs.dropped_total, self._duplicates)
+
     def _on_clock(self, msg: Any) -> bool:
         """Before rclpy's /clock handler: drop a negative time; a forward leap starts a new episode."""
         verdict = self._clock_watch.on_clock(clock_ns(msg), time.monotonic_ns())
         if verdict == "negative":
             self.events["clock_negative"] += 1
-            self.warn_throttled(f"/clock message dropped: negative time {clock_ns(msg)} ns", False)
+            self.outputs.warn_throttled(f"/clock message dropped: negative time {clock_ns(msg)} ns", False)
             return False
         if verdict == "forward":
             self.events["clock_jumps_forward"] += 1
@@ -391,8 +358,7 @@ class OMPNNode(NodeInputs):
                 f"/clock jumped ahead to {clock_ns(msg)} ns (more than clock_jump_forward="
                 f"{self.values['clock_jump_forward']} s): starting a new episode"
             )
-            seg = self.segmenter
-            if seg is not None and self._active and seg.ready:
+            if self.segmenter is not None and self.inputs.active and self.segmenter.ready:
                 self.stream.restart_episode()
         return True
 

@@ -69,6 +69,12 @@ def load_spec(value: str, namespace: str) -> ObservationSpec | None:
     return spec
 
 
+def spec_line(spec: ObservationSpec) -> str:
+    """The configure log line of an ``observation_spec``."""
+    return (f"observation_spec: step topic {spec.step_topic}, topics {list(spec.topics)}, tolerance "
+            f"{spec.tolerance_s} s, stamp {spec.stamp}, size {spec.declared_dim() or 'from the data'}")
+
+
 class AssembledInput:
     """The node's assembler with the checks around it (not thread-safe; one per configure).
 
@@ -205,10 +211,10 @@ class JointInput:
 def joint_input(values: Mapping[str, Any]) -> JointInput | None:
     """The node's :class:`JointInput` from its parameters (``None`` unless ``obs_source`` is
     ``joint_state``); ``ValueError`` (one line) when ``joint_merge`` lacks ``joint_names`` or ``idle_s``
-    has no way to see stillness."""
-    if float(values["idle_s"]) > 0 and float(values["idle_speed"]) <= 0:
+    has no way to see idleness."""
+    if float(values["idle_s"]) > 0 and values["idle_speed"] != "auto" and float(values["idle_speed"]) <= 0:
         raise ValueError("idle_s needs idle_speed > 0: the node sees no commands, only the observation's "
-                         "speed tells that the robot is still")
+                         "speed tells that the robot is idle")
     if values["obs_source"] != "joint_state":
         return None
     names = [str(n) for n in values["joint_names"] if str(n)]

@@ -42,6 +42,7 @@ from rclpy.qos import (
 from ompn_ros import layout
 from ompn_ros.detect.online import ALL_MODES, MAX_LAG, MAX_OFFSET
 from ompn_ros.layout import JOINT_FIELDS
+from ompn_ros.nodes.ompn_node_idle import idle_speed_rule
 from ompn_ros.nodes.ompn_node_obs import spec_rule
 from ompn_ros.ros.params import ParamSpec
 
@@ -145,14 +146,16 @@ SPECS: Final = (
               "episode and start the next, for streams without episode markers (the reader's "
               "split: gaps / time_gap; 0 = off)", float_range=(0.0, 1e6), apply="configure",
               check=_gap_rule),
-    ParamSpec("idle_s", 0.0, "seconds the robot must be still to end an episode, for streams without "
+    ParamSpec("idle_s", 0.0, "seconds the robot must be idle to end an episode, for streams without "
               "episode markers whose driver keeps publishing between demonstrations (the reader's split: "
-              "idle; still steps are held, then stepped or trimmed; 0 = off)", float_range=(0.0, 1e6),
+              "idle; idle steps are held, then stepped or trimmed; 0 = off)", float_range=(0.0, 1e6),
               apply="configure"),
-    ParamSpec("idle_speed", 0.01, "idle_s: a step is still when its speed is below this: with obs_source "
+    ParamSpec("idle_speed", "auto", "idle_s: a step is idle when its speed is below this: with obs_source "
               "joint_state the joint speed in rad/s (positions' change per second, velocities as measured), "
-              "else any element's change per second; ompn_train's read summary names the bag's (idle_speed: "
-              "auto)", float_range=(0.0, 1e9), apply="configure"),
+              "else any element's change per second; 'auto' or a number >= 0. auto: the value the "
+              "checkpoint's training read used (idle_speed.json beside it), else derived from the first 10 s "
+              "of the stream (held until then); the node logs the value", apply="configure",
+              check=idle_speed_rule, dynamic=True),
     ParamSpec("executor", "events", "callback executor", choices=EXECUTORS),
     ParamSpec("torch_threads", 1, "torch intra-op threads", int_range=(1, 64), apply="configure"),
 )  # fmt: skip

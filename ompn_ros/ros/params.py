@@ -46,6 +46,8 @@ class ParamSpec:
 
     ``choices`` restricts a string parameter, or every item of a string-array parameter.  ``check`` is an
     extra rule that returns a reason (or ``None``) for values the range and choices cannot express.
+    ``dynamic``: the value may be of another type than the default (ROS dynamic typing; e.g. ``auto`` or
+    a number), ``check`` then says which values are allowed.
     """
 
     name: str
@@ -56,10 +58,12 @@ class ParamSpec:
     choices: tuple[str, ...] | None = None
     apply: Apply = "startup"
     check: Callable[[Any], str | None] | None = None
+    dynamic: bool = False
 
     def descriptor(self) -> ParameterDescriptor:
         """The ROS descriptor: ranges as ROS ranges, choices as a constraint text."""
-        desc = ParameterDescriptor(description=self.description, read_only=self.apply == "startup")
+        desc = ParameterDescriptor(description=self.description, read_only=self.apply == "startup",
+                                   dynamic_typing=self.dynamic)
         if self.int_range is not None:
             lo, hi = self.int_range
             desc.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=1)]
