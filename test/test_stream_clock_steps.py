@@ -66,13 +66,13 @@ def live(ctx, ckpt: Path, raws: list[bytes], log: np.ndarray) -> tuple[list[tupl
     node.stream.clock = lambda: now[0]
     for raw, stamp in zip(raws, log.tolist(), strict=True):
         now[0] = stamp
-        node._on_joint_state(deserialize_message(raw, JointState))
+        node.inputs.on_joint_state(deserialize_message(raw, JointState))
     out = []
-    for raw in node._pubs["boundary"].raws:
+    for raw in node.outputs.pubs["boundary"].raws:
         b = decode_subtask_boundary(raw)
         out.append((b.episode, b.step, b.subtask, b.final, b.stamp_ns, b.decided_stamp_ns,
                     np.float32(b.score)))
-    pis = np.array([m.parse_float32_array(raw) for raw in node._pubs["pi"].raws])
+    pis = np.array([m.parse_float32_array(raw) for raw in node.outputs.pubs["pi"].raws])
     counters, config = node.counters(), node.segmenter.detector_config
     node.destroy_node()
     return out, pis, counters, config
