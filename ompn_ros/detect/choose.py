@@ -1,6 +1,6 @@
 """Which online and offline detector a checkpoint runs, and with which settings: the one place that
-decides, for ``ompn_train`` (:func:`choose_settings`) and ``ompn_segment --tune``
-(:func:`choose_on_replayed`).  Its defaults are :mod:`ompn_ros.detect.defaults`.
+decides (docs/design.md#choosing-the-detector), for ``ompn_train`` (:func:`choose_settings`) and
+``ompn_segment --tune`` (:func:`choose_on_replayed`).  Its defaults are :mod:`ompn_ros.detect.defaults`.
 
 From validation episodes (their expansion distributions ``p_hat`` and online scores):
 
