@@ -27,7 +27,7 @@ from ompn_ros.train.config import TrainConfig
 ROOT = Path(__file__).resolve().parents[1]
 CHOOSER_FUNCTIONS = {"pick_online", "prefer", "duration_detector", "tune_head_duration", "pick_head",
                      "calibrate_without_labels", "objective_for", "settings_on_labels",
-                     "settings_without_labels", "choose_on_replayed", "with_tuned"}
+                     "settings_without_labels", "choose_on_replayed", "with_tuned", "pick_offline"}
 """What decides the detector: defined in ompn_ros/detect/choose.py (objective_for: defaults.py) only."""
 DEFAULT_NAMES = {"DURATION_LAG", "DURATION_DELAY", "DURATION_GAIN", "DEFAULT_OBJECTIVE", "OBJECTIVES",
                  "LABEL_FREE_REFERENCE", "LABEL_FREE_REFERENCE_MIN_LENGTH", "LABEL_FREE_MIN_LENGTH",
@@ -145,3 +145,23 @@ def test_the_choice_on_labels_finds_the_boundaries_and_calls_its_parts_once_in_o
                                         use_labels=False, offline=offline)  # type: ignore[arg-type]
     assert unlabelled.source == "calibrated_label_free" and unlabelled.offline_detector == "auto_threshold"
     assert calls == ["head", "offline"]  # without labels neither is asked for
+
+
+def test_the_params_file_holds_the_nodes_detector_parameters(tmp_path: Path) -> None:
+    import yaml
+
+    from ompn_ros.detect.online import DetectorConfig
+    from ompn_ros.detect.params_file import load_detector_yaml, write_node_config
+    from ompn_ros.detect.settings import DETECTOR_PARAMETERS
+
+    config = DetectorConfig(high=0.3, low=0.2, min_segment_length=3, mode="peak", offset=2)
+    path = write_node_config(tmp_path / "node.yaml", "", config, {}, "their bag")
+    written = yaml.safe_load(path.read_text(encoding="utf-8"))["/**/ompn_node"]["ros__parameters"]
+    assert set(written) == set(DETECTOR_PARAMETERS)  # one set of names: the file, the node, the reader
+    assert load_detector_yaml(path) == config
+
+
+def test_the_offline_choice_is_the_best_alignment_first_on_ties() -> None:
+    assert choose.pick_offline({"topkc_align": 0.8, "topk_align": 0.9, "auto_align": 0.9}, 4) == ("top_k", 4)
+    assert choose.pick_offline({"topkc_align": 0.9, "topk_align": 0.9, "auto_align": 0.1}, 2) == (
+        "constrained_top_k", 2)

@@ -130,6 +130,19 @@ def tune_head_duration(model: DurationModel, head: BoundaryHead, val_outputs: Se
                                    max_delay=max_delay)
 
 
+def pick_offline(metrics: dict[str, float], min_length: int) -> tuple[OfflineDetector, int]:
+    """The offline detector of the best validation alignment in ``metrics`` (``topkc_align``,
+    ``topk_align``, ``auto_align``: the constrained Top-K of ``min_length``, Top-K, the automatic
+    threshold; the first on ties), and the ``min_length`` it keeps."""
+    candidates: list[tuple[float, OfflineDetector]] = [
+        (metrics["topkc_align"], "constrained_top_k"),
+        (metrics["topk_align"], "top_k"),
+        (metrics["auto_align"], "auto_threshold"),
+    ]
+    best = max(candidates, key=lambda item: item[0])  # the first on ties
+    return best[1], int(min_length)
+
+
 @dataclass(frozen=True)
 class HeadCandidate:
     """A fitted boundary head with its decoding chosen and that decoding's validation figures, and
@@ -313,6 +326,7 @@ __all__ = [
     "choose_settings",
     "duration_detector",
     "pick_head",
+    "pick_offline",
     "pick_online",
     "prefer",
     "replay_config",

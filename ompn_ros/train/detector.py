@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.choose import HeadCandidate, Validation
+from ompn_ros.detect.choose import HeadCandidate, Validation, pick_offline
 from ompn_ros.detect.choose import choose_settings as choose
 from ompn_ros.detect.defaults import DURATION_DELAY, DURATION_LAG
 from ompn_ros.detect.settings import DetectorSettings, OfflineDetector, save_detector_settings
@@ -29,15 +29,10 @@ LOG = logging.getLogger("ompn_ros.train")
 
 
 def _offline_choice(p_hats: Sequence[np.ndarray], episodes: Sequence[Episode]) -> tuple[OfflineDetector, int]:
+    """:func:`~ompn_ros.detect.choose.pick_offline` on the validation figures of the offline detectors,
+    the constrained Top-K's ``min_length`` tuned on them first."""
     min_length, _ = tune_min_length(p_hats, episodes)
-    metrics = decomposition_metrics(p_hats, episodes, min_length=min_length)
-    candidates: list[tuple[float, OfflineDetector]] = [
-        (metrics["topkc_align"], "constrained_top_k"),
-        (metrics["topk_align"], "top_k"),
-        (metrics["auto_align"], "auto_threshold"),
-    ]
-    best = max(candidates, key=lambda item: item[0])  # the first on ties
-    return best[1], int(min_length)
+    return pick_offline(decomposition_metrics(p_hats, episodes, min_length=min_length), min_length)
 
 
 @dataclass(frozen=True)
