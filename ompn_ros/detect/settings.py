@@ -19,6 +19,13 @@ values came from (``source``) and what they measured.  Layout::
 its sizes, and its weights in ``boundary_head.safetensors`` beside ``detector.json``, whose header is
 checked against those sizes before any weight is read.
 
+One shape from file to node: :class:`DetectorSettings` is ``detector.json``
+(:meth:`~DetectorSettings.to_dict`, :meth:`~DetectorSettings.from_dict`); its ``online`` part is the
+:class:`~ompn_ros.detect.online.DetectorConfig` every detector is built from; the node's
+``detector_*`` parameters are :func:`node_parameters` of it and :func:`detector_config` back, and an
+``ompn_node --params-file`` holds those same names (:mod:`ompn_ros.detect.params_file`).  Which
+settings a checkpoint gets is chosen in :mod:`ompn_ros.detect.choose`.
+
 Precedence for every consumer: an explicit parameter (or ``--detector-config``) beats the
 checkpoint's ``detector.json``, which beats the built-in defaults (``source = 'default'``).
 The online detector is the causal form of the paper's Algorithm 1 (Lu et al., ICLR 2021, §3.3);
