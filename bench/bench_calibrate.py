@@ -23,10 +23,10 @@ def run(quick: bool = False) -> dict[str, tuple[float, str]]:
 
     from ompn_ros.checkpoints import shipped_checkpoint
     from ompn_ros.detect.calibrate import tune_on_labels
+    from ompn_ros.detect.choose import calibrate_without_labels
     from ompn_ros.model.load import stepper_from_checkpoint
     from ompn_ros.segmenter import StreamingSegmenter
     from ompn_ros.stream.replay import replay_episode
-    from ompn_ros.train.detector import calibrate_without_labels
     from sim_nodes.craft import PAPER_TASKS, generate_episode
 
     n = 60 if quick else 240

@@ -45,7 +45,9 @@ from lab.report import write_study
 from lab.scoring import offline_boundaries
 from ompn_ros.app import training
 from ompn_ros.app.training import apply_overrides, load_config
-from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
+from ompn_ros.detect.defaults import DURATION_DELAY, DURATION_LAG
+from ompn_ros.detect.duration_tuning import calibrate_duration
+from ompn_ros.detect.grid import scores_from_p_hats
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.head import windowed as windowed_rows
 from ompn_ros.detect.offline import top_k_boundaries
@@ -56,7 +58,6 @@ from ompn_ros.train.batching import collate
 from ompn_ros.train.boundary_head import EPOCHS, HIDDEN, MAX_HEAD_LAG, WINDOW
 from ompn_ros.train.boundary_head import targets as lag_targets
 from ompn_ros.train.boundary_head import train_head as train_window_head
-from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.trainer import train_val_episodes
 
 MAX_LAG = MAX_HEAD_LAG

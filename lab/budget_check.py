@@ -26,8 +26,9 @@ import numpy as np
 from lab.detector_selection import _bounds, cached_scores, decoded
 from lab.report import study_main
 from lab.report_transfer import BUDGET
-from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
-from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
+from ompn_ros.detect.defaults import DURATION_DELAY, DURATION_LAG
+from ompn_ros.detect.duration_tuning import calibrate_duration
+from ompn_ros.detect.grid import scores_from_p_hats
 
 
 def _runs(observation: str, bags: Sequence[str] = ("complete", "blank_best2"), prefix: str = "human"

@@ -25,9 +25,9 @@ import numpy as np
 
 from lab.own_data import arm_by_name, arm_configs, arm_data
 from lab.report import write_study
-from ompn_ros.detect.calibrate import evaluate_grid, scores_from_p_hats
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.factory import make_detector
+from ompn_ros.detect.grid import GridRows, grid_on_labels, label_boundaries, scores_from_p_hats
 from ompn_ros.detect.online import DetectorConfig, run_detector
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings
 from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, default_grid, delay_stats, pick_setting, pick_within_error
@@ -39,13 +39,9 @@ from ompn_ros.train.trainer import train_val_episodes
 Rows = list[dict[str, float]]
 
 
-@dataclass(frozen=True)
-class Validation:
-    """The grid's metrics on a set of validation episodes, and how to get one setting's per episode."""
-
-    rows: Rows
-    per_episode: Callable[[int], Rows]
-    lengths: list[int]
+Validation = GridRows
+"""The grid's metrics on a set of validation episodes, and one setting's per episode: the product's
+:class:`~ompn_ros.detect.grid.GridRows`, as ``ompn_train``'s tuning sees them."""
 
 
 def previous(val: Validation, objective: str) -> int:
@@ -98,23 +94,18 @@ def cached_scores(arm_name: str, work: Path) -> dict[str, list[np.ndarray]]:
     return out
 
 
-def _bounds(labels: list[np.ndarray]) -> list[np.ndarray]:
-    return [np.append(np.flatnonzero(np.diff(lab) != 0), len(lab) - 1) for lab in labels]
+_bounds = label_boundaries
+"""Each episode's subtask ends from its labels (:func:`~ompn_ros.detect.grid.label_boundaries`)."""
 
 
 def _grid_rows(p_hats: list[np.ndarray], labels: list[np.ndarray], grid: list[Any]) -> Rows:
-    return evaluate_grid(scores_from_p_hats(p_hats), grid, _bounds(labels), labels)
+    return validation(p_hats, labels, grid).rows
 
 
 def validation(p_hats: list[np.ndarray], labels: list[np.ndarray], grid: list[Any]) -> Validation:
-    """The grid on these episodes, as the tuning of ``ompn_train`` sees it."""
-    scores, bounds = scores_from_p_hats(p_hats), _bounds(labels)
-
-    def per_episode(g: int) -> Rows:
-        return [evaluate_grid([scores[i]], [grid[g]], [bounds[i]], [labels[i]])[0]
-                for i in range(len(scores))]
-
-    return Validation(evaluate_grid(scores, grid, bounds, labels), per_episode, [len(s) for s in scores])
+    """The grid on these episodes, as the tuning of ``ompn_train`` sees it
+    (:func:`~ompn_ros.detect.grid.grid_on_labels`)."""
+    return grid_on_labels(scores_from_p_hats(p_hats), labels, grid)
 
 
 def online_figures(preds: Sequence[np.ndarray], detected_at: Sequence[Sequence[int]],

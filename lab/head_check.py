@@ -33,6 +33,8 @@ from lab.boundary_head import robot_splits
 from lab.detector_selection import arm_splits
 from ompn_ros.app.replay import replay_all
 from ompn_ros.checkpoints import shipped_checkpoint
+from ompn_ros.detect.choose import prefer, tune_head_duration
+from ompn_ros.detect.defaults import DURATION_DELAY, DURATION_LAG
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
@@ -41,13 +43,7 @@ from ompn_ros.detect.tune import score_online
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.train.boundary_head import choose_rule, fit_and_choose
-from ompn_ros.train.detector import (
-    DURATION_DELAY,
-    DURATION_LAG,
-    choose_settings,
-    prefer,
-    tune_head_duration,
-)
+from ompn_ros.train.detector import choose_settings
 from ompn_ros.train.evaluation import teacher_forced_outputs
 from sim_nodes.human import parse_human
 from sim_nodes.registry import default_tasks, expert_episode

@@ -52,14 +52,11 @@ from ompn_ros.data.cuts import choose_tolerance
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.errors import BagError
 from ompn_ros.data.reader import FinalObservation, ReaderSpec
+from ompn_ros.detect.choose import calibrate_without_labels
+from ompn_ros.detect.defaults import LABEL_FREE_REFERENCE, LABEL_FREE_REFERENCE_MIN_LENGTH
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import build_stepper
 from ompn_ros.train.config import TrainConfig
-from ompn_ros.train.detector import (
-    LABEL_FREE_REFERENCE,
-    LABEL_FREE_REFERENCE_MIN_LENGTH,
-    calibrate_without_labels,
-)
 from ompn_ros.train.errors import TrainStateError
 from ompn_ros.train.precision import cpu_model
 from ompn_ros.train.restart import read_attempt, read_record

@@ -25,21 +25,17 @@ import numpy as np
 from ompn_ros.app.replay import choose_detector, compare_detectors, replay_all
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.calibrate import scores_from_p_hats
+from ompn_ros.detect.choose import duration_detector
+from ompn_ros.detect.defaults import DURATION_LAG
+from ompn_ros.detect.grid import scores_from_p_hats
 from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
 from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
+from ompn_ros.detect.params_file import load_detector_yaml, write_node_config
 from ompn_ros.detect.settings import load_detector_settings
-from ompn_ros.detect.tune import (
-    DEFAULT_OBJECTIVE,
-    Metrics,
-    load_detector_yaml,
-    score_online,
-    write_node_config,
-)
+from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, Metrics, score_online
 from ompn_ros.model.load import build_stepper
 from ompn_ros.paths import config_file
 from ompn_ros.segmenter import ReplayResult
-from ompn_ros.train.detector import DURATION_LAG, duration_detector
 from ompn_ros.train.evaluation import evaluate, teacher_forced_p_hat, tune_min_length
 
 METRIC_KEYS = ("align", "align_strict", "f1_tol0", "f1_tol1", "precision_tol1", "recall_tol1")

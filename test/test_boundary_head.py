@@ -15,6 +15,7 @@ import pytest
 from ompn_ros.app.detector_tuning import tune_detector
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
+from ompn_ros.detect.defaults import DURATION_GAIN
 from ompn_ros.detect.errors import BoundaryHeadError, DetectorConfigError, DetectorSettingsError
 from ompn_ros.detect.head import (
     HEAD_FILE,
@@ -30,7 +31,6 @@ from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.segmenter import StreamingSegmenter
 from ompn_ros.train.boundary_head import choose_rule, targets, train_head
-from ompn_ros.train.detector import DURATION_GAIN
 from ompn_ros.train.evaluation import teacher_forced_outputs
 from sim_nodes.registry import default_tasks, expert_episode
 

@@ -8,22 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ompn_ros.detect.calibrate import (
-    agreement,
-    calibrate_label_free,
-    default_grid,
-    detect_grid,
-    estimated_count,
-    evaluate_grid,
-    pooled_counts,
-    reference_boundaries,
-    scores_from_p_hats,
-    search,
-    tune_on_labels,
-)
+from ompn_ros.detect.calibrate import calibrate_label_free, search, tune_on_labels
 from ompn_ros.detect.errors import CalibrationError
+from ompn_ros.detect.grid import detect_grid, evaluate_grid, scores_from_p_hats
 from ompn_ros.detect.online import DetectorConfig, detect_sequence
-from ompn_ros.detect.tune import offset_grid
+from ompn_ros.detect.reference import agreement, estimated_count, pooled_counts, reference_boundaries
+from ompn_ros.detect.tune import default_grid, offset_grid
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect import tune
+from ompn_ros.detect import params_file, tune
 from ompn_ros.detect.errors import TuneError
 from ompn_ros.detect.online import DetectorConfig
 
@@ -72,8 +72,8 @@ def test_the_search_moves_late_boundaries_back_and_the_node_file_keeps_the_offse
     on_time, _, _ = tune.choose_on_replays([_replay([3, 7], 12, 0.6)], [EPISODE], objective="align",
                                            long_subtasks=True)
     assert on_time.offset == 0
-    path = tune.write_node_config(tmp_path / "node.yaml", "dial", best, {"online": metrics}, "a test")
-    assert tune.load_detector_yaml(path) == best
+    path = params_file.write_node_config(tmp_path / "node.yaml", "dial", best, {"online": metrics}, "a test")
+    assert params_file.load_detector_yaml(path) == best
 
 
 def test_tuning_needs_labels_a_known_objective_and_matching_replays():
@@ -166,24 +166,24 @@ def test_pick_setting_refuses_no_rows_and_a_negative_band():
 
 def test_node_config_round_trip(tmp_path: Path):
     config = DetectorConfig(high=0.35, low=0.25, min_segment_length=3, mode="rising_edge")
-    path = tune.write_node_config(
+    path = params_file.write_node_config(
         tmp_path / "node.yaml", "craft", config, {"online": {"f1_tol1": 0.9}}, "a test"
     )
     assert "# ompn_node defaults for the craft domain" in path.read_text()
-    assert tune.load_detector_yaml(path) == config
+    assert params_file.load_detector_yaml(path) == config
 
 
 def test_node_config_of_a_users_own_data_sets_no_empty_domain(tmp_path: Path):
     config = DetectorConfig(high=0.3)
-    path = tune.write_node_config(tmp_path / "node.yaml", "", config, {}, "my bag")
+    path = params_file.write_node_config(tmp_path / "node.yaml", "", config, {}, "my bag")
     params = yaml.safe_load(path.read_text())["/**/ompn_node"]["ros__parameters"]
     assert "domain" not in params and None not in params.values()
-    assert tune.load_detector_yaml(path) == config
+    assert params_file.load_detector_yaml(path) == config
 
 
 def test_a_missing_detector_file_is_named(tmp_path: Path):
     with pytest.raises(TuneError, match=r"nope\.yaml"):
-        tune.load_detector_yaml(tmp_path / "nope.yaml")
+        params_file.load_detector_yaml(tmp_path / "nope.yaml")
 
 
 def test_the_grid_adds_shortest_segments_relative_to_the_typical_segment_length():

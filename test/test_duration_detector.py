@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from ompn_ros.checkpoints import shipped_checkpoint
-from ompn_ros.detect.calibrate import DURATION_THRESHOLDS, calibrate_duration
 from ompn_ros.detect.duration import (
     DurationDetector,
     DurationModel,
@@ -20,6 +19,7 @@ from ompn_ros.detect.duration import (
     decode_episode,
     fit_duration_model,
 )
+from ompn_ros.detect.duration_tuning import DURATION_THRESHOLDS, calibrate_duration
 from ompn_ros.detect.errors import (
     CalibrationError,
     DetectorConfigError,

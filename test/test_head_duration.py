@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ompn_ros.detect.calibrate import calibrate_head_duration
 from ompn_ros.detect.duration import DurationModel, fit_duration_model
+from ompn_ros.detect.duration_tuning import calibrate_head_duration
 from ompn_ros.detect.errors import BoundaryHeadError, DetectorSettingsError, DurationModelError
 from ompn_ros.detect.factory import make_detector
 from ompn_ros.detect.head_duration import HeadDurationDecoder, HeadDurationDetector, decode_head_duration

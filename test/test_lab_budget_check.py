@@ -14,7 +14,8 @@ from lab import budget_check as check
 from lab import transfer
 from lab.detector_selection import _bounds, cached_scores
 from lab.own_data import ARMS
-from ompn_ros.detect.calibrate import calibrate_duration, scores_from_p_hats
+from ompn_ros.detect.duration_tuning import calibrate_duration
+from ompn_ros.detect.grid import scores_from_p_hats
 
 
 def test_every_run_is_an_arm_of_the_own_data_study() -> None:

@@ -17,8 +17,8 @@ from rclpy.parameter import Parameter  # noqa: E402
 from test_boundary_head import checkpoint_with_head  # noqa: E402
 from test_node_human_stream import Recorder, _episodes, live, received  # noqa: E402
 
-from ompn_ros.detect.calibrate import scores_from_p_hats  # noqa: E402
 from ompn_ros.detect.duration import fit_duration_model  # noqa: E402
+from ompn_ros.detect.grid import scores_from_p_hats  # noqa: E402
 from ompn_ros.detect.head import HeadDetector, decode_rows  # noqa: E402
 from ompn_ros.detect.head_duration import HeadDurationDetector, decode_head_duration  # noqa: E402
 from ompn_ros.detect.online import DetectorConfig, subtask_ends  # noqa: E402

@@ -15,7 +15,7 @@ synthetic = pytest.importorskip("ompn_ros.train.synthetic")
 
 from ompn_ros.app import replay as cli  # noqa: E402
 from ompn_ros.cli import segment as segment_cli  # noqa: E402
-from ompn_ros.detect import tune  # noqa: E402
+from ompn_ros.detect import params_file, tune  # noqa: E402
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig  # noqa: E402
 from ompn_ros.model.streaming import StreamingPolicy  # noqa: E402
 
@@ -80,8 +80,8 @@ def test_choose_detector_and_write_config(ckpt: Path, episodes, tmp_path: Path) 
     best, metrics, comparison = cli.choose_detector(policy, episodes, grid)
     assert best in grid and best.high != 0.95  # nothing crosses 0.95: only the episode end is found
     assert metrics["align_strict"] == comparison["online"]["align_strict"]
-    path = tune.write_node_config(tmp_path / "node.yaml", "craft", best, comparison, "test")
-    assert tune.load_detector_yaml(path) == best
+    path = params_file.write_node_config(tmp_path / "node.yaml", "craft", best, comparison, "test")
+    assert params_file.load_detector_yaml(path) == best
     import yaml
 
     params = yaml.safe_load(path.read_text())["/**/ompn_node"]["ros__parameters"]

@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 import torch
 
-from ompn_ros.detect.calibrate import DurationCalibration
+from ompn_ros.detect.choose import pick_online
+from ompn_ros.detect.defaults import DURATION_GAIN, DURATION_LAG
 from ompn_ros.detect.duration import fit_duration_model
+from ompn_ros.detect.duration_tuning import DurationCalibration
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.config import TrainConfig
-from ompn_ros.train.detector import DURATION_GAIN, DURATION_LAG, pick_online
 from ompn_ros.train.errors import TrainConfigError, TrainStateError
 from ompn_ros.train.restart import (
     RESTART_SEED_STRIDE,

@@ -40,14 +40,14 @@ from ompn_ros.app.training import TrainingData, bag_data, build_configs, labelle
 from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.episode import Episode
 from ompn_ros.data.reader import ReaderSpec, final_row_guessed
-from ompn_ros.detect.calibrate import scores_from_p_hats
+from ompn_ros.detect.defaults import objective_for
+from ompn_ros.detect.grid import scores_from_p_hats
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.detect.tune import Metrics, Objective, pick_within_error, score_online, standard_error
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.policy import OMPNPolicy
 from ompn_ros.train.candidates import copy_outputs
 from ompn_ros.train.config import TrainConfig
-from ompn_ros.train.detector import objective_for
 from ompn_ros.train.evaluation import teacher_forced_outputs
 from ompn_ros.train.trainer import train_val_episodes
 

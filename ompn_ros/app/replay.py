@@ -8,9 +8,7 @@ Cost: one model step per observation, O(Σ T) steps in all.
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -25,10 +23,11 @@ from ompn_ros.atomic import atomic_write, atomic_write_text
 from ompn_ros.data.episode import OBS_STAMPS, Episode
 from ompn_ros.data.reader import OnError, ReaderSpec, ReadResult, read_episodes, resolve_bag_paths
 from ompn_ros.detect import offline
+from ompn_ros.detect.choose import with_tuned
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig
-from ompn_ros.detect.settings import SettingsSource, load_detector_settings, save_detector_settings
+from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
 from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter
@@ -189,15 +188,10 @@ def annotate(bag: str, out: Path, episodes: Sequence[Episode], replays: Sequence
 
 def store_tuned(checkpoint: str | Path, best: DetectorConfig, metrics: Metrics, provenance: str,
                 duration_model: DurationModel | None = None) -> Path:
-    """Store a tuned online detector (and the duration model fitted beside it) in the checkpoint's
-    ``detector.json``, keeping its offline choices; a shipped checkpoint's settings stay the
-    ``'shipped'`` ones.  Returns the file."""
+    """Store a tuned online detector in the checkpoint's ``detector.json``
+    (:func:`ompn_ros.detect.choose.with_tuned`).  Returns the file."""
     stored = load_detector_settings(checkpoint)
-    measured = {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))}
-    source: SettingsSource = "shipped" if stored.source == "shipped" else "tuned_on_validation"
-    return save_detector_settings(checkpoint, dataclasses.replace(
-        stored, online=best, source=source, provenance=provenance, metrics=measured,
-        duration_model=duration_model))
+    return save_detector_settings(checkpoint, with_tuned(stored, best, metrics, provenance, duration_model))
 
 
 def run_replay(

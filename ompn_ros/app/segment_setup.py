@@ -11,11 +11,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from ompn_ros.app.errors import ReplayError
-from ompn_ros.detect.online import DEFAULT_OBJECTIVE as DEFAULT_OBJECTIVE  # --objective per domain
-from ompn_ros.detect.online import DURATION_DELAY as DURATION_DELAY  # the default --max-delay
-from ompn_ros.detect.online import DURATION_LAG as DURATION_LAG  # the default --lag
+from ompn_ros.detect.defaults import DEFAULT_OBJECTIVE as DEFAULT_OBJECTIVE  # --objective per domain
+from ompn_ros.detect.defaults import DURATION_DELAY as DURATION_DELAY  # the default --max-delay
+from ompn_ros.detect.defaults import DURATION_LAG as DURATION_LAG  # the default --lag
+from ompn_ros.detect.defaults import OBJECTIVES as OBJECTIVES  # the choices of --objective
 from ompn_ros.detect.online import MAX_LAG as MAX_LAG  # the largest --lag
-from ompn_ros.detect.online import OBJECTIVES as OBJECTIVES  # the choices of --objective
 from ompn_ros.train.device import DEVICES as DEVICES  # the choices of --device
 
 if TYPE_CHECKING:  # the rest loads when ompn_segment runs, not for --help (torch: seconds)
@@ -63,8 +63,8 @@ def load_episodes(
 def detector_settings(checkpoint: str, detector_config: str | None) -> tuple[DetectorSettings, str]:
     """The detector settings a replay runs with (``--detector-config``, else the checkpoint's own, else the
     defaults) and the line saying which they are (:func:`ompn_ros.detect.settings.resolve_detector`)."""
+    from ompn_ros.detect.params_file import load_detector_yaml
     from ompn_ros.detect.settings import resolve_detector
-    from ompn_ros.detect.tune import load_detector_yaml
 
     explicit = load_detector_yaml(detector_config) if detector_config else None
     return resolve_detector(checkpoint, explicit, f"--detector-config {detector_config}")

@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 from ompn_ros.lazy import lazy_names
 
 if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a submodule stays light
+    from ompn_ros.detect.defaults import DEFAULT_OBJECTIVE, OBJECTIVES
     from ompn_ros.detect.errors import DetectorError, TuneError
     from ompn_ros.detect.offline import (
         FALLBACK_THRESHOLD,
@@ -20,16 +21,8 @@ if TYPE_CHECKING:  # the names below load on first use (PEP 562): importing a su
         threshold_boundaries,
         top_k_boundaries,
     )
-    from ompn_ros.detect.tune import (
-        DEFAULT_OBJECTIVE,
-        OBJECTIVES,
-        choose_on_replays,
-        compare_on_replays,
-        default_grid,
-        load_detector_yaml,
-        score_online,
-        write_node_config,
-    )
+    from ompn_ros.detect.params_file import load_detector_yaml, write_node_config
+    from ompn_ros.detect.tune import choose_on_replays, compare_on_replays, default_grid, score_online
 
 
 _LAZY = {
@@ -46,14 +39,14 @@ _LAZY = {
     "standardise": "ompn_ros.detect.offline",
     "threshold_boundaries": "ompn_ros.detect.offline",
     "top_k_boundaries": "ompn_ros.detect.offline",
-    "DEFAULT_OBJECTIVE": "ompn_ros.detect.tune",
-    "OBJECTIVES": "ompn_ros.detect.tune",
+    "DEFAULT_OBJECTIVE": "ompn_ros.detect.defaults",
+    "OBJECTIVES": "ompn_ros.detect.defaults",
     "choose_on_replays": "ompn_ros.detect.tune",
     "compare_on_replays": "ompn_ros.detect.tune",
     "default_grid": "ompn_ros.detect.tune",
-    "load_detector_yaml": "ompn_ros.detect.tune",
+    "load_detector_yaml": "ompn_ros.detect.params_file",
     "score_online": "ompn_ros.detect.tune",
-    "write_node_config": "ompn_ros.detect.tune",
+    "write_node_config": "ompn_ros.detect.params_file",
 }
 
 __all__ = [

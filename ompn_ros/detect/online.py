@@ -51,7 +51,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -72,19 +72,6 @@ ALL_MODES = (*MODES, DURATION_MODE, HEAD_MODE, HEAD_DURATION_MODE)
 MAX_LAG = 10
 """The longest lag of the duration decoder (the fewest steps a boundary waits; see
 :mod:`ompn_ros.detect.duration` for its cost per step)."""
-DURATION_LAG = 1
-"""Default ``train.detector_lag``: the 'hsmm' detector publishes a boundary at least ``lag + 1`` steps
-after its step (docs/design.md#duration-decoder).  Defined here, not in ``train/detector.py`` which
-fits it, so that a command's ``--help`` does not load torch."""
-DURATION_DELAY = 6.0
-"""Default ``train.detector_delay``: the mean delay in steps the 'hsmm' detector's threshold may cost
-(docs/design.md#delay-budget)."""
-Objective = Literal["f1", "align"]
-OBJECTIVES: tuple[Objective, ...] = ("f1", "align")
-"""What tuning the online detector maximises first (:mod:`ompn_ros.detect.tune`): boundary F1 at
-tolerance 1, or strict alignment accuracy."""
-DEFAULT_OBJECTIVE: dict[str, Objective] = {"craft": "f1", "dial": "align"}
-"""Per domain, the paper's headline metric (Craft: F1 of the boundaries; Dial: alignment)."""
 MAX_OFFSET = 10
 """The largest ``offset`` of the threshold detectors (steps a boundary is moved back)."""
 KEPT_STEPS = 4

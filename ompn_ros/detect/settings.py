@@ -19,6 +19,13 @@ values came from (``source``) and what they measured.  Layout::
 its sizes, and its weights in ``boundary_head.safetensors`` beside ``detector.json``, whose header is
 checked against those sizes before any weight is read.
 
+One shape from file to node: :class:`DetectorSettings` is ``detector.json``
+(:meth:`~DetectorSettings.to_dict`, :meth:`~DetectorSettings.from_dict`); its ``online`` part is the
+:class:`~ompn_ros.detect.online.DetectorConfig` every detector is built from; the node's
+``detector_*`` parameters are :func:`node_parameters` of it and :func:`detector_config` back, and an
+``ompn_node --params-file`` holds those same names (:mod:`ompn_ros.detect.params_file`).  Which
+settings a checkpoint gets is chosen in :mod:`ompn_ros.detect.choose`.
+
 Precedence for every consumer: an explicit parameter (or ``--detector-config``) beats the
 checkpoint's ``detector.json``, which beats the built-in defaults (``source = 'default'``).
 The online detector is the causal form of the paper's Algorithm 1 (Lu et al., ICLR 2021, §3.3);
@@ -37,6 +44,7 @@ from pathlib import Path
 from typing import Any, Literal, get_args
 
 from ompn_ros.atomic import remove_stale_temps, temp_prefix, umask_mode
+from ompn_ros.detect.defaults import DEFAULT_DONE_THRESHOLD, DEFAULT_MIN_LENGTH
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import (
     BoundaryHeadError,
@@ -55,8 +63,6 @@ OfflineDetector = Literal["top_k", "auto_threshold", "constrained_top_k"]
 SettingsSource = Literal["tuned_on_validation", "calibrated_label_free", "shipped", "default"]
 OFFLINE_DETECTORS: tuple[OfflineDetector, ...] = get_args(OfflineDetector)
 SOURCES: tuple[SettingsSource, ...] = get_args(SettingsSource)
-DEFAULT_DONE_THRESHOLD = 0.5
-DEFAULT_MIN_LENGTH = 2
 
 
 def _where(origin: str, key: str) -> str:
@@ -172,60 +178,15 @@ class DetectorSettings:
     def from_dict(cls, data: Any, origin: str = "", directory: Path | None = None) -> DetectorSettings:
         """Parse the :meth:`to_dict` layout; errors name ``origin`` and the key.  A ``boundary_head``
         is read from ``directory`` (the checkpoint directory; required then)."""
-        if not isinstance(data, dict):
-            raise DetectorSettingsError(f"{origin or 'detector settings'}: expected a JSON object")
-        if data.get("format", FORMAT) != FORMAT:
-            raise DetectorSettingsError(
-                f"{_where(origin, 'format')} must be '{FORMAT}', got {data['format']!r}"
-            )
-        version = data.get("format_version", FORMAT_VERSION)
-        if version != FORMAT_VERSION:
-            raise DetectorSettingsError(
-                f"{_where(origin, 'format_version')} {version!r} is not supported (this version reads "
-                f"{FORMAT_VERSION})"
-            )
-        known = {
-            "format",
-            "format_version",
-            "online",
-            "done_threshold",
-            "offline",
-            "source",
-            "provenance",
-            "metrics",
-            "duration_model",
-            "boundary_head",
-        }
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise DetectorSettingsError(
-                f"{_where(origin, unknown[0])} is unknown; known keys: {sorted(known)}"
-            )
-        try:
-            online = DetectorConfig.from_dict(dict(data.get("online", {})))
-        except (DetectorConfigError, TypeError, ValueError) as exc:
-            raise DetectorSettingsError(f"{_where(origin, 'online')}: {exc}") from exc
+        _check_layout(data, origin)
+        online = _online_of(data, origin)
         offline = data.get("offline", {})
         if not isinstance(offline, dict) or set(offline) - {"detector", "min_length"}:
             raise DetectorSettingsError(f"{_where(origin, 'offline')} must be {{'detector', 'min_length'}}")
         metrics = data.get("metrics", {})
         if isinstance(metrics, dict):
             metrics = {k: math.nan if v is None else v for k, v in metrics.items()}
-        model = None
-        if data.get("duration_model") is not None:
-            try:
-                model = DurationModel.from_dict(data["duration_model"])
-            except DurationModelError as exc:
-                raise DetectorSettingsError(f"{_where(origin, 'duration_model')}: {exc}") from exc
-        head = None
-        if data.get("boundary_head") is not None:
-            if directory is None:
-                raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: its weights file is read "
-                                            "from the checkpoint directory, and none was given")
-            try:
-                head = load_head(directory, data["boundary_head"], origin or "detector settings")
-            except BoundaryHeadError as exc:
-                raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: {exc}") from exc
+        model, head = _duration_model_of(data, origin), _head_of(data, origin, directory)
         try:
             return cls(
                 online=online,
@@ -240,6 +201,61 @@ class DetectorSettings:
             )
         except DetectorSettingsError as exc:
             raise DetectorSettingsError(f"{origin}: {exc}" if origin else str(exc)) from None
+
+
+KNOWN_KEYS = frozenset({
+    "format", "format_version", "online", "done_threshold", "offline", "source", "provenance", "metrics",
+    "duration_model", "boundary_head",
+})
+"""The top-level keys of ``detector.json``."""
+
+
+def _check_layout(data: Any, origin: str) -> None:
+    """Raise :class:`DetectorSettingsError` unless ``data`` is an object of this format and version
+    with known keys only."""
+    if not isinstance(data, dict):
+        raise DetectorSettingsError(f"{origin or 'detector settings'}: expected a JSON object")
+    if data.get("format", FORMAT) != FORMAT:
+        raise DetectorSettingsError(f"{_where(origin, 'format')} must be '{FORMAT}', got {data['format']!r}")
+    version = data.get("format_version", FORMAT_VERSION)
+    if version != FORMAT_VERSION:
+        raise DetectorSettingsError(
+            f"{_where(origin, 'format_version')} {version!r} is not supported (this version reads "
+            f"{FORMAT_VERSION})"
+        )
+    unknown = sorted(set(data) - KNOWN_KEYS)
+    if unknown:
+        raise DetectorSettingsError(
+            f"{_where(origin, unknown[0])} is unknown; known keys: {sorted(KNOWN_KEYS)}"
+        )
+
+
+def _online_of(data: dict[str, Any], origin: str) -> DetectorConfig:
+    try:
+        return DetectorConfig.from_dict(dict(data.get("online", {})))
+    except (DetectorConfigError, TypeError, ValueError) as exc:
+        raise DetectorSettingsError(f"{_where(origin, 'online')}: {exc}") from exc
+
+
+def _duration_model_of(data: dict[str, Any], origin: str) -> DurationModel | None:
+    if data.get("duration_model") is None:
+        return None
+    try:
+        return DurationModel.from_dict(data["duration_model"])
+    except DurationModelError as exc:
+        raise DetectorSettingsError(f"{_where(origin, 'duration_model')}: {exc}") from exc
+
+
+def _head_of(data: dict[str, Any], origin: str, directory: Path | None) -> BoundaryHead | None:
+    if data.get("boundary_head") is None:
+        return None
+    if directory is None:
+        raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: its weights file is read "
+                                    "from the checkpoint directory, and none was given")
+    try:
+        return load_head(directory, data["boundary_head"], origin or "detector settings")
+    except BoundaryHeadError as exc:
+        raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: {exc}") from exc
 
 
 DETECTOR_PARAMETERS = (

@@ -14,8 +14,6 @@ so everything here is ROS-free and model-free: replaying the model is the caller
   within one standard error of the best counting as tied (:func:`pick_within_error`); for long
   subtasks also over the chosen setting's ``offset`` (:func:`offset_grid`,
   docs/design.md#detector-grid).
-* :func:`write_node_config` / :func:`load_detector_yaml`: the chosen settings as an ``ompn_node``
-  ``--params-file`` and back.
 
 Cost: one detector pass is O(T) per episode, so a grid of G settings costs O(G · Σ T).
 """
@@ -25,23 +23,21 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
-from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-import yaml
 
 from ompn_ros.data.episode import Episode
 from ompn_ros.detect import offline
+from ompn_ros.detect.defaults import DEFAULT_OBJECTIVE as DEFAULT_OBJECTIVE  # light for --help
+from ompn_ros.detect.defaults import OBJECTIVES as OBJECTIVES
+from ompn_ros.detect.defaults import Objective as Objective
 from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.errors import TuneError
 from ompn_ros.detect.factory import make_detector
 from ompn_ros.detect.head import BoundaryHead, HeadDetector, decode_all
 from ompn_ros.detect.head_duration import HeadDurationDetector, decode_head_duration
-from ompn_ros.detect.online import DEFAULT_OBJECTIVE as DEFAULT_OBJECTIVE  # defined there: light for --help
 from ompn_ros.detect.online import MAX_OFFSET, MODES, BoundaryEvent, DetectorConfig, run_detector
-from ompn_ros.detect.online import OBJECTIVES as OBJECTIVES
-from ompn_ros.detect.online import Objective as Objective
 from ompn_ros.metrics import alignment_accuracy, mean_f1
 
 MATCH_TOLERANCE = 2
@@ -343,53 +339,3 @@ def _search(replays: Sequence[Replayed], episodes: Sequence[Episode], grid: Sequ
 
     best = pick_within_error(rows, objective, per_episode, [ep.length for ep in episodes])  # type: ignore[arg-type]
     return grid[best], rows[best]
-
-
-def write_node_config(
-    path: str | Path, domain: str, config: DetectorConfig, measured: dict[str, Metrics], source: str
-) -> Path:
-    """Write an ``ompn_node`` ``--params-file`` with ``config``, the measurements as comments. O(1).
-    Without a ``domain`` (a user's own data) the file sets none: ROS refuses a key without a value."""
-    for_domain = f" for the {domain} domain" if domain else ""
-    lines = [
-        f"# ompn_node defaults{for_domain}, chosen by `ompn_segment --tune` on {source}.",
-        "# Measured on the tuning episodes (online = these settings;",
-        "# offline = whole-episode detectors with K = the true number of boundaries):",
-    ]
-    for name, m in measured.items():
-        lines.append(f"#   {name}: " + ", ".join(f"{k}={v:.3f}" for k, v in m.items()))
-    lines += [
-        "/**/ompn_node:",
-        "  ros__parameters:",
-        *([f"    domain: {domain}"] if domain else []),
-        f"    detector_high: {config.high}",
-        f"    detector_hysteresis: {round(config.high - config.low_threshold, 4)}",
-        f"    detector_min_segment_length: {config.min_segment_length}",
-        f"    detector_mode: {config.mode}",
-        f"    detector_force_first_step_low: {str(config.force_first_step_low).lower()}",
-        f"    detector_lag: {config.lag}",
-        f"    detector_offset: {config.offset}",
-        "",
-    ]
-    out = Path(path)
-    out.write_text("\n".join(lines), encoding="utf-8")
-    return out
-
-
-def load_detector_yaml(path: str | Path) -> DetectorConfig:
-    """Detector settings from an ompn_node params file (``detector_*`` keys) or a plain mapping."""
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise TuneError(f"detector config {path}: {str(exc).splitlines()[0]}") from exc
-    for _ in range(3):  # unwrap '/**' / node name / 'ros__parameters'
-        if isinstance(data, dict) and len(data) == 1 and not any(str(k).startswith("detector") for k in data):
-            data = next(iter(data.values()))
-    if not isinstance(data, dict):
-        raise TuneError(f"detector config {path}: expected a mapping with detector_* keys")
-    params = {k[len("detector_") :]: v for k, v in data.items() if str(k).startswith("detector_")}
-    if "hysteresis" in params:
-        hysteresis = float(params.pop("hysteresis"))
-        if hysteresis > 0:
-            params["low"] = max(0.0, round(float(params.get("high", 0.5)) - hysteresis, 6))
-    return DetectorConfig.from_dict(params)

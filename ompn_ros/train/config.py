@@ -14,9 +14,9 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal, get_args
 
+from ompn_ros.detect.defaults import DURATION_DELAY, DURATION_LAG
 from ompn_ros.detect.online import MAX_LAG
 from ompn_ros.model.config import ACTION_NORMS, ActionNorm
-from ompn_ros.train.detector import DURATION_DELAY, DURATION_LAG
 from ompn_ros.train.device import DEVICES, Device
 from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.threads import Threads, check_threads

@@ -49,7 +49,7 @@ import torch
 from ompn_ros.atomic import write_failure
 from ompn_ros.data.cuts import drop_still
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.calibrate import agreement
+from ompn_ros.detect.reference import agreement
 from ompn_ros.detect.settings import DetectorSettings
 from ompn_ros.model.build import PolicyModule, build_policy
 from ompn_ros.model.checkpoint import load_checkpoint, save_checkpoint
