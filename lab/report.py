@@ -305,7 +305,7 @@ def product_markdown(results_dir: Path) -> list[str]:
         for setting, runs in record["runs"].items():
             for seed, run in runs.items():
                 lines.append(f"- {setting} seed {seed} (detector `{run['detector_mode']}`): "
-                             + "; ".join(f"`{c}`" for c in run["commands"].values()))
+                             + "; ".join(f"`{run['commands'][step]}`" for step in ("train", "segment")))
         lines += [f"- note: {record['note']}"] if record.get("note") else []
         lines.append("")
     return lines

@@ -192,10 +192,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _without_note(argv: list[str]) -> list[str]:
+    """The command line to record: a ``--note`` is kept in the provenance, not in the command."""
+    out, skip = [], False
+    for arg in argv:
+        if skip or arg.startswith("--note="):
+            skip = False
+            continue
+        skip = arg == "--note"
+        if not skip:
+            out.append(arg)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     raw = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(raw)
-    args.argv = raw
+    args.argv = _without_note(raw)
     known = SETTINGS[args.domain]
     args.settings = [s for s in args.settings.split(",") if s] or list(known)
     unknown = [s for s in args.settings if s not in known]

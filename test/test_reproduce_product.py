@@ -117,3 +117,8 @@ def test_unknown_settings_are_one_line_and_exit_2(capsys: pytest.CaptureFixture[
     assert rp.main(["craft", "--settings", "full_nosketch,fulll"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "fulll" in err and "full_sketch" in err
+
+
+def test_a_note_goes_to_the_provenance_not_into_the_recorded_command() -> None:
+    assert rp._without_note(["dial", "--note", "seed 0 reused", "--seeds", "1", "--note=x"]) == [
+        "dial", "--seeds", "1"]
