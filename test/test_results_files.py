@@ -3,9 +3,9 @@
 README's reproduction table must equal ``results/{craft,dial}.json`` (the reproduction through
 ``ompn_train`` and its bundled detectors, with the provenance naming its version, commands, seeds
 and settings) as README formats it (``mean ± std`` in %), README stays a manual (≤ 15 KiB), every
-relative link or image in README, BENCHMARKS.md and ``docs/*.md`` resolves to a file of the repository, every section of
-``docs/craft.md`` / ``docs/dial.md`` that the code cites ("craft §3.5.4", "dial §4.5") exists, and no
-tracked file names a machine path.
+relative link or image in README, BENCHMARKS.md and ``docs/*.md`` resolves to a file of the
+repository, every section of ``docs/craft.md`` / ``docs/dial.md`` that the code cites ("craft §3.5.4",
+"dial §4.5") exists, and no tracked file names a machine path.
 """
 
 from __future__ import annotations
