@@ -70,11 +70,12 @@ bench-own-robot: setup
 doctor: setup
 	$(PY) -m ompn_ros.cli.demo --smoke
 
-reproduce-craft: setup
-	$(PY) -m lab.reproduce craft --members full_nosketch=3,partial_nosketch=3
-
-reproduce-dial: setup
-	$(PY) -m lab.reproduce dial
+# The reproduction through the product: ompn_collect, ompn_train (fixed updates, every other default,
+# the detector it bundles), ompn_segment on held-out demonstrations, per setting and seed
+# (lab/reproduce_product.py).  The lab's in-process study (ensembles, distillation, sweeps, its own
+# detector tuning): $(PY) -m lab.reproduce craft --members full_nosketch=3,partial_nosketch=3
+reproduce-craft reproduce-dial: reproduce-%: setup
+	$(PY) -m lab.reproduce_product $*
 
 # The shipped checkpoints: ompn_collect, ompn_train (current config and defaults, the detector it
 # chooses), ompn_segment on held-out demonstrations, then copied into the package (lab/ship_product.py).

@@ -111,7 +111,7 @@ def prepare(spec: ReproduceSpec) -> State:
     if threads:
         torch.set_num_threads(threads)
     state = State(spec, base)
-    previous = spec.results / f"{spec.domain}.json"
+    previous = spec.results / f"{spec.domain}{report.MAIN_SUFFIX}"
     state.old_results = json.loads(previous.read_text()) if previous.is_file() else {}
     if spec.merge:
         state.results.update({k: v for k, v in state.old_results.items() if k not in spec.settings})
@@ -163,7 +163,7 @@ def write(state: State) -> dict[str, Any]:
 def _add_extras(state: State) -> dict[str, Any]:
     """``--extras-only``: the finished result files with this run's extra tables put in (a table of
     the same name keeps its other rows, the rows computed now replace theirs) and its command listed
-    with the later ones; ``<domain>.json`` is written back as it was."""
+    with the later ones; ``<domain>_lab.json`` is written back as it was."""
     spec = state.spec
     loaded = report.load(spec.results, spec.domain)
     if loaded is None:

@@ -1,15 +1,16 @@
 """The reproduction's result files: a typed schema, JSON with stable keys, and ``results/README.md``.
 
-Files per domain (``craft``, ``dial``):
+Files per domain (``craft``, ``dial``) of the lab's in-process study (``python -m lab.reproduce``):
 
-* ``<domain>.json``: :data:`DomainResults`, ``{setting: {metric: {"mean", "std", "n"}}}`` with
+* ``<domain>_lab.json``: :data:`DomainResults`, ``{setting: {metric: {"mean", "std", "n"}}}`` with
   snake_case metric keys (``align``, ``align_acc``, ``f1_tol1``, ``constrained_align``,
   ``online_align``, ...), metrics as fractions, mean and std over seeds.
 * ``<domain>_extras.json``: :class:`ExtrasDoc`, ``{"extras": {table id: {"title", "rows"}}, "meta"}``
   with the table ids of :data:`EXTRA_IDS`.
 
-and, when present, ``craft_hparams.json`` (:mod:`lab.report_hparams`) and
-``own_data.json`` / ``own_robot.json`` (:mod:`lab.report_own`).
+and, when present, the reproduction through the product, ``<domain>.json``
+(:mod:`lab.reproduce_product`, :func:`product_markdown`), ``craft_hparams.json``
+(:mod:`lab.report_hparams`) and ``own_data.json`` / ``own_robot.json`` (:mod:`lab.report_own`).
 
 ``results/README.md`` is generated from these files only::
 
@@ -53,7 +54,9 @@ class Cell(TypedDict):
 
 
 DomainResults = dict[str, dict[str, Cell]]
-"""``<domain>.json``: setting -> metric -> cell."""
+"""``<domain>_lab.json``: setting -> metric -> cell."""
+MAIN_SUFFIX = "_lab.json"
+"""File name of the lab study's main table after the domain (``<domain>.json`` is the product's)."""
 
 
 class ExtrasTable(TypedDict):
@@ -124,12 +127,12 @@ def write_results(
     extras: dict[str, ExtrasTable],
     meta: dict[str, Any],
 ) -> None:
-    """Write ``<domain>.json``, ``<domain>_extras.json`` and regenerate ``README.md``."""
+    """Write ``<domain>_lab.json``, ``<domain>_extras.json`` and regenerate ``README.md``."""
     unknown = [k for k in extras if k not in EXTRA_IDS]
     if unknown:
         raise ValueError(f"extras: unknown table ids {unknown}; known: {list(EXTRA_IDS)}")
     results_dir.mkdir(parents=True, exist_ok=True)
-    (results_dir / f"{domain}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    (results_dir / f"{domain}{MAIN_SUFFIX}").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
     doc: ExtrasDoc = {"extras": extras, "meta": meta}
     (results_dir / f"{domain}_extras.json").write_text(json.dumps(doc, indent=1) + "\n")
     write_readme(results_dir)
@@ -137,7 +140,7 @@ def write_results(
 
 def load(results_dir: Path, domain: str) -> tuple[DomainResults, ExtrasDoc] | None:
     """The committed files of ``domain``, or None when the domain has no results yet."""
-    main, extras = results_dir / f"{domain}.json", results_dir / f"{domain}_extras.json"
+    main, extras = results_dir / f"{domain}{MAIN_SUFFIX}", results_dir / f"{domain}_extras.json"
     if not main.is_file() or not extras.is_file():
         return None
     return json.loads(main.read_text()), json.loads(extras.read_text())
@@ -263,6 +266,51 @@ def domain_markdown(domain: str, results: DomainResults, doc: ExtrasDoc, level: 
     return "\n".join(lines) + "\n"
 
 
+PRODUCT_HEADER = (
+    "| setting | seeds | align | F1 tol=1 | F1 tol=0 | online align | online F1 tol=1 | "
+    "online delay (steps) | false alarms / ep | train s | paper align / F1 |"
+)
+
+
+def _product_row(domain: str, name: str, row: dict[str, Any], seeds: Sequence[int]) -> str:
+    paper = " / ".join("–" if v is None else str(v) for v in PAPER[domain].get(name, (None, None)))
+    return (
+        f"| {name} | {', '.join(map(str, seeds))} | {fmt(row['align'])} | {fmt(row['f1_tol1'])} | "
+        f"{fmt(row['f1_tol0'])} | {fmt(row['online_align'])} | {fmt(row['online_f1_tol1'])} | "
+        f"{fmt(row['online_delay_mean'], 1, 2)} | {fmt(row['online_false_alarms_per_episode'], 1, 2)} | "
+        f"{fmt(row.get('train_seconds'), 1, 0)} | [{paper}] |"
+    )
+
+
+def product_markdown(results_dir: Path) -> list[str]:
+    """The reproduction through ``ompn_train`` and its bundled detectors (``<domain>.json`` of
+    :mod:`lab.reproduce_product`): one table per domain and the commands it came from."""
+    lines: list[str] = []
+    for domain in DOMAINS:
+        path = results_dir / f"{domain}.json"
+        if not path.is_file():
+            continue
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        record = doc["provenance"]
+        lines += [
+            f"## {domain}: through the product", "",
+            f"`{' '.join(record['reproduce'])}` (package {record['version']}): `ompn_train` "
+            f"{record['iterations']} updates per run, scored by `ompn_segment` on the held-out bag "
+            f"({record['held_out']}); offline = {record['offline_detector']}; online = "
+            f"{record['online_detector']}. Mean (std) over the seeds listed, in %.", "",
+            PRODUCT_HEADER, "|---|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        lines += [_product_row(domain, name, row, record["seeds"]) for name, row in doc["settings"].items()]
+        lines += ["", *[f"- {step}: `{cmd}`" for step, cmd in record["collect"].items()]]
+        for setting, runs in record["runs"].items():
+            for seed, run in runs.items():
+                lines.append(f"- {setting} seed {seed} (detector `{run['detector_mode']}`): "
+                             + "; ".join(f"`{run['commands'][step]}`" for step in ("train", "segment")))
+        lines += [f"- note: {record['note']}"] if record.get("note") else []
+        lines.append("")
+    return lines
+
+
 def render_readme(results_dir: Path) -> str:
     """``results/README.md`` from the JSON files of every domain in ``results_dir``."""
     parts = [
@@ -270,6 +318,10 @@ def render_readme(results_dir: Path) -> str:
         "",
         "Generated from the JSON files in this directory by `python -m lab.report` "
         "(`python -m lab.reproduce` rewrites it with every run); edit the JSON, not this file.",
+        "",
+        *product_markdown(results_dir),
+        "The lab's in-process study below trains in-process and tunes its own detectors "
+        "(`python -m lab.reproduce`); the tables above are what `ompn_train` and `ompn_segment` give.",
         "",
     ]
     for domain in DOMAINS:

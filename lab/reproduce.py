@@ -1,10 +1,15 @@
-"""python -m lab.reproduce: from an empty directory to the paper's tables, through rosbag2 files.
+"""python -m lab.reproduce: the lab's in-process study of the paper's tables, through rosbag2 files.
+
+It trains in-process and tunes its own detectors (the constrained Top-K, the online detector per run,
+the duration decoder), for the ensembles, distillation, sweeps and ablations of
+``results/<domain>_extras.json``.  What a user gets, ``ompn_train`` and the detector it bundles, is
+measured by ``python -m lab.reproduce_product`` (``make reproduce-craft``, ``make reproduce-dial``).
 
 Stages (each timed): collect seeded expert demonstrations into bags, read them back with the
 reader users run on their own bags, hold out a test split by seed, train OMPN with the shipped
 config for every setting and seed, score on the held-out episodes only (offline Top-K / automatic
 threshold, the constrained Top-K, and the online causal detector through the StreamingSegmenter the
-node runs), then write results/<domain>.json, results/<domain>_extras.json, results/README.md and
+node runs), then write results/<domain>_lab.json, results/<domain>_extras.json, results/README.md and
 figures.  The library is lab.
 
 Examples:
@@ -114,12 +119,12 @@ def _add_modes(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument(
         "--merge",
         action="store_true",
-        help="keep the other settings already in results/<domain>.json (runs split over calls)",
+        help="keep the other settings already in results/<domain>_lab.json (runs split over calls)",
     )
     p.add_argument(
         "--extras-only",
         action="store_true",
-        help="add extra tables to finished result files: results/<domain>.json and the figures stay as "
+        help="add extra tables to finished result files: results/<domain>_lab.json and the figures stay as "
         "they are, the tables computed now replace those of the same name, the command is listed "
         "with the later ones",
     )

@@ -66,12 +66,13 @@ def commands(domain: str, work: Path) -> dict[str, list[str]]:
     return out
 
 
-def _done(step: str, argv: list[str]) -> bool:
-    """Whether ``step``'s output is already complete (so a rerun continues where it stopped)."""
+def _done(argv: list[str]) -> bool:
+    """Whether the output of the command ``argv`` is already complete (so a rerun continues where it
+    stopped)."""
     out = Path(argv[argv.index("--out") + 1])
-    if step.startswith("collect"):
+    if argv[0] == "ompn_collect":
         return _collected(out, int(argv[argv.index("--episodes") + 1]))
-    if step == "train":
+    if argv[0] == "ompn_train":
         return (out / "summary.json").is_file() and (out / "best" / "detector.json").is_file()
     return (out / "metrics.json").is_file()
 
@@ -85,8 +86,9 @@ def _collected(out: Path, episodes: int) -> bool:
     return sum(len(part["episodes"]) for part in manifest.get("parts", [])) == episodes
 
 
-def _run(step: str, argv: list[str], fresh: bool) -> None:
-    if not fresh and _done(step, argv):
+def run_step(step: str, argv: list[str], fresh: bool) -> None:
+    """Run the product command ``argv`` (named ``step`` in the log) unless its output is complete."""
+    if not fresh and _done(argv):
         print(f"[{step}] done already: {' '.join(argv)}", flush=True)
         return
     out = Path(argv[argv.index("--out") + 1])
@@ -129,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     steps = commands(args.domain, args.work)
     for step, cmd in steps.items():
-        _run(step, cmd, args.fresh)
+        run_step(step, cmd, args.fresh)
     record = provenance(args.domain, steps, args.work)
     if args.note:
         record["note"] = args.note

@@ -71,7 +71,7 @@ def test_craft_pipeline_writes_results_in_the_documented_shape(tmp_path: Path):
         "--results", str(results),
     ])
     assert code == 0
-    table = json.loads((results / "craft.json").read_text())
+    table = json.loads((results / "craft_lab.json").read_text())
     row = table["full_nosketch"]
     for metric in ("align_acc", "f1_tol1", "f1_tol0", "online_f1_tol1", "online_align_strict",
                    "constrained_align", "constrained_f1_tol1"):
@@ -127,7 +127,7 @@ def _tiny_craft(tmp_path: Path, *extra: str) -> int:
 
 def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_path: Path):
     assert _tiny_craft(tmp_path) == 0
-    trained = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    trained = json.loads((tmp_path / "results" / "craft_lab.json").read_text())["full_nosketch"]
     run_dir = tmp_path / "work" / "runs" / "full_nosketch_seed0"
     detector_file = run_dir / "ompn_node_craft.yaml"
     assert "detector_high" in detector_file.read_text()  # tuned on this run's validation episodes
@@ -135,7 +135,7 @@ def test_reevaluate_reuses_the_checkpoints_and_keeps_the_training_figures(tmp_pa
     weights = (run_dir / "best" / "model.safetensors").read_bytes()
 
     assert _tiny_craft(tmp_path, "--reevaluate") == 0
-    again = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    again = json.loads((tmp_path / "results" / "craft_lab.json").read_text())["full_nosketch"]
     assert (run_dir / "best" / "model.safetensors").read_bytes() == weights  # nothing was retrained
     assert detector_file.is_file()
     for metric in ("align_acc", "f1_tol1", "online_f1_tol1", "online_shipped_f1_tol1"):
@@ -171,7 +171,7 @@ def test_lstm_baseline_config_trains_and_evaluates(tmp_path: Path):
     base = (Path(config_file("train_craft.yaml"))).read_text()
     config.write_text(base.replace("model:\n", "model:\n  arch: lstm\n", 1))
     assert _tiny_craft(tmp_path, "--config", str(config)) == 0
-    row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    row = json.loads((tmp_path / "results" / "craft_lab.json").read_text())["full_nosketch"]
     assert 0.0 <= row["online_f1_tol1"]["mean"] <= 1.0
 
 
@@ -215,7 +215,7 @@ def test_without_a_validation_split_the_detector_is_not_tuned_on_training_episod
     config.write_text(base.replace("val_ratio: 0.2", "val_ratio: 0.0", 1))
     assert "val_ratio: 0.0" in config.read_text()
     assert _tiny_craft(tmp_path, "--config", str(config)) == 0
-    row = json.loads((tmp_path / "results" / "craft.json").read_text())["full_nosketch"]
+    row = json.loads((tmp_path / "results" / "craft_lab.json").read_text())["full_nosketch"]
     assert row["online_f1_tol1"] == row["online_shipped_f1_tol1"]  # the shipped detector, not a tuned one
     assert not (tmp_path / "work" / "runs" / "full_nosketch_seed0" / "ompn_node_craft.yaml").exists()
 
@@ -339,11 +339,11 @@ def test_extras_only_adds_tables_and_keeps_the_main_results(
 ) -> None:
     assert _tiny_craft(tmp_path, "--extras", "ksweep") == 0
     results = tmp_path / "results"
-    main_before = (results / "craft.json").read_bytes()
+    main_before = (results / "craft_lab.json").read_bytes()
     figures_before = {p.name: p.read_bytes() for p in (results / "figures").iterdir()}
     added = ("--members", "2", "--extras", "distill", "--extras-only", "--skip-trained")
     assert _tiny_craft(tmp_path, *added) == 0
-    assert (results / "craft.json").read_bytes() == main_before
+    assert (results / "craft_lab.json").read_bytes() == main_before
     assert {p.name: p.read_bytes() for p in (results / "figures").iterdir()} == figures_before
     doc = json.loads((results / "craft_extras.json").read_text())
     assert list(doc["extras"]) == ["k_sweep", "ensembles_per_seed", "distilled"]  # kept, then added

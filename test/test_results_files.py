@@ -1,10 +1,11 @@
 """The committed results and the user documents: JSON shape, README quotes, links, wording.
 
-README's results summary must equal ``results/{craft,dial}.json`` as README formats it
-(``mean ± std`` in %), README stays a manual (≤ 15 KiB), every relative link or image in README,
-BENCHMARKS.md and ``docs/*.md`` resolves to a file of the repository, every section of
-``docs/craft.md`` / ``docs/dial.md`` that the code cites ("craft §3.5.4", "dial §4.5") exists, and no
-tracked file names a machine path.
+README's reproduction table must equal ``results/{craft,dial}.json`` (the reproduction through
+``ompn_train`` and its bundled detectors, with the provenance naming its version, commands, seeds
+and settings) as README formats it (``mean ± std`` in %), README stays a manual (≤ 15 KiB), every
+relative link or image in README, BENCHMARKS.md and ``docs/*.md`` resolves to a file of the
+repository, every section of ``docs/craft.md`` / ``docs/dial.md`` that the code cites ("craft §3.5.4",
+"dial §4.5") exists, and no tracked file names a machine path.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from typing import Any, Final
 
 import pytest
 
+import ompn_ros
+
 ROOT: Final = Path(__file__).resolve().parents[1]
 README: Final = ROOT / "README.md"
 README_MAX_BYTES: Final = 15 * 1024
@@ -26,9 +29,12 @@ SETTINGS: Final = {
               "full_sketch": "Craft full, sketch", "partial_sketch": "Craft partial, sketch"},
     "dial": {"nosketch": "Dial, no sketch", "sketch": "Dial, sketch"},
 }
-SUMMARY_COLUMNS: Final = ("align", "f1_tol1", "constrained_align", "constrained_f1_tol1",
-                          "online_align", "online_f1_tol1")
-"""Metrics of README's summary table, in column order after the setting's label."""
+SUMMARY_COLUMNS: Final = ("align", "f1_tol1", "online_align", "online_f1_tol1")
+"""Metrics of README's reproduction table, in column order after the setting's label and its seeds."""
+LAB_COLUMNS: Final = ("align", "f1_tol1", "constrained_align", "constrained_f1_tol1", "online_align",
+                      "online_f1_tol1")
+"""Metrics every setting of the lab's study has (``results/<domain>_lab.json``)."""
+PIPELINE: Final = "lab.reproduce_product"
 
 PAPER: Final = {"full_nosketch": "93 / 95", "partial_nosketch": "84 / 89", "full_sketch": "97 / 98",
                 "partial_sketch": "72 / 83", "nosketch": "87 / –", "sketch": "82 / –"}
@@ -58,14 +64,6 @@ def load(name: str) -> Any:
     return json.loads((ROOT / "results" / name).read_text(encoding="utf-8"))
 
 
-def extras_table(extras: dict[str, Any], key: str, title_prefix: str) -> dict[str, Any]:
-    """An extras table by its stable id (``{"title", "rows"}``), or by its older prose title."""
-    entry = extras.get(key)
-    if isinstance(entry, dict) and "rows" in entry:
-        return dict(entry["rows"])
-    return dict(next(table for title, table in extras.items() if title.startswith(title_prefix)))
-
-
 def row_cells(text: str, label: str) -> list[str]:
     line = next((x.strip() for x in text.splitlines() if x.strip().startswith(f"| {label} |")), None)
     assert line is not None, f"README has no table row for {label!r}"
@@ -77,54 +75,56 @@ def user_docs() -> list[Path]:
 
 
 @pytest.mark.parametrize("domain", sorted(SETTINGS))
-def test_results_json_has_the_documented_shape(domain: str) -> None:
-    results = load(f"{domain}.json")
-    meta = load(f"{domain}_extras.json")["meta"]
-    assert set(results) == set(SETTINGS[domain])
-    for setting, row in results.items():
-        for metric in (*SUMMARY_COLUMNS, "f1_tol0"):
+def test_results_json_names_where_it_came_from(domain: str) -> None:
+    doc = load(f"{domain}.json")
+    record = doc["provenance"]
+    assert record["pipeline"] == PIPELINE and record["version"] == ompn_ros.__version__, record["version"]
+    assert record["reproduce"][:3] == ["python", "-m", PIPELINE]
+    assert list(doc["settings"]) == record["settings"] and set(record["settings"]) <= set(SETTINGS[domain])
+    for setting, row in doc["settings"].items():
+        runs = record["runs"][setting]
+        assert sorted(int(s) for s in runs) == record["seeds"], setting
+        for seed, run in runs.items():
+            assert run["commands"]["train"].startswith("ompn_train "), (setting, seed)
+            assert f"--set train.seed={seed} " in run["commands"]["train"], (setting, seed)
+            assert "--detector-config" not in run["commands"]["segment"], (setting, seed)
+        for metric in (*SUMMARY_COLUMNS, "f1_tol0", "online_align_strict"):
             cell = row[metric]
             assert set(cell) == {"mean", "std", "n"}, (setting, metric)
             assert 0.0 <= cell["mean"] <= 1.0 and cell["std"] >= 0.0, (setting, metric)
+            assert cell["n"] == len(record["seeds"]), (setting, metric)
+
+
+@pytest.mark.parametrize("domain", sorted(SETTINGS))
+def test_lab_results_have_the_documented_shape(domain: str) -> None:
+    results = load(f"{domain}_lab.json")
+    meta = load(f"{domain}_extras.json")["meta"]
+    assert set(results) == set(SETTINGS[domain])
+    for setting, row in results.items():
+        for metric in (*LAB_COLUMNS, "f1_tol0"):
+            cell = row[metric]
+            assert set(cell) == {"mean", "std", "n"}, (setting, metric)
             assert cell["n"] == meta["seeds"], (setting, metric)
 
 
 @pytest.mark.parametrize("domain", sorted(SETTINGS))
-def test_readme_summary_quotes_the_committed_results(domain: str) -> None:
-    results = load(f"{domain}.json")
+def test_readme_reproduction_table_quotes_the_committed_results(domain: str) -> None:
+    doc = load(f"{domain}.json")
     readme = README.read_text(encoding="utf-8")
-    for setting, label in SETTINGS[domain].items():
+    for setting, row in doc["settings"].items():
+        label = SETTINGS[domain][setting]
         cells = row_cells(readme, label)
-        assert len(cells) == 2 + len(SUMMARY_COLUMNS), (label, cells)
-        for column, metric in enumerate(SUMMARY_COLUMNS, start=1):
-            assert cells[column] == pct(results[setting][metric]), (label, metric)
+        assert len(cells) == 4 + len(SUMMARY_COLUMNS), (label, cells)
+        seeds = doc["provenance"]["seeds"]
+        assert cells[1] == (f"{seeds[0]}–{seeds[-1]}" if len(seeds) > 1 else str(seeds[0])), (label, cells)
+        for column, metric in enumerate(SUMMARY_COLUMNS, start=2):
+            assert cells[column] == pct(row[metric]), (label, metric)
+        modes = sorted({run["detector_mode"] for run in doc["provenance"]["runs"][setting].values()})
+        assert cells[-2] == ", ".join(f"`{m}`" for m in modes), (label, cells)
         assert cells[-1] == PAPER[setting], label
-
-
-def test_readme_summary_quotes_the_distilled_models() -> None:
-    table = load("craft_extras.json")["extras"]["distilled"]["rows"]
-    readme = README.read_text(encoding="utf-8")
-    assert table, "no distilled models in results/craft_extras.json"
-    for setting, row in table.items():
-        cells = row_cells(readme, f"{SETTINGS['craft'][setting]}, distilled")
-        assert cells[1:-1] == [pct(row[metric]) for metric in SUMMARY_COLUMNS], setting
-        assert cells[-1] == PAPER[setting], setting
-
-
-def test_readme_quotes_the_per_seed_ensembles() -> None:
-    extras = load("craft_extras.json")["extras"]
-    table = extras_table(extras, "ensembles_per_seed", "Ensembles per seed")
-    line = next((x for x in README.read_text(encoding="utf-8").splitlines() if x.startswith("Ensembles of ")),
-                None)
-    assert line is not None, "README has no line on the per-seed ensembles"
-    assert table, "no per-seed ensembles in results/craft_extras.json"
-    for setting, row in table.items():
-        members = int(row["members"]["mean"])
-        assert line.startswith(f"Ensembles of {members} "), line
-        assert row["constrained_align"]["n"] == load("craft.json")[setting]["align"]["n"], setting
-        label = SETTINGS["craft"][setting]
-        quote = f"{label} {pct(row['constrained_align'])} / {pct(row['constrained_f1_tol1'])}"
-        assert quote in line, (quote, line)
+    rows = [label for key, label in SETTINGS[domain].items() if key not in doc["settings"]]
+    stale = [label for label in rows if any(x.startswith(f"| {label} |") for x in readme.splitlines())]
+    assert not stale, f"README shows settings the reproduction did not run: {stale}"
 
 
 def test_readme_is_a_manual_not_a_report() -> None:
@@ -229,7 +229,7 @@ def test_goals_quote_the_results_and_follow_from_them() -> None:
         met = (offline["align"]["mean"] - online["align"]["mean"] <= 0.03
                and online["f1_tol1"]["mean"] >= threshold["f1_tol1"]["mean"] - 0.01)
         assert row.endswith("| met |" if met else "| missed |"), row
-    dial = load("dial.json")["nosketch"]["online_align_strict"]
+    dial = load("dial_lab.json")["nosketch"]["online_align_strict"]
     row = _goal_row(text, "online alignment ≥ 95", "Dial")
     assert one(dial) in row and row.endswith("| met |" if dial["mean"] >= 0.95 else "| missed |")
     students = load("craft_extras.json")["extras"]["distilled"]["rows"]

@@ -18,7 +18,7 @@ def test_craft_full_nosketch_learns_the_decomposition_on_held_out_episodes(tmp_p
         "--extras", "ksweep", "--threads", "2", "--work", str(tmp_path / "work"), "--results", str(results),
     ])
     assert code == 0
-    row = json.loads((results / "craft.json").read_text())["full_nosketch"]
+    row = json.loads((results / "craft_lab.json").read_text())["full_nosketch"]
     # 600 demonstrations, 250 updates: well short of the shipped run (F1 0.956), far above chance
     # (a random detector scores F1 < 0.5 on these episodes, see test_train_trainer).
     assert row["f1_tol1"]["mean"] >= 0.85, row
