@@ -17,12 +17,9 @@ a setting must be to count as tied on it (with labels: one standard error over t
   episodes of the same task (``'pooled_top_k'``, :func:`pooled_counts`), or two at once
   (``'onset_and_pooled'``: the mean of the metrics against the onset and the pooled reference).
   The causal detector is made to agree as well as possible with what the model itself says when
-  it sees the whole episode.  The per-episode count is exact on 47–89 % of validation episodes,
-  the pooled one on all of them (four label-free runs, Craft and Dial).  Of the rules compared on
-  validation labels over 15 checkpoints, the onset and the combined reference came within 2 points
-  of the label-tuned detector on 11, the pooled one on 8, and only the combined one on every run
-  trained without labels; ``ompn_train`` uses it
-  (:data:`~ompn_ros.detect.defaults.LABEL_FREE_REFERENCE`; docs/design.md#label-free-calibration).
+  it sees the whole episode.  ``ompn_train`` uses the combined reference
+  (:data:`~ompn_ros.detect.defaults.LABEL_FREE_REFERENCE`; why, with its figures:
+  docs/design.md#label-free-calibration).
 
 The grid is evaluated for all settings and episodes at once (:mod:`ompn_ros.detect.grid`); the
 references are :mod:`ompn_ros.detect.reference`, the duration decoders' thresholds

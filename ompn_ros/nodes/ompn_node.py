@@ -80,10 +80,11 @@ starts, counted (``clock_jumps``) with a warning.  These stamp and episode rules
 resets) are :mod:`ompn_ros.stream.rule`, which the offline replay runs too: a recorded stream replayed
 with its stamps (:func:`ompn_ros.stream.replay.replay_stream`) gives what the node published.
 
-Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, measured to cut the
-observation -> boundary latency by ~0.4-0.5 ms against ``'single'`` = ``SingleThreadedExecutor``
-(BENCHMARKS.md).  Its ``spin()`` serves nothing in rclpy 7.1.6, so :func:`ompn_ros.ros.run.run_node`
-drives it with ``spin_once``.  Parameters and when they apply: :mod:`ompn_ros.nodes.ompn_node_params`.
+Executor: ``executor='events'`` (default) = ``rclpy.experimental.EventsExecutor``, the lower
+observation -> boundary latency against ``'single'`` = ``SingleThreadedExecutor``
+(docs/design.md#streaming-node).  Its ``spin()`` serves nothing in rclpy 7.1.6, so
+:func:`ompn_ros.ros.run.run_node` drives it with ``spin_once``.  Parameters and when they apply:
+:mod:`ompn_ros.nodes.ompn_node_params`.
 """
 
 from __future__ import annotations
@@ -214,8 +215,8 @@ class OMPNNode(LifecycleNode):
             self._unload()
             return TransitionCallbackReturn.FAILURE
         self.last_error = ""
-        # Everything alive now (torch, numba, the model: ~280 000 objects for Craft) leaves the cyclic
-        # collector, whose full passes over it took ~157 ms in the middle of the stream (BENCHMARKS.md).
+        # Everything alive now (torch, numba, the model) leaves the cyclic collector, whose full passes
+        # over it would pause the stream (docs/design.md#streaming-node).
         gc.collect()
         gc.freeze()
         return TransitionCallbackReturn.SUCCESS

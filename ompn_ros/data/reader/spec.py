@@ -196,16 +196,9 @@ class ReaderSpec:
               reads with the option its checkpoint names (:mod:`ompn_ros.app.final_record`),
               anything else with the first option.  The Dial preset uses it.
 
-            Trained on our data with that observation removed (docs/design.md#final-observation,
-            held out, against complete bags of the same seed): ``extrapolate`` on expert Dial is
-            within a point on online and offline F1@1 and alignment, or better (10 seeds), but on
-            human-like Dial it lost 9.3 points of online F1@1 (5 seeds), where ``auto`` gained 7.1;
-            ``blank`` on Craft is within a point or better on all four (20 seeds; offline
-            alignment +0.5), but gives more weak runs (4 of 20 below 85 alignment, against 1),
-            which is why ``ompn_train`` keeps the better of two runs on such bags
-            (``train.candidates_no_final``); ``duplicate`` lost 15.5 points of online alignment on
-            Craft and ``drop_last_step`` 36.8 (seed 0).  Record the observation after the last
-            command when you can.
+            How each option fares against complete bags, and why ``ompn_train`` keeps the better
+            of two runs on such bags (``train.candidates_no_final``): docs/design.md#final-observation.
+            Record the observation after the last command when you can.
 
             The report lists the episodes each handling applied to (``BagReport.adjusted``).
         final_options: the options ``final_observation: auto`` tries, in order (at least one, each
