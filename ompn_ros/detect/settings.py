@@ -354,9 +354,9 @@ def save_detector_settings(checkpoint_dir: str | Path, settings: DetectorSetting
 def load_detector_settings(checkpoint_dir: str | Path) -> DetectorSettings:
     """The settings stored with a checkpoint, or the defaults when it has none.
 
-    A missing file is not an error (older checkpoints have none): the defaults come back with
-    ``source='default'`` and a warning as their ``provenance``.  An unreadable or invalid file is a
-    :class:`DetectorSettingsError` naming the file and the key.
+    A missing file is not an error (a checkpoint made without ``ompn_train`` has none): the defaults
+    come back with ``source='default'`` and a warning as their ``provenance``.  An unreadable or
+    invalid file is a :class:`DetectorSettingsError` naming the file and the key.
     """
     path = detector_file(checkpoint_dir)
     if not path.exists() and not path.is_symlink():  # a FIFO or a device there is refused when read

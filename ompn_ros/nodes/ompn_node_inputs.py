@@ -22,6 +22,7 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float32MultiArray, Int32MultiArray
 
+from ompn_interfaces.msg import EpisodeMarker
 from ompn_ros import layout
 from ompn_ros.data.cuts import IdleSpeed
 from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array, parse_typed_marker
@@ -37,10 +38,6 @@ from ompn_ros.validate import BadStamp, FutureStamp, InvalidInput, MalformedMess
 MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
 MARKER_TOPICS = (layout.EPISODE_MARKER, layout.EPISODE)
 
-try:
-    from ompn_interfaces.msg import EpisodeMarker
-except ImportError:  # an ompn_interfaces built before the message: the deprecated markers only
-    EpisodeMarker = None
 
 
 class MarkerTwins:
@@ -132,9 +129,7 @@ class NodeInputs:
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
-        if EpisodeMarker is not None:
-            self._subscribe(EpisodeMarker, layout.EPISODE_MARKER, self._on_typed_marker, markers, None,
-                            raw=True)
+        self._subscribe(EpisodeMarker, layout.EPISODE_MARKER, self._on_typed_marker, markers, None, raw=True)
         self._subscribe(DiagnosticArray, layout.EPISODE, self.on_episode, markers, None)  # deprecated
         self._subscribe(Int32MultiArray, layout.SKETCH, self.on_sketch, markers, None)
         if self.assembled is not None:
