@@ -177,8 +177,8 @@ def spec_stream(partner: str, robot: ClockStep | None) -> tuple[list[tuple[int, 
     with a partner: 'wrench' (WrenchStamped on the robot's clock, arriving 3 ms after its step, and
     :data:`LAG_NS` after it at the end of each demonstration and just before the step, the next ones
     behind it, so the assembler releases those steps late) or 'gripper' (Float32MultiArray stamped at
-    reception, 5 ms before its step).  Returns the messages in arrival order (arrival, topic, CDR) and per step the observation,
-    the header stamp and the arrival."""
+    reception, 5 ms before its step).  Returns the messages in arrival order (arrival, topic, CDR) and
+    per step the observation, the header stamp and the arrival."""
     from geometry_msgs.msg import WrenchStamped
     from rclpy.serialization import serialize_message
 
