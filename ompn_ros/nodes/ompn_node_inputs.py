@@ -256,7 +256,7 @@ class NodeInputs:
     def on_array(self, raw: bytes) -> None:
         # Without message info, stamp with the node's clock at reception (the stream rule's receive time),
         # judged against the steady clock (docs/specs.md, "Clocks")
-        now = self.stream.clock()
+        now = self.node.get_clock().now().nanoseconds
         steady = None if self.steady is None else self.steady()
         self.on_raw_array(raw, self.stream.receive_stamp(now), now, steady)
 
@@ -278,7 +278,7 @@ class NodeInputs:
         assembled = self.assembled
         if assembled is None or self.stream.segmenter is None or not self.active:
             return
-        now = self.stream.clock()
+        now = self.node.get_clock().now().nanoseconds
         receive = self.stream.receive_stamp(now)
         step_topic = assembled.spec.step_topic
         if self.stream.repeats.seen(step_topic, assembled.spec.type_of(step_topic), receive, raw):
@@ -295,7 +295,7 @@ class NodeInputs:
         assembled = self.assembled
         if assembled is None or not assembled.asm.held:
             return
-        now = self.stream.clock() if now_ns is None else now_ns
+        now = self.node.get_clock().now().nanoseconds if now_ns is None else now_ns
         try:
             decided = assembled.asm.release(now, flush)
         except Exception as exc:  # never fatal: counted as malformed input, warned
@@ -321,7 +321,7 @@ class NodeInputs:
             assembled = self.assembled
             if assembled is None or not self.active:
                 return
-            now = self.stream.clock()
+            now = self.node.get_clock().now().nanoseconds
             if self.stream.repeats.seen(topic, assembled.spec.type_of(topic), now, raw):
                 return
             try:
