@@ -76,7 +76,11 @@ cannot deliver message info in rclpy 7.1.6) or ``use_sim_time``, the node's cloc
 Outputs carry the input's stamps, so under ``use_sim_time`` everything is in sim time.  A stamp more
 than ``max_stamp_lead`` s ahead of the node's clock is rejected (``future_stamp``); one more than
 ``clock_jump_back`` s behind the last step is a clock restart (sim restart, looped bag): a new episode
-starts, counted (``clock_jumps``) with a warning.  These stamp and episode rules (markers, pauses, idle,
+starts, counted (``clock_jumps``) with a warning, unless only the stamps' clock moved: the robot's
+header clock (JointState, spec input with ``stamp: header``, judged at the step message's arrival) or
+the node's wall clock stamping at reception (judged against the steady clock; not under
+``use_sim_time``) stepped, which neither starts nor cuts an episode (``clock_steps``; docs/specs.md,
+"Clocks").  These stamp and episode rules (markers, pauses, idle,
 resets) are :mod:`ompn_ros.stream.rule`, which the offline replay runs too: a recorded stream replayed
 with its stamps (:func:`ompn_ros.stream.replay.replay_stream`) gives what the node published.
 

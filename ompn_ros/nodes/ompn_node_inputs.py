@@ -301,9 +301,9 @@ class NodeInputs:
         except Exception as exc:  # never fatal: counted as malformed input, warned
             self._reject(MalformedMessage(f"held steps not assembled: {type(exc).__name__}: {exc}"))
             return
-        self.step_decided(assembled, decided, now)
+        self.step_decided(assembled, decided)
 
-    def step_decided(self, assembled: AssembledInput, decided: list[Decided], now: int) -> None:
+    def step_decided(self, assembled: AssembledInput, decided: list[Decided]) -> None:
         for d in decided:
             if isinstance(d.result, Drop):
                 self.outputs.warn_throttled(drop_line(d.result, assembled.dropped_total), with_total=False)
@@ -410,7 +410,7 @@ class NodeInputs:
         """Before ``~/reset``: the steps the assembler and the idle probe hold are stepped, in order."""
         assembled = self.assembled
         if assembled is not None:
-            self.step_decided(assembled, assembled.asm.reset(), self.node.get_clock().now().nanoseconds)
+            self.step_decided(assembled, assembled.asm.reset())
         self.end_probe()
 
     def end_probe(self) -> None:

@@ -245,9 +245,9 @@ class StreamRule:
 
     def _clock_step(self, stamp_ns: int, now_ns: int, against_ns: int | None) -> int:
         """The step of the stamps' clock before this stamp in ns (0: none).  Header stamps are judged
-        against ``against_ns``, the message's receive time (the step message's arrival for a step the
-        assembler released later), else ``now_ns``; other stamps only against a given ``against_ns``
-        (the node's steady clock beside its wall-clock reception stamps)."""
+        against ``against_ns`` when given, else ``now_ns`` (the receiver's clock at the message's
+        arrival: for a step the assembler released later, the step message's); other stamps only
+        against a given ``against_ns`` (the node's steady clock beside its wall-clock reception stamps)."""
         clock = self.header_clock
         if clock is None:
             return 0
@@ -266,7 +266,7 @@ class StreamRule:
             "kept in step (chrony) avoids it" if topic else
             f"the node's clock stamping the observations at reception steps {way} {abs(size) / 1e9:.3f} s "
             "and its steady clock does not (an NTP correction on this PC?): the episode goes on in arrival "
-            "order; a PC clock slewed rather than stepped (chrony makestep off) avoids it"
+            "order; a PC clock that is slewed rather than stepped avoids it"
         )
         self.last_stamp = None
         return True
