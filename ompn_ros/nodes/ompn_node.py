@@ -76,7 +76,11 @@ cannot deliver message info in rclpy 7.1.6) or ``use_sim_time``, the node's cloc
 Outputs carry the input's stamps, so under ``use_sim_time`` everything is in sim time.  A stamp more
 than ``max_stamp_lead`` s ahead of the node's clock is rejected (``future_stamp``); one more than
 ``clock_jump_back`` s behind the last step is a clock restart (sim restart, looped bag): a new episode
-starts, counted (``clock_jumps``) with a warning.  These stamp and episode rules (markers, pauses, idle,
+starts, counted (``clock_jumps``) with a warning, unless only the stamps' clock moved: the robot's
+header clock (JointState, spec input with ``stamp: header``, judged at the step message's arrival) or
+the node's wall clock stamping at reception (judged against the steady clock; not under
+``use_sim_time``) stepped, which neither starts nor cuts an episode (``clock_steps``; docs/specs.md,
+"Clocks").  These stamp and episode rules (markers, pauses, idle,
 resets) are :mod:`ompn_ros.stream.rule`, which the offline replay runs too: a recorded stream replayed
 with its stamps (:func:`ompn_ros.stream.replay.replay_stream`) gives what the node published.
 
@@ -179,6 +183,9 @@ class OMPNNode(LifecycleNode):
         known = self._idle_speed is not None
         self.stream.limits = StreamLimits.of({**self.values, "idle_speed": self._idle_speed if known else 0.0,
                                               "idle_s": self.values["idle_s"] if known else 0.0})
+        assembled = self.inputs.assembled
+        if assembled is not None and assembled.asm.step_header_stamped:  # the robot's clock stamps the steps
+            self.stream.limits.header_topic = assembled.spec.step_topic
         self.stream.default_sketch = default_sketch(self.values)
         self._clock_watch.stall_ns = round(float(self.values["clock_stall"]) * 1e9)
         self._clock_watch.jump_forward_ns = round(float(self.values["clock_jump_forward"]) * 1e9)
@@ -247,6 +254,7 @@ class OMPNNode(LifecycleNode):
             raise NodeConfigError(str(exc)) from exc
         obs_dim, depth = int(policy.config.obs_dim), int(self.values["qos_depth"])
         self.inputs.configure(None if spec is None else AssembledInput(spec, obs_dim, depth), joints)
+        self._cache_limits()  # the assembler's stamp source decides the header topic
         segmenter = StreamingSegmenter(policy, self.detector.config(self.values), stored.duration_model,
                                        stored.head)
         default = self.stream.default_sketch
@@ -279,6 +287,9 @@ class OMPNNode(LifecycleNode):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         period = float(self.values["diagnostics_period"])
         self._timer = self.create_timer(period, self._health_tick, clock=steady)
+        # a step of the wall clock stamping observations at reception is told on the steady clock;
+        # under use_sim_time the sim's clock going back is a restart
+        self.inputs.steady = None if self.get_parameter("use_sim_time").value else time.monotonic_ns
         self.stream.arm()
         gap_ns = self.stream.limits.gap_ns
         if gap_ns > 0:  # the node's clock: simulated time under use_sim_time

@@ -86,6 +86,9 @@ class NodeInputs:
         self._missed_warned: set[str] = set()  # input topics whose first unreceived messages were warned
         self._lost_warned: set[str] = set()  # topics whose first middleware loss was warned
         self._twins = MarkerTwins()  # a marker's typed and deprecated forms: one is handled
+        # the steady clock beside the node's wall clock: a step of the PC's clock is no pause or restart
+        # for observations stamped at reception (None under use_sim_time: a sim's clock going back restarts)
+        self.steady: Callable[[], int] | None = None
 
     def configure(self, assembled: AssembledInput | None, joints: JointInput | None) -> None:
         """The input of the next activation (``None``, ``None``: the single topic of ``obs_source``)."""
@@ -246,11 +249,14 @@ class NodeInputs:
         self.on_raw_array(raw, int(info["source_timestamp"]))
 
     def on_array(self, raw: bytes) -> None:
-        # Without message info, stamp with the node's clock at reception (the stream rule's receive time)
+        # Without message info, stamp with the node's clock at reception (the stream rule's receive time),
+        # judged against the steady clock (docs/specs.md, "Clocks")
         now = self.node.get_clock().now().nanoseconds
-        self.on_raw_array(raw, self.stream.receive_stamp(now), now)
+        steady = None if self.steady is None else self.steady()
+        self.on_raw_array(raw, self.stream.receive_stamp(now), now, steady)
 
-    def on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None) -> None:
+    def on_raw_array(self, raw: bytes, stamp_ns: int, now_ns: int | None = None,
+                     steady_ns: int | None = None) -> None:
         if self.stream.repeats.seen(layout.OBSERVATION, layout.FLOAT32_ARRAY, stamp_ns, raw):
             return  # the same message sent twice: one step
         try:
@@ -258,7 +264,7 @@ class NodeInputs:
         except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
             self._reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
             return
-        self.process_observation(data, stamp_ns, now_ns)
+        self.process_observation(data, stamp_ns, now_ns, steady_ns)
 
     def on_spec_step(self, raw: bytes) -> None:
         """A step-topic message: held by the assembler (receive time = the node's clock, strictly
@@ -290,9 +296,9 @@ class NodeInputs:
         except Exception as exc:  # never fatal: counted as malformed input, warned
             self._reject(MalformedMessage(f"held steps not assembled: {type(exc).__name__}: {exc}"))
             return
-        self.step_decided(assembled, decided, now)
+        self.step_decided(assembled, decided)
 
-    def step_decided(self, assembled: AssembledInput, decided: list[Decided], now: int) -> None:
+    def step_decided(self, assembled: AssembledInput, decided: list[Decided]) -> None:
         for d in decided:
             if isinstance(d.result, Drop):
                 self.outputs.warn_throttled(drop_line(d.result, assembled.dropped_total), with_total=False)
@@ -301,7 +307,9 @@ class NodeInputs:
             if problem is not None:
                 self.stream.events["obs_size_mismatch"] += 1
                 self.node.get_logger().error(problem)
-            self.process_observation(d.result, d.stamp_ns, now)
+            # judged at the step's arrival, not at its release: a step the assembler held for a lagging
+            # partner is no clock step (docs/specs.md, "Clocks")
+            self.process_observation(d.result, d.stamp_ns, d.receive_ns)
 
     def partner_callback(self, topic: str) -> Any:
         def on_partner(raw: bytes) -> None:
@@ -380,22 +388,24 @@ class NodeInputs:
                                  f"{limits.max_stamp_lead} s ahead of the node's clock: not merged"))
         return True
 
-    def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
+    def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None,
+                            against_ns: int | None = None) -> None:
         """Step the segmenter on one observation and publish its outputs (or count a rejection).
 
-        ``now_ns``: the node's clock at reception when the caller read it already."""
+        ``now_ns``: the node's clock at reception when the caller read it already; ``against_ns``: the
+        clock its stamp's steps are judged against (:meth:`StreamRule.observe`)."""
         if self.stream.segmenter is not None and self.active:
             if self.probe is not None and stamp_ns is not None:
                 if self.probe.hold(data, stamp_ns, now_ns):
                     self.end_probe()
                 return
-            self.stream.observe(data, stamp_ns, now_ns)
+            self.stream.observe(data, stamp_ns, now_ns, against_ns)
 
     def release_all(self) -> None:
         """Before ``~/reset``: the steps the assembler and the idle probe hold are stepped, in order."""
         assembled = self.assembled
         if assembled is not None:
-            self.step_decided(assembled, assembled.asm.reset(), self.node.get_clock().now().nanoseconds)
+            self.step_decided(assembled, assembled.asm.reset())
         self.end_probe()
 
     def end_probe(self) -> None:

@@ -66,12 +66,15 @@ def replay_stream(
     limits: StreamLimits,
     sketch: np.ndarray | None = None,
     receive_ns: Sequence[int] | None = None,
+    steady_ns: Sequence[int] | None = None,
 ) -> StreamRecord:
     """Replay a recorded stream without markers, stamps as recorded: the steps and boundaries the node
     publishes for it.  ``receive_ns``: the receiver's clock at each observation (a bag's log stamps
     beside header stamps), as the node reads it: it tells a step of the header clock from a pause or
     a restart (``limits.header_topic``) and is what ``max_stamp_lead`` is checked against; without
-    it the clock is unknown (no stamp counts as from the future, no clock step is seen).  The last
+    it the clock is unknown (no stamp counts as from the future, no clock step is seen).  ``steady_ns``:
+    the node's steady clock at each observation, beside stamps the node took at reception from its wall
+    clock: it tells a step of that clock from a pause or a restart.  The last
     episode stays open, as in the node until a marker, a pause or a reset ends it."""
     record = StreamRecord()
     rule = StreamRule(record, lambda: 0, limits)
@@ -79,8 +82,9 @@ def replay_stream(
     rule.arm()
     rule.start_episode(sketch)
     receive = [0] * len(stamps_ns) if receive_ns is None else receive_ns
-    for obs, stamp, now in zip(observations, stamps_ns, receive, strict=True):
-        rule.observe(obs, int(stamp), int(now))
+    steady: Sequence[int | None] = [None] * len(stamps_ns) if steady_ns is None else steady_ns
+    for obs, stamp, now, against in zip(observations, stamps_ns, receive, steady, strict=True):
+        rule.observe(obs, int(stamp), int(now), None if against is None else int(against))
     record.events = dict(rule.events)
     return record
 

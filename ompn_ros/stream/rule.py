@@ -19,6 +19,8 @@ The rules, in the order a stamped observation meets them (``docs/parameters.md``
   not move with them: then the robot's clock stepped (an NTP correction), which reshapes no episode:
   it goes on in arrival order, the step counted (``clock_steps``) and warned once
   (:mod:`ompn_ros.data.clock_steps`, the bag reader's rule; docs/specs.md, "Clocks");
+* likewise for stamps the node took at reception from its wall clock, given with the node's steady
+  clock beside them (``against_ns``): a step of the PC's clock moves them and not the steady clock;
 * with ``idle_s``, idle observations are held until the reader's ``split: idle`` rule decides them;
 * with a model whose ``still_tolerance`` is above 0, an observation that moved nothing since the last
   stepped one is not stepped (:mod:`ompn_ros.data.cuts.still`); steps and boundaries keep the stream's rows;
@@ -154,7 +156,7 @@ class StreamRule:
         self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
         self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
         self.still: StillRuns | None = None  # the episode's still rule (the model's still_tolerance)
-        self.header_clock: LiveClockSteps | None = None  # header stamps: their clock's steps, armed by arm()
+        self.header_clock: LiveClockSteps | None = None  # the stamps' clock's steps, armed by arm()
 
     @property
     def segmenter(self) -> StreamingSegmenter | None:
@@ -172,7 +174,7 @@ class StreamRule:
         self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
         self.idle = (IdleGate(limits.idle_ns, limits.idle_speed, limits.idle_elements)
                      if float(limits.idle_s) > 0 else None)
-        self.header_clock = LiveClockSteps() if limits.header_topic else None
+        self.header_clock = LiveClockSteps()  # judges header stamps, or stamps given with a steady clock
 
     def disarm(self) -> None:
         self.silence = self.idle = self.header_clock = None
@@ -187,12 +189,14 @@ class StreamRule:
         return stamp
 
     # --- observations ----------------------------------------------------------------------------
-    def observe(self, data: Any, stamp_ns: int | None, now_ns: int | None = None) -> None:
+    def observe(self, data: Any, stamp_ns: int | None, now_ns: int | None = None,
+                against_ns: int | None = None) -> None:
         """One observation: judged by its stamp (``now_ns``: the receiver's clock when the caller read
-        it already), held by the idle rule or stepped, its outputs given to the sink."""
+        it already), held by the idle rule or stepped, its outputs given to the sink.  ``against_ns``: the
+        clock the stamps' clock is judged against for steps (:meth:`_clock_step`)."""
         seg = self.segmenter
         assert seg is not None
-        if stamp_ns is not None and not self._stamp_usable(stamp_ns, now_ns):
+        if stamp_ns is not None and not self._stamp_usable(stamp_ns, now_ns, against_ns):
             return
         if self.idle is not None and stamp_ns is not None:
             self._idle_decided(self.idle.push(np.array(data, dtype=np.float32), stamp_ns))
@@ -210,12 +214,12 @@ class StreamRule:
         """An episode has a step and was not closed yet (a pause, a marker or a restart closes it)."""
         return self.step_index >= 0 and not self.closed
 
-    def _stamp_usable(self, stamp_ns: int, now_ns: int | None) -> bool:
+    def _stamp_usable(self, stamp_ns: int, now_ns: int | None, against_ns: int | None) -> bool:
         """Reject a far-future stamp; a clock restart starts a new episode (counted, warned), a step of
         the header clock changes nothing but the stamp the next ones follow (counted, warned)."""
         limits = self.limits
         if now_ns is None:
-            now_ns = self.clock() if limits.max_lead_ns > 0 or self.header_clock is not None else 0
+            now_ns = self.clock() if limits.max_lead_ns > 0 or limits.header_topic else 0
         verdict = classify_stamp(
             stamp_ns, self.last_stamp, now_ns, jump_back_ns=limits.jump_back_ns,
             max_lead_ns=limits.max_lead_ns
@@ -224,7 +228,7 @@ class StreamRule:
             self.reject(FutureStamp(f"stamp {stamp_ns} ns is more than max_stamp_lead="
                                     f"{limits.max_stamp_lead} s ahead of the node's clock"))
             return False
-        stepped = 0 if self.header_clock is None else self.header_clock.step(stamp_ns, now_ns)
+        stepped = self._clock_step(stamp_ns, now_ns, against_ns)
         gap = bool(limits.gap_ns) and gap_ends_episode(stamp_ns, self.last_stamp, limits.gap_ns)
         if stepped and (verdict == "jump_back" or gap):
             return self._header_stepped(stepped)
@@ -239,14 +243,30 @@ class StreamRule:
             return self.end_at_pause()
         return True
 
+    def _clock_step(self, stamp_ns: int, now_ns: int, against_ns: int | None) -> int:
+        """The step of the stamps' clock before this stamp in ns (0: none).  Header stamps are judged
+        against ``against_ns`` when given, else ``now_ns`` (the receiver's clock at the message's
+        arrival: for a step the assembler released later, the step message's); other stamps only
+        against a given ``against_ns`` (the node's steady clock beside its wall-clock reception stamps)."""
+        clock = self.header_clock
+        if clock is None:
+            return 0
+        if self.limits.header_topic:
+            return clock.step(stamp_ns, now_ns if against_ns is None else against_ns)
+        return 0 if against_ns is None else clock.step(stamp_ns, against_ns)
+
     def _header_stepped(self, size: int) -> bool:
-        """The header clock stepped by ``size`` ns and the receiver's did not: no cut, no reorder; the
-        next stamps follow this one (counted and warned, one line per step)."""
+        """The stamps' clock stepped by ``size`` ns and the one beside it did not: no cut, no reorder;
+        the next stamps follow this one (counted and warned, one line per step)."""
         self.events["clock_steps"] += 1
+        way, topic = "back" if size < 0 else "forward", self.limits.header_topic
         self.sink.warning(
-            f"the header clock of '{self.limits.header_topic}' steps {'back' if size < 0 else 'forward'} "
-            f"{abs(size) / 1e9:.3f} s and the node's clock does not (an NTP correction on the robot?): the "
-            "episode goes on in arrival order; a robot clock kept in step (chrony) avoids it"
+            f"the header clock of '{topic}' steps {way} {abs(size) / 1e9:.3f} s and the node's clock does "
+            "not (an NTP correction on the robot?): the episode goes on in arrival order; a robot clock "
+            "kept in step (chrony) avoids it" if topic else
+            f"the node's clock stamping the observations at reception steps {way} {abs(size) / 1e9:.3f} s "
+            "and its steady clock does not (an NTP correction on this PC?): the episode goes on in arrival "
+            "order; a PC clock that is slewed rather than stepped avoids it"
         )
         self.last_stamp = None
         return True

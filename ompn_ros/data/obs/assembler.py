@@ -226,6 +226,11 @@ class ObservationAssembler:
         self._held: deque[tuple[int, int, int, list[np.ndarray] | Drop]] = deque()
         self._on_time = _OnTimeReception()
 
+    @property
+    def step_header_stamped(self) -> bool:
+        """Steps are stamped by the step topic's ``header.stamp`` (``stamp: header``, a type with one)."""
+        return self._header and self._step_ex.has_header
+
     # --- layout -----------------------------------------------------------------------------------
     @property
     def dim(self) -> int | None:
