@@ -16,11 +16,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from lerobot_support import write_dataset
 from test_idle_user_arm import _spec, arm_bag  # noqa: F401 (the fixture)
 
 from ompn_ros.app.idle_record import trained_idle_speed
 from ompn_ros.data import read_episodes
-from ompn_ros.data.cache import INDEX, load_arrays
+from ompn_ros.data.cache import INDEX, load_arrays, load_dataset_arrays
 from ompn_ros.data.reader import BagFacts, BagReport
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,6 +68,18 @@ def test_the_cache_keeps_the_facts_and_rebuilds_an_entry_whose_facts_do_not_hold
     again = load_arrays(bag, spec=_spec(), cache_dir=tmp_path)
     assert not again.cache_hit and again.facts == want
     assert len(again.notes) == 1 and "idle_speed not of its type" in again.notes[0], again.notes
+
+
+def test_a_lerobot_dataset_has_the_facts_of_one_source(arm_bag: tuple[Path, list],  # noqa: F811
+                                                       tmp_path: Path) -> None:
+    """A dataset is read as one source: its episodes and steps, no row T guessed, no idle rule."""
+    episodes = read_episodes(arm_bag[0], spec=_spec()).episodes
+    root = write_dataset(tmp_path / "dataset", episodes, fps=50, labels=False)
+    arrays = load_dataset_arrays(root, cache_dir=tmp_path / "cache")
+    steps = sum(e.length for e in episodes)
+    assert arrays.facts == (BagFacts(str(arrays.facts[0].path), len(episodes), steps),)
+    assert Path(arrays.facts[0].path).resolve() == root.resolve()
+    assert load_dataset_arrays(root, cache_dir=tmp_path / "cache").facts == arrays.facts  # from the entry
 
 
 @pytest.mark.parametrize("doc", [None, {"path": "a"}, {**BagFacts("a").__dict__, "steps": -1},

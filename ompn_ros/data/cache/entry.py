@@ -15,7 +15,7 @@ written into a temporary directory (``.<entry>.tmp-<pid>-<random>``, :mod:`ompn_
 renamed into place, so a reader never sees half an entry; the temporary of a killed writer is removed
 by the next run that finds its process gone (:func:`ompn_ros.atomic.remove_stale_temps`).
 
-An entry defends itself (format 5): ``index.json`` holds the entry's **key** (the identity of its bags
+An entry defends itself (since format 5): ``index.json`` holds the entry's **key** (the identity of its bags
 and reader settings, :func:`~.key.content_key`) and a BLAKE2b checksum of every file.
 :func:`open_entry` verifies both before anything is mapped, so garbage values, another bag's entry
 copied under this key, a truncated or edited offsets file are a :class:`CacheEntryError` (the
