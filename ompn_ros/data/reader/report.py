@@ -116,11 +116,13 @@ class BagFacts:
         counts = {name: doc[name] for name in ("episodes", "steps", "final_guessed")}
         speed = doc["idle_speed"]
         bad = [name for name, n in counts.items() if isinstance(n, bool) or not isinstance(n, int) or n < 0]
-        if speed is not None and (isinstance(speed, bool) or not isinstance(speed, int | float)):
+        if speed is not None and (isinstance(speed, bool) or not isinstance(speed, int | float)
+                                  or not speed >= 0):
             bad.append("idle_speed")
         bad += [name for name in ("path", "idle_on") if not isinstance(doc[name], str)]
         if bad:
-            raise ValueError(f"read facts of {doc['path']!r}: {', '.join(bad)} not of its type")
+            raise ValueError(f"read facts of {doc['path']!r}: {', '.join(bad)} do not hold (counts are "
+                             "integers >= 0, idle_speed a number >= 0 or null, path and idle_on text)")
         return cls(doc["path"], **counts, idle_speed=None if speed is None else float(speed),
                    idle_on=doc["idle_on"])
 
