@@ -106,7 +106,7 @@ def test_jointstate_only_bag(tmp_path: Path, storage: str, stamp: str, final: st
         assert got.subtask is None and got.sketch is None and got.task == "arm_demo"
     assert "missing" in result.report.summary()
     # what ompn_train reads to train more candidates on such bags (train.candidates_no_final)
-    assert final_row_guessed(result.report.summary()) == (final != "drop_last_step")
+    assert final_row_guessed(result.report.facts()) == (final != "drop_last_step")
 
 
 def test_tight_tolerance_reports_unattached(tmp_path: Path) -> None:

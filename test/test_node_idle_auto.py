@@ -27,6 +27,7 @@ from test_node_real_streams import msg  # noqa: E402
 
 from ompn_ros.app.idle_record import RECORD_FILE, read_idle_speed, trained_idle_speed  # noqa: E402
 from ompn_ros.data import read_episodes  # noqa: E402
+from ompn_ros.data.reader import BagFacts  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402
 from ompn_ros.model.config import OMPNConfig  # noqa: E402
 from ompn_ros.model.errors import CheckpointError  # noqa: E402
@@ -68,10 +69,10 @@ def test_auto_runs_the_threshold_the_training_read_recorded(ctx, arm_bag: tuple[
     config = str(ROOT / "config" / "train_dial.yaml")
     assert main(["--bags", str(path), "--config", config, "--out", str(out), "--quiet",
                  *[arg for s in sets for arg in ("--set", s)]]) == 0
-    summary = {"summary": read_episodes(path, spec=_spec()).report.summary()}
-    record = read_idle_speed(summary)  # what the read summary names
+    read = read_episodes(path, spec=_spec()).report
+    record = read_idle_speed(read.facts())  # what the read used
     assert record is not None and record.on.startswith("joint position and velocity")
-    assert 0.01 < record.speed < 1.0 and f"idle_speed auto -> {record.speed:.4g} on" in summary["summary"]
+    assert 0.01 < record.speed < 1.0 and f"idle_speed auto -> {record.speed:.4g} on" in read.summary()
     assert trained_idle_speed(out / "best") == record == trained_idle_speed(out / "last")
     node = active_node(ctx, out / "best", **ARM_PARAMS)  # idle_speed: auto, the default
     assert node.stream.limits.idle_speed == pytest.approx(record.speed)
@@ -81,18 +82,15 @@ def test_auto_runs_the_threshold_the_training_read_recorded(ctx, arm_bag: tuple[
     node.destroy_node()
 
 
-def test_the_record_is_the_median_of_the_bags_at_the_precision_the_summary_names() -> None:
-    lines = ["read 3 bags",
-             "a: 1 episodes, 10 steps (idle); idle_speed auto -> 0.5 on joint position (rad/s for revolute "
-             "joints) (noise floor 0.1 per second of position change, 0 of velocity reading)",
-             "b: 1 episodes, 10 steps (idle); idle_speed 0.25 on joint position (rad/s for revolute joints)",
-             "c: 1 episodes, 10 steps (idle); idle_speed auto -> 1e-09 on joint position (rad/s for revolute "
-             "joints): no noise floor, still only when nothing changes",
-             "d: 1 episodes, 10 steps (markers)"]
-    record = read_idle_speed({"summary": "\n".join(lines)})
+def test_the_record_is_the_median_of_the_bags_at_full_precision() -> None:
+    on = "joint position (rad/s for revolute joints)"
+    facts = [BagFacts("a", 1, 10, idle_speed=0.5123456789, idle_on=on), BagFacts("b", 1, 10, idle_speed=0.25,
+             idle_on=on), BagFacts("c", 1, 10, idle_speed=1e-09, idle_on=on), BagFacts("d", 1, 10)]
+    record = read_idle_speed(facts)
     assert record is not None and record.speed == 0.25
-    assert record.on == "joint position (rad/s for revolute joints)" and "median of 3 bags" in record.source
-    assert read_idle_speed({"summary": lines[-1]}) is None
+    assert record.on == on and "median of 3 bags" in record.source
+    assert read_idle_speed(facts[:1]).speed == 0.5123456789  # type: ignore[union-attr]
+    assert read_idle_speed(facts[-1:]) is None
 
 
 def test_auto_without_a_record_measures_the_stream_then_cuts_as_if_known(ctx, tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from ompn_ros.data.reader import BagReport, ReadReport, final_row_guessed
+from ompn_ros.data.reader.report import BLANK_LAST, DROPPED_LAST
 from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import (
@@ -105,10 +106,11 @@ def test_candidates_are_raised_only_for_guessed_final_rows_with_labels() -> None
             TrainConfig(**{name: 0})  # type: ignore[arg-type]
 
 
-def test_the_read_summary_says_whether_row_t_was_guessed() -> None:
+def test_the_read_facts_say_whether_row_t_was_guessed() -> None:
     bag = BagReport(path="robot_bag", episodes=3, steps=30, split="time_gap")
-    assert not final_row_guessed(ReadReport([bag]).summary())
+    assert not final_row_guessed(ReadReport([bag]).facts())
     bag.guessed.append("topic 'cmd' = '/arm/cmd' (unique suffix match)")
-    assert not final_row_guessed(ReadReport([bag]).summary())
-    bag.guessed.append("row T = zeros (final_observation: blank)")
-    assert final_row_guessed(ReadReport([bag]).summary())
+    bag.adjusted[DROPPED_LAST] = [0]  # dropped, not guessed
+    assert not final_row_guessed(ReadReport([bag]).facts())
+    bag.adjusted[BLANK_LAST] = [1, 2]
+    assert final_row_guessed(ReadReport([bag]).facts()) and ReadReport([bag]).facts()[0].final_guessed == 2

@@ -120,7 +120,7 @@ def choose(runs: Sequence[OptionRun]) -> int:
 
 def _why_alone(data: TrainingData, cfg: TrainConfig) -> str | None:
     """Why the first option trains alone, or None when the options are to be compared."""
-    if not final_row_guessed(str(data.report.get("summary", ""))):
+    if not final_row_guessed(data.facts):
         return "every episode has its final observation"
     if not labelled(cfg, data):
         return "without validation labels the runs cannot be ranked (docs/design.md#best-of-two)"

@@ -1,9 +1,10 @@
 """The idle speed a checkpoint's training read used, recorded beside it.
 
 ``split: idle`` judges a step still when its speed is below ``idle_speed``, which the reader derives
-from each bag's noise floor with ``auto`` (:mod:`ompn_ros.data.cuts.idle`) and names in the read summary.
+from each bag's noise floor with ``auto`` (:mod:`ompn_ros.data.cuts.idle`) and keeps in the read's facts
+(:class:`ompn_ros.data.reader.BagFacts`, which the cache keeps as data beside the summary text).
 ``ompn_train`` writes the value its read used into ``best/`` and ``last/`` as ``idle_speed.json`` (the
-median over the bags read with the idle rule, as the read summary names them, and what speed it is a
+median over the bags read with the idle rule, at full precision, and what speed it is a
 threshold of: a JointState's joint speed or every element's change), so
 ``ompn_node`` with ``idle_speed: auto`` ends episodes at the threshold the model was trained with
 (:mod:`ompn_ros.nodes.ompn_node_idle`).  A read without the idle rule records nothing.
@@ -12,26 +13,19 @@ threshold of: a JointState's joint speed or every element's change), so
 from __future__ import annotations
 
 import json
-import re
 import statistics
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from ompn_ros.atomic import atomic_write_text
+from ompn_ros.data.reader import BagFacts
 from ompn_ros.model.checkpoint_json import read_checkpoint_json
 from ompn_ros.model.errors import CheckpointError
 
 RECORD_FILE = "idle_speed.json"
 FORMAT = "ompn_ros.idle_speed"
-
-
-IDLE_RULE = re.compile(r"; idle_speed (?:auto -> )?(?P<speed>[0-9][0-9.eE+-]*)(?: on (?P<on>.+?))?"
-                       r"(?:: .*| \(noise floor .*\))?$")
-"""The idle rule at the end of a bag's line of the read summary (:meth:`BagReport.line`), as the reader
-words it (:func:`ompn_ros.data.cuts.idle.derive_idle_speed` for ``auto``, else the number given)."""
 
 
 @dataclass(frozen=True)
@@ -44,15 +38,15 @@ class IdleRecord:
     source: str
 
 
-def read_idle_speed(report: Mapping[str, Any]) -> IdleRecord | None:
-    """The idle speed of a training read (its report document; the cache keeps the reader's report as
-    the summary text, so its bag lines are read): the median of the bags' thresholds, at the precision
-    the summary names them; ``None`` when no bag was read with the idle rule."""
-    found = [m for line in str(report.get("summary", "")).splitlines() if (m := IDLE_RULE.search(line))]
+def read_idle_speed(facts: Sequence[BagFacts]) -> IdleRecord | None:
+    """The idle speed of a training read, from its facts (:meth:`ompn_ros.data.reader.ReadReport.facts`,
+    as the cache keeps them): the median of the bags' thresholds, at full precision; ``None`` when no
+    bag was read with the idle rule."""
+    found = [(bag.idle_speed, bag.idle_on) for bag in facts if bag.idle_speed is not None]
     if not found:
         return None
-    speed = float(statistics.median(float(m["speed"]) for m in found))
-    on = Counter(m["on"] or "" for m in found).most_common(1)[0][0]
+    speed = float(statistics.median(value for value, _ in found))
+    on = Counter(where for _, where in found).most_common(1)[0][0]
     source = f"the median of {len(found)} bags" if len(found) > 1 else "one bag"
     return IdleRecord(speed, on, f"{source}, on {on}" if on else source)
 

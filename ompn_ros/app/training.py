@@ -28,7 +28,7 @@ from ompn_ros.atomic import atomic_write_text
 from ompn_ros.data.cache import EpisodeArrays, load_arrays, load_dataset_arrays
 from ompn_ros.data.cuts import AUTO, check_setting, choose_tolerance
 from ompn_ros.data.lerobot import DatasetSpec
-from ompn_ros.data.reader import ReaderSpec, final_row_guessed
+from ompn_ros.data.reader import BagFacts, ReaderSpec, final_row_guessed
 from ompn_ros.layout import DOMAINS
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.train.candidates import resolve_candidates
@@ -145,12 +145,15 @@ def _data_int(data: dict[str, Any], key: str, default: int | None) -> int:
 
 @dataclass
 class TrainingData:
-    """Episodes to train on, the model fields they fix, and the bag reader's report (bags only)."""
+    """Episodes to train on, the model fields they fix, and the bag reader's report (bags only): the
+    document written beside the run (``report``) and the read's facts as data (``facts``, what the
+    training uses: :meth:`~ompn_ros.data.reader.ReadReport.facts`; none for synthetic data)."""
 
     episodes: list[Any]
     fields: dict[str, Any]
     vocab: int | None = None
     report: dict[str, Any] = field(default_factory=dict)
+    facts: tuple[BagFacts, ...] = ()
 
 
 def synthetic_data(task: SyntheticKind, episodes: int, data: dict[str, Any]) -> TrainingData:
@@ -218,10 +221,10 @@ def bag_data(bags: list[str], data: dict[str, Any], spec: ReaderSpec | None = No
         "summary": arrays.report,
     }
     if domain_name not in DOMAINS:
-        return TrainingData(episodes, fields_from_episodes(episodes, data), None, report)
+        return TrainingData(episodes, fields_from_episodes(episodes, data), None, report, arrays.facts)
     dom = DOMAINS[domain_name]
     sizes = {"obs_dim": dom.obs_dim, "action_type": dom.action_type, "action_dim": dom.action_dim}
-    return TrainingData(episodes, sizes, dom.sketch_vocab, report)
+    return TrainingData(episodes, sizes, dom.sketch_vocab, report, arrays.facts)
 
 
 def dataset_data(dataset: str, data: dict[str, Any], spec_file: str | None = None) -> TrainingData:
@@ -235,10 +238,10 @@ def dataset_data(dataset: str, data: dict[str, Any], spec_file: str | None = Non
               "episodes": len(episodes), "cache_hit": bool(arrays.cache_hit), "summary": arrays.report}
     domain_name = data.get("domain")
     if domain_name not in DOMAINS:
-        return TrainingData(episodes, fields_from_episodes(episodes, data), None, report)
+        return TrainingData(episodes, fields_from_episodes(episodes, data), None, report, arrays.facts)
     dom = DOMAINS[domain_name]
     sizes = {"obs_dim": dom.obs_dim, "action_type": dom.action_type, "action_dim": dom.action_dim}
-    return TrainingData(episodes, sizes, dom.sketch_vocab, report)
+    return TrainingData(episodes, sizes, dom.sketch_vocab, report, arrays.facts)
 
 
 def fields_from_episodes(episodes: list[Any], data: dict[str, Any]) -> dict[str, Any]:
@@ -283,7 +286,7 @@ def build_configs(
     if quiet:
         train_fields["progress"] = False
     train_config = TrainConfig.from_dict(train_fields)
-    guessed = final_row_guessed(str(data.report.get("summary", "")))
+    guessed = final_row_guessed(data.facts)
     return OMPNConfig.from_dict(model_fields), resolve_candidates(train_config, guessed,
                                                                   labelled(train_config, data))
 
@@ -313,10 +316,10 @@ def labelled(train_config: TrainConfig, data: TrainingData) -> bool:
     return train_config.labels == "auto" and all(ep.subtask is not None for ep in data.episodes)
 
 
-def _record_idle(out: Path, report: dict[str, Any]) -> None:
-    """The idle speed the read used, beside ``best/`` and ``last/`` (for ``ompn_node``'s ``idle_speed:
-    auto``, :mod:`ompn_ros.app.idle_record`)."""
-    record = read_idle_speed(report)
+def _record_idle(out: Path, facts: tuple[BagFacts, ...]) -> None:
+    """The idle speed the read used (its ``facts``), beside ``best/`` and ``last/`` (for ``ompn_node``'s
+    ``idle_speed: auto``, :mod:`ompn_ros.app.idle_record`)."""
+    record = read_idle_speed(facts)
     for name in ("best", "last"):
         if record is not None and (out / name).is_dir():
             record_idle_speed(out / name, record)
@@ -346,7 +349,7 @@ def run_training(
             "world_size": ctx.world_size,
         }
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, sort_keys=True))
-        _record_idle(out, data.report)
+        _record_idle(out, data.facts)
         return summary
     finally:
         shutdown(ctx)

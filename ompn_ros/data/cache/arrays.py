@@ -12,6 +12,7 @@ import numpy as np
 
 from ..episode import Episode
 from ..errors import CacheEntryError
+from ..reader import BagFacts
 from .entry import JOINT_KEYS, STEP_KEYS, common_obs_names, open_entry, write_entry
 
 
@@ -45,6 +46,7 @@ class EpisodeArrays:
     step_extras: dict[str, np.ndarray] = field(default_factory=dict)
     obs_names: tuple[str, ...] = ()
     report: str = ""  # ReadReport.summary() of the parse that built the arrays
+    facts: tuple[BagFacts, ...] = ()  # ReadReport.facts() of that parse (none for synthetic episodes)
     key: str = ""
     cache_hit: bool = False
     cache_path: Path | None = None
@@ -123,7 +125,7 @@ class EpisodeArrays:
 
     def save(self, path: Path, key: str = "") -> None:
         """Write as a cache entry: a directory of ``.npy`` files and ``index.json``, atomically."""
-        write_entry(path, self._arrays(), self.report, key)
+        write_entry(path, self._arrays(), self.report, key, self.facts)
 
     @classmethod
     def load(cls, path: Path, key: str | None = None) -> EpisodeArrays:
@@ -134,14 +136,14 @@ class EpisodeArrays:
         of another format version, :class:`~ompn_ros.data.errors.CacheEntryError` for one whose
         key, checksums or offsets do not hold, and ``OSError`` when it is missing.
         """
-        arrays, report = open_entry(path, key)
+        arrays, report, facts = open_entry(path, key)
         extras = {k[len("extras__"):]: arrays.pop(k) for k in list(arrays) if k.startswith("extras__")}
         step = {k[len("step_extras__"):]: arrays.pop(k) for k in list(arrays)
                 if k.startswith("step_extras__")}
         names = tuple(str(n) for n in arrays.pop("obs_names"))
         try:
             out = cls(**arrays, extras=extras, step_extras=step, obs_names=names, report=report,
-                      cache_path=path)
+                      facts=facts, cache_path=path)
         except TypeError as exc:  # an array missing from the index, or one it should not have
             raise CacheEntryError(f"cache entry {path}: {exc}") from None
         out.check_layout()

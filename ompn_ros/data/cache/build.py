@@ -119,7 +119,7 @@ def build_entry(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError, entry
         if len(writer) == 0:
             names = [str(b) for b in bags]
             raise EmptyEntryError(f"no episodes could be read from {names}:\n{report.summary()}")
-        writer.finish(report.summary())
+        writer.finish(report.summary(), report.facts())
     except BaseException:
         writer.abort()
         raise
@@ -143,7 +143,7 @@ def in_memory(bags: Sequence[Path], spec: ReaderSpec, on_error: OnError) -> Epis
         raise EmptyEntryError(f"no episodes could be read from {[str(b) for b in bags]}:\n"
                               f"{result.report.summary()}")
     arrays = EpisodeArrays.from_episodes(result.episodes)
-    arrays.report = result.report.summary()
+    arrays.report, arrays.facts = result.report.summary(), result.report.facts()
     return arrays
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..errors import EmptyEntryError
 from ..lerobot import DatasetReader, DatasetSpec
+from ..reader import BagFacts
 from .arrays import EpisodeArrays
 from .build import default_cache_dir, open_hit
 from .entry import EntryWriter
@@ -28,14 +29,16 @@ def _summary(reader: DatasetReader, episodes: int, frames: int) -> str:
 def build_dataset_entry(reader: DatasetReader, entry: Path) -> None:
     """Read the dataset file by file into the entry at ``entry``."""
     writer = EntryWriter(entry)
-    frames = 0
+    frames = steps = 0
     try:
         for file in reader.files():
             writer.add(e.episode for e in file.episodes)
             frames += sum(e.frames for e in file.episodes)
+            steps += sum(e.episode.length for e in file.episodes)
         if len(writer) == 0:
             raise EmptyEntryError(f"no episode of two frames or more in {reader.layout.root}")
-        writer.finish(_summary(reader, len(writer), frames))
+        facts = BagFacts(str(reader.layout.root), len(writer), steps)  # no row T guessed, no idle rule
+        writer.finish(_summary(reader, len(writer), frames), [facts])
     except BaseException:
         writer.abort()
         raise

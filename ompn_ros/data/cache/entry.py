@@ -3,7 +3,8 @@
 An entry holds one ``.npy`` file per array (see :class:`~.arrays.EpisodeArrays`, with
 ``obs_names``: the observation's element names, ``Episode.extras['obs_names']``, empty when the
 episodes do not name them alike) and ``index.json`` (format version, every array's file, dtype and
-shape, the reader's report).  It is
+shape, the reader's report: its summary text for people and its facts as data,
+:class:`~ompn_ros.data.reader.BagFacts`, for the code that uses them).  It is
 opened with ``np.load(mmap_mode='r')``: the step arrays (observations, actions, labels, sketches,
 joint extras) stay on disk and pages are read when touched, so a dataset larger than memory can be
 trained on; the per-episode arrays (offsets, seeds, ...) are small and read into memory.
@@ -14,7 +15,7 @@ written into a temporary directory (``.<entry>.tmp-<pid>-<random>``, :mod:`ompn_
 renamed into place, so a reader never sees half an entry; the temporary of a killed writer is removed
 by the next run that finds its process gone (:func:`ompn_ros.atomic.remove_stale_temps`).
 
-An entry defends itself (format 5): ``index.json`` holds the entry's **key** (the identity of its bags
+An entry defends itself (since format 5): ``index.json`` holds the entry's **key** (the identity of its bags
 and reader settings, :func:`~.key.content_key`) and a BLAKE2b checksum of every file.
 :func:`open_entry` verifies both before anything is mapped, so garbage values, another bag's entry
 copied under this key, a truncated or edited offsets file are a :class:`CacheEntryError` (the
@@ -27,7 +28,8 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Literal
 
@@ -37,9 +39,10 @@ from ompn_ros.atomic import make_temp_dir, umask_mode
 
 from ..episode import Episode
 from ..errors import CacheEntryError, CacheFormatError
+from ..reader import BagFacts
 from .npy import NpyAppender
 
-CACHE_FORMAT = 5  # 5: + key and checksums; 4: + obs_names; 3: .npy files, memory-mapped (2: one .npz)
+CACHE_FORMAT = 6  # 6: + the read's facts; 5: + key, checksums; 4: + obs_names; 3: .npy files (2: one .npz)
 _CHUNK = 1 << 20
 INDEX = "index.json"
 JOINT_KEYS = ("joint_position", "joint_velocity", "joint_effort")  # [T + 1] extras
@@ -51,13 +54,14 @@ def _mapped(name: str) -> bool:
     return name in STEP_ARRAYS or name.startswith(("extras__", "step_extras__"))
 
 
-def write_entry(path: Path, arrays: dict[str, np.ndarray], report: str, key: str = "") -> None:
+def write_entry(path: Path, arrays: dict[str, np.ndarray], report: str, key: str = "",
+                facts: Sequence[BagFacts] = ()) -> None:
     """Write ``arrays`` as an entry at ``path`` (replacing an old one), atomically; ``key``: its
-    identity (checked by :func:`open_entry`)."""
+    identity (checked by :func:`open_entry`); ``report`` and ``facts``: the read's summary and facts."""
     tmp = make_temp_dir(_parent(path), path.name)
     try:
         index = {name: _save(tmp, name, np.asarray(arr)) for name, arr in arrays.items()}
-        _finish(tmp, path, index, report, key)
+        _finish(tmp, path, index, report, key, facts)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -84,10 +88,12 @@ def file_digest(path: Path) -> str:
     return h.hexdigest()
 
 
-def _finish(tmp: Path, path: Path, index: dict[str, dict[str, Any]], report: str, key: str) -> None:
+def _finish(tmp: Path, path: Path, index: dict[str, dict[str, Any]], report: str, key: str,
+            facts: Sequence[BagFacts]) -> None:
     for info in index.values():
         info["blake2b"] = file_digest(tmp / info["file"])
-    doc = {"format": CACHE_FORMAT, "key": key, "arrays": index, "report": report}
+    doc = {"format": CACHE_FORMAT, "key": key, "arrays": index, "report": report,
+           "facts": [asdict(bag) for bag in facts]}
     (tmp / INDEX).write_text(json.dumps(doc, indent=1) + "\n")
     tmp.chmod(umask_mode(directory=True))  # the temporary was owner-only
     if path.exists():
@@ -118,9 +124,9 @@ def read_index(path: Path, key: str | None = None) -> dict[str, Any]:
     return index
 
 
-def open_entry(path: Path, key: str | None = None) -> tuple[dict[str, Any], str]:
-    """The arrays of the entry at ``path`` (step arrays memory-mapped read-only) and its report, once
-    its key (when ``key`` is given) and every file's checksum are verified.
+def open_entry(path: Path, key: str | None = None) -> tuple[dict[str, Any], str, tuple[BagFacts, ...]]:
+    """The arrays of the entry at ``path`` (step arrays memory-mapped read-only), its report's summary
+    and facts, once its key (when ``key`` is given) and every file's checksum are verified.
 
     Raises :class:`CacheFormatError` for another format version, :class:`CacheEntryError` (a
     ``CacheFormatError``) for another identity, a file that does not match its checksum or the
@@ -138,7 +144,17 @@ def open_entry(path: Path, key: str | None = None) -> tuple[dict[str, Any], str]
             raise CacheFormatError(f"{path / info['file']}: {arr.dtype.str}{list(arr.shape)} does not match "
                                    f"the index ({info['dtype']}{info['shape']})")
         arrays[name] = arr
-    return arrays, str(index.get("report", ""))
+    return arrays, str(index.get("report", "")), _facts(path, index.get("facts"))
+
+
+def _facts(path: Path, doc: Any) -> tuple[BagFacts, ...]:
+    """The read's facts as the index keeps them; :class:`CacheEntryError` when they do not hold."""
+    if not isinstance(doc, list):
+        raise CacheEntryError(f"cache entry {path}: {INDEX} holds no list of the read's facts")
+    try:
+        return tuple(BagFacts.from_dict(bag) for bag in doc)
+    except ValueError as exc:
+        raise CacheEntryError(f"cache entry {path}: {exc}") from None
 
 
 class EntryWriter:
@@ -199,8 +215,9 @@ class EntryWriter:
             else:
                 self._extras[name].append(np.asarray(value))
 
-    def finish(self, report: str) -> None:
-        """Close the files, write the per-episode arrays and the index, and rename into place."""
+    def finish(self, report: str, facts: Sequence[BagFacts] = ()) -> None:
+        """Close the files, write the per-episode arrays and the index (with the read's ``report`` and
+        ``facts``), and rename into place."""
         per = self._per
         act_offsets = np.concatenate([[0], np.cumsum(np.asarray(per["length"], np.int64))]).astype(np.int64)
         small = {
@@ -220,7 +237,7 @@ class EntryWriter:
                 shape = col.close()
                 index[name] = {"file": col.path.name, "dtype": np.dtype(col.dtype).str, "shape": list(shape)}
             index.update({name: _save(self.tmp, name, arr) for name, arr in small.items()})
-            _finish(self.tmp, self.path, index, report, self.key)
+            _finish(self.tmp, self.path, index, report, self.key, facts)
         except BaseException:
             self.abort()
             raise

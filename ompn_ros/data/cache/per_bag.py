@@ -25,7 +25,7 @@ from ompn_ros.atomic import remove_stale_temps
 from ompn_ros.workers import die_with_parent, started_here
 
 from ..errors import EmptyEntryError, MixedBagsError, NpyAppendError
-from ..reader import OnError, ReaderSpec
+from ..reader import BagFacts, OnError, ReaderSpec
 from .arrays import EpisodeArrays
 from .build import build_entry, open_hit, with_notes
 from .entry import EntryWriter
@@ -92,17 +92,19 @@ def assemble(entries: Sequence[Path], target: Path, key: str = "") -> None:
     """Append the episodes of ``entries`` (memory-mapped, one entry at a time) into one entry ``target``
     of identity ``key``."""
     writer = EntryWriter(target, key)
-    reports = []
+    reports: list[str] = []
+    facts: list[BagFacts] = []
     try:
         for entry in entries:
             part = EpisodeArrays.load(entry)
             reports.append(part.report)
+            facts.extend(part.facts)
             try:
                 writer.add(part.episodes())
             except NpyAppendError as err:
                 raise MixedBagsError(f"cache entry {entry} does not fit the bags before it: {err}") from err
             del part
-        writer.finish(merged_report(reports, len(writer), len(entries)))
+        writer.finish(merged_report(reports, len(writer), len(entries)), facts)
     except BaseException:
         writer.abort()
         raise

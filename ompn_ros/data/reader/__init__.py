@@ -81,7 +81,7 @@ from __future__ import annotations
 
 from .paths import STORAGE_SUFFIXES, BagListing, list_bag_paths, resolve_bag_paths, storage_files
 from .read import iter_raw_messages, read_bag, read_episodes
-from .report import BagReport, ReadReport, ReadResult, final_row_guessed
+from .report import BagFacts, BagReport, ReadReport, ReadResult, final_row_guessed
 from .spec import (
     ACTION_TYPES,
     VECTOR_TYPES,
@@ -97,6 +97,7 @@ __all__ = [
     "ACTION_TYPES",
     "STORAGE_SUFFIXES",
     "VECTOR_TYPES",
+    "BagFacts",
     "BagListing",
     "BagReport",
     "FinalObservation",

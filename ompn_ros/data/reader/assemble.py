@@ -34,12 +34,7 @@ from .context import BagContext, Topics
 from .decode import Decoded
 from .joints import JointBlock
 from .labels import LabelSite, ordinals_from_events, ordinals_from_ids, ordinals_from_values
-from .report import FINAL_GUESS
-
-DROPPED_LAST = "last step dropped (no final observation)"
-DUPLICATED_LAST = "last observation duplicated as row T"
-BLANK_LAST = "row T left blank (zeros; no final observation)"
-EXTRAPOLATED_LAST = "row T extrapolated from the last two observations (no final observation)"
+from .report import BLANK_LAST, DROPPED_LAST, DUPLICATED_LAST, EXTRAPOLATED_LAST, FINAL_GUESS
 
 
 @dataclass
@@ -177,6 +172,7 @@ def _idle(ctx: BagContext, dec: Decoded, partners: Partners) -> np.ndarray:
         ctx.report.idle_rule = derived.text
     else:
         ctx.report.idle_rule = f"idle_speed {float(speed):g} on {elements.describe()}"
+    ctx.report.idle_speed, ctx.report.idle_on = float(speed), elements.describe()
     if dec.act_stamps is None and float(speed) <= 0:
         ctx.report.notes.append("split: idle cannot see the robot idle: every observation carries its "
                                 "action and idle_speed is 0; set idle_speed (rad/s of joint speed) or auto")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -9,7 +10,13 @@ from ..episode import Episode
 
 TABLES = ("missing", "duplicates", "unattached")
 FINAL_GUESS = "row T = "
-"""How every ``guessed`` entry about an episode's final observation begins (:func:`final_row_guessed`)."""
+"""How every ``guessed`` entry about an episode's final observation begins (the summary's words; the
+count is :attr:`BagFacts.final_guessed`)."""
+DROPPED_LAST = "last step dropped (no final observation)"
+DUPLICATED_LAST = "last observation duplicated as row T"
+BLANK_LAST = "row T left blank (zeros; no final observation)"
+EXTRAPOLATED_LAST = "row T extrapolated from the last two observations (no final observation)"
+GUESSED_LAST = (DUPLICATED_LAST, BLANK_LAST, EXTRAPOLATED_LAST)  # ``adjusted`` keys of a guessed row T
 MAX_BAG_LINES = 8  # summary(): bags listed one per line before "... and N more"
 MAX_NOTES = 4  # summary(): notes shown per bag
 
@@ -33,6 +40,8 @@ class BagReport:
     split: str = ""  # 'markers' | 'time_gap' | 'topic' | 'idle' | 'bag'
     idle_trimmed: int = 0  # split: idle: idle observations that belong to no episode
     idle_rule: str = ""  # split: idle: the speed threshold used (derived with idle_speed: auto) and on what
+    idle_speed: float | None = None  # split: idle: that threshold, at full precision
+    idle_on: str = ""  # split: idle: what speed it is a threshold of (SpeedElements.describe())
     messages: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)  # steps lacking a partner, per topic
     duplicates: dict[str, int] = field(default_factory=dict)  # extra partners for one step
@@ -81,10 +90,47 @@ class BagReport:
         return text
 
 
-def final_row_guessed(summary: str) -> bool:
-    """Whether a :meth:`ReadReport.summary` (the text a cache keeps) says the reader guessed row T of
-    some episode (``final_observation``: duplicate, blank or extrapolate).  O(len(summary))."""
-    return any(line.startswith("guessed: ") and FINAL_GUESS in line for line in summary.splitlines())
+@dataclass(frozen=True)
+class BagFacts:
+    """The facts of one bag's read that are used after the read (training, its records), as data: the
+    cache keeps them beside the summary text (:meth:`ReadReport.facts`), so nothing parses that text.
+
+    ``final_guessed``: episodes whose row T the reader guessed (``final_observation`` duplicate, blank
+    or extrapolate); ``idle_speed``: the idle rule's threshold (``None``: the bag was not read with the
+    idle rule) and ``idle_on`` what speed it is a threshold of
+    (:meth:`ompn_ros.data.cuts.SpeedElements.describe`).
+    """
+
+    path: str
+    episodes: int = 0
+    steps: int = 0
+    final_guessed: int = 0
+    idle_speed: float | None = None
+    idle_on: str = ""
+
+    @classmethod
+    def from_dict(cls, doc: Any) -> BagFacts:
+        """The facts of :func:`dataclasses.asdict`; ``ValueError`` naming the field that does not hold."""
+        if not isinstance(doc, Mapping) or set(doc) != set(cls.__dataclass_fields__):
+            raise ValueError(f"read facts {doc!r}: expected the fields {sorted(cls.__dataclass_fields__)}")
+        counts = {name: doc[name] for name in ("episodes", "steps", "final_guessed")}
+        speed = doc["idle_speed"]
+        bad = [name for name, n in counts.items() if isinstance(n, bool) or not isinstance(n, int) or n < 0]
+        if speed is not None and (isinstance(speed, bool) or not isinstance(speed, int | float)
+                                  or not speed >= 0):
+            bad.append("idle_speed")
+        bad += [name for name in ("path", "idle_on") if not isinstance(doc[name], str)]
+        if bad:
+            raise ValueError(f"read facts of {doc['path']!r}: {', '.join(bad)} do not hold (counts are "
+                             "integers >= 0, idle_speed a number >= 0 or null, path and idle_on text)")
+        return cls(doc["path"], **counts, idle_speed=None if speed is None else float(speed),
+                   idle_on=doc["idle_on"])
+
+
+def final_row_guessed(facts: Sequence[BagFacts]) -> bool:
+    """Whether the reader guessed row T of some episode (``final_observation``: duplicate, blank or
+    extrapolate), from the read's facts (:meth:`ReadReport.facts`, as the cache keeps them)."""
+    return any(bag.final_guessed for bag in facts)
 
 
 @dataclass
@@ -144,6 +190,12 @@ class ReadReport:
         if len(self.bags) > MAX_BAG_LINES:
             lines.append(f"  ... and {len(self.bags) - MAX_BAG_LINES} more bag(s)")
         return "\n".join(lines)
+
+    def facts(self) -> tuple[BagFacts, ...]:
+        """The facts of every bag (:class:`BagFacts`): what is used after the read, as data."""
+        return tuple(BagFacts(b.path, b.episodes, b.steps,
+                              sum(len(b.adjusted.get(how, ())) for how in GUESSED_LAST),
+                              b.idle_speed, b.idle_on) for b in self.bags)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready mapping: totals plus every bag's full report."""
