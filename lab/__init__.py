@@ -17,6 +17,8 @@ One job per module (study -> module -> results file -> docs/experiments.md secti
 * :mod:`~lab.ship`, :mod:`~lab.ship_product`: a checkpoint shipped in the package (from a lab run, or
   made by the product's own commands);
 * :mod:`~lab.pipeline`: the reproduction's stages in order (:mod:`~lab.reproduce`, its command line);
+* :mod:`~lab.reproduce_product`: the reproduction through the product's own commands (``ompn_collect``,
+  ``ompn_train``, ``ompn_segment`` with the detector the training bundled; ``make reproduce-*``);
 * :mod:`~lab.own_data`, :mod:`~lab.strip`, :mod:`~lab.subsets`, :mod:`~lab.fresh`,
   :mod:`~lab.hparams`: the own-data, stripped-bag, subset, fresh-data and memory-size studies;
 * :mod:`~lab.detector_selection`, :mod:`~lab.final_auto`, :mod:`~lab.warmup_check`,
