@@ -16,6 +16,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest  # noqa: E402 (after the containment, before anything imports rclpy)
 
+# The tests live in one folder per room (test/README.md); what they share lives here at test/, importable
+# from every room whatever pytest's import mode.
+_SUPPORT = os.path.dirname(os.path.abspath(__file__))
+if _SUPPORT not in sys.path:
+    sys.path.insert(0, _SUPPORT)
+
 
 @pytest.fixture(autouse=True)
 def _dds_stays_on_loopback():

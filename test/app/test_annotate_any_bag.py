@@ -28,7 +28,7 @@ from ompn_ros.cli.segment import main
 from ompn_ros.data.messages import EPISODE_END, SUBTASK_END, decode_subtask_boundary
 from ompn_ros.train import synthetic
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "subtask_progress.py"
 BOUNDARY = "/ompn_node/boundary"
 STEP_MS = 20  # 50 Hz, another lab's driver

@@ -17,8 +17,8 @@ from typing import Any
 
 import pytest
 import yaml
+from batch_bags import SPEC, write_lab_bag
 from small_disk import small_disk
-from test_segment_batch import SPEC, write_lab_bag
 
 from ompn_ros.app import annotate as annotate_module
 from ompn_ros.app.batch import BatchSettings, run_batch
@@ -29,7 +29,7 @@ from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

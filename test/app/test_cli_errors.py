@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from test_data_common import make_episodes
+from synthetic_episodes import make_episodes
 
 from lab import reproduce
 from ompn_ros.checkpoints import shipped_checkpoint
@@ -22,7 +22,7 @@ from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CLIS = {
     "ompn_train": train,
     "ompn_collect": collect,

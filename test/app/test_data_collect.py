@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode, dial_episode
+from synthetic_episodes import assert_same_episode, dial_episode
 
 from ompn_ros.app.collect import collect, episode_seed
 from ompn_ros.app.errors import CollectError

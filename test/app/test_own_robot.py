@@ -18,7 +18,7 @@ pytest.importorskip("sim_nodes.dial.node")
 from ompn_ros.data import ReaderSpec, read_episodes
 from sim_nodes import derive_seed
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _example() -> ModuleType:

@@ -16,13 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from batch_bags import SPEC, write_lab_bag
 
-from ompn_ros import layout
 from ompn_ros.app.batch_bags import bag_keys, list_bags
 from ompn_ros.app.replay import replay_all
 from ompn_ros.cli.segment import main
 from ompn_ros.data import ReaderSpec, read_episodes
-from ompn_ros.data import messages as m
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.tune import score_predictions
 from ompn_ros.model.build import build_policy
@@ -30,37 +29,7 @@ from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
 from ompn_ros.model.load import stepper_from_checkpoint
 
-ROOT = Path(__file__).resolve().parents[1]
-SPEC = {"reader": {
-    "namespace": "/lab", "observation": {"topic": "features", "type": layout.FLOAT32_ARRAY},
-    "action": {"topic": "cmd", "type": layout.FLOAT32_ARRAY, "dim": 2}, "subtask": "skill", "labels": "id",
-    "sketch": None, "episode": None, "split": "gaps", "time_gap": 0.5, "tolerance": 0.03, "stamp": "log",
-    "task": "lab_demo", "final_observation": "duplicate"}}
-
-
-def write_lab_bag(path: Path, seed: int, episodes: int = 2, steps: int = 30) -> list[list[int]]:
-    """Another lab's recording (rosbags writer): features, commands and skill ids at 20 Hz, episodes
-    split by 2 s pauses; returns the observation log stamps of each episode."""
-    from rosbags.rosbag2 import Writer
-
-    rng = np.random.default_rng(seed)
-    t, stamps = 1_700_000_000_000_000_000 + seed * 10**12, []
-    with Writer(path, version=9) as w:
-        ts = m.typestore()
-        obs = w.add_connection("/lab/features", layout.FLOAT32_ARRAY, typestore=ts)
-        cmd = w.add_connection("/lab/cmd", layout.FLOAT32_ARRAY, typestore=ts)
-        skill = w.add_connection("/lab/skill", layout.INT32, typestore=ts)
-        for _ in range(episodes):
-            ids = np.repeat(rng.choice([3, 7, 11], size=3, replace=False), steps // 3)
-            stamps.append([])
-            for k in range(steps):
-                w.write(obs, t, m.serialize(m.float32_array(rng.standard_normal(4))))
-                w.write(cmd, t + 5_000_000, m.serialize(m.float32_array(rng.standard_normal(2), "cmd")))
-                w.write(skill, t + 6_000_000, m.serialize(m.int32(int(ids[k]))))
-                stamps[-1].append(t)
-                t += 50_000_000
-            t += 2_000_000_000
-    return stamps
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

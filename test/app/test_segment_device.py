@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from test_segment_batch import SPEC, write_lab_bag
+from batch_bags import SPEC, write_lab_bag
 
 from ompn_ros.app.replay import ReplayResult, replay_all
 from ompn_ros.cli.segment import main

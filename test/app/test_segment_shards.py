@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_segment_batch import SPEC, write_lab_bag
+from batch_bags import SPEC, write_lab_bag
 
 from ompn_ros.app.shards import select, shard_of
 from ompn_ros.cli.segment import main
@@ -20,7 +20,7 @@ from ompn_ros.model.build import build_policy
 from ompn_ros.model.checkpoint import save_checkpoint
 from ompn_ros.model.config import OMPNConfig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARDS = 3
 
 

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 from child_process import interrupt
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "subtask_progress.py"
 
 

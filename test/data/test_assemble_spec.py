@@ -139,7 +139,7 @@ def test_a_reader_spec_file_serves_the_node_too() -> None:
     """ompn_node's observation_spec accepts the reader spec's assemble: block: one YAML, one rule."""
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     from_reader = ObservationSpec.from_param(str(root / "config" / "reader_dial_robot.yaml"))
     assert from_reader.step_topic == "jaco/joint_states"
     assert [f.field for f in from_reader.fields] == ["position", "velocity"]

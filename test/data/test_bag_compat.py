@@ -29,6 +29,7 @@ from compat_corpus import (
     write_rosbags,
     write_split,
 )
+from padded_arrays import _padded
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
@@ -36,7 +37,7 @@ from ompn_ros.data import messages as m
 from ompn_ros.data.errors import AlignmentError, BagNotFoundError, CorruptBagError, NoEpisodeError
 
 JOINTS = ["shoulder", "elbow", "wrist"]
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ARM_SPEC = ROOT / "config" / "reader_jointstate_example.yaml"
 
 
@@ -160,23 +161,6 @@ def test_wal_mode_sqlite_is_read_without_writing_beside_it(tmp_path: Path, on_er
     read_and_check(bag, demo, on_error=on_error)
     read_and_check(storage_file(bag), demo, on_error=on_error)
     assert _listing(bag) == before
-
-
-def _padded(typename: str, values: np.ndarray, pad: int, dims: int = 1) -> bytes:
-    """A MultiArray of ``values`` after ``pad`` padding elements (``layout.data_offset = pad``),
-    with a 2-D layout when ``dims`` is 2, written with the ``rosbags`` typestore (not this package's
-    encoder)."""
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    dim_t = ts.types["std_msgs/msg/MultiArrayDimension"]
-    n = len(values)
-    shape = [dim_t(label="all", size=n, stride=n)] if dims == 1 else [
-        dim_t(label="rows", size=2, stride=n), dim_t(label="cols", size=n // 2, stride=n // 2)]
-    lay = ts.types["std_msgs/msg/MultiArrayLayout"](dim=shape, data_offset=pad)
-    dtype = np.float32 if typename == layout.FLOAT32_ARRAY else np.float64
-    data = np.concatenate([np.full(pad, 1e6), values]).astype(dtype)
-    return bytes(ts.serialize_cdr(ts.types[typename](layout=lay, data=data), typename))
 
 
 def test_multiarray_data_offset_padding_is_not_data(tmp_path: Path) -> None:

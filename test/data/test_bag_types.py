@@ -290,7 +290,7 @@ def test_string_labels_by_field_path_are_names_turned_into_ids(tmp_path: Path, s
         )
 
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from test_segment_batch import SPEC, write_lab_bag
+from batch_bags import SPEC, write_lab_bag
 
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data.cache import EpisodeArrays, load_arrays

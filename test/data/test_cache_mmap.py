@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode, make_episodes
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros.data import ReaderSpec, load_arrays, read_episodes, write_episodes
 from ompn_ros.data.cache import CACHE_FORMAT, INDEX, EntryWriter, EpisodeArrays, NpyAppender
@@ -118,7 +118,7 @@ def test_npy_appender_writes_a_standard_file(tmp_path: Path) -> None:
 
 
 def test_obs_names_survive_the_cache(tmp_path: Path) -> None:
-    from test_reader_assemble import SPEC_DICT, write_lab_bag
+    from joint_lab_bags import SPEC_DICT, write_lab_bag
 
     write_lab_bag(tmp_path / "bag")
     spec = ReaderSpec.from_dict(SPEC_DICT)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode, make_episodes
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros.data import ReaderSpec, load_arrays, read_episodes, write_episodes
 from ompn_ros.data import cache as cache_mod

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode, make_episodes
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros import layout
 from ompn_ros.data import (

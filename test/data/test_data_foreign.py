@@ -14,7 +14,7 @@ from ompn_ros.data.errors import NoEpisodeError
 from ompn_ros.data.reader import final_row_guessed
 from ompn_ros.data.reader.assemble import EXTRAPOLATED_LAST
 
-SPEC_FILE = Path(__file__).resolve().parents[1] / "config" / "reader_jointstate_example.yaml"
+SPEC_FILE = Path(__file__).resolve().parents[2] / "config" / "reader_jointstate_example.yaml"
 JOINTS = ["shoulder", "elbow", "wrist"]
 MSG_ORDER = [2, 0, 1]  # the robot publishes wrist, shoulder, elbow
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode
+from synthetic_episodes import assert_same_episode
 
 from ompn_ros.data import ReaderSpec, read_episodes
 
@@ -31,7 +31,7 @@ CASES = [  # domain, storage, episodes, rate (Hz), stop signal
 
 def _spawn(args: list[str], env: dict[str, str]) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", *args], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, cwd=Path(__file__).resolve().parents[1])
+                            stderr=subprocess.STDOUT, text=True, cwd=Path(__file__).resolve().parents[2])
 
 
 def _expected(domain: str, episodes: int) -> list:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode, make_episodes
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes, write_episodes
@@ -106,7 +106,7 @@ def test_independent_mcap_decoder(tmp_path: Path) -> None:
 
 
 def test_reader_spec_yaml_presets_match_layout() -> None:
-    root = Path(__file__).resolve().parents[1] / "config"
+    root = Path(__file__).resolve().parents[2] / "config"
     for domain in ("craft", "dial"):
         assert ReaderSpec.from_yaml(root / f"reader_{domain}.yaml") == ReaderSpec.for_domain(domain)
     foreign = ReaderSpec.from_yaml(root / "reader_jointstate_example.yaml")

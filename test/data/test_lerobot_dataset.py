@@ -219,7 +219,7 @@ def test_a_lerobot_dataset_trains_and_comes_back_annotated(lab: dict, tmp_path: 
     monkeypatch.setenv("OMPN_CACHE_DIR", str(tmp_path / "cache"))
     run = tmp_path / "run"
     assert train(["--dataset", str(lab["dataset"]), "--dataset-spec", str(lab["spec"]), "--config",
-                  str(Path(__file__).resolve().parents[1] / "config" / "train_dial.yaml"), "--out", str(run),
+                  str(Path(__file__).resolve().parents[2] / "config" / "train_dial.yaml"), "--out", str(run),
                   "--set", "train.iterations=4", "--set", "train.eval_every=2", "--set", "train.patience=0",
                   "--set", "model.slot_size=16", "--set", "train.boundary_head=false", "--quiet"]) == 0
     report = json.loads((run / "read_report.json").read_text())

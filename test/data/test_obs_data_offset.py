@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_bag_compat import _padded
+from padded_arrays import _padded
 
 from ompn_ros import layout
 from ompn_ros.data.messages import parse_float64_array

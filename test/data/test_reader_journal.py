@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_data_common import assert_same_episode, make_episodes
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros.data import BagError, ReaderSpec, read_episodes, write_episodes
 from ompn_ros.data.reader.journal import JOURNAL_MAGIC, committed_view, leftover_journals

@@ -29,7 +29,7 @@ from ompn_ros.data.errors import CorruptBagError, NoEpisodeError
 from ompn_ros.data.reader.paths import wanted_topics
 from ompn_ros.data.reader.raw import collect_rosbags
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LENGTHS = [20, 25, 18]
 GAP_CUT = 10**9 + 20 * 40_000_000 + 10 * 40_000_000 + 2 * 10**9  # inside the second demonstration
 

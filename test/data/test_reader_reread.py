@@ -8,10 +8,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from assembled_bags import _assemble_bag
 from compat_corpus import edit_metadata, set_qos
+from joint_lab_bags import SPEC_DICT, TYPES
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
-from test_reader_assemble import SPEC_DICT, TYPES
-from test_reader_stream import _assemble_bag
 
 from ompn_ros.data import ReaderSpec, read_episodes
 from ompn_ros.data import messages as m

@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Writer
-from test_data_common import assert_same_episode, make_episodes
-from test_reader_assemble import SPEC_DICT, TYPES, _episode_messages, f64
-from test_reader_decode import _bag_with_bad_messages
-from test_reader_labels import _ordinals, _spec, _write_lab_bag
+from assembled_bags import _assemble_bag
+from bad_messages import _bag_with_bad_messages
+from joint_lab_bags import SPEC_DICT
+from label_bags import _ordinals, _spec, _write_lab_bag
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros import layout
 from ompn_ros.data import ReaderSpec, read_episodes
@@ -26,7 +26,7 @@ from ompn_ros.data.reader import read as read_module
 from ompn_ros.data.reader.columns import Float32Column
 from ompn_ros.data.reader.read import read_raw
 from ompn_ros.data.reader.verify import nonfinite_rows
-from ompn_ros.data.recorder.bag_writer import EpisodeBagWriter, storage_plugin
+from ompn_ros.data.recorder.bag_writer import EpisodeBagWriter
 
 MS = 1_000_000
 
@@ -107,24 +107,6 @@ def test_bad_messages_give_the_batch_decoder_result(tmp_path: Path, bad: dict[st
             read()
         errors.append((type(info.value), str(info.value)))
     assert errors[0] == errors[1]
-
-
-def _assemble_bag(path: Path, bad_command: int | None = None) -> None:
-    """The lab bag of test_reader_assemble; command message ``bad_command`` has 4 elements, not 3."""
-    rng = np.random.default_rng(5)
-    truth: dict = {"obs": [], "act": [], "ids": [], "stale": 0, "wrong_size": 0}
-    messages = []
-    for ep in range(3):
-        messages += _episode_messages(ep, 10**10 + ep * 4 * 10**9, rng, truth)
-    messages.sort(key=lambda x: x[0])
-    commands = [i for i, (_, topic, _) in enumerate(messages) if topic == "/lab/arm/command"]
-    if bad_command is not None:
-        stamp, topic, _ = messages[commands[bad_command]]
-        messages[commands[bad_command]] = (stamp, topic, f64(np.zeros(4)))
-    with Writer(path, version=9, storage_plugin=storage_plugin("mcap")) as w:
-        conns = {t: w.add_connection(t, ty, typestore=m.typestore()) for t, ty in TYPES.items()}
-        for stamp, topic, raw in messages:
-            w.write(conns[topic], stamp, raw)
 
 
 def test_assembled_while_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import assert_same_episode, make_episodes
+from synthetic_episodes import assert_same_episode, make_episodes
 
 from ompn_ros.data import CorruptBagError, Episode, ReaderSpec, read_episodes, write_episodes
 from ompn_ros.data.recorder.storage import refresh_chunk_crcs

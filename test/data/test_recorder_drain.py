@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("rclpy")
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench():

@@ -19,7 +19,7 @@ from rosbags.highlevel import AnyReader  # noqa: E402
 from small_disk import small_disk  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _record(bag: Path, storage: str, topic: str, env: dict[str, str], extra: list[str]) -> subprocess.Popen:

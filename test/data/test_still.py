@@ -151,7 +151,7 @@ def test_training_steps_the_model_on_the_moves_only() -> None:
 
 def test_the_node_live_publishes_what_the_replay_gives_on_a_paused_stream(ctx, ckpt: Path) -> None:
     pytest.importorskip("rclpy")
-    from test_node_poison import active_node, marker
+    from node_in_process import active_node, marker
 
     from ompn_ros.data import messages as m
     from ompn_ros.data.messages import decode_subtask_boundary
@@ -217,9 +217,9 @@ def test_the_node_with_the_tolerance_on_a_human_like_craft_stream_equals_its_rep
     import shutil
     import time
 
+    from human_streams import Recorder, _episodes, live, received
     from rclpy.lifecycle import TransitionCallbackReturn
     from rclpy.parameter import Parameter
-    from test_node_human_stream import Recorder, _episodes, live, received
 
     from ompn_ros.checkpoints import shipped_checkpoint
     from ompn_ros.nodes.ompn_node import OMPNNode

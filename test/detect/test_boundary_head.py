@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,6 @@ from ompn_ros.data.episode import Episode
 from ompn_ros.detect.errors import BoundaryHeadError, DetectorConfigError, DetectorSettingsError
 from ompn_ros.detect.head import (
     HEAD_FILE,
-    BoundaryHead,
     HeadDetector,
     decode_rows,
     decoded_steps,
@@ -26,15 +24,15 @@ from ompn_ros.detect.head import (
 )
 from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings, save_detector_settings
-from ompn_ros.model.checkpoint import load_checkpoint
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.segmenter import StreamingSegmenter
 from ompn_ros.train.boundary_head import choose_rule, targets, train_head
 from ompn_ros.train.detector import DURATION_GAIN
-from ompn_ros.train.evaluation import teacher_forced_outputs
-from sim_nodes.registry import default_tasks, expert_episode
+from sim_nodes.registry import expert_episode
 
 torch = pytest.importorskip("torch")
+from toy_heads import _toy_head, checkpoint_with_head  # noqa: E402
+
 torch.set_num_threads(1)
 
 
@@ -80,17 +78,6 @@ def test_a_done_observation_after_the_last_step_places_no_boundary() -> None:
         assert detector.update(0.0) is None
     events = detector.close(last_step=5)
     assert [(e.step, e.final) for e in events] == [(5, True)]
-
-
-def _toy_head(window: int, features: int, lags: int) -> BoundaryHead:
-    """A head whose lag-1 probability is high when the newest first feature is, else low."""
-    width = window * features
-    w0 = np.zeros((width, 3))
-    w0[width - features, 0] = 1.0
-    w2 = np.zeros((3, lags))
-    w2[0, 1] = 4.0
-    weights = ((w0, np.zeros(3)), (np.eye(3), np.zeros(3)), (w2, np.full(lags, -2.0)))
-    return BoundaryHead(weights, np.zeros(width), np.ones(width), window, features)
 
 
 def test_the_streaming_detector_equals_the_decoding_of_the_whole_episode() -> None:
@@ -200,21 +187,6 @@ def test_a_trained_head_finds_a_late_cue_and_nothing_in_noise(cue: bool) -> None
 def test_lag_zero_reads_each_row_for_its_own_step() -> None:
     events = decode_rows(_rows(8, {(3, 0): 0.9, (7, 0): 0.9}), _cfg(0), False)
     assert [(e.step, e.detected_at, e.final) for e in events] == [(3, 4, False), (7, 7, True)]
-
-
-def checkpoint_with_head(tmp_path: Path, domain: str) -> Path:
-    """A copy of the shipped checkpoint whose detector is a head trained on a few expert episodes."""
-    path = tmp_path / domain
-    shutil.copytree(shipped_checkpoint(domain), path)
-    policy, _ = load_checkpoint(path)
-    tasks = default_tasks(domain)
-    eps = [expert_episode(domain, 500 + i, task=tasks[i % len(tasks)]) for i in range(24)]
-    outs = teacher_forced_outputs(policy, eps)  # type: ignore[arg-type]
-    head = train_head(outs[:18], [ep.boundaries for ep in eps[:18]], seed=0, epochs=10)
-    choice = choose_rule(head, outs[18:], eps[18:])
-    stored = load_detector_settings(path)
-    save_detector_settings(path, type(stored)(online=choice.config, head=choice.head, provenance="a test"))
-    return path
 
 
 def test_ompn_segment_tune_runs_the_checkpoints_head_where_it_aligns_better(tmp_path: Path) -> None:

@@ -19,7 +19,7 @@ from ompn_ros.detect.settings import DetectorSettings, load_detector_settings, s
 from ompn_ros.metrics import alignment_accuracy, labels_from_boundaries
 
 pytest.importorskip("torch")
-from test_boundary_head import _toy_head
+from toy_heads import _toy_head
 
 LENGTHS = (8, 6, 10)
 """The segments of every training episode of the duration model: K = 3, 24 steps."""

@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 from typing import Final
 
-ROOT: Final = Path(__file__).resolve().parents[1]
+ROOT: Final = Path(__file__).resolve().parents[2]
 PRODUCT: Final = ("ompn_ros", "sim_nodes", "config", "launch")
 CITED = re.compile(r"docs/design\.md#([a-z0-9-]+)")
 

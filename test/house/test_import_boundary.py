@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ROS_SIDE = {"ompn_ros.nodes", "ompn_ros.ros", "sim_nodes.ros_common"}
 
 

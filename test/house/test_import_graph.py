@@ -24,7 +24,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("ompn_ros", "sim_nodes")
 LOCAL_IMPORTS = {
     "ompn_ros.model.streaming": "numba, for the 'jit' backend only",

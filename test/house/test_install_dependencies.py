@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 OWN = frozenset({"ompn_ros", "sim_nodes"})
 # Standard library from a later Python than this one (imported behind a version check).
 LATER_STDLIB = frozenset({"compression"})  # compression.zstd, Python 3.14

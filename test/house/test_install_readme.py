@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HEADING = re.compile(r"^##\s+.*real ros 2 jazzy install.*$", re.IGNORECASE | re.MULTILINE)
 FENCE = re.compile(r"^```(?:bash|sh|shell)?\s*\n(.*?)^```", re.DOTALL | re.MULTILINE)
 SKIPPED = ("ros2 ", "source /opt/ros")

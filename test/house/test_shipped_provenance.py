@@ -18,7 +18,7 @@ from ompn_ros.checkpoints import SHIPPED, shipped_checkpoint
 from ompn_ros.detect.settings import load_detector_settings
 from ompn_ros.model.config import OMPNConfig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA_FIELDS = ("obs_dim", "action_type", "action_dim")
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_data_common import make_episodes
+from synthetic_episodes import make_episodes
 
 from lab.strip import StripError, strip_bags, strip_final_observations
 from ompn_ros.data.cache import load_arrays

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from test_lab_own_data import _row
+from own_data_rows import _row
 
 from lab import report, report_own, transfer
 

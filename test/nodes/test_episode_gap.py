@@ -19,8 +19,8 @@ from ompn_ros.data.reader.align import windows_from_gaps
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
+from node_in_process import active_node as poison_active_node  # noqa: E402 (publishers that record)
 from rclpy.parameter import Parameter  # noqa: E402
-from test_node_poison import active_node as poison_active_node  # noqa: E402 (publishers that record)
 
 from ompn_ros.data import messages as m  # noqa: E402
 from ompn_ros.data.messages import decode_subtask_boundary  # noqa: E402

@@ -25,7 +25,7 @@ from ompn_ros.data.reader import ReaderSpec, read_episodes
 from ompn_ros.data.recorder.bag_writer import write_episodes
 from ompn_ros.train.synthetic import make_dataset
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 STEP = 40_000_000
 
 

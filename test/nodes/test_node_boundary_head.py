@@ -12,10 +12,10 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("rclpy")
 
+from human_streams import Recorder, _episodes, live, received  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from test_boundary_head import checkpoint_with_head  # noqa: E402
-from test_node_human_stream import Recorder, _episodes, live, received  # noqa: E402
+from toy_heads import checkpoint_with_head  # noqa: E402
 
 from ompn_ros.detect.calibrate import scores_from_p_hats  # noqa: E402
 from ompn_ros.detect.duration import fit_duration_model  # noqa: E402

@@ -33,7 +33,7 @@ from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 
 OBS_DIM = 6
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BEST_EFFORT = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATE = QoSProfile(

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NODES = {
     "ompn_node": ("ompn_ros.nodes.ompn_node", "detector_high"),
     "dial_sim": ("sim_nodes.dial.node", "press_tolerance"),

@@ -13,9 +13,9 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
+from driver_streams import ARM, ckpts, events, idle_bag, msg, replay, stream_pos  # noqa: E402, F401
+from node_in_process import active_node, marker  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from test_node_poison import active_node, marker  # noqa: E402
-from test_node_real_streams import ARM, ckpts, events, idle_bag, msg, replay, stream_pos  # noqa: E402, F401
 
 from ompn_ros import layout  # noqa: E402
 

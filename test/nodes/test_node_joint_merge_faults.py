@@ -14,8 +14,8 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
+from node_in_process import active_node  # noqa: E402 (publishers that record)
 from sensor_msgs.msg import JointState  # noqa: E402
-from test_node_poison import active_node  # noqa: E402 (publishers that record)
 
 from ompn_ros.data.joint_merge import JointMerger, MalformedJointState  # noqa: E402
 from ompn_ros.model.checkpoint import save_checkpoint  # noqa: E402

@@ -298,7 +298,7 @@ def test_cleanup_and_reconfigure_with_new_detector(ctx, ckpt: Path) -> None:
 def test_shipped_params_files_fit_the_node(ctx, ckpt: Path, name: str, tmp_path: Path) -> None:
     import yaml
 
-    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / name).read_text())
+    doc = yaml.safe_load((Path(__file__).resolve().parents[2] / "config" / name).read_text())
     params = doc["/**/ompn_node"]["ros__parameters"]
     domain = params.pop("domain", None)  # the test checkpoint is not a Craft/Dial model
     params.pop("checkpoint", None)

@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 import warnings
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -17,10 +16,9 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 hypothesis = pytest.importorskip("hypothesis")
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
-from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
+from node_in_process import Recorder, active_node, marker  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Int32MultiArray  # noqa: E402
@@ -49,33 +47,6 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("poison") / "ckpt"
     save_checkpoint(path, OMPNPolicy(cfg))
     return path
-
-
-class Recorder:
-    """Stands in for a publisher: keeps the CDR bytes the node publishes."""
-
-    def __init__(self) -> None:
-        self.raws: list[bytes] = []
-
-    def publish(self, raw: bytes) -> None:
-        assert isinstance(raw, bytes)
-        self.raws.append(raw)
-
-
-def active_node(ctx, ckpt: Path, **params: Any) -> OMPNNode:
-    overrides = [Parameter("checkpoint", value=str(ckpt)), Parameter("detector_high", value=0.3)]
-    overrides += [Parameter(k, value=v) for k, v in params.items()]
-    node = OMPNNode(context=ctx, parameter_overrides=overrides)
-    ok = TransitionCallbackReturn.SUCCESS
-    assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
-    node._pubs = {k: Recorder() for k in node._pubs}
-    return node
-
-
-def marker(kind: str, **values: str) -> DiagnosticArray:
-    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
-                              values=[KeyValue(key=k, value=v) for k, v in values.items()])
-    return DiagnosticArray(status=[status])
 
 
 def joint_state(sec: int, nanosec: int, obs: np.ndarray) -> JointState:

@@ -12,8 +12,8 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from test_node_poison import active_node  # noqa: E402
-from test_node_real_streams import ARM, NOW_S, ckpts, events, msg  # noqa: E402, F401
+from driver_streams import ARM, NOW_S, ckpts, events, msg  # noqa: E402, F401
+from node_in_process import active_node  # noqa: E402
 
 from ompn_ros.data import messages as m  # noqa: E402
 

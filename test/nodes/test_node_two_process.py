@@ -105,7 +105,7 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
     proc = subprocess.Popen(
         cmd,
         env=ros_env,
-        cwd=str(Path(__file__).resolve().parents[1]),
+        cwd=str(Path(__file__).resolve().parents[2]),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -17,7 +17,7 @@ import pytest
 
 from ompn_ros.ros import containment
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NODE = (
     "import time, rclpy\n"
     "from std_msgs.msg import Int32\n"

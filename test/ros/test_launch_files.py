@@ -39,7 +39,7 @@ from unittest import mock
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VENV_BIN = Path(sys.executable).parent
 PACKAGE = "ompn_ros"
 BUILTIN_PARAMETERS: dict[str, type | None] = {"use_sim_time": bool}  # declared by every rclpy node

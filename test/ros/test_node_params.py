@@ -65,7 +65,7 @@ def test_the_shipped_parameter_file_lists_every_parameter_with_its_default() -> 
 
     from ompn_ros.nodes.ompn_node_params import SPECS
 
-    path = Path(__file__).resolve().parents[1] / "config" / "ompn_node.yaml"
+    path = Path(__file__).resolve().parents[2] / "config" / "ompn_node.yaml"
     listed = yaml.safe_load(path.read_text())["/**/ompn_node"]["ros__parameters"]
     declared = {spec.name: spec.default for spec in SPECS}
     assert sorted(set(declared) - set(listed)) == [], "missing from config/ompn_node.yaml"

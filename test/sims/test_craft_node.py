@@ -26,7 +26,7 @@ from sim_nodes.craft.human import generate_human_episode  # noqa: E402
 from sim_nodes.human import parse_human  # noqa: E402
 from sim_nodes.ros_common import SIM_QOS  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TOPICS = {
     layout.OBSERVATION: Float32MultiArray,
     layout.SUBTASK: Int32,

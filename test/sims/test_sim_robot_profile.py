@@ -11,8 +11,8 @@ rclpy = pytest.importorskip("rclpy")
 
 from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
+from sim_listener import RELIABLE, Listener, finish, launch, stamp_ns  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Float64MultiArray, Int32  # noqa: E402
-from test_sim_time import RELIABLE, Listener, finish, launch, stamp_ns  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
 

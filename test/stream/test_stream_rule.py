@@ -73,7 +73,7 @@ def test_replay_cuts_the_stream_where_the_rules_say(ckpt: Path) -> None:
 
 def node_outputs(ctx, ckpt: Path, obs: np.ndarray, stamps: list[int]) -> tuple[list[tuple], np.ndarray, Any]:
     """The stream through an active ompn_node in process: its ~/boundary events, ~/pi rows, detector."""
-    from test_node_poison import active_node
+    from node_in_process import active_node
 
     from ompn_ros.data import messages as m
     from ompn_ros.data.messages import decode_subtask_boundary

@@ -25,7 +25,7 @@ from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import train, train_val_episodes
 
 torch.set_num_threads(1)
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MEAN = np.array([3.0, -2.0, 0.5], np.float32)
 STD = np.array([7.0, 0.25, 2.0], np.float32)
 

@@ -12,7 +12,7 @@ from ompn_ros.app.data_amount import FEWEST_LABEL_FREE, FEWEST_LABELLED, data_am
 from ompn_ros.cli.train import main
 from ompn_ros.data.episode import Episode
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _episode(lengths: list[int]) -> Episode:

@@ -46,7 +46,7 @@ def test_torchrun_two_ranks_identical_weights_and_loss_decreases(tmp_path: Path)
         "train.threads=1",
     ]
     proc = subprocess.run(
-        cmd, env=env, capture_output=True, text=True, timeout=300, cwd=Path(__file__).parents[1]
+        cmd, env=env, capture_output=True, text=True, timeout=300, cwd=Path(__file__).parents[2]
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     hashes = [(out / f"weights_rank{r}.sha256").read_text().strip() for r in (0, 1)]

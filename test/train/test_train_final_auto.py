@@ -21,7 +21,7 @@ from ompn_ros.cli.train import main
 from ompn_ros.data.errors import ReaderSpecError
 from ompn_ros.data.reader import ReaderSpec, read_episodes
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SMALL = ["--quiet", "--set", "model.n_slots=2", "--set", "model.slot_size=16", "--set", "train.batch_size=8",
          "--set", "train.eval_every=1", "--set", "train.threads=1", "--set", "train.iterations=2",
          "--set", "train.candidates_no_final=1"]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_segment_batch import SPEC, write_lab_bag
+from batch_bags import SPEC, write_lab_bag
 
 from ompn_ros.app import training
 from ompn_ros.app.errors import TrainSetupError
@@ -21,7 +21,7 @@ from ompn_ros.data import ReaderSpec
 from ompn_ros.data.cache import load_arrays
 from ompn_ros.train.distributed import DistContext
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TRAIN = ["-m", "ompn_ros.cli.train", "--quiet", "--set", "model.n_slots=2", "--set", "model.slot_size=16",
          "--set", "train.iterations=6", "--set", "train.eval_every=3", "--set", "train.batch_size=8",
          "--set", "train.lr=0.003", "--set", "train.val_ratio=0.25", "--set", "train.threads=1",

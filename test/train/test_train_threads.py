@@ -19,7 +19,7 @@ from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.threads import auto_threads, resolve_threads, usable_cores
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize(
