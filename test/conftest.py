@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 # Fast DDS must stay on loopback and shared memory (config/fastdds_loopback.xml, see
@@ -76,9 +77,19 @@ def synthetic_checkpoint(tmp_path_factory: pytest.TempPathFactory):
 _INTEGRATION_HINTS = ("subprocess", "synthetic_checkpoint", "trainer.train", "torchrun", "colcon")
 
 
+_SHARED_IMPORT = re.compile(r"^\s*(?:from|import) (\w+)", re.MULTILINE)
+
+
 def _categories(path: str) -> set[str]:
+    """The categories of a test module, from its source and that of the shared helpers it imports
+    (a helper that starts a process makes its callers integration tests)."""
     with open(path, encoding="utf-8") as handle:
         source = handle.read()
+    for name in set(_SHARED_IMPORT.findall(source)):
+        shared = os.path.join(_SUPPORT, f"{name}.py")
+        if name != "conftest" and os.path.isfile(shared):
+            with open(shared, encoding="utf-8") as handle:
+                source += handle.read()
     found = set()
     if "rclpy" in source or "ros_env" in source:
         found.add("ros")

@@ -1,4 +1,4 @@
-"""Unit tests of ``ompn_ros.data.messages`` (the synthetic episodes the data tests share: ``synthetic_episodes``)."""
+"""Unit tests of ``ompn_ros.data.messages`` (the data tests' shared episodes: ``synthetic_episodes``)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """docs/parameters.md is generated from the nodes' own parameter tables, so it cannot drift.
 
-Regenerate it with ``.venv/bin/python test/test_docs_parameters.py`` after changing a ParamSpec.
+Regenerate it with ``.venv/bin/python test/house/test_docs_parameters.py`` after changing a ParamSpec.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "parameters.md"
 HEADER = """# Node parameters
 
-Generated from the nodes' `ParamSpec` tables (`python test/test_docs_parameters.py`; a test keeps it
+Generated from the nodes' `ParamSpec` tables (`python test/house/test_docs_parameters.py`; a test keeps it
 current). *applies*: `live` = from the next step, `configure` = refused while the node is active
 (deactivate, clean up, set it, configure), `startup` = read-only after start-up. A bad value stops a
 node at start-up with one line naming the parameter and exit code 2; at run time it is refused with
@@ -46,7 +46,8 @@ def render() -> str:
 
 def test_parameters_doc_is_current() -> None:
     pytest.importorskip("rclpy")
-    assert DOC.read_text() == render(), "docs/parameters.md is stale: run python test/test_docs_parameters.py"
+    assert DOC.read_text() == render(), \
+        "docs/parameters.md is stale: run python test/house/test_docs_parameters.py"
 
 
 def test_defaults_declared_by_type_read_as_unset() -> None:

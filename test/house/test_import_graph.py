@@ -402,8 +402,8 @@ LIBRARY_PRIVATE_STATE = {
     "ompn_ros.cli._common: parser._actions": "argparse has no public list of a parser's options",
     "ompn_ros.cli._common: parser._mutually_exclusive_groups": "argparse: no public list of the groups",
     "ompn_ros.cli._common: g._group_actions": "argparse: no public list of a group's options",
-    "ompn_ros.nodes.lifecycle_guard: node._state_machine": "rclpy: no public lifecycle machine",
-    "ompn_ros.nodes.ompn_node_inputs: sub._callback_type": "rclpy: message info with either executor",
+    "ompn_ros.nodes.lifecycle_guard: node._state_machine": "ROS client: no public lifecycle machine",
+    "ompn_ros.nodes.ompn_node_inputs: sub._callback_type": "ROS client: message info, any executor",
     "ompn_ros.workers: os._exit": "the documented exit without cleanup",
 }
 """Private names of libraries (not rooms of this project) that the product uses, each with its reason."""
