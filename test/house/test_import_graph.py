@@ -18,6 +18,7 @@ at module level.
 from __future__ import annotations
 
 import ast
+import functools
 import os
 import re
 import subprocess
@@ -64,6 +65,19 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+@functools.cache
+def _parsed(path: Path) -> ast.Module:
+    """The syntax tree of ``path``, parsed once for all the checks of this module (nothing mutates it)."""
+    return ast.parse(path.read_text(), str(path))
+
+
+@functools.cache
+def _graph() -> tuple[dict[str, set[str]], list[str]]:
+    """Edges between project modules, and one ``module:line -> target`` per function-local import
+    (computed once; callers only read it)."""
+    return _build_graph()
+
+
 def _is_package(name: str) -> bool:
     return name in MODULES and MODULES[name].name == "__init__.py"
 
@@ -98,12 +112,11 @@ def _imports(module: str, tree: ast.Module) -> Iterator[tuple[str, bool, int]]:
                     yield target, local, node.lineno
 
 
-def _graph() -> tuple[dict[str, set[str]], list[str]]:
-    """Edges between project modules, and one ``module:line -> target`` per function-local import."""
+def _build_graph() -> tuple[dict[str, set[str]], list[str]]:
     edges: dict[str, set[str]] = {name: set() for name in MODULES}
     local: set[str] = set()
     for name, path in MODULES.items():
-        for target, is_local, line in _imports(name, ast.parse(path.read_text(), str(path))):
+        for target, is_local, line in _imports(name, _parsed(path)):
             if target != name:
                 edges[name].add(target)
             if is_local:
@@ -272,7 +285,7 @@ def test_the_product_never_imports_the_lab():
     offenders = [
         f"{name}:{node.lineno}"
         for name, path in MODULES.items()
-        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        for node in ast.walk(_parsed(path))
         if "lab" in _imported_roots(node)
     ]
     assert not offenders, "product modules importing lab/: " + ", ".join(offenders)
@@ -328,7 +341,7 @@ def _deep_imports(face: str) -> list[str]:
             module = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
             if module == face or module.startswith(face + "."):
                 continue
-            for target, _, line in _imports(module, ast.parse(path.read_text(), str(path))):
+            for target, _, line in _imports(module, _parsed(path)):
                 if target.startswith(face + "."):
                     found.append(f"{path.relative_to(ROOT)}:{line} -> {target}")
     return found
@@ -416,7 +429,7 @@ def _sized_sources() -> Iterator[tuple[str, str, ast.Module]]:
     for tree_name in SIZED_TREES:
         for path in sorted((ROOT / tree_name).rglob("*.py")):
             module = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
-            yield path.relative_to(ROOT).as_posix(), module, ast.parse(path.read_text(), str(path))
+            yield path.relative_to(ROOT).as_posix(), module, _parsed(path)
 
 
 def _definitions(tree: ast.Module) -> Iterator[tuple[str, ast.AST, int]]:

@@ -23,7 +23,7 @@ from ompn_ros.train.candidates import (
 from ompn_ros.train.config import TrainConfig
 from ompn_ros.train.errors import TrainConfigError
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
-from ompn_ros.train.trainer import train, train_val_episodes
+from ompn_ros.train.trainer import TrainResult, train, train_val_episodes
 
 torch.set_num_threads(1)
 
@@ -70,19 +70,27 @@ def test_the_best_candidate_by_validation_is_published(tmp_path: Path, episodes:
     assert not any(_same(runs[a], runs[b]) for a, b in ((0, 1), (0, 2), (1, 2)))  # three initialisations
 
 
-def test_candidate_zero_is_the_single_run_and_all_share_its_split(tmp_path: Path, episodes: list) -> None:
-    cfg = _cfg(tmp_path / "pair", candidates=2)
-    train(episodes, _model_config(), cfg)
-    single = train(episodes, _model_config(), _cfg(tmp_path / "single"))
-    assert _same(tmp_path / "pair" / "candidates" / "0" / "last", tmp_path / "single" / "last")
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory: pytest.TempPathFactory, episodes: list) -> tuple[TrainResult, TrainConfig]:
+    """Two candidates of seed 0, trained once for the tests that compare runs with them."""
+    cfg = _cfg(tmp_path_factory.mktemp("pair") / "whole", candidates=2, seed=0)
+    return train(episodes, _model_config(), cfg), cfg
+
+
+def test_candidate_zero_is_the_single_run_and_all_share_its_split(
+        tmp_path: Path, episodes: list, pair: tuple[TrainResult, TrainConfig]) -> None:
+    _, cfg = pair
+    single = train(episodes, _model_config(), _cfg(tmp_path / "single", seed=0))
+    assert _same(Path(str(cfg.out_dir)) / "candidates" / "0" / "last", tmp_path / "single" / "last")
     assert single.candidates == [] and not (tmp_path / "single" / CANDIDATES_FILE).exists()
     split = [e.seed for e in train_val_episodes(episodes, cfg)[1]]
     assert [e.seed for e in train_val_episodes(episodes, candidate_config(cfg, 1))[1]] == split
 
 
-def test_a_resumed_pair_trains_only_what_is_missing(tmp_path: Path, episodes: list) -> None:
-    whole = train(episodes, _model_config(), _cfg(tmp_path / "whole", candidates=2, seed=0))
-    assert json.loads((tmp_path / "whole" / CANDIDATES_FILE).read_text())["winner"] == 1
+def test_a_resumed_pair_trains_only_what_is_missing(tmp_path: Path, episodes: list,
+                                                    pair: tuple[TrainResult, TrainConfig]) -> None:
+    whole, whole_cfg = pair
+    assert json.loads((Path(str(whole_cfg.out_dir)) / CANDIDATES_FILE).read_text())["winner"] == 1
     out = tmp_path / "resumed"
     train(episodes, _model_config(), _cfg(out / "candidates" / "0", seed=0))  # candidate 0, trained before
 
@@ -91,7 +99,7 @@ def test_a_resumed_pair_trains_only_what_is_missing(tmp_path: Path, episodes: li
                     callback=lambda it, _: counted.append(it))
     assert counted == list(range(1, 7))  # candidate 1 only; candidate 0 was finished
     assert resumed.best_metrics == whole.best_metrics
-    assert _same(out / "best", tmp_path / "whole" / "best")
+    assert _same(out / "best", Path(str(whole_cfg.out_dir)) / "best")
 
 
 def test_candidates_are_raised_only_for_guessed_final_rows_with_labels() -> None:

@@ -33,6 +33,7 @@ from ompn_ros.train.restart import (
 )
 from ompn_ros.train.synthetic import make_dataset, synthetic_spec
 from ompn_ros.train.trainer import (
+    TrainResult,
     _patience_exhausted,
     effective_selection,
     eligible,
@@ -283,12 +284,24 @@ def test_a_reached_bound_or_hidden_labels_never_restart(tmp_path: Path, episodes
     assert blind.restarts == 0 and blind.selection == "agreement"
 
 
+def _killable_config(out: Path) -> TrainConfig:
+    return _cfg(out, **{**SMALL, "iterations": 6}, restart_at=2, restart_below=1.0)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory: pytest.TempPathFactory, episodes: list) -> tuple[TrainResult, Path]:
+    """The uninterrupted run both kill points are compared with (the output folder changes nothing else)."""
+    out = tmp_path_factory.mktemp("uninterrupted") / "w"
+    return train(episodes[:32], _model_config(), _killable_config(out)), out
+
+
 @pytest.mark.parametrize("killed_in", ["attempts/1", "."])
-def test_a_killed_restarted_run_resumes_its_attempt(tmp_path: Path, episodes: list, killed_in: str) -> None:
+def test_a_killed_restarted_run_resumes_its_attempt(tmp_path: Path, episodes: list, killed_in: str,
+                                                    uninterrupted: tuple[TrainResult, Path]) -> None:
     """Killed in the second attempt, or in the first after its weak start was seen: the resumed run
     ends with the weights and record of an uninterrupted one."""
-    cfg = _cfg(tmp_path / "k", **{**SMALL, "iterations": 6}, restart_at=2, restart_below=1.0)
-    whole = train(episodes[:32], _model_config(), replace(cfg, out_dir=str(tmp_path / "w")))
+    cfg = _killable_config(tmp_path / "k")
+    whole, w = uninterrupted
 
     def kill(iteration: int, _: dict) -> None:
         second = (tmp_path / "k" / "attempt.json").exists()
@@ -301,11 +314,11 @@ def test_a_killed_restarted_run_resumes_its_attempt(tmp_path: Path, episodes: li
     assert resumed.restarts == whole.restarts == 1
     assert resumed.best_metrics == whole.best_metrics
     assert all(torch.equal(a, b) for a, b in zip(_weights(tmp_path / "k" / "last"),
-                                                  _weights(tmp_path / "w" / "last"), strict=True))
-    kept = read_kept(tmp_path / "w")
+                                                  _weights(w / "last"), strict=True))
+    kept = read_kept(w)
     assert read_kept(tmp_path / "k") == kept
-    source = tmp_path / "w" / ("attempts/1" if kept else ".")
-    assert all(torch.equal(a, b) for a, b in zip(_weights(source / "best"), _weights(tmp_path / "w" / "best"),
+    source = w / ("attempts/1" if kept else ".")
+    assert all(torch.equal(a, b) for a, b in zip(_weights(source / "best"), _weights(w / "best"),
                                                   strict=True))
 
 
