@@ -17,7 +17,7 @@ whose publish returned before the signal was sent.  The figures count those mess
   0.2 s) end with every topic at the same step.
 
 Run: ``python bench/bench_recorder.py [--quick | --kills N]``; the test suite runs :func:`run_case` without
-busy loops (``test/test_recorder_drain.py``).  ``--publish`` is the publisher child process.
+busy loops (``test/data/test_recorder_drain.py``).  ``--publish`` is the publisher child process.
 """
 
 from __future__ import annotations

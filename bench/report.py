@@ -2,7 +2,7 @@
 
 The table ("figure | target | today | met? | machine") sits between :data:`BEGIN` and :data:`END`;
 everything else in BENCHMARKS.md is left as it is.  ``make bench`` runs this after
-``bench/run_all.py``; ``test/test_benchmarks_table.py`` checks that the committed table is what this
+``bench/run_all.py``; ``test/house/test_benchmarks_table.py`` checks that the committed table is what this
 makes from the committed ``latest.json``.
 
     .venv/bin/python bench/report.py [--latest bench/latest.json] [--doc BENCHMARKS.md]

@@ -1,7 +1,7 @@
 """The project's performance targets, each tied to one figure of ``bench/latest.json``.
 
 ``bench/report.py`` turns them into the table at the top of BENCHMARKS.md (figure, target, today's
-value, met or not, the machine that measured it); ``test/test_benchmarks_table.py`` checks that every
+value, met or not, the machine that measured it); ``test/house/test_benchmarks_table.py`` checks that every
 key exists in ``latest.json`` with the same unit.  A target belongs here only when the project states
 it (BENCHMARKS.md, README, ``docs/goals.md``, a benchmark's own docstring) and ``latest.json`` holds
 its figure.

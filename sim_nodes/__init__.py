@@ -2,7 +2,7 @@
 
 Everything here except ``*/node.py`` and ``ros_common.py`` is ROS-free.
 
-The two packages meet at two small interfaces (``test/test_import_graph.py`` checks both):
+The two packages meet at two small interfaces (``test/house/test_import_graph.py`` checks both):
 
 * **sim_nodes -> ompn_ros**: only these public modules of ``ompn_ros`` are imported here:
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 # Fast DDS must stay on loopback and shared memory (config/fastdds_loopback.xml, see
@@ -15,6 +16,12 @@ containment.contain(os.environ)
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest  # noqa: E402 (after the containment, before anything imports rclpy)
+
+# The tests live in one folder per room (test/README.md); what they share lives here at test/, importable
+# from every room whatever pytest's import mode.
+_SUPPORT = os.path.dirname(os.path.abspath(__file__))
+if _SUPPORT not in sys.path:
+    sys.path.insert(0, _SUPPORT)
 
 
 @pytest.fixture(autouse=True)
@@ -70,9 +77,19 @@ def synthetic_checkpoint(tmp_path_factory: pytest.TempPathFactory):
 _INTEGRATION_HINTS = ("subprocess", "synthetic_checkpoint", "trainer.train", "torchrun", "colcon")
 
 
+_SHARED_IMPORT = re.compile(r"^\s*(?:from|import) (\w+)", re.MULTILINE)
+
+
 def _categories(path: str) -> set[str]:
+    """The categories of a test module, from its source and that of the shared helpers it imports
+    (a helper that starts a process makes its callers integration tests)."""
     with open(path, encoding="utf-8") as handle:
         source = handle.read()
+    for name in set(_SHARED_IMPORT.findall(source)):
+        shared = os.path.join(_SUPPORT, f"{name}.py")
+        if name != "conftest" and os.path.isfile(shared):
+            with open(shared, encoding="utf-8") as handle:
+                source += handle.read()
     found = set()
     if "rclpy" in source or "ros_env" in source:
         found.add("ros")

@@ -386,7 +386,7 @@ def decode_all(rows: Sequence[np.ndarray], config: DetectorConfig, peak: bool) -
 def decoded_steps(rows: np.ndarray, config: DetectorConfig, peak: bool) -> tuple[list[int], list[int]]:
     """(boundary steps, steps they are published at) of :func:`decode_rows`, without building the
     events: the same decisions over the rows that pass θ only (for scoring many rules at once;
-    ``test/test_boundary_head.py`` checks it against :class:`HeadDecoder`)."""
+    ``test/detect/test_boundary_head.py`` checks it against :class:`HeadDecoder`)."""
     length, lag, theta, gap = len(rows), int(config.lag), float(config.high), int(config.min_segment_length)
     steps: list[int] = []
     when: list[int] = []

@@ -263,11 +263,7 @@ class OMPNNode(LifecycleNode):
             self.stream.episode_sketch = default
         self.stream.segmenter = segmenter
         self.outputs.create(policy.config, self.inputs.source())
-        self.get_logger().info(
-            f"configured: checkpoint={path} obs_dim={policy.config.obs_dim} n_slots={policy.config.n_slots} "
-            f"action={policy.config.action_type} sketch_mode={policy.config.sketch_mode} "
-            f"detector={segmenter.detector_config}"
-        )
+        self.get_logger().info(configured_line(path, policy.config, segmenter.detector_config))
         if spec is not None:
             self.get_logger().info(spec_line(spec))
 
@@ -379,15 +375,24 @@ class OMPNNode(LifecycleNode):
         the counters go out on /diagnostics."""
         if self._clock_watch.stalled(time.monotonic_ns()) and self.get_parameter("use_sim_time").value:
             self.events["clock_stalls"] += 1
-            self.get_logger().warning(
-                f"/clock has not advanced for clock_stall={self.values['clock_stall']} s (stuck at "
-                f"{self._clock_watch.last_ns} ns): is the simulator paused or hung? Steps keep one stamp"
-            )
+            self.get_logger().warning(stall_line(self.values["clock_stall"], self._clock_watch.last_ns))
         duplicates = same_name_count(self) - 1
         if duplicates > self._duplicates:
             self.get_logger().warning(duplicate_line(self.get_fully_qualified_name(), duplicates))
         self._duplicates = max(0, duplicates)
         self.publish_diagnostics()
+
+
+def configured_line(path: object, config: Any, detector: object) -> str:
+    """The log line of a configured node: its checkpoint, model and detector."""
+    return (f"configured: checkpoint={path} obs_dim={config.obs_dim} n_slots={config.n_slots} "
+            f"action={config.action_type} sketch_mode={config.sketch_mode} detector={detector}")
+
+
+def stall_line(stall_s: object, last_ns: int | None) -> str:
+    """The warning of a ``/clock`` that stood still for ``clock_stall`` s at ``last_ns``."""
+    return (f"/clock has not advanced for clock_stall={stall_s} s (stuck at {last_ns} ns): is the "
+            "simulator paused or hung? Steps keep one stamp")
 
 
 KNOWN_CONFIGURE_ERRORS = (NodeConfigError, CheckpointError, ConfigError, DetectorConfigError,

@@ -6,7 +6,7 @@ with what differs between the two domains: the default step rate and the sim's o
 
 The ``launch`` and ``launch_ros`` packages come with a ROS 2 install, not with this package's pip
 requirements, so they are imported when a launch file asks for a description, not when this module is
-imported.  ``test/test_launch_files.py`` runs the launch files against stand-ins of those packages and
+imported.  ``test/ros/test_launch_files.py`` runs the launch files against stand-ins of those packages and
 resolves every name they give in a colcon install space.
 """
 

@@ -32,7 +32,7 @@ def attach(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarr
     idx = np.searchsorted(obs_stamps, stamps, side="right") - 1
     ok = idx >= 0
     ok[ok] = (stamps[ok] - obs_stamps[idx[ok]]) <= tol
-    ctx.report._add(ctx.report.unattached, topic, int((~ok).sum()))
+    ctx.report.count(ctx.report.unattached, topic, int((~ok).sum()))
     msg_ids = np.flatnonzero(ok)
     count = np.bincount(idx[ok], minlength=n_obs)
     first = np.full(n_obs, -1, dtype=np.int64)
@@ -40,7 +40,7 @@ def attach(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: np.ndarr
     first[uniq] = msg_ids[pos]
     dup_steps = np.flatnonzero(count > 1)
     if dup_steps.size:
-        ctx.report._add(ctx.report.duplicates, topic, int((count[dup_steps] - 1).sum()))
+        ctx.report.count(ctx.report.duplicates, topic, int((count[dup_steps] - 1).sum()))
         if ctx.spec.strict:
             second = msg_ids[np.flatnonzero(idx[ok] == dup_steps[0])[1]]
             raise AlignmentError(f"second partner for observation #{dup_steps[0]} (not a repeat of the "
@@ -58,7 +58,7 @@ def attach_events(ctx: BagContext, topic: str, obs_stamps: np.ndarray, stamps: n
     idx = np.searchsorted(obs_stamps, stamps, side="right") - 1
     ok = idx >= 0
     ok[ok] = (stamps[ok] - obs_stamps[idx[ok]]) <= tol
-    ctx.report._add(ctx.report.unattached, topic, int((~ok).sum()))
+    ctx.report.count(ctx.report.unattached, topic, int((~ok).sum()))
     flags = np.zeros(len(obs_stamps), dtype=bool)
     flags[idx[ok]] = True
     return flags

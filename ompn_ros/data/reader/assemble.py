@@ -55,12 +55,12 @@ def bag_episodes(ctx: BagContext, topics: Topics, dec: Decoded) -> list[Episode]
     partners = _attach_all(ctx, topics, dec)
     windows = _windows(ctx, topics, dec, partners)
     used = sum(w.stop_obs - w.first_obs for w in windows)
-    report._add(report.unattached, topics.obs, len(dec.obs_stamps) - used)
+    report.count(report.unattached, topics.obs, len(dec.obs_stamps) - used)
     if dec.assembled is not None:
         for key, n in dec.assembled.dropped.items():
-            report._add(report.obs_dropped, key, n)
+            report.count(report.obs_dropped, key, n)
         for key, n in dec.assembled.rejected.items():
-            report._add(report.obs_rejected, key, n)
+            report.count(report.obs_rejected, key, n)
     episodes: list[Episode] = []
     prev_stop_stamp = -1
     for w in windows:
@@ -197,7 +197,7 @@ def _steps(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w:
         steps = steps[dec.assembled.kept[steps]]
     lacking = steps[act[steps] < 0]
     if lacking.size:
-        report._add(report.missing, topics.act, lacking.size)
+        report.count(report.missing, topics.act, lacking.size)
         if ctx.spec.strict:
             raise AlignmentError(f"observation #{lacking[0]} has no action partner within "
                                  f"{ctx.spec.tolerance} s", path=ctx.path, topic=topics.obs,
@@ -317,7 +317,7 @@ def _labels(ctx: BagContext, topics: Topics, dec: Decoded, partners: Partners, w
     sidx = partners.sub[steps]
     n_missing = int((sidx < 0).sum())
     if n_missing:
-        ctx.report._add(ctx.report.missing, topics.sub or "", n_missing)
+        ctx.report.count(ctx.report.missing, topics.sub or "", n_missing)
         if ctx.spec.strict:
             bad = int(steps[np.flatnonzero(sidx < 0)[0]])
             raise AlignmentError(f"observation #{bad} has no subtask partner", path=ctx.path,
@@ -355,7 +355,7 @@ def _joint_extras(ctx: BagContext, topic: str, first: np.ndarray, block: JointBl
     idx = first[steps]
     lacking = int((idx < 0).sum())
     if lacking:
-        ctx.report._add(ctx.report.missing, topic, lacking)
+        ctx.report.count(ctx.report.missing, topic, lacking)
     rows = np.concatenate([idx, [first[final]]]) if first[final] >= 0 else idx
     present = rows[rows >= 0]
     if present.size == 0:

@@ -228,7 +228,7 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
     if src.merge_s is not None:
         block, index, missing = merge_publishers(ctx.path, topic, src, stamps, raws, header)
         for joint, n in sorted(missing.items()):
-            ctx.report._add(ctx.report.missing, f"{topic}[{joint}]", n)
+            ctx.report.count(ctx.report.missing, f"{topic}[{joint}]", n)
         stamps = stamps[index]
     else:
         block = decode_joint_states(ctx.path, topic, stamps, raws)

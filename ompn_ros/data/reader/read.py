@@ -154,7 +154,7 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError, r
             return []
     report.notes.extend(raw.notes)
     for topic, n in raw.repeats.counts.items():
-        report._add(report.duplicates, topic, n)
+        report.count(report.duplicates, topic, n)
     report.notes.extend(raw.repeats.notes())
     _crc_note(readable, report)
     ctx = BagContext(raw, spec, report, name=bag, joint_orders=joint_orders)

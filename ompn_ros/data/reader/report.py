@@ -57,14 +57,15 @@ class BagReport:
     error: str | None = None  # the corruption that ended the read (skip_tail)
     notes: list[str] = field(default_factory=list)
 
-    def _add(self, table: dict[str, int], topic: str, n: int) -> None:
+    def count(self, table: dict[str, int], topic: str, n: int) -> None:
+        """Add ``n`` to ``table[topic]`` (one of this report's tables: missing, duplicates, ...)."""
         if n:
             table[topic] = table.get(topic, 0) + int(n)
 
     def drop_episode(self, reason: str, note: str | None = None) -> None:
         """Count one dropped episode under ``reason`` (and keep ``note``, its details)."""
         self.dropped_episodes += 1
-        self._add(self.dropped, reason, 1)
+        self.count(self.dropped, reason, 1)
         if note:
             self.notes.append(note)
 
