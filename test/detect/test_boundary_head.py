@@ -189,6 +189,7 @@ def test_lag_zero_reads_each_row_for_its_own_step() -> None:
     assert [(e.step, e.detected_at, e.final) for e in events] == [(3, 4, False), (7, 7, True)]
 
 
+@pytest.mark.slow  # trains a head; the choice on replays is checked fast in test_detect_choose
 def test_ompn_segment_tune_runs_the_checkpoints_head_where_it_aligns_better(tmp_path: Path) -> None:
     path = checkpoint_with_head(tmp_path, "dial")
     head = load_detector_settings(path).head

@@ -10,6 +10,7 @@ import pytest
 from lab import fresh, reproduce
 
 
+@pytest.mark.slow  # a lab study that trains
 def test_runs_are_scored_on_new_episodes_with_their_own_validation(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -13,6 +13,9 @@ from lab.scoring import DURATION_DELAYS
 from ompn_ros.data.episode import Episode
 from ompn_ros.paths import config_file
 
+pytestmark = pytest.mark.slow  # the lab's pipeline trains real (tiny) runs; the product's reproduction
+# path is checked fast in test/lab/test_reproduce_product.py
+
 
 def _episode(task: str, seed: int) -> Episode:
     obs, actions = np.zeros((3, 2), np.float32), np.zeros(2, np.int64)

@@ -48,6 +48,7 @@ def test_ros_closed_loop_matches_in_process(tiny_checkpoint: Path) -> None:
     assert ros.summary()["episodes"] == 2
 
 
+@pytest.mark.slow  # the LSTM baseline; the OMPN closed loop runs fast above
 def test_ros_closed_loop_lstm_checkpoint(tmp_path: Path) -> None:
     from ompn_ros.model.build import build_policy
     from ompn_ros.model.load import stepper_from_checkpoint

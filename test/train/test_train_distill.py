@@ -48,6 +48,7 @@ def teachers(tmp_path_factory: pytest.TempPathFactory, episodes: list) -> list[P
     return [root / "t0" / "best", root / "t1" / "best"]
 
 
+@pytest.mark.slow  # trains teachers; the KL target is checked fast below
 def test_targets_are_the_teachers_average_and_collate_pads_them(episodes: list, teachers: list[Path]) -> None:
     targets = teacher_p_hats([str(t) for t in teachers], episodes[:5], _model_config())
     singles = [teacher_forced_p_hat(load_checkpoint(t)[0], episodes[:5])[0] for t in teachers]
@@ -66,6 +67,7 @@ def test_targets_are_the_teachers_average_and_collate_pads_them(episodes: list, 
         collate(bad, "discrete", _model_config().action_dim)
 
 
+@pytest.mark.slow  # trains teachers; the KL target is checked fast below
 def test_an_ensemble_directory_is_its_members(tmp_path: Path, episodes: list, teachers: list[Path]) -> None:
     write_ensemble(tmp_path / "ens", teachers)
     from_dir = teacher_p_hats([str(tmp_path / "ens")], episodes[:3], _model_config())
@@ -86,6 +88,7 @@ def test_kl_is_zero_at_the_target_and_pulls_towards_it() -> None:
     assert float(logits.grad[0, 0, 1]) < 0  # raising the under-predicted entry lowers the loss
 
 
+@pytest.mark.slow  # trains teachers; the KL target is checked fast below
 def test_student_moves_towards_its_teachers(tmp_path: Path, episodes: list, teachers: list[Path]) -> None:
     train_eps, _, _ = train_val_episodes(episodes, _cfg(tmp_path, split_seed=0))
     targets = teacher_p_hats([str(t) for t in teachers], train_eps, _model_config())
@@ -100,6 +103,7 @@ def test_student_moves_towards_its_teachers(tmp_path: Path, episodes: list, teac
     assert kl[5.0] < 0.7 * kl[0.0], kl  # same seed and data: only the distillation term differs
 
 
+@pytest.mark.slow  # trains teachers; the KL target is checked fast below
 def test_bad_teachers_and_settings_are_one_clear_error(tmp_path: Path, episodes: list,
                                                        teachers: list[Path]) -> None:
     with pytest.raises(DistillError, match="n_slots=2"):

@@ -8,7 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 
+
+@pytest.mark.slow  # two training ranks; one rank per process in test_train_multinode
 def test_torchrun_two_ranks_identical_weights_and_loss_decreases(tmp_path: Path) -> None:
     out = tmp_path / "ddp"
     env = dict(os.environ)
