@@ -30,7 +30,7 @@ def _example() -> ModuleType:
     return module
 
 
-@pytest.mark.slow  # trains; its parts run fast: test_annotate_any_bag, test_idle_user_arm, test_node_idle_auto
+@pytest.mark.slow  # trains; parts run fast: test_annotate_any_bag, test_idle_user_arm, test_node_idle_auto
 def test_own_robot_flow(tmp_path: Path, ros_env: dict[str, str]) -> None:
     from sim_nodes.dial import generate_episode
 
