@@ -51,10 +51,10 @@ def received(ep: Episode) -> Episode:
 
 def live(node: OMPNNode, stream: Episode, t0_ns: int) -> tuple[list[tuple[Any, ...]], np.ndarray]:
     b0, p0 = len(node.outputs.pubs["boundary"].raws), len(node.outputs.pubs["pi"].raws)
-    node.inputs.on_episode(marker(layout.EPISODE_START, sketch=",".join(map(str, stream.sketch))))
+    node.inputs.markers.on_episode(marker(layout.EPISODE_START, sketch=",".join(map(str, stream.sketch))))
     for t, row in enumerate(stream.observations):
         node.inputs.on_raw_array(m.encode_float32_array(row), t0_ns + t * STEP_NS)
-    node.inputs.on_episode(marker(layout.EPISODE_END, steps=str(stream.length)))
+    node.inputs.markers.on_episode(marker(layout.EPISODE_END, steps=str(stream.length)))
     events = []
     for raw in node.outputs.pubs["boundary"].raws[b0:]:
         b = decode_subtask_boundary(raw)

@@ -175,7 +175,7 @@ class OMPNNode(LifecycleNode):
     @property
     def assembled(self) -> AssembledInput | None:
         """The ``observation_spec`` input (``None``: a single topic, or not configured)."""
-        return self.inputs.assembled
+        return self.inputs.spec.assembled
 
     def _cache_limits(self) -> None:
         """The stream limits in ns and the default sketch, read once per change rather than once per step."""
@@ -183,7 +183,7 @@ class OMPNNode(LifecycleNode):
         known = self._idle_speed is not None
         self.stream.limits = StreamLimits.of({**self.values, "idle_speed": self._idle_speed if known else 0.0,
                                               "idle_s": self.values["idle_s"] if known else 0.0})
-        assembled = self.inputs.assembled
+        assembled = self.inputs.spec.assembled
         if assembled is not None and assembled.asm.step_header_stamped:  # the robot's clock stamps the steps
             self.stream.limits.header_topic = assembled.spec.step_topic
         self.stream.default_sketch = default_sketch(self.values)
@@ -270,7 +270,7 @@ class OMPNNode(LifecycleNode):
     def _unload(self) -> None:
         """Forget the model and the configured input (a failed configure, cleanup)."""
         self.stream.segmenter = None
-        self.inputs.configure(None, self.inputs.joints)
+        self.inputs.configure(None, self.inputs.joint_states.joints)
         self.detector.unload()
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -333,7 +333,7 @@ class OMPNNode(LifecycleNode):
             response.message = f"not reset: the node is '{state}'; ~/reset starts episodes only while active"
             return response
         self.inputs.release_all()  # held steps are stepped first: they came before the request
-        response.success = self.stream.reset()
+        response.success = self.stream.markers.reset()
         response.message = "memory reset" if response.success else "reset failed (no segmenter or no sketch)"
         return response
 

@@ -1,11 +1,15 @@
 """``ompn_node``'s inputs: the subscriptions and their callbacks, each surviving any message.
 
 :class:`NodeInputs` turns ROS messages into the stream rule's plain inputs (:mod:`ompn_ros.stream.rule`:
-an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  Every
-input topic (those of ``obs_qos``) also counts the messages its publisher sent that never reached a
-callback (an input queue overwritten while the node was busy), from the gaps in the publication
-sequence numbers of the message info (``messages_missed``, :mod:`ompn_ros.stream.delivery`).  Topics,
-stamps and QoS: the module docstring of :mod:`ompn_ros.nodes.ompn_node`.
+an observation and its stamp, a marker's text, a sketch) and reports what cannot be used.  It owns
+the parts for each kind of input: :attr:`NodeInputs.markers` (episode markers and sketches,
+:mod:`ompn_ros.nodes.ompn_node_markers`), :attr:`NodeInputs.joint_states` (``obs_source: joint_state``,
+:mod:`ompn_ros.nodes.ompn_node_joints`) and :attr:`NodeInputs.spec` (``observation_spec``,
+:mod:`ompn_ros.nodes.ompn_node_spec`); the array input is its own.  Every input topic (those of
+``obs_qos``) also counts the messages its publisher sent that never reached a callback (an input queue
+overwritten while the node was busy), from the gaps in the publication sequence numbers of the message
+info (``messages_missed``, :mod:`ompn_ros.stream.delivery`).  Topics, stamps and QoS: the module
+docstring of :mod:`ompn_ros.nodes.ompn_node`.
 """
 
 from __future__ import annotations
@@ -13,7 +17,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode
@@ -25,50 +28,33 @@ from std_msgs.msg import Float32MultiArray, Int32MultiArray
 from ompn_interfaces.msg import EpisodeMarker
 from ompn_ros import layout
 from ompn_ros.data.cuts import IdleSpeed
-from ompn_ros.data.messages import StampRangeError, join_stamp, parse_float32_array, parse_typed_marker
-from ompn_ros.data.obs import Decided, Drop
+from ompn_ros.data.messages import parse_float32_array
 from ompn_ros.nodes.ompn_node_idle import IdleProbe
-from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput, drop_line
+from ompn_ros.nodes.ompn_node_joints import JointStates
+from ompn_ros.nodes.ompn_node_markers import NodeMarkers
+from ompn_ros.nodes.ompn_node_obs import AssembledInput, JointInput
 from ompn_ros.nodes.ompn_node_outputs import NodePublishers
 from ompn_ros.nodes.ompn_node_params import input_qos
+from ompn_ros.nodes.ompn_node_spec import SpecInput
 from ompn_ros.stream.delivery import SequenceGaps
-from ompn_ros.stream.rule import classify_stamp
-from ompn_ros.validate import BadStamp, FutureStamp, InvalidInput, MalformedMessage
+from ompn_ros.validate import InvalidInput, MalformedMessage
 
 MARKER_QUEUE = 5_000  # depth of the marker (and sketch) topics, KEEP_ALL: a full queue holds publishers back
 MARKER_TOPICS = (layout.EPISODE_MARKER, layout.EPISODE)
 
 
-
-class MarkerTwins:
-    """Keeps one of the two forms of one marker: the sims publish each marker typed (``episode_marker``)
-    and, for one release, as the deprecated ``DiagnosticArray`` (``episode``); DDS may deliver either
-    first.  A marker equal to the one just handled but of the other form is its twin and is dropped."""
-
-    def __init__(self) -> None:
-        self._last: tuple[bool, tuple[str, tuple[tuple[str, str], ...]]] | None = None
-        self.typed_seen = False
-        self.deprecated_handled = 0
-
-    def keep(self, typed: bool, kind: str, values: dict[str, str]) -> bool:
-        """Whether to handle this marker (``typed``: from ``episode_marker``)."""
-        identity = (kind, tuple(sorted(values.items())))
-        self.typed_seen = self.typed_seen or typed
-        if self._last is not None and self._last[1] == identity and self._last[0] != typed:
-            self._last = None
-            return False
-        self._last = (typed, identity)
-        self.deprecated_handled += not typed
-        return True
-
-
 class NodeInputs:
     """The node's subscriptions and their callbacks; they feed :attr:`stream` while :attr:`active`.
+
+    It owns a part per kind of input: :attr:`markers` (``NodeMarkers``), :attr:`joint_states`
+    (``JointStates``) and :attr:`spec` (``SpecInput``); their observations come to
+    :meth:`process_observation`, their unusable messages to :meth:`reject`.
 
     Args:
         node: the lifecycle node that owns the subscriptions and timers (and logs).
         values: the node's parameter values (the same dict, kept current by the node).
         outputs: the node's publishers: their stream rule is fed, their warnings are used.
+        idle_found: the node's: the idle probe derived the idle speed (and from how many observations).
     """
 
     def __init__(self, node: LifecycleNode, values: dict[str, Any], outputs: NodePublishers,
@@ -78,26 +64,31 @@ class NodeInputs:
         self.probe: IdleProbe | None = None  # idle_speed auto measured on the stream: observations held
         self._idle_found = idle_found  # the node's: the probe derived the idle speed (and from how many)
         self.active = False  # subscribed (between subscribe() and unsubscribe())
-        self.assembled: AssembledInput | None = None  # observation_spec input (None: single topic)
-        self.joints: JointInput | None = None  # obs_source 'joint_state'
         self._subs: list[Any] = []
-        self._graph_timer: Any = None
-        self._hold_timer: Any = None
         self._missed_warned: set[str] = set()  # input topics whose first unreceived messages were warned
         self._lost_warned: set[str] = set()  # topics whose first middleware loss was warned
-        self._twins = MarkerTwins()  # a marker's typed and deprecated forms: one is handled
+        active = self.is_active
+        self.spec = SpecInput(node, outputs, active, self.process_observation, self.reject)
+        self.joint_states = JointStates(node, values, outputs, self.process_observation, self.reject)
+        self.markers = NodeMarkers(node, self.stream, active, self.reject,
+                                   lambda: self.spec.release_held(None, flush=True), self.end_probe)
         # the steady clock beside the node's wall clock: a step of the PC's clock is no pause or restart
         # for observations stamped at reception (None under use_sim_time: a sim's clock going back restarts)
         self.steady: Callable[[], int] | None = None
 
     def configure(self, assembled: AssembledInput | None, joints: JointInput | None) -> None:
         """The input of the next activation (``None``, ``None``: the single topic of ``obs_source``)."""
-        self.assembled, self.joints = assembled, joints
+        self.spec.assembled, self.joint_states.joints = assembled, joints
+
+    def is_active(self) -> bool:
+        """Whether the inputs are subscribed (:attr:`active`), for the parts."""
+        return self.active
 
     def source(self) -> str:
         """Where the observations come from, as an error line names it."""
-        if self.assembled is not None:
-            return f"observation_spec (step topic {self.assembled.spec.step_topic})"
+        assembled = self.spec.assembled
+        if assembled is not None:
+            return f"observation_spec (step topic {assembled.spec.step_topic})"
         if self.values["obs_source"] == "joint_state":
             fields = list(self.values["joint_fields"])
             return f"'{layout.JOINT_STATES}' fields {fields} (obs_source=joint_state)"
@@ -106,18 +97,20 @@ class NodeInputs:
     def counters(self) -> dict[str, int]:
         """The input's own counters (:meth:`NodePublishers.counters`)."""
         out: dict[str, int] = {}
-        if self.joints is not None and self.joints.merger is not None:
-            out["joint_missing"] = self.joints.missing
-        if self.assembled is not None:
-            out.update(self.assembled.counters())
-            out["obs_type_reports"] = self.assembled.type_reports
+        joints, assembled = self.joint_states.joints, self.spec.assembled
+        if joints is not None and joints.merger is not None:
+            out["joint_missing"] = joints.missing
+        if assembled is not None:
+            out.update(assembled.counters())
+            out["obs_type_reports"] = assembled.type_reports
             out["obs_size_mismatch"] = int(self.stream.events["obs_size_mismatch"])
         return out
 
     @property
     def dropped_total(self) -> int:
         """Steps the assembler dropped (0 without ``observation_spec``)."""
-        return self.assembled.dropped_total if self.assembled is not None else 0
+        assembled = self.spec.assembled
+        return assembled.dropped_total if assembled is not None else 0
 
     def subscribe(self, probe: IdleProbe | None = None) -> None:
         """The subscriptions of the configured input (on activation); active from then on, the
@@ -132,13 +125,15 @@ class NodeInputs:
         )
         # Markers first: when a marker and an observation are both ready, the executor serves the
         # subscriptions in creation order, so the 'start' reset precedes the episode's first step.
-        self._subscribe(EpisodeMarker, layout.EPISODE_MARKER, self._on_typed_marker, markers, None, raw=True)
-        self._subscribe(DiagnosticArray, layout.EPISODE, self.on_episode, markers, None)  # deprecated
-        self._subscribe(Int32MultiArray, layout.SKETCH, self.on_sketch, markers, None)
-        if self.assembled is not None:
-            self._subscribe_spec(self.assembled, inputs)
+        self._subscribe(EpisodeMarker, layout.EPISODE_MARKER, self.markers.on_typed_marker, markers, None,
+                        raw=True)
+        self._subscribe(DiagnosticArray, layout.EPISODE, self.markers.on_episode, markers, None)  # deprecated
+        self._subscribe(Int32MultiArray, layout.SKETCH, self.markers.on_sketch, markers, None)
+        if self.spec.assembled is not None:
+            self.spec.subscribe(self._subscribe_spec_topic, inputs)
         elif self.values["obs_source"] == "joint_state":
-            self._subscribe(JointState, layout.JOINT_STATES, self.on_joint_state, inputs, "obs_qos")
+            joints = self.joint_states.on_joint_state
+            self._subscribe(JointState, layout.JOINT_STATES, joints, inputs, "obs_qos")
         else:  # raw CDR: the float32 data is read in place, no message object is built
             info = self.uses_message_info
             callback = self._on_array_info if info else self.on_array
@@ -154,27 +149,10 @@ class NodeInputs:
         for sub in self._subs:
             self.node.destroy_subscription(sub)
         self._subs = []
-        for timer in (self._graph_timer, self._hold_timer):
-            if timer is not None:
-                self.node.destroy_timer(timer)
-        self._graph_timer = self._hold_timer = None
-        if self.assembled is not None:
-            self.assembled.asm.reset()
+        self.spec.unsubscribe()
 
-    def _subscribe_spec(self, assembled: AssembledInput, qos: QoSProfile) -> None:
-        """One raw subscription per spec topic, the publishers' types checked ~1/s.  Partners first: when
-        a partner and a step message are both ready, a wait-set executor serves them in creation order,
-        and the partner message, published first, is then fed first (as it arrived)."""
-        spec = assembled.spec
-        for topic in (*spec.partner_topics, spec.step_topic):
-            callback = self.on_spec_step if topic == spec.step_topic else self.partner_callback(topic)
-            msg_class = assembled.classes[topic]
-            self._subscribe(msg_class, topic, callback, qos, "obs_qos", raw=True)
-        self._graph_timer = self.node.create_timer(1.0, self.check_topic_types)
-        self.check_topic_types()
-        if assembled.asm.waited_topics:  # held steps are released on every message, and by this timer
-            period = max(0.005, spec.wait_s / 2)
-            self._hold_timer = self.node.create_timer(period, lambda: self.release_held(None))
+    def _subscribe_spec_topic(self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile) -> None:
+        self._subscribe(msg_type, topic, callback, qos, "obs_qos", raw=True)
 
     def _subscribe(
         self, msg_type: Any, topic: str, callback: Any, qos: QoSProfile, param: str | None, raw: bool = False,
@@ -262,131 +240,9 @@ class NodeInputs:
         try:
             data = parse_float32_array(raw)
         except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
-            self._reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
+            self.reject(MalformedMessage(f"undecodable Float32MultiArray ({len(raw)} bytes): {exc}"))
             return
         self.process_observation(data, stamp_ns, now_ns, steady_ns)
-
-    def on_spec_step(self, raw: bytes) -> None:
-        """A step-topic message: held by the assembler (receive time = the node's clock, strictly
-        increasing) until its partners caught up or ``wait_s`` passed, then stepped like any
-        observation; a dropped step is counted by reason and warned (throttled)."""
-        assembled = self.assembled
-        if assembled is None or self.stream.segmenter is None or not self.active:
-            return
-        now = self.node.get_clock().now().nanoseconds
-        receive = self.stream.receive_stamp(now)
-        step_topic = assembled.spec.step_topic
-        if self.stream.repeats.seen(step_topic, assembled.spec.type_of(step_topic), receive, raw):
-            return
-        try:
-            assembled.asm.hold(receive, raw)
-        except Exception as exc:  # the assembler counts what it knows; anything else is malformed input
-            self._reject(MalformedMessage(f"step message not assembled: {type(exc).__name__}: {exc}"))
-            return
-        self.release_held(now)
-
-    def release_held(self, now_ns: int | None, flush: bool = False) -> None:
-        """Step the held steps the assembler can decide now (all of them with ``flush``), in order."""
-        assembled = self.assembled
-        if assembled is None or not assembled.asm.held:
-            return
-        now = self.node.get_clock().now().nanoseconds if now_ns is None else now_ns
-        try:
-            decided = assembled.asm.release(now, flush)
-        except Exception as exc:  # never fatal: counted as malformed input, warned
-            self._reject(MalformedMessage(f"held steps not assembled: {type(exc).__name__}: {exc}"))
-            return
-        self.step_decided(assembled, decided)
-
-    def step_decided(self, assembled: AssembledInput, decided: list[Decided]) -> None:
-        for d in decided:
-            if isinstance(d.result, Drop):
-                self.outputs.warn_throttled(drop_line(d.result, assembled.dropped_total), with_total=False)
-                continue
-            problem = assembled.first_size_problem(d.result)
-            if problem is not None:
-                self.stream.events["obs_size_mismatch"] += 1
-                self.node.get_logger().error(problem)
-            # judged at the step's arrival, not at its release: a step the assembler held for a lagging
-            # partner is no clock step (docs/specs.md, "Clocks")
-            self.process_observation(d.result, d.stamp_ns, d.receive_ns)
-
-    def partner_callback(self, topic: str) -> Any:
-        def on_partner(raw: bytes) -> None:
-            assembled = self.assembled
-            if assembled is None or not self.active:
-                return
-            now = self.node.get_clock().now().nanoseconds
-            if self.stream.repeats.seen(topic, assembled.spec.type_of(topic), now, raw):
-                return
-            try:
-                rejected = assembled.asm.offer(topic, now, raw)
-            except Exception as exc:  # never fatal: counted as a node event, warned
-                self.stream.events["obs_partner_errors"] += 1
-                self.outputs.warn_throttled(f"message on '{topic}' not used: {type(exc).__name__}: {exc}")
-                return
-            if rejected is not None:
-                self.outputs.warn_throttled(f"message rejected: {rejected}", with_total=False)
-            self.release_held(now)
-
-        return on_partner
-
-    def check_topic_types(self) -> None:
-        """Compare the spec topics' advertised types with the spec (timer, ~1 s): one line per change."""
-        if self.assembled is None:
-            return
-        try:
-            graph = {t: [p.topic_type for p in self.node.get_publishers_info_by_topic(t)]
-                     for t in self.assembled.spec.topics}
-        except Exception as exc:  # the graph may be unavailable while the context shuts down
-            if "context" not in str(exc):
-                self.outputs.warn_throttled(f"ROS graph not readable: {exc}")
-            return
-        for line in self.assembled.check_graph(graph):
-            if "expects" in line:
-                self.node.get_logger().error(line)
-            else:
-                self.node.get_logger().info(line)
-
-    def on_joint_state(self, msg: JointState) -> None:
-        try:
-            stamp = join_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec)
-        except StampRangeError as exc:
-            self._reject(BadStamp(str(exc)))
-            return
-        fields = {f: np.asarray(getattr(msg, f)) for f in layout.JOINT_FIELDS}
-        payload = "\0".join(msg.name).encode() + b"".join(v.tobytes() + b"|" for v in fields.values())
-        if self.stream.repeats.seen_sample(layout.JOINT_STATES, stamp, payload):
-            return  # the same sample sent twice (same header stamp and data): one step
-        joints = self.joints or JointInput(self.values["joint_fields"], None, None)
-        if joints.merger is not None and self._merge_refuses(stamp):
-            return
-        got = joints.observation(stamp, msg.name, fields)
-        if got is None:  # joint_merge: another publisher's message, or a step lacking a joint (counted)
-            silent = joints.silence_line()
-            if silent is not None:
-                self.node.get_logger().warning(silent)
-            return
-        if isinstance(got, str):
-            self._reject(MalformedMessage(got))
-            return
-        self.outputs.frame_id = msg.header.frame_id
-        with np.errstate(over="ignore"):  # beyond float32 -> inf, which the segmenter rejects
-            self.process_observation(got.astype(np.float32), stamp)
-
-    def _merge_refuses(self, stamp_ns: int) -> bool:
-        """``joint_merge``: a message of any publisher stamped more than ``max_stamp_lead`` ahead of the
-        node's clock is rejected before it is merged (``future_stamp``), as a step would be: its values
-        would otherwise look fresh to every step until the clock caught up."""
-        limits = self.stream.limits
-        if limits.max_lead_ns <= 0:
-            return False
-        now = self.node.get_clock().now().nanoseconds
-        if classify_stamp(stamp_ns, None, now, jump_back_ns=0, max_lead_ns=limits.max_lead_ns) != "future":
-            return False
-        self._reject(FutureStamp(f"JointState stamped {stamp_ns} ns is more than max_stamp_lead="
-                                 f"{limits.max_stamp_lead} s ahead of the node's clock: not merged"))
-        return True
 
     def process_observation(self, data: Any, stamp_ns: int | None, now_ns: int | None = None,
                             against_ns: int | None = None) -> None:
@@ -403,9 +259,7 @@ class NodeInputs:
 
     def release_all(self) -> None:
         """Before ``~/reset``: the steps the assembler and the idle probe hold are stepped, in order."""
-        assembled = self.assembled
-        if assembled is not None:
-            self.step_decided(assembled, assembled.asm.reset())
+        self.spec.release_all()
         self.end_probe()
 
     def end_probe(self) -> None:
@@ -418,41 +272,10 @@ class NodeInputs:
         for data, stamp_ns, now_ns in probe.held:
             self.stream.observe(data, stamp_ns, now_ns)
 
-    def _reject(self, error: InvalidInput) -> None:
+    def reject(self, error: InvalidInput) -> None:
+        """Count an input that cannot be used (while a segmenter is loaded and the inputs are active)."""
         if self.stream.segmenter is not None and self.active:
             self.stream.reject(error)
-
-    # --- markers and sketches --------------------------------------------------------------------
-    def _on_typed_marker(self, raw: bytes) -> None:
-        try:
-            kind, values = parse_typed_marker(raw)
-        except Exception as exc:  # rosbags raises several types on bad CDR: counted, never fatal
-            self._reject(MalformedMessage(f"undecodable EpisodeMarker ({len(raw)} bytes): {exc}"))
-            return
-        self._on_marker(True, kind, values)
-
-    def on_episode(self, msg: DiagnosticArray) -> None:
-        """The deprecated string-keyed marker (read for one release)."""
-        for status in msg.status:
-            if status.name == layout.EPISODE_STATUS_NAME:
-                self._on_marker(False, status.message, {kv.key: kv.value for kv in status.values})
-
-    def _on_marker(self, typed: bool, kind: str, values: dict[str, str]) -> None:
-        if self.stream.segmenter is None or not self.active or not self._twins.keep(typed, kind, values):
-            return
-        self.release_held(None, flush=True)  # held steps belong to the episode before the marker
-        self.end_probe()
-        if not self._twins.typed_seen and self._twins.deprecated_handled == 2:
-            self.node.get_logger().warning(
-                f"episode markers on '{layout.EPISODE}' (diagnostic_msgs/DiagnosticArray) are deprecated, "
-                f"read for one release: publish ompn_interfaces/msg/EpisodeMarker on "
-                f"'{layout.EPISODE_MARKER}'")
-        self.stream.marker(kind, values)
-
-    def on_sketch(self, msg: Int32MultiArray) -> None:
-        if self.stream.segmenter is not None and self.active and len(msg.data) > 0:
-            self.end_probe()
-            self.stream.sketch_message(msg.data)
 
 
 def _matched(gaps: SequenceGaps) -> Any:

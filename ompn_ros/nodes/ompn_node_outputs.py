@@ -217,8 +217,9 @@ class NodePublishers:
         if seg is not None:
             out.update({f"rejected_{k}": int(v) for k, v in seg.rejected.items()})
         out["repeated_messages"] = stream.repeats.total
-        if stream.idle is not None:
-            out["idle_trimmed"] = stream.idle.trimmed
+        idle = stream.pauses.idle
+        if idle is not None:
+            out["idle_trimmed"] = idle.trimmed
         if seg is not None and seg.still_tolerance > 0:
             out["still_observations"] = int(stream.events["still_observations"])
         out.update(inputs)

@@ -112,7 +112,7 @@ def replay_episode(
     for t in range(n_obs):
         rule.observe(episode.observations[t], None if stamps_ns is None else int(stamps_ns[t]), 0)
     rule.close_episode(T)
-    return _episode_result(record, T, rule.still)
+    return _episode_result(record, T, rule.rows.runs)
 
 
 def _episode_result(record: StreamRecord, T: int, runs: StillRuns | None = None) -> ReplayResult:

@@ -29,6 +29,10 @@ The rules, in the order a stamped observation meets them (``docs/parameters.md``
 Episode markers ('start' with an optional sketch, 'end' with the step count), sketch messages and
 resets end the held input first (as the end of a bag does) and start the next episode.  Every call is
 O(1) per observation, amortised.
+
+The rule keeps the episode and applies what its parts decide: the clocks (:mod:`ompn_ros.stream.clock`),
+the pause and idle gate (:mod:`ompn_ros.stream.pause`), the rows of the still rule
+(:mod:`ompn_ros.stream.rows`) and the markers (:class:`EpisodeMarkers`).
 """
 
 from __future__ import annotations
@@ -37,48 +41,21 @@ import array
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import replace
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from ompn_ros import layout
-from ompn_ros.data.clock_steps import LiveClockSteps
-from ompn_ros.data.cuts import (
-    ALL_ELEMENTS,
-    IdleGate,
-    Repeats,
-    SilenceWatch,
-    SpeedElements,
-    StillRuns,
-    gap_ends_episode,
-    still_runs,
-)
+from ompn_ros.data.cuts import ALL_ELEMENTS, Repeats, SpeedElements
 from ompn_ros.data.messages import parse_sketch_value
 from ompn_ros.detect.online import BoundaryEvent
 from ompn_ros.segmenter import SegmenterOutput, StreamingSegmenter
+from ompn_ros.stream.clock import StreamClocks, restart_line, step_line
+from ompn_ros.stream.pause import IdleDecisions, PauseGate
+from ompn_ros.stream.rows import EpisodeRows
 from ompn_ros.validate import BadSketch, FutureStamp, InvalidInput, SketchError, validate_sketch
 
-__all__ = ["StampClass", "StreamLimits", "StreamRule", "StreamSink", "classify_stamp"]
-
-StampClass = Literal["ok", "future", "jump_back"]
-
-
-def classify_stamp(
-    stamp_ns: int, last_ns: int | None, now_ns: int, *, jump_back_ns: int, max_lead_ns: int
-) -> StampClass:
-    """Where ``stamp_ns`` lies against the last accepted stamp and the receiver's clock (O(1)).
-
-    ``'future'``: more than ``max_lead_ns`` ahead of ``now_ns`` (checked when both are > 0; a clock at 0
-    is sim time before the first ``/clock``).  ``'jump_back'``: more than ``jump_back_ns`` before
-    ``last_ns``: the source's clock restarted (a sim restart, a bag replayed in a loop), so a new
-    episode begins.  ``'ok'`` otherwise; a small step back stays an out-of-order rejection of
-    :meth:`StreamingSegmenter.step`.  Together these make a single stamp unable to wedge a stream.
-    """
-    if max_lead_ns > 0 and now_ns > 0 and stamp_ns - now_ns > max_lead_ns:
-        return "future"
-    if last_ns is not None and last_ns - stamp_ns > jump_back_ns:
-        return "jump_back"
-    return "ok"
+__all__ = ["EpisodeMarkers", "StreamLimits", "StreamRule", "StreamSink"]
 
 
 class StreamLimits:
@@ -133,8 +110,10 @@ class StreamRule:
     """The stamp and episode rules over one segmenter, with the counters they keep (:attr:`events`).
 
     The rule owns the episode: whether one is open (:attr:`episode_open`), the index of its last step,
-    the last stamp stepped, the still runs and the mapping of steps to the stream's rows; the segmenter
-    validates, steps and detects (:meth:`StreamingSegmenter.step`).  ``clock`` gives the receiver's
+    the last stamp stepped and its rows (:attr:`rows`: the still runs); the segmenter validates, steps
+    and detects (:meth:`StreamingSegmenter.step`).  Its parts decide and the rule applies: :attr:`clocks`
+    (stamps from the future, clock restarts and steps) and :attr:`pauses` (``episode_gap``, ``idle_s``);
+    :attr:`markers` takes the episode markers, sketch messages and resets.  ``clock`` gives the receiver's
     clock in ns (0: unknown, the future check is off).  The segmenter is set once the model is loaded
     (:attr:`segmenter`); every entry point but :meth:`receive_stamp` and :meth:`start_episode` expects it.
     """
@@ -147,16 +126,14 @@ class StreamRule:
         self.events: Counter[str] = Counter()
         self.repeats = Repeats()  # messages a driver sent twice: one step (the reader's rule)
         self.default_sketch: np.ndarray | None = None
-        self.latest_sketch: np.ndarray | None = None
         self.episode_sketch: np.ndarray | None = None
         self.last_stamp: int | None = None  # of the last stamped step of this episode (None: none yet)
         self.step_index = -1  # of the episode's last step (-1: none yet)
         self.closed = False  # the episode was closed (close_episode); the next starts it again
-        self.last_receive_ns = 0  # of receive_stamp()
-        self.silence: SilenceWatch | None = None  # episode_gap, armed by arm()
-        self.idle: IdleGate | None = None  # idle_s: the reader's split: idle rule
-        self.still: StillRuns | None = None  # the episode's still rule (the model's still_tolerance)
-        self.header_clock: LiveClockSteps | None = None  # the stamps' clock's steps, armed by arm()
+        self.rows = EpisodeRows()  # the still runs (the model's still_tolerance): steps as rows
+        self.clocks = StreamClocks()  # receive stamps, clock restarts and steps
+        self.pauses = PauseGate()  # episode_gap and idle_s, armed by arm()
+        self.markers = EpisodeMarkers(self)  # episode markers, sketch messages, resets
 
     @property
     def segmenter(self) -> StreamingSegmenter | None:
@@ -166,40 +143,35 @@ class StreamRule:
     @segmenter.setter
     def segmenter(self, segmenter: StreamingSegmenter | None) -> None:
         self._segmenter = segmenter
-        self.last_stamp, self.step_index, self.closed, self.still = None, -1, False, None
+        self.last_stamp, self.step_index, self.closed = None, -1, False
+        self.rows.forget()
 
     def arm(self) -> None:
-        """Start the pause and idle rules the limits ask for (the node: on activation)."""
-        limits = self.limits
-        self.silence = SilenceWatch(limits.gap_ns) if limits.gap_ns > 0 else None
-        self.idle = (IdleGate(limits.idle_ns, limits.idle_speed, limits.idle_elements)
-                     if float(limits.idle_s) > 0 else None)
-        self.header_clock = LiveClockSteps()  # judges header stamps, or stamps given with a steady clock
+        """Start the clock steps and the pause and idle rules the limits ask for (the node: on activation)."""
+        self.pauses.arm(self.limits)
+        self.clocks.arm()
 
     def disarm(self) -> None:
-        self.silence = self.idle = self.header_clock = None
+        self.pauses.disarm()
+        self.clocks.disarm()
 
     def receive_stamp(self, now_ns: int) -> int:
-        """A stamp from the receiver's clock, kept strictly increasing (a clock that stands still, e.g.
-        sim time between ``/clock`` ticks, must not turn into out-of-order rejections); a clock that
-        went back further than ``clock_jump_back`` is taken as it is."""
-        last = self.last_receive_ns
-        stamp = now_ns if (now_ns > last or last - now_ns > self.limits.jump_back_ns) else last + 1
-        self.last_receive_ns = stamp
-        return stamp
+        """A stamp from the receiver's clock (:meth:`StreamClocks.receive_stamp`, ``clock_jump_back``)."""
+        return self.clocks.receive_stamp(now_ns, self.limits.jump_back_ns)
 
     # --- observations ----------------------------------------------------------------------------
     def observe(self, data: Any, stamp_ns: int | None, now_ns: int | None = None,
                 against_ns: int | None = None) -> None:
         """One observation: judged by its stamp (``now_ns``: the receiver's clock when the caller read
         it already), held by the idle rule or stepped, its outputs given to the sink.  ``against_ns``: the
-        clock the stamps' clock is judged against for steps (:meth:`_clock_step`)."""
+        clock the stamps' clock is judged against for steps (:meth:`StreamClocks.step`)."""
         seg = self.segmenter
         assert seg is not None
         if stamp_ns is not None and not self._stamp_usable(stamp_ns, now_ns, against_ns):
             return
-        if self.idle is not None and stamp_ns is not None:
-            self._idle_decided(self.idle.push(np.array(data, dtype=np.float32), stamp_ns))
+        decided = None if stamp_ns is None else self.pauses.hold(data, stamp_ns)
+        if decided is not None:
+            self._idle_decided(decided)
             return
         self._step(seg, data, stamp_ns)
 
@@ -215,68 +187,38 @@ class StreamRule:
         return self.step_index >= 0 and not self.closed
 
     def _stamp_usable(self, stamp_ns: int, now_ns: int | None, against_ns: int | None) -> bool:
-        """Reject a far-future stamp; a clock restart starts a new episode (counted, warned), a step of
-        the header clock changes nothing but the stamp the next ones follow (counted, warned)."""
+        """Apply what :attr:`clocks` and :attr:`pauses` decide of a stamp: a far-future stamp is rejected,
+        a clock restart or a pause starts a new episode (counted, warned), a step of the stamps' clock
+        changes nothing but the stamp the next ones follow (counted, warned)."""
         limits = self.limits
         if now_ns is None:
             now_ns = self.clock() if limits.max_lead_ns > 0 or limits.header_topic else 0
-        verdict = classify_stamp(
-            stamp_ns, self.last_stamp, now_ns, jump_back_ns=limits.jump_back_ns,
-            max_lead_ns=limits.max_lead_ns
-        )
+        verdict, stepped = self.clocks.judge(stamp_ns, self.last_stamp, now_ns, against_ns, limits)
         if verdict == "future":
             self.reject(FutureStamp(f"stamp {stamp_ns} ns is more than max_stamp_lead="
                                     f"{limits.max_stamp_lead} s ahead of the node's clock"))
             return False
-        stepped = self._clock_step(stamp_ns, now_ns, against_ns)
-        gap = bool(limits.gap_ns) and gap_ends_episode(stamp_ns, self.last_stamp, limits.gap_ns)
+        gap = self.pauses.gap(stamp_ns, self.last_stamp, limits.gap_ns)
         if stepped and (verdict == "jump_back" or gap):
-            return self._header_stepped(stepped)
+            # no cut, no reorder: the next stamps follow this one (one line per step)
+            self.events["clock_steps"] += 1
+            self.sink.warning(step_line(stepped, limits.header_topic))
+            self.last_stamp = None
+            return True
         if verdict == "jump_back":
             self.events["clock_jumps"] += 1
-            self.sink.warning(
-                f"input clock jumped back from {self.last_stamp} to {stamp_ns} ns (more than "
-                f"clock_jump_back={limits.clock_jump_back} s): starting a new episode"
-            )
+            self.sink.warning(restart_line(self.last_stamp, stamp_ns, limits.clock_jump_back))
             return self.restart_episode()
         if gap:
             return self.end_at_pause()
         return True
 
-    def _clock_step(self, stamp_ns: int, now_ns: int, against_ns: int | None) -> int:
-        """The step of the stamps' clock before this stamp in ns (0: none).  Header stamps are judged
-        against ``against_ns`` when given, else ``now_ns`` (the receiver's clock at the message's
-        arrival: for a step the assembler released later, the step message's); other stamps only
-        against a given ``against_ns`` (the node's steady clock beside its wall-clock reception stamps)."""
-        clock = self.header_clock
-        if clock is None:
-            return 0
-        if self.limits.header_topic:
-            return clock.step(stamp_ns, now_ns if against_ns is None else against_ns)
-        return 0 if against_ns is None else clock.step(stamp_ns, against_ns)
-
-    def _header_stepped(self, size: int) -> bool:
-        """The stamps' clock stepped by ``size`` ns and the one beside it did not: no cut, no reorder;
-        the next stamps follow this one (counted and warned, one line per step)."""
-        self.events["clock_steps"] += 1
-        way, topic = "back" if size < 0 else "forward", self.limits.header_topic
-        self.sink.warning(
-            f"the header clock of '{topic}' steps {way} {abs(size) / 1e9:.3f} s and the node's clock does "
-            "not (an NTP correction on the robot?): the episode goes on in arrival order; a robot clock "
-            "kept in step (chrony) avoids it" if topic else
-            f"the node's clock stamping the observations at reception steps {way} {abs(size) / 1e9:.3f} s "
-            "and its steady clock does not (an NTP correction on this PC?): the episode goes on in arrival "
-            "order; a PC clock that is slewed rather than stepped avoids it"
-        )
-        self.last_stamp = None
-        return True
-
     def _step(self, seg: StreamingSegmenter, data: Any, stamp_ns: int | None) -> None:
         packed = isinstance(data, array.array) and data.typecode == "f"
         obs = np.frombuffer(data, dtype=np.float32) if packed else data
-        runs = self._runs(seg)  # still_tolerance: a still observation joins the open run, no step
+        hold = self.rows.hold(seg.still_tolerance)  # a still observation joins the open run, no step
         try:
-            out = seg.step(obs, stamp_ns, after_ns=self.last_stamp, hold=None if runs is None else runs.push)
+            out = seg.step(obs, stamp_ns, after_ns=self.last_stamp, hold=hold)
         except InvalidInput as exc:
             self.sink.skipped(exc, True)
             return
@@ -288,34 +230,15 @@ class StreamRule:
         self.step_index = out.step_index
         if out.step_index == 0:
             self.events["episodes"] += 1
-        if runs is not None:  # the rows and stamps of the recorded stream
-            out = replace(out, boundary=self._event_rows(out.boundary), step_index=runs.firsts[-1])
+        out = self.rows.output(out)  # the rows and stamps of the recorded stream
         # The boundary event goes out first: it is the latency-critical product of the node.
         if out.boundary is not None:
             self.emit_boundary(out.boundary, log=False)
         self.sink.step_out(out, 0 if stamp_ns is None else int(stamp_ns), self.events["episodes"])
 
-    def _runs(self, seg: StreamingSegmenter) -> StillRuns | None:
-        """The episode's still rule when the model has a ``still_tolerance`` (:func:`still_runs`)."""
-        if self.still is None and seg.still_tolerance > 0:
-            self.still = still_runs(seg.still_tolerance)
-        return self.still
-
-    def _event_rows(self, event: BoundaryEvent | None, last_row: int | None = None) -> BoundaryEvent | None:
-        """``event`` with its steps as rows of the stream (:meth:`StillRuns.end_of`): a step's boundary at
-        the last row of its run (``last_row``: at most the episode's last real step); unchanged without
-        ``still_tolerance``."""
-        runs = self.still
-        if event is None or runs is None or runs.steps == 0:
-            return event
-        row, stamp = runs.end_of(event.step, last_row)
-        detected = runs.end_of(event.detected_at, last_row)[0]
-        return replace(event, step=row, detected_at=max(detected, row),
-                       stamp_ns=stamp if event.stamp_ns else event.stamp_ns)
-
-    def _idle_decided(self, decided: list[tuple[str, np.ndarray | None, int]]) -> None:
-        """Step and close what the idle rule decided, in order (``IdleGate.push`` / ``flush``); an episode
-        the rule ended is decided where the rule decided it (``IdleGate.decided``: ``idle_s`` later)."""
+    def _idle_decided(self, decided: IdleDecisions) -> None:
+        """Step and close what the idle rule decided, in order (:meth:`PauseGate.hold` / ``flush``); an
+        episode the rule ended is decided where the rule decided it (:attr:`PauseGate.decided`)."""
         for kind, x, stamp in decided:
             seg = self.segmenter
             if seg is None:
@@ -326,8 +249,8 @@ class StreamRule:
                 self._step(seg, x, stamp)
             if kind == "end" and self.episode_open:
                 # the final observation (row T) is the last one given to the segmenter
-                final = self.step_index if self.still is None else self.still.rows - 1
-                held = self.idle.decided if self.idle is not None else None
+                final = self.rows.last(self.step_index)
+                held = self.pauses.decided
                 self.close_episode(final, None if held is None else (final + held[0], held[1]))
 
     def emit_boundary(self, event: BoundaryEvent, decided_ns: int | None = None, log: bool = True) -> None:
@@ -346,7 +269,7 @@ class StreamRule:
         try:
             self.begin_episode(sketch)
         except SketchError as exc:
-            self._stop(seg)
+            self.stop()
             if count_bad:
                 seg.count_rejection(BadSketch(str(exc)))
             self.sink.warning(f"episode start rejected: {exc}; waiting for the next valid start")
@@ -359,16 +282,18 @@ class StreamRule:
         seg = self.segmenter
         assert seg is not None
         if sketch is None or sketch.size == 0:
-            sketch = self.latest_sketch if self.latest_sketch is not None else self.default_sketch
+            latest = self.markers.latest_sketch
+            sketch = latest if latest is not None else self.default_sketch
         seg.reset(sketch)
-        self.still = None
-        self.last_receive_ns = 0
+        self.rows.forget()
+        self.clocks.last_receive_ns = 0
         self.last_stamp, self.step_index, self.closed = None, -1, False
         self.episode_sketch = sketch
 
-    def _stop(self, seg: StreamingSegmenter) -> None:
+    def stop(self) -> None:
         """An episode start was refused: no steps until the next valid start."""
-        seg.stop()
+        assert self.segmenter is not None
+        self.segmenter.stop()
         self.step_index = -1
 
     def close_episode(self, steps: int | None, decided: tuple[int, int] | None = None) -> None:
@@ -379,8 +304,7 @@ class StreamRule:
         one stepped (the idle rule's); the closing boundaries carry it as their decided step and stamp."""
         seg = self.segmenter
         assert seg is not None
-        runs = self.still
-        last = self.step_index if runs is None else runs.rows - 1
+        last = self.rows.last(self.step_index)
         if steps is not None and steps < last:  # fewer steps than observed: the marker is wrong
             self.events["bad_end_markers"] += 1
             self.sink.warning(
@@ -388,13 +312,12 @@ class StreamRule:
             )
             steps = None
         last_row = None if steps is None or steps <= 0 else steps - 1
-        if runs is not None and steps is not None:  # the marker counts rows; the detector, steps
-            steps = runs.steps_before(steps)
+        steps = self.rows.steps_before(steps)  # the marker counts rows; the detector, steps
         closing = seg.end_episode(steps - 1 if steps is not None and steps > 0 else None)
         self.closed = True
         self.events["episodes_ended"] += 1
         for event in closing:
-            mapped = self._event_rows(event, last_row)
+            mapped = self.rows.event(event, last_row)
             assert mapped is not None
             if decided is not None:
                 mapped = replace(mapped, detected_at=max(mapped.detected_at, decided[0]))
@@ -413,63 +336,68 @@ class StreamRule:
         if self.episode_open:
             self.close_episode(None)
         self.events["episode_gaps"] += 1
-        if self.silence is not None:
-            self.silence.rearm()
-        if self.idle is not None:
-            self.idle.reset()
+        self.pauses.paused()
         return self.start_episode(self.episode_sketch, count_bad=False)
 
     def check_silence(self) -> None:
         """``episode_gap`` polled by a timer: end an open episode that had no step for that long."""
-        seg, watch = self.segmenter, self.silence
-        if seg is None or watch is None:
-            return
-        if watch.quiet(self.clock(), self.step_index, seg.ready and self.episode_open):
+        seg = self.segmenter
+        open_episode = seg is not None and seg.ready and self.episode_open
+        if seg is not None and self.pauses.quiet(self.clock, self.step_index, open_episode):
             self.end_at_pause()
 
-    # --- markers, sketches, resets ---------------------------------------------------------------
+    # --- the held input ------------------------------------------------------------------------
     def input_ends(self) -> None:
         """Before an episode marker or a reset: with ``idle_s`` the held idle observations end the
         open episode as at the end of a bag (the first is its final observation, the others trimmed);
         the next message is never a repeat of one before."""
         self.repeats.forget()
-        if self.idle is not None:
-            self._idle_decided(self.idle.flush())
+        self._idle_decided(self.pauses.flush())
+
+
+class EpisodeMarkers:
+    """The episode markers, sketch messages and resets of a stream rule, the rule's part: each ends the
+    held input (:meth:`StreamRule.input_ends`) and starts the next episode, with the sketch it names,
+    else the latest one (:attr:`latest_sketch`), else the default."""
+
+    def __init__(self, rule: StreamRule) -> None:
+        self.rule = rule
+        self.latest_sketch: np.ndarray | None = None  # of the last sketch message or start marker
 
     def marker(self, kind: str, values: Mapping[str, str]) -> None:
         """An episode marker (``layout.EPISODE_START`` / ``EPISODE_END``) with its key-value pairs."""
-        seg = self.segmenter
+        rule, seg = self.rule, self.rule.segmenter
         assert seg is not None
-        self.events["markers"] += 1
-        self.input_ends()
+        rule.events["markers"] += 1
+        rule.input_ends()
         if kind == layout.EPISODE_START:
             self.start_marker(values.get(layout.KEY_SKETCH, ""))
         elif kind == layout.EPISODE_END and seg.ready:
             steps = _int_or_none(values.get(layout.KEY_STEPS, ""))
-            if not self.closed:
-                self.close_episode(steps)
-            self.start_episode(self.episode_sketch, count_bad=False)  # steps before the next start
+            if not rule.closed:
+                rule.close_episode(steps)
+            rule.start_episode(rule.episode_sketch, count_bad=False)  # steps before the next start
 
     def start_marker(self, text: str) -> None:
         """A 'start' marker whose sketch value is ``text`` ('' = none: the latest sketch or the default)."""
-        seg = self.segmenter
+        rule, seg = self.rule, self.rule.segmenter
         assert seg is not None
         try:
             sketch = parse_sketch_value(text, seg.sketch_vocab if seg.needs_sketch else None)
         except SketchError as exc:
             seg.count_rejection(BadSketch(str(exc)))
             if seg.needs_sketch:
-                self._stop(seg)
-                self.sink.warning(f"episode start rejected: marker {exc}; waiting for the next valid start")
+                rule.stop()
+                rule.sink.warning(f"episode start rejected: marker {exc}; waiting for the next valid start")
                 return
             sketch = None  # this model ignores sketches: the episode starts anyway
         self.latest_sketch = sketch if sketch is not None and sketch.size else None
-        if self.start_episode(sketch):
-            self.events["episode_starts"] += 1
+        if rule.start_episode(sketch):
+            rule.events["episode_starts"] += 1
 
     def sketch_message(self, values: Any) -> None:
         """A sketch message (subtask ids) for the coming episode; it restarts one that has no step yet."""
-        seg = self.segmenter
+        rule, seg = self.rule, self.rule.segmenter
         assert seg is not None
         sketch = np.asarray(values, dtype=np.int64)
         if seg.needs_sketch:
@@ -477,17 +405,18 @@ class StreamRule:
                 sketch = validate_sketch(sketch, seg.sketch_vocab)
             except SketchError as exc:
                 seg.count_rejection(BadSketch(str(exc)))
-                self.sink.warn_throttled(f"sketch message rejected: {exc}")
+                rule.sink.warn_throttled(f"sketch message rejected: {exc}")
                 return
         self.latest_sketch = sketch
-        if not seg.ready or self.step_index < 0:  # no step yet: the episode starts with this sketch
-            self.start_episode(sketch)
+        if not seg.ready or rule.step_index < 0:  # no step yet: the episode starts with this sketch
+            rule.start_episode(sketch)
 
     def reset(self) -> bool:
         """A reset request: the held input ends, a new episode starts with this episode's sketch."""
-        self.input_ends()
-        started = self.start_episode(self.episode_sketch)
-        self.events["episode_starts"] += int(started)
+        rule = self.rule
+        rule.input_ends()
+        started = rule.start_episode(rule.episode_sketch)
+        rule.events["episode_starts"] += int(started)
         return started
 
 

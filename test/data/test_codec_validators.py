@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ompn_ros.detect.online import DetectorConfig, OnlineDetector
-from ompn_ros.stream.rule import classify_stamp
+from ompn_ros.stream.clock import classify_stamp
 from ompn_ros.validate import SketchError, validate_observation, validate_sketch
 
 S = 1_000_000_000

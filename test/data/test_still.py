@@ -159,10 +159,10 @@ def test_the_node_live_publishes_what_the_replay_gives_on_a_paused_stream(ctx, c
     ep, moved = paused_episode()
     stamps = np.array([100 * 10**9 + 40 * MS * t for t in range(ep.length + 1)])
     node = active_node(ctx, ckpt, detector_high=0.4, detector_hysteresis=0.02, max_stamp_lead=0.0)
-    node.inputs.on_episode(marker("start"))
+    node.inputs.markers.on_episode(marker("start"))
     for x, s in zip(ep.observations, stamps, strict=True):
         node.inputs.on_raw_array(m.encode_float32_array(x), int(s))
-    node.inputs.on_episode(marker("end", steps=str(ep.length)))
+    node.inputs.markers.on_episode(marker("end", steps=str(ep.length)))
     live = [(b.step, b.subtask, b.final, b.stamp_ns)
             for b in map(decode_subtask_boundary, node.outputs.pubs["boundary"].raws)]
     states, node_counters = len(node.outputs.pubs["state"].raws), node.counters()

@@ -122,7 +122,7 @@ def test_ompn_collect_bags_carry_typed_markers_and_read_back(tmp_path: Path) -> 
 
 def test_node_keeps_one_of_a_markers_two_forms() -> None:
     pytest.importorskip("rclpy")
-    from ompn_ros.nodes.ompn_node_inputs import MarkerTwins
+    from ompn_ros.nodes.ompn_node_markers import MarkerTwins
 
     twins = MarkerTwins()
     start = {"episode": "0", "task": "dial", "seed": "5", "sketch": "1,2"}

@@ -42,14 +42,14 @@ def test_a_joint_count_mismatch_is_one_error_then_counted(ctx, ckpt: Path, capfd
     assert node.trigger_configure() == ok and node.trigger_activate() == ok, node.last_error
     capfd.readouterr()
     for t in range(20):  # a 4-joint arm for a 6-value model
-        node.inputs.on_joint_state(_joints(4, t))
+        node.inputs.joint_states.on_joint_state(_joints(4, t))
     err = capfd.readouterr().err
     lines = [line for line in err.splitlines() if "values" in line and "obs_dim" in line]
     assert len(lines) == 1, err
     assert "[ERROR]" in lines[0] and "observation has 4 values, the model expects obs_dim=6" in lines[0]
     assert "'joint_states' fields ['position']" in lines[0] and "trained on this robot" in lines[0]
     assert node.counters()["rejected_wrong_length"] == 20
-    node.inputs.on_joint_state(_joints(6, 20))  # the right size is stepped
+    node.inputs.joint_states.on_joint_state(_joints(6, 20))  # the right size is stepped
     assert node.counters()["accepted"] == 1
     node.destroy_node()
 

@@ -48,7 +48,7 @@ def _checkpoint(path: Path) -> Path:
 def _stream_into(node: Any) -> None:
     stamps, rows, _, _ = _arm_stream(np.random.default_rng(56))  # the stream of the arm bag
     for t, row in zip(stamps, rows, strict=True):
-        node.inputs.on_joint_state(msg(int(t), JOINTS, row[:6], row[6:]))
+        node.inputs.joint_states.on_joint_state(msg(int(t), JOINTS, row[:6], row[6:]))
 
 
 def test_auto_runs_the_threshold_the_training_read_recorded(ctx, arm_bag: tuple[Path, list],  # noqa: F811

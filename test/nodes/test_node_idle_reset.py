@@ -26,9 +26,9 @@ def _interrupt(node: Any, how: str) -> None:
     if how == "reset":
         assert node._on_reset(Trigger.Request(), Trigger.Response()).success
     elif how == "end_marker":
-        node.inputs.on_episode(marker(layout.EPISODE_END))
+        node.inputs.markers.on_episode(marker(layout.EPISODE_END))
     else:
-        node.inputs.on_episode(marker(layout.EPISODE_START))
+        node.inputs.markers.on_episode(marker(layout.EPISODE_START))
 
 
 @pytest.mark.parametrize("how", ["reset", "end_marker", "start_marker"])
@@ -43,7 +43,7 @@ def test_marker_or_reset_flushes_the_held_still_observations(
     for i, (head, pos, vel) in enumerate(stream):
         if i == first_end:
             _interrupt(node, how)
-        node.inputs.on_joint_state(msg(head, ARM, pos, vel))
+        node.inputs.joint_states.on_joint_state(msg(head, ARM, pos, vel))
     stamps, positions, want = np.asarray([h for h, _, _ in stream]), stream_pos(stream), []
     for e in offline.episodes:
         first = int(np.flatnonzero(np.all(positions == e.observations[0], axis=1))[0])

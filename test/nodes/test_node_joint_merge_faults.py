@@ -54,21 +54,21 @@ def test_a_silent_gripper_is_named_once_and_every_dropped_step_counted(ctx: Any,
     node = _node(ctx, ckpt, lines)
     t = time.time_ns()
     for k in range(10):  # both drivers at 50 Hz
-        node.inputs.on_joint_state(msg(t + k * 20 * MS, GRIPPER, [0.01 * k]))
-        node.inputs.on_joint_state(msg(t + k * 20 * MS + MS, ARM, [0.1 * k, 0.2, 0.3]))
+        node.inputs.joint_states.on_joint_state(msg(t + k * 20 * MS, GRIPPER, [0.01 * k]))
+        node.inputs.joint_states.on_joint_state(msg(t + k * 20 * MS + MS, ARM, [0.1 * k, 0.2, 0.3]))
     assert node.counters()["accepted"] == 10
     for k in range(10, 40):  # the gripper's driver died
-        node.inputs.on_joint_state(msg(t + k * 20 * MS + MS, ARM, [0.1 * k, 0.2, 0.3]))
+        node.inputs.joint_states.on_joint_state(msg(t + k * 20 * MS + MS, ARM, [0.1 * k, 0.2, 0.3]))
     counters = node.counters()
     assert counters["accepted"] == 10 + 2  # its last value is fresh for 50 ms
     assert counters["joint_missing"] == 28
     named = [x for x in lines if "finger" in x]
     assert len(named) == 1 and "silent" in named[0] and "joint_missing" in named[0], lines
-    node.inputs.on_joint_state(msg(t + 40 * 20 * MS, GRIPPER, [0.5]))  # back: steps again
-    node.inputs.on_joint_state(msg(t + 40 * 20 * MS + MS, ARM, [4.0, 0.2, 0.3]))
+    node.inputs.joint_states.on_joint_state(msg(t + 40 * 20 * MS, GRIPPER, [0.5]))  # back: steps again
+    node.inputs.joint_states.on_joint_state(msg(t + 40 * 20 * MS + MS, ARM, [4.0, 0.2, 0.3]))
     assert node.counters()["accepted"] == 13
     for k in range(41, 45):  # silent again: named again, once
-        node.inputs.on_joint_state(msg(t + k * 20 * MS + MS, ARM, [0.1 * k, 0.2, 0.3]))
+        node.inputs.joint_states.on_joint_state(msg(t + k * 20 * MS + MS, ARM, [0.1 * k, 0.2, 0.3]))
     assert len([x for x in lines if "finger" in x]) == 2
     node.destroy_node()
 
@@ -77,13 +77,14 @@ def test_a_malformed_message_is_refused_with_its_own_fault(ctx: Any, ckpt: Path)
     lines: list[str] = []
     node = _node(ctx, ckpt, lines)
     t = time.time_ns()
-    node.inputs.on_joint_state(msg(t, GRIPPER, [0.0]))
-    node.inputs.on_joint_state(msg(t + MS, ARM, [0.1, 0.2, 0.3, 0.4]))  # four positions for three joints
+    node.inputs.joint_states.on_joint_state(msg(t, GRIPPER, [0.0]))
+    # four positions for three joints
+    node.inputs.joint_states.on_joint_state(msg(t + MS, ARM, [0.1, 0.2, 0.3, 0.4]))
     counters = node.counters()
     assert counters["accepted"] == 0 and counters["rejected_malformed"] == 1
     assert len(lines) == 1 and "position has 4 values for 3 joint names" in lines[0], lines
     assert "remove" not in lines[0]
-    node.inputs.on_joint_state(msg(t + 2 * MS, ARM, [0.1, 0.2, 0.3]))  # the next good one steps
+    node.inputs.joint_states.on_joint_state(msg(t + 2 * MS, ARM, [0.1, 0.2, 0.3]))  # the next good one steps
     assert node.counters()["accepted"] == 1
     node.destroy_node()
 
@@ -92,9 +93,9 @@ def test_a_value_stamped_an_hour_ahead_is_refused_and_never_merged(ctx: Any, ckp
     lines: list[str] = []
     node = _node(ctx, ckpt, lines)
     t = time.time_ns()
-    node.inputs.on_joint_state(msg(t + 3600 * S, GRIPPER, [0.7]))
+    node.inputs.joint_states.on_joint_state(msg(t + 3600 * S, GRIPPER, [0.7]))
     for k in range(5):
-        node.inputs.on_joint_state(msg(t + k * 20 * MS, ARM, [0.1 * k, 0.2, 0.3]))
+        node.inputs.joint_states.on_joint_state(msg(t + k * 20 * MS, ARM, [0.1 * k, 0.2, 0.3]))
     counters = node.counters()
     assert counters["rejected_future_stamp"] == 1
     assert counters["accepted"] == 0 and counters["joint_missing"] == 5

@@ -347,11 +347,11 @@ def test_a_late_boundary_subscriber_gets_the_last_event_only(ctx, ckpt: Path) ->
     assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
     for _ in range(3):
         start = DiagnosticStatus(name="episode", message="start", values=[KeyValue(key="sketch", value="")])
-        node.inputs.on_episode(DiagnosticArray(status=[start]))
+        node.inputs.markers.on_episode(DiagnosticArray(status=[start]))
         for t in range(4):
             node.inputs.on_array(encode_float32_array(np.full(OBS_DIM, t, np.float32)))
         end = DiagnosticStatus(name="episode", message="end", values=[KeyValue(key="steps", value="3")])
-        node.inputs.on_episode(DiagnosticArray(status=[end]))
+        node.inputs.markers.on_episode(DiagnosticArray(status=[end]))
     assert node.counters()["boundaries"] >= 3
     h = Harness(ctx, node)  # subscribes ~/boundary TRANSIENT_LOCAL depth 1000 only now
     h.pump(lambda: len(h.boundaries) > 1, timeout=2.0)

@@ -109,12 +109,12 @@ def wrench(k: int, ms: int) -> bytes:
 
 def feed(node: OMPNNode, messages: list[tuple[str, bytes]], start_ms: int = 1000) -> None:
     """Deliver ``messages`` one millisecond apart (receive times ``start_ms``, ``start_ms + 1``, ...)."""
-    partners = {t: node.inputs.partner_callback(t) for t in (GRIP, WRENCH)}
+    partners = {t: node.inputs.spec.partner_callback(t) for t in (GRIP, WRENCH)}
     clock = node.get_clock()
     for i, (topic, raw) in enumerate(messages):
         clock.nanoseconds = (start_ms + i) * MS
         if topic == STEP:
-            node.inputs.on_spec_step(raw)
+            node.inputs.spec.on_step(raw)
         else:
             partners[topic](raw)
 
@@ -201,12 +201,12 @@ def test_wrong_type_is_one_line_and_a_counter(ctx, ckpt: Path) -> None:
     lines: list[str] = []
     node.get_logger().error = lines.append  # type: ignore[method-assign]
     for _ in range(200):
-        node.inputs.check_topic_types()
+        node.inputs.spec.check_topic_types()
         if lines:
             break
         time.sleep(0.02)
     assert len(lines) == 1 and "/arm9/wrench" in lines[0] and "PoseStamped" in lines[0], lines
-    node.inputs.check_topic_types()  # polled again: no new line, no new count
+    node.inputs.spec.check_topic_types()  # polled again: no new line, no new count
     feed(node, [(GRIP, gripper(0)), (WRENCH, wrench(0, 1000)), (STEP, joint_state(0, 1001))])
     counters = node.counters()
     assert len(lines) == 1 and counters["obs_type_reports"] == 1
@@ -221,7 +221,7 @@ def test_wrong_type_is_one_line_and_a_counter(ctx, ckpt: Path) -> None:
 def test_reset_forgets_partners_episode_markers_do_not(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
     feed(node, [(GRIP, gripper(0)), (WRENCH, wrench(0, 1000)), (STEP, joint_state(0, 1001))])
-    node.stream.start_marker("")  # an episode start marker keeps the partners
+    node.stream.markers.start_marker("")  # an episode start marker keeps the partners
     feed(node, [(STEP, joint_state(1, 0))], start_ms=1010)
     assert node.counters()["obs.kept"] == 2
     assert node._on_reset(Trigger.Request(), Trigger.Response()).success
@@ -230,7 +230,7 @@ def test_reset_forgets_partners_episode_markers_do_not(ctx, ckpt: Path) -> None:
     assert counters["obs.kept"] == 2 and counters["obs.dropped.missing"] == 1
     assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
     assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
-    node.inputs.on_spec_step(b"\x00\x01\x00\x00garbage")  # undecodable: counted, never fatal
+    node.inputs.spec.on_step(b"\x00\x01\x00\x00garbage")  # undecodable: counted, never fatal
     assert node.counters()["obs.dropped.malformed"] == 1
     node.destroy_node()
 
@@ -245,7 +245,7 @@ def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Pat
 
     node = active_node(ctx, ckpt, spec=SPEC_TEXT)
     seen: list[tuple[np.ndarray, int]] = []
-    node.inputs.process_observation = lambda data, stamp, now=None: seen.append((data, stamp))  # type: ignore
+    node.inputs.spec.step = lambda data, stamp, now=None: seen.append((data, stamp))  # type: ignore
     feed(node, [(GRIP, gripper(0)), (WRENCH, wrench(0, 1000)), (STEP, joint_state(1, 1002))])
     feed(node, [(WRENCH, wrench(1, 1001))], start_ms=1003)  # stamped before the step, delivered after
     assert seen == [] and node.assembled is not None and node.assembled.asm.held == 1
@@ -254,14 +254,14 @@ def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Pat
     assert stamp == 1002 * MS and obs[5] == 0.25 and obs[10] == -0.5  # wrench 1, not 0 or 2
     feed(node, [(STEP, joint_state(3, 1010))], start_ms=1010)  # no later wrench comes
     node.get_clock().nanoseconds = 1109 * MS
-    node.inputs.release_held(None)  # the timer's call: wait_s (0.1 s) not over yet
+    node.inputs.spec.release_held(None)  # the timer's call: wait_s (0.1 s) not over yet
     assert len(seen) == 1
     node.get_clock().nanoseconds = 1110 * MS
-    node.inputs.release_held(None)
+    node.inputs.spec.release_held(None)
     assert len(seen) == 2 and node.counters()["obs.late"] == 1
     feed(node, [(GRIP, gripper(4)), (WRENCH, wrench(4, 1199)), (STEP, joint_state(4, 1200))], start_ms=1198)
     end = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message="end")
-    node.inputs.on_episode(DiagnosticArray(status=[end]))
+    node.inputs.markers.on_episode(DiagnosticArray(status=[end]))
     feed(node, [(GRIP, gripper(5)), (WRENCH, wrench(5, 1299)), (STEP, joint_state(5, 1300))], start_ms=1298)
     assert node._on_reset(Trigger.Request(), Trigger.Response()).success
     assert [s // MS for _, s in seen] == [1002, 1010, 1200, 1300] and node.counters()["obs.late"] == 3

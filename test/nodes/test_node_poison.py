@@ -70,13 +70,13 @@ def run_episode(node: OMPNNode, sketch: list[int], obs: np.ndarray, stamps_ns: l
                 joint: bool = False) -> tuple[list[dict[str, str]], np.ndarray]:
     """Start marker, T + 1 observations (the last is the done step), end marker; the episode's outputs."""
     b0, p0 = len(node.outputs.pubs["boundary"].raws), len(node.outputs.pubs["pi"].raws)
-    node.inputs.on_episode(marker("start", sketch=",".join(map(str, sketch))))
+    node.inputs.markers.on_episode(marker("start", sketch=",".join(map(str, sketch))))
     for x, s in zip(obs, stamps_ns, strict=True):
         if joint:
-            node.inputs.on_joint_state(joint_state(*divmod(s, 1_000_000_000), x))
+            node.inputs.joint_states.on_joint_state(joint_state(*divmod(s, 1_000_000_000), x))
         else:
             node.inputs.on_raw_array(m.encode_float32_array(x), s)
-    node.inputs.on_episode(marker("end", steps=str(len(obs) - 1)))
+    node.inputs.markers.on_episode(marker("end", steps=str(len(obs) - 1)))
     pis = np.array([m.parse_float32_array(r) for r in node.outputs.pubs["pi"].raws[p0:]])
     return boundaries(node, b0), pis
 
@@ -112,9 +112,9 @@ def assert_matches_replay(node: OMPNNode, ckpt: Path, seed: int, joint: bool = F
 
 def test_huge_sketch_value_rejects_the_start_and_the_next_valid_episode_is_exact(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
-    node.inputs.on_episode(marker("start", sketch="99999999999999999999"))
+    node.inputs.markers.on_episode(marker("start", sketch="99999999999999999999"))
     node.inputs.on_raw_array(m.encode_float32_array(np.zeros(OBS_DIM)), 1)
-    node.inputs.on_episode(marker("end", steps="1"))
+    node.inputs.markers.on_episode(marker("end", steps="1"))
     counters = node.counters()
     assert counters["rejected_bad_sketch"] == 1 and counters["rejected_no_sketch"] == 1
     assert counters["accepted"] == 0 and counters["episodes"] == 0
@@ -125,15 +125,15 @@ def test_huge_sketch_value_rejects_the_start_and_the_next_valid_episode_is_exact
 def test_sketch_outside_the_vocabulary_is_not_run_on_the_previous_sketch(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
     assert_matches_replay(node, ckpt, seed=2)
-    node.inputs.on_episode(marker("start", sketch="7,9"))
+    node.inputs.markers.on_episode(marker("start", sketch="7,9"))
     for t in range(3):  # different observations (the same bytes 1 ns later would be one message sent twice)
         node.inputs.on_raw_array(m.encode_float32_array(np.full(OBS_DIM, t + 1.0)), t + 1)
-    node.inputs.on_episode(marker("end", steps="2"))
+    node.inputs.markers.on_episode(marker("end", steps="2"))
     counters = node.counters()
     assert counters["rejected_bad_sketch"] == 1 and counters["rejected_no_sketch"] == 3
     assert counters["rejected_episode_closed"] == 0 and counters["episodes"] == 1
     # a sketch message with bad ids is refused too; then the next valid episode is exact
-    node.inputs.on_sketch(Int32MultiArray(data=[0, 5]))
+    node.inputs.markers.on_sketch(Int32MultiArray(data=[0, 5]))
     assert node.counters()["rejected_bad_sketch"] == 2
     assert_matches_replay(node, ckpt, seed=3)
     assert node.counters()["episodes"] == 2
@@ -142,9 +142,9 @@ def test_sketch_outside_the_vocabulary_is_not_run_on_the_previous_sketch(ctx, ck
 
 def test_overflowing_joint_state_stamp_is_rejected_and_an_end_marker_is_harmless(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt, obs_source="joint_state")
-    node.inputs.on_episode(marker("start", sketch="1,2"))
-    node.inputs.on_joint_state(joint_state(2147483647, 4294967295, np.zeros(OBS_DIM)))
-    node.inputs.on_episode(marker("end", steps="1"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,2"))
+    node.inputs.joint_states.on_joint_state(joint_state(2147483647, 4294967295, np.zeros(OBS_DIM)))
+    node.inputs.markers.on_episode(marker("end", steps="1"))
     assert node.counters()["rejected_bad_stamp"] == 1
     assert_matches_replay(node, ckpt, seed=4, joint=True)
     node.destroy_node()
@@ -152,11 +152,12 @@ def test_overflowing_joint_state_stamp_is_rejected_and_an_end_marker_is_harmless
 
 def test_a_joint_value_beyond_float32_is_rejected_without_a_warning(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt, obs_source="joint_state")
-    node.inputs.on_episode(marker("start", sketch="1,2"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,2"))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no RuntimeWarning from the float64 -> float32 cast
-        node.inputs.on_joint_state(joint_state(NOW_S, 0, np.array([1e39] + [0.0] * (OBS_DIM - 1))))
-    node.inputs.on_episode(marker("end", steps="0"))
+        x = np.array([1e39] + [0.0] * (OBS_DIM - 1))
+        node.inputs.joint_states.on_joint_state(joint_state(NOW_S, 0, x))
+    node.inputs.markers.on_episode(marker("end", steps="0"))
     assert node.counters()["rejected_non_finite"] == 1 and node.counters()["accepted"] == 0
     assert_matches_replay(node, ckpt, seed=11, joint=True)
     node.destroy_node()
@@ -164,9 +165,9 @@ def test_a_joint_value_beyond_float32_is_rejected_without_a_warning(ctx, ckpt: P
 
 def test_a_boundary_at_the_last_representable_stamp_is_published(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt, obs_source="joint_state", max_stamp_lead=0.0)
-    node.inputs.on_episode(marker("start", sketch="1,2"))
-    node.inputs.on_joint_state(joint_state(2147483647, 999_999_999, np.zeros(OBS_DIM)))
-    node.inputs.on_episode(marker("end", steps="1"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,2"))
+    node.inputs.joint_states.on_joint_state(joint_state(2147483647, 999_999_999, np.zeros(OBS_DIM)))
+    node.inputs.markers.on_episode(marker("end", steps="1"))
     (event,) = boundaries(node)
     assert int(event["stamp_ns"]) == m.STAMP_NS_MAX == int(event["header_ns"]) and event["final"] == "true"
     node.destroy_node()
@@ -175,11 +176,11 @@ def test_a_boundary_at_the_last_representable_stamp_is_published(ctx, ckpt: Path
 @pytest.mark.parametrize("lead_check", [True, False])
 def test_a_far_future_stamp_never_wedges_the_node(ctx, ckpt: Path, lead_check: bool) -> None:
     node = active_node(ctx, ckpt, obs_source="joint_state", max_stamp_lead=60.0 if lead_check else 0.0)
-    node.inputs.on_episode(marker("start", sketch="1,2"))
-    node.inputs.on_joint_state(joint_state(2_000_000_000, 0, np.zeros(OBS_DIM)))  # 2033
+    node.inputs.markers.on_episode(marker("start", sketch="1,2"))
+    node.inputs.joint_states.on_joint_state(joint_state(2_000_000_000, 0, np.zeros(OBS_DIM)))  # 2033
     rng = np.random.default_rng(6)
     for t in range(20):
-        node.inputs.on_joint_state(joint_state(NOW_S, t * 1000, rng.normal(size=OBS_DIM)))
+        node.inputs.joint_states.on_joint_state(joint_state(NOW_S, t * 1000, rng.normal(size=OBS_DIM)))
     counters = node.counters()
     assert counters["accepted"] == (20 if lead_check else 21) and counters["rejected_out_of_order_stamp"] == 0
     assert counters["rejected_future_stamp"] == (1 if lead_check else 0)
@@ -191,7 +192,7 @@ def test_a_far_future_stamp_never_wedges_the_node(ctx, ckpt: Path, lead_check: b
 
 def test_a_clock_restart_starts_a_new_episode_segmented_like_a_fresh_replay(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
-    node.inputs.on_episode(marker("start", sketch="1,3,2"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,3,2"))
     rng = np.random.default_rng(8)
     for t in range(12):
         x = m.encode_float32_array(rng.normal(size=OBS_DIM))
@@ -201,7 +202,7 @@ def test_a_clock_restart_starts_a_new_episode_segmented_like_a_fresh_replay(ctx,
     b0, p0 = len(node.outputs.pubs["boundary"].raws), len(node.outputs.pubs["pi"].raws)
     for x, s in zip(obs, stamps, strict=True):
         node.inputs.on_raw_array(m.encode_float32_array(x), s)
-    node.inputs.on_episode(marker("end", steps="8"))
+    node.inputs.markers.on_episode(marker("end", steps="8"))
     assert node.counters()["clock_jumps"] == 1 and node.counters()["rejected"] == 0
     assert node.counters()["episodes"] == 2
     got = [b for b in boundaries(node, b0) if int(b["detected_at"]) < 12 or int(b["stamp_ns"]) < 10**11]
@@ -215,7 +216,7 @@ def test_a_clock_restart_starts_a_new_episode_segmented_like_a_fresh_replay(ctx,
 
 def test_reset_service_clears_the_last_stamp(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt, clock_jump_back=1e6)
-    node.inputs.on_episode(marker("start", sketch="1,2"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,2"))
     node.inputs.on_raw_array(m.encode_float32_array(np.zeros(OBS_DIM)), 10_000_000_000)
     node.inputs.on_raw_array(m.encode_float32_array(np.zeros(OBS_DIM)), 9_000_000_000)
     assert node.counters()["rejected_out_of_order_stamp"] == 1
@@ -230,12 +231,12 @@ def test_reset_service_clears_the_last_stamp(ctx, ckpt: Path) -> None:
 
 def test_zero_byte_observation_and_short_end_marker(ctx, ckpt: Path) -> None:
     node = active_node(ctx, ckpt)
-    node.inputs.on_episode(marker("start", sketch="1,2"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,2"))
     node.inputs.on_array(b"")
     assert node.counters()["rejected_malformed"] == 1
     for t in range(10):
         node.inputs.on_array(m.encode_float32_array(np.full(OBS_DIM, t / 10)))
-    node.inputs.on_episode(marker("end", steps="1"))  # says 1 step after 10
+    node.inputs.markers.on_episode(marker("end", steps="1"))  # says 1 step after 10
     final = boundaries(node)[-1]
     assert final["final"] == "true" and final["score"] != "nan" and int(final["stamp_ns"]) > 0
     assert node.counters()["bad_end_markers"] == 1 and node.counters()["accepted"] == 10
@@ -246,7 +247,7 @@ def test_live_detector_change_applies_from_the_next_step(ctx, ckpt: Path) -> Non
     node = active_node(ctx, ckpt, detector_high=0.45)
     rng = np.random.default_rng(9)
     obs = rng.normal(size=(30, OBS_DIM)).astype(np.float32) * 3
-    node.inputs.on_episode(marker("start", sketch="1,3,2"))
+    node.inputs.markers.on_episode(marker("start", sketch="1,3,2"))
     ref = StreamingSegmenter(stepper_from_checkpoint(ckpt), DetectorConfig(high=0.45, low=0.45))
     ref.reset(np.array([1, 3, 2]))
     want = []
@@ -273,11 +274,11 @@ def test_diagnostics_name_the_node_fully_and_count_episodes(ctx, ckpt: Path) -> 
     node.trigger_activate()
     node.outputs.pubs = {k: Recorder() for k in node.outputs.pubs}
     for _ in range(3):  # start marker + sketch message + 2 steps + end marker, three times
-        node.inputs.on_episode(marker("start", sketch="1,2"))
-        node.inputs.on_sketch(Int32MultiArray(data=[1, 2]))
+        node.inputs.markers.on_episode(marker("start", sketch="1,2"))
+        node.inputs.markers.on_sketch(Int32MultiArray(data=[1, 2]))
         for t in range(2):
             node.inputs.on_array(m.encode_float32_array(np.zeros(OBS_DIM) + t))
-        node.inputs.on_episode(marker("end", steps="1"))
+        node.inputs.markers.on_episode(marker("end", steps="1"))
     node.publish_diagnostics()
     status = m.deserialize(node.outputs.pubs["diagnostics"].raws[-1], layout.DIAGNOSTIC_ARRAY).status[0]
     assert status.name == "/robot_2/ompn_node: segmenter"
@@ -321,16 +322,16 @@ def test_property_any_marker_or_stamp_sequence_leaves_a_working_node(ctx, ckpt: 
             name, message, values = payload
             msg = marker(message, **values)
             msg.status[0].name = name
-            node.inputs.on_episode(msg)
+            node.inputs.markers.on_episode(msg)
         elif kind == "stamp":
-            node.inputs.on_joint_state(joint_state(*payload, np.ones(OBS_DIM)))
+            node.inputs.joint_states.on_joint_state(joint_state(*payload, np.ones(OBS_DIM)))
         elif kind == "joint":
             (sec, nanosec), names, position, velocity = payload
             msg = JointState(name=names, position=position, velocity=velocity)
             msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
-            node.inputs.on_joint_state(msg)
+            node.inputs.joint_states.on_joint_state(msg)
         elif kind == "sketch":
-            node.inputs.on_sketch(Int32MultiArray(data=payload))
+            node.inputs.markers.on_sketch(Int32MultiArray(data=payload))
         elif kind == "raw":
             node.inputs.on_raw_array(payload, 1)
         else:

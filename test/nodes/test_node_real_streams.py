@@ -32,7 +32,7 @@ def test_idle_rule_live_cuts_where_the_reader_cuts(ctx, ckpts: dict[int, Path], 
     node = active_node(ctx, ckpts[3], obs_source="joint_state", idle_s=0.5, idle_speed=0.01,
                        max_stamp_lead=0.0)
     for head, pos, vel in stream:
-        node.inputs.on_joint_state(msg(head, ARM, pos, vel))
+        node.inputs.joint_states.on_joint_state(msg(head, ARM, pos, vel))
     want, start = [], 0
     stamps = np.asarray([h for h, _, _ in stream])
     positions = stream_pos(stream)
@@ -76,7 +76,7 @@ def test_two_publishers_merge_live_like_the_reader(ctx, ckpts: dict[int, Path], 
     node = active_node(ctx, ckpts[4], obs_source="joint_state", joint_names=ARM + GRIPPER, joint_merge=0.05,
                        max_stamp_lead=0.0)
     for _, head, names, pos in arrivals:
-        node.inputs.on_joint_state(msg(head, names, pos))
+        node.inputs.joint_states.on_joint_state(msg(head, names, pos))
     counters = node.counters()
     assert counters["accepted"] == len(episode.observations) and counters["rejected"] == 0
     assert counters["joint_missing"] == offline.report.bags[0].missing["/joint_states[finger]"] == 11
@@ -93,7 +93,8 @@ def test_empty_velocity_is_one_line_live(ctx, ckpts: dict[int, Path]) -> None:  
                        max_stamp_lead=0.0)
     warnings: list[str] = []
     node.outputs.warn_throttled = lambda text, with_total=True: warnings.append(text)  # type: ignore[method-assign]
-    node.inputs.on_joint_state(msg(NOW_S * S, ARM[:1] + ARM[1:], [0.1, 0.2, 0.3]))  # positions only
+    # positions only
+    node.inputs.joint_states.on_joint_state(msg(NOW_S * S, ARM[:1] + ARM[1:], [0.1, 0.2, 0.3]))
     counters = node.counters()
     assert counters["accepted"] == 0 and counters["rejected_malformed"] == 1
     assert len(warnings) == 1 and "velocity is empty" in warnings[0] and "remove 'velocity'" in warnings[0]

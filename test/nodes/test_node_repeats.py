@@ -28,7 +28,7 @@ def _run(node: Any, source: str, obs: np.ndarray, repeat: bool) -> None:
             if source == "array":  # the copy: the same bytes, 2 µs later (source timestamp)
                 node.inputs.on_raw_array(m.encode_float32_array(x, "obs"), t + copy * 2000)
             else:  # the copy: the same header stamp and data
-                node.inputs.on_joint_state(msg(t, ARM, x))
+                node.inputs.joint_states.on_joint_state(msg(t, ARM, x))
 
 
 @pytest.mark.parametrize("source", ["array", "joint_state"])

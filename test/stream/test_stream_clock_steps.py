@@ -66,7 +66,7 @@ def live(ctx, ckpt: Path, raws: list[bytes], log: np.ndarray) -> tuple[list[tupl
     node.stream.clock = lambda: now[0]
     for raw, stamp in zip(raws, log.tolist(), strict=True):
         now[0] = stamp
-        node.inputs.on_joint_state(deserialize_message(raw, JointState))
+        node.inputs.joint_states.on_joint_state(deserialize_message(raw, JointState))
     out = []
     for raw in node.outputs.pubs["boundary"].raws:
         b = decode_subtask_boundary(raw)
@@ -232,10 +232,10 @@ def live_spec(ctx, ckpt: Path, spec: str,
                        episode_gap=0.5)
     clock = NodeClock()
     node.get_clock = lambda: clock  # type: ignore[method-assign]
-    partners = {t: node.inputs.partner_callback(t) for t in ("/wrench", "/gripper")}
+    partners = {t: node.inputs.spec.partner_callback(t) for t in ("/wrench", "/gripper")}
     for at, topic, raw in arrivals:
         clock.nanoseconds = at
-        node.inputs.on_spec_step(raw) if topic == "/joint_states" else partners[topic](raw)
+        node.inputs.spec.on_step(raw) if topic == "/joint_states" else partners[topic](raw)
     out = [(b.episode, b.step, b.subtask, b.final, b.stamp_ns, b.decided_stamp_ns, np.float32(b.score))
            for b in map(decode_subtask_boundary, node.outputs.pubs["boundary"].raws)]
     pis = np.array([m.parse_float32_array(raw) for raw in node.outputs.pubs["pi"].raws])
