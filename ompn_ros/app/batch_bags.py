@@ -129,9 +129,10 @@ def record_path(out: Path, key: str) -> Path:
 
 
 def write_record(out: Path, key: str, doc: dict[str, Any]) -> Path:
-    """Write ``doc`` as the record of ``key`` atomically (a killed writer leaves only a stale temporary)."""
+    """Write ``doc`` as the record of ``key`` atomically (a killed writer leaves only a stale temporary).
+    Not synced to disk: a record lost to a power failure is read as none, and its bag redone."""
     target = record_path(out, key)
-    atomic_write_text(target, json.dumps({"format": RECORD_FORMAT, **doc}))
+    atomic_write_text(target, json.dumps({"format": RECORD_FORMAT, **doc}), durable=False)
     return target
 
 

@@ -22,6 +22,7 @@ list of work items (bags today); a task's result comes back as it completes.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
 import signal
@@ -138,9 +139,24 @@ def _start_fork_server() -> None:
                 os.environ[name] = value
 
 
-def init_worker(parent: int, parent_main_thread: bool, via_server: bool = False) -> None:
+_TASK: Callable[[Any], dict[str, Any]] | None = None
+"""The task of this worker process, given once when it starts (:func:`init_worker`)."""
+
+
+def _run_task(item: Any) -> dict[str, Any]:
+    """What a worker runs for each item: only the item crosses the pipe, not the task's settings."""
+    if _TASK is None:
+        raise RuntimeError("a pool task ran in a process that init_worker did not start")
+    return _TASK(item)
+
+
+def init_worker(parent: int, parent_main_thread: bool, via_server: bool = False,
+                task: Callable[[Any], dict[str, Any]] | None = None) -> None:
     """First thing in every worker: die with the run (``parent``, whether it forked the worker or a fork
-    server did: ``via_server``), leave stopping to the run, one torch thread."""
+    server did: ``via_server``), leave stopping to the run, one torch thread, and keep ``task``, the
+    work of every item (sent once per worker, not with each item)."""
+    global _TASK
+    _TASK = task
     if via_server:  # the fork server outlives the run while its workers hold its pipe: watch the run
         die_with_parent(os.getppid(), True, ignore_stop_signals=True, run=parent)
     else:
@@ -173,15 +189,19 @@ class Pool(Generic[Item]):
         """Run ``queue`` on one pool until it is empty, a stop is requested or a worker dies."""
         context = pool_context(self.device)
         via_server = context.get_start_method() == "forkserver"
+        forked = context.get_start_method() == "fork"
+        if forked:  # the collector of a forked worker must not write into every inherited object,
+            gc.collect()  # which copies the parent's memory page by page (CPU in every worker)
+            gc.freeze()
         pool = ProcessPoolExecutor(max_workers=min(self.jobs, len(queue)), initializer=init_worker,
-                                   mp_context=context, initargs=(*started_here(), via_server))
+                                   mp_context=context, initargs=(*started_here(), via_server, self.task))
         running: dict[Future[dict[str, Any]], Item] = {}
         broken = False
         try:
             while queue or running:
                 while queue and len(running) < self.jobs and not (self.stop.requested or broken):
                     item = queue.popleft()
-                    running[pool.submit(self.task, item)] = item
+                    running[pool.submit(_run_task, item)] = item
                 if not running:
                     break
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -195,6 +215,9 @@ class Pool(Generic[Item]):
         except BaseException:
             _kill(pool)
             raise
+        finally:
+            if forked:
+                gc.unfreeze()
         pool.shutdown(wait=True)
 
 

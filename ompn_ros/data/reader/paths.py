@@ -154,13 +154,18 @@ def storage_files(bag: Path) -> list[Path]:
     return sorted(p for p in bag.iterdir() if p.suffix in STORAGE_SUFFIXES)
 
 
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def metadata_topic_types(bag: Path) -> dict[str, str] | None:
     """Topic -> type from the bag's metadata without reading messages (None if unreadable)."""
     meta = bag / "metadata.yaml" if bag.is_dir() else None
     if meta is None or not meta.is_file():
         return None
     try:
-        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        # libyaml's loader where PyYAML has it: parsed once per bag, the pure Python loader was a large
+        # share of a short bag's segmentation (docs/scale.md)
+        info = yaml.load(meta.read_text(encoding="utf-8"), Loader=_SAFE_LOADER)["rosbag2_bagfile_information"]
         return {t["topic_metadata"]["name"]: t["topic_metadata"]["type"]
                 for t in info["topics_with_message_count"]}
     except (OSError, yaml.YAMLError, KeyError, TypeError):

@@ -1,0 +1,85 @@
+"""The batch pool's costs per task (``app/batch_pool.py``): what crosses to a worker with each bag, what a
+forked worker copies, and records that are not synced bag by bag (``app/batch_bags.py``)."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from pool_tasks import CountedTask, died
+
+from ompn_ros import atomic
+from ompn_ros.app import batch_bags
+
+SUPPORT = Path(__file__).resolve().parents[1]
+ROOT = SUPPORT.parent
+
+
+def test_the_task_goes_to_each_worker_once_not_with_every_item(monkeypatch: pytest.MonkeyPatch) -> None:
+    # spawned workers: the task and its settings (a boundary head is ~100 KB) are pickled here, in the
+    # run's process, once per worker; before, once per bag
+    from ompn_ros.app import batch_pool  # torch: imported by the test, not at collection
+    from ompn_ros.app.batch_pool import Pool, Stop
+
+    monkeypatch.setattr(batch_pool, "pool_context", lambda device: multiprocessing.get_context("spawn"))
+    CountedTask.pickled = 0
+    out = list(Pool(CountedTask(), died, 2, "cpu", Stop()).run(list(range(8))))
+    assert sorted(doc["item"] for doc in out) == list(range(8))
+    assert all("died" not in doc for doc in out)
+    assert {doc["pid"] for doc in out} - {os.getpid()}, "the items ran in workers"
+    assert 1 <= CountedTask.pickled <= 2, f"pickled {CountedTask.pickled} times for 2 workers and 8 items"
+
+
+FORKED = """
+import gc, json
+from ompn_ros.app.batch_pool import Pool, Stop, pool_context
+from pool_tasks import CountedTask, died
+method = pool_context("cpu").get_start_method()
+out = list(Pool(CountedTask(), died, 2, "cpu", Stop()).run(list(range(6))))
+print(json.dumps({"method": method, "frozen": [d["frozen"] for d in out],
+                  "items": sorted(d["item"] for d in out), "parent_frozen_after": gc.get_freeze_count(),
+                  "pickled": CountedTask.pickled}))
+"""
+
+
+def test_forked_workers_inherit_a_frozen_heap_and_the_run_unfreezes_it() -> None:
+    # a single-threaded run forks its workers; the collector of a worker then leaves the inherited
+    # objects alone (no copy of the parent's pages), and the run's own process is unfrozen afterwards
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+           "NUMBA_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(ROOT), str(SUPPORT), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-c", FORKED], env=env, capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    doc = json.loads(done.stdout.strip().splitlines()[-1])
+    assert doc["method"] == "fork"
+    assert doc["items"] == list(range(6))
+    assert min(doc["frozen"]) > 1000, doc["frozen"]
+    assert doc["parent_frozen_after"] == 0
+    assert doc["pickled"] == 0, "a forked worker inherits its task: nothing is pickled"
+
+
+def test_records_are_atomic_but_not_synced_bag_by_bag(monkeypatch: pytest.MonkeyPatch,
+                                                       tmp_path: Path) -> None:
+    synced: list[int] = []
+    real = os.fsync
+    monkeypatch.setattr(atomic.os, "fsync", lambda fd: (synced.append(fd), real(fd))[1])
+    target = batch_bags.write_record(tmp_path, "lab/bag_0", {"status": "segmented"})
+    assert json.loads(target.read_text())["status"] == "segmented"
+    assert synced == []
+    assert not [p for p in target.parent.iterdir() if p.name.startswith(".")], "no temporary left"
+    atomic.atomic_write_text(tmp_path / "summary.json", "{}")
+    assert len(synced) == 1, "other outputs stay synced"
+
+
+def test_a_record_lost_to_a_power_failure_is_read_as_none(tmp_path: Path) -> None:
+    # what an unsynced rename can leave after a crash of the machine: an empty or truncated file
+    target = batch_bags.write_record(tmp_path, "bag_0", {"status": "segmented"})
+    for broken in ("", target.read_text()[:7]):
+        target.write_text(broken)
+        assert batch_bags.read_record(tmp_path, "bag_0") is None
