@@ -32,6 +32,7 @@ setup(
         "llvmlite>=0.43",  # imported directly by the numba step
         "safetensors>=0.4",
         "rosbags>=0.11.9,<0.12",
+        "ruamel.yaml.clib>=0.2.7",  # the C parser for rosbags' metadata.yaml reading (else pure Python)
         "mcap>=1.2",  # damaged-bag salvage in the bag reader
         "gymnasium>=1.0",
         "mujoco>=3.2",

@@ -46,6 +46,7 @@ PYTHON: dict[str, tuple[str | None, str]] = {
     "dm_control": (None, "dm_control"),
     "gymnasium": (None, "gymnasium"),
     "tensorboard": (None, "tensorboard"),
+    "_ruamel_yaml": (None, "ruamel.yaml.clib"),
 }
 # Imported only inside ``try: ... except ImportError``: a feature that is there when the user has the
 # package, never a dependency.
@@ -59,6 +60,7 @@ USED_WITHOUT_IMPORT = {
     "dm_control": "importlib.resources.files('dm_control'): the JACO model files of the Dial scene",
     "tensorboard": "torch.utils.tensorboard, when train.tensorboard is true",
     "PIL": "matplotlib's image writer (PNG figures)",
+    "_ruamel_yaml": "the C parser rosbags' reader uses for a bag's metadata.yaml when it is installed",
 }
 DEV_TOOLS = ("pytest", "pytest-timeout", "hypothesis", "mcap-ros2-support", "ruff", "mypy",
              "colcon-common-extensions", "lerobot-dataset")
