@@ -396,9 +396,7 @@ KNOWN_LARGE_CLASSES = {
     "ompn_ros/data/reader/spec.py::ReaderSpec": "not split yet",
     "ompn_ros/nodes/bag_recorder.py::BagRecorder": "not split yet",
 }
-KNOWN_LONG_FUNCTIONS = {
-    "lab/own_data.py::_arms": "not split yet (a lab study)",
-}
+KNOWN_LONG_FUNCTIONS: dict[str, str] = {}
 KNOWN_PRIVATE_READS: dict[str, str] = {}
 LIBRARY_PRIVATE_STATE = {
     "ompn_ros.cli._common: parser._actions": "argparse has no public list of a parser's options",
