@@ -393,7 +393,6 @@ COMPILED_KERNELS = ("ompn_ros/model/_jit_stream.py", "ompn_ros/model/fused.py")
 KNOWN_LARGE_CLASSES = {
     "ompn_ros/data/obs/assembler.py::ObservationAssembler": "not split yet",
     "ompn_ros/data/reader/context.py::BagContext": "not split yet",
-    "ompn_ros/data/reader/spec.py::ReaderSpec": "not split yet",
     "ompn_ros/nodes/bag_recorder.py::BagRecorder": "not split yet",
 }
 KNOWN_LONG_FUNCTIONS: dict[str, str] = {}
