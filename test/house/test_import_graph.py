@@ -392,7 +392,6 @@ COMPILED_KERNELS = ("ompn_ros/model/_jit_stream.py", "ompn_ros/model/fused.py")
 # offends fails too, so the list stays the truth), and anything NOT listed fails at once.
 KNOWN_LARGE_CLASSES = {
     "ompn_ros/data/obs/assembler.py::ObservationAssembler": "not split yet",
-    "ompn_ros/data/reader/context.py::BagContext": "not split yet",
     "ompn_ros/nodes/bag_recorder.py::BagRecorder": "not split yet",
 }
 KNOWN_LONG_FUNCTIONS: dict[str, str] = {}
