@@ -117,8 +117,9 @@ STILL_TOLERANCE = IDLE_TOLERANCE
 sensor noise stays far below 0.2 (the tolerance of the §54 measurement, not tuned on any score)."""
 
 
-def _arms() -> dict[str, Arm]:
-    arms = [
+def _label_arms() -> list[Arm]:
+    """The labels study: labels hidden from training and calibration."""
+    return [
         Arm("labels_craft_full", "labels", "craft", labels="none"),
         Arm("labels_craft_partial", "labels", "craft", partial=True, labels="none"),
         Arm("labels_dial", "labels", "dial", labels="none"),
@@ -126,6 +127,12 @@ def _arms() -> dict[str, Arm]:
         Arm("labels_craft_full_seed1", "labels", "craft", labels="none", seed=1),
         Arm("labels_dial_seed1", "labels", "dial", labels="none", seed=1),
     ]
+
+
+def _length_and_final_arms() -> list[Arm]:
+    """Per domain, seed 0: early stopping against the fixed length, and each final-observation
+    handling against complete bags."""
+    arms: list[Arm] = []
     for domain in ("craft", "dial"):
         tag = "craft_full" if domain == "craft" else "dial"
         arms += [
@@ -142,6 +149,12 @@ def _arms() -> dict[str, Arm]:
             Arm(f"final_{tag}_duplicate", "final_observation", domain, length="fixed", bags="duplicate"),
             Arm(f"final_{tag}_blank", "final_observation", domain, length="fixed", bags="blank"),
         ]
+    return arms
+
+
+def _final_seed_arms() -> list[Arm]:
+    """The seeded arms of the final-observation study."""
+    arms: list[Arm] = []
     # Seeded pairs of the final-observation study (docs/experiments.md §42): Craft's blank and Dial's
     # extrapolated row T against complete bags (seed 0's Craft pair is defined above); Craft seeds
     # 10-19 and Dial seeds 5-9 are §43's held-out seeds
@@ -168,7 +181,13 @@ def _arms() -> dict[str, Arm]:
     for seed in range(10, 15):
         arms.append(Arm(f"final_craft_partial_complete_seed{seed}", "final_observation", "craft",
                         partial=True, length="fixed", seed=seed))
-    # Human-like demonstrations (a family kept out of every tuning), the held-out seeds of §43
+    return arms
+
+
+def _human_craft_arms() -> list[Arm]:
+    """Human-like Craft demonstrations (a family kept out of every tuning), the held-out seeds of §43:
+    complete bags, Craft's blank row T (best of 2), and the restart rule off."""
+    arms: list[Arm] = []
     for seed in range(10, 15):
         arms += [
             Arm(f"human_craft_full_complete_seed{seed}", "demonstrator", "craft", length="fixed",
@@ -190,6 +209,13 @@ def _arms() -> dict[str, Arm]:
     for seed in (11, 12):  # the complete arms whose first initialisation the restart rule abandoned
         arms.append(Arm(f"human_craft_full_complete_norestart_seed{seed}", "demonstrator", "craft",
                         length="fixed", seed=seed, demonstrator="human", restart=False))
+    return arms
+
+
+def _human_craft_variant_arms() -> list[Arm]:
+    """The human-like Craft demonstrator without one perturbation, without idle steps, and with the
+    still rule (§54, §55, §57)."""
+    arms: list[Arm] = []
     # the human-like demonstrator without one perturbation: which one costs the training (§54)
     for seed in range(10, 15):
         for variant in ("nopauses", "nodetours"):
@@ -208,6 +234,13 @@ def _arms() -> dict[str, Arm]:
                 arms.append(Arm(f"human_craft_{obs}_{tag}_seed{seed}", "demonstrator", "craft",
                                 partial=partial, length="fixed", seed=seed,
                                 demonstrator=demonstrator, still="auto"))  # type: ignore[arg-type]
+    return arms
+
+
+def _human_dial_arms() -> list[Arm]:
+    """Human-like Dial demonstrations, seeds 5-9: complete bags, the still rule on pauses at subtask
+    changes, and the row T guesses."""
+    arms: list[Arm] = []
     for seed in range(5, 10):
         arms += [
             Arm(f"human_dial_boundaries_auto_seed{seed}", "demonstrator", "dial", length="fixed", seed=seed,
@@ -220,7 +253,14 @@ def _arms() -> dict[str, Arm]:
             Arm(f"human_dial_duplicate_seed{seed}", "demonstrator", "dial", length="fixed",
                 bags="duplicate", seed=seed, demonstrator="human"),
         ]
-    return {a.name: a for a in arms}
+    return arms
+
+
+def _arms() -> dict[str, Arm]:
+    """Every arm of the studies by name, in the order the steps above define them."""
+    steps = (_label_arms, _length_and_final_arms, _final_seed_arms, _human_craft_arms,
+             _human_craft_variant_arms, _human_dial_arms)
+    return {a.name: a for step in steps for a in step()}
 
 
 ARMS = _arms()

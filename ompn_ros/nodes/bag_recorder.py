@@ -61,10 +61,8 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import importlib
-import sqlite3
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -76,12 +74,10 @@ from rclpy.utilities import remove_ros_args
 
 from ompn_ros import layout
 from ompn_ros.data import messages as m
-from ompn_ros.data.recorder.bag_writer import STORAGES, storage_plugin
-from ompn_ros.data.recorder.disk_guard import DiskGuard
+from ompn_ros.data.recorder.bag_writer import STORAGES
+from ompn_ros.data.recorder.recording import RecordedTopic, Recording
 from ompn_ros.data.recorder.sim_stamps import SimStamper
-from ompn_ros.data.recorder.step_commits import COMMIT, StepCommits
-from ompn_ros.data.recorder.stop_cut import StopCut
-from ompn_ros.data.recorder.storage import DurableWriter, offered_qos
+from ompn_ros.data.recorder.storage import offered_qos
 from ompn_ros.errors import OMPNError
 from ompn_ros.ros.params import ParamSpec, ParamTable
 from ompn_ros.ros.run import NodeProcess, run_node
@@ -116,10 +112,6 @@ PARAMS: tuple[ParamSpec, ...] = (
 ABOUT = ("Record the sim topics to a rosbag2 (v9) without decoding; SIGINT/SIGTERM drain and close the bag.\n"
          "TOPIC ... sets 'topics', -o/--output sets 'output', -s/--storage sets 'storage'; use_sim_time "
          "(default False) stamps in sim time (/clock), keeping the publish order.")
-RESERVE_BYTES = 2 * 1024 * 1024  # kept free beside the bag so that a full disk still lets it close
-
-
-STREAM_PERIOD_S = 0.5  # a topic publishing at least every 0.5 s is a stream the drain waits for
 PRECLOCK_LIMIT = 20_000  # under use_sim_time, messages held until the first /clock (then system time)
 
 
@@ -133,51 +125,15 @@ def message_class(typename: str) -> Any:
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
 
-@dataclass
-class TopicStats:
-    """Per-topic recording statistics."""
-
-    msgtype: str
-    count: int = 0  # messages written
-    received: int = 0  # messages taken from DDS
-    last_seq: int | None = None
-    lost: int = 0  # messages missing according to publication sequence numbers
-    last_stamp: int | None = None
-    time_gaps: list[float] = field(default_factory=list)
-    receive_stamps: int = 0  # messages written at receive time (no source timestamp)
-    last_src: int | None = None  # source stamp of the last message taken
-    period_ns: float | None = None  # running mean of the source-stamp spacing
-
-    def taken(self, src: int) -> None:
-        """Track the spacing of the messages taken (for :meth:`streaming`)."""
-        if self.last_src is not None and src > self.last_src:
-            gap = float(src - self.last_src)
-            self.period_ns = gap if self.period_ns is None else 0.9 * self.period_ns + 0.1 * gap
-        self.last_src = src if self.last_src is None else max(self.last_src, src)
-
-    def streaming(self, at_ns: int) -> bool:
-        """A message at least every ``STREAM_PERIOD_S`` and one in the last second before ``at_ns``."""
-        return (self.period_ns is not None and self.period_ns < STREAM_PERIOD_S * 1e9
-                and self.last_src is not None and at_ns - self.last_src < 1e9)
-
-
-@dataclass
-class _Topic:
-    name: str
-    conn: Any
-    stats: TopicStats
-    sub: Any = None
-
-
 class BagRecorder(Node):
-    """Raw recorder of the sim topics (see the module docstring)."""
+    """Raw recorder of the sim topics (see the module docstring): the subscriptions, the stamps and
+    the drain; the bag itself is its :class:`~ompn_ros.data.recorder.recording.Recording`."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = ParamTable(PARAMS).declare(self)
         storage = p["storage"]
         self.qos_depth = int(p["qos_depth"])
-        self.gap_ns = int(float(p["gap_seconds"]) * 1e9)
         self.drain_timeout = float(p["drain_timeout"])
         self.drain_idle = float(p["drain_idle"])
         output = p["output"] or f"bags/rec_{dt.datetime.now(dt.UTC).strftime('%Y%m%d_%H%M%S')}"
@@ -187,27 +143,16 @@ class BagRecorder(Node):
         self.output.parent.mkdir(parents=True, exist_ok=True)
         self.wanted = {self.resolve_topic_name(t) for t in p["topics"]}
         step = _step_topic(self.resolve_topic_name(p["step_topic"]), self.wanted) if p["step_topic"] else None
-        self.cut: StopCut[tuple[_Topic, int, bytes]] = StopCut(step)
         use_sim_time = bool(self.get_parameter("use_sim_time").value)
         self.sim_stamps = SimStamper() if use_sim_time else None
-        self._preclock: list[tuple[_Topic, int, bytes]] = []
-        self.write_errors = 0
+        self._preclock: list[tuple[RecordedTopic, int, bytes]] = []
         self.drain_seconds = 0.0
         self.drain_end = ""
         self.received_before_signal = 0
-        self.commits: StepCommits[tuple[_Topic, int, bytes]] = StepCommits(step, float(p["commit_period"]))
-        self.failed = ""  # the storage error that stopped the recording
-        self.disk = DiskGuard(self.output, round(float(p["min_free_mb"]) * 1e6), RESERVE_BYTES)
-        self.disk.start()  # NotEnoughSpace (an OSError: exit 2) before anything is created
-        self._space_checked = time.monotonic()
-        self.writer: DurableWriter | None = DurableWriter(
-            self.output, version=9, storage_plugin=storage_plugin(storage), commit_period=None)
-        try:
-            self.writer.open()
-        except BaseException:
-            self.disk.release()
-            raise
-        self.topics: dict[str, _Topic] = {}
+        self.recording = Recording(self.output, storage, step, float(p["commit_period"]),
+                                   round(float(p["min_free_mb"]) * 1e6), int(float(p["gap_seconds"]) * 1e9),
+                                   self.get_logger())
+        self.subscriptions_by_topic: dict[str, Any] = {}
         self.qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
             history=HistoryPolicy.KEEP_ALL if self.qos_depth == 0 else HistoryPolicy.KEEP_LAST,
@@ -218,15 +163,17 @@ class BagRecorder(Node):
         self.create_timer(float(p["discovery_period"]), self._discover, clock=steady)
 
     @property
-    def stats(self) -> dict[str, TopicStats]:
-        return {name: t.stats for name, t in self.topics.items()}
+    def failed(self) -> str:
+        """The storage error that stopped the recording ('' = none)."""
+        return self.recording.failed
 
     # --- discovery and intake ---------------------------------------------------------------------
     def _discover(self) -> None:
-        if self.writer is None or self.cut.stopping:
+        rec = self.recording
+        if rec.writer is None or rec.cut.stopping:
             return
         for name, types in self.get_topic_names_and_types():
-            if name not in self.wanted or name in self.topics:
+            if name not in self.wanted or name in rec.topics:
                 continue
             if len(types) != 1:
                 self.get_logger().warning(f"topic {name} has several types {types}; not recorded")
@@ -238,11 +185,9 @@ class BagRecorder(Node):
                 self.get_logger().warning(f"topic {name}: type {msgtype} unknown to the Jazzy typestore")
                 continue
             offered = offered_qos(i.qos_profile for i in self.get_publishers_info_by_topic(name))
-            conn = self.writer.add_connection(name, msgtype, typestore=m.typestore(),
-                                              offered_qos_profiles=offered)
-            topic = self.topics[name] = _Topic(name, conn, TopicStats(msgtype))
-            topic.sub = self.create_subscription(message_class(msgtype), name,
-                                                 self._callback(topic), self._qos_for(name), raw=True)
+            topic = rec.add_topic(name, msgtype, offered)
+            self.subscriptions_by_topic[name] = self.create_subscription(
+                message_class(msgtype), name, self._callback(topic), self._qos_for(name), raw=True)
             self.get_logger().info(f"subscribed {name} [{msgtype}]")
 
     def _qos_for(self, name: str) -> QoSProfile:
@@ -255,7 +200,7 @@ class BagRecorder(Node):
                               history=self.qos.history, depth=self.qos.depth)
         return self.qos
 
-    def _callback(self, topic: _Topic) -> Any:
+    def _callback(self, topic: RecordedTopic) -> Any:
         def on_message(raw: bytes, info: dict[str, Any]) -> None:
             self._on_message(topic, raw, info)
 
@@ -264,9 +209,9 @@ class BagRecorder(Node):
     def pump(self, limit: int = 5000) -> int:
         """Take up to ``limit`` queued messages straight from the subscriptions, handle them in
         source-stamp order (publish order across topics); returns how many."""
-        batch: list[tuple[int, int, _Topic, bytes, dict[str, Any]]] = []
-        for topic in list(self.topics.values()):
-            sub = topic.sub
+        batch: list[tuple[int, int, RecordedTopic, bytes, dict[str, Any]]] = []
+        for name, sub in list(self.subscriptions_by_topic.items()):
+            topic = self.recording.topics[name]
             while len(batch) < limit:
                 with sub.handle:
                     got = sub.handle.take_message(sub.msg_type, True)
@@ -279,14 +224,15 @@ class BagRecorder(Node):
             self._on_message(topic, raw, info)
         return len(batch)
 
-    def _on_message(self, topic: _Topic, raw: bytes, info: dict[str, Any]) -> None:
+    def _on_message(self, topic: RecordedTopic, raw: bytes, info: dict[str, Any]) -> None:
         stats = topic.stats
         stats.received += 1
         src = info.get("source_timestamp") or 0
         if not src:
             src = info.get("received_timestamp") or time.time_ns()
             stats.receive_stamps += 1
-        if self.cut.signal_ns is None or src < self.cut.signal_ns:
+        signal_ns = self.recording.cut.signal_ns
+        if signal_ns is None or src < signal_ns:
             self.received_before_signal += 1
         stats.taken(src)
         seq = info.get("publication_sequence_number")
@@ -303,49 +249,15 @@ class BagRecorder(Node):
             self._flush_preclock()
         self._offer(topic, src, raw)
 
-    def _offer(self, topic: _Topic, src: int, raw: bytes) -> None:
+    def _offer(self, topic: RecordedTopic, src: int, raw: bytes) -> None:
         stamp = src
         sim = self.sim_stamps
         if sim is not None and sim.started:
-            if topic.name == self.cut.step_topic or self.cut.step_topic is None:
+            step_topic = self.recording.cut.step_topic
+            if topic.name == step_topic or step_topic is None:
                 sim.open_step(src, self.get_clock().now().nanoseconds)
             stamp = sim.stamp(src)
-        for item in self.cut.offer(topic.name, src, (topic, stamp, raw)):
-            self._apply(self.commits.offer(topic.name, stamp, item, self._since_commit()))
-
-    def _since_commit(self) -> float:
-        return self.writer.since_checkpoint() if self.writer is not None else 0.0
-
-    def _apply(self, actions: list[tuple[_Topic, int, bytes] | Any]) -> None:
-        """Write the messages and make the commits :class:`StepCommits` decided, in order."""
-        for action in actions:
-            if action is COMMIT:
-                self._checkpoint()
-            else:
-                self._write(*action)
-
-    def _checkpoint(self) -> None:
-        if self.writer is not None and not self.failed:
-            try:
-                self.writer.checkpoint()
-            except (OSError, sqlite3.Error) as err:
-                self._storage_failed(err)
-
-    def _storage_failed(self, err: Exception) -> None:
-        """The first failed write or commit stops the recording: one line, the reserve released for
-        the close (the main loop then closes the bag and exits 2)."""
-        if self.failed:
-            return
-        self.disk.release()
-        self.failed = (f"stopped recording: cannot write to '{self.output}': {err} "
-                       f"({self.disk.free_text()}); closing the bag with what was written")
-        self.get_logger().error(self.failed)
-
-    def _finish_held(self) -> None:
-        """Write what the stop cut and the pending commit hold back (the recording ends)."""
-        for item in self.cut.finish():
-            self._apply(self.commits.offer(item[0].name, item[1], item, self._since_commit()))
-        self._apply(self.commits.flush())
+        self.recording.offer(topic, src, stamp, raw)
 
     def _flush_preclock(self) -> None:
         """Messages taken before the first ``/clock``: sim stamps if it came, else system time."""
@@ -356,81 +268,50 @@ class BagRecorder(Node):
         for topic, src, raw in pending:
             self._offer(topic, src, raw)
 
-    def _write(self, topic: _Topic, stamp: int, raw: bytes) -> None:
-        writer = self.writer
-        if writer is None:
-            return
-        if self.failed:
-            self.write_errors += 1
-            return
-        try:
-            writer.write(topic.conn, stamp, raw)
-        except (OSError, sqlite3.Error) as err:  # disk full, ...: the recording stops, the bag is closed
-            self.write_errors += 1
-            self._storage_failed(err)
-            return
-        stats = topic.stats
-        stats.count += 1
-        if stats.last_stamp is not None and stamp - stats.last_stamp > self.gap_ns:
-            stats.time_gaps.append((stamp - stats.last_stamp) / 1e9)
-        stats.last_stamp = stamp
-
     def work(self) -> int | None:
         """After every wait: take what is queued, make the commits that are due; exit code 2 once the
         storage failed (the bag is then closed), else ``None``."""
         self.pump()
-        self.tick()
+        self.recording.tick()
         return 2 if self.failed else None
-
-    def tick(self) -> None:
-        """Periodic: a pending commit a whole period old is made anyway; with none pending and a
-        period over (no step opened in half of one), the storage is committed."""
-        writer = self.writer
-        if writer is not None and not self.failed:
-            self._apply(self.commits.due(writer.since_checkpoint()))
-            if self.commits.idle_commit(writer.since_checkpoint()):
-                self._checkpoint()
-        now = time.monotonic()
-        if now - self._space_checked >= 1.0:  # one statvfs a second
-            self._space_checked = now
-            low = self.disk.low()
-            if low is not None:
-                self.get_logger().warning(low)
 
     # --- stop ---------------------------------------------------------------------------------------
     def drain(self, process: NodeProcess) -> None:
         """Take what DDS delivers until the streams reached the cut, or idle/timeout (module docstring)."""
         stop = process.stop
         assert stop.signal_ns is not None
-        self.cut.request(stop.signal_ns)
-        streams = {t.name: t for t in self.topics.values() if t.stats.streaming(stop.signal_ns)}
+        topics = self.recording.topics
+        self.recording.cut.request(stop.signal_ns)
+        streams = {t.name: t for t in topics.values() if t.stats.streaming(stop.signal_ns)}
         start = last = time.monotonic()
         while True:
-            before = sum(t.stats.count for t in self.topics.values())
+            before = sum(t.stats.count for t in topics.values())
             process.spin_once(0.01)
             self.pump()
             now = time.monotonic()
-            if sum(t.stats.count for t in self.topics.values()) != before:
+            if sum(t.stats.count for t in topics.values()) != before:
                 last = now
             end = self._drain_over(streams, now - last, now - start, stop.signals)
             if end:
                 self.drain_end = end
                 break
         self._flush_preclock()
-        self._finish_held()
+        self.recording.finish()
         self.drain_seconds = time.monotonic() - start
 
-    def _drain_over(self, streams: dict[str, _Topic], idle: float, elapsed: float, signals: int) -> str:
+    def _drain_over(self, streams: dict[str, RecordedTopic], idle: float, elapsed: float,
+                    signals: int) -> str:
         """Why the drain ends now ('' = go on).
 
         Every topic that was streaming at the signal must deliver a message from the cut on (DDS
         delivers each writer's messages in order, so all before the cut are in); a stalled stream is
         waited for (a repaired DDS loss can take seconds) unless its publishers are gone.
         """
-        if self.cut.cut_ns is not None and self.cut.passed >= set(streams):
+        cut, subs = self.recording.cut, self.subscriptions_by_topic
+        if cut.cut_ns is not None and cut.passed >= set(streams):
             return "every streaming topic reached the cut"
-        if idle >= self.drain_idle and all(t.sub.get_publisher_count() == 0 for t in streams.values()
-                                           if t.name not in self.cut.passed):
+        if idle >= self.drain_idle and all(subs[name].get_publisher_count() == 0 for name in streams
+                                           if name not in cut.passed):
             return f"nothing to write for {self.drain_idle:g} s and no stream left"
         if elapsed >= self.drain_timeout:
             return f"drain_timeout ({self.drain_timeout:g} s) reached"
@@ -438,44 +319,27 @@ class BagRecorder(Node):
 
     def close(self) -> str:
         """Close the bag; returns the summary text."""
-        if self.writer is not None:
-            if not self.failed:
-                self._flush_preclock()
-                self._finish_held()
-            try:
-                self.writer.close()
-            except (OSError, sqlite3.Error) as err:  # even the reserve did not suffice
-                self.failed = self.failed or f"cannot write to '{self.output}': {err}"
-                self.get_logger().error(f"the bag could not be closed ({err}): read it with --on-error "
-                                        "skip_tail (ompn_train: --set data.on_error=skip_tail)")
-            self.writer = None
-        self.disk.release()
+        rec = self.recording
+        if rec.writer is not None and not rec.failed:
+            self._flush_preclock()
+            rec.finish()
+        rec.close()
         return self.summary()
 
     def summary(self) -> str:
-        written = sum(s.count for s in self.stats.values())
-        lines = [f"{NODE_NAME}: wrote {written} messages to {self.output}"]
-        for name in sorted(self.topics):
-            s = self.topics[name].stats
-            line = f"  {name} [{s.msgtype}]: {s.count} messages"
-            if s.lost:
-                line += f", {s.lost} lost (sequence jumps)"
-            if s.time_gaps:
-                line += (f", {len(s.time_gaps)} time gap(s) > {self.gap_ns / 1e9:g} s "
-                         f"(max {max(s.time_gaps):.2f} s)")
-            if s.receive_stamps:
-                line += f", {s.receive_stamps} stamped at receive time"
-            lines.append(line)
-        missing = sorted(self.wanted - set(self.topics))
+        rec = self.recording
+        written = sum(t.stats.count for t in rec.topics.values())
+        lines = [f"{NODE_NAME}: wrote {written} messages to {self.output}", *rec.topic_lines()]
+        missing = sorted(self.wanted - set(rec.topics))
         if missing:
             lines.append(f"  never seen: {missing}")
-        if self.cut.stopping:
-            received = sum(s.received for s in self.stats.values())
+        if rec.cut.stopping:
+            received = sum(t.stats.received for t in rec.topics.values())
             lines.append(f"  stop: received {received} messages ({self.received_before_signal} published "
                          f"before the signal), drained {self.drain_seconds:.2f} s ({self.drain_end}), "
-                         f"{self.cut.dropped} after the cut not recorded")
-        if self.write_errors:
-            lines.append(f"  {self.write_errors} messages could not be written")
+                         f"{rec.cut.dropped} after the cut not recorded")
+        if rec.write_errors:
+            lines.append(f"  {rec.write_errors} messages could not be written")
         return "\n".join(lines)
 
 

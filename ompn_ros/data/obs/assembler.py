@@ -50,6 +50,7 @@ from __future__ import annotations
 
 from bisect import bisect_right, insort
 from collections import deque
+from collections.abc import Container
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -184,6 +185,101 @@ class _OnTimeReception:
         self._queue.clear()
 
 
+class _Partners:
+    """The partner topics' messages, a sorted :class:`_History` each, and for the partners a held
+    step waits for (``waited``) the latest stamp each has offered."""
+
+    __slots__ = ("by_header", "history", "tol_ns", "tolerance_s", "waited")
+
+    def __init__(self, spec: ObservationSpec, by_header: frozenset[str], history: int) -> None:
+        self.history = {t: _History(history) for t in spec.partner_topics}
+        self.by_header = by_header  # the partners stamped by their headers (compared with the step's stamp)
+        waited = [t for t in spec.partner_topics if t in by_header]
+        self.waited: dict[str, int | None] = dict.fromkeys(waited if spec.wait_s > 0 else ())
+        self.tolerance_s = spec.tolerance_s
+        self.tol_ns = round(spec.tolerance_s * 1e9)
+
+    def add(self, topic: str, hist: _History, stamp: int, entry: list[np.ndarray] | Drop) -> None:
+        hist.add(stamp, entry)
+        if topic in self.waited:
+            last = self.waited[topic]
+            self.waited[topic] = stamp if last is None or stamp > last else last
+
+    def settled(self, stamp: int, wrong_type: Container[str]) -> bool:
+        """Every waited-for partner (but those of the wrong type) has offered a message stamped at or
+        after ``stamp``."""
+        for topic, last in self.waited.items():
+            if (last is None or last < stamp) and topic not in wrong_type:
+                return False
+        return True
+
+    def latest(self, topic: str, stamp: int, receive: int, on_time: int) -> list[np.ndarray] | Drop:
+        """The latest message of ``topic`` stamped at or before the step, at most the tolerance older
+        than it, or the Drop: on the step's stamp for a partner stamped by its headers, else on its
+        reception (aged from its on-time reception)."""
+        at, aged_from = (stamp, stamp) if topic in self.by_header else (receive, on_time)
+        hist = self.history[topic]
+        i = bisect_right(hist.stamps, at) - 1
+        if i < 0:
+            detail = ("no message yet" if not hist.stamps else "no message at or before the step "
+                      f"(the oldest kept is {hist.stamps[0] - at} ns later)")
+            return Drop("missing", topic, at, detail)
+        entry = hist.entries[i]
+        if isinstance(entry, Drop):
+            return Drop(entry.reason, topic, at, f"its latest message was rejected: {entry.detail}")
+        age = aged_from - hist.stamps[i]
+        if age > self.tol_ns:
+            return Drop("stale", topic, at, f"its latest message is {age / 1e6:.3f} ms older than the "
+                        f"step (tolerance {self.tolerance_s * 1e3:g} ms)")
+        return entry
+
+    def clear(self) -> None:
+        for hist in self.history.values():
+            hist.clear()
+        self.waited = dict.fromkeys(self.waited)
+
+
+class _Layout:
+    """Where each field's vector goes in the observation: its size and element names, pinned once
+    every field's size is known (declared, or by the first messages)."""
+
+    __slots__ = ("dim", "extractors", "names", "slots", "spec")
+
+    def __init__(self, spec: ObservationSpec, extractors: dict[str, TopicExtractor]) -> None:
+        self.spec = spec
+        self.extractors = extractors
+        self.dim: int | None = None
+        self.names: tuple[str, ...] = ()
+        self.slots: list[tuple[str, int, slice]] | None = None
+
+    def known(self) -> int | None:
+        """The observation size, ``None`` while a field's size is unknown."""
+        if self.dim is None and all(s is not None for ex in self.extractors.values() for s in ex.sizes):
+            self.resolve()
+        return self.dim
+
+    def resolve(self) -> None:
+        self.dim, self.names = layout_of(self.spec, self.extractors)
+        slots, start, k = [], 0, dict.fromkeys(self.extractors, 0)
+        for f in self.spec.fields:
+            size = self.extractors[f.topic].sizes[k[f.topic]]
+            assert size is not None
+            slots.append((f.topic, k[f.topic], slice(start, start + size)))
+            k[f.topic] += 1
+            start += size
+        self.slots = slots
+
+    def fill(self, values: dict[str, list[np.ndarray]]) -> np.ndarray:
+        """The observation (float32, a new array) of one step's vectors by topic."""
+        if self.slots is None:
+            self.resolve()
+        assert self.slots is not None and self.dim is not None
+        out = np.empty(self.dim, dtype=np.float32)
+        for name, k, where in self.slots:
+            out[where] = values[name][k]
+        return out
+
+
 class ObservationAssembler:
     """Incremental observation assembly under the rule of this module (not thread-safe).
 
@@ -209,18 +305,13 @@ class ObservationAssembler:
         self.spec = spec
         self._ex: dict[str, TopicExtractor] = extractors(spec)
         self._step_ex = self._ex[spec.step_topic]
-        self._hist = {t: _History(history) for t in spec.partner_topics}
-        self._tol_ns = round(spec.tolerance_s * 1e9)
         self._header = spec.stamp == "header"
         self._wrong_type: dict[str, str] = {}
-        self._slots: list[tuple[str, int, slice]] | None = None
-        self._dim: int | None = None
-        self._names: tuple[str, ...] = ()
+        self._layout = _Layout(spec, self._ex)
         self.stats = AssemblerStats()
         self.last_stamp_ns: int | None = None  # stamp (under the stamp rule) of the last step fed
-        self._by_header = frozenset(t for t in spec.partner_topics if self._header and self._ex[t].has_header)
-        waited = [t for t in spec.partner_topics if t in self._by_header]
-        self._frontier: dict[str, int | None] = dict.fromkeys(waited if spec.wait_s > 0 else ())
+        by_header = frozenset(t for t in spec.partner_topics if self._header and self._ex[t].has_header)
+        self._partners = _Partners(spec, by_header, history)
         self._wait_ns = round(spec.wait_s * 1e9)
         self._max_held = history if max_held is None else max_held
         self._held: deque[tuple[int, int, int, list[np.ndarray] | Drop]] = deque()
@@ -235,26 +326,13 @@ class ObservationAssembler:
     @property
     def dim(self) -> int | None:
         """Observation size, ``None`` until known (declared, or after the first kept step)."""
-        if self._dim is None and all(s is not None for ex in self._ex.values() for s in ex.sizes):
-            self._resolve()
-        return self._dim
+        return self._layout.known()
 
     def obs_names(self) -> tuple[str, ...]:
         """Element names (``<topic>/<field>/<label>``); raises ``ValueError`` while the size is unknown."""
         if self.dim is None:
             raise ValueError("the observation layout is not known until the first kept step")
-        return self._names
-
-    def _resolve(self) -> None:
-        self._dim, self._names = layout_of(self.spec, self._ex)
-        slots, start, k = [], 0, dict.fromkeys(self._ex, 0)
-        for f in self.spec.fields:
-            size = self._ex[f.topic].sizes[k[f.topic]]
-            assert size is not None
-            slots.append((f.topic, k[f.topic], slice(start, start + size)))
-            k[f.topic] += 1
-            start += size
-        self._slots = slots
+        return self._layout.names
 
     # --- feeding ----------------------------------------------------------------------------------
     def check_type(self, topic: str, typename: str) -> str | None:
@@ -289,7 +367,7 @@ class ObservationAssembler:
         spec does not use are ignored (counted); a step-topic message must go to :meth:`step`.
         ``msgtype``: the message's type when :meth:`for_type` declared it (``None``: the spec's).
         """
-        hist = self._hist.get(topic)
+        hist = self._partners.history.get(topic)
         if hist is None:
             if topic == self.spec.step_topic:
                 raise ValueError(f"'{topic}' is the step topic: feed it to step(), not offer()")
@@ -304,17 +382,12 @@ class ObservationAssembler:
             header, vectors = self._ex[topic].extract(raw, msgtype)
         except ExtractError as err:
             rejection = Drop(err.reason, topic, int(stamp_ns), err.detail)
-            self._add(topic, hist, int(stamp_ns), rejection)
+            self._partners.add(topic, hist, int(stamp_ns), rejection)
             self._count_rejected(topic, err.reason)
             return rejection
-        self._add(topic, hist, header if header is not None and self._header else int(stamp_ns), vectors)
+        self._partners.add(topic, hist, header if header is not None and self._header else int(stamp_ns),
+                           vectors)
         return None
-
-    def _add(self, topic: str, hist: _History, stamp: int, entry: list[np.ndarray] | Drop) -> None:
-        hist.add(stamp, entry)
-        if topic in self._frontier:
-            last = self._frontier[topic]
-            self._frontier[topic] = stamp if last is None or stamp > last else last
 
     def step(self, stamp_ns: int, raw: bytes | memoryview, msgtype: str | None = None) -> np.ndarray | Drop:
         """Feed a message of the step topic and decide it at once, without waiting: its observation
@@ -337,7 +410,7 @@ class ObservationAssembler:
     @property
     def waited_topics(self) -> tuple[str, ...]:
         """The partner topics a held step waits for (stamped by their headers; none if ``wait_s`` is 0)."""
-        return tuple(self._frontier)
+        return tuple(self._partners.waited)
 
     @property
     def held(self) -> int:
@@ -356,7 +429,7 @@ class ObservationAssembler:
         while self._held:
             receive, stamp, on_time, parsed = self._held[0]
             late = False
-            if not isinstance(parsed, Drop) and not self._settled(stamp):
+            if not isinstance(parsed, Drop) and not self._partners.settled(stamp, self._wrong_type):
                 due = now_ns is not None and now_ns - receive >= self._wait_ns
                 if not (flush or due or len(self._held) > self._max_held):
                     break
@@ -365,13 +438,6 @@ class ObservationAssembler:
             self._held.popleft()
             out.append(Decided(receive, stamp, self._decide(receive, stamp, on_time, parsed), late))
         return out
-
-    def _settled(self, stamp: int) -> bool:
-        """Every waited-for partner has offered a message stamped at or after ``stamp``."""
-        for topic, last in self._frontier.items():
-            if (last is None or last < stamp) and topic not in self._wrong_type:
-                return False
-        return True
 
     def _parse_step(self, receive: int, raw: bytes | memoryview,
                     msgtype: str | None = None) -> tuple[int, int, list[np.ndarray] | Drop]:
@@ -398,41 +464,16 @@ class ObservationAssembler:
         if isinstance(parsed, Drop):
             return self._drop(parsed.reason, parsed.topic, stamp, parsed.detail)
         values = {self.spec.step_topic: parsed}
-        for partner, hist in self._hist.items():
-            if partner in self._by_header:
-                found = self._partner(partner, hist, stamp, stamp)
-            else:
-                found = self._partner(partner, hist, receive, on_time)
+        for partner in self._partners.history:
+            if partner in self._wrong_type:
+                return self._drop("wrong_type", partner, stamp, self._wrong_type[partner])
+            found = self._partners.latest(partner, stamp, receive, on_time)
             if isinstance(found, Drop):
                 return self._drop(found.reason, found.topic, stamp, found.detail)
             values[partner] = found
-        if self._slots is None:
-            self._resolve()
-        assert self._slots is not None and self._dim is not None
-        out = np.empty(self._dim, dtype=np.float32)
-        for name, k, where in self._slots:
-            out[where] = values[name][k]
+        out = self._layout.fill(values)
         self.stats.kept += 1
         return out
-
-    def _partner(self, topic: str, hist: _History, at: int, aged_from: int) -> list[np.ndarray] | Drop:
-        """The latest message of ``topic`` stamped at or before ``at``, at most the tolerance older
-        than ``aged_from`` (``<= at``), or the Drop."""
-        if topic in self._wrong_type:
-            return Drop("wrong_type", topic, at, self._wrong_type[topic])
-        i = bisect_right(hist.stamps, at) - 1
-        if i < 0:
-            detail = ("no message yet" if not hist.stamps else "no message at or before the step "
-                      f"(the oldest kept is {hist.stamps[0] - at} ns later)")
-            return Drop("missing", topic, at, detail)
-        entry = hist.entries[i]
-        if isinstance(entry, Drop):
-            return Drop(entry.reason, topic, at, f"its latest message was rejected: {entry.detail}")
-        age = aged_from - hist.stamps[i]
-        if age > self._tol_ns:
-            return Drop("stale", topic, at, f"its latest message is {age / 1e6:.3f} ms older than the "
-                        f"step (tolerance {self.spec.tolerance_s * 1e3:g} ms)")
-        return entry
 
     def _drop(self, reason: DropReason, topic: str, stamp: int, detail: str) -> Drop:
         self.stats.dropped[reason] = self.stats.dropped.get(reason, 0) + 1
@@ -447,9 +488,7 @@ class ObservationAssembler:
         (and with ``clear_stats`` the counters).  The layout pinned by first messages and the
         wrong-type reports are kept."""
         flushed = self.release(flush=True)
-        for hist in self._hist.values():
-            hist.clear()
-        self._frontier = dict.fromkeys(self._frontier)
+        self._partners.clear()
         self._on_time.clear()
         self.last_stamp_ns = None
         if clear_stats:

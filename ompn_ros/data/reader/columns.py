@@ -124,7 +124,7 @@ class AssemblySink:
     def add(self, topic: str, stamp: int, raw: bytes | memoryview, msgtype: str | None = None) -> None:
         """Feed one message of a topic of the spec (record order); ``msgtype``: its own type (a topic
         recorded under several types is read per connection).  A type that cannot give the spec's
-        fields sets ``unfit`` (the bag's read then refuses the spec in one line: ``BagContext``)."""
+        fields sets ``unfit`` (the bag's read then refuses the spec in one line: ``TypeChecks``)."""
         if msgtype is not None and msgtype != self._types[topic] and msgtype not in self._declared:
             try:
                 self.asm.for_type(topic, msgtype)

@@ -1,8 +1,8 @@
-"""One bag's resolved topics, its stamps and type checks, with errors naming the file."""
+"""One bag's resolved topics and its stamps, with errors naming the file (its type checks:
+:mod:`.type_checks`)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -12,13 +12,14 @@ from ompn_ros import layout
 from ompn_ros.layout import resolve_topic
 
 from .. import messages as m
-from ..errors import MissingTopicError, ObservationSpecError, TopicTypeError, UnknownTypeError
-from ..messages.fieldpath import NAME, FieldPathError, describe, fields_of
-from ..messages.types import TypeDefinitionError, ensure, known
-from ..obs.spec import ObservationSpec, canonical_type
+from ..errors import MissingTopicError, TopicTypeError
+from ..messages.fieldpath import NAME, fields_of
+from ..messages.types import known
+from ..obs.spec import ObservationSpec
 from .raw import RawBag
 from .report import BagReport
-from .spec import ACTION_TYPES, MARKER_TYPES, SWITCH_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
+from .spec import ACTION_TYPES, MARKER_TYPES, VECTOR_TYPES, ReaderSpec, VectorSource
+from .type_checks import TypeChecks
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ class BagContext:
         self.spec = spec
         self.report = report
         self.path = str(name if name is not None else raw.path)  # in errors: the user's bag
+        self.checks = TypeChecks(raw, spec.types, self.path)  # does the spec read the topics' types
         self._clocks: dict[str, str] = {}  # ReaderSpec.stamps by bag topic (resolve_all)
         self.header_lag: dict[str, np.ndarray] = {}  # header-stamped topic -> log - header stamps (ns)
         # JointState topic -> the joint order its first message fixed (shared by the bags of one read)
@@ -68,7 +70,7 @@ class BagContext:
     def _has_header(self, topic: str) -> bool:
         """Whether the reader can take ``header.stamp`` of every message of ``topic`` (a topic under
         several types: of each type)."""
-        types = self.topic_types(topic)
+        types = self.raw.topic_types(topic)
         return bool(types) and (all(t == layout.JOINT_STATE for t in types) or self._generic_header(topic))
 
     def _generic_header(self, topic: str) -> bool:
@@ -76,7 +78,7 @@ class BagContext:
         spec = self.spec
         sources = [s for s in (spec.observation, spec.action) if s.field is not None
                    and self.resolve_quiet(s.topic) == topic]
-        types = self.topic_types(topic)
+        types = self.raw.topic_types(topic)
         if not sources or not types or not all(known(t) for t in types):
             return False
         return all(dict(fields_of(t)).get("header") == (NAME, "std_msgs/msg/Header") for t in types)
@@ -85,74 +87,11 @@ class BagContext:
         """``name`` resolved in the spec's namespace (no suffix match, no note)."""
         return resolve_topic(name, self.spec.namespace)
 
-    def topic_types(self, topic: str) -> list[str]:
-        """The types of ``topic`` in the order its messages show them (several in a split bag where
-        the topic changed type)."""
-        tdata = self.raw.topics.get(topic)
-        if tdata is not None:
-            return list(tdata.types)
-        return [self.raw.types[topic]] if topic in self.raw.types else []
-
     def message_types(self, topic: str) -> list[str]:
         """Each message's type in the topic's (sorted) order."""
         self.stamps(topic)
         tdata = self.raw.topics.get(topic)
         return [] if tdata is None else tdata.message_types()
-
-    def check_source(self, topic: str, src: VectorSource, allowed: Sequence[str],
-                     strings: bool = False) -> str:
-        """The type of ``topic`` after checking ``src`` reads every type it carries: the fast types
-        without a field path, any registered type with one (one line naming the way out otherwise)."""
-        types = self.topic_types(topic)
-        if len(types) == 1 and src.field is None:
-            return self.check_type(topic, allowed, src.type)
-        unfit = {t: self._unfit(t, src, tuple(allowed), strings) for t in types}
-        why = {t: reason for t, reason in unfit.items() if reason is not None}
-        if not why:
-            return types[0]
-        if len(types) == 1:
-            raise (UnknownTypeError if not known(types[0]) else TopicTypeError)(
-                why[types[0]], path=self.path, topic=topic, index=0)
-        raise self._type_change(topic, types, why)
-
-    def _unfit(self, msgtype: str, src: VectorSource, allowed: tuple[str, ...], strings: bool) -> str | None:
-        """Why ``src`` cannot read messages of ``msgtype`` (``None``: it can)."""
-        if src.field is not None:
-            if src.type is not None and msgtype != src.type:
-                return f"the spec's type is {src.type}"
-            try:
-                ensure(msgtype, self.spec.types)
-                target = describe(msgtype, src.field)
-            except (TypeDefinitionError, FieldPathError) as err:
-                return str(err)
-            if target.kind == "string" and not strings:
-                return f"field '{src.field}' of {msgtype} is a string"
-            if strings and target.labels != ("",):
-                return f"field '{src.field}' of {msgtype} is not one number or string (a label is one value)"
-            return None
-        if src.type is not None:
-            return None if msgtype == src.type else f"the spec's type is {src.type}"
-        if msgtype not in (layout.FLOAT32_ARRAY, layout.FLOAT64_ARRAY) or msgtype not in allowed:
-            return f"without a field path a topic of several types must hold {layout.FLOAT32_ARRAY} or " \
-                   f"{layout.FLOAT64_ARRAY}"
-        return None
-
-    def _type_change(self, topic: str, types: list[str], why: dict[str, str],
-                     way_out: str = "give a field path both types have, or read the parts as separate "
-                                    "bags") -> TopicTypeError:
-        """The one line of a topic recorded under several types that the spec reads only some of."""
-        tdata = self.raw.topics[topic]
-        assert tdata.kinds is not None  # several types
-        change = next(i for i, k in enumerate(tdata.kinds) if k != tdata.kinds[0])
-        before, after = tdata.types[tdata.kinds[0]], tdata.types[tdata.kinds[change]]
-        good = [t for t in types if t not in why]
-        bad = [t for t in types if t in why]
-        return TopicTypeError(
-            f"the topic changes type from {before} to {after} at message #{change} (stamp "
-            f"{tdata.stamps[change] / 1e9:.3f} s); the reader spec fits {' and '.join(good) or 'neither'}, "
-            f"not {' and '.join(bad)} ({why[bad[0]]}): {way_out}", path=self.path, topic=topic, index=change,
-            stamp=None)
-
 
     def resolve(self, name: str | None, required: bool) -> str | None:
         """Bag topic of spec name ``name``; a unique ``/<name>`` suffix match is noted."""
@@ -195,8 +134,8 @@ class BagContext:
         topics = Topics(
             obs=obs, act=act, assemble=assemble,
             obs_type=self.raw.types[obs] if assemble is not None else
-            self.check_source(obs, spec.observation, VECTOR_TYPES),
-            act_type=self.check_source(act, spec.action, ACTION_TYPES),
+            self.checks.check_source(obs, spec.observation, VECTOR_TYPES),
+            act_type=self.checks.check_source(act, spec.action, ACTION_TYPES),
             sub=sub, labels=labels,
             sketch=self.resolve(spec.sketch, False),
             episode=self._episode_topic(),
@@ -204,40 +143,30 @@ class BagContext:
             split=self.resolve(spec.split_topic, True) if spec.split == "topic" else None,
         )
         if topics.split:
-            self._check_switch(topics.split)
+            self.checks.check_switch(topics.split)
         for topic, kind in ((topics.sketch, layout.INT32_ARRAY), (topics.joints, layout.JOINT_STATE)):
             if topic:
-                self.check_type(topic, (kind,), kind)
+                self.checks.check_type(topic, (kind,), kind)
         if topics.episode:  # the typed marker, or the DiagnosticArray form (deprecated, still read)
             m.register_interfaces()
-            self.check_type(topics.episode, MARKER_TYPES, None)
+            self.checks.check_type(topics.episode, MARKER_TYPES, None)
         if sub and labels != layout.LABELS_BOUNDARY:  # boundary events: only stamps are used
             if spec.subtask_field is not None:
                 label = VectorSource(sub, spec.subtask_type, field=spec.subtask_field)
-                self.check_source(sub, label, (), strings=True)
+                self.checks.check_source(sub, label, (), strings=True)
             else:  # a topic under several types is checked message type by message type
-                self.check_source(sub, VectorSource(sub, layout.INT32), (layout.INT32,))
+                self.checks.check_source(sub, VectorSource(sub, layout.INT32), (layout.INT32,))
         for name, base in self.spec.stamps or ():
             topic = self.resolve(name, False)  # like every topic of the spec; absent: noted, not used
             if topic is not None:
                 self._clocks[topic] = base
         for topic, clock in self._clocks.items():
             if clock == "header" and not self._has_header(topic):
-                types = " and ".join(self.topic_types(topic))
+                types = " and ".join(self.raw.topic_types(topic))
                 raise TopicTypeError(f"'{types}' has no header stamp the reader uses: set its time base "
                                      "to log in the reader spec's stamps", path=self.path, topic=topic,
                                      index=0)
         return topics
-
-    def _check_switch(self, topic: str) -> None:
-        """A recording on/off topic under several types: all switch types (each message read by its
-        own) or none (each message an episode start); a mix is refused in one line."""
-        types = self.topic_types(topic)
-        switch = [t for t in types if t in SWITCH_TYPES]
-        if switch and len(switch) < len(types):
-            why = {t: f"its messages would start episodes while those of {switch[0]} switch recording on "
-                      "and off" for t in types if t not in SWITCH_TYPES}
-            raise self._type_change(topic, types, why, way_out="read the parts as separate bags")
 
     def _resolve_assemble(self) -> ObservationSpec | None:
         """``spec.assemble`` with bag topic names; each topic resolved (required) and type-checked."""
@@ -248,35 +177,10 @@ class BagContext:
         for name, want in asm.topics.items():
             topic = self.resolve(name, True)
             assert topic is not None  # required=True raised otherwise
-            got = self.raw.types[topic]
-            try:
-                ensure(got, self.spec.types)
-            except TypeDefinitionError as err:
-                raise UnknownTypeError(str(err), path=self.path, topic=topic, index=0) from None
-            types = self.topic_types(topic)
-            if want not in [canonical_type(t) for t in types]:
-                raise TopicTypeError(f"carries '{' and '.join(types)}', the reader spec's assemble block "
-                                     f"expects '{want}'", path=self.path, topic=topic, index=0)
-            why = {t: reason for t in types if (reason := self._assemble_unfit(asm, name, t)) is not None}
-            if why:  # a topic under several types: each is read by its own type where the fields fit
-                raise self._type_change(topic, types, why)
+            self.checks.check_assembled(topic, asm, name, want)
             names[name] = topic
         fields = tuple(replace(f, topic=names[f.topic]) for f in asm.fields)
         return replace(asm, step_topic=names[asm.step_topic], fields=fields)
-
-    def _assemble_unfit(self, asm: ObservationSpec, name: str, msgtype: str) -> str | None:
-        """Why messages of ``msgtype`` cannot give the assemble block's fields of topic ``name``
-        (``None``: they can; the spec's own type always can)."""
-        if canonical_type(msgtype) == asm.type_of(name):
-            return None
-        try:
-            ensure(msgtype, self.spec.types)
-            for f in asm.fields:
-                if f.topic == name:
-                    replace(f, type=msgtype)  # checks the field (path) against the type
-        except (TypeDefinitionError, ObservationSpecError) as err:
-            return str(err)
-        return None
 
     def _label_topic(self) -> tuple[str | None, str]:
         """The subtask topic and the effective label kind (``labels: None`` = ordinal if present)."""
@@ -321,33 +225,3 @@ class BagContext:
         stamps = self.stamps(topic)
         assert tdata.column is not None  # stamps() reorders the column, never drops it
         return stamps, tdata.column.values
-
-    def check_type(self, topic: str, allowed: Sequence[str], expected: str | None) -> str:
-        """The topic's message type, after checking it is decodable and what the spec expects; a topic
-        recorded under several types must have each fit (each message is decoded by its own type),
-        else one line names both types and where the change happens."""
-        types = self.topic_types(topic)
-        if len(types) > 1:
-            why = {t: reason for t in types if (reason := self._type_unfit(t, allowed, expected)) is not None}
-            if why:
-                raise self._type_change(topic, types, why, way_out="read the parts as separate bags")
-            return types[0]
-        msgtype = self.raw.types[topic]
-        reason = self._type_unfit(msgtype, allowed, expected)
-        if reason is not None:
-            kind = UnknownTypeError if msgtype not in m.typestore().types else TopicTypeError
-            raise kind(reason, path=self.path, topic=topic, index=0)
-        return msgtype
-
-    @staticmethod
-    def _type_unfit(msgtype: str, allowed: Sequence[str], expected: str | None) -> str | None:
-        """Why a topic role of ``allowed`` types (``expected``: the spec's) cannot take ``msgtype``."""
-        if msgtype not in m.typestore().types:
-            return (f"message type '{msgtype}' is not in the ROS 2 Jazzy typestore nor the bag's "
-                    "definitions: name its .msg folder with `types: DIR` in the reader spec and read a field "
-                    "of it with `field:` (docs/specs.md)")
-        if expected is not None and msgtype != expected:
-            return f"carries '{msgtype}', the reader spec expects '{expected}'"
-        if msgtype not in allowed:
-            return f"carries '{msgtype}', expected one of {list(allowed)}"
-        return None

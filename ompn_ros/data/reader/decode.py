@@ -134,7 +134,7 @@ def _decode_all(ctx: BagContext, topics: Topics, errors: list[BagError] | None) 
     if topics.split:
         split = topics.split
         out.split_stamps = ctx.stamps(split)
-        if set(ctx.topic_types(split)) <= SWITCH_TYPES:  # several types: each switches (resolve_all)
+        if set(ctx.raw.topic_types(split)) <= SWITCH_TYPES:  # several types: each switches (resolve_all)
             out.split_switch = _guard(errors, lambda: _switch(ctx, split))  # None: start events
     if topics.joints:
         js = topics.joints
@@ -212,7 +212,7 @@ def _vectors(ctx: BagContext, topic: str, msgtype: str, src: VectorSource, stamp
     if not raws:
         names = len(src.joint_names) * len(src.fields) if src.joint_names else 0
         return np.zeros((0, src.dim or names), dtype=np.float32), stamps, None, stamps
-    if src.field is not None or len(ctx.topic_types(topic)) > 1:  # a field path, or per connection
+    if src.field is not None or len(ctx.raw.topic_types(topic)) > 1:  # a field path, or per connection
         values = generic.vectors(ctx, topic, src, stamps, raws, ctx.message_types(topic))
         if ctx.clock(topic) != "header":
             return values, stamps, None, stamps

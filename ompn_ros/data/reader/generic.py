@@ -4,7 +4,7 @@ A :class:`~ompn_ros.reader.spec.VectorSource` with ``field`` reads the numbers t
 (:class:`~ompn_ros.data.messages.fieldpath.FieldReader`, bulk by layout).  A topic recorded under
 several types (a split bag where a command changed type) is decoded per connection: each message by
 its own type, the fast parser of that type or the field path, never the bytes of one type read as
-another (:meth:`BagContext.check_source` refuses a spec that fits only some of them).
+another (:meth:`TypeChecks.check_source` refuses a spec that fits only some of them).
 
 Cost: O(total bytes) per topic for messages sharing a layout (see ``fieldpath``).
 """

@@ -147,6 +147,14 @@ class RawBag:
             if len(keep) != len(tdata.stamps):
                 tdata.keep(keep)
 
+    def topic_types(self, topic: str) -> list[str]:
+        """The types of ``topic`` in the order its messages show them (several in a split bag where
+        the topic changed type)."""
+        tdata = self.topics.get(topic)
+        if tdata is not None:
+            return list(tdata.types)
+        return [self.types[topic]] if topic in self.types else []
+
 
 Planner = Callable[[dict[str, str]], "StreamPlan | None"]  # topic types -> what to decode while reading
 Chooser = Callable[[dict[str, str]], set[str]]  # topic types -> the topics to keep (no metadata.yaml)

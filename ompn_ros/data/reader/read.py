@@ -159,7 +159,7 @@ def _read_view(bag: Path, readable: Path, spec: ReaderSpec, on_error: OnError, r
     _crc_note(readable, report)
     ctx = BagContext(raw, spec, report, name=bag, joint_orders=joint_orders)
     topics = ctx.resolve_all()
-    headed = [t for t in topics.used() if set(ctx.topic_types(t)) == {layout.JOINT_STATE}]
+    headed = [t for t in topics.used() if set(ctx.raw.topic_types(t)) == {layout.JOINT_STATE}]
     report.notes.extend(restamp_log(raw, readable, headed))  # clocks that step (reader.steps)
     decoded = decode_bag(ctx, topics, on_error)
     for topic in topics.used():

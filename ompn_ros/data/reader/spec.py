@@ -256,8 +256,8 @@ class ReaderSpec:
     subtask_field: str | None = None
 
     def __post_init__(self) -> None:
-        self._check_choices()
-        self._check_types()
+        normal = _check_choices(self)
+        normal["types"] = _type_sources(self.types)
         if not self.observation.generic and self.observation.type not in VECTOR_TYPES:
             raise ReaderSpecError(f"observation type must be one of {VECTOR_TYPES}, "
                                   f"got '{self.observation.type}'")
@@ -267,50 +267,11 @@ class ReaderSpec:
         if self.stamp not in ("log", "header"):
             raise ReaderSpecError(f"stamp must be 'log' or 'header', got '{self.stamp}'")
         if self.stamps is not None:
-            self._check_stamps()
+            normal["stamps"] = _stamp_pairs(self.stamps)
+        for key, value in normal.items():  # the normal forms of the keys given loosely (lists, mappings)
+            object.__setattr__(self, key, value)
         if self.assemble is not None:
-            self._check_assemble()
-
-    def _check_stamps(self) -> None:
-        """``stamps`` as sorted ``(topic, base)`` pairs (the spec stays hashable); a mapping is accepted."""
-        value: Any = self.stamps
-        try:
-            pairs = tuple(sorted(dict(value).items()))
-        except (TypeError, ValueError):
-            raise ReaderSpecError(f"stamps must map topics to 'log' or 'header', got {value!r}") from None
-        bad = {k: v for k, v in pairs if v not in ("log", "header")}
-        if bad:
-            raise ReaderSpecError(f"stamps: each topic's time base must be 'log' or 'header', got {bad}")
-        object.__setattr__(self, "stamps", pairs)
-
-    def _check_assemble(self) -> None:
-        if not isinstance(self.assemble, ObservationSpec):
-            raise ReaderSpecError(f"assemble must be an ObservationSpec, got {type(self.assemble).__name__}")
-        if self.observation != DEFAULT_OBSERVATION:
-            raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields of "
-                                  "several topics), not both")
-        if self.stamp != "log" or self.stamps:
-            raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
-                                  "and no stamps (assemble's own 'stamp' key chooses the stamps of its rule)")
-
-    def _check_types(self) -> None:
-        """``types`` as a tuple of non-empty strings (folders of ``.msg`` files or package names)."""
-        value: Any = self.types
-        sources = (value,) if isinstance(value, str) else tuple(value or ())
-        if not all(isinstance(v, str) and v.strip() for v in sources):
-            raise ReaderSpecError(f"types must list folders of .msg files or interface package names, "
-                                  f"got {value!r}")
-        object.__setattr__(self, "types", sources)
-
-    def _check_final_options(self) -> None:
-        """``final_options`` as a tuple of distinct guessing options (a list is accepted)."""
-        value: Any = self.final_options
-        options = tuple(value) if isinstance(value, (list, tuple)) else (value,)
-        bad = [o for o in options if o not in FINAL_GUESSES]
-        if not options or bad or len(set(options)) != len(options):
-            raise ReaderSpecError(f"final_options must list distinct options of {FINAL_GUESSES}, "
-                                  f"got {value!r}")
-        object.__setattr__(self, "final_options", options)
+            _check_assemble(self)
 
     @property
     def final_guess(self) -> FinalObservation:
@@ -323,32 +284,6 @@ class ReaderSpec:
         if option not in self.final_options:
             raise ReaderSpecError(f"final option '{option}' is not one of final_options {self.final_options}")
         return replace(self, final_observation=option)
-
-    def _check_choices(self) -> None:
-        if self.labels is not None and self.labels not in layout.LABEL_KINDS:
-            raise ReaderSpecError(f"labels must be one of {layout.LABEL_KINDS}, got '{self.labels}'")
-        if self.final_observation not in FINAL_OBSERVATION:
-            raise ReaderSpecError(f"final_observation must be one of {FINAL_OBSERVATION}, "
-                                  f"got '{self.final_observation}'")
-        self._check_final_options()
-        if self.split not in SPLITS:
-            raise ReaderSpecError(f"split must be one of {SPLITS}, got '{self.split}'")
-        if self.split == "topic" and not self.split_topic:
-            raise ReaderSpecError("split: topic needs split_topic (the topic whose messages start episodes)")
-        speed = self.idle_speed
-        if isinstance(speed, str):
-            if speed.strip().lower() != "auto":
-                raise ReaderSpecError(f"idle_speed must be 'auto' (from the bag's noise floor) or a number "
-                                      f">= 0 (rad/s of joint speed; 0 = never by speed), got {speed!r}")
-            object.__setattr__(self, "idle_speed", "auto")
-        elif isinstance(speed, bool) or not isinstance(speed, (int, float)) or not speed >= 0:
-            raise ReaderSpecError(f"idle_speed must be 'auto' or a number >= 0, got {speed!r}")
-        if self.idle_s <= 0:
-            raise ReaderSpecError(f"idle_s must be > 0 (got {self.idle_s})")
-        if self.split == "markers" and not self.episode:
-            raise ReaderSpecError("split: markers needs the episode topic (key 'episode')")
-        if self.labels in ("ordinal", "id", "boundary") and not self.subtask:
-            raise ReaderSpecError(f"labels: {self.labels} needs the subtask topic (key 'subtask')")
 
     @classmethod
     def for_domain(cls, domain: str | layout.DomainLayout) -> ReaderSpec:
@@ -373,19 +308,7 @@ class ReaderSpec:
         unknown = set(data) - known
         if unknown:
             raise ReaderSpecError(f"unknown reader spec keys {sorted(unknown)}; known: {sorted(known)}")
-        kwargs = dict(data)
-        for key in ("observation", "action"):
-            if key in kwargs:
-                kwargs[key] = _vector_source(key, kwargs[key])
-        if isinstance(kwargs.get("subtask"), dict):
-            label = _vector_source("subtask", kwargs["subtask"])
-            if label.field is None:
-                raise ReaderSpecError("'subtask' as a mapping needs 'field' (e.g. {topic: /skill, type: "
-                                      "std_msgs/msg/String, field: data})")
-            kwargs.update(subtask=label.topic, subtask_type=label.type, subtask_field=label.field)
-        if kwargs.get("assemble") is not None:
-            kwargs["assemble"] = _observation_spec(kwargs["assemble"])
-        return _build(cls, kwargs, "reader spec")
+        return _build(cls, _parsed_sections(data), "reader spec")
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> ReaderSpec:
@@ -406,16 +329,11 @@ class ReaderSpec:
         """Plain mapping (JSON/YAML friendly); ``from_dict(to_dict())`` round-trips."""
         out = asdict(self)
         for key in ("observation", "action"):
-            src = out[key]
-            src["fields"] = list(src["fields"])
-            src["joint_names"] = None if src["joint_names"] is None else list(src["joint_names"])
+            out[key] = _plain_source(out[key])
         out["assemble"] = None if self.assemble is None else self.assemble.to_dict()
         out["stamps"] = None if self.stamps is None else dict(self.stamps)
         out["final_options"] = list(self.final_options)
         # the new keys only when used: a spec without them keeps its former form (and cache keys)
-        for key in ("observation", "action"):
-            if out[key]["field"] is None:
-                del out[key]["field"]
         if self.types:
             out["types"] = list(self.types)
         else:
@@ -424,6 +342,111 @@ class ReaderSpec:
             out["subtask"] = {"topic": self.subtask, "type": self.subtask_type, "field": self.subtask_field}
         del out["subtask_type"], out["subtask_field"]
         return out
+
+
+# --- one key or section at a time: the checks and the normal forms of ReaderSpec's keys --------------
+def _check_choices(spec: ReaderSpec) -> dict[str, Any]:
+    """Check the choice keys (labels, final observation, split) in a fixed order, the first fault
+    named; returns the normal forms of ``final_options`` and ``idle_speed``."""
+    if spec.labels is not None and spec.labels not in layout.LABEL_KINDS:
+        raise ReaderSpecError(f"labels must be one of {layout.LABEL_KINDS}, got '{spec.labels}'")
+    if spec.final_observation not in FINAL_OBSERVATION:
+        raise ReaderSpecError(f"final_observation must be one of {FINAL_OBSERVATION}, "
+                              f"got '{spec.final_observation}'")
+    normal: dict[str, Any] = {"final_options": _final_options(spec.final_options)}
+    if spec.split not in SPLITS:
+        raise ReaderSpecError(f"split must be one of {SPLITS}, got '{spec.split}'")
+    if spec.split == "topic" and not spec.split_topic:
+        raise ReaderSpecError("split: topic needs split_topic (the topic whose messages start episodes)")
+    normal["idle_speed"] = _idle_speed(spec.idle_speed)
+    if spec.idle_s <= 0:
+        raise ReaderSpecError(f"idle_s must be > 0 (got {spec.idle_s})")
+    if spec.split == "markers" and not spec.episode:
+        raise ReaderSpecError("split: markers needs the episode topic (key 'episode')")
+    if spec.labels in ("ordinal", "id", "boundary") and not spec.subtask:
+        raise ReaderSpecError(f"labels: {spec.labels} needs the subtask topic (key 'subtask')")
+    return normal
+
+
+def _final_options(value: Any) -> tuple[FinalObservation, ...]:
+    """``final_options`` as a tuple of distinct guessing options (a list is accepted)."""
+    options = tuple(value) if isinstance(value, (list, tuple)) else (value,)
+    bad = [o for o in options if o not in FINAL_GUESSES]
+    if not options or bad or len(set(options)) != len(options):
+        raise ReaderSpecError(f"final_options must list distinct options of {FINAL_GUESSES}, "
+                              f"got {value!r}")
+    return options
+
+
+def _idle_speed(speed: Any) -> float | Literal["auto"]:
+    """``idle_speed``: ``'auto'`` (any case, spaces around) or a number >= 0."""
+    if isinstance(speed, str):
+        if speed.strip().lower() != "auto":
+            raise ReaderSpecError(f"idle_speed must be 'auto' (from the bag's noise floor) or a number "
+                                  f">= 0 (rad/s of joint speed; 0 = never by speed), got {speed!r}")
+        return "auto"
+    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not speed >= 0:
+        raise ReaderSpecError(f"idle_speed must be 'auto' or a number >= 0, got {speed!r}")
+    return speed
+
+
+def _type_sources(value: Any) -> tuple[str, ...]:
+    """``types`` as a tuple of non-empty strings (folders of ``.msg`` files or package names)."""
+    sources = (value,) if isinstance(value, str) else tuple(value or ())
+    if not all(isinstance(v, str) and v.strip() for v in sources):
+        raise ReaderSpecError(f"types must list folders of .msg files or interface package names, "
+                              f"got {value!r}")
+    return sources
+
+
+def _stamp_pairs(value: Any) -> tuple[tuple[str, Literal["log", "header"]], ...]:
+    """``stamps`` as sorted ``(topic, base)`` pairs (the spec stays hashable); a mapping is accepted."""
+    try:
+        pairs = tuple(sorted(dict(value).items()))
+    except (TypeError, ValueError):
+        raise ReaderSpecError(f"stamps must map topics to 'log' or 'header', got {value!r}") from None
+    bad = {k: v for k, v in pairs if v not in ("log", "header")}
+    if bad:
+        raise ReaderSpecError(f"stamps: each topic's time base must be 'log' or 'header', got {bad}")
+    return pairs
+
+
+def _check_assemble(spec: ReaderSpec) -> None:
+    if not isinstance(spec.assemble, ObservationSpec):
+        raise ReaderSpecError(f"assemble must be an ObservationSpec, got {type(spec.assemble).__name__}")
+    if spec.observation != DEFAULT_OBSERVATION:
+        raise ReaderSpecError("give either 'observation' (one topic) or 'assemble' (named fields of "
+                              "several topics), not both")
+    if spec.stamp != "log" or spec.stamps:
+        raise ReaderSpecError("with 'assemble' the step clock is the bag's log stamps: set stamp: log "
+                              "and no stamps (assemble's own 'stamp' key chooses the stamps of its rule)")
+
+
+def _parsed_sections(data: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of a spec mapping, its sections (``observation``, ``action``, ``subtask``
+    as a mapping, ``assemble``) parsed into their classes."""
+    kwargs = dict(data)
+    for key in ("observation", "action"):
+        if key in kwargs:
+            kwargs[key] = _vector_source(key, kwargs[key])
+    if isinstance(kwargs.get("subtask"), dict):
+        label = _vector_source("subtask", kwargs["subtask"])
+        if label.field is None:
+            raise ReaderSpecError("'subtask' as a mapping needs 'field' (e.g. {topic: /skill, type: "
+                                  "std_msgs/msg/String, field: data})")
+        kwargs.update(subtask=label.topic, subtask_type=label.type, subtask_field=label.field)
+    if kwargs.get("assemble") is not None:
+        kwargs["assemble"] = _observation_spec(kwargs["assemble"])
+    return kwargs
+
+
+def _plain_source(src: dict[str, Any]) -> dict[str, Any]:
+    """A :class:`VectorSource` of ``asdict`` in its YAML form (lists; ``field`` only when used)."""
+    src["fields"] = list(src["fields"])
+    src["joint_names"] = None if src["joint_names"] is None else list(src["joint_names"])
+    if src["field"] is None:
+        del src["field"]
+    return src
 
 
 def _observation_spec(value: Any) -> ObservationSpec:
