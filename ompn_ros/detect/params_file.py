@@ -71,7 +71,7 @@ def load_detector_yaml(path: str | Path) -> DetectorConfig:
     if HYSTERESIS in data:
         hysteresis = float(data[HYSTERESIS])
         if hysteresis > 0:
-            high = float(params.get("high", DetectorConfig().high))
+            high = float(params.get("high", DetectorConfig.high))  # the field's default
             params["low"] = max(0.0, round(high - hysteresis, READ_DIGITS))
     return DetectorConfig.from_dict(params)
 

@@ -110,13 +110,13 @@ class StreamRule:
     """The stamp and episode rules over one segmenter, with the counters they keep (:attr:`events`).
 
     The rule owns the episode: whether one is open (:attr:`episode_open`), the last stamp stepped and
-    its rows (:attr:`rows`: the still runs); the segmenter validates, steps and detects
-    (:meth:`StreamingSegmenter.step`) and counts the steps of the memory it resets (:attr:`step_index`
-    reads its count).  Its parts decide and the rule applies: :attr:`clocks`
-    (stamps from the future, clock restarts and steps) and :attr:`pauses` (``episode_gap``, ``idle_s``);
-    :attr:`markers` takes the episode markers, sketch messages and resets.  ``clock`` gives the receiver's
-    clock in ns (0: unknown, the future check is off).  The segmenter is set once the model is loaded
-    (:attr:`segmenter`); every entry point but :meth:`receive_stamp` and :meth:`start_episode` expects it.
+    its rows (:attr:`rows`: the still runs); the segmenter validates, steps, detects and counts the steps
+    (:meth:`StreamingSegmenter.step`; :attr:`step_index` reads its count).  Its parts decide and the rule
+    applies: :attr:`clocks` (stamps from the future, clock restarts and steps) and :attr:`pauses`
+    (``episode_gap``, ``idle_s``); :attr:`markers` takes the episode markers, sketch messages and resets.
+    ``clock`` gives the receiver's clock in ns (0: unknown, the future check is off).  The segmenter is set
+    once the model is loaded (:attr:`segmenter`); every entry point but :meth:`receive_stamp` and
+    :meth:`start_episode` expects it.
     """
 
     def __init__(self, sink: StreamSink, clock: Callable[[], int],
@@ -183,10 +183,8 @@ class StreamRule:
 
     @property
     def step_index(self) -> int:
-        """The index of the episode's last step (-1: none yet, or no segmenter): the segmenter's count
-        (:attr:`StreamingSegmenter.step_index`), which a step, a reset and a stop move."""
-        seg = self._segmenter
-        return -1 if seg is None else seg.step_index
+        """The episode's last step (-1: none yet): the segmenter's count (its step, reset, stop move it)."""
+        return -1 if self._segmenter is None else self._segmenter.step_index
 
     @property
     def episode_open(self) -> bool:
