@@ -262,6 +262,7 @@ def _head_of(data: dict[str, Any], origin: str, directory: Path | None) -> Bound
 
 
 PARAMETER_PREFIX = "detector_"
+"""A :class:`DetectorConfig` field ``x`` is the node parameter ``detector_x`` (:func:`parameter_name`)."""
 HYSTERESIS = "detector_hysteresis"
 """The one ``detector_*`` parameter that is not a :class:`DetectorConfig` field's own name: it gives the
 field ``low`` as ``high - low`` (the node's hysteresis, 0: ``low = high``)."""
@@ -413,6 +414,7 @@ __all__ = [
     "HYSTERESIS",
     "NODE_PARAMETERS",
     "OFFLINE_DETECTORS",
+    "PARAMETER_PREFIX",
     "SOURCES",
     "DetectorSettings",
     "OfflineDetector",
