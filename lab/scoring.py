@@ -22,17 +22,17 @@ from typing import Any
 
 import numpy as np
 
-from ompn_ros.app.replay import choose_detector, compare_detectors, replay_all
+from ompn_ros.app.replay import check_finite, compare_detectors, replay_all
 from ompn_ros.checkpoints import shipped_checkpoint
 from ompn_ros.data.episode import Episode
-from ompn_ros.detect.choose import duration_detector
+from ompn_ros.detect.choose import duration_detector, replay_config
 from ompn_ros.detect.defaults import DURATION_LAG
 from ompn_ros.detect.grid import scores_from_p_hats
 from ompn_ros.detect.offline import auto_threshold_boundaries, top_k_boundaries
 from ompn_ros.detect.online import DURATION_MODES, HEAD_DURATION_MODE, HEAD_MODE, DetectorConfig
 from ompn_ros.detect.params_file import load_detector_yaml, write_node_config
 from ompn_ros.detect.settings import load_detector_settings
-from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, Metrics, score_online
+from ompn_ros.detect.tune import DEFAULT_OBJECTIVE, Metrics, choose_on_replays, score_online
 from ompn_ros.model.load import build_stepper
 from ompn_ros.paths import config_file
 from ompn_ros.segmenter import ReplayResult
@@ -143,7 +143,9 @@ def online_metrics(
     configs = {"shipped": shipped}
     tuning = None
     if val:
-        tuned, _, on_val = choose_detector(stepper, list(val), objective=DEFAULT_OBJECTIVE[domain])
+        on_replays = replay_all(stepper, val, replay_config())  # the search reads their scores only
+        check_finite(on_replays, val)
+        tuned, _, on_val = choose_on_replays(on_replays, val, objective=DEFAULT_OBJECTIVE[domain])
         configs["tuned"] = tuned
         tuning = DetectorTuning(tuned, on_val, len(val))
     replays = replay_all(stepper, test, configs.get("tuned", shipped), model, head)

@@ -28,7 +28,7 @@ from ompn_ros.detect.duration import DurationModel
 from ompn_ros.detect.head import BoundaryHead
 from ompn_ros.detect.online import BoundaryEvent, DetectorConfig
 from ompn_ros.detect.settings import load_detector_settings, save_detector_settings
-from ompn_ros.detect.tune import Metrics, choose_on_replays, compare_on_replays
+from ompn_ros.detect.tune import Metrics, compare_on_replays
 from ompn_ros.plotting import plot_episode
 from ompn_ros.segmenter import ReplayResult, StreamingSegmenter
 from ompn_ros.stream.replay import replay_episode
@@ -109,18 +109,6 @@ def compare_detectors(
     if replays is None:
         replays = replay_all(policy, episodes, next(iter(configs.values())), duration_model, head)
     return compare_on_replays(replays, episodes, configs, offline_thresholds, duration_model, head)
-
-
-def choose_detector(
-    policy: Any,
-    episodes: Sequence[Episode],
-    grid: Sequence[DetectorConfig] | None = None,
-    objective: str = "f1",
-) -> tuple[DetectorConfig, Metrics, dict[str, Metrics]]:
-    """Replay once, then grid-search the online detector (:func:`ompn_ros.detect.tune.choose_on_replays`)."""
-    replays = replay_all(policy, episodes, grid[0] if grid else DetectorConfig())
-    check_finite(replays, episodes)
-    return choose_on_replays(replays, episodes, grid, objective)
 
 
 def json_safe(value: Any) -> Any:

@@ -1,8 +1,9 @@
 """The online detector as an ``ompn_node`` ``--params-file`` (YAML) and back.
 
 The file holds the node's ``detector_*`` parameters (:data:`~ompn_ros.detect.settings.DETECTOR_PARAMETERS`,
-the same names :func:`~ompn_ros.detect.settings.node_parameters` fills from a checkpoint's
-``detector.json``), so one shape of the settings runs from the file to the node: a params file
+written by :func:`~ompn_ros.detect.settings.detector_parameters`, the way
+:func:`~ompn_ros.detect.settings.node_parameters` fills them from a checkpoint's ``detector.json``), so
+one shape of the settings runs from the file to the node: a params file
 written by ``ompn_segment --tune`` is read by ``ompn_node --ros-args --params-file`` and by
 ``ompn_segment --detector-config`` alike.
 """
@@ -10,11 +11,18 @@ written by ``ompn_segment --tune`` is read by ``ompn_node --ros-args --params-fi
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import yaml
 
 from ompn_ros.detect.errors import TuneError
 from ompn_ros.detect.online import DetectorConfig
+from ompn_ros.detect.settings import HYSTERESIS, PARAMETER_PREFIX, detector_parameters
+
+FILE_DIGITS = 4
+"""Decimals of ``detector_hysteresis`` in a written file (the node's own way keeps 6)."""
+READ_DIGITS = 6
+"""Decimals of the ``low`` (``high - detector_hysteresis``) a read file gives (the node's is not rounded)."""
 
 
 def write_node_config(
@@ -23,6 +31,7 @@ def write_node_config(
     """Write an ``ompn_node`` ``--params-file`` with ``config``, the measurements as comments. O(1).
     Without a ``domain`` (a user's own data) the file sets none: ROS refuses a key without a value."""
     for_domain = f" for the {domain} domain" if domain else ""
+    parameters = detector_parameters(config, FILE_DIGITS)  # the node's names, in the node's types
     lines = [
         f"# ompn_node defaults{for_domain}, chosen by `ompn_segment --tune` on {source}.",
         "# Measured on the tuning episodes (online = these settings;",
@@ -34,13 +43,7 @@ def write_node_config(
         "/**/ompn_node:",
         "  ros__parameters:",
         *([f"    domain: {domain}"] if domain else []),
-        f"    detector_high: {config.high}",
-        f"    detector_hysteresis: {round(config.high - config.low_threshold, 4)}",
-        f"    detector_min_segment_length: {config.min_segment_length}",
-        f"    detector_mode: {config.mode}",
-        f"    detector_force_first_step_low: {str(config.force_first_step_low).lower()}",
-        f"    detector_lag: {config.lag}",
-        f"    detector_offset: {config.offset}",
+        *(f"    {name}: {_scalar(value)}" for name, value in parameters.items()),
         "",
     ]
     out = Path(path)
@@ -49,7 +52,11 @@ def write_node_config(
 
 
 def load_detector_yaml(path: str | Path) -> DetectorConfig:
-    """Detector settings from an ompn_node params file (``detector_*`` keys) or a plain mapping."""
+    """Detector settings from an ompn_node params file (``detector_*`` keys) or a plain mapping.
+
+    Any of the names may be given, the others keep :class:`DetectorConfig`'s defaults; ``detector_low``
+    is read as the field itself.  ``detector_hysteresis`` above 0 gives ``low = high - hysteresis``
+    rounded to ``READ_DIGITS`` decimals (the tuned values back as written), 0 leaves ``low`` unset."""
     try:
         data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
@@ -59,12 +66,19 @@ def load_detector_yaml(path: str | Path) -> DetectorConfig:
             data = next(iter(data.values()))
     if not isinstance(data, dict):
         raise TuneError(f"detector config {path}: expected a mapping with detector_* keys")
-    params = {k[len("detector_") :]: v for k, v in data.items() if str(k).startswith("detector_")}
-    if "hysteresis" in params:
-        hysteresis = float(params.pop("hysteresis"))
+    params = {k[len(PARAMETER_PREFIX) :]: v for k, v in data.items()
+              if str(k).startswith(PARAMETER_PREFIX) and k != HYSTERESIS}
+    if HYSTERESIS in data:
+        hysteresis = float(data[HYSTERESIS])
         if hysteresis > 0:
-            params["low"] = max(0.0, round(float(params.get("high", 0.5)) - hysteresis, 6))
+            high = float(params.get("high", DetectorConfig.high))  # the field's default
+            params["low"] = max(0.0, round(high - hysteresis, READ_DIGITS))
     return DetectorConfig.from_dict(params)
+
+
+def _scalar(value: Any) -> str:
+    """A parameter value as YAML writes it (``true``/``false`` for a bool)."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
 
 __all__ = ["load_detector_yaml", "write_node_config"]

@@ -21,10 +21,13 @@ checked against those sizes before any weight is read.
 
 One shape from file to node: :class:`DetectorSettings` is ``detector.json``
 (:meth:`~DetectorSettings.to_dict`, :meth:`~DetectorSettings.from_dict`); its ``online`` part is the
-:class:`~ompn_ros.detect.online.DetectorConfig` every detector is built from; the node's
-``detector_*`` parameters are :func:`node_parameters` of it and :func:`detector_config` back, and an
-``ompn_node --params-file`` holds those same names (:mod:`ompn_ros.detect.params_file`).  Which
-settings a checkpoint gets is chosen in :mod:`ompn_ros.detect.choose`.
+:class:`~ompn_ros.detect.online.DetectorConfig` every detector is built from, held, not copied.  The
+node's ``detector_*`` parameters are that config's fields under :func:`parameter_name` (``low`` given as
+``detector_hysteresis``): :func:`detector_parameters` is the one way there, for the node
+(:func:`node_parameters`) and an ``ompn_node --params-file`` (:mod:`ompn_ros.detect.params_file`);
+:func:`detector_config` is the node's way back, ``load_detector_yaml`` a file's, each with its own
+rounding of the hysteresis (docs/design.md#choosing-the-detector).  Which settings a checkpoint gets
+is chosen in :mod:`ompn_ros.detect.choose`.
 
 Precedence for every consumer: an explicit parameter (or ``--detector-config``) beats the
 checkpoint's ``detector.json``, which beats the built-in defaults (``source = 'default'``).
@@ -39,7 +42,7 @@ import math
 import os
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal, get_args
 
@@ -258,18 +261,42 @@ def _head_of(data: dict[str, Any], origin: str, directory: Path | None) -> Bound
         raise DetectorSettingsError(f"{_where(origin, 'boundary_head')}: {exc}") from exc
 
 
-DETECTOR_PARAMETERS = (
-    "detector_high",
-    "detector_hysteresis",
-    "detector_min_segment_length",
-    "detector_mode",
-    "detector_force_first_step_low",
-    "detector_lag",
-    "detector_offset",
-)
-"""The ``ompn_node`` parameters of the online detector (:func:`detector_config`); they apply live."""
+PARAMETER_PREFIX = "detector_"
+"""A :class:`DetectorConfig` field ``x`` is the node parameter ``detector_x`` (:func:`parameter_name`)."""
+HYSTERESIS = "detector_hysteresis"
+"""The one ``detector_*`` parameter that is not a :class:`DetectorConfig` field's own name: it gives the
+field ``low`` as ``high - low`` (the node's hysteresis, 0: ``low = high``)."""
+_DEFAULT = DetectorConfig()
+
+
+def parameter_name(field_name: str) -> str:
+    """The ``ompn_node`` parameter of a :class:`DetectorConfig` field (``low``: :data:`HYSTERESIS`)."""
+    return HYSTERESIS if field_name == "low" else PARAMETER_PREFIX + field_name
+
+
+DETECTOR_PARAMETERS = tuple(parameter_name(spec.name) for spec in fields(DetectorConfig))
+"""The ``ompn_node`` parameters of the online detector (:func:`detector_config`), one per field of
+:class:`DetectorConfig` in its order; they apply live."""
 NODE_PARAMETERS = (*DETECTOR_PARAMETERS, "done_threshold")
 """The ``ompn_node`` parameters that :func:`node_parameters` fills from the settings."""
+
+
+def detector_parameters(config: DetectorConfig, digits: int = 6) -> dict[str, Any]:
+    """``config`` as ``detector_*`` parameter values (``DETECTOR_PARAMETERS``, each of the type of its
+    field's default), ``detector_hysteresis`` rounded to ``digits`` decimals: the one way from the
+    detector to its parameters, for the node (6) and a params file (4, :mod:`ompn_ros.detect.params_file`)."""
+    values: dict[str, Any] = {}
+    for spec in fields(DetectorConfig):
+        if spec.name == "low":
+            values[HYSTERESIS] = round(float(config.high) - config.low_threshold, digits)
+        else:
+            values[parameter_name(spec.name)] = _of_field_kind(spec.name, getattr(config, spec.name))
+    return values
+
+
+def _of_field_kind(name: str, value: Any) -> Any:
+    """``value`` as the type of field ``name``'s default (a ROS parameter has one type)."""
+    return type(getattr(_DEFAULT, name))(value)
 
 
 def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
@@ -279,39 +306,23 @@ def node_parameters(settings: DetectorSettings) -> dict[str, Any]:
     for free: a ``-p`` or ``--params-file`` value overrides the checkpoint's.  The way back is
     :func:`detector_config`.
     """
-    online = settings.online
-    return {
-        "detector_high": float(online.high),
-        "detector_hysteresis": round(float(online.high) - online.low_threshold, 6),
-        "detector_min_segment_length": int(online.min_segment_length),
-        "detector_mode": str(online.mode),
-        "detector_force_first_step_low": bool(online.force_first_step_low),
-        "detector_lag": int(online.lag),
-        "detector_offset": int(online.offset),
-        "done_threshold": float(settings.done_threshold),
-    }
+    return {**detector_parameters(settings.online), "done_threshold": float(settings.done_threshold)}
 
 
 def detector_config(values: Mapping[str, Any]) -> DetectorConfig:
-    """The detector of the ``detector_*`` parameter values (``low = high - hysteresis``).
+    """The detector of the ``detector_*`` parameter values, every one given (``low = high - hysteresis``).
 
     Raises :class:`DetectorConfigError` when ``detector_hysteresis`` exceeds ``detector_high`` (the run
     would end only below a score of 0, so it would never end)."""
-    high, hysteresis = float(values["detector_high"]), float(values["detector_hysteresis"])
+    high, hysteresis = float(values[parameter_name("high")]), float(values[HYSTERESIS])
     if hysteresis > high + 1e-9:
         raise DetectorConfigError(
             f"detector_hysteresis={hysteresis} exceeds detector_high={high}: a run would end only below a "
             "score of 0; set detector_hysteresis <= detector_high"
         )
-    return DetectorConfig(
-        high=high,
-        low=max(0.0, high - hysteresis),
-        min_segment_length=int(values["detector_min_segment_length"]),
-        mode=str(values["detector_mode"]),
-        force_first_step_low=bool(values["detector_force_first_step_low"]),
-        lag=int(values["detector_lag"]),
-        offset=int(values["detector_offset"]),
-    )
+    given = {spec.name: _of_field_kind(spec.name, values[parameter_name(spec.name)])
+             for spec in fields(DetectorConfig) if spec.name != "low"}
+    return DetectorConfig(**given, low=max(0.0, high - hysteresis))
 
 
 def _finite_or_none(value: float) -> float | None:
@@ -400,16 +411,20 @@ def resolve_detector(
 __all__ = [
     "DETECTOR_FILE",
     "DETECTOR_PARAMETERS",
+    "HYSTERESIS",
     "NODE_PARAMETERS",
     "OFFLINE_DETECTORS",
+    "PARAMETER_PREFIX",
     "SOURCES",
     "DetectorSettings",
     "OfflineDetector",
     "SettingsSource",
     "detector_config",
     "detector_file",
+    "detector_parameters",
     "load_detector_settings",
     "node_parameters",
+    "parameter_name",
     "resolve_detector",
     "save_detector_settings",
 ]

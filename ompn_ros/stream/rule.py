@@ -109,13 +109,14 @@ class StreamSink(Protocol):
 class StreamRule:
     """The stamp and episode rules over one segmenter, with the counters they keep (:attr:`events`).
 
-    The rule owns the episode: whether one is open (:attr:`episode_open`), the index of its last step,
-    the last stamp stepped and its rows (:attr:`rows`: the still runs); the segmenter validates, steps
-    and detects (:meth:`StreamingSegmenter.step`).  Its parts decide and the rule applies: :attr:`clocks`
-    (stamps from the future, clock restarts and steps) and :attr:`pauses` (``episode_gap``, ``idle_s``);
-    :attr:`markers` takes the episode markers, sketch messages and resets.  ``clock`` gives the receiver's
-    clock in ns (0: unknown, the future check is off).  The segmenter is set once the model is loaded
-    (:attr:`segmenter`); every entry point but :meth:`receive_stamp` and :meth:`start_episode` expects it.
+    The rule owns the episode: whether one is open (:attr:`episode_open`), the last stamp stepped and
+    its rows (:attr:`rows`: the still runs); the segmenter validates, steps, detects and counts the steps
+    (:meth:`StreamingSegmenter.step`; :attr:`step_index` reads its count).  Its parts decide and the rule
+    applies: :attr:`clocks` (stamps from the future, clock restarts and steps) and :attr:`pauses`
+    (``episode_gap``, ``idle_s``); :attr:`markers` takes the episode markers, sketch messages and resets.
+    ``clock`` gives the receiver's clock in ns (0: unknown, the future check is off).  The segmenter is set
+    once the model is loaded (:attr:`segmenter`); every entry point but :meth:`receive_stamp` and
+    :meth:`start_episode` expects it.
     """
 
     def __init__(self, sink: StreamSink, clock: Callable[[], int],
@@ -128,7 +129,6 @@ class StreamRule:
         self.default_sketch: np.ndarray | None = None
         self.episode_sketch: np.ndarray | None = None
         self.last_stamp: int | None = None  # of the last stamped step of this episode (None: none yet)
-        self.step_index = -1  # of the episode's last step (-1: none yet)
         self.closed = False  # the episode was closed (close_episode); the next starts it again
         self.rows = EpisodeRows()  # the still runs (the model's still_tolerance): steps as rows
         self.clocks = StreamClocks()  # receive stamps, clock restarts and steps
@@ -143,7 +143,7 @@ class StreamRule:
     @segmenter.setter
     def segmenter(self, segmenter: StreamingSegmenter | None) -> None:
         self._segmenter = segmenter
-        self.last_stamp, self.step_index, self.closed = None, -1, False
+        self.last_stamp, self.closed = None, False
         self.rows.forget()
 
     def arm(self) -> None:
@@ -180,6 +180,11 @@ class StreamRule:
         assert self.segmenter is not None
         self.segmenter.count_rejection(error)
         self.sink.skipped(error, False)
+
+    @property
+    def step_index(self) -> int:
+        """The episode's last step (-1: none yet): the segmenter's count (its step, reset, stop move it)."""
+        return -1 if self._segmenter is None else self._segmenter.step_index
 
     @property
     def episode_open(self) -> bool:
@@ -227,7 +232,6 @@ class StreamRule:
             return
         if stamp_ns is not None:
             self.last_stamp = int(stamp_ns)
-        self.step_index = out.step_index
         if out.step_index == 0:
             self.events["episodes"] += 1
         out = self.rows.output(out)  # the rows and stamps of the recorded stream
@@ -287,14 +291,13 @@ class StreamRule:
         seg.reset(sketch)
         self.rows.forget()
         self.clocks.last_receive_ns = 0
-        self.last_stamp, self.step_index, self.closed = None, -1, False
+        self.last_stamp, self.closed = None, False
         self.episode_sketch = sketch
 
     def stop(self) -> None:
         """An episode start was refused: no steps until the next valid start."""
         assert self.segmenter is not None
         self.segmenter.stop()
-        self.step_index = -1
 
     def close_episode(self, steps: int | None, decided: tuple[int, int] | None = None) -> None:
         """Close the episode at ``steps - 1`` (the marker's count; the last step seen if unknown): the

@@ -161,6 +161,21 @@ def test_the_params_file_holds_the_nodes_detector_parameters(tmp_path: Path) -> 
     assert load_detector_yaml(path) == config
 
 
+def test_a_params_file_writes_each_value_in_the_nodes_type(tmp_path: Path) -> None:
+    import yaml
+
+    from ompn_ros.detect.online import DetectorConfig
+    from ompn_ros.detect.params_file import write_node_config
+    from ompn_ros.detect.settings import detector_parameters
+
+    config = DetectorConfig(high=1, low=0, min_segment_length=2)  # a whole-number threshold, as JSON gives it
+    path = write_node_config(tmp_path / "node.yaml", "", config, {}, "their bag")
+    written = yaml.safe_load(path.read_text(encoding="utf-8"))["/**/ompn_node"]["ros__parameters"]
+    assert written == detector_parameters(config)  # the node's parameters of this detector ...
+    assert [type(value) for value in written.values()] == [float, float, int, str, bool, int, int]
+    assert "detector_high: 1.0\n" in path.read_text(encoding="utf-8")  # ... a double, as the node declares it
+
+
 def test_the_offline_choice_is_the_best_alignment_first_on_ties() -> None:
     assert choose.pick_offline({"topkc_align": 0.8, "topk_align": 0.9, "auto_align": 0.9}, 4) == ("top_k", 4)
     assert choose.pick_offline({"topkc_align": 0.9, "topk_align": 0.9, "auto_align": 0.1}, 2) == (

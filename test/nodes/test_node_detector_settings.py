@@ -45,6 +45,17 @@ def _close(node: OMPNNode, ctx: Context) -> None:
     rclpy.try_shutdown(context=ctx)
 
 
+def test_the_node_declares_one_parameter_per_detector_field_with_its_default() -> None:
+    from ompn_ros.detect.settings import NODE_PARAMETERS, node_parameters
+    from ompn_ros.nodes.ompn_node_params import SPECS
+
+    declared = {spec.name: spec.default for spec in SPECS}
+    defaults = node_parameters(DetectorSettings())  # DetectorConfig's fields under the node's names
+    assert [(name, declared[name], type(declared[name])) for name in NODE_PARAMETERS] == [
+        (name, value, type(value)) for name, value in defaults.items()
+    ]
+
+
 def test_the_checkpoints_detector_is_used_by_default(checkpoint: Path) -> None:
     node, ctx = _configured([Parameter("checkpoint", value=str(checkpoint))])
     try:

@@ -74,10 +74,17 @@ def test_delay_stats_by_hand() -> None:
     assert stats["false_alarms_per_episode"] == 2  # 9 and 5 are > 1 step from any boundary
 
 
+def _choose(policy: StreamingPolicy, episodes, grid: list[DetectorConfig], objective: str = "f1"):
+    """Replay once, then grid-search the online detector on the replays (the lab's tuning)."""
+    replays = cli.replay_all(policy, episodes, grid[0])
+    cli.check_finite(replays, episodes)
+    return tune.choose_on_replays(replays, episodes, grid, objective)
+
+
 def test_choose_detector_and_write_config(ckpt: Path, episodes, tmp_path: Path) -> None:
     policy = StreamingPolicy.from_checkpoint(ckpt)
     grid = [DetectorConfig(high=h, mode=m) for h in (0.2, 0.5, 0.95) for m in ("falling_edge", "rising_edge")]
-    best, metrics, comparison = cli.choose_detector(policy, episodes, grid)
+    best, metrics, comparison = _choose(policy, episodes, grid)
     assert best in grid and best.high != 0.95  # nothing crosses 0.95: only the episode end is found
     assert metrics["align_strict"] == comparison["online"]["align_strict"]
     path = params_file.write_node_config(tmp_path / "node.yaml", "craft", best, comparison, "test")
@@ -92,11 +99,11 @@ def test_choose_detector_and_write_config(ckpt: Path, episodes, tmp_path: Path) 
 def test_choose_detector_maximises_its_objective(ckpt: Path, episodes, objective: str, metric: str) -> None:
     policy = StreamingPolicy.from_checkpoint(ckpt)
     grid = [DetectorConfig(high=h, mode=m) for h in (0.1, 0.3, 0.5, 0.7) for m in ("falling_edge", "peak")]
-    _, metrics, _ = cli.choose_detector(policy, episodes, grid, objective=objective)
+    _, metrics, _ = _choose(policy, episodes, grid, objective=objective)
     scored = cli.compare_detectors(policy, episodes, {str(i): c for i, c in enumerate(grid)})
     assert metrics[metric] == pytest.approx(max(scored[str(i)][metric] for i in range(len(grid))))
     with pytest.raises(ValueError, match="objective must be one of"):
-        cli.choose_detector(policy, episodes, grid, objective="recall")
+        _choose(policy, episodes, grid, objective="recall")
 
 
 def test_ompn_segment_cli_on_a_bag(ckpt: Path, episodes, tmp_path: Path) -> None:
