@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import os
+import time
 from typing import Any
 
 
@@ -23,3 +24,17 @@ class CountedTask:
 
 def died(item: int, reason: str) -> dict[str, Any]:
     return {"item": item, "died": reason}
+
+
+class StartedTask:
+    """A pool task that leaves a file ``started_<item>`` in ``folder`` when it starts, then works for
+    ``seconds``: which tasks began is read from the folder, whatever the pool reported."""
+
+    def __init__(self, folder: str, seconds: float) -> None:
+        self.folder, self.seconds = folder, seconds
+
+    def __call__(self, item: int) -> dict[str, Any]:
+        with open(os.path.join(self.folder, f"started_{item}"), "w", encoding="utf-8"):
+            pass
+        time.sleep(self.seconds)
+        return {"item": item, "pid": os.getpid()}

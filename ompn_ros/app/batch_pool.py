@@ -16,7 +16,10 @@ outlive it.
 * **No orphans.**  Every worker dies with the run's process, however it ended
   (:func:`ompn_ros.workers.die_with_parent`).
 
-At most ``jobs`` tasks are in flight, so a stop request waits for those only.  The pool runs any
+Each worker has its next task queued while it runs one (at most ``2 * jobs`` in flight), so no worker
+waits for the run's process between tasks, which on short bags is a large share of a bag's time.  A
+stop request still waits only for the tasks running: a queued task that a worker takes after the
+request comes back unstarted (:data:`NOT_STARTED`) and is not counted as done.  The pool runs any
 list of work items (bags today); a task's result comes back as it completes.
 """
 
@@ -57,6 +60,7 @@ class Stop:
     def __init__(self) -> None:
         self.signum: int | None = None
         self.armed = True
+        self.listeners: list[Callable[[], None]] = []
         self._previous: dict[int, Any] = {}
 
     @property
@@ -74,6 +78,8 @@ class Stop:
                 raise HardStop
             return
         self.signum = signum
+        for listener in self.listeners:  # at once, not when the run's loop next wakes
+            listener()
         print(f"ompn_segment: {signal.Signals(signum).name}: stopping after the bags in progress "
               "(again: stop now)", file=sys.stderr, flush=True)
 
@@ -141,22 +147,30 @@ def _start_fork_server() -> None:
 
 _TASK: Callable[[Any], dict[str, Any]] | None = None
 """The task of this worker process, given once when it starts (:func:`init_worker`)."""
+_HALT: Any = None
+"""The run's stop request as this worker sees it (a multiprocessing event; :func:`init_worker`)."""
+NOT_STARTED: dict[str, Any] = {"not_started": True}
+"""A worker's answer for a task it took after a stop request: the task did not run."""
 
 
 def _run_task(item: Any) -> dict[str, Any]:
-    """What a worker runs for each item: only the item crosses the pipe, not the task's settings."""
+    """What a worker runs for each item: only the item crosses the pipe, not the task's settings; none
+    is started once the run asked to stop."""
     if _TASK is None:
         raise RuntimeError("a pool task ran in a process that init_worker did not start")
+    if _HALT is not None and _HALT.is_set():
+        return NOT_STARTED
     return _TASK(item)
 
 
 def init_worker(parent: int, parent_main_thread: bool, via_server: bool = False,
-                task: Callable[[Any], dict[str, Any]] | None = None) -> None:
+                task: Callable[[Any], dict[str, Any]] | None = None, halt: Any = None) -> None:
     """First thing in every worker: die with the run (``parent``, whether it forked the worker or a fork
     server did: ``via_server``), leave stopping to the run, one torch thread, and keep ``task``, the
-    work of every item (sent once per worker, not with each item)."""
-    global _TASK
-    _TASK = task
+    work of every item (sent once per worker, not with each item), and ``halt``, the run's stop
+    request (an event: once set, queued tasks are not started)."""
+    global _TASK, _HALT
+    _TASK, _HALT = task, halt
     if via_server:  # the fork server outlives the run while its workers hold its pipe: watch the run
         die_with_parent(os.getppid(), True, ignore_stop_signals=True, run=parent)
     else:
@@ -173,7 +187,8 @@ def _kill(pool: ProcessPoolExecutor) -> None:
 
 class Pool(Generic[Item]):
     """``task(item)`` for each item over ``jobs`` worker processes (see the module docstring);
-    ``died(item, reason)`` is the result of an item whose worker died (killed, out of memory)."""
+    ``died(item, reason)`` is the result of an item whose worker died (killed, out of memory) while
+    it ran or waited for that worker."""
 
     def __init__(self, task: Callable[[Item], dict[str, Any]], died: Callable[[Item, str], dict[str, Any]],
                  jobs: int, device: str, stop: Stop) -> None:
@@ -193,32 +208,46 @@ class Pool(Generic[Item]):
         if forked:  # the collector of a forked worker must not write into every inherited object,
             gc.collect()  # which copies the parent's memory page by page (CPU in every worker)
             gc.freeze()
+        halt = context.Event()
+        self.stop.listeners.append(halt.set)
+        initargs = (*started_here(), via_server, self.task, halt)
         pool = ProcessPoolExecutor(max_workers=min(self.jobs, len(queue)), initializer=init_worker,
-                                   mp_context=context, initargs=(*started_here(), via_server, self.task))
-        running: dict[Future[dict[str, Any]], Item] = {}
-        broken = False
+                                   mp_context=context, initargs=initargs)
         try:
-            while queue or running:
-                while queue and len(running) < self.jobs and not (self.stop.requested or broken):
-                    item = queue.popleft()
-                    running[pool.submit(_run_task, item)] = item
-                if not running:
-                    break
-                done, _ = wait(running, return_when=FIRST_COMPLETED)
-                for future in done:
-                    item = running.pop(future)
-                    try:
-                        yield future.result()
-                    except BrokenProcessPool as exc:
-                        broken = True
-                        yield self.died(item, f"the worker process died ({exc})")
+            yield from self._drive(pool, queue)
         except BaseException:
             _kill(pool)
             raise
         finally:
+            self.stop.listeners.remove(halt.set)
             if forked:
                 gc.unfreeze()
         pool.shutdown(wait=True)
 
+    def _drive(self, pool: ProcessPoolExecutor, queue: deque[Item]) -> Iterator[dict[str, Any]]:
+        """Keep two tasks per worker in flight until ``queue`` is empty, a stop is requested or a worker
+        dies; a task that came back unstarted goes back to the front of ``queue``."""
+        running: dict[Future[dict[str, Any]], Item] = {}
+        broken = False
+        while queue or running:
+            while queue and len(running) < 2 * self.jobs and not (self.stop.requested or broken):
+                item = queue.popleft()
+                running[pool.submit(_run_task, item)] = item
+            if not running:
+                break
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                item = running.pop(future)
+                try:
+                    result = future.result()
+                except BrokenProcessPool as exc:
+                    broken = True
+                    yield self.died(item, f"a worker process died with this task running or queued ({exc})")
+                    continue
+                if result == NOT_STARTED:
+                    queue.appendleft(item)
+                else:
+                    yield result
 
-__all__ = ["STOP_SIGNALS", "HardStop", "Pool", "Stop", "init_worker", "pool_context"]
+
+__all__ = ["NOT_STARTED", "STOP_SIGNALS", "HardStop", "Pool", "Stop", "init_worker", "pool_context"]

@@ -6,12 +6,17 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import signal
 import subprocess
 import sys
+import threading
+from collections import deque
+from concurrent.futures import Future
 from pathlib import Path
+from typing import Any
 
 import pytest
-from pool_tasks import CountedTask, died
+from pool_tasks import CountedTask, StartedTask, died
 
 from ompn_ros import atomic
 from ompn_ros.app import batch_bags
@@ -38,7 +43,7 @@ def test_the_task_goes_to_each_worker_once_not_with_every_item(monkeypatch: pyte
 FORKED = """
 import gc, json
 from ompn_ros.app.batch_pool import Pool, Stop, pool_context
-from pool_tasks import CountedTask, died
+from pool_tasks import CountedTask, StartedTask, died
 method = pool_context("cpu").get_start_method()
 out = list(Pool(CountedTask(), died, 2, "cpu", Stop()).run(list(range(6))))
 print(json.dumps({"method": method, "frozen": [d["frozen"] for d in out],
@@ -68,7 +73,12 @@ def test_records_are_atomic_but_not_synced_bag_by_bag(monkeypatch: pytest.Monkey
                                                        tmp_path: Path) -> None:
     synced: list[int] = []
     real = os.fsync
-    monkeypatch.setattr(atomic.os, "fsync", lambda fd: (synced.append(fd), real(fd))[1])
+
+    def fsync(fd: int) -> None:
+        synced.append(fd)
+        real(fd)
+
+    monkeypatch.setattr(atomic.os, "fsync", fsync)
     target = batch_bags.write_record(tmp_path, "lab/bag_0", {"status": "segmented"})
     assert json.loads(target.read_text())["status"] == "segmented"
     assert synced == []
@@ -83,3 +93,57 @@ def test_a_record_lost_to_a_power_failure_is_read_as_none(tmp_path: Path) -> Non
     for broken in ("", target.read_text()[:7]):
         target.write_text(broken)
         assert batch_bags.read_record(tmp_path, "bag_0") is None
+
+
+class _Pending:
+    """What ``_drive`` sees of an executor: it records the submitted tasks and completes none itself,
+    except that a task submitted again completes the task of ``then`` (so the run can go on)."""
+
+    def __init__(self, then: int) -> None:
+        self.submitted: list[tuple[Future[dict[str, Any]], int]] = []
+        self.then = then
+
+    def submit(self, fn: Any, item: int) -> Future[dict[str, Any]]:
+        future: Future[dict[str, Any]] = Future()
+        future.set_running_or_notify_cancel()
+        if item in self.items():
+            self.future(self.then).set_result({"item": self.then})
+        self.submitted.append((future, item))
+        return future
+
+    def items(self) -> list[int]:
+        return [item for _, item in self.submitted]
+
+    def future(self, item: int) -> Future[dict[str, Any]]:
+        return next(f for f, i in self.submitted if i == item)
+
+
+def test_each_worker_has_its_next_task_queued_and_an_unstarted_task_is_not_done() -> None:
+    # short bags: a worker that waits for the run's process between bags loses a large share of each
+    from ompn_ros.app.batch_pool import NOT_STARTED, Pool, Stop
+
+    executor, queue = _Pending(then=1), deque(range(10))
+    results = Pool(CountedTask(), died, 2, "cpu", Stop())._drive(executor, queue)  # type: ignore[arg-type]
+    threading.Timer(0.1, lambda: executor.future(0).set_result(NOT_STARTED)).start()
+    out = next(results)  # waits for the timer: four tasks are in flight by then
+    assert executor.items() == [0, 1, 2, 3, 0], "two tasks per worker in flight; the unstarted one again"
+    assert out == {"item": 1}, "the unstarted task is not reported as done"
+
+
+def test_a_stop_starts_no_queued_task_and_reports_every_task_that_started(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    from ompn_ros.app import batch_pool
+    from ompn_ros.app.batch_pool import Pool, Stop
+
+    monkeypatch.setattr(batch_pool, "pool_context", lambda device: multiprocessing.get_context("spawn"))
+    out = []
+    with Stop() as stop:
+        for doc in Pool(StartedTask(str(tmp_path), 0.4), died, 2, "cpu", stop).run(list(range(12))):
+            out.append(doc)
+            if len(out) == 1:
+                os.kill(os.getpid(), signal.SIGINT)  # the operator's Ctrl-C, through the handler
+    started = sorted(int(p.name.split("_")[1]) for p in tmp_path.glob("started_*"))
+    assert all("died" not in doc for doc in out)
+    assert sorted(doc["item"] for doc in out) == started, "every task that began is reported, no other"
+    assert len(started) <= 3, f"queued tasks began after the stop: {started}"
+    assert stop.requested and stop.listeners == []
