@@ -9,7 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from episode_markers import marker  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
@@ -35,12 +35,6 @@ class Recorder:
 
     def publish(self, raw: bytes) -> None:
         self.raws.append(raw)
-
-
-def marker(kind: str, **values: str) -> DiagnosticArray:
-    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
-                              values=[KeyValue(key=k, value=v) for k, v in values.items()])  # fmt: skip
-    return DiagnosticArray(status=[status])
 
 
 def received(ep: Episode) -> Episode:

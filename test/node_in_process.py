@@ -1,4 +1,4 @@
-"""ompn_node in process with publishers that record, and the episode markers it reads."""
+"""ompn_node in process with publishers that record (the markers it reads: :mod:`episode_markers`)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,9 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 hypothesis = pytest.importorskip("hypothesis")
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from ompn_ros import layout  # noqa: E402
 from ompn_ros.nodes.ompn_node import OMPNNode  # noqa: E402
 
 
@@ -38,8 +36,3 @@ def active_node(ctx, ckpt: Path, **params: Any) -> OMPNNode:
     node.outputs.pubs = {k: Recorder() for k in node.outputs.pubs}
     return node
 
-
-def marker(kind: str, **values: str) -> DiagnosticArray:
-    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
-                              values=[KeyValue(key=k, value=v) for k, v in values.items()])
-    return DiagnosticArray(status=[status])

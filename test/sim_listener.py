@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Callable
@@ -11,6 +10,7 @@ from collections.abc import Callable
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+from node_process import check_environment, node_command  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
@@ -53,9 +53,9 @@ class Listener:
 
 
 def launch(env: dict[str, str], namespace: str, *params: str, sim: str = "dial") -> subprocess.Popen:
-    args = [sys.executable, "-m", f"sim_nodes.{sim}.node", "--ros-args", "-r", f"__ns:=/{namespace}"]
-    for p in params:
-        args += ["-p", p]
+    """The sim node ``sim`` in namespace ``/namespace``, run to its end (:func:`finish`), stderr apart."""
+    check_environment(env)
+    args = node_command(*params, module=f"sim_nodes.{sim}.node", ns=f"/{namespace}")
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -259,17 +259,11 @@ print(len(raws), pub.get_subscription_count(), flush=True)
 
 
 def _play_to_example(bag: Path, env: dict[str, str]) -> list[str]:
-    from child_process import interrupt
+    from node_process import NodeProcess
 
     topic = f"/play_{os.getpid()}/boundary"  # unique: the DDS domain may be shared
     renamed = _renamed(bag, topic)
-    example = subprocess.Popen(
-        [sys.executable, str(EXAMPLE), "--ros-args", "-p", f"boundary_topic:={topic}"],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    example = NodeProcess(env, f"boundary_topic:={topic}", program=[sys.executable, str(EXAMPLE)])
     try:
         time.sleep(1.0)
         played = subprocess.run(
@@ -281,7 +275,7 @@ def _play_to_example(bag: Path, env: dict[str, str]) -> list[str]:
         )
         assert played.returncode == 0, played.stdout + played.stderr
     finally:
-        out = interrupt(example)
+        out = example.stop()
     return out.splitlines()
 
 

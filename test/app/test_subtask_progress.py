@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
 
-from child_process import interrupt
+from node_process import NodeProcess
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "subtask_progress.py"
@@ -87,8 +86,7 @@ def test_the_example_node_reads_published_boundaries(ros_env: dict[str, str]) ->
     from ompn_interfaces.msg import SubtaskBoundary
 
     topic = f"/progress_{os.getpid()}/boundary"  # unique: the DDS domain may be shared
-    proc = subprocess.Popen([sys.executable, str(EXAMPLE), "--ros-args", "-p", f"boundary_topic:={topic}"],
-                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = NodeProcess(ros_env, f"boundary_topic:={topic}", program=[sys.executable, str(EXAMPLE)])
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     try:
@@ -98,7 +96,7 @@ def test_the_example_node_reads_published_boundaries(ros_env: dict[str, str]) ->
         pub = node.create_publisher(SubtaskBoundary, topic, qos)
         deadline = time.monotonic() + 60
         while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            assert proc.poll() is None, proc.communicate()[0]
+            proc.check()
             time.sleep(0.05)
         assert pub.get_subscription_count() == 1
         for step, subtask, final, kind in ((5, 0, False, 0), (12, 1, False, 0), (14, 2, True, 1)):
@@ -108,7 +106,7 @@ def test_the_example_node_reads_published_boundaries(ros_env: dict[str, str]) ->
         time.sleep(1.0)
     finally:
         rclpy.try_shutdown(context=ctx)
-        out = interrupt(proc)
+        out = proc.stop()
     assert out.splitlines()[-3:] == [
         "[/r] episode 1: subtask 0 (id 3) done at step 5, score 0.75, decided 2 steps later",
         "[/r] episode 1: subtask 1 (id 4) done at step 12, score 0.75, decided 2 steps later",

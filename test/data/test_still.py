@@ -151,7 +151,8 @@ def test_training_steps_the_model_on_the_moves_only() -> None:
 
 def test_the_node_live_publishes_what_the_replay_gives_on_a_paused_stream(ctx, ckpt: Path) -> None:
     pytest.importorskip("rclpy")
-    from node_in_process import active_node, marker
+    from episode_markers import marker
+    from node_in_process import active_node
 
     from ompn_ros.data import messages as m
     from ompn_ros.data.messages import decode_subtask_boundary

@@ -8,7 +8,6 @@ import dataclasses
 import os
 import shutil
 import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -104,9 +103,10 @@ def test_ompn_segment_refuses_a_deep_config_with_exit_2(dial: Path, tmp_path: Pa
 def test_ompn_node_start_up_is_one_line_and_exit_2(dial: Path, name: str, spoil: Callable[[Path], None],
                                                    ros_env: dict[str, str], tmp_path: Path) -> None:
     spoil(dial / name)
-    done = subprocess.run([sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args",
-                           "-p", f"checkpoint:={dial}"],
-                          env=ros_env, cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    from node_process import node_command
+
+    done = subprocess.run(node_command(f"checkpoint:={dial}"), env=ros_env, cwd=tmp_path, capture_output=True,
+                          text=True, timeout=240)
     problems = [x for x in (done.stdout + done.stderr).splitlines() if "[INFO]" not in x]
     assert done.returncode == 2, done.stdout + done.stderr
     assert len(problems) == 1 and problems[0].startswith("ompn_node: cannot start: "), problems

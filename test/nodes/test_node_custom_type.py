@@ -13,14 +13,11 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import struct
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -30,9 +27,8 @@ rclpy = pytest.importorskip("rclpy")
 
 import custom_interfaces as ci  # noqa: E402
 import type_corpus as tc  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from node_process import NodeProcess, Peer, node_command  # noqa: E402
 from random_checkpoint import random_checkpoint  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
@@ -115,16 +111,6 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
 
 
-def _stop(proc: subprocess.Popen[str]) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.communicate(timeout=15)[0]
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.communicate()[0]
-
-
 def _published(path: Path) -> list[tuple[int, bytes]]:
     data, out, pos = path.read_bytes(), [], 0
     while pos < len(data):
@@ -176,84 +162,32 @@ def test_custom_type_live_equals_replay(
     lab_package: Path, ckpt: Path, ros_env: dict[str, str], tmp_path: Path
 ) -> None:
     env = ci.environment(lab_package, ros_env)
-    ns = f"custom_{os.getpid()}"
-    status_name = f"/{ns}/ompn_node: segmenter"
+    ns = f"/custom_{os.getpid()}"
     spec_file = tmp_path / "arm.yaml"
     spec_file.write_text(f"observation: {SPEC_TEXT}\n")
-    node_proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "ompn_ros.nodes.ompn_node",
-            "--ros-args",
-            "-r",
-            f"__ns:=/{ns}",
-            "-p",
-            f"checkpoint:={ckpt}",
-            "-p",
-            f"observation_spec:={spec_file}",
-            "-p",
-            "qos_depth:=1000",
-            "-p",
-            "diagnostics_period:=0.1",
-            "-p",
-            "max_stamp_lead:=0.0",
-        ],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    driver: subprocess.Popen[str] | None = None
+    node_proc = NodeProcess(env, f"checkpoint:={ckpt}", f"observation_spec:={spec_file}", "qos_depth:=1000",
+                            "diagnostics_period:=0.1", "max_stamp_lead:=0.0", ns=ns)  # fmt: skip
+    driver: NodeProcess | None = None
     pis: list[np.ndarray] = []
-    diags: list[dict[str, str]] = []
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    peer = Peer(node_proc, name="observer")
     try:
-        sub = rclpy.create_node("observer", context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(sub)
-        sub.create_subscription(
+        peer.node.create_subscription(
             Float32MultiArray,
-            f"/{ns}/ompn_node/pi",
+            node_proc.topic("ompn_node/pi"),
             lambda raw: pis.append(np.asarray(parse_float32_array(raw))),
             RELIABLE,
             raw=True,
         )
-        sub.create_subscription(
-            DiagnosticArray,
-            "/diagnostics",
-            lambda m: diags.extend(
-                {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name
-            ),
-            10,
-        )
-
-        def pump(cond: Any, timeout: float) -> bool:
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                ex.spin_once(timeout_sec=0.01)
-                if cond():
-                    return True
-                assert node_proc.poll() is None, f"ompn_node exited: {_stop(node_proc)}"
-            return bool(cond())
-
-        assert pump(lambda: bool(diags), 90), "ompn_node never published /diagnostics"
-        driver = subprocess.Popen(
-            [sys.executable, "-c", DRIVER, str(tmp_path / "published.bin")],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        assert pump(lambda: driver is not None and driver.poll() is not None, 120), (
+        peer.wait_active(node_proc, 90)
+        driver = NodeProcess(env, program=[sys.executable, "-c", DRIVER, str(tmp_path / "published.bin")])
+        assert peer.pump(lambda: driver is not None and not driver.running(), 120), (
             "the driver did not finish"
         )
-        pump(lambda: len(pis) >= STEPS, 10)
+        peer.pump(lambda: len(pis) >= STEPS, 10)
     finally:
-        rclpy.try_shutdown(context=ctx)
-        driver_out = _stop(driver) if driver is not None else ""
-        node_out = _stop(node_proc)
+        peer.close()
+        driver_out = driver.stop() if driver is not None else ""
+        node_out = node_proc.stop()
     assert driver is not None and driver.returncode == 0, driver_out
     assert node_proc.returncode == 0, node_out
     assert "Traceback" not in node_out and "FATAL" not in node_out
@@ -273,16 +207,7 @@ def test_a_type_not_installed_is_one_line_naming_its_package(
         "acme_arm_msgs/msg/ArmState, field: positions}]}\n"
     )
     done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "ompn_ros.nodes.ompn_node",
-            "--ros-args",
-            "-p",
-            f"checkpoint:={ckpt}",
-            "-p",
-            f"observation_spec:={spec_file}",
-        ],
+        node_command(f"checkpoint:={ckpt}", f"observation_spec:={spec_file}"),
         env=ros_env,
         cwd=tmp_path,
         capture_output=True,

@@ -13,7 +13,9 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from episode_markers import marker  # noqa: E402
+from node_process import NodeProcess  # noqa: E402
 from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
@@ -47,12 +49,6 @@ def pump(ex: Any, until: Callable[[], bool], timeout: float = 10.0) -> bool:
         if until():
             return True
     return until()
-
-
-def marker(kind: str) -> DiagnosticArray:
-    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
-                              values=[KeyValue(key=layout.KEY_SKETCH, value="")])  # fmt: skip
-    return DiagnosticArray(status=[status])
 
 
 def test_a_hysteresis_above_high_is_refused_with_the_reason(ctx: Any, ckpt: Path) -> None:
@@ -90,7 +86,7 @@ def test_a_marker_flood_is_processed_or_counted(ctx: Any, ckpt: Path, n: int) ->
 
     start = time.monotonic()
     for i in range(n):  # bursts of 400 (the node had a queue of 100), each served before the next
-        pub.publish(marker(layout.EPISODE_START if i % 2 == 0 else layout.EPISODE_END))
+        pub.publish(marker(layout.EPISODE_START if i % 2 == 0 else layout.EPISODE_END, sketch=""))
         if i % 400 == 399:
             pump(ex, lambda i=i: handled() >= i + 1, timeout=10)
     took_s = time.monotonic() - start
@@ -214,12 +210,15 @@ pub = node.create_publisher(DiagnosticArray, topic, qos)
 deadline = time.monotonic() + 20
 while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
     time.sleep(0.01)
-time.sleep(0.5)
 def marker(kind):
     status = DiagnosticStatus(name=name, message=kind, values=[KeyValue(key=key, value="")])
     return DiagnosticArray(status=[status])
+pub.publish(marker("start"))  # the first marker; the flood waits until the node has it and acked it
+if not pub.wait_for_all_acked(rclpy.duration.Duration(seconds=20)):
+    sys.exit("the node never acknowledged the first marker")
+sys.stdin.readline()
 start = time.monotonic()
-for i in range(n):
+for i in range(1, n):
     pub.publish(marker("start" if i % 2 == 0 else "end"))
 print(f"published {n} in {time.monotonic() - start:.2f} s", flush=True)
 acked = pub.wait_for_all_acked(rclpy.duration.Duration(seconds=60))
@@ -234,8 +233,16 @@ def flood_from_another_process(
 ) -> tuple[dict[str, int], str]:
     """A publisher with a queue of ``depth`` sends ``n`` markers as fast as it can from another process and
     waits until all are acknowledged; the node's counters once it has served its queue, and what the
-    publisher printed."""
-    import subprocess
+    publisher printed.
+
+    The flood starts once the node has the publisher's first marker and acknowledged it, not after a
+    pause.  DDS matches a publisher and a subscription on each side on its own (under load one side can
+    match seconds after the other): the publisher seeing the node's subscription does not mean that the
+    subscription sees the publisher yet.  What is sent in between never reaches the node and is not
+    reported lost either: for the middleware the node joined later.  The reliable first marker reaches
+    the node once its side has matched; Fast DDS's reader counts losses only from the first heartbeat
+    of the publisher it processed, and acknowledges only in answer to one.  From then on, every marker
+    is the node's to step or count."""
     import sys
 
     node = make_node(ctx, ckpt, name=f"deepflood{n}_{depth}")
@@ -244,21 +251,21 @@ def flood_from_another_process(
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     args = [str(n), str(depth), layout.EPISODE, layout.EPISODE_STATUS_NAME, layout.KEY_SKETCH]
-    proc = subprocess.Popen([sys.executable, "-c", FLOODER, *args], env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+    proc = NodeProcess(env, program=[sys.executable, "-c", FLOODER, *args], stdin=True)
 
     def total() -> int:
         c = node.counters()
         return c["markers"] + c["markers_lost"]
 
     try:
-        pump(ex, lambda: total() >= n or proc.poll() is not None, timeout=90)
+        pump(ex, lambda: total() >= 1 or not proc.running(), timeout=60)
+        assert total() == 1, f"the node never had the first marker ({node.counters()}): {proc.stop()}"
+        proc.send("flood")
+        pump(ex, lambda: total() >= n or not proc.running(), timeout=90)
         pump(ex, lambda: total() >= n, timeout=30)  # all acknowledged: the node reads its queue
         proc.wait(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        out = proc.communicate()[0]
+        out = proc.stop()
     counters = node.counters()
     node.destroy_node()
     return counters, f"rc {proc.returncode}: {out}"

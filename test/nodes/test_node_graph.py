@@ -5,11 +5,8 @@ incompatible QoS reported by the node, two namespaced nodes, a live parameter ch
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
-import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -18,18 +15,17 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from episode_markers import MarkerPublisher  # noqa: E402
+from node_process import NodeProcess, Peer, node_command  # noqa: E402
 from random_checkpoint import random_checkpoint  # noqa: E402
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
 from ompn_interfaces.msg import SubtaskBoundary  # noqa: E402
-from ompn_ros import layout  # noqa: E402
 from ompn_ros.data import messages as m  # noqa: E402
 
 OBS_DIM = 6
@@ -47,58 +43,24 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
                              obs_dim=OBS_DIM, action_type="discrete", action_dim=3, n_slots=3, slot_size=16)
 
 
-def start_node(ckpt: Path, env: dict[str, str], *params: str, ns: str = "/") -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", "-r", f"__ns:={ns}",
-           "-p", f"checkpoint:={ckpt}", "-p", "diagnostics_period:=0.1", "-p", "detector_high:=0.3"]
-    for p in params:
-        cmd += ["-p", p]
-    return subprocess.Popen(cmd, env=env, cwd=str(ROOT), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+def start_node(ckpt: Path, env: dict[str, str], *params: str, ns: str = "/") -> NodeProcess:
+    return NodeProcess(env, f"checkpoint:={ckpt}", "diagnostics_period:=0.1", "detector_high:=0.3", *params,
+                       ns=ns)  # fmt: skip
 
 
-def stop(proc: subprocess.Popen) -> str:
+def stop(proc: NodeProcess) -> str:
     """SIGINT, then the node's whole output; it must end cleanly (no FATAL from a timer)."""
-    proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=15)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
+    out = proc.stop()
     assert proc.returncode == 0, out
     assert "FATAL" not in out and "context is invalid" not in out and "Traceback" not in out, out
     return out
 
 
-class Peer:
-    """This process's side of the graph: one node, one executor, recorded outputs."""
+class GraphPeer(Peer):
+    """This process's side of the graph, able to set the nodes' parameters."""
 
-    def __init__(self, procs: list[subprocess.Popen]) -> None:
-        self.ctx = rclpy.context.Context()
-        rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node("graph_peer", context=self.ctx)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        self.ex.add_node(self.node)
-        self.procs = procs
-        self.diags: dict[str, list[tuple[int, dict[str, str]]]] = {}
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 100)
-
-    def _on_diag(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            values = {kv.key: kv.value for kv in status.values}
-            self.diags.setdefault(status.name, []).append((m.stamp_to_ns(msg.header.stamp), values))
-
-    def last(self, name: str) -> dict[str, str]:
-        return self.diags[name][-1][1] if self.diags.get(name) else {}
-
-    def pump(self, until: Callable[[], bool], timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self.ex.spin_once(timeout_sec=0.01)
-            if until():
-                return True
-            for proc in self.procs:
-                assert proc.poll() is None, f"ompn_node exited: {proc.communicate()[0]}"
-        return until()
+    def __init__(self, procs: list[NodeProcess]) -> None:
+        super().__init__(*procs, name="graph_peer")
 
     def set_param(self, node: str, name: str, value: object) -> object:
         client = self.node.create_client(SetParameters, f"{node}/set_parameters")
@@ -111,15 +73,6 @@ class Peer:
         assert self.pump(future.done, 10)
         return future.result().results[0]
 
-    def close(self) -> None:
-        rclpy.try_shutdown(context=self.ctx)
-
-
-def marker(kind: str, **values: str) -> DiagnosticArray:
-    status = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message=kind,
-                              values=[KeyValue(key=k, value=v) for k, v in values.items()])
-    return DiagnosticArray(status=[status])
-
 
 def test_best_effort_publisher_namespaced_nodes_qos_report_and_live_parameters(
     ckpt: Path, ros_env: dict[str, str]
@@ -127,7 +80,7 @@ def test_best_effort_publisher_namespaced_nodes_qos_report_and_live_parameters(
     r1, r2 = f"r1_{os.getpid()}", f"r2_{os.getpid()}"  # unique: the DDS domain may be shared
     procs = [start_node(ckpt, ros_env, ns=f"/{r1}"),
              start_node(ckpt, ros_env, "obs_qos:=reliable", ns=f"/{r2}")]
-    peer = Peer(procs)
+    peer = GraphPeer(procs)
     outputs = []
     try:
         pis: dict[str, list] = {r1: [], r2: []}
@@ -137,7 +90,7 @@ def test_best_effort_publisher_namespaced_nodes_qos_report_and_live_parameters(
             peer.node.create_subscription(Float32MultiArray, f"/{ns}/ompn_node/pi",
                                           lambda msg, ns=ns: pis[ns].append(msg.data), RELIABLE)
         names = (f"/{r1}/ompn_node: segmenter", f"/{r2}/ompn_node: segmenter")
-        assert peer.pump(lambda: all(peer.diags.get(n) for n in names), 60), list(peer.diags)
+        assert peer.pump(lambda: all(peer.statuses(n) for n in names), 60), names
         obs = np.random.default_rng(0).normal(size=(40, OBS_DIM)).astype(np.float32)
         sent = 0
         while not pis[r1] and sent < len(obs):  # a BEST_EFFORT writer drops what it sends before matching
@@ -173,11 +126,11 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
 ) -> None:
     sim = f"sim_{os.getpid()}"
     proc = start_node(ckpt, ros_env, "use_sim_time:=true", ns=f"/{sim}")
-    peer = Peer([proc])
+    peer = GraphPeer([proc])
     try:
         clock = peer.node.create_publisher(Clock, "/clock", 10)
         obs_pub = peer.node.create_publisher(Float32MultiArray, f"/{sim}/observation", RELIABLE)
-        ep_pub = peer.node.create_publisher(DiagnosticArray, f"/{sim}/episode", RELIABLE)
+        markers = MarkerPublisher(peer.node, f"/{sim}", RELIABLE)
         events: list[SubtaskBoundary] = []
         peer.node.create_subscription(SubtaskBoundary, f"/{sim}/ompn_node/boundary", events.append, LATE)
         pis: list = []
@@ -193,12 +146,12 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
 
         def advance() -> bool:  # 1 ms of sim time per pump: the node's sim-time timer keeps firing, so
             tick(ticked[0] + 1_000_000)  # a /diagnostics sent before the peer matched is not the only one
-            return bool(peer.diags.get(name)) and t0 <= peer.diags[name][-1][0] <= ticked[0]
+            return bool(peer.stamps(name)) and t0 <= peer.stamps(name)[-1] <= ticked[0]
 
         assert peer.pump(advance, 60), "node never followed /clock"
         t0 = ticked[0]  # the steps below continue from the clock's last tick
         for _ in range(50):  # markers are idempotent before the first step: repeat until seen
-            ep_pub.publish(marker("start", sketch=""))
+            markers.publish("start", {"sketch": ""})
             if peer.pump(lambda: int(peer.last(name)["episode_starts"]) >= 1, 0.2):
                 break
         assert peer.pump(lambda: obs_pub.get_subscription_count() > 0, 20)
@@ -209,7 +162,7 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
             peer.pump(lambda: False, 0.05)
             obs_pub.publish(Float32MultiArray(data=rng.normal(size=OBS_DIM).tolist()))
             assert peer.pump(lambda t=t: len(pis) == t + 1, 10), peer.last(name)
-        ep_pub.publish(marker("end", steps="7"))
+        markers.publish("end", {"steps": "7"})
         assert peer.pump(lambda: any(e.final for e in events), 10)
         for event in events:  # sim time, not wall time
             assert t0 < m.stamp_to_ns(event.header.stamp) <= m.stamp_to_ns(event.decided_stamp) < t0 + 10**9
@@ -220,7 +173,7 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
             obs_pub.publish(Float32MultiArray(data=rng.normal(size=OBS_DIM).tolist()))
             assert peer.pump(lambda k=k: len(pis) == 9 + k, 10)
         restart = iter(range(5 * 10**9, 10**12, 50_000_000))  # ... and the sim restarts: its clock is at 5 s
-        assert peer.pump(lambda: (tick(next(restart)), peer.diags[name][-1][0] < 10**10)[1], 20)
+        assert peer.pump(lambda: (tick(next(restart)), peer.stamps(name)[-1] < 10**10)[1], 20)
         obs_pub.publish(Float32MultiArray(data=rng.normal(size=OBS_DIM).tolist()))
         assert peer.pump(lambda: len(pis) == 11, 10)
         assert peer.pump(lambda: (tick(next(restart)), peer.last(name)["accepted"] == "11")[1], 20)
@@ -238,7 +191,7 @@ def test_sim_time_stamps_outputs_and_a_clock_jump_back_starts_a_new_episode(
 )
 def test_invalid_start_up_parameter_exits_2_with_one_line(module: str, param: str,
                                                           ros_env: dict[str, str]) -> None:
-    cmd = [sys.executable, "-m", module, "--ros-args", "-p", param]
+    cmd = node_command(param, module=module)
     proc = subprocess.run(cmd, env=ros_env, cwd=str(ROOT), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
@@ -250,7 +203,7 @@ def test_diagnostics_keep_their_rate_under_interleaved_clocks(ckpt: Path, ros_en
     /diagnostics once per diagnostics_period of real time, not at every forward jump."""
     sim = f"mix_{os.getpid()}"
     proc = start_node(ckpt, ros_env, "use_sim_time:=true", "diagnostics_period:=0.5", ns=f"/{sim}")
-    peer = Peer([proc])
+    peer = GraphPeer([proc])
     try:
         clock = peer.node.create_publisher(Clock, "/clock", 10)
         name = f"/{sim}/ompn_node: segmenter"
@@ -261,10 +214,10 @@ def test_diagnostics_keep_their_rate_under_interleaved_clocks(ckpt: Path, ros_en
             clock.publish(m.encode_clock((900 + 100 * (k % 2)) * 10**9 + (k // 2) * 10_000_000))
             return False
 
-        assert peer.pump(lambda: interleave() or bool(peer.diags.get(name)), 60), "no /diagnostics"
-        before, start = len(peer.diags[name]), time.monotonic()
+        assert peer.pump(lambda: interleave() or bool(peer.statuses(name)), 60), "no /diagnostics"
+        before, start = len(peer.statuses(name)), time.monotonic()
         peer.pump(interleave, 4.0)
-        sent = len(peer.diags[name]) - before
+        sent = len(peer.statuses(name)) - before
         elapsed = time.monotonic() - start
         assert 2 <= sent <= elapsed / 0.5 + 3, (sent, elapsed, next(ticks))
     finally:

@@ -14,7 +14,8 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from driver_streams import ARM, ckpts, events, idle_bag, msg, replay, stream_pos  # noqa: E402, F401
-from node_in_process import active_node, marker  # noqa: E402
+from episode_markers import marker  # noqa: E402
+from node_in_process import active_node  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402

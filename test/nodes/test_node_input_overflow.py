@@ -10,10 +10,6 @@ either executor.  Loopback only; bounded: 2 000 messages, 90 s at most per execu
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -21,9 +17,7 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from child_process import interrupt  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from node_process import NodeProcess, Peer  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
@@ -49,29 +43,15 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize("executor", ["events", "single"])
 def test_a_burst_is_stepped_or_counted(ckpt: Path, ros_env: dict[str, str], executor: str) -> None:
-    ns = f"overflow_{os.getpid()}_{executor}"
-    status_name = f"/{ns}/ompn_node: segmenter"
-    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", "-r", f"__ns:=/{ns}",
-           "-p", f"checkpoint:={ckpt}", "-p", "qos_depth:=5", "-p", "diagnostics_period:=0.1",
-           "-p", f"executor:={executor}", "-p", "max_stamp_lead:=0.0"]
-    proc = subprocess.Popen(cmd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    ns = f"/overflow_{os.getpid()}_{executor}"
+    proc = NodeProcess(ros_env, f"checkpoint:={ckpt}", "qos_depth:=5", "diagnostics_period:=0.1",
+                       f"executor:={executor}", "max_stamp_lead:=0.0", ns=ns)
+    peer = Peer(proc, name="burst_sim")
     try:
-        sim = rclpy.create_node("burst_sim", context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(sim)
-        pub = sim.create_publisher(Float32MultiArray, f"/{ns}/{layout.OBSERVATION}",
-                                   QoSProfile(depth=BURST, reliability=ReliabilityPolicy.RELIABLE))
-        diags: list[dict[str, str]] = []
-        sim.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diags.extend(
-            {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name), 50)
-
-        def pump(done: Callable[[], bool], seconds: float) -> bool:
-            deadline = time.monotonic() + seconds
-            while time.monotonic() < deadline and not done():
-                ex.spin_once(timeout_sec=0.02)
-            return done()
+        pub = peer.node.create_publisher(Float32MultiArray, proc.topic(layout.OBSERVATION),
+                                         QoSProfile(depth=BURST, reliability=ReliabilityPolicy.RELIABLE))
+        diags = peer.statuses(proc.status_name)
+        pump = peer.pump
 
         def counter(name: str) -> int:
             return int(diags[-1].get(name, 0)) if diags else 0
@@ -80,7 +60,7 @@ def test_a_burst_is_stepped_or_counted(ckpt: Path, ros_env: dict[str, str], exec
         sent = 0
         # one observation at a time until the node has stepped one: its sequence numbers are known
         while not pump(lambda: counter("accepted") > 0, 0.5):
-            assert proc.poll() is None and sent < 120, "ompn_node never stepped an observation"
+            assert proc.running() and sent < 120, "ompn_node never stepped an observation"
             pub.publish(msg)
             sent += 1
         sent = counter("accepted")  # the ones before the first received are not the node's to count
@@ -100,8 +80,8 @@ def test_a_burst_is_stepped_or_counted(ckpt: Path, ros_env: dict[str, str], exec
         assert counter("accepted") + counter("messages_missed") == sent, diags[-1]
         assert counter("messages_missed") > 0 and counter("rejected") == 0
     finally:
-        rclpy.try_shutdown(context=ctx)
-        out = interrupt(proc)
+        peer.close()
+        out = proc.stop()
     warned = [x for x in out.splitlines() if "never received" in x]
     assert len(warned) == 1 and "messages_missed" in warned[0] and "qos_depth=5" in warned[0], out[-3000:]
 

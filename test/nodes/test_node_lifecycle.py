@@ -338,7 +338,7 @@ def test_receive_stamps_stay_increasing_when_the_clock_stands_still(ctx, ckpt: P
 
 def test_a_late_boundary_subscriber_gets_the_last_event_only(ctx, ckpt: Path) -> None:
     """boundary_replay='last': TRANSIENT_LOCAL depth 1, not the whole history."""
-    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from episode_markers import marker
 
     from ompn_ros.data.messages import encode_float32_array
 
@@ -346,12 +346,10 @@ def test_a_late_boundary_subscriber_gets_the_last_event_only(ctx, ckpt: Path) ->
     assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
     assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
     for _ in range(3):
-        start = DiagnosticStatus(name="episode", message="start", values=[KeyValue(key="sketch", value="")])
-        node.inputs.markers.on_episode(DiagnosticArray(status=[start]))
+        node.inputs.markers.on_episode(marker("start", sketch=""))
         for t in range(4):
             node.inputs.on_array(encode_float32_array(np.full(OBS_DIM, t, np.float32)))
-        end = DiagnosticStatus(name="episode", message="end", values=[KeyValue(key="steps", value="3")])
-        node.inputs.markers.on_episode(DiagnosticArray(status=[end]))
+        node.inputs.markers.on_episode(marker("end", steps="3"))
     assert node.counters()["boundaries"] >= 3
     h = Harness(ctx, node)  # subscribes ~/boundary TRANSIENT_LOCAL depth 1000 only now
     h.pump(lambda: len(h.boundaries) > 1, timeout=2.0)

@@ -5,9 +5,6 @@ process (exit 0).  The node runs as a subprocess with its default executor (DDS 
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -16,16 +13,14 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from child_process import interrupt  # noqa: E402
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
+from node_process import NodeProcess, Peer  # noqa: E402
 from random_checkpoint import random_checkpoint  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ompn_ros.ros import containment  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
 IDS = {"configure": Transition.TRANSITION_CONFIGURE, "cleanup": Transition.TRANSITION_CLEANUP,
        "activate": Transition.TRANSITION_ACTIVATE, "deactivate": Transition.TRANSITION_DEACTIVATE,
        "shutdown": Transition.TRANSITION_UNCONFIGURED_SHUTDOWN}  # fmt: skip
@@ -40,23 +35,18 @@ def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
 class Caller:
     """Calls the subprocess node's services from this process."""
 
-    def __init__(self, ctx: Any, ns: str, proc: subprocess.Popen) -> None:
-        self.node = rclpy.create_node("lifecycle_caller", context=ctx)
-        self.ex = SingleThreadedExecutor(context=ctx)
-        self.ex.add_node(self.node)
-        self.ns, self.proc = ns, proc
+    def __init__(self, peer: Peer, proc: NodeProcess) -> None:
+        self.peer, self.node, self.proc = peer, peer.node, proc
         self.clients: dict[str, Any] = {}
 
     def call(self, srv_type: Any, name: str, request: Any = None, timeout: float = 30.0) -> Any:
         client = self.clients.get(name)
         if client is None:
-            client = self.clients[name] = self.node.create_client(srv_type, f"/{self.ns}/ompn_node/{name}")
+            service = self.proc.topic(f"ompn_node/{name}")
+            client = self.clients[name] = self.node.create_client(srv_type, service)
         assert client.wait_for_service(timeout_sec=timeout), f"no service {name}"
         future = client.call_async(request if request is not None else srv_type.Request())
-        deadline = time.monotonic() + timeout
-        while not future.done() and time.monotonic() < deadline:
-            self.ex.spin_once(timeout_sec=0.02)
-            assert self.proc.poll() is None or name == "change_state", "ompn_node died"
+        self.peer.pump(future.done, timeout, watch=name != "change_state")  # a shutdown ends the process
         return future.result() if future.done() else None
 
     def transition(self, label: str, by_id: bool = True) -> Any:
@@ -71,21 +61,14 @@ class Caller:
 
 def test_lifecycle_misuse_is_refused_and_shutdown_ends_the_process(ckpt: Path, ros_env: dict[str, str]
                                                                    ) -> None:
-    ns = f"life_{os.getpid()}"
-    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", "-r", f"__ns:=/{ns}",
-           "-p", f"checkpoint:={ckpt}"]  # fmt: skip
-    proc = subprocess.Popen(cmd, env=ros_env, cwd=str(ROOT), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)  # fmt: skip
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    proc = NodeProcess(ros_env, f"checkpoint:={ckpt}", ns=f"/life_{os.getpid()}")
+    peer = Peer(proc, name="lifecycle_caller")
     try:
-        caller = Caller(ctx, ns, proc)
-        deadline = time.monotonic() + 60
-        while caller.state() != "active" and time.monotonic() < deadline:
-            time.sleep(0.1)
+        caller = Caller(peer, proc)
+        peer.wait_active(proc)
         assert caller.transition("activate").success is False  # invalid while active: refused
         assert caller.transition("configure", by_id=False).success is False
-        assert proc.poll() is None and caller.state() == "active"
+        assert proc.running() and caller.state() == "active"
         assert caller.transition("deactivate").success is True
         reset = caller.call(Trigger, "reset")  # answered while inactive, with the reason
         assert reset is not None and not reset.success and "inactive" in reset.message
@@ -95,8 +78,8 @@ def test_lifecycle_misuse_is_refused_and_shutdown_ends_the_process(ckpt: Path, r
         assert caller.transition("shutdown").success is True
         rc = proc.wait(timeout=20)  # the shutdown transition ends the process
     finally:
-        rclpy.try_shutdown(context=ctx)
-        out = interrupt(proc)
+        peer.close()
+        out = proc.stop()
     assert rc == 0, out
     assert "Traceback" not in out and "FATAL" not in out, out
     refused = [line for line in out.splitlines() if "refused" in line]

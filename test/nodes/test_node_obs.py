@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,6 +18,7 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from node_process import node_command  # noqa: E402
 from random_checkpoint import random_checkpoint  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
@@ -132,7 +132,7 @@ def test_bad_spec_is_one_line_at_start_up(ctx, ckpt: Path) -> None:
 def test_bad_spec_from_the_command_line_exits_2(ros_env: dict[str, str], tmp_path: Path) -> None:
     spec = tmp_path / "spec.yaml"
     spec.write_text("observation:\n  step_topic: js\n  fields:\n    - {topic: js, type: Foo, field: data}\n")
-    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", "-p", f"observation_spec:={spec}"]
+    cmd = node_command(f"observation_spec:={spec}")
     proc = subprocess.run(cmd, env=ros_env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip()]
@@ -239,9 +239,7 @@ def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Pat
     """Header stamps: a step is stepped once the wrench topic offered a message stamped at or after it,
     with the wrench stamped before it even when delivered after it; the wait ends on the node's clock;
     an episode marker or ~/reset first steps what is held."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-
-    from ompn_ros import layout
+    from episode_markers import marker
 
     node = active_node(ctx, ckpt, spec=SPEC_TEXT)
     seen: list[tuple[np.ndarray, int]] = []
@@ -260,8 +258,7 @@ def test_a_step_waits_for_a_late_wrench_and_markers_step_the_held(ctx, ckpt: Pat
     node.inputs.spec.release_held(None)
     assert len(seen) == 2 and node.counters()["obs.late"] == 1
     feed(node, [(GRIP, gripper(4)), (WRENCH, wrench(4, 1199)), (STEP, joint_state(4, 1200))], start_ms=1198)
-    end = DiagnosticStatus(name=layout.EPISODE_STATUS_NAME, message="end")
-    node.inputs.markers.on_episode(DiagnosticArray(status=[end]))
+    node.inputs.markers.on_episode(marker("end"))
     feed(node, [(GRIP, gripper(5)), (WRENCH, wrench(5, 1299)), (STEP, joint_state(5, 1300))], start_ms=1298)
     assert node._on_reset(Trigger.Request(), Trigger.Response()).success
     assert [s // MS for _, s in seen] == [1002, 1010, 1200, 1300] and node.counters()["obs.late"] == 3

@@ -11,11 +11,8 @@ replay of ``assemble_stream`` over the recorded messages through the same Stream
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +21,9 @@ import pytest
 torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from node_process import NodeProcess, Peer  # noqa: E402
 from random_checkpoint import random_checkpoint  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
@@ -110,36 +106,19 @@ def replay_pi(ckpt: Path, observations: np.ndarray) -> np.ndarray:
     return np.stack(rows)
 
 
-def stop(proc: subprocess.Popen) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.communicate(timeout=15)[0]
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.communicate()[0]
-
-
 def test_node_assembles_three_topics(ckpt: Path, ros_env: dict[str, str], tmp_path: Path) -> None:
-    ns = f"obs2p_{os.getpid()}"
-    status_name = f"/{ns}/ompn_node: segmenter"
+    ns = f"/obs2p_{os.getpid()}"
     spec_file = tmp_path / "arm1.yaml"
     spec_file.write_text(f"observation: {SPEC_TEXT}\n")
-    cmd = [sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", "-r", f"__ns:=/{ns}",
-           "-p", f"checkpoint:={ckpt}", "-p", f"observation_spec:={spec_file}", "-p", "qos_depth:=1000",
-           "-p", "diagnostics_period:=0.1", "-p", "max_stamp_lead:=0.0"]
-    node_proc = subprocess.Popen(cmd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                 text=True)
+    node_proc = NodeProcess(ros_env, f"checkpoint:={ckpt}", f"observation_spec:={spec_file}",
+                            "qos_depth:=1000", "diagnostics_period:=0.1", "max_stamp_lead:=0.0", ns=ns)
     driver = None
     recorded: list[tuple[str, int, bytes]] = []
     pis: list[np.ndarray] = []
-    diags: list[dict[str, str]] = []
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    peer = Peer(node_proc, name="observer")
     try:
-        sub = rclpy.create_node("observer", context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(sub)
+        sub = peer.node
+        diags = peer.statuses(node_proc.status_name)
         def record(topic: str):
             # stamped with the DDS reception time, not the callback's: this executor serves ready
             # subscriptions in creation order, so under load a gripper message that arrived after a
@@ -153,33 +132,22 @@ def test_node_assembles_three_topics(ckpt: Path, ros_env: dict[str, str], tmp_pa
                                 (WrenchStamped, "/arm1/wrench", RELIABLE),
                                 (JointState, "/arm1/joint_states", BEST)):
             sub.create_subscription(cls, topic, record(topic), qos, raw=True)
-        sub.create_subscription(Float32MultiArray, f"/{ns}/ompn_node/pi",
+        sub.create_subscription(Float32MultiArray, node_proc.topic("ompn_node/pi"),
                                 lambda raw: pis.append(np.asarray(parse_float32_array(raw))), RELIABLE,
                                 raw=True)
-        sub.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diags.extend(
-            {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name), 10)
+        pump = peer.pump
 
-        def pump(cond, timeout: float) -> bool:
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                ex.spin_once(timeout_sec=0.01)
-                if cond():
-                    return True
-                assert node_proc.poll() is None, f"ompn_node exited: {stop(node_proc)}"
-            return bool(cond())
-
-        assert pump(lambda: bool(diags), 60), "ompn_node never published /diagnostics"
-        driver = subprocess.Popen([sys.executable, "-c", DRIVER], env=ros_env, stdout=subprocess.PIPE,
-                                  stderr=subprocess.STDOUT, text=True)
-        assert pump(lambda: driver.poll() is not None, 90), "the arm driver did not finish"
+        peer.wait_active(node_proc, 60)
+        driver = NodeProcess(ros_env, program=[sys.executable, "-c", DRIVER])
+        assert pump(lambda: not driver.running(), 90), "the arm driver did not finish"
         steps = sum(t == SPEC.step_topic for t, _, _ in recorded)
         pump(lambda: int(diags[-1].get("obs.steps", 0)) >= steps and len(pis) >= int(diags[-1]["obs.kept"]),
              10)
         pump(lambda: False, 0.5)
     finally:
-        rclpy.try_shutdown(context=ctx)
-        driver_out = stop(driver) if driver is not None else ""
-        node_out = stop(node_proc)
+        peer.close()
+        driver_out = driver.stop() if driver is not None else ""
+        node_out = node_proc.stop()
     assert driver is not None and driver.returncode == 0, driver_out
     assert node_proc.returncode == 0, node_out
     assert "Traceback" not in node_out and "FATAL" not in node_out

@@ -16,9 +16,10 @@ torch = pytest.importorskip("torch")
 rclpy = pytest.importorskip("rclpy")
 hypothesis = pytest.importorskip("hypothesis")
 
+from episode_markers import marker  # noqa: E402
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
-from node_in_process import Recorder, active_node, marker  # noqa: E402
+from node_in_process import Recorder, active_node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Int32MultiArray  # noqa: E402

@@ -4,17 +4,17 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from node_process import node_command
 
 from ompn_ros.checkpoints import shipped_checkpoint
 
 CASES = {
-    "missing": (["-p", "checkpoint:=/nonexistent/ckpt"],
+    "missing": (["checkpoint:=/nonexistent/ckpt"],
                 "ompn_node: cannot start: checkpoint '/nonexistent/ckpt' is not a directory"),
-    "other_domain": (["-p", f"checkpoint:={shipped_checkpoint('craft')}", "-p", "domain:=dial"],
+    "other_domain": ([f"checkpoint:={shipped_checkpoint('craft')}", "domain:=dial"],
                      "ompn_node: cannot start: checkpoint action_dim=5 does not fit domain 'dial' "
                      "(action_dim=9)"),
 }
@@ -24,8 +24,8 @@ CASES = {
 def test_a_checkpoint_fault_is_one_line_and_exit_2(case: str, ros_env: dict[str, str],
                                                    tmp_path: Path) -> None:
     args, line = CASES[case]
-    done = subprocess.run([sys.executable, "-m", "ompn_ros.nodes.ompn_node", "--ros-args", *args],
-                          env=ros_env, cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    done = subprocess.run(node_command(*args), env=ros_env, cwd=tmp_path, capture_output=True, text=True,
+                          timeout=240)
     assert done.returncode == 2, done.stdout + done.stderr
     problems = [x for x in (done.stdout + done.stderr).splitlines() if "[INFO]" not in x]
     assert problems == [line], problems

@@ -9,9 +9,6 @@ StreamingSegmenter fed the stamps the node used, and the boundaries match the sy
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +20,8 @@ pytest.importorskip("ompn_ros.model.streaming")
 trainer = pytest.importorskip("ompn_ros.train.trainer")
 synthetic = pytest.importorskip("ompn_ros.train.synthetic")
 
-from child_process import interrupt  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from episode_markers import MarkerPublisher  # noqa: E402
+from node_process import NodeProcess, Peer  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float32MultiArray  # noqa: E402
 
@@ -47,19 +43,7 @@ EVENTS = QoSProfile(
 HIGH = 0.2
 
 
-def marker(kind: str, values: dict[str, str]) -> DiagnosticArray:
-    msg = DiagnosticArray()
-    msg.status = [
-        DiagnosticStatus(
-            name=layout.EPISODE_STATUS_NAME,
-            message=kind,
-            values=[KeyValue(key=k, value=v) for k, v in values.items()],
-        )
-    ]
-    return msg
-
-
-def call(client, ex, srv_type, timeout: float = 10.0):
+def call(client, peer: Peer, srv_type, timeout: float = 10.0):
     """Call a service of the subprocess node from this process; None on time-out.  The clients are
     made when the test starts: Fast DDS drops a response whose client's response reader the service
     has not matched yet ("client will not receive response"), and ``wait_for_service`` sees only the
@@ -68,9 +52,7 @@ def call(client, ex, srv_type, timeout: float = 10.0):
     if not client.wait_for_service(timeout_sec=timeout):
         return None
     future = client.call_async(srv_type.Request())
-    deadline = time.monotonic() + timeout
-    while not future.done() and time.monotonic() < deadline:
-        ex.spin_once(timeout_sec=0.01)
+    peer.pump(future.done, timeout)
     return future.result() if future.done() else None
 
 
@@ -80,89 +62,48 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
     from std_srvs.srv import Trigger
 
     ckpt = synthetic_checkpoint
-    ns = f"tp_{os.getpid()}_{executor}"  # unique: the DDS domain may be shared with other test runs
-    status_name = f"/{ns}/ompn_node: segmenter"
+    ns = f"/tp_{os.getpid()}_{executor}"  # unique: the DDS domain may be shared with other test runs
     episodes = synthetic.make_dataset("discrete", 2, seed=900)
-    cmd = [
-        sys.executable,
-        "-m",
-        "ompn_ros.nodes.ompn_node",
-        "--ros-args",
-        "-r",
-        f"__ns:=/{ns}",
-        "-p",
-        f"checkpoint:={ckpt}",
-        "-p",
-        f"detector_high:={HIGH}",
+    proc = NodeProcess(
+        ros_env, f"checkpoint:={ckpt}", f"detector_high:={HIGH}",
         # the whole detector, so that the checkpoint's own detector.json does not apply
-        "-p", "detector_hysteresis:=0.0", "-p", "detector_min_segment_length:=1",
-        "-p", "detector_mode:=falling_edge", "-p", "detector_force_first_step_low:=true",
-        "-p",
-        "diagnostics_period:=0.1",
-        "-p",
-        f"executor:={executor}",
-    ]
-    proc = subprocess.Popen(
-        cmd,
-        env=ros_env,
-        cwd=str(Path(__file__).resolve().parents[2]),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+        "detector_hysteresis:=0.0", "detector_min_segment_length:=1", "detector_mode:=falling_edge",
+        "detector_force_first_step_low:=true", "diagnostics_period:=0.1", f"executor:={executor}", ns=ns,
+    )  # fmt: skip
+    peer = Peer(proc, name="fake_sim")
     try:
-        sim = rclpy.create_node("fake_sim", context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(sim)
-        obs_pub = sim.create_publisher(Float32MultiArray, f"/{ns}/{layout.OBSERVATION}", RELIABLE)
-        ep_pub = sim.create_publisher(DiagnosticArray, f"/{ns}/{layout.EPISODE}", RELIABLE)
-        get_state = sim.create_client(GetState, f"/{ns}/ompn_node/get_state")
-        reset_client = sim.create_client(Trigger, f"/{ns}/ompn_node/reset")
+        sim = peer.node
+        obs_pub = sim.create_publisher(Float32MultiArray, proc.topic(layout.OBSERVATION), RELIABLE)
+        markers = MarkerPublisher(sim, ns, RELIABLE)
+        get_state = sim.create_client(GetState, proc.topic("ompn_node/get_state"))
+        reset_client = sim.create_client(Trigger, proc.topic("ompn_node/reset"))
         pis: list[np.ndarray] = []
         events: list[SubtaskBoundary] = []
         states: list[SubtaskState] = []
-        diags: list[dict[str, str]] = []
+        diags = peer.statuses(proc.status_name)  # this node's status only (the domain may be shared)
         sim.create_subscription(
-            Float32MultiArray, f"/{ns}/ompn_node/pi", lambda m: pis.append(np.array(m.data)), RELIABLE
+            Float32MultiArray, proc.topic("ompn_node/pi"), lambda m: pis.append(np.array(m.data)), RELIABLE
         )
-        sim.create_subscription(SubtaskBoundary, f"/{ns}/ompn_node/boundary", events.append, EVENTS)
-        sim.create_subscription(SubtaskState, f"/{ns}/ompn_node/state", states.append, RELIABLE)
-        sim.create_subscription(
-            DiagnosticArray,
-            "/diagnostics",
-            lambda m: diags.extend(  # this node's status only (the domain may be shared)
-                {kv.key: kv.value for kv in s.values} for s in m.status if s.name == status_name
-            ),
-            10,
-        )
+        sim.create_subscription(SubtaskBoundary, proc.topic("ompn_node/boundary"), events.append, EVENTS)
+        sim.create_subscription(SubtaskState, proc.topic("ompn_node/state"), states.append, RELIABLE)
+        pump = peer.pump
 
-        def pump(cond, timeout: float) -> bool:
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                ex.spin_once(timeout_sec=0.01)
-                if cond():
-                    return True
-                assert proc.poll() is None, f"ompn_node exited: {proc.communicate()[0]}"
-            return cond()
-
-        assert pump(lambda: bool(diags), 30), "ompn_node never published /diagnostics"
+        peer.wait_active(proc, 30)
         # start markers are idempotent before the first step: repeat until the node has seen one
         for _ in range(100):
-            ep_pub.publish(marker(layout.EPISODE_START, {layout.KEY_SKETCH: ""}))
+            markers.publish(layout.EPISODE_START, {layout.KEY_SKETCH: ""})
             if pump(lambda: int(diags[-1]["episode_starts"]) >= 1, 0.2):
                 break
         assert int(diags[-1]["episode_starts"]) >= 1 and obs_pub.get_subscription_count() > 0
 
         for i, ep in enumerate(episodes):
             if i > 0:
-                ep_pub.publish(marker(layout.EPISODE_START, {layout.KEY_SKETCH: ""}))
+                markers.publish(layout.EPISODE_START, {layout.KEY_SKETCH: ""})
             start = len(pis)
             for t in range(ep.length + 1):  # the real steps and the final (done) observation
                 obs_pub.publish(Float32MultiArray(data=ep.observations[t].tolist()))
                 assert pump(lambda t=t, start=start: len(pis) == start + t + 1, 5), f"no ~/pi for step {t}"
-            ep_pub.publish(marker(layout.EPISODE_END, {layout.KEY_STEPS: str(ep.length)}))
+            markers.publish(layout.EPISODE_END, {layout.KEY_STEPS: str(ep.length)})
             assert pump(lambda i=i: sum(e.final for e in events) == i + 1, 5)
         assert pump(lambda: len(states) == sum(ep.length + 1 for ep in episodes), 5)
 
@@ -183,24 +124,24 @@ def test_sim_node_subscriber(synthetic_checkpoint: Path, ros_env: dict[str, str]
             assert [(e.node, e.header.frame_id, e.step, e.subtask, e.subtask_id, e.memory_level,
                      e.decided_step, e.final, stamp_to_ns(e.header.stamp), stamp_to_ns(e.decided_stamp))
                     for e in got] == [
-                (f"/{ns}/ompn_node", "", b.step, b.subtask, -1, b.level, b.detected_at, b.final,
+                (proc.topic("ompn_node"), "", b.step, b.subtask, -1, b.level, b.detected_at, b.final,
                  b.stamp_ns, int(stamps[b.detected_at])) for b in want]  # fmt: skip
             np.testing.assert_allclose([e.score for e in got], [b.score for b in want], rtol=1e-6)
             preds.append(np.array(sorted({e.step for e in got})))
             assert got[-1].step == ep.length - 1 and got[-1].final
         assert mean_f1(preds, [ep.boundaries for ep in episodes], tol=1).f1 >= 0.75
         # the node's services are served by its executor (lifecycle state, ~/reset)
-        state = call(get_state, ex, GetState)
+        state = call(get_state, peer, GetState)
         assert state is not None and state.current_state.label == "active"
         pump(lambda: False, 0.5)  # let /diagnostics catch up with the last end marker's new episode
         starts_before = int(diags[-1]["episode_starts"])
         assert int(diags[-1]["episodes"]) == int(diags[-1]["episodes_ended"]) == len(episodes)
-        reset = call(reset_client, ex, Trigger)
+        reset = call(reset_client, peer, Trigger)
         assert reset is not None and reset.success, reset
         assert pump(lambda: int(diags[-1]["episode_starts"]) == starts_before + 1, 5)
     finally:
-        rclpy.try_shutdown(context=ctx)
-        out = interrupt(proc)
+        peer.close()
+        out = proc.stop()
     assert proc.returncode == 0, out
     assert "subtask boundary" in out
     assert "FATAL" not in out and "context is invalid" not in out and "Traceback" not in out

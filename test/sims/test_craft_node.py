@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -14,6 +13,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from node_process import node_command  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray, String  # noqa: E402
@@ -40,12 +40,8 @@ TOPICS = {
 def start_sim(*params: str) -> subprocess.Popen:
     env = dict(os.environ)  # keeps LD_LIBRARY_PATH and the DDS containment set by conftest
     env["PYTHONUNBUFFERED"] = "1"
-    args = [sys.executable, "-m", "sim_nodes.craft.node", "--ros-args"]
-    for p in params:
-        args += ["-p", p]
-    return subprocess.Popen(
-        args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-    )
+    return subprocess.Popen(node_command(*params, module="sim_nodes.craft.node"), cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
 class Listener:

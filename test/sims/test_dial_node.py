@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -15,6 +14,7 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
+from sim_listener import launch  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Int32, Int32MultiArray  # noqa: E402
 
 from ompn_ros import layout  # noqa: E402
@@ -25,7 +25,6 @@ from sim_nodes.dial.human import generate_human_episode  # noqa: E402
 from sim_nodes.human import parse_human  # noqa: E402
 
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-NODE = [sys.executable, "-m", "sim_nodes.dial.node", "--ros-args"]
 
 
 class Recorder:
@@ -65,13 +64,6 @@ class Recorder:
     def published_order(self) -> list[str]:
         """Topics in publish order (DDS source timestamps; receive order differs across topics)."""
         return [t for t, _, _, _ in sorted(self.log, key=lambda e: e[3])]
-
-
-def launch(ros_env: dict[str, str], namespace: str, *params: str) -> subprocess.Popen:
-    args = [*NODE, "-r", f"__ns:=/{namespace}"]
-    for p in params:
-        args += ["-p", p]
-    return subprocess.Popen(args, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def stop(proc: subprocess.Popen) -> str:
