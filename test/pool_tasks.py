@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import os
+import signal
 import time
 from typing import Any
 
@@ -28,13 +29,16 @@ def died(item: int, reason: str) -> dict[str, Any]:
 
 class StartedTask:
     """A pool task that leaves a file ``started_<item>`` in ``folder`` when it starts, then works for
-    ``seconds``: which tasks began is read from the folder, whatever the pool reported."""
+    ``seconds``: which tasks began is read from the folder, whatever the pool reported.  Item ``kill``
+    kills its worker process instead (SIGKILL, as the out-of-memory killer does)."""
 
-    def __init__(self, folder: str, seconds: float) -> None:
-        self.folder, self.seconds = folder, seconds
+    def __init__(self, folder: str, seconds: float, kill: int | None = None) -> None:
+        self.folder, self.seconds, self.kill = folder, seconds, kill
 
     def __call__(self, item: int) -> dict[str, Any]:
         with open(os.path.join(self.folder, f"started_{item}"), "w", encoding="utf-8"):
             pass
+        if item == self.kill:
+            os.kill(os.getpid(), signal.SIGKILL)
         time.sleep(self.seconds)
         return {"item": item, "pid": os.getpid()}

@@ -19,8 +19,10 @@ outlive it.
 Each worker has its next task queued while it runs one (at most ``2 * jobs`` in flight), so no worker
 waits for the run's process between tasks, which on short bags is a large share of a bag's time.  A
 stop request still waits only for the tasks running: a queued task that a worker takes after the
-request comes back unstarted (:data:`NOT_STARTED`) and is not counted as done.  The pool runs any
-list of work items (bags today); a task's result comes back as it completes.
+request comes back unstarted (:data:`NOT_STARTED`) and is not counted as done.  A worker marks each
+task as started before it runs it, so when a worker dies, only the tasks that had started are given up
+(``died``); the queued ones go to a new pool.  The pool runs any list of work items (bags today); a
+task's result comes back as it completes.
 """
 
 from __future__ import annotations
@@ -149,28 +151,34 @@ _TASK: Callable[[Any], dict[str, Any]] | None = None
 """The task of this worker process, given once when it starts (:func:`init_worker`)."""
 _HALT: Any = None
 """The run's stop request as this worker sees it (a multiprocessing event; :func:`init_worker`)."""
+_STARTED: Any = None
+"""One byte per task of the pool, shared with the run's process: set when a worker starts the task."""
 NOT_STARTED: dict[str, Any] = {"not_started": True}
 """A worker's answer for a task it took after a stop request: the task did not run."""
 
 
-def _run_task(item: Any) -> dict[str, Any]:
-    """What a worker runs for each item: only the item crosses the pipe, not the task's settings; none
-    is started once the run asked to stop."""
+def _run_task(index: int, item: Any) -> dict[str, Any]:
+    """What a worker runs for each item (the pool's ``index``-th task): only the item crosses the pipe,
+    not the task's settings; none is started once the run asked to stop, each is marked as started."""
     if _TASK is None:
         raise RuntimeError("a pool task ran in a process that init_worker did not start")
     if _HALT is not None and _HALT.is_set():
         return NOT_STARTED
+    if _STARTED is not None:
+        _STARTED[index] = 1
     return _TASK(item)
 
 
 def init_worker(parent: int, parent_main_thread: bool, via_server: bool = False,
-                task: Callable[[Any], dict[str, Any]] | None = None, halt: Any = None) -> None:
+                task: Callable[[Any], dict[str, Any]] | None = None, halt: Any = None,
+                started: Any = None) -> None:
     """First thing in every worker: die with the run (``parent``, whether it forked the worker or a fork
     server did: ``via_server``), leave stopping to the run, one torch thread, and keep ``task``, the
     work of every item (sent once per worker, not with each item), and ``halt``, the run's stop
-    request (an event: once set, queued tasks are not started)."""
-    global _TASK, _HALT
-    _TASK, _HALT = task, halt
+    request (an event: once set, queued tasks are not started), and ``started``, where it marks the
+    tasks it starts (shared bytes, one per task of the pool)."""
+    global _TASK, _HALT, _STARTED
+    _TASK, _HALT, _STARTED = task, halt, started
     if via_server:  # the fork server outlives the run while its workers hold its pipe: watch the run
         die_with_parent(os.getppid(), True, ignore_stop_signals=True, run=parent)
     else:
@@ -187,8 +195,8 @@ def _kill(pool: ProcessPoolExecutor) -> None:
 
 class Pool(Generic[Item]):
     """``task(item)`` for each item over ``jobs`` worker processes (see the module docstring);
-    ``died(item, reason)`` is the result of an item whose worker died (killed, out of memory) while
-    it ran or waited for that worker."""
+    ``died(item, reason)`` is the result of an item whose worker died (killed, out of memory) while it
+    ran, or that ran beside it when the pool broke (which of the running ones killed it is not known)."""
 
     def __init__(self, task: Callable[[Item], dict[str, Any]], died: Callable[[Item, str], dict[str, Any]],
                  jobs: int, device: str, stop: Stop) -> None:
@@ -210,11 +218,12 @@ class Pool(Generic[Item]):
             gc.freeze()
         halt = context.Event()
         self.stop.listeners.append(halt.set)
-        initargs = (*started_here(), via_server, self.task, halt)
+        started = context.RawArray("b", len(queue))  # a pool submits each queued item at most once
+        initargs = (*started_here(), via_server, self.task, halt, started)
         pool = ProcessPoolExecutor(max_workers=min(self.jobs, len(queue)), initializer=init_worker,
                                    mp_context=context, initargs=initargs)
         try:
-            yield from self._drive(pool, queue)
+            yield from self._drive(pool, queue, started)
         except BaseException:
             _kill(pool)
             raise
@@ -224,30 +233,49 @@ class Pool(Generic[Item]):
                 gc.unfreeze()
         pool.shutdown(wait=True)
 
-    def _drive(self, pool: ProcessPoolExecutor, queue: deque[Item]) -> Iterator[dict[str, Any]]:
+    def _drive(self, pool: ProcessPoolExecutor, queue: deque[Item], started: Any) -> Iterator[dict[str, Any]]:
         """Keep two tasks per worker in flight until ``queue`` is empty, a stop is requested or a worker
-        dies; a task that came back unstarted goes back to the front of ``queue``."""
-        running: dict[Future[dict[str, Any]], Item] = {}
-        broken = False
+        dies.  A task that came back unstarted goes back to the front of ``queue``; when a worker died,
+        so do the tasks of the broken pool that no worker had started (``started``)."""
+        running: dict[Future[dict[str, Any]], tuple[int, Item]] = {}
+        lost: list[tuple[int, Item, BrokenProcessPool]] = []
+        submitted = 0
         while queue or running:
-            while queue and len(running) < 2 * self.jobs and not (self.stop.requested or broken):
+            while queue and len(running) < 2 * self.jobs and not (self.stop.requested or lost):
                 item = queue.popleft()
-                running[pool.submit(_run_task, item)] = item
+                running[pool.submit(_run_task, submitted, item)] = (submitted, item)
+                submitted += 1
             if not running:
                 break
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
-                item = running.pop(future)
+                index, item = running.pop(future)
                 try:
                     result = future.result()
                 except BrokenProcessPool as exc:
-                    broken = True
-                    yield self.died(item, f"a worker process died with this task running or queued ({exc})")
+                    lost.append((index, item, exc))
                     continue
                 if result == NOT_STARTED:
                     queue.appendleft(item)
                 else:
                     yield result
+        yield from self._give_up(lost, started, queue)
+
+    def _give_up(self, lost: list[tuple[int, Item, BrokenProcessPool]], started: Any,
+                 queue: deque[Item]) -> Iterator[dict[str, Any]]:
+        """The tasks of a broken pool: those a worker had started die with it, the others go back to the
+        front of ``queue`` for the next pool; when none had started, the workers themselves cannot run
+        (they die before any task), and every one dies rather than start pool after pool."""
+        if not any(started[index] for index, _, _ in lost):
+            for _, item, exc in lost:
+                yield self.died(item, f"the worker processes die before they run a task ({exc})")
+            return
+        for index, item, _ in reversed(lost):
+            if not started[index]:
+                queue.appendleft(item)
+        for index, item, exc in lost:
+            if started[index]:
+                yield self.died(item, f"a worker process died while this task ran ({exc})")
 
 
 __all__ = ["NOT_STARTED", "STOP_SIGNALS", "HardStop", "Pool", "Stop", "init_worker", "pool_context"]

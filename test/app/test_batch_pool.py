@@ -103,7 +103,7 @@ class _Pending:
         self.submitted: list[tuple[Future[dict[str, Any]], int]] = []
         self.then = then
 
-    def submit(self, fn: Any, item: int) -> Future[dict[str, Any]]:
+    def submit(self, fn: Any, index: int, item: int) -> Future[dict[str, Any]]:
         future: Future[dict[str, Any]] = Future()
         future.set_running_or_notify_cancel()
         if item in self.items():
@@ -123,7 +123,7 @@ def test_each_worker_has_its_next_task_queued_and_an_unstarted_task_is_not_done(
     from ompn_ros.app.batch_pool import NOT_STARTED, Pool, Stop
 
     executor, queue = _Pending(then=1), deque(range(10))
-    results = Pool(CountedTask(), died, 2, "cpu", Stop())._drive(executor, queue)  # type: ignore[arg-type]
+    results = Pool(CountedTask(), died, 2, "cpu", Stop())._drive(executor, queue, bytearray(10))  # type: ignore[arg-type]
     threading.Timer(0.1, lambda: executor.future(0).set_result(NOT_STARTED)).start()
     out = next(results)  # waits for the timer: four tasks are in flight by then
     assert executor.items() == [0, 1, 2, 3, 0], "two tasks per worker in flight; the unstarted one again"
@@ -147,3 +147,34 @@ def test_a_stop_starts_no_queued_task_and_reports_every_task_that_started(
     assert sorted(doc["item"] for doc in out) == started, "every task that began is reported, no other"
     assert len(started) <= 3, f"queued tasks began after the stop: {started}"
     assert stop.requested and stop.listeners == []
+
+
+def test_a_dead_worker_gives_up_only_the_tasks_that_had_started(monkeypatch: pytest.MonkeyPatch,
+                                                                  tmp_path: Path) -> None:
+    # item 2 kills its worker (as the kernel's out-of-memory killer does); the bags queued behind it in
+    # the broken pool never ran and must be segmented by the next pool, not refused
+    from ompn_ros.app import batch_pool
+    from ompn_ros.app.batch_pool import Pool, Stop
+
+    monkeypatch.setattr(batch_pool, "pool_context", lambda device: multiprocessing.get_context("spawn"))
+    out = list(Pool(StartedTask(str(tmp_path), 0.3, kill=2), died, 2, "cpu", Stop()).run(list(range(8))))
+    started = {int(p.name.split("_")[1]) for p in tmp_path.glob("started_*")}
+    gone = {doc["item"] for doc in out if "died" in doc}
+    assert sorted(doc["item"] for doc in out) == list(range(8)), "each item reported once"
+    assert 2 in gone and len(gone) <= 2, out
+    assert gone <= started, f"refused without having run: {sorted(gone - started)}"
+
+
+def test_workers_that_die_before_any_task_do_not_start_pool_after_pool() -> None:
+    from concurrent.futures.process import BrokenProcessPool
+
+    from ompn_ros.app.batch_pool import Pool, Stop
+
+    queue: deque[int] = deque([7])
+    broken = BrokenProcessPool("a child process terminated abruptly")
+    lost = [(0, 3, broken), (1, 4, broken)]
+    out = list(Pool(CountedTask(), died, 2, "cpu", Stop())._give_up(lost, bytearray(2), queue))
+    assert [doc["item"] for doc in out] == [3, 4] and all("before they run" in doc["died"] for doc in out)
+    assert list(queue) == [7]
+    out = list(Pool(CountedTask(), died, 2, "cpu", Stop())._give_up(lost, bytearray([1, 0]), queue))
+    assert [doc["item"] for doc in out] == [3] and list(queue) == [4, 7], "the unstarted one is run again"
