@@ -14,6 +14,14 @@ workers' start-up costs, whatever the load), split into the command's own proces
 start-up, listing, collecting, the table) and its workers; ``startup`` is the command on one short
 bag with ``--jobs 1``: the serial part no number of workers shortens.  One torch thread per process.
 
+``ceiling``, measured right after each dataset's commands: what this machine gives two processes of
+fixed work at that moment (a Python loop over a small float32 product, nothing of this package, about
+3 s alone): twice the time of one alone over the time of two at once, the median of ``--ceiling-rounds``
+alternations (each in ``ceiling_runs``).  On a virtual machine whose two vCPUs share a physical core,
+or on a busy host, this falls below 2 and no pool can beat it; ``of_ceiling`` reads the ratio against
+it.  ``bound`` is what two whole cores could give at best with the command's serial start:
+``jobs1 / (startup + (jobs1 - startup) / 2)``.
+
     nice .venv/bin/python bench/bench_batch_pool.py [--long 200 --minutes 2 --short 200 --spawn]
 """
 
@@ -110,6 +118,30 @@ def segment(bags: Path, model: Path, spec: Path, jobs: int, out: Path,
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), parent
 
 
+FIXED_WORK = ("import numpy as np\n"
+              "a = np.random.default_rng(0).standard_normal((64, 64)).astype(np.float32)\n"
+              "s = 0.0\n"
+              "for i in range({loops}):\n"
+              "    s += float((a @ a[:, :1]).sum()) * 1e-9\n")
+"""The fixed work of :func:`ceiling`: one thread, about a segmenter step's mix of Python and numpy."""
+
+
+def ceiling(rounds: int = 3, loops: int = 1_000_000) -> list[float]:
+    """Twice the time of one :data:`FIXED_WORK` process alone over the time of two at once, for each of
+    ``rounds`` alternations (2.0: two whole cores)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    command = [sys.executable, "-c", FIXED_WORK.format(loops=loops)]
+
+    def timed(copies: int) -> float:
+        start = time.perf_counter()
+        running = [subprocess.Popen(command, env=env) for _ in range(copies)]
+        if any(p.wait() != 0 for p in running):
+            raise RuntimeError("the fixed work failed")
+        return time.perf_counter() - start
+
+    return [2 * timed(1) / timed(2) for _ in range(rounds)]
+
+
 def _load() -> str:
     try:
         return " ".join(Path("/proc/loadavg").read_text().split()[:3])
@@ -123,6 +155,8 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=2.0)
     parser.add_argument("--short", type=int, default=200, help="bags of 2 s each")
     parser.add_argument("--spawn", action="store_true", help="also --jobs 2 with spawned workers (before)")
+    parser.add_argument("--ceiling-rounds", type=int, default=3,
+                        help="alternations of the fixed work after each dataset (0: none)")
     parser.add_argument("--out", help="JSON results file (none: print only)")
     args = parser.parse_args()
     results: dict[str, dict[str, float | str]] = {}
@@ -151,6 +185,14 @@ def main() -> None:
                 wall, cpu, _ = segment(one, root / "model", spec, 1, root / "out_startup")
                 row["startup_s"], row["startup_cpu_s"] = wall, cpu
             row["ratio"] = float(row["jobs1_s"]) / float(row["jobs2_s"])
+            if "startup_s" in row:
+                startup = float(row["startup_s"])
+                row["bound"] = float(row["jobs1_s"]) / (startup + (float(row["jobs1_s"]) - startup) / 2)
+            if args.ceiling_rounds > 0:
+                spread = ceiling(args.ceiling_rounds)
+                row["ceiling_runs"] = ", ".join(f"{r:.2f}" for r in spread)
+                row["ceiling"] = float(np.median(spread))
+                row["of_ceiling"] = float(row["ratio"]) / float(row["ceiling"])
             if args.spawn:
                 row["ratio_spawn"] = float(row["jobs1_s"]) / float(row["jobs2_spawn_s"])
             row["load_after"] = _load()

@@ -18,7 +18,8 @@ held-out test episodes of the reproduction's split, :func:`lab.data.held_out_spl
 Labels are only used for scoring, except by the label-tuned detector.  ``run`` trains and scores
 one arm into ``<work>/arms/<arm>.json``; ``rescore`` scores its run again with today's scoring,
 keeping how it was trained; ``collate`` gathers them into ``results/own_data.json``
-(rendered by :mod:`lab.report`).  Cost per arm: one training run plus one replay
+(rendered by :mod:`lab.report`); ``gather`` writes the rows of some arms and their means over seeds
+into a results file of their own.  Cost per arm: one training run plus one replay
 of the validation and test episodes.
 """
 
@@ -34,6 +35,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import torch
 
 from lab.runs import build_configs, load_train_config, pin_fixed_length
@@ -570,6 +572,34 @@ def collate(work: Path, results: Path, command: list[str], notes: Sequence[str] 
     return target
 
 
+SCORES = ("offline_align", "offline_f1_1", "online_align", "online_f1_1")
+"""The held-out figures every arm's row has (fractions), averaged over seeds by :func:`gather`."""
+
+
+def gather(work: Path, arms: Sequence[str], out: Path, command: list[str]) -> Path:
+    """Write the rows of ``arms`` (``<work>/arms/<arm>.json``, each must exist) to ``out``, with the
+    mean and standard deviation over seeds of :data:`SCORES` per *family* (the arm's name without its
+    ``_seed<k>``), in % ."""
+    missing = [a for a in arms if not (work / "arms" / f"{a}.json").is_file()]
+    if missing:
+        raise ReproduceError(f"no result of {', '.join(missing)} under {work / 'arms'} (run them first)")
+    rows = [json.loads((work / "arms" / f"{a}.json").read_text()) for a in arms]
+    families: dict[str, list[dict[str, Any]]] = {}
+    for row in rows:
+        families.setdefault(row["arm"].rsplit("_seed", 1)[0], []).append(row)
+    means = {
+        family: {"seeds": [int(r["seed"]) for r in members],
+                 **{key: {"mean": round(100 * float(np.mean(v)), 1), "std": round(100 * float(np.std(v)), 1)}
+                    for key in SCORES if len(v := [float(r[key]) for r in members]) == len(members)}}
+        for family, members in families.items()
+    }
+    meta = {"command": command, "date": time.strftime("%Y-%m-%d", time.gmtime()), "cpu": cpu_model(),
+            "threads": 1, "data_seed": DATA_SEED, "test_ratio": DEFAULT_TEST_RATIO}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"meta": meta, "means": means, "rows": rows}, indent=1) + "\n")
+    return out
+
+
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`: one sub-command per step of the study."""
     parser = argparse.ArgumentParser(
@@ -607,6 +637,9 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("collate", help="write results/own_data.json and results/README.md")
     p.add_argument("--results", type=Path, default=Path("results"))
     p.add_argument("--note", action="append", default=[], help="a sentence printed under the tables")
+    p = sub.add_parser("gather", help="write the rows of some arms, and their means over seeds, to one file")
+    p.add_argument("arms", nargs="+", choices=sorted(ARMS), metavar="ARM")
+    p.add_argument("--out", type=Path, required=True)
     return parser
 
 
@@ -626,6 +659,9 @@ def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str
         return json.dumps(row, indent=1)
     if args.command == "rescore":
         return json.dumps(rescore_arm(arm_by_name(args.arm), args.work), indent=1)
+    if args.command == "gather":
+        command = ["python", "-m", "lab.own_data", *(argv if argv is not None else sys.argv[1:])]
+        return str(gather(args.work, args.arms, args.out, command))
     given = list(argv if argv is not None else sys.argv[1:])
     kept = [a for k, a in enumerate(given) if a != "--note" and (k == 0 or given[k - 1] != "--note")]
     command = ["python", "-m", "lab.own_data", *kept]  # notes are stored apart
@@ -633,7 +669,7 @@ def _run_command(args: argparse.Namespace, argv: list[str] | None) -> Path | str
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lab.own_data {collect,strip,run,rescore,collate} ...`` (see ``--help``)."""
+    """``python -m lab.own_data {collect,strip,run,rescore,collate,gather} ...`` (see ``--help``)."""
     args = _parser().parse_args(argv)
     try:
         print(_run_command(args, argv))

@@ -182,3 +182,29 @@ def test_a_rescored_arm_keeps_how_it_was_trained(tmp_path: Path, monkeypatch: py
     assert scored == [tmp_path / "runs" / arm.name / "best"]
     assert row == {"arm": arm.name, "train_seconds": 812.5, "iterations": 200, "online_align": 0.6}
     assert json.loads((tmp_path / "arms" / f"{arm.name}.json").read_text()) == row
+
+
+def test_gather_writes_the_rows_and_their_means_over_seeds(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    arms = tmp_path / "arms"
+    arms.mkdir()
+    names = ["human_craft_full_boundaries_auto_seed10", "human_craft_full_boundaries_auto_seed11",
+             "human_dial_boundaries_auto_seed5"]
+    figures = [(0.80, 0.90), (0.84, 0.86), (0.70, 0.95)]
+    for name, (offline, online) in zip(names, figures, strict=True):
+        row = {"arm": name, "seed": int(name.rsplit("seed", 1)[1]), "offline_align": offline,
+               "offline_f1_1": offline, "online_align": online, "online_f1_1": online}
+        (arms / f"{name}.json").write_text(json.dumps(row))
+    out = tmp_path / "results" / "pauses.json"
+    assert own_data.main(["--work", str(tmp_path), "gather", *names, "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert [r["arm"] for r in doc["rows"]] == names
+    full = doc["means"]["human_craft_full_boundaries_auto"]
+    assert full["seeds"] == [10, 11]
+    assert full["offline_align"] == {"mean": 82.0, "std": 2.0}
+    assert full["online_align"] == {"mean": 88.0, "std": 2.0}
+    assert doc["means"]["human_dial_boundaries_auto"]["online_f1_1"] == {"mean": 95.0, "std": 0.0}
+    assert doc["meta"]["command"][:4] == ["python", "-m", "lab.own_data", "--work"]
+    (arms / f"{names[2]}.json").unlink()
+    assert own_data.main(["--work", str(tmp_path), "gather", *names, "--out", str(out)]) == 2
+    assert "human_dial_boundaries_auto_seed5" in capsys.readouterr().err
