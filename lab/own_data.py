@@ -587,12 +587,12 @@ def gather(work: Path, arms: Sequence[str], out: Path, command: list[str]) -> Pa
     families: dict[str, list[dict[str, Any]]] = {}
     for row in rows:
         families.setdefault(row["arm"].rsplit("_seed", 1)[0], []).append(row)
-    means = {
-        family: {"seeds": [int(r["seed"]) for r in members],
-                 **{key: {"mean": round(100 * float(np.mean(v)), 1), "std": round(100 * float(np.std(v)), 1)}
-                    for key in SCORES if len(v := [float(r[key]) for r in members]) == len(members)}}
-        for family, members in families.items()
-    }
+    def spread(values: list[float]) -> dict[str, float]:
+        return {"mean": round(100 * float(np.mean(values)), 1), "std": round(100 * float(np.std(values)), 1)}
+
+    means = {family: {"seeds": [int(r["seed"]) for r in members],
+                      **{key: spread([float(r[key]) for r in members]) for key in SCORES}}
+             for family, members in families.items()}
     meta = {"command": command, "date": time.strftime("%Y-%m-%d", time.gmtime()), "cpu": cpu_model(),
             "threads": 1, "data_seed": DATA_SEED, "test_ratio": DEFAULT_TEST_RATIO}
     out.parent.mkdir(parents=True, exist_ok=True)
