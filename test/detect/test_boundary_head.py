@@ -27,7 +27,16 @@ from ompn_ros.detect.online import DetectorConfig
 from ompn_ros.detect.settings import DetectorSettings, load_detector_settings, save_detector_settings
 from ompn_ros.model.load import stepper_from_checkpoint
 from ompn_ros.segmenter import StreamingSegmenter
-from ompn_ros.train.boundary_head import choose_rule, targets, train_head
+from ompn_ros.train.boundary_head import (
+    GAPS,
+    THETAS,
+    _choosing_figures,
+    choose_on_rows,
+    choose_rule,
+    score_rule,
+    targets,
+    train_head,
+)
 from sim_nodes.registry import expert_episode
 
 torch = pytest.importorskip("torch")
@@ -182,6 +191,27 @@ def test_a_trained_head_finds_a_late_cue_and_nothing_in_noise(cue: bool) -> None
         assert choice.metrics["f1_tol1"] > 0.95 and choice.config.lag >= 2
     else:
         assert choice.metrics["f1_tol1"] < 0.8
+
+
+def test_the_choice_is_the_best_of_every_rule_scored_whole() -> None:
+    """The grid scores each episode's decoding once: every rule's figures, the choice and its figures
+    equal scoring every rule with :func:`score_rule` and keeping the best alignment, then F1@1, then the
+    shorter lag.  Twin episodes (the same probabilities over other labels) are scored apart."""
+    rng = np.random.default_rng(4)
+    _, eps = _cue_episodes(rng, 6, True)
+    rows = [np.clip(rng.beta(0.4, 2.0, (len(ep.subtask), 4)) + 0.5 * np.isin(
+        np.arange(len(ep.subtask)), ep.boundaries[:-1] + 1)[:, None], 0, 1) for ep in eps]
+    eps += [dataclasses.replace(ep, subtask=np.concatenate([ep.subtask[:2], ep.subtask[:-2]])) for ep in eps]
+    rows += rows
+    config, peak, metrics = choose_on_rows(rows, eps)
+    whole, seen = {}, {}
+    for lag, theta, gap, pk in itertools.product(range(1, 4), THETAS, GAPS, (False, True)):
+        got = score_rule(rows, eps, _cfg(lag, theta, gap), pk)
+        assert _choosing_figures(rows, eps, _cfg(lag, theta, gap), pk, seen) == (got["align"], got["f1_tol1"])
+        whole[(lag, theta, gap, pk)] = ((round(got["align"], 6), round(got["f1_tol1"], 6), -lag), got)
+    best = max(whole.values(), key=lambda kv: kv[0])
+    assert metrics == best[1] and whole[(config.lag, config.high, config.min_segment_length, peak)][0] == best[0]
+    assert len({kv[0] for kv in whole.values()}) > 10  # the grid's rules differ: the choice is a real one
 
 
 def test_lag_zero_reads_each_row_for_its_own_step() -> None:
