@@ -207,10 +207,12 @@ def test_the_choice_is_the_best_of_every_rule_scored_whole() -> None:
     whole, seen = {}, {}
     for lag, theta, gap, pk in itertools.product(range(1, 4), THETAS, GAPS, (False, True)):
         got = score_rule(rows, eps, _cfg(lag, theta, gap), pk)
-        assert _choosing_figures(rows, eps, _cfg(lag, theta, gap), pk, seen) == (got["align"], got["f1_tol1"])
+        figures = _choosing_figures(rows, eps, _cfg(lag, theta, gap), pk, seen)
+        assert figures == (got["align"], got["f1_tol1"])
         whole[(lag, theta, gap, pk)] = ((round(got["align"], 6), round(got["f1_tol1"], 6), -lag), got)
     best = max(whole.values(), key=lambda kv: kv[0])
-    assert metrics == best[1] and whole[(config.lag, config.high, config.min_segment_length, peak)][0] == best[0]
+    chosen = whole[(config.lag, config.high, config.min_segment_length, peak)]
+    assert metrics == best[1] and chosen[0] == best[0]
     assert len({kv[0] for kv in whole.values()}) > 10  # the grid's rules differ: the choice is a real one
 
 

@@ -5,7 +5,8 @@ A publisher sends 2 000 observations as fast as it can to an ``ompn_node`` whose
 reports nowhere.  The node counts them from the gaps in the publisher's sequence numbers
 (``messages_missed``, :mod:`ompn_ros.stream.delivery`) and warns once: stepped + missed = sent, with
 either executor.  Every message differs from the others: equal bytes 100 µs apart are a driver's repeat
-(:mod:`ompn_ros.data.cuts.repeats`), stepped once and counted apart, and a burst is faster than that.  Loopback only; bounded: 2 000 messages, 90 s at most per executor.
+(:mod:`ompn_ros.data.cuts.repeats`), stepped once and counted apart, and a burst is faster than that.
+Loopback only; bounded: 2 000 messages, 90 s at most per executor.
 """
 
 from __future__ import annotations
